@@ -1,0 +1,227 @@
+"""Stage artefacts: one MCAP file of JSON messages (JSON-schema typed) per pipeline stage.
+
+Writes are atomic (temp file + os.replace) and deterministic (log_time is supplied by the
+caller, JSON is canonical), so the same inputs give the same bytes. Reads validate the whole
+file (magic, every CRC, footer) before returning anything, so a truncated or corrupt artefact
+raises ArtefactError instead of silently yielding fewer messages.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+from mcap.exceptions import EndOfFile
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from pipeline.errors import PipelineError
+
+SCHEMA_PREFIX = "birlg."
+_MAGIC = b"\x89MCAP0\r\n"
+_FOOTER_PREFIX_LEN = 1 + 8 + 8 + 8  # opcode, length, summary_start, summary_offset_start
+
+
+class ArtefactError(PipelineError):
+    """A missing, corrupt or incomplete artefact file (message is one line naming the file)."""
+
+
+def to_jsonable(obj):
+    """Recursively turn numpy arrays/scalars and tuples into plain JSON-able Python values."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist() if obj.dtype != object else to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, dict):
+        return {to_jsonable(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    return obj
+
+
+def _canonical(obj) -> bytes:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+
+
+@dataclass(frozen=True)
+class Artefact:
+    path: Path
+    messages: dict[str, list[dict]]  # topic -> payloads in log_time order
+    config_yaml: str
+    metadata: dict[str, str]
+
+    def all(self, topic: str) -> list[dict]:
+        if topic not in self.messages:
+            raise ArtefactError(f"artefact {self.path} has no topic '{topic}'")
+        return self.messages[topic]
+
+    def one(self, topic: str) -> dict:
+        msgs = self.all(topic)
+        if len(msgs) != 1:
+            raise ArtefactError(f"artefact {self.path} has {len(msgs)} messages on topic "
+                                f"'{topic}', expected exactly 1")
+        return msgs[0]
+
+
+class ArtefactWriter:
+    """Context manager: with ArtefactWriter(path, config_yaml=..., metadata=...) as w: w.add(...)"""
+
+    def __init__(self, path: str | os.PathLike, *, config_yaml: str, metadata: dict[str, str]):
+        self.path = Path(path)
+        self.tmp_path = self.path.with_name(self.path.name + ".tmp")
+        if not all(isinstance(k, str) and isinstance(v, str) for k, v in metadata.items()):
+            raise ValueError("artefact metadata must be a str -> str dict")
+        self._config_yaml, self._metadata = config_yaml, dict(sorted(metadata.items()))
+        self._schemas: dict[str, int] = {}  # type_name -> schema id
+        self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, type_name)
+        self._file = self._writer = None
+
+    def __enter__(self) -> ArtefactWriter:
+        self._file = open(self.tmp_path, "wb")
+        try:
+            # Data CRCs on too, so readers can check the whole data section, not only chunks.
+            self._writer = Writer(self._file, compression=CompressionType.ZSTD,
+                                  enable_crcs=True, enable_data_crcs=True)
+            self._writer.start()
+            # Times fixed at 0: wall-clock would make files differ between identical runs.
+            self._writer.add_attachment(0, 0, "config.yaml", "application/yaml",
+                                        self._config_yaml.encode())
+            self._writer.add_metadata("run", self._metadata)
+        except BaseException:
+            self.__exit__(*sys.exc_info())
+            raise
+        return self
+
+    def add(self, topic: str, type_name: str, payload: dict, log_time: int,
+            schema: dict | None = None) -> None:
+        if self._writer is None:
+            raise RuntimeError("ArtefactWriter.add() called outside its 'with' block")
+        if isinstance(log_time, bool) or not isinstance(log_time, (int, np.integer)) \
+                or log_time < 0:
+            raise ValueError(f"log_time for topic '{topic}' must be a non-negative int, "
+                             f"got {log_time!r}")
+        topic_type = self._channels.get(topic, (0, type_name))[1]
+        if topic_type != type_name:
+            raise ValueError(f"topic '{topic}' already has type '{topic_type}', "
+                             f"cannot add '{type_name}'")
+        payload = to_jsonable(payload)
+        if not isinstance(payload, dict):
+            raise TypeError(f"payload for topic '{topic}' must be a dict, "
+                            f"got {type(payload).__name__}")
+        try:
+            data = _canonical(payload)
+        except ValueError as e:  # allow_nan=False: NaN/inf would be invalid JSON
+            raise ArtefactError(f"cannot write artefact {self.path}: payload on topic '{topic}' "
+                                f"contains NaN or infinity ({e})") from None
+        except TypeError as e:
+            raise TypeError(f"payload for topic '{topic}' is not JSON-serialisable: {e}") from None
+        name = SCHEMA_PREFIX + type_name
+        if type_name not in self._schemas:
+            if schema is None:  # permissive: only pins the set of top-level keys
+                schema = {"type": "object", "title": name, "properties": {k: {} for k in payload},
+                          "required": sorted(payload)}
+            self._schemas[type_name] = self._writer.register_schema(
+                name, "jsonschema", _canonical(schema))
+        if topic not in self._channels:
+            self._channels[topic] = (
+                self._writer.register_channel(topic, "json", self._schemas[type_name]), type_name)
+        self._writer.add_message(self._channels[topic][0], log_time=int(log_time), data=data,
+                                 publish_time=int(log_time))
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        done = False
+        try:
+            if exc_type is None:
+                self._writer.finish()
+                self._file.flush()
+                os.fsync(self._file.fileno())  # durable before it appears under the final name
+                self._file.close()
+                os.replace(self.tmp_path, self.path)
+                done = True
+        finally:  # on any failure (in the block or while finishing) drop the partial temp file
+            self._writer = None
+            self._file.close()
+            if not done:
+                self.tmp_path.unlink(missing_ok=True)
+
+
+def write_artefact(path, records: Iterable[tuple[str, str, dict, int]], *, config_yaml: str,
+                   metadata: dict[str, str]) -> Path:
+    with ArtefactWriter(path, config_yaml=config_yaml, metadata=metadata) as w:
+        for topic, type_name, payload, log_time in records:
+            w.add(topic, type_name, payload, log_time)
+    return w.path
+
+
+def _read_records(f) -> list:
+    """All records of a complete MCAP; raises on truncation, bad CRCs or trailing bytes."""
+    records = list(StreamReader(f, validate_crcs=True).records)  # stops after footer + magic
+    footer, end = records[-1], f.tell()
+    if end != os.fstat(f.fileno()).st_size:
+        raise ValueError("trailing bytes after the MCAP end magic")
+    if footer.summary_crc:  # the stream reader does not check the summary/footer CRC
+        footer_start = end - len(_MAGIC) - _FOOTER_PREFIX_LEN - 4
+        f.seek(footer.summary_start or footer_start)
+        if zlib.crc32(f.read(footer_start + _FOOTER_PREFIX_LEN - f.tell())) != footer.summary_crc:
+            raise ValueError("summary CRC mismatch")
+    return records
+
+
+def read_artefact(path, *, required_topics: Iterable[str] = (),
+                  producer_stage: str | None = None) -> Artefact:
+    path = Path(path)
+
+    def fail(what: str) -> ArtefactError:
+        return ArtefactError(f"artefact {path} {what}")
+
+    try:
+        f = open(path, "rb")
+    except FileNotFoundError:
+        hint = f" (run the '{producer_stage}' stage first or pass from_run=...)"
+        raise fail("not found" + (hint if producer_stage else "")) from None
+    except OSError as e:
+        raise fail(f"cannot be opened ({e.strerror or e})") from None
+    with f:
+        head = f.read(len(_MAGIC))
+        if head != _MAGIC:
+            raise fail("is truncated or corrupt (shorter than the MCAP magic)"
+                       if _MAGIC.startswith(head) else "is not an MCAP file")
+        f.seek(0)
+        try:
+            records = _read_records(f)
+        except Exception as e:  # mcap raises many types here (struct.error, EndOfFile, CRC, zstd)
+            detail = "unexpected end of file" if isinstance(e, EndOfFile) else str(e)
+            detail = " ".join((detail or type(e).__name__).split())  # keep it on one line
+            raise fail(f"is truncated or corrupt (cannot read MCAP: {detail})") from e
+    schemas = {r.id: r for r in records if isinstance(r, Schema)}
+    channels = {r.id: r for r in records if isinstance(r, Channel)}
+    config = next((r.data for r in records
+                   if isinstance(r, Attachment) and r.name == "config.yaml"), b"")
+    meta = next((r.metadata for r in records
+                 if isinstance(r, Metadata) and r.name == "run"), {})
+    timed: dict[str, list[tuple[int, dict]]] = {c.topic: [] for c in channels.values()}
+    for m in (r for r in records if isinstance(r, Message)):
+        ch = channels.get(m.channel_id)
+        if ch is None or ch.message_encoding != "json" or ch.schema_id not in schemas:
+            raise fail(f"has a message on channel {m.channel_id} with no JSON channel/schema")
+        try:
+            payload = json.loads(m.data)
+        except ValueError as e:
+            raise fail(f"has a message on topic '{ch.topic}' that is not valid JSON ({e})") \
+                from None
+        if not isinstance(payload, dict):
+            raise fail(f"has a message on topic '{ch.topic}' that is not a JSON object")
+        timed[ch.topic].append((m.log_time, payload))
+    # sorted() is stable, so messages with equal log_time keep their file order.
+    messages = {t: [p for _, p in sorted(v, key=lambda x: x[0])] for t, v in timed.items()}
+    missing = [t for t in required_topics if t not in messages]
+    if missing:
+        raise fail("has no topic " + ", ".join(f"'{t}'" for t in missing))
+    return Artefact(path, messages, config.decode("utf-8", errors="replace"), dict(meta))

@@ -1,0 +1,133 @@
+"""Reward features of robot paths (DESIGN §4), vectorised over many segments.
+
+Every feature is an integral along the path, so its value does not depend on how finely
+the path is sampled and the features of a concatenated path are the sums of its parts:
+
+- relation       = ∫ Σ_links max(0, ρ_r − d(p, link)) · [p projects inside the link] ds
+- social         = ∫ max(0, ρ_p − min_i |p − x_i|) ds
+- goal_deviation = total increase of |p − g| along the path
+- length         = ∫ ds
+
+The two density integrals use DESIGN's Riemann sum Σ_k ds_k f(p_k) with every segment
+split into equal sub-steps of at most `resolution`, f evaluated at the sub-step midpoints
+(second-order accurate, so 0.1 m and 0.01 m sampling agree closely). `goal_deviation`
+and `length` are computed exactly per straight segment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "length")
+
+# Keeps the (points x links) distance matrices of a batch to a few tens of MB.
+_CHUNK_POINTS = 200_000
+
+
+@dataclass(frozen=True)
+class FeatureModel:
+    link_a: np.ndarray  # (L, 2) social link end points
+    link_b: np.ndarray  # (L, 2)
+    persons: np.ndarray  # (P, 2)
+    goal: np.ndarray  # (2,)
+    rho_relation: float = 0.6
+    rho_personal: float = 1.2
+    resolution: float = 0.05
+
+    def __post_init__(self):
+        for name in ("rho_relation", "rho_personal", "resolution"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+
+    @classmethod
+    def from_scene(cls, scene, rho_relation=0.6, rho_personal=1.2, resolution=0.05):
+        a, b = scene.links
+        return cls(a, b, scene.person_xy, np.asarray(scene.goal, float),
+                   rho_relation, rho_personal, resolution)
+
+    @property
+    def dim(self) -> int:
+        return len(FEATURE_NAMES)
+
+    # -- densities at points -------------------------------------------------------------
+    def relation_density(self, p: np.ndarray) -> np.ndarray:
+        """Σ_links max(0, ρ_r − d(p, link)) over links whose segment p projects onto."""
+        if len(self.link_a) == 0:
+            return np.zeros(len(p))
+        ab = self.link_b - self.link_a  # (L, 2)
+        ap = p[:, None, :] - self.link_a[None, :, :]  # (n, L, 2)
+        t = np.einsum("nlk,lk->nl", ap, ab) / np.einsum("lk,lk->l", ab, ab)
+        inside = (t >= 0.0) & (t <= 1.0)
+        # With the projection inside the link, the distance to the segment is the
+        # perpendicular distance |cross(ab, ap)| / |ab|.
+        cross = ab[None, :, 0] * ap[:, :, 1] - ab[None, :, 1] * ap[:, :, 0]
+        d = np.abs(cross) / np.linalg.norm(ab, axis=1)[None, :]
+        return np.where(inside, np.maximum(0.0, self.rho_relation - d), 0.0).sum(axis=1)
+
+    def social_density(self, p: np.ndarray) -> np.ndarray:
+        """max(0, ρ_p − distance to the nearest person)."""
+        if len(self.persons) == 0:
+            return np.zeros(len(p))
+        d = np.linalg.norm(p[:, None, :] - self.persons[None, :, :], axis=2).min(axis=1)
+        return np.maximum(0.0, self.rho_personal - d)
+
+    # -- features of straight segments ---------------------------------------------------
+    def segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Features (n, 4) of the straight segments a[i] → b[i], each (n, 2)."""
+        a = np.asarray(a, float).reshape(-1, 2)
+        b = np.asarray(b, float).reshape(-1, 2)
+        n = len(a)
+        out = np.zeros((n, self.dim))
+        if n == 0:
+            return out
+        seg = b - a
+        length = np.linalg.norm(seg, axis=1)
+        out[:, 3] = length
+        out[:, 2] = _distance_increase(a, b, self.goal)
+
+        # Split every segment into equal sub-steps of at most `resolution`.
+        n_sub = np.maximum(1, np.ceil(length / self.resolution - 1e-9).astype(np.int64))
+        owner = np.repeat(np.arange(n), n_sub)
+        first = np.cumsum(n_sub) - n_sub
+        k = np.arange(len(owner)) - np.repeat(first, n_sub)
+        frac = (k + 0.5) / n_sub[owner]
+        ds = (length / n_sub)[owner]
+        for lo in range(0, len(owner), _CHUNK_POINTS):
+            sl = slice(lo, lo + _CHUNK_POINTS)
+            p = a[owner[sl]] + frac[sl, None] * seg[owner[sl]]
+            out[:, 0] += np.bincount(owner[sl], ds[sl] * self.relation_density(p), minlength=n)
+            out[:, 1] += np.bincount(owner[sl], ds[sl] * self.social_density(p), minlength=n)
+        return out
+
+    def polyline(self, points: np.ndarray) -> np.ndarray:
+        """Features (4,) of a polyline (K+1, 2)."""
+        points = np.asarray(points, float).reshape(-1, 2)
+        return self.segments(points[:-1], points[1:]).sum(axis=0)
+
+    def polylines(self, polylines: list[np.ndarray]) -> np.ndarray:
+        """Features (n, 4) of many polylines in one vectorised pass."""
+        if not polylines:
+            return np.zeros((0, self.dim))
+        pts = [np.asarray(p, float).reshape(-1, 2) for p in polylines]
+        a = np.concatenate([p[:-1] for p in pts])
+        b = np.concatenate([p[1:] for p in pts])
+        owner = np.repeat(np.arange(len(pts)), [len(p) - 1 for p in pts])
+        per_segment = self.segments(a, b)
+        out = np.zeros((len(pts), self.dim))
+        np.add.at(out, owner, per_segment)
+        return out
+
+
+def _distance_increase(a: np.ndarray, b: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Total increase of |p − g| while p moves straight from a to b (exact).
+
+    The distance to a point is convex along a line, so it first falls to its minimum over
+    the segment and then rises: the increase is |b − g| − min_t |p(t) − g|.
+    """
+    seg = b - a
+    len2 = np.einsum("nk,nk->n", seg, seg)
+    t = np.where(len2 > 0, np.einsum("nk,nk->n", g - a, seg) / np.where(len2 > 0, len2, 1), 0.0)
+    closest = a + np.clip(t, 0.0, 1.0)[:, None] * seg
+    return np.linalg.norm(b - g, axis=1) - np.linalg.norm(closest - g, axis=1)

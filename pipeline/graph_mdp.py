@@ -1,0 +1,168 @@
+"""Semi-MDP on a directed graph (DESIGN §5), solved by sparse policy iteration.
+
+Nodes are states, edges are local-controller runs with a duration τ(e) and features φ(e):
+
+    Q(s, e) = w·φ(e) + γ^τ(e) · V(dst(e)),    V(s) = max_e Q(s, e)
+
+Terminal (goal) nodes have V = R_goal; a non-terminal node without out-edges is a dead end
+with V = −V_max. Policy evaluation solves the sparse linear system (I − P_π) V = r_π.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import spsolve
+
+NO_EDGE = -1
+
+
+@dataclass(frozen=True)
+class Solution:
+    values: np.ndarray  # V (n_nodes,)
+    policy: np.ndarray  # chosen edge per node, NO_EDGE for terminal nodes and dead ends
+    iterations: int  # policy-improvement sweeps until the policy was stable
+
+
+@dataclass(frozen=True)
+class Path:
+    nodes: np.ndarray  # visited nodes, start first
+    edges: np.ndarray  # edges taken (len(nodes) − 1)
+    reached: bool  # ended in a terminal node
+
+
+class GraphMDP:
+    """A graph semi-MDP. Edges are stored sorted by source node (CSR layout)."""
+
+    def __init__(self, src, dst, duration, features, terminal, *, gamma=0.95, r_goal=1.0,
+                 v_max=10.0):
+        src = np.asarray(src, dtype=np.int64)
+        dst = np.asarray(dst, dtype=np.int64)
+        duration = np.asarray(duration, dtype=float)
+        features = np.asarray(features, dtype=float).reshape(len(src), -1)
+        terminal = np.asarray(terminal, dtype=bool)
+        n = len(terminal)
+        if not 0 < gamma < 1:
+            raise ValueError(f"gamma must be in (0, 1), got {gamma}")
+        if len(src) and (src.min() < 0 or max(src.max(), dst.max()) >= n or dst.min() < 0):
+            raise ValueError("edge end points must be node indices in [0, n_nodes)")
+        if len(duration) and duration.min() <= 1e-9:
+            # γ^0 = 1 would make a zero-duration edge a free loop (DESIGN §5).
+            raise ValueError("every edge needs a positive duration")
+        # Terminal nodes never act, so their out-edges are dropped.
+        keep = ~terminal[src]
+        order = np.argsort(src[keep], kind="stable")
+        self.edge_ids = np.flatnonzero(keep)[order]  # position -> caller's edge index
+        self.src, self.dst = src[self.edge_ids], dst[self.edge_ids]
+        self.duration = duration[self.edge_ids]
+        self.features = features[self.edge_ids]
+        self.discount = gamma ** self.duration
+        self.terminal = terminal
+        self.n_nodes = n
+        self.gamma, self.r_goal, self.v_max = gamma, r_goal, v_max
+        self.indptr = np.searchsorted(self.src, np.arange(n + 1))
+        self.has_out = np.diff(self.indptr) > 0
+        self.fixed_values = np.where(terminal, r_goal, -v_max)  # used where ~has_out
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.src)
+
+    def rewards(self, w) -> np.ndarray:
+        return self.features @ np.asarray(w, dtype=float)
+
+    def q_values(self, w, values) -> np.ndarray:
+        """Q(s, e) for every (internal, src-sorted) edge."""
+        return self.rewards(w) + self.discount * values[self.dst]
+
+    def evaluate(self, policy, w) -> np.ndarray:
+        """V^π under weights w for a policy given as internal edge index per node."""
+        return self._evaluate(policy, self.rewards(w))
+
+    def _evaluate(self, policy, rewards) -> np.ndarray:
+        acting = policy != NO_EDGE
+        rows = np.flatnonzero(acting)
+        e = policy[rows]
+        n = self.n_nodes
+        # (I − P_π) V = r_π on acting nodes; V = fixed value elsewhere.
+        mat = sp.identity(n, format="csr") - sp.csr_matrix(
+            (self.discount[e], (rows, self.dst[e])), shape=(n, n))
+        rhs = np.where(acting, 0.0, self.fixed_values)
+        rhs[rows] = rewards[e]
+        return np.asarray(spsolve(mat.tocsc(), rhs)).reshape(n)
+
+    def greedy(self, q, current=None) -> np.ndarray:
+        """Best edge per node given Q per edge; keeps `current` on ties so PI terminates."""
+        policy = np.full(self.n_nodes, NO_EDGE, dtype=np.int64)
+        nodes = np.flatnonzero(self.has_out)
+        if len(nodes) == 0:
+            return policy
+        starts = self.indptr[nodes]
+        best = np.maximum.reduceat(q, starts)  # reduceat over non-empty, sorted segments
+        best_q = np.full(self.n_nodes, -np.inf)
+        best_q[nodes] = best
+        tol = 1e-12 * (1.0 + np.abs(best_q))
+        is_best = q >= best_q[self.src] - tol[self.src]
+        idx = np.where(is_best, np.arange(self.n_edges), self.n_edges)
+        policy[nodes] = np.minimum.reduceat(idx, starts)
+        if current is not None:
+            keep = (current != NO_EDGE) & self.has_out
+            keep[keep] &= is_best[current[keep]]
+            policy[keep] = current[keep]
+        return policy
+
+    def solve(self, w, init_values=None, max_iterations=1000) -> Solution:
+        """Policy iteration. `init_values` (e.g. the previous solution, with a guess for new
+        nodes) warm-starts it from the greedy policy of those values."""
+        r = self.rewards(w)
+        if init_values is None:
+            init_values = np.where(self.has_out, 0.0, self.fixed_values)
+        init_values = np.where(np.isfinite(init_values), init_values, -self.v_max)
+        policy = self.greedy(r + self.discount * init_values[self.dst])
+        for it in range(1, max_iterations + 1):
+            values = self._evaluate(policy, r)
+            new = self.greedy(r + self.discount * values[self.dst], current=policy)
+            if np.array_equal(new, policy):
+                return Solution(values, policy, it)
+            policy = new
+        raise RuntimeError(f"policy iteration did not converge in {max_iterations} sweeps")
+
+    def bellman_residual(self, w, values) -> float:
+        """max_s |V(s) − max_e Q(s, e)| over acting nodes, and |V − fixed| elsewhere."""
+        q = self.q_values(w, values)
+        target = self.fixed_values.copy()
+        nodes = np.flatnonzero(self.has_out)
+        if len(nodes):
+            target[nodes] = np.maximum.reduceat(q, self.indptr[nodes])
+        return float(np.max(np.abs(values - target)))
+
+    def follow(self, policy, start: int, max_steps: int | None = None) -> Path:
+        """The path from `start` under a policy, until a terminal node, dead end or loop."""
+        nodes, edges, seen = [start], [], {start}
+        node = start
+        for _ in range(max_steps or self.n_nodes):
+            e = policy[node]
+            if e == NO_EDGE:
+                break
+            node = int(self.dst[e])
+            edges.append(int(e))
+            nodes.append(node)
+            if node in seen:  # a loop never reaches the goal
+                break
+            seen.add(node)
+        return Path(np.array(nodes), np.array(edges, dtype=np.int64), bool(self.terminal[node]))
+
+
+def discounted_counts(edge_features, durations, gamma) -> tuple[np.ndarray, float]:
+    """Φ(ξ) = Σ_t γ^{T_t} φ(e_t), T_t the time before edge t; also γ^T for the whole path."""
+    durations = np.asarray(durations, dtype=float)
+    t_before = np.concatenate([[0.0], np.cumsum(durations)[:-1]]) if len(durations) else durations
+    phi = (gamma ** t_before) @ np.asarray(edge_features, float).reshape(len(durations), -1)
+    return phi, float(gamma ** durations.sum())
+
+
+def path_quality(phi, end_discount, w, r_goal, reached=True) -> float:
+    """Q(ξ; w) = w·Φ(ξ) + γ^T R_goal (DESIGN §8); the goal term only if the goal is reached."""
+    return float(np.dot(w, phi) + (end_discount * r_goal if reached else 0.0))

@@ -1,0 +1,116 @@
+"""Reference roadmap (DESIGN §6): a 16-connected lattice over the room plus starts and goal.
+
+It is independent of the adaptive graph; stage 2 solves it exactly under the true weights
+to make expert demonstrations, stage 5 evaluates learned rewards on it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pipeline.features import FeatureModel
+from pipeline.graph_mdp import GraphMDP
+
+# Lattice offsets (di, dj): 8 king moves plus 8 knight moves = 16-connected.
+_OFFSETS_8 = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
+_OFFSETS_16 = _OFFSETS_8 + [(1, 2), (2, 1), (-1, 2), (-2, 1), (1, -2), (2, -1), (-1, -2), (-2, -1)]
+
+
+@dataclass(frozen=True)
+class Roadmap:
+    positions: np.ndarray  # (n, 2)
+    src: np.ndarray  # (E,)
+    dst: np.ndarray
+    duration: np.ndarray  # (E,) seconds
+    features: np.ndarray  # (E, d)
+    terminal: np.ndarray  # (n,) bool
+    start_nodes: np.ndarray  # node index of every scene start
+    goal_node: int
+
+    def mdp(self, gamma=0.95, r_goal=1.0, v_max=10.0) -> GraphMDP:
+        return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
+                        gamma=gamma, r_goal=r_goal, v_max=v_max)
+
+
+def segments_feasible(scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Straight segments that stay in the (convex) room and keep out of every body disk."""
+    ok = scene.room.contains(a) & scene.room.contains(b)
+    persons = scene.person_xy
+    if len(persons) and len(a):
+        seg = b - a
+        len2 = np.maximum(np.einsum("nk,nk->n", seg, seg), 1e-18)
+        ap = persons[None, :, :] - a[:, None, :]  # (n, P, 2)
+        t = np.clip(np.einsum("npk,nk->np", ap, seg) / len2[:, None], 0.0, 1.0)
+        closest = a[:, None, :] + t[..., None] * seg[:, None, :]
+        d = np.linalg.norm(closest - persons[None, :, :], axis=2)
+        ok &= (d >= scene.body_radius).all(axis=1)
+    return ok
+
+
+def lattice_graph(scene, spacing=0.25, connectivity=16):
+    """Node positions and feasible edges (src, dst) of the roadmap; starts and goal are the
+    last nodes (starts first, then the goal).
+
+    Lattice nodes closer than spacing/2 to a start or the goal are dropped so no two nodes
+    sit at (almost) the same place; starts and goal connect to every lattice node within
+    the lattice's longest edge.
+    """
+    if connectivity not in (8, 16):
+        raise ValueError(f"connectivity must be 8 or 16, got {connectivity}")
+    room = scene.room
+    xs = np.arange(room.x_min, room.x_max + 1e-9, spacing)
+    ys = np.arange(room.y_min, room.y_max + 1e-9, spacing)
+    gi, gj = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
+    lattice = np.column_stack([xs[gi.ravel()], ys[gj.ravel()]])
+    special = np.vstack([scene.starts, scene.goal[None, :]])
+    near_special = cKDTree(special).query(lattice)[0] < spacing / 2
+    usable = ~scene.in_body(lattice) & ~near_special
+    index = np.full(len(lattice), -1)
+    index[usable] = np.arange(usable.sum())
+    index = index.reshape(len(xs), len(ys))
+
+    # Lattice edges from the offset table.
+    offsets = _OFFSETS_16 if connectivity == 16 else _OFFSETS_8
+    src_l, dst_l = [], []
+    for di, dj in offsets:
+        a = index[max(0, -di):len(xs) - max(0, di), max(0, -dj):len(ys) - max(0, dj)]
+        b = index[max(0, di):len(xs) + min(0, di), max(0, dj):len(ys) + min(0, dj)]
+        ok = (a >= 0) & (b >= 0)
+        src_l.append(a[ok])
+        dst_l.append(b[ok])
+    positions = np.vstack([lattice[usable], special])
+    n_lattice = int(usable.sum())
+    src, dst = np.concatenate(src_l), np.concatenate(dst_l)
+
+    # Starts and goal connect both ways to lattice nodes within the longest lattice edge.
+    reach = spacing * (np.sqrt(5.0) if connectivity == 16 else np.sqrt(2.0)) + 1e-9
+    tree = cKDTree(positions[:n_lattice])
+    extra_src, extra_dst = [], []
+    for k, p in enumerate(special):
+        node = n_lattice + k
+        for j in tree.query_ball_point(p, reach):
+            extra_src += [node, j]
+            extra_dst += [j, node]
+    src = np.concatenate([src, np.array(extra_src, dtype=np.int64)])
+    dst = np.concatenate([dst, np.array(extra_dst, dtype=np.int64)])
+
+    ok = segments_feasible(scene, positions[src], positions[dst])
+    return positions, src[ok], dst[ok]
+
+
+def build_roadmap(scene, feature_model: FeatureModel, spacing=0.25, connectivity=16,
+                  speed=1.0) -> Roadmap:
+    """Lattice of `spacing` over the room, nodes in body disks removed, plus starts and goal."""
+    positions, src, dst = lattice_graph(scene, spacing, connectivity)
+    a, b = positions[src], positions[dst]
+    features = feature_model.segments(a, b)
+    duration = np.linalg.norm(b - a, axis=1) / speed
+    terminal = np.linalg.norm(positions - scene.goal, axis=1) <= scene.goal_tolerance
+    n_starts = len(scene.starts)
+    n_lattice = len(positions) - n_starts - 1
+    return Roadmap(positions, src, dst, duration, features, terminal,
+                   start_nodes=np.arange(n_lattice, n_lattice + n_starts),
+                   goal_node=n_lattice + n_starts)

@@ -1,0 +1,129 @@
+"""Seeded random scenes: persons alone or in F-formation groups (DESIGN §3, issue 2).
+
+Group members stand on a circle around the group's centre, facing it (an F-formation's
+o-space), and every pair of members is related. Starts lie near one wall and the goal near
+the opposite one. A scene is resampled until every start can reach the goal without
+entering a body disk.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from pipeline.errors import PipelineError
+from pipeline.roadmap import lattice_graph
+from pipeline.world import Person, Room, Scene
+
+
+@dataclass(frozen=True)
+class RandomSceneSpec:
+    width: float = 10.0
+    height: float = 10.0
+    n_singles: int = 3
+    n_groups: int = 3
+    group_size_min: int = 2
+    group_size_max: int = 4
+    formation_radius: float = 0.7
+    min_person_gap: float = 0.7
+    n_starts: int = 5
+    border_margin: float = 0.3
+    max_tries: int = 200
+    body_radius: float = 0.25
+    goal_tolerance: float = 0.3
+
+
+def _place_persons(spec: RandomSceneSpec, rng: np.random.Generator):
+    """Persons and relations, or None if they do not fit without overlapping."""
+    margin = 0.5 + spec.body_radius
+    lo = np.array([margin, margin])
+    hi = np.array([spec.width - margin, spec.height - margin])
+    placed: list[tuple[float, float, float]] = []
+    relations: list[tuple[int, int]] = []
+
+    def fits(pts: np.ndarray) -> bool:
+        if not ((pts >= lo) & (pts <= hi)).all():
+            return False
+        if placed:
+            other = np.array([(x, y) for x, y, _ in placed])
+            if (np.linalg.norm(pts[:, None] - other[None], axis=2) < spec.min_person_gap).any():
+                return False
+        return True
+
+    for _ in range(spec.n_groups):
+        size = int(rng.integers(spec.group_size_min, spec.group_size_max + 1))
+        for _attempt in range(100):
+            centre = rng.uniform(lo, hi)
+            phase = rng.uniform(0, 2 * math.pi)
+            angles = phase + 2 * math.pi * np.arange(size) / size + rng.normal(0, 0.15, size)
+            pts = centre + spec.formation_radius * np.column_stack([np.cos(angles), np.sin(angles)])
+            if fits(pts):
+                first_id = len(placed) + 1
+                # Members face the group's centre (their mean, which the jitter moves a bit).
+                cx, cy = pts.mean(axis=0)
+                placed += [(x, y, math.atan2(cy - y, cx - x)) for x, y in pts]
+                ids = range(first_id, first_id + size)
+                relations += [(i, j) for i in ids for j in ids if i < j]
+                break
+        else:
+            return None
+    for _ in range(spec.n_singles):
+        for _attempt in range(100):
+            pt = rng.uniform(lo, hi)
+            if fits(pt[None, :]):
+                placed.append((pt[0], pt[1], rng.uniform(-math.pi, math.pi)))
+                break
+        else:
+            return None
+    persons = tuple(Person(i + 1, float(x), float(y), float(t)) for i, (x, y, t) in enumerate(placed))
+    return persons, tuple(relations)
+
+
+def _starts_and_goal(spec: RandomSceneSpec, rng: np.random.Generator):
+    """Goal near a random wall, starts spread along the opposite wall."""
+    m = spec.border_margin
+    side = int(rng.integers(4))  # 0: goal at top, 1: right, 2: bottom, 3: left
+    along_len = spec.width if side in (0, 2) else spec.height
+    # Starts in equal bins along the wall, jittered, so they are spread out.
+    bins = np.linspace(m, along_len - m, spec.n_starts + 1)
+    along = rng.uniform(bins[:-1], bins[1:])
+    goal_along = rng.uniform(0.3 * along_len, 0.7 * along_len)
+    if side in (0, 2):
+        y_goal, y_start = (spec.height - m, m) if side == 0 else (m, spec.height - m)
+        return np.column_stack([along, np.full_like(along, y_start)]), np.array([goal_along, y_goal])
+    x_goal, x_start = (spec.width - m, m) if side == 1 else (m, spec.width - m)
+    return np.column_stack([np.full_like(along, x_start), along]), np.array([x_goal, goal_along])
+
+
+def all_starts_reach_goal(scene: Scene, spacing: float = 0.2) -> bool:
+    """Every start is connected to the goal on a fine collision-free lattice."""
+    positions, src, dst = lattice_graph(scene, spacing=spacing, connectivity=8)
+    n = len(positions)
+    adj = coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n))
+    _, label = connected_components(adj, directed=False)
+    n_starts = len(scene.starts)
+    goal_node = n - 1
+    return bool((label[n - 1 - n_starts:goal_node] == label[goal_node]).all())
+
+
+def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "random") -> Scene:
+    room = Room(0.0, 0.0, spec.width, spec.height)
+    for _ in range(spec.max_tries):
+        placed = _place_persons(spec, rng)
+        if placed is None:
+            continue
+        persons, relations = placed
+        starts, goal = _starts_and_goal(spec, rng)
+        scene = Scene(name, room, persons, relations, starts, goal,
+                      spec.body_radius, spec.goal_tolerance)
+        clear = ~scene.in_body(np.vstack([starts, goal[None]]), clearance=0.1)
+        if clear.all() and all_starts_reach_goal(scene):
+            return scene
+    raise PipelineError(
+        f"random scene: no valid scene in scene.max_tries={spec.max_tries} attempts "
+        f"({spec.n_groups} groups and {spec.n_singles} singles in a {spec.width:g} x "
+        f"{spec.height:g} m room); use fewer persons or a larger room")

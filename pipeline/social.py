@@ -1,0 +1,73 @@
+"""Social-navigation metrics of a robot path (DESIGN §9), names as in the literature."""
+
+from __future__ import annotations
+
+import numpy as np
+
+INTIMATE_ZONE = 0.45  # m
+PERSONAL_ZONE = 1.2  # m
+
+
+def _cross(o, a, b):
+    return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (
+        b[..., 0] - o[..., 0])
+
+
+def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarray) -> int:
+    """Number of (path segment, social link) pairs that properly intersect."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    if len(p) < 2 or len(link_a) == 0:
+        return 0
+    a, b = p[:-1, None, :], p[1:, None, :]
+    c, d = link_a[None, :, :], link_b[None, :, :]
+    d1, d2 = _cross(c, d, a), _cross(c, d, b)
+    d3, d4 = _cross(a, b, c), _cross(a, b, d)
+    return int(((d1 * d2 < 0) & (d3 * d4 < 0)).sum())
+
+
+def _zone_intrusion(points: np.ndarray, persons: np.ndarray, radius: float,
+                    resolution: float = 0.01) -> float:
+    """Length (m) of the path that lies within `radius` of some person."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    if len(p) < 2 or len(persons) == 0:
+        return 0.0
+    seg = np.diff(p, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    n_sub = np.maximum(1, np.ceil(length / resolution).astype(int))
+    owner = np.repeat(np.arange(len(seg)), n_sub)
+    first = np.cumsum(n_sub) - n_sub
+    frac = (np.arange(len(owner)) - np.repeat(first, n_sub) + 0.5) / n_sub[owner]
+    mid = p[:-1][owner] + frac[:, None] * seg[owner]
+    dist = np.linalg.norm(mid[:, None, :] - persons[None, :, :], axis=2).min(axis=1)
+    return float(((length / n_sub)[owner] * (dist < radius)).sum())
+
+
+def min_distance_to_person(points: np.ndarray, persons: np.ndarray) -> float:
+    """Smallest distance from any point of the polyline (segments, not just vertices)."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    if len(persons) == 0:
+        return float("inf")
+    if len(p) == 1:
+        return float(np.linalg.norm(persons - p[0], axis=1).min())
+    a, seg = p[:-1, None, :], np.diff(p, axis=0)[:, None, :]
+    len2 = np.maximum((seg ** 2).sum(-1), 1e-18)
+    t = np.clip(((persons[None] - a) * seg).sum(-1) / len2, 0.0, 1.0)
+    closest = a + t[..., None] * seg
+    return float(np.linalg.norm(closest - persons[None], axis=2).min())
+
+
+def path_metrics(points, scene, duration: float, reached: bool) -> dict[str, float]:
+    """The social metrics of one path (`duration` in seconds), flat and numeric."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    link_a, link_b = scene.links
+    persons = scene.person_xy
+    length = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+    return {
+        "relation_crossings": relation_crossings(p, link_a, link_b),
+        "intimate_intrusion_m": _zone_intrusion(p, persons, INTIMATE_ZONE),
+        "personal_intrusion_m": _zone_intrusion(p, persons, PERSONAL_ZONE),
+        "min_distance_to_person": min_distance_to_person(p, persons),
+        "path_length": length,
+        "time_to_goal": float(duration),
+        "success": float(reached),
+    }

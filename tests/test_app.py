@@ -1,0 +1,134 @@
+"""The real Hydra app: config composition, artefacts, errors, determinism, stage subsets."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from pipeline.artefacts import read_artefact
+from pipeline.config import register_configs, validate
+from pipeline.errors import PipelineError
+from tests.conftest import ROOT, run_app
+
+register_configs()
+
+
+def compose_cfg(*overrides):
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+@pytest.mark.parametrize("overrides", [
+    [], ["scene=random"], ["scene=file", "scene.path=data/scenes/metropolis.json"],
+    ["reward=rude"], ["expert=boltzmann"], ["expert=file", "expert.path=x.json"],
+])
+def test_every_config_group_option_composes_and_validates(overrides):
+    validate(compose_cfg(*overrides))
+
+
+@pytest.mark.parametrize("override, key", [
+    ("scene.body_radius=-0.1", "scene.body_radius"),
+    ("reward.weights=[-1,-1]", "reward.weights"),
+    ("stages=[scene,dance]", "stages"),
+    ("mdp.gamma=1.5", "mdp.gamma"),
+    ("scene=file", "scene.path"),
+])
+def test_out_of_range_values_name_the_key(override, key):
+    with pytest.raises(PipelineError) as err:
+        validate(compose_cfg(override))
+    assert str(err.value).startswith(f"config error: {key}=") and "\n" not in str(err.value)
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("run")
+    result = run_app(f"hydra.run.dir={run_dir}")
+    assert result.returncode == 0, result.stderr
+    return run_dir
+
+
+def test_default_experiment_writes_artefacts(default_run):
+    scene = read_artefact(default_run / "scene.mcap", required_topics=["/scene"])
+    assert scene.one("/scene")["name"] == "metropolis"
+    assert "reward:" in scene.config_yaml and "seed: 0" in scene.config_yaml
+    assert scene.metadata["seed"] == "0" and "version.numpy" in scene.metadata
+    demos = read_artefact(default_run / "demos.mcap",
+                          required_topics=["/demos", "/demos/expert", "/demos/roadmap"])
+    assert len(demos.all("/demos")) == 7
+    assert demos.one("/demos/expert")["true_weights"] == [-1.0, -0.7, -0.85, -0.1]
+    assert all(d["reached"] for d in demos.all("/demos"))
+
+
+def _payloads(run_dir):
+    return {name: read_artefact(run_dir / name).messages for name in ("scene.mcap", "demos.mcap")}
+
+
+def test_same_seed_same_payloads_and_other_seed_differs(tmp_path):
+    args = ["scene=random", "expert=boltzmann"]
+    for name, seed in [("a", 3), ("b", 3), ("c", 4)]:
+        result = run_app(f"hydra.run.dir={tmp_path / name}", f"seed={seed}", *args)
+        assert result.returncode == 0, result.stderr
+    a, b, c = (_payloads(tmp_path / n) for n in "abc")
+    assert a == b
+    assert (tmp_path / "a" / "demos.mcap").read_bytes() == (tmp_path / "b" / "demos.mcap").read_bytes()
+    assert a["scene.mcap"] != c["scene.mcap"]
+
+
+def test_stage_subset_from_earlier_run(tmp_path, default_run):
+    result = run_app(f"hydra.run.dir={tmp_path}", "stages=[demos]", f"from_run={default_run}")
+    assert result.returncode == 0, result.stderr
+    assert not (tmp_path / "scene.mcap").exists()
+    assert read_artefact(tmp_path / "demos.mcap").messages == \
+        read_artefact(default_run / "demos.mcap").messages
+
+
+def _fails_with_one_line(result, *fragments):
+    assert result.returncode != 0
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    for f in fragments:
+        assert f in lines[0]
+    assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_typo_and_wrong_type_fail_at_start_up(tmp_path):
+    typo = run_app(f"hydra.run.dir={tmp_path}", "scene.n_persns=3")
+    assert typo.returncode != 0 and "n_persns" in typo.stderr
+    wrong_type = run_app(f"hydra.run.dir={tmp_path}", "seed=abc")
+    assert wrong_type.returncode != 0 and "seed" in wrong_type.stderr
+    assert not (tmp_path / "scene.mcap").exists()
+
+
+def test_out_of_range_value_exits_with_one_line(tmp_path):
+    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path}", "scene.body_radius=-1"),
+                         "scene.body_radius=-1")
+
+
+def test_malformed_scene_file_exits_with_one_line(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text((ROOT / "data/scenes/metropolis.json").read_text().replace('"x": 9.2', '"x": 19.2'))
+    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path / 'run'}", "scene=file",
+                                 f"scene.path={bad}"), str(bad), "person 5", "outside the room")
+
+
+def test_truncated_input_artefact_exits_with_one_line(tmp_path, default_run):
+    src = tmp_path / "src"
+    src.mkdir()
+    data = (default_run / "scene.mcap").read_bytes()
+    (src / "scene.mcap").write_bytes(data[: len(data) // 2])
+    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path / 'run'}", "stages=[demos]",
+                                 f"from_run={src}"), str(src / "scene.mcap"), "truncated")
+    (src / "scene.mcap").write_text("{}")
+    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path / 'run'}", "stages=[demos]",
+                                 f"from_run={src}"), "not an MCAP file")
+
+
+def test_failing_run_keeps_earlier_artefacts(tmp_path, default_run):
+    run_dir = tmp_path / "run"
+    shutil.copytree(default_run, run_dir)
+    before = (run_dir / "demos.mcap").read_bytes()
+    result = run_app(f"hydra.run.dir={run_dir}", "expert=file", f"expert.path={tmp_path}/none.json")
+    _fails_with_one_line(result, "none.json", "not found")
+    assert (run_dir / "demos.mcap").read_bytes() == before
+    assert not list(Path(run_dir).glob("*.tmp"))
