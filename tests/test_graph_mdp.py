@@ -111,3 +111,17 @@ def test_discounted_counts_and_quality():
     np.testing.assert_allclose(phi, [1.0, 0.5 * 2.0])  # second edge starts after 1 s
     assert end == pytest.approx(0.125)
     assert path_quality(phi, end, [-1.0, -1.0], 8.0) == pytest.approx(-1.0 - 1.0 + 1.0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pointer_doubling_evaluation_equals_sparse_solve(seed):
+    rng = np.random.default_rng(200 + seed)
+    mdp = random_graph(rng, n=80)
+    w = -rng.uniform(0, 1, 3)
+    # Any policy, including ones with cycles, evaluates the same both ways.
+    policy = np.full(mdp.n_nodes, NO_EDGE)
+    acting = np.flatnonzero(mdp.has_out)
+    policy[acting] = mdp.indptr[acting] + rng.integers(0, np.diff(mdp.indptr)[acting])
+    r = mdp.rewards(w)
+    np.testing.assert_allclose(mdp._evaluate(policy, r), mdp._evaluate_sparse(policy, r),
+                               atol=1e-12)
