@@ -15,7 +15,7 @@ from omegaconf import MISSING, OmegaConf
 from pipeline.errors import PipelineError
 from pipeline.features import FEATURE_NAMES
 
-ALL_STAGES = ["scene", "demos"]  # in pipeline order; later issues append graph, birl, evaluate
+ALL_STAGES = ["scene", "demos", "graph"]  # in pipeline order; birl and evaluate follow
 
 
 @dataclass
@@ -81,6 +81,63 @@ class RoadmapConfig:
 
 
 @dataclass
+class ControllerConfig:
+    kind: str = "linear"  # linear | posq (the linear controller drives at mdp.speed)
+    k_v: float = 3.8  # POSQ gains (Palmieri & Arras 2014)
+    k_rho: float = 1.0
+    k_alpha: float = 6.0
+    k_beta: float = -1.0
+    wheel_base: float = 0.4  # m
+    max_speed: float = 1.0  # m/s, wheel speed limit
+    dt: float = 0.05  # s, integration step
+    eps: float = 0.05  # m, arrival tolerance
+    max_time: float = 10.0  # s, runs longer than this are dropped
+
+
+@dataclass
+class GraphConfig:
+    max_nodes: int = 460  # the paper's Fig. 1
+    radius: float = 1.2  # m, neighbourhood for edges, GP and concentration
+    max_edges: int = 8  # nearest neighbours a new node connects to, each direction
+    n_new: int = 8  # candidates per expansion
+    n_add: int = 2  # candidates added per expansion
+    p_best: float = 0.7  # probability of expanding a node of the best trajectories
+    lambda_q: float = 0.6  # λ_q, weight of quality in the exploration score
+    lambda_c: float = 0.4  # λ_c, weight of concentration
+    t_min: float = 0.4  # s, candidate controller-run duration range [t_min, t_max],
+    t_max: float = 1.6  # s, its upper end annealed to t_min as the graph fills
+    min_separation: float = 0.1  # m, no two nodes closer
+    gp_length_scale: float = 1.0  # m, RBF length scale of the value GP
+    gp_signal_std: float = 1.0
+    gp_noise: float = 1e-4
+    gp_kappa: float = 1.0  # candidate value = GP mean + kappa · GP std
+    max_stalls: int = 500  # stop early after this many expansions in a row add nothing
+    # Reward that drives the growth: null = the learner's initial weights (the prior's
+    # mean within the bounds); `true` = the expert's true weights (oracle mode); or a list.
+    weights: Any = None
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+
+
+@dataclass
+class PriorConfig:
+    kind: str = "gaussian"  # gaussian | laplace | uniform
+    scale: float = 0.5  # σ (gaussian) or b (laplace)
+    mean: Optional[list[float]] = None  # default 0, clipped into the bounds
+
+
+@dataclass
+class BirlConfig:
+    kind: str = "map"  # map | mcmc
+    beta: float = 10.0  # expert optimality β
+    prior: PriorConfig = field(default_factory=PriorConfig)
+    lower: list[float] = field(default_factory=lambda: [-1.0] * len(FEATURE_NAMES))
+    upper: list[float] = field(default_factory=lambda: [0.0] * len(FEATURE_NAMES))
+    n_iterations: int = 20
+    init_weights: Optional[list[float]] = None  # null: drawn from the prior with the seed
+    grow_nodes: int = 0  # nodes added to the graph per iteration under the current weights
+
+
+@dataclass
 class Config:
     seed: int = 0
     stages: list[str] = field(default_factory=lambda: list(ALL_STAGES))
@@ -90,6 +147,8 @@ class Config:
     expert: ExpertConfig = MISSING
     mdp: MDPConfig = field(default_factory=MDPConfig)
     roadmap: RoadmapConfig = field(default_factory=RoadmapConfig)
+    graph: GraphConfig = MISSING
+    birl: BirlConfig = MISSING
 
 
 def register_configs() -> None:
@@ -99,6 +158,8 @@ def register_configs() -> None:
     cs.store(group="scene", name="base_random", node=RandomSceneConfig)
     cs.store(group="reward", name="base_reward", node=RewardConfig)
     cs.store(group="expert", name="base_expert", node=ExpertConfig)
+    cs.store(group="graph", name="base_graph", node=GraphConfig)
+    cs.store(group="birl", name="base_birl", node=BirlConfig)
 
 
 # -- range checks ------------------------------------------------------------------------
@@ -163,3 +224,53 @@ def validate(cfg: Any) -> None:
     rm = cfg.roadmap
     _positive("roadmap.spacing", rm.spacing)
     _require(rm.connectivity in (8, 16), "roadmap.connectivity", rm.connectivity, "8 or 16")
+
+    validate_graph(cfg.graph)
+    validate_birl(cfg.birl)
+
+
+def validate_graph(g: Any) -> None:
+    for key in ("radius", "t_min", "t_max", "min_separation", "gp_length_scale",
+                "gp_signal_std", "gp_noise"):
+        _positive(f"graph.{key}", g[key])
+    for key in ("max_nodes", "max_edges", "n_new", "n_add", "max_stalls"):
+        _require(g[key] >= 1, f"graph.{key}", g[key], "an integer >= 1")
+    _require(g.n_add <= g.n_new, "graph.n_add", g.n_add, f"<= graph.n_new ({g.n_new})")
+    _require(0 <= g.p_best <= 1, "graph.p_best", g.p_best, "0 <= p_best <= 1")
+    _require(g.t_min <= g.t_max, "graph.t_min", g.t_min, f"<= graph.t_max ({g.t_max})")
+    for key in ("lambda_q", "lambda_c", "gp_kappa"):
+        _require(g[key] >= 0, f"graph.{key}", g[key], ">= 0")
+    _require(g.lambda_q + g.lambda_c > 0, "graph.lambda_q", g.lambda_q,
+             "lambda_q + lambda_c > 0")
+    w = g.weights
+    ok = w is None or w is True or w in ("true", "prior") or (
+        OmegaConf.is_list(w) and len(w) == len(FEATURE_NAMES)
+        and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in w))
+    _require(ok, "graph.weights", w, f"null (prior mean), true (oracle) or {len(FEATURE_NAMES)} numbers")
+    c = g.controller
+    _require(c.kind in ("linear", "posq"), "graph.controller.kind", c.kind, "'linear' or 'posq'")
+    for key in ("k_v", "k_rho", "k_alpha", "wheel_base", "max_speed", "dt", "eps", "max_time"):
+        _positive(f"graph.controller.{key}", c[key])
+
+
+def validate_birl(b: Any) -> None:
+    d = len(FEATURE_NAMES)
+    _require(b.kind in ("map", "mcmc"), "birl.kind", b.kind, "'map' or 'mcmc'")
+    _positive("birl.beta", b.beta)
+    _require(b.prior.kind in ("gaussian", "laplace", "uniform"), "birl.prior.kind",
+             b.prior.kind, "'gaussian', 'laplace' or 'uniform'")
+    _positive("birl.prior.scale", b.prior.scale)
+    for key in ("lower", "upper"):
+        _require(len(b[key]) == d, f"birl.{key}", list(b[key]), f"{d} numbers")
+    _require(all(lo < hi for lo, hi in zip(b.lower, b.upper)), "birl.lower", list(b.lower),
+             f"below birl.upper ({list(b.upper)}) in every entry")
+    for key in ("init_weights",):
+        v = b[key]
+        _require(v is None or (len(v) == d and all(lo <= x <= hi for x, lo, hi in
+                                                   zip(v, b.lower, b.upper))),
+                 f"birl.{key}", None if v is None else list(v),
+                 f"null or {d} numbers within [birl.lower, birl.upper]")
+    _require(b.prior.mean is None or len(b.prior.mean) == d, "birl.prior.mean",
+             b.prior.mean, f"null or {d} numbers")
+    _require(b.n_iterations >= 1, "birl.n_iterations", b.n_iterations, "an integer >= 1")
+    _require(b.grow_nodes >= 0, "birl.grow_nodes", b.grow_nodes, "an integer >= 0")

@@ -22,6 +22,8 @@ def compose_cfg(*overrides):
 @pytest.mark.parametrize("overrides", [
     [], ["scene=random"], ["scene=file", "scene.path=data/scenes/metropolis.json"],
     ["reward=rude"], ["expert=boltzmann"], ["expert=file", "expert.path=x.json"],
+    ["graph=small"], ["graph.controller.kind=posq"], ["graph.weights=true"],
+    ["graph.weights=[-1,-1,-1,-1]"], ["birl=mcmc"],
 ])
 def test_every_config_group_option_composes_and_validates(overrides):
     validate(compose_cfg(*overrides))
@@ -33,6 +35,11 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("stages=[scene,dance]", "stages"),
     ("mdp.gamma=1.5", "mdp.gamma"),
     ("scene=file", "scene.path"),
+    ("graph.p_best=1.5", "graph.p_best"),
+    ("graph.weights=[1,2]", "graph.weights"),
+    ("graph.controller.kind=spline", "graph.controller.kind"),
+    ("birl.prior.kind=cauchy", "birl.prior.kind"),
+    ("birl.lower=[0,0,0,0]", "birl.lower"),
 ])
 def test_out_of_range_values_name_the_key(override, key):
     with pytest.raises(PipelineError) as err:
@@ -58,29 +65,45 @@ def test_default_experiment_writes_artefacts(default_run):
     assert len(demos.all("/demos")) == 7
     assert demos.one("/demos/expert")["true_weights"] == [-1.0, -0.7, -0.85, -0.1]
     assert all(d["reached"] for d in demos.all("/demos"))
+    graph = read_artefact(default_run / "graph.mcap", required_topics=[
+        "/graph/node", "/graph/edge", "/graph/best_paths", "/graph/solution"])
+    nodes, edges = graph.all("/graph/node"), graph.all("/graph/edge")
+    solution = graph.one("/graph/solution")
+    assert len(nodes) == 460 and solution["n_nodes"] == 460 and len(edges) == solution["n_edges"]
+    assert solution["weights_source"] == "prior_mean"
+    # Growth replays in order: nodes and edges appear no earlier than their iteration.
+    assert [n["iteration"] for n in nodes] == sorted(n["iteration"] for n in nodes)
+    added = {n["id"]: n["iteration"] for n in nodes}
+    assert all(e["iteration"] == max(added[e["src"]], added[e["dst"]]) for e in edges)
+    assert all(n["parent"] >= 0 for n in nodes if n["kind"] == "sampled")
+    assert len(graph.all("/graph/best_paths")) == solution["iterations"] + 1
 
 
 def _payloads(run_dir):
-    return {name: read_artefact(run_dir / name).messages for name in ("scene.mcap", "demos.mcap")}
+    return {name: read_artefact(run_dir / name).messages
+            for name in ("scene.mcap", "demos.mcap", "graph.mcap")}
 
 
 def test_same_seed_same_payloads_and_other_seed_differs(tmp_path):
-    args = ["scene=random", "expert=boltzmann"]
+    args = ["scene=random", "expert=boltzmann", "graph=small"]
     for name, seed in [("a", 3), ("b", 3), ("c", 4)]:
         result = run_app(f"hydra.run.dir={tmp_path / name}", f"seed={seed}", *args)
         assert result.returncode == 0, result.stderr
     a, b, c = (_payloads(tmp_path / n) for n in "abc")
     assert a == b
-    assert (tmp_path / "a" / "demos.mcap").read_bytes() == (tmp_path / "b" / "demos.mcap").read_bytes()
+    for name in ("demos.mcap", "graph.mcap"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
     assert a["scene.mcap"] != c["scene.mcap"]
 
 
 def test_stage_subset_from_earlier_run(tmp_path, default_run):
-    result = run_app(f"hydra.run.dir={tmp_path}", "stages=[demos]", f"from_run={default_run}")
+    result = run_app(f"hydra.run.dir={tmp_path}", "stages=[demos,graph]",
+                     f"from_run={default_run}")
     assert result.returncode == 0, result.stderr
     assert not (tmp_path / "scene.mcap").exists()
-    assert read_artefact(tmp_path / "demos.mcap").messages == \
-        read_artefact(default_run / "demos.mcap").messages
+    for name in ("demos.mcap", "graph.mcap"):
+        assert read_artefact(tmp_path / name).messages == \
+            read_artefact(default_run / name).messages
 
 
 def _fails_with_one_line(result, *fragments):

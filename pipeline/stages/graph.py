@@ -1,0 +1,135 @@
+"""Stage 3: adaptive state graph -> graph.mcap (DESIGN §7, §10).
+
+Topics: /graph/node (one message per node, log_time = iteration it was added),
+/graph/edge (one per edge, log_time = iteration it was added), /graph/best_paths (one per
+iteration), /graph/solution (final values and policy, the weights that grew the graph).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from pipeline.adaptive_graph import AdaptiveGraph, Demo, GraphParams
+from pipeline.birl import Prior
+from pipeline.controllers import LinearController, PosqController
+from pipeline.errors import PipelineError
+from pipeline.graph_mdp import NO_EDGE
+from pipeline.run import RunContext
+from pipeline.stages.demos import feature_model
+from pipeline.stages.scene import load_scene
+
+log = logging.getLogger(__name__)
+
+
+def make_prior(birl_cfg) -> Prior:
+    mean = None if birl_cfg.prior.mean is None else np.asarray(birl_cfg.prior.mean, float)
+    return Prior(birl_cfg.prior.kind, birl_cfg.prior.scale, np.asarray(birl_cfg.lower, float),
+                 np.asarray(birl_cfg.upper, float), mean)
+
+
+def growth_weights(cfg, expert_msg) -> tuple[np.ndarray, str]:
+    """The reward that grows the graph: the learner's prior mean unless asked otherwise."""
+    w = cfg.graph.weights
+    if w is None or w == "prior":
+        return make_prior(cfg.birl).box_mean(), "prior_mean"
+    if w is True or w == "true":
+        if expert_msg["true_weights"] is None:
+            raise PipelineError("config error: graph.weights=true needs true weights, but the "
+                                "demonstrations come from a file (expert=file)")
+        return np.asarray(expert_msg["true_weights"], float), "true"
+    return np.asarray(list(w), float), "given"
+
+
+def make_controller(cfg):
+    c = cfg.graph.controller
+    if c.kind == "linear":
+        return LinearController(speed=cfg.mdp.speed)
+    return PosqController(c.k_v, c.k_rho, c.k_alpha, c.k_beta, c.wheel_base, c.max_speed,
+                          c.dt, c.eps, c.max_time)
+
+
+def graph_params(g) -> GraphParams:
+    return GraphParams(**{k: g[k] for k in GraphParams.__dataclass_fields__})
+
+
+def demos_for_graph(demo_msgs, features, speed) -> list[Demo]:
+    out = []
+    for msg in demo_msgs:
+        pts = np.asarray(msg["points"], float)
+        out.append(Demo(pts, features.segments(pts[:-1], pts[1:]),
+                        np.linalg.norm(np.diff(pts, axis=0), axis=1) / speed))
+    return out
+
+
+def _none_if_nan(x: float):
+    return None if not np.isfinite(x) else float(x)
+
+
+def run(ctx: RunContext) -> None:
+    cfg = ctx.cfg
+    scene = load_scene(ctx)
+    demos_art = ctx.read("demos", required_topics=["/demos", "/demos/expert"])
+    features = feature_model(cfg, scene)
+    weights, weights_source = growth_weights(cfg, demos_art.one("/demos/expert"))
+    graph = AdaptiveGraph(scene, features, make_controller(cfg), weights,
+                          graph_params(cfg.graph), ctx.rng("graph"), gamma=cfg.mdp.gamma,
+                          r_goal=cfg.mdp.r_goal, v_max=cfg.mdp.v_max)
+    t0 = time.perf_counter()
+    graph.initialise(demos_for_graph(demos_art.all("/demos"), features, cfg.mdp.speed))
+    log.info("graph initialised: %d nodes, %d edges; growing to %d nodes under %s weights %s",
+             graph.n_nodes, len(graph.src), cfg.graph.max_nodes, weights_source,
+             np.round(weights, 3).tolist())
+    every = max(1, cfg.graph.max_nodes // 10)
+    last = [graph.n_nodes]
+
+    def progress(g: AdaptiveGraph) -> None:
+        if g.n_nodes >= last[0] + every or g.n_nodes >= g.p.max_nodes:
+            last[0] = g.n_nodes
+            log.info("  iteration %4d: %4d nodes, %5d edges, best value per start %s",
+                     g.iteration, g.n_nodes, len(g.src), np.round(g.best_path_values, 3).tolist())
+
+    graph.grow(progress, max_stalls=cfg.graph.max_stalls)
+    if graph.n_nodes < cfg.graph.max_nodes:
+        log.warning("graph stopped at %d of %d nodes: %d expansions in a row found no free "
+                    "place (lower graph.min_separation or graph.max_nodes)", graph.n_nodes,
+                    cfg.graph.max_nodes, cfg.graph.max_stalls)
+    log.info("graph grown in %.2f s: %d nodes, %d edges, %d iterations", time.perf_counter() - t0,
+             graph.n_nodes, len(graph.src), graph.iteration)
+    if not graph.best_reached.all():
+        log.warning("best trajectories from starts %s do not reach the goal",
+                    np.flatnonzero(~graph.best_reached).tolist())
+    write_graph(ctx, graph, weights, weights_source)
+
+
+def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights, weights_source: str) -> None:
+    edge_iteration = np.maximum(graph.added_at[graph.src], graph.added_at[graph.dst])
+    with ctx.writer("graph") as w:
+        for i in range(graph.n_nodes):
+            w.add("/graph/node", "GraphNode", {
+                "id": i, "x": graph.pose[i, 0], "y": graph.pose[i, 1], "theta": graph.pose[i, 2],
+                "kind": graph.node_kind[i], "parent": int(graph.parent[i]),
+                "iteration": int(graph.added_at[i]), "gp_mean": _none_if_nan(graph.gp_mean[i]),
+                "gp_std": _none_if_nan(graph.gp_std[i]), "score": _none_if_nan(graph.score[i])},
+                log_time=int(graph.added_at[i]))
+        for e in np.argsort(edge_iteration, kind="stable"):
+            w.add("/graph/edge", "GraphEdge", {
+                "id": int(e), "src": int(graph.src[e]), "dst": int(graph.dst[e]),
+                "duration": graph.duration[e], "features": graph.features[e],
+                "waypoints": graph.waypoints[e], "demo": graph.edge_is_demo[e],
+                "iteration": int(edge_iteration[e])}, log_time=int(edge_iteration[e]))
+        for h in graph.history:
+            w.add("/graph/best_paths", "BestPaths", {
+                "iteration": h["iteration"], "n_nodes": h["n_nodes"], "paths": h["paths"],
+                "values": h["values"], "reached": h["reached"]}, log_time=h["iteration"])
+        sol = graph.solution
+        mdp = graph.mdp()
+        policy_dst = np.where(sol.policy != NO_EDGE, mdp.dst[sol.policy], -1)
+        w.add("/graph/solution", "GraphSolution", {
+            "weights": weights, "weights_source": weights_source, "values": sol.values,
+            "policy_dst": policy_dst, "terminal": graph.terminal,
+            "start_nodes": graph.start_nodes, "goal_node": graph.goal_node,
+            "n_nodes": graph.n_nodes, "n_edges": len(graph.src), "iterations": graph.iteration},
+            log_time=graph.iteration)
