@@ -13,20 +13,20 @@ Plain numpy/scipy/scikit-learn; no Hydra, no I/O.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
-from scipy.spatial import Voronoi
+from scipy.spatial import Voronoi, cKDTree
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 from threadpoolctl import threadpool_limits
 
 from pipeline.controllers import LinearController, PosqController
-from pipeline.graph_mdp import GraphMDP, Solution
+from pipeline.graph_mdp import GraphMDP
+from pipeline.incremental_mdp import IncrementalGraphMDP
 from pipeline.roadmap import segments_feasible
 
 # Node kinds, as stored in graph.mcap.
@@ -46,15 +46,17 @@ class GraphParams:
     lambda_c: float = 0.4  # weight of concentration (sparse regions score high)
     t_min: float = 0.4  # s, shortest controller run for a candidate
     t_max: float = 1.6  # s, longest run at the start; annealed towards t_min as the graph grows
-    min_separation: float = 0.1  # m, no two nodes closer (zero-duration edges are loops)
+    # m, no two nodes closer (zero-duration edges are loops); None: 0.35·√(room area /
+    # max_nodes), so the graph's finest resolution follows its size and growth never jams
+    min_separation: float | None = None
     gp_length_scale: float = 1.0  # m, RBF length scale of the value GP
     gp_signal_std: float = 1.0  # prior std of the (normalised) value GP
     gp_noise: float = 1e-4
     gp_kappa: float = 1.0  # optimism: candidate value = GP mean + kappa · GP std
+    gp_max_points: int = 40  # nearest nodes within radius the GP is fitted to
 
     def __post_init__(self):
-        for name in ("radius", "t_min", "t_max", "min_separation", "gp_length_scale",
-                     "gp_signal_std", "gp_noise"):
+        for name in ("radius", "t_min", "t_max", "gp_length_scale", "gp_signal_std", "gp_noise"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0 <= self.p_best <= 1:
@@ -63,6 +65,10 @@ class GraphParams:
             raise ValueError(f"t_min ({self.t_min}) must be <= t_max ({self.t_max})")
         if not 1 <= self.n_add <= self.n_new:
             raise ValueError(f"need 1 <= n_add <= n_new, got n_add={self.n_add}, n_new={self.n_new}")
+        if self.min_separation is not None and not self.min_separation > 0:
+            raise ValueError(f"min_separation must be > 0, got {self.min_separation}")
+        if self.gp_max_points < 1:
+            raise ValueError(f"gp_max_points must be >= 1, got {self.gp_max_points}")
         if self.max_edges < 1:
             raise ValueError(f"max_edges must be >= 1, got {self.max_edges}")
 
@@ -114,25 +120,55 @@ class _Buffer:
         return self.data[:self.n]
 
 
-class _GridIndex:
-    """Spatial hash of node positions with cell size = query radius: O(1) insertion, and a
-    radius query looks at 9 cells instead of scanning every node."""
+class _SpatialIndex:
+    """Neighbour queries on a growing point set: a cKDTree, rebuilt when the points added
+    since the last build reach a quarter of it (amortised O(log n) per insertion), plus a
+    brute-force scan of those few recent points."""
 
-    def __init__(self, cell: float):
-        self.cell = cell
-        self.cells: dict[tuple[int, int], list[int]] = {}
+    def __init__(self):
+        self.points = _Buffer((2,))
+        self.tree: cKDTree | None = None
+        self.n_tree = 0
 
-    def add(self, idx: int, p: np.ndarray) -> None:
-        key = (int(math.floor(p[0] / self.cell)), int(math.floor(p[1] / self.cell)))
-        self.cells.setdefault(key, []).append(idx)
+    def add(self, p: np.ndarray) -> None:
+        self.points.extend(p[:2])
+        if self.points.n - self.n_tree > max(32, self.n_tree // 4):
+            self.n_tree = self.points.n
+            self.tree = cKDTree(self.points.a.copy())
 
-    def candidates(self, p: np.ndarray) -> list[int]:
-        cx, cy = int(math.floor(p[0] / self.cell)), int(math.floor(p[1] / self.cell))
-        out: list[int] = []
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                out.extend(self.cells.get((cx + dx, cy + dy), ()))
-        return out
+    def _recent(self, p, r):
+        recent = self.points.a[self.n_tree:]
+        d = np.linalg.norm(recent - p[:2], axis=1)
+        keep = np.flatnonzero(d <= r)
+        return keep + self.n_tree, d[keep]
+
+    def within(self, p: np.ndarray, r: float) -> np.ndarray:
+        """Indices within distance r of p, nearest first."""
+        idx, dist = self._recent(p, r)
+        if self.tree is not None:
+            old = np.asarray(self.tree.query_ball_point(p[:2], r), dtype=np.int64)
+            idx = np.concatenate([old, idx])
+            dist = np.concatenate([np.linalg.norm(self.points.a[old] - p[:2], axis=1), dist])
+        order = np.lexsort((idx, dist))  # ties broken by index: deterministic
+        return idx[order]
+
+    def nearest(self, p: np.ndarray, k: int, r: float) -> np.ndarray:
+        """Up to k indices within r of p, nearest first."""
+        idx, dist = self._recent(p, r)
+        if self.tree is not None:
+            d_old, i_old = self.tree.query(p[:2], k=min(k, self.n_tree), distance_upper_bound=r)
+            d_old, i_old = np.atleast_1d(d_old), np.atleast_1d(i_old)
+            ok = np.isfinite(d_old)
+            idx = np.concatenate([i_old[ok].astype(np.int64), idx])
+            dist = np.concatenate([d_old[ok], dist])
+        order = np.lexsort((idx, dist))[:k]
+        return idx[order]
+
+    def count_within(self, p: np.ndarray, r: float) -> int:
+        n = len(self._recent(p, r)[0])
+        if self.tree is not None:
+            n += int(self.tree.query_ball_point(p[:2], r, return_length=True))
+        return n
 
 
 @dataclass(frozen=True)
@@ -148,6 +184,9 @@ class AdaptiveGraph:
                  rng: np.random.Generator, *, gamma=0.95, r_goal=1.0, v_max=10.0):
         self.scene, self.fm, self.controller = scene, feature_model, controller
         self.w = np.asarray(weights, dtype=float)
+        if params.min_separation is None:
+            params = dataclasses.replace(
+                params, min_separation=0.35 * math.sqrt(scene.room.area / params.max_nodes))
         self.p, self.rng = params, rng
         self.gamma, self.r_goal, self.v_max = gamma, r_goal, v_max
         self.speed = controller.speed if isinstance(controller, LinearController) else \
@@ -159,18 +198,15 @@ class AdaptiveGraph:
         self._added_at = _Buffer(dtype=np.int64)
         self._gp = _Buffer((3,))  # GP mean, GP std, exploration score at insertion
         self._n_close = _Buffer(dtype=np.int64)  # nodes within radius (concentration)
-        self._src = _Buffer(dtype=np.int64)
-        self._dst = _Buffer(dtype=np.int64)
-        self._duration = _Buffer()
+        self.solver = IncrementalGraphMDP(gamma, r_goal, v_max)
         self._features = _Buffer((d,))
         self.waypoints: list[np.ndarray] = []
         self.edge_is_demo: list[bool] = []
         self._edge_of: dict[tuple[int, int], int] = {}
-        self._index = _GridIndex(params.radius)
+        self._index = _SpatialIndex()
         self.iteration = 0
         self.start_nodes = np.zeros(0, dtype=np.int64)
         self.goal_node = -1
-        self.solution: Solution | None = None
         self._norm: dict | None = None
         self.best_paths: list[np.ndarray] = []
         self.best_path_values = np.zeros(0)
@@ -185,10 +221,13 @@ class AdaptiveGraph:
     gp_std = property(lambda self: self._gp.a[:, 1])
     score = property(lambda self: self._gp.a[:, 2])
     n_close = property(lambda self: self._n_close.a)
-    src = property(lambda self: self._src.a)
-    dst = property(lambda self: self._dst.a)
-    duration = property(lambda self: self._duration.a)
+    src = property(lambda self: self.solver.src)
+    dst = property(lambda self: self.solver.dst)
+    duration = property(lambda self: self.solver.duration)
     features = property(lambda self: self._features.a)
+    values = property(lambda self: self.solver.values)  # V under the growth weights
+    policy = property(lambda self: self.solver.policy)  # chosen edge id per node, −1 if none
+    terminal = property(lambda self: self.solver.terminal)
 
     @property
     def n_nodes(self) -> int:
@@ -198,23 +237,15 @@ class AdaptiveGraph:
     def positions(self) -> np.ndarray:
         return self.pose[:, :2]
 
-    @property
-    def terminal(self) -> np.ndarray:
-        return np.linalg.norm(self.positions - self.scene.goal, axis=1) <= self.scene.goal_tolerance
-
-    def neighbours(self, p: np.ndarray, radius: float) -> np.ndarray:
-        """Node indices within `radius` of p, nearest first."""
-        cand = np.array(self._index.candidates(p), dtype=np.int64)
-        if radius > self.p.radius:  # beyond the cell size the grid is not enough
-            cand = np.arange(self.n_nodes)
-        if len(cand) == 0:
-            return cand
-        dist = np.linalg.norm(self.pose[cand, :2] - p[:2], axis=1)
-        keep = dist <= radius
-        return cand[keep][np.argsort(dist[keep], kind="stable")]
+    def neighbours(self, p: np.ndarray, radius: float, k: int | None = None) -> np.ndarray:
+        """Node indices within `radius` of p (at most k of them), nearest first."""
+        p = np.asarray(p, float)
+        if k is None:
+            return self._index.within(p, radius)
+        return self._index.nearest(p, k, radius)
 
     def too_close(self, p: np.ndarray) -> bool:
-        return len(self.neighbours(p, self.p.min_separation)) > 0
+        return len(self._index.nearest(np.asarray(p, float), 1, self.p.min_separation)) > 0
 
     def mdp(self) -> GraphMDP:
         return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
@@ -231,7 +262,9 @@ class AdaptiveGraph:
         self._added_at.extend(self.iteration)
         self._gp.extend([gp_mean, gp_std, score])
         self._n_close.extend(len(close))
-        self._index.add(idx, self.pose[idx])
+        self._index.add(self.pose[idx])
+        at_goal = np.linalg.norm(self.pose[idx, :2] - self.scene.goal) <= self.scene.goal_tolerance
+        self.solver.add_node(bool(at_goal), source=(kind == START))
         return idx
 
     def _add_edges(self, src, dst, durations, features, waypoints, is_demo=False) -> None:
@@ -239,14 +272,14 @@ class AdaptiveGraph:
         keep = []
         for i, (a, b) in enumerate(zip(src, dst)):
             if a != b and (a, b) not in self._edge_of:
-                self._edge_of[(a, b)] = self._src.n + len(keep)
+                self._edge_of[(a, b)] = len(self.waypoints) + len(keep)
                 keep.append(i)
         if not keep:
             return
-        self._src.extend(np.asarray(src)[keep])
-        self._dst.extend(np.asarray(dst)[keep])
-        self._duration.extend(np.asarray(durations)[keep])
-        self._features.extend(np.asarray(features).reshape(len(src), -1)[keep])
+        feats = np.asarray(features).reshape(len(src), -1)[keep]
+        self.solver.add_edges(np.asarray(src)[keep], np.asarray(dst)[keep],
+                              np.asarray(durations)[keep], feats @ self.w)
+        self._features.extend(feats)
         self.waypoints += [waypoints[i] for i in keep]
         self.edge_is_demo += [is_demo] * len(keep)
 
@@ -279,8 +312,9 @@ class AdaptiveGraph:
         (at most max_edges each way), feasible controller runs only; one batched steer."""
         pairs = []
         for node in nodes:
-            near = [int(j) for j in self.neighbours(self.pose[node], self.p.radius)
-                    if j != node][: self.p.max_edges]
+            near = [int(j) for j in self.neighbours(self.pose[node], self.p.radius,
+                                                    k=self.p.max_edges + 1) if j != node]
+            near = near[: self.p.max_edges]
             pairs += [(node, j) for j in near] + [(j, node) for j in near]
         pairs = [pq for pq in dict.fromkeys(pairs) if pq not in self._edge_of]
         if not pairs:
@@ -304,7 +338,7 @@ class AdaptiveGraph:
         for demo in demos:
             nodes = []
             for k, pt in enumerate(demo.points):
-                near = self.neighbours(pt, self.p.min_separation)
+                near = self.neighbours(pt, self.p.min_separation, k=1)
                 if len(near):
                     nodes.append(int(near[0]))
                     continue
@@ -315,33 +349,39 @@ class AdaptiveGraph:
                             demo.segment_features, [demo.points[k:k + 2] for k in range(len(nodes) - 1)],
                             is_demo=True)
         self._connect(range(self.n_nodes))
-        self._solve(None)
+        self.solver.solve_full()
+        self._solve()
 
     # -- one expansion -------------------------------------------------------------------
-    def _solve(self, init_values) -> None:
-        mdp = self.mdp()
-        self.solution = mdp.solve(self.w, init_values=init_values)
+    def _solve(self) -> None:
+        """Repair the solution after growth (incremental policy iteration), record the best
+        trajectories of this iteration."""
+        self.solver.update()
         self._norm = None
-        paths = [mdp.follow(self.solution.policy, int(s)) for s in self.start_nodes]
-        self.best_paths = [p.nodes for p in paths]
-        self.best_reached = np.array([p.reached for p in paths])
-        self.best_path_values = self.solution.values[self.start_nodes]
+        self._record()
+
+    def _record(self) -> None:
+        paths = [self.solver.follow(int(s)) for s in self.start_nodes]
+        self.best_paths = [nodes for nodes, _ in paths]
+        self.best_reached = np.array([reached for _, reached in paths])
+        self.best_path_values = self.values[self.start_nodes].copy()
         self.history.append({"iteration": self.iteration, "n_nodes": self.n_nodes,
                              "paths": [p.copy() for p in self.best_paths],
                              "values": self.best_path_values.copy(),
                              "reached": self.best_reached.copy()})
 
-    def _cost_to_come(self) -> np.ndarray:
-        """Cheapest (undiscounted) cost from any start to every node, costs = −w·φ ≥ 0."""
-        cost = np.maximum(-(self.features @ self.w), 0.0) + 1e-9  # csgraph drops 0 weights
-        graph = csr_matrix((cost, (self.src, self.dst)), shape=(self.n_nodes, self.n_nodes))
-        return dijkstra(graph, indices=self.start_nodes, min_only=True)
+    def set_weights(self, weights) -> None:
+        """Grow under new weights from now on (BIRL's grow_nodes): full re-solve."""
+        self.w = np.asarray(weights, dtype=float)
+        self.solver.set_rewards(self.features @ self.w)
+        self.history.pop()  # _solve records this iteration anew
+        self._solve()
 
     def _normalisation(self) -> dict:
         """Value of the best path through every node and the ranges that normalise quality
         and concentration; cached until the graph changes (failed expansions reuse it)."""
         if self._norm is None:
-            through = self.values - self._cost_to_come()  # value of the best path through s
+            through = self.values - self.solver.cost_to_come  # value of the best path through s
             finite = np.isfinite(through)
             q_lo = through[finite].min() if finite.any() else 0.0
             q_hi = through[finite].max() if finite.any() else 1.0
@@ -359,8 +399,8 @@ class AdaptiveGraph:
 
     def _gp_estimate(self, v: int, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """GP estimate of V at the candidates from the nodes within radius of v."""
-        values = self.solution.values
-        train = self.neighbours(self.pose[v], self.p.radius)
+        values = self.values
+        train = self.neighbours(self.pose[v], self.p.radius, k=self.p.gp_max_points)
         train = train[values[train] > -self.v_max]  # dead ends would drag the field down
         if len(train) == 0:
             return np.full(len(cand), values[v]), np.full(len(cand), self.p.gp_signal_std)
@@ -393,6 +433,7 @@ class AdaptiveGraph:
             ends[:, 2] = [self._final_heading(w) for w in way]
         keep = [i for i in range(len(ends)) if not self.too_close(ends[i])]
         if not keep:
+            self._record()  # nothing changed, but every iteration has its record
             return 0
         ends, durations, feats = ends[keep], durations[keep], feats[keep]
         way = [way[i] for i in keep]
@@ -402,7 +443,7 @@ class AdaptiveGraph:
         through = norm["through"][v] - self.values[v] + feats @ self.w + \
             self.gamma ** durations * (mean + p.gp_kappa * std)
         quality = np.clip((through - norm["q_lo"]) / norm["q_span"], 0.0, 1.0)
-        n_close = np.array([len(self.neighbours(e, p.radius)) for e in ends])
+        n_close = np.array([self._index.count_within(e, p.radius) for e in ends])
         conc = np.minimum(1.0 / (1.0 + n_close) / norm["c_max"], 1.0)
         cand_score = p.lambda_q * quality + p.lambda_c * conc
         n_pick = min(p.n_add, len(ends), p.max_nodes - self.n_nodes)
@@ -417,18 +458,13 @@ class AdaptiveGraph:
             self._add_edges([v], [node], durations[i:i + 1], feats[i:i + 1], [way[i]])
             added.append(node)
         self._connect(added)
-        init = np.concatenate([self.values, self.gp_mean[len(self.values):]])
-        self._solve(init)
+        self._solve()
         return len(added)
 
     @staticmethod
     def _final_heading(points: np.ndarray) -> float:
         d = points[-1] - points[-2]
         return math.atan2(d[1], d[0])
-
-    @property
-    def values(self) -> np.ndarray:
-        return self.solution.values
 
     def grow(self, progress: Callable[["AdaptiveGraph"], None] | None = None,
              max_stalls: int = 200) -> None:
@@ -441,6 +477,10 @@ class AdaptiveGraph:
                 stalls = stalls + 1 if self.step() == 0 else 0
                 if progress is not None:
                     progress(self)
+        # One full warm-started sweep removes the rounding the incremental updates collect.
+        self.solver.solve_full()
+        self.history.pop()
+        self._solve()
 
 
 def choose_expansion_set(rng: np.random.Generator, best_set: np.ndarray, other_set: np.ndarray,

@@ -106,11 +106,12 @@ class GraphConfig:
     lambda_c: float = 0.4  # λ_c, weight of concentration
     t_min: float = 0.4  # s, candidate controller-run duration range [t_min, t_max],
     t_max: float = 1.6  # s, its upper end annealed to t_min as the graph fills
-    min_separation: float = 0.1  # m, no two nodes closer
+    min_separation: Optional[float] = None  # m, no two nodes closer; null: 0.35·√(area/max_nodes)
     gp_length_scale: float = 1.0  # m, RBF length scale of the value GP
     gp_signal_std: float = 1.0
     gp_noise: float = 1e-4
     gp_kappa: float = 1.0  # candidate value = GP mean + kappa · GP std
+    gp_max_points: int = 40  # nearest nodes within radius the GP is fitted to
     max_stalls: int = 500  # stop early after this many expansions in a row add nothing
     # Reward that drives the growth: null = the learner's initial weights (the prior's
     # mean within the bounds); `true` = the expert's true weights (oracle mode); or a list.
@@ -230,10 +231,11 @@ def validate(cfg: Any) -> None:
 
 
 def validate_graph(g: Any) -> None:
-    for key in ("radius", "t_min", "t_max", "min_separation", "gp_length_scale",
-                "gp_signal_std", "gp_noise"):
+    for key in ("radius", "t_min", "t_max", "gp_length_scale", "gp_signal_std", "gp_noise"):
         _positive(f"graph.{key}", g[key])
-    for key in ("max_nodes", "max_edges", "n_new", "n_add", "max_stalls"):
+    if g.min_separation is not None:
+        _positive("graph.min_separation", g.min_separation)
+    for key in ("max_nodes", "max_edges", "n_new", "n_add", "max_stalls", "gp_max_points"):
         _require(g[key] >= 1, f"graph.{key}", g[key], "an integer >= 1")
     _require(g.n_add <= g.n_new, "graph.n_add", g.n_add, f"<= graph.n_new ({g.n_new})")
     _require(0 <= g.p_best <= 1, "graph.p_best", g.p_best, "0 <= p_best <= 1")

@@ -42,7 +42,8 @@ class GraphMDP:
         src = np.asarray(src, dtype=np.int64)
         dst = np.asarray(dst, dtype=np.int64)
         duration = np.asarray(duration, dtype=float)
-        features = np.asarray(features, dtype=float).reshape(len(src), -1)
+        features = np.asarray(features, dtype=float)
+        features = features[:, None] if features.ndim == 1 else features
         terminal = np.asarray(terminal, dtype=bool)
         n = len(terminal)
         if not 0 < gamma < 1:
@@ -70,6 +71,13 @@ class GraphMDP:
     @property
     def n_edges(self) -> int:
         return len(self.src)
+
+    def caller_edges(self, policy) -> np.ndarray:
+        """A policy as the caller's edge indices (NO_EDGE kept)."""
+        out = np.full(len(policy), NO_EDGE, dtype=np.int64)
+        acting = policy != NO_EDGE
+        out[acting] = self.edge_ids[policy[acting]]
+        return out
 
     def rewards(self, w) -> np.ndarray:
         return self.features @ np.asarray(w, dtype=float)

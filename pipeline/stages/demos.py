@@ -15,7 +15,7 @@ import numpy as np
 
 from pipeline.experts import boltzmann_demos, load_demo_file, optimal_demos
 from pipeline.features import FEATURE_NAMES, FeatureModel
-from pipeline.graph_mdp import NO_EDGE, path_quality
+from pipeline.graph_mdp import path_quality
 from pipeline.roadmap import build_roadmap
 from pipeline.run import RunContext, resolve_path
 from pipeline.stages.scene import load_scene
@@ -75,7 +75,7 @@ def run(ctx: RunContext) -> None:
                 "duration": float(d.durations.sum()), "reached": d.reached,
                 "value_true": path_quality(phi, end_discount, w_true, md.r_goal, d.reached)
                 if synthetic else None}, log_time=i)
-        policy = np.where(solution.policy != NO_EDGE, mdp.edge_ids[solution.policy], NO_EDGE)
+        policy = mdp.caller_edges(solution.policy)
         w.add("/demos/roadmap", "Roadmap", {
             "spacing": cfg.roadmap.spacing, "connectivity": cfg.roadmap.connectivity,
             "positions": roadmap.positions, "src": roadmap.src, "dst": roadmap.dst,

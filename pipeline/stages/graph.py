@@ -124,11 +124,9 @@ def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights, weights_source: 
             w.add("/graph/best_paths", "BestPaths", {
                 "iteration": h["iteration"], "n_nodes": h["n_nodes"], "paths": h["paths"],
                 "values": h["values"], "reached": h["reached"]}, log_time=h["iteration"])
-        sol = graph.solution
-        mdp = graph.mdp()
-        policy_dst = np.where(sol.policy != NO_EDGE, mdp.dst[sol.policy], -1)
+        policy_dst = np.where(graph.policy != NO_EDGE, graph.dst[graph.policy], -1)
         w.add("/graph/solution", "GraphSolution", {
-            "weights": weights, "weights_source": weights_source, "values": sol.values,
+            "weights": weights, "weights_source": weights_source, "values": graph.values,
             "policy_dst": policy_dst, "terminal": graph.terminal,
             "start_nodes": graph.start_nodes, "goal_node": graph.goal_node,
             "n_nodes": graph.n_nodes, "n_edges": len(graph.src), "iterations": graph.iteration},

@@ -1,0 +1,243 @@
+"""A growing graph semi-MDP solved by incremental (asynchronous) policy iteration.
+
+The adaptive graph adds a few nodes and edges per iteration. Re-solving the whole graph
+each time costs O(edges) per iteration and makes growth quadratic, so this class keeps the
+solution and repairs it where the new edges can change it:
+
+- policy improvement is checked only at nodes whose out-edges or successor values changed;
+- a switch at node u is evaluated exactly: u and every node whose policy path runs through
+  u (its ancestors in the policy forest) change value by γ^{T(y→u)}·Δ;
+- a switch that would close a policy cycle falls back to a full warm-started policy
+  iteration (GraphMDP), as does any change of the reward weights.
+
+Every switch is a strict improvement followed by exact evaluation, and improvement is
+re-checked wherever a Q-value changed, so the result is the policy-iteration fixed point.
+The cheapest cost-to-come from the starts (for the exploration score) is kept the same way,
+by a Dijkstra repair from the new edges (costs only ever decrease as edges are added).
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections import deque
+
+import numpy as np
+
+from pipeline.graph_mdp import NO_EDGE, GraphMDP
+
+
+class _Col:
+    """Append-only numpy column with doubling capacity."""
+
+    def __init__(self, dtype=float, tail=()):
+        self.data = np.zeros((16, *tail), dtype=dtype)
+        self.n = 0
+
+    def extend(self, rows) -> None:
+        rows = np.asarray(rows, dtype=self.data.dtype).reshape(-1, *self.data.shape[1:])
+        while self.n + len(rows) > len(self.data):
+            self.data = np.concatenate([self.data, np.zeros_like(self.data)])
+        self.data[self.n:self.n + len(rows)] = rows
+        self.n += len(rows)
+
+    @property
+    def a(self) -> np.ndarray:
+        return self.data[:self.n]
+
+
+class IncrementalGraphMDP:
+    def __init__(self, gamma=0.95, r_goal=1.0, v_max=10.0, tol=1e-12):
+        self.gamma, self.r_goal, self.v_max, self.tol = gamma, r_goal, v_max, tol
+        self._terminal = _Col(bool)
+        self._value = _Col()
+        self._policy = _Col(np.int64)
+        self._ctc = _Col()  # cheapest cost-to-come from any start
+        self._src, self._dst = _Col(np.int64), _Col(np.int64)
+        self._duration = _Col()
+        self._reward, self._discount, self._cost = _Col(), _Col(), _Col()
+        self.out_edges: list[list[int]] = []
+        self.in_edges: list[list[int]] = []
+        self._policy_children: list[set[int]] = []  # y with dst(policy(y)) == x
+        self.sources: list[int] = []  # nodes with cost-to-come 0 (the starts)
+        self._dirty_nodes: list[int] = []
+        self._new_edges: list[int] = []
+        self.full_solves = 0
+
+    # -- views -----------------------------------------------------------------------------
+    terminal = property(lambda self: self._terminal.a)
+    values = property(lambda self: self._value.a)
+    policy = property(lambda self: self._policy.a)  # edge id per node, NO_EDGE if none
+    cost_to_come = property(lambda self: self._ctc.a)
+    src = property(lambda self: self._src.a)
+    dst = property(lambda self: self._dst.a)
+    duration = property(lambda self: self._duration.a)
+    rewards = property(lambda self: self._reward.a)
+
+    @property
+    def n_nodes(self) -> int:
+        return self._terminal.n
+
+    def _fixed_value(self, node: int) -> float:
+        return self.r_goal if self.terminal[node] else -self.v_max
+
+    # -- growth ----------------------------------------------------------------------------
+    def add_node(self, terminal: bool, source: bool = False) -> int:
+        idx = self.n_nodes
+        self._terminal.extend(terminal)
+        self._value.extend(self.r_goal if terminal else -self.v_max)
+        self._policy.extend(NO_EDGE)
+        self._ctc.extend(0.0 if source else np.inf)
+        self.out_edges.append([])
+        self.in_edges.append([])
+        self._policy_children.append(set())
+        if source:
+            self.sources.append(idx)
+        self._dirty_nodes.append(idx)
+        return idx
+
+    def add_edges(self, src, dst, durations, rewards) -> None:
+        first = self._src.n
+        src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
+        rewards = np.asarray(rewards, float)
+        durations = np.asarray(durations, float)
+        if len(durations) and durations.min() <= 1e-9:
+            raise ValueError("every edge needs a positive duration")
+        self._src.extend(src)
+        self._dst.extend(dst)
+        self._duration.extend(durations)
+        self._reward.extend(rewards)
+        self._discount.extend(self.gamma ** durations)
+        self._cost.extend(np.maximum(-rewards, 0.0))
+        for k, (a, b) in enumerate(zip(src.tolist(), dst.tolist())):
+            self.out_edges[a].append(first + k)
+            self.in_edges[b].append(first + k)
+            self._dirty_nodes.append(a)
+            self._new_edges.append(first + k)
+
+    def set_rewards(self, rewards) -> None:
+        """New edge rewards (new weights): everything may change, so solve from scratch."""
+        rewards = np.asarray(rewards, float)
+        self._reward.data[: len(rewards)] = rewards
+        self._cost.data[: len(rewards)] = np.maximum(-rewards, 0.0)
+        self.solve_full()
+
+    # -- solving ---------------------------------------------------------------------------
+    def mdp(self) -> GraphMDP:
+        return GraphMDP(self.src, self.dst, self.duration, self.rewards[:, None], self.terminal,
+                        gamma=self.gamma, r_goal=self.r_goal, v_max=self.v_max)
+
+    def solve_full(self) -> None:
+        """Warm-started policy iteration on the whole graph, and a full Dijkstra."""
+        self.full_solves += 1
+        mdp = self.mdp()
+        sol = mdp.solve([1.0], init_values=self.values.copy())
+        self._value.data[: self.n_nodes] = sol.values
+        policy = mdp.caller_edges(sol.policy)
+        self._policy.data[: self.n_nodes] = policy
+        self._policy_children = [set() for _ in range(self.n_nodes)]
+        for y in np.flatnonzero(policy != NO_EDGE):
+            self._policy_children[self.dst[policy[y]]].add(int(y))
+        self._ctc.data[: self.n_nodes] = np.inf
+        self._ctc.data[self.sources] = 0.0
+        self._repair_cost_to_come(range(self._src.n))
+        self._dirty_nodes, self._new_edges = [], []
+
+    def update(self) -> None:
+        """Repair values, policy and cost-to-come after add_node/add_edges."""
+        new_edges, self._new_edges = self._new_edges, []
+        dirty, self._dirty_nodes = self._dirty_nodes, []
+        self._repair_cost_to_come(new_edges)
+        if not self._improve(dirty):
+            self.solve_full()
+
+    def _q(self, e: int) -> float:
+        return self._reward.data[e] + self._discount.data[e] * self._value.data[self._dst.data[e]]
+
+    def _reaches(self, start: int, target: int) -> bool:
+        """Does the policy path from `start` pass through `target`?"""
+        node, seen = start, set()
+        policy, dst = self._policy.data, self._dst.data
+        while node not in seen:
+            if node == target:
+                return True
+            seen.add(node)
+            if policy[node] == NO_EDGE:
+                return False
+            node = int(dst[policy[node]])
+        return False
+
+    def _improve(self, dirty) -> bool:
+        """Asynchronous policy iteration from the dirty nodes; False if a switch would close
+        a policy cycle (whose exact value needs the full solve)."""
+        value, policy, dst, discount = (self._value.data, self._policy.data, self._dst.data,
+                                        self._discount.data)
+        queue = deque(dict.fromkeys(dirty))
+        queued = set(queue)
+        while queue:
+            u = queue.popleft()
+            queued.discard(u)
+            if self._terminal.data[u] or not self.out_edges[u]:
+                continue
+            out = self.out_edges[u]
+            q = [self._q(e) for e in out]
+            best = int(np.argmax(q))
+            cur = int(policy[u])
+            q_cur = self._q(cur) if cur != NO_EDGE else -np.inf
+            if q[best] <= q_cur + self.tol * (1.0 + abs(q_cur)):
+                continue  # current action is (one of) the best: keep it, so PI terminates
+            e = out[best]
+            if self._reaches(int(dst[e]), u):
+                return False
+            if cur != NO_EDGE:
+                self._policy_children[dst[cur]].discard(u)
+            policy[u] = e
+            self._policy_children[dst[e]].add(u)
+            delta = q[best] - value[u]
+            # Exact evaluation of the new policy: u and its policy ancestors shift together.
+            stack, shifted = [(u, 1.0)], set()
+            while stack:
+                y, factor = stack.pop()
+                if y in shifted:  # a policy cycle from an earlier full solve
+                    return False
+                shifted.add(y)
+                value[y] += factor * delta
+                for e_in in self.in_edges[y]:
+                    x = int(self._src.data[e_in])
+                    if x not in queued:
+                        queued.add(x)
+                        queue.append(x)
+                for z in self._policy_children[y]:
+                    stack.append((z, factor * discount[policy[z]]))
+        return True
+
+    def _repair_cost_to_come(self, new_edges) -> None:
+        """Dijkstra relaxation from the new edges (edge insertions only lower costs)."""
+        ctc, src, dst, cost = self._ctc.data, self._src.data, self._dst.data, self._cost.data
+        heap = []
+        for e in new_edges:
+            d = ctc[src[e]] + cost[e]
+            if d < ctc[dst[e]]:
+                ctc[dst[e]] = d
+                heapq.heappush(heap, (d, int(dst[e])))
+        while heap:
+            d, u = heapq.heappop(heap)
+            if d > ctc[u]:
+                continue
+            for e in self.out_edges[u]:
+                nd = d + cost[e]
+                if nd < ctc[dst[e]]:
+                    ctc[dst[e]] = nd
+                    heapq.heappush(heap, (nd, int(dst[e])))
+
+    def follow(self, start: int) -> tuple[np.ndarray, bool]:
+        """Greedy path from `start` and whether it ends in a terminal node."""
+        nodes, seen = [start], {start}
+        policy, dst = self._policy.data, self._dst.data
+        node = start
+        while policy[node] != NO_EDGE:
+            node = int(dst[policy[node]])
+            nodes.append(node)
+            if node in seen:
+                break
+            seen.add(node)
+        return np.array(nodes), bool(self._terminal.data[node])
