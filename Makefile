@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 ARGS ?=
 
-.PHONY: experiment test test-all clean
+.PHONY: experiment test test-all clean bench
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,3 +29,7 @@ test-all: $(STAMP)
 clean:
 	rm -rf $(VENV) outputs multirun .pytest_cache *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+
+## Benchmarks: tables under results/bench/ (adaptive-graph scaling, ...).
+bench: $(STAMP)
+	$(PY) -m pipeline.bench graph

@@ -142,9 +142,12 @@ class _SpatialIndex:
         keep = np.flatnonzero(d <= r)
         return keep + self.n_tree, d[keep]
 
-    def within(self, p: np.ndarray, r: float) -> np.ndarray:
-        """Indices within distance r of p, nearest first."""
+    def within(self, p: np.ndarray, r: float, ordered: bool = True) -> np.ndarray:
+        """Indices within distance r of p, nearest first (any order if not `ordered`)."""
         idx, dist = self._recent(p, r)
+        if not ordered:
+            old = self.tree.query_ball_point(p[:2], r) if self.tree is not None else []
+            return np.concatenate([np.asarray(old, dtype=np.int64), idx])
         if self.tree is not None:
             old = np.asarray(self.tree.query_ball_point(p[:2], r), dtype=np.int64)
             idx = np.concatenate([old, idx])
@@ -254,7 +257,7 @@ class AdaptiveGraph:
     # -- building blocks -----------------------------------------------------------------
     def _add_node(self, pose, kind, parent=-1, gp_mean=np.nan, gp_std=np.nan, score=np.nan) -> int:
         idx = self.n_nodes
-        close = self.neighbours(np.asarray(pose[:2], float), self.p.radius)
+        close = self._index.within(np.asarray(pose[:2], float), self.p.radius, ordered=False)
         self.n_close[close] += 1
         self._pose.extend(pose)
         self.node_kind.append(kind)
