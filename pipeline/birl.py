@@ -219,9 +219,12 @@ class Iteration:
 
 def birl_map(expert: list[TrajectoryStats], generate: Callable[[np.ndarray], list[TrajectoryStats]],
              prior: Prior, *, beta: float, r_goal: float, n_iterations: int, w0: np.ndarray,
-             progress: Callable[[Iteration], None] | None = None) -> list[Iteration]:
+             progress: Callable[[Iteration], None] | None = None,
+             fit: Callable[[Posterior, np.ndarray], np.ndarray] | None = None) -> list[Iteration]:
     """The BIRL-G loop. `generate(w)` sets the edge rewards w·φ, solves the MDP (warm start)
-    and returns the greedy trajectory from every start."""
+    and returns the greedy trajectory from every start. `fit(posterior, w_prev)` picks the
+    next weights: the MAP estimate by default (a posterior mean for `birl=mcmc`)."""
+    fit = fit or (lambda posterior, w_prev: posterior.map(w_prev))
     w = np.asarray(w0, dtype=float).copy()
     if w.shape != (prior.dim,) or not prior.in_box(w):
         raise ValueError(f"w0 must have shape ({prior.dim},) and lie in the prior box, got {w}")
@@ -238,7 +241,7 @@ def birl_map(expert: list[TrajectoryStats], generate: Callable[[np.ndarray], lis
     records = [record(0, w, Posterior(expert, pool, prior, beta, r_goal), list(pool))]
     for n in range(1, n_iterations + 1):
         posterior = Posterior(expert, pool, prior, beta, r_goal)
-        w = posterior.map(w)  # warm start from the previous weights
+        w = fit(posterior, w)  # warm start from the previous weights
         generated = list(generate(w.copy()))
         records.append(record(n, w, posterior, generated))  # scored with the Ξ_G it was fit on
         pool += generated

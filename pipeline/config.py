@@ -15,7 +15,7 @@ from omegaconf import MISSING, OmegaConf
 from pipeline.errors import PipelineError
 from pipeline.features import FEATURE_NAMES
 
-ALL_STAGES = ["scene", "demos", "graph"]  # in pipeline order; birl and evaluate follow
+ALL_STAGES = ["scene", "demos", "graph", "birl", "evaluate"]  # in pipeline order
 
 
 @dataclass
@@ -121,7 +121,7 @@ class GraphConfig:
 
 @dataclass
 class PriorConfig:
-    kind: str = "gaussian"  # gaussian | laplace | uniform
+    kind: str = "uniform"  # uniform (on the box) | gaussian | laplace
     scale: float = 0.5  # σ (gaussian) or b (laplace)
     mean: Optional[list[float]] = None  # default 0, clipped into the bounds
 
@@ -135,7 +135,11 @@ class BirlConfig:
     upper: list[float] = field(default_factory=lambda: [0.0] * len(FEATURE_NAMES))
     n_iterations: int = 20
     init_weights: Optional[list[float]] = None  # null: drawn from the prior with the seed
-    grow_nodes: int = 0  # nodes added to the graph per iteration under the current weights
+    # birl=mcmc: Metropolis–Hastings per iteration; the weights are the posterior mean
+    n_samples: int = 2000
+    burn_in: int = 500
+    thin: int = 2
+    step: float = 0.05  # random-walk proposal std
 
 
 @dataclass
@@ -275,4 +279,7 @@ def validate_birl(b: Any) -> None:
     _require(b.prior.mean is None or len(b.prior.mean) == d, "birl.prior.mean",
              b.prior.mean, f"null or {d} numbers")
     _require(b.n_iterations >= 1, "birl.n_iterations", b.n_iterations, "an integer >= 1")
-    _require(b.grow_nodes >= 0, "birl.grow_nodes", b.grow_nodes, "an integer >= 0")
+    for key in ("n_samples", "thin"):
+        _require(b[key] >= 1, f"birl.{key}", b[key], "an integer >= 1")
+    _require(b.burn_in >= 0, "birl.burn_in", b.burn_in, "an integer >= 0")
+    _positive("birl.step", b.step)

@@ -186,6 +186,22 @@ class GraphMDP:
         return Path(np.array(nodes), np.array(edges, dtype=np.int64), bool(self.terminal[node]))
 
 
+@dataclass(frozen=True)
+class SpatialGraph:
+    """A graph MDP with geometry: node positions, start nodes, each edge's driven path."""
+    positions: np.ndarray
+    mdp: GraphMDP
+    start_nodes: np.ndarray
+    waypoints: list[np.ndarray]  # per edge (caller's order)
+
+    def polyline(self, path) -> np.ndarray:
+        """The driven path of a graph path: the edges' controller waypoints joined."""
+        if len(path.edges) == 0:
+            return self.positions[path.nodes[:1]]
+        ways = [self.waypoints[e] for e in self.mdp.edge_ids[path.edges]]
+        return np.vstack([ways[0]] + [w[1:] for w in ways[1:]])
+
+
 def discounted_counts(edge_features, durations, gamma) -> tuple[np.ndarray, float]:
     """Φ(ξ) = Σ_t γ^{T_t} φ(e_t), T_t the time before edge t; also γ^T for the whole path."""
     durations = np.asarray(durations, dtype=float)

@@ -15,7 +15,7 @@ import numpy as np
 
 from pipeline.experts import boltzmann_demos, load_demo_file, optimal_demos
 from pipeline.features import FEATURE_NAMES, FeatureModel
-from pipeline.graph_mdp import path_quality
+from pipeline.graph_mdp import GraphMDP, SpatialGraph, path_quality
 from pipeline.roadmap import build_roadmap
 from pipeline.run import RunContext, resolve_path
 from pipeline.stages.scene import load_scene
@@ -26,6 +26,18 @@ log = logging.getLogger(__name__)
 def feature_model(cfg, scene) -> FeatureModel:
     rw = cfg.reward
     return FeatureModel.from_scene(scene, rw.rho_relation, rw.rho_personal, rw.resolution)
+
+
+def load_roadmap(ctx: RunContext):
+    """The reference roadmap of demos.mcap as a SpatialGraph (straight edges)."""
+    msg = ctx.read("demos", required_topics=["/demos/roadmap"]).one("/demos/roadmap")
+    positions = np.asarray(msg["positions"], float)
+    src, dst = np.asarray(msg["src"]), np.asarray(msg["dst"])
+    md = ctx.cfg.mdp
+    mdp = GraphMDP(src, dst, msg["duration"], msg["features"], msg["terminal"],
+                   gamma=md.gamma, r_goal=md.r_goal, v_max=md.v_max)
+    return SpatialGraph(positions, mdp, np.asarray(msg["start_nodes"]),
+                       [positions[[a, b]] for a, b in zip(src, dst)])
 
 
 def run(ctx: RunContext) -> None:

@@ -16,7 +16,7 @@ from pipeline.adaptive_graph import AdaptiveGraph, Demo, GraphParams
 from pipeline.birl import Prior
 from pipeline.controllers import LinearController, PosqController
 from pipeline.errors import PipelineError
-from pipeline.graph_mdp import NO_EDGE
+from pipeline.graph_mdp import NO_EDGE, GraphMDP, SpatialGraph
 from pipeline.run import RunContext
 from pipeline.stages.demos import feature_model
 from pipeline.stages.scene import load_scene
@@ -62,6 +62,20 @@ def demos_for_graph(demo_msgs, features, speed) -> list[Demo]:
         out.append(Demo(pts, features.segments(pts[:-1], pts[1:]),
                         np.linalg.norm(np.diff(pts, axis=0), axis=1) / speed))
     return out
+
+
+def load_graph(ctx: RunContext) -> SpatialGraph:
+    art = ctx.read("graph", required_topics=["/graph/node", "/graph/edge", "/graph/solution"])
+    nodes = art.all("/graph/node")
+    edges = sorted(art.all("/graph/edge"), key=lambda e: e["id"])
+    sol = art.one("/graph/solution")
+    md = ctx.cfg.mdp
+    mdp = GraphMDP([e["src"] for e in edges], [e["dst"] for e in edges],
+                   [e["duration"] for e in edges], [e["features"] for e in edges],
+                   sol["terminal"], gamma=md.gamma, r_goal=md.r_goal, v_max=md.v_max)
+    positions = np.array([[n["x"], n["y"]] for n in sorted(nodes, key=lambda n: n["id"])])
+    return SpatialGraph(positions, mdp, np.asarray(sol["start_nodes"]),
+                       [np.asarray(e["waypoints"], float) for e in edges])
 
 
 def _none_if_nan(x: float):

@@ -1,0 +1,164 @@
+"""Stage 5: policy loss and social metrics -> eval.mcap, metrics.json (DESIGN §9).
+
+Policy loss per BIRL iteration on the adaptive graph and on the reference roadmap, the
+normalised loss, the social metrics of the learned paths, and for file demonstrations (no
+true weights) the similarity of the learned paths to the demonstrations.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from pipeline.evaluation import discrete_frechet, follow_all, policy_loss
+from pipeline.features import FEATURE_NAMES
+from pipeline.graph_mdp import SpatialGraph
+from pipeline.run import PROJECT_ROOT, RunContext
+from pipeline.social import path_metrics
+from pipeline.stages.demos import load_roadmap
+from pipeline.stages.graph import load_graph
+from pipeline.stages.scene import load_scene
+
+log = logging.getLogger(__name__)
+
+
+def preset_weights(name: str) -> np.ndarray:
+    """Behaviour presets straight from conf/reward (one source for the numbers)."""
+    return np.asarray(OmegaConf.load(PROJECT_ROOT / "conf" / "reward" / f"{name}.yaml").weights,
+                      float)
+
+
+def loss_curve(graph: SpatialGraph, w_true, weights_per_iteration):
+    """Policy loss of every iteration's weights on one graph, and the final policy."""
+    mdp = graph.mdp
+    optimal = mdp.solve(w_true).values
+    losses, values, last = [], None, None
+    for w in weights_per_iteration:
+        last = policy_loss(mdp, w_true, w, graph.start_nodes, optimal, init_values=values)
+        values = last.values_learned
+        losses.append(last.loss)
+    return np.array(losses), last, optimal
+
+
+def summed_path_metrics(graph: SpatialGraph, policy, scene, prefix="") -> tuple[dict, list]:
+    """Social metrics of the greedy paths from every start, aggregated over starts."""
+    paths = follow_all(graph.mdp, policy, graph.start_nodes)
+    per_path = []
+    for p in paths:
+        pts = graph.polyline(p)
+        per_path.append((pts, path_metrics(pts, scene, graph.mdp.duration[p.edges].sum(),
+                                           p.reached)))
+    m = [metrics for _, metrics in per_path]
+    total = {
+        "relation_crossings": sum(x["relation_crossings"] for x in m),
+        "intimate_intrusion_m": sum(x["intimate_intrusion_m"] for x in m),
+        "personal_intrusion_m": sum(x["personal_intrusion_m"] for x in m),
+        "min_distance_to_person": min(x["min_distance_to_person"] for x in m),
+        "path_length": float(np.mean([x["path_length"] for x in m])),
+        "time_to_goal": float(np.mean([x["time_to_goal"] for x in m])),
+        "success": float(np.mean([x["success"] for x in m])),
+    }
+    return {prefix + k: v for k, v in total.items()}, per_path
+
+
+def run(ctx: RunContext) -> None:
+    t0 = time.perf_counter()
+    cfg = ctx.cfg
+    scene = load_scene(ctx)
+    demos_art = ctx.read("demos", required_topics=["/demos", "/demos/expert"])
+    expert = demos_art.one("/demos/expert")
+    birl_art = ctx.read("birl", required_topics=["/birl/iteration"])
+    iterations = birl_art.all("/birl/iteration")
+    weights = np.array([it["weights"] for it in iterations], float)
+    w_final = weights[-1]
+    graph, roadmap = load_graph(ctx), load_roadmap(ctx)
+
+    metrics: dict[str, float] = {f"weight_{n}": float(v) for n, v in zip(FEATURE_NAMES, w_final)}
+    if birl_art.messages.get("/birl/posterior"):  # birl=mcmc: the final posterior's spread
+        post = birl_art.all("/birl/posterior")[-1]
+        metrics.update({f"weight_std_{n}": float(v) for n, v in zip(FEATURE_NAMES, post["std"])})
+        metrics["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
+    curves = {}
+    if expert["true_weights"] is not None:
+        w_true = np.asarray(expert["true_weights"], float)
+        curves["graph"], final_graph, _ = loss_curve(graph, w_true, weights)
+        curves["ref"], final_ref, _ = loss_curve(roadmap, w_true, weights)
+        # Normalise by the loss of the contrasting behaviour (rude; polite if w* is rude).
+        contrast = "polite" if np.allclose(w_true, preset_weights("rude")) else "rude"
+        baseline = loss_curve(roadmap, w_true, [preset_weights(contrast)])[0][0]
+        curves["norm"] = curves["ref"] / baseline if baseline > 0 else np.full(len(weights), np.nan)
+        metrics.update({
+            "policy_loss": curves["graph"][-1], "policy_loss_ref": curves["ref"][-1],
+            "policy_loss_norm": curves["norm"][-1], "policy_loss_initial": curves["graph"][0],
+            "policy_loss_ref_initial": curves["ref"][0], f"policy_loss_ref_{contrast}": baseline})
+        for k, (g, r) in enumerate(zip(curves["graph"], curves["ref"])):
+            metrics[f"policy_loss_iter_{k:02d}"] = g
+            metrics[f"policy_loss_ref_iter_{k:02d}"] = r
+        graph_policy, ref_policy = final_graph.policy, final_ref.policy
+    else:
+        graph_policy = graph.mdp.solve(w_final).policy
+        ref_policy = roadmap.mdp.solve(w_final).policy
+
+    social, graph_paths = summed_path_metrics(graph, graph_policy, scene)
+    social_ref, ref_paths = summed_path_metrics(roadmap, ref_policy, scene, prefix="ref_")
+    metrics.update(social)
+    metrics.update(social_ref)
+    if expert["kind"] == "file":
+        demos = demos_art.all("/demos")
+        dists = [discrete_frechet(graph_paths[d["start_index"]][0], d["points"]) for d in demos]
+        metrics["frechet_to_demos"] = float(np.mean(dists))
+        metrics["frechet_to_demos_max"] = float(np.max(dists))
+
+    timings_path = ctx.run_dir / "timings.json"
+    timings = json.loads(timings_path.read_text()) if timings_path.exists() else {}
+    timings["time_evaluate_s"] = round(time.perf_counter() - t0, 3)
+    metrics.update(timings)
+    # Flat and numeric: a metric that cannot be computed (e.g. 0/0) is left out.
+    metrics = {k: float(v) for k, v in metrics.items() if np.isfinite(v)}
+
+    with ctx.writer("evaluate") as w:
+        for k in range(len(weights)):
+            w.add("/eval/policy_loss", "PolicyLoss", {
+                "iteration": k, "weights": weights[k],
+                **{name: (float(c[k]) if np.isfinite(c[k]) else None)
+                   for name, c in (("graph", curves.get("graph")), ("ref", curves.get("ref")),
+                                   ("norm", curves.get("norm"))) if c is not None}},
+                log_time=k)
+        for where, paths in (("graph", graph_paths), ("ref", ref_paths)):
+            for s, (pts, m) in enumerate(paths):
+                w.add("/eval/paths", "LearnedPath", {"graph": where, "start": s, "points": pts,
+                                                     **m}, log_time=s)
+        # Wall-clock timings are metrics, not artefact content (same seed, same bytes).
+        w.add("/eval/metrics", "Metrics", {k: v for k, v in metrics.items()
+                                           if not (k.startswith("time_") and k.endswith("_s"))},
+              log_time=0)
+    tmp = ctx.run_dir / "metrics.json.tmp"
+    tmp.write_text(json.dumps(metrics, indent=1, sort_keys=True))
+    os.replace(tmp, ctx.run_dir / "metrics.json")
+    print_summary(metrics, ctx)
+
+
+def print_summary(m: dict, ctx: RunContext) -> None:
+    def fmt(key, spec=".4f"):
+        v = m.get(key)
+        return "n/a" if v is None else format(v, spec)
+
+    lines = [
+        f"BIRL-G run: {ctx.run_dir}",
+        "  learned weights  " + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in FEATURE_NAMES),
+        f"  policy loss      graph {fmt('policy_loss')} (initial {fmt('policy_loss_initial')}), "
+        f"roadmap {fmt('policy_loss_ref')}, normalised {fmt('policy_loss_norm')}",
+        f"  learned paths    crossings {fmt('relation_crossings', '.0f')}, intimate "
+        f"{fmt('intimate_intrusion_m', '.2f')} m, personal {fmt('personal_intrusion_m', '.2f')} m, "
+        f"min distance {fmt('min_distance_to_person', '.2f')} m, success {fmt('success', '.2f')}",
+    ]
+    if "frechet_to_demos" in m:
+        lines.append(f"  vs demos         discrete Fréchet mean {fmt('frechet_to_demos', '.3f')} m")
+    lines.append("  stage seconds    " + ", ".join(
+        f"{k[5:-2]} {m[k]:.2f}" for k in sorted(m) if k.startswith("time_") and k.endswith("_s")))
+    print("\n".join(lines), flush=True)
