@@ -33,3 +33,4 @@ clean:
 ## Benchmarks: tables under results/bench/ (adaptive-graph scaling, ...).
 bench: $(STAMP)
 	$(PY) -m pipeline.bench graph
+	$(PY) -m pipeline.bench experiment

@@ -2,6 +2,7 @@
 
     python -m pipeline.bench graph            # adaptive-graph scaling on metropolis
     python -m pipeline.bench graph --sizes 250 500
+    python -m pipeline.bench experiment       # the default experiment's time per stage
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
 """
@@ -91,12 +92,37 @@ def graph_scaling(sizes: list[int], seed: int) -> pd.DataFrame:
     return table
 
 
+def experiment_timings(repeats: int) -> pd.DataFrame:
+    """Run the default experiment end to end `repeats` times; stage seconds from metrics.json,
+    with what one BIRL-G iteration costs (MAP step + warm policy iteration on the graph)
+    against one exact policy-iteration solve of the reference roadmap."""
+    import tempfile
+
+    rows = []
+    for k in range(repeats):
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={tmp}"],
+                           check=True, capture_output=True, cwd=PROJECT_ROOT)
+            wall = time.perf_counter() - t0
+            m = json.loads((Path(tmp) / "metrics.json").read_text())
+        row = {"run": k, "wall_s": round(wall, 2)}
+        row.update({key[5:-2] + "_s": m[key] for key in sorted(m)
+                    if key.startswith("time_") and key.endswith("_s")})
+        row["policy_loss_norm"] = m["policy_loss_norm"]
+        rows.append(row)
+        print(f"  {row}", flush=True)
+    return pd.DataFrame(rows)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench")
     sub = parser.add_subparsers(dest="suite", required=True)
     g = sub.add_parser("graph", help="adaptive-graph scaling -> results/bench/graph_scaling.csv")
     g.add_argument("--sizes", type=int, nargs="+", default=GRAPH_SIZES)
     g.add_argument("--seed", type=int, default=0)
+    e = sub.add_parser("experiment", help="default experiment -> results/bench/experiment.csv")
+    e.add_argument("--repeats", type=int, default=3)
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
@@ -106,9 +132,14 @@ def main(argv=None) -> None:
         print(json.dumps(_graph_once(args.nodes, args.seed)))
         return
     RESULTS.mkdir(parents=True, exist_ok=True)
-    print(f"adaptive graph scaling on metropolis, sizes {args.sizes}:", flush=True)
-    table = graph_scaling(args.sizes, args.seed)
-    path = RESULTS / "graph_scaling.csv"
+    if args.suite == "experiment":
+        print(f"default experiment, {args.repeats} runs:", flush=True)
+        table = experiment_timings(args.repeats)
+        path = RESULTS / "experiment.csv"
+    else:
+        print(f"adaptive graph scaling on metropolis, sizes {args.sizes}:", flush=True)
+        table = graph_scaling(args.sizes, args.seed)
+        path = RESULTS / "graph_scaling.csv"
     table.to_csv(path, index=False)
     print(table.to_string(index=False))
     print(f"wrote {path}")

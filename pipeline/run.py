@@ -11,7 +11,7 @@ import json
 import logging
 import subprocess
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 
@@ -64,6 +64,7 @@ class RunContext:
     from_run: Path | None
     config_yaml: str
     metadata: dict[str, str]
+    timings: dict[str, float] = field(default_factory=dict)  # extra wall-clock measurements
 
     def rng(self, stage: str) -> np.random.Generator:
         """An independent generator per stage, derived from the run seed only."""
@@ -98,6 +99,7 @@ def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
         t0 = time.perf_counter()
         importlib.import_module(f"pipeline.stages.{stage}").run(ctx)
         timings[f"time_{stage}_s"] = round(time.perf_counter() - t0, 3)
+        timings.update(ctx.timings)
         log.info("stage %s done in %.2f s -> %s", stage, timings[f"time_{stage}_s"],
                  run_dir / ARTEFACT_OF_STAGE[stage])
         # Wall-clock goes to a side file (later into metrics.json), never into artefacts.

@@ -54,6 +54,7 @@ def run(ctx: RunContext) -> None:
     t1 = time.perf_counter()
     solution = mdp.solve(w_true)
     t2 = time.perf_counter()
+    ctx.timings["time_roadmap_solve_s"] = round(t2 - t1, 5)
     log.info("reference roadmap: %d nodes, %d edges, built in %.2f s, solved in %.3f s "
              "(%d policy-iteration sweeps)", len(roadmap.positions), mdp.n_edges, t1 - t0,
              t2 - t1, solution.iterations)
