@@ -26,7 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from pipeline.controllers import LinearController, PosqController
 from pipeline.graph_mdp import GraphMDP
-from pipeline.incremental_mdp import IncrementalGraphMDP
+from pipeline.incremental_mdp import GrowableArray, IncrementalGraphMDP
 from pipeline.roadmap import segments_feasible
 
 # Node kinds, as stored in graph.mcap.
@@ -101,32 +101,13 @@ def voronoi_centroids(points: np.ndarray, room) -> np.ndarray:
     return np.array(centroids)
 
 
-class _Buffer:
-    """An append-only numpy array with doubling capacity (np.append would copy every time)."""
-
-    def __init__(self, shape_tail=(), dtype=float):
-        self.data = np.zeros((16, *shape_tail), dtype=dtype)
-        self.n = 0
-
-    def extend(self, rows) -> None:
-        rows = np.asarray(rows, dtype=self.data.dtype).reshape(-1, *self.data.shape[1:])
-        while self.n + len(rows) > len(self.data):
-            self.data = np.concatenate([self.data, np.zeros_like(self.data)])
-        self.data[self.n:self.n + len(rows)] = rows
-        self.n += len(rows)
-
-    @property
-    def a(self) -> np.ndarray:
-        return self.data[:self.n]
-
-
 class _SpatialIndex:
     """Neighbour queries on a growing point set: a cKDTree, rebuilt when the points added
     since the last build reach a quarter of it (amortised O(log n) per insertion), plus a
     brute-force scan of those few recent points."""
 
     def __init__(self):
-        self.points = _Buffer((2,))
+        self.points = GrowableArray((2,))
         self.tree: cKDTree | None = None
         self.n_tree = 0
 
@@ -195,14 +176,14 @@ class AdaptiveGraph:
         self.speed = controller.speed if isinstance(controller, LinearController) else \
             controller.k_rho  # POSQ cruises at K_ρ·tanh(·) ≤ K_ρ
         d = feature_model.dim
-        self._pose = _Buffer((3,))
+        self._pose = GrowableArray((3,))
         self.node_kind: list[str] = []
-        self._parent = _Buffer(dtype=np.int64)
-        self._added_at = _Buffer(dtype=np.int64)
-        self._gp = _Buffer((3,))  # GP mean, GP std, exploration score at insertion
-        self._n_close = _Buffer(dtype=np.int64)  # nodes within radius (concentration)
+        self._parent = GrowableArray(dtype=np.int64)
+        self._added_at = GrowableArray(dtype=np.int64)
+        self._gp = GrowableArray((3,))  # GP mean, GP std, exploration score at insertion
+        self._n_close = GrowableArray(dtype=np.int64)  # nodes within radius (concentration)
         self.solver = IncrementalGraphMDP(gamma, r_goal, v_max)
-        self._features = _Buffer((d,))
+        self._features = GrowableArray((d,))
         self.waypoints: list[np.ndarray] = []
         self.edge_is_demo: list[bool] = []
         self._edge_of: dict[tuple[int, int], int] = {}

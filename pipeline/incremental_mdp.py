@@ -26,10 +26,10 @@ import numpy as np
 from pipeline.graph_mdp import NO_EDGE, GraphMDP
 
 
-class _Col:
-    """Append-only numpy column with doubling capacity."""
+class GrowableArray:
+    """An append-only numpy array with doubling capacity (np.append would copy every time)."""
 
-    def __init__(self, dtype=float, tail=()):
+    def __init__(self, tail=(), dtype=float):
         self.data = np.zeros((16, *tail), dtype=dtype)
         self.n = 0
 
@@ -48,13 +48,13 @@ class _Col:
 class IncrementalGraphMDP:
     def __init__(self, gamma=0.95, r_goal=1.0, v_max=10.0, tol=1e-12):
         self.gamma, self.r_goal, self.v_max, self.tol = gamma, r_goal, v_max, tol
-        self._terminal = _Col(bool)
-        self._value = _Col()
-        self._policy = _Col(np.int64)
-        self._ctc = _Col()  # cheapest cost-to-come from any start
-        self._src, self._dst = _Col(np.int64), _Col(np.int64)
-        self._duration = _Col()
-        self._reward, self._discount, self._cost = _Col(), _Col(), _Col()
+        self._terminal = GrowableArray(dtype=bool)
+        self._value = GrowableArray()
+        self._policy = GrowableArray(dtype=np.int64)
+        self._ctc = GrowableArray()  # cheapest cost-to-come from any start
+        self._src, self._dst = GrowableArray(dtype=np.int64), GrowableArray(dtype=np.int64)
+        self._duration = GrowableArray()
+        self._reward, self._discount, self._cost = GrowableArray(), GrowableArray(), GrowableArray()
         self.out_edges: list[list[int]] = []
         self.in_edges: list[list[int]] = []
         self._policy_children: list[set[int]] = []  # y with dst(policy(y)) == x

@@ -16,7 +16,7 @@ def test_growing_graph_matches_full_solution_at_every_step(seed):
     for _ in range(3):
         inc.add_node(terminal=False, source=True)  # starts
     inc.solve_full()
-    for step in range(60):
+    for _ in range(60):
         # Add 1-2 nodes and random edges to and from existing nodes, then repair.
         new = [inc.add_node(terminal=bool(rng.random() < 0.05)) for _ in range(rng.integers(1, 3))]
         n = inc.n_nodes

@@ -82,7 +82,7 @@ def test_random_scene_is_valid_and_seeded(seed):
     for a, b in scene.relations:
         if a not in {q for _, q in scene.relations}:
             groups.setdefault(a, {a}).add(b)
-    for first, members in groups.items():
+    for members in groups.values():
         centre = np.mean([pos[m] for m in members], axis=0)
         assert 2 <= len(members) <= 4
         assert len([r for r in scene.relations if r[0] in members]) == len(members) * (len(members) - 1) // 2

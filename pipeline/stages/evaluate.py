@@ -68,7 +68,6 @@ def summed_path_metrics(graph: SpatialGraph, policy, scene, prefix="") -> tuple[
 
 def run(ctx: RunContext) -> None:
     t0 = time.perf_counter()
-    cfg = ctx.cfg
     scene = load_scene(ctx)
     demos_art = ctx.read("demos", required_topics=["/demos", "/demos/expert"])
     expert = demos_art.one("/demos/expert")
