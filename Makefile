@@ -5,7 +5,13 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 ARGS ?=
 
-.PHONY: experiment test test-all clean bench
+EXP ?= quick
+JOBS ?= 2
+SWEEP ?=
+SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S))
+RUN ?=
+
+.PHONY: experiment test test-all clean bench sweep aggregate view regress
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -16,6 +22,26 @@ $(STAMP): pyproject.toml
 ## Run the default experiment end to end (Hydra overrides via ARGS="scene=random seed=3").
 experiment: $(STAMP)
 	$(PY) -m pipeline $(ARGS)
+
+## Hydra multirun over a preset of conf/experiment/ with the joblib launcher, then aggregate.
+## A failing job does not stop the others; the exit status says whether any failed.
+sweep: $(STAMP)
+	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) hydra.sweep.dir=$(SWEEP_DIR) $(ARGS)
+	$(PY) -m pipeline.aggregate $(SWEEP_DIR)
+
+## Table (summary.csv) and figures of a sweep dir: make aggregate SWEEP=multirun/...
+aggregate: $(STAMP)
+	@test -n "$(SWEEP)" || { echo "usage: make aggregate SWEEP=<sweep dir>"; exit 2; }
+	$(PY) -m pipeline.aggregate $(SWEEP)
+
+## Rerun recording of a run dir (opens the viewer when there is a display): make view RUN=outputs/...
+view: $(STAMP)
+	@test -n "$(RUN)" || { echo "usage: make view RUN=<run dir>"; exit 2; }
+	$(PY) -m pipeline.viewer $(RUN)
+
+## Re-run the reference experiments and compare with results/baseline/.
+regress: $(STAMP)
+	$(PY) -m pipeline.regress
 
 ## Fast test suite (slow and benchmark tests excluded).
 test: $(STAMP)

@@ -62,6 +62,7 @@ class ExpertConfig:
     kind: str = MISSING  # optimal | boltzmann | file
     beta: float = 50.0  # β_E of the boltzmann expert
     path: Optional[str] = None  # demonstration JSON for kind=file
+    n_demos: Optional[int] = None  # learn from the demonstrations of the first n starts (null: all)
     max_steps: int = 2000  # boltzmann walks longer than this are resampled
     max_tries: int = 100
 
@@ -219,6 +220,8 @@ def validate(cfg: Any) -> None:
     _require(ex.kind != "file" or bool(ex.path), "expert.path", ex.path,
              "a demonstration JSON file when expert=file")
     _require(ex.max_steps >= 1, "expert.max_steps", ex.max_steps, "an integer >= 1")
+    _require(ex.n_demos is None or ex.n_demos >= 1, "expert.n_demos", ex.n_demos,
+             "null (all) or an integer >= 1")
     _require(ex.max_tries >= 1, "expert.max_tries", ex.max_tries, "an integer >= 1")
 
     md = cfg.mdp

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from pipeline.errors import PipelineError
 from pipeline.experts import boltzmann_demos, load_demo_file, optimal_demos
 from pipeline.features import FEATURE_NAMES, FeatureModel
 from pipeline.graph_mdp import GraphMDP, SpatialGraph, path_quality
@@ -68,6 +69,10 @@ def run(ctx: RunContext) -> None:
                                 cfg.expert.max_tries)
     else:
         demos = load_demo_file(resolve_path(cfg.expert.path), scene, features, md.speed)
+    if cfg.expert.n_demos is not None:
+        demos = [d for d in demos if d.start_index < cfg.expert.n_demos]
+        if not demos:
+            raise PipelineError(f"expert.n_demos={cfg.expert.n_demos} leaves no demonstration")
     unreached = [d.start_index for d in demos if not d.reached]
     if unreached:
         log.warning("demonstrations from starts %s do not reach the goal", unreached)

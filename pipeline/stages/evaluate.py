@@ -15,6 +15,7 @@ import time
 import numpy as np
 from omegaconf import OmegaConf
 
+from pipeline.config import ALL_STAGES
 from pipeline.evaluation import discrete_frechet, follow_all, policy_loss
 from pipeline.features import FEATURE_NAMES
 from pipeline.graph_mdp import SpatialGraph
@@ -159,5 +160,5 @@ def print_summary(m: dict, ctx: RunContext) -> None:
     if "frechet_to_demos" in m:
         lines.append(f"  vs demos         discrete Fréchet mean {fmt('frechet_to_demos', '.3f')} m")
     lines.append("  stage seconds    " + ", ".join(
-        f"{k[5:-2]} {m[k]:.2f}" for k in sorted(m) if k.startswith("time_") and k.endswith("_s")))
+        f"{stage} {m[f'time_{stage}_s']:.2f}" for stage in ALL_STAGES if f"time_{stage}_s" in m))
     print("\n".join(lines), flush=True)

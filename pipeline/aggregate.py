@@ -1,0 +1,183 @@
+"""Aggregate a Hydra sweep: one table row per job, figures, and an exit status that says
+whether any job failed.
+
+    python -m pipeline.aggregate multirun/<sweep dir>      (also: make aggregate SWEEP=...)
+
+Writes into the sweep dir: `summary.csv` (overrides, status and every metric of every job),
+`policy_loss.png` (policy loss against BIRL iteration, mean and spread across seeds: the
+paper's Fig. 1 right) and `scene.png` (scene, social links, demonstrations and learned
+paths of one job: Fig. 1 left). Jobs that failed, or never wrote metrics, stay in the table
+with their error; the exit status is 1 if there were any.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from pipeline.artefacts import read_artefact
+from pipeline.errors import PipelineError
+
+
+def job_dirs(sweep_dir: Path) -> list[Path]:
+    """Every job of the sweep: the dirs holding Hydra's .hydra/overrides.yaml."""
+    return sorted((p.parent.parent for p in sweep_dir.glob("**/.hydra/overrides.yaml")),
+                  key=lambda p: (len(p.parts), str(p)))
+
+
+def parse_overrides(job: Path) -> dict[str, str]:
+    lines = yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text()) or []
+    return dict(line.split("=", 1) for line in lines if "=" in line)
+
+
+def job_row(job: Path, sweep_dir: Path) -> dict:
+    row = {"job": str(job.relative_to(sweep_dir)), **parse_overrides(job)}
+    status_file, metrics_file = job / "status.json", job / "metrics.json"
+    status = json.loads(status_file.read_text()) if status_file.exists() else None
+    if status is not None and not status["ok"]:
+        row.update(status="failed", error=status["error"])
+    elif not metrics_file.exists():
+        row.update(status="failed", error="no metrics.json (job killed or incomplete)")
+    else:
+        row.update(status="ok", error="")
+        row.update(json.loads(metrics_file.read_text()))
+    return row
+
+
+def summary_table(sweep_dir: Path) -> pd.DataFrame:
+    jobs = job_dirs(sweep_dir)
+    if not jobs:
+        raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
+    return pd.DataFrame([job_row(j, sweep_dir) for j in jobs])
+
+
+def _group_columns(table: pd.DataFrame) -> list[str]:
+    """Swept settings other than the seed: each combination is one curve."""
+    meta = {"job", "status", "error", "seed"}
+    return [c for c in table.columns if c not in meta and not _is_metric(c)
+            and table[c].nunique(dropna=False) > 1]
+
+
+def _is_metric(column: str) -> bool:
+    return column.startswith(("policy_loss", "weight", "time_", "ref_", "frechet", "mcmc")) or \
+        column in ("relation_crossings", "intimate_intrusion_m", "personal_intrusion_m",
+                   "min_distance_to_person", "path_length", "time_to_goal", "success")
+
+
+def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = table[table.status == "ok"]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharex=True)
+    plotted = False
+    groups = _group_columns(ok)
+    for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
+        label = ", ".join(f"{g}={v}" for g, v in zip(groups, np.atleast_1d(key))) or "all jobs"
+        for ax, prefix, title in ((axes[0], "policy_loss_iter_", "adaptive graph"),
+                                  (axes[1], "policy_loss_ref_iter_", "reference roadmap")):
+            cols = sorted(c for c in part.columns if c.startswith(prefix))
+            curves = part[cols].to_numpy(dtype=float)
+            if curves.size == 0 or np.isnan(curves).all():
+                continue
+            x = np.arange(len(cols))
+            mean, std = np.nanmean(curves, axis=0), np.nanstd(curves, axis=0)
+            ax.plot(x, mean, label=f"{label} (n={len(part)})")
+            ax.fill_between(x, np.maximum(mean - std, 0), mean + std, alpha=0.2)
+            ax.set_title(f"policy loss on the {title}")
+            plotted = True
+    for ax in axes:
+        ax.set_xlabel("BIRL-G iteration")
+        ax.set_ylabel("policy loss (mean ± std over seeds)")
+        ax.grid(alpha=0.3)
+    if plotted:
+        axes[0].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return plotted
+
+
+def plot_scene(job: Path, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+
+    scene = read_artefact(job / "scene.mcap").one("/scene")
+    fig, ax = plt.subplots(figsize=(6, 6))
+    room = scene["room"]
+    ax.plot([room["x_min"], room["x_max"], room["x_max"], room["x_min"], room["x_min"]],
+            [room["y_min"], room["y_min"], room["y_max"], room["y_max"], room["y_min"]], "k-")
+    pos = {p["id"]: (p["x"], p["y"]) for p in scene["persons"]}
+    for a, b in scene["relations"]:
+        ax.plot(*zip(pos[a], pos[b]), color="tab:red", lw=2, alpha=0.6)
+    for p in scene["persons"]:
+        ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08))
+        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange"))
+        ax.arrow(p["x"], p["y"], 0.4 * np.cos(p["theta"]), 0.4 * np.sin(p["theta"]),
+                 head_width=0.12, color="k")
+    for i, d in enumerate(read_artefact(job / "demos.mcap").all("/demos")):
+        pts = np.asarray(d["points"])
+        ax.plot(pts[:, 0], pts[:, 1], "--", color="tab:green", lw=1.5,
+                label="demonstrations" if i == 0 else None)
+    if (job / "eval.mcap").exists():
+        learned = [p for p in read_artefact(job / "eval.mcap").all("/eval/paths")
+                   if p["graph"] == "graph"]
+        for i, p in enumerate(learned):
+            pts = np.asarray(p["points"])
+            ax.plot(pts[:, 0], pts[:, 1], color="tab:blue", lw=1.5,
+                    label="learned (BIRL-G)" if i == 0 else None)
+    starts = np.asarray(scene["starts"])
+    ax.plot(starts[:, 0], starts[:, 1], "s", color="tab:purple", label="starts")
+    ax.plot(*scene["goal"], "*", color="gold", ms=18, mec="k", label="goal")
+    ax.set_aspect("equal")
+    ax.set_title(f"{scene['name']}: {job.name}")
+    ax.legend(loc="lower right", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def aggregate(sweep_dir: Path) -> pd.DataFrame:
+    table = summary_table(sweep_dir)
+    table.to_csv(sweep_dir / "summary.csv", index=False)
+    plot_policy_loss(table, sweep_dir / "policy_loss.png")
+    ok = table[table.status == "ok"]
+    if len(ok):
+        plot_scene(sweep_dir / ok.iloc[0]["job"], sweep_dir / "scene.png")
+    return table
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.aggregate", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("sweep_dir", type=Path)
+    args = parser.parse_args(argv)
+    try:
+        if not args.sweep_dir.is_dir():
+            raise PipelineError(f"sweep dir {args.sweep_dir} not found")
+        table = aggregate(args.sweep_dir)
+    except PipelineError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    failed = table[table.status != "ok"]
+    cols = [c for c in ("job", "status", "policy_loss", "policy_loss_ref", "policy_loss_norm",
+                        "relation_crossings") if c in table.columns]
+    print(table[cols].to_string(index=False))
+    print(f"{len(table) - len(failed)} of {len(table)} jobs ok; wrote "
+          f"{args.sweep_dir / 'summary.csv'} and figures")
+    for _, row in failed.iterrows():
+        print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
+    return 1 if len(failed) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

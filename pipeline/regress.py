@@ -1,0 +1,115 @@
+"""Metric regression tests against results/baseline/ (`make regress`).
+
+    python -m pipeline.regress                       # run every reference experiment, compare
+    python -m pipeline.regress --only metropolis_polite_s0
+    python -m pipeline.regress --update              # accept the current metrics as baseline
+
+results/baseline/experiments.yaml names the reference experiments (Hydra overrides each),
+results/baseline/<name>.json holds their metrics, results/baseline/tolerances.yaml says how
+far each metric may move. Any metric outside its tolerance, or missing, fails the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+import yaml
+
+from pipeline.run import PROJECT_ROOT
+
+BASELINE = PROJECT_ROOT / "results" / "baseline"
+
+
+def load_tolerances(baseline: Path) -> list[tuple[str, dict | str]]:
+    spec = yaml.safe_load((baseline / "tolerances.yaml").read_text())
+    return list(spec["patterns"].items()) + [("*", spec["default"])]
+
+
+def tolerance_for(metric: str, tolerances) -> dict | str:
+    return next(tol for pattern, tol in tolerances if fnmatch.fnmatch(metric, pattern))
+
+
+def run_experiment(name: str, overrides: list[str], work: Path, reuse: bool) -> dict:
+    run_dir = work / name
+    if not (reuse and (run_dir / "metrics.json").exists()):
+        result = subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}",
+                                 *overrides], cwd=PROJECT_ROOT, capture_output=True, text=True)
+        if result.returncode != 0:
+            raise RuntimeError(f"reference experiment {name} failed: {result.stderr.strip()}")
+    return json.loads((run_dir / "metrics.json").read_text())
+
+
+def compare(name: str, baseline: dict, current: dict, tolerances) -> list[dict]:
+    rows = []
+    for metric in sorted(set(baseline) | set(current)):
+        tol = tolerance_for(metric, tolerances)
+        if tol == "ignore":
+            continue
+        old, new = baseline.get(metric), current.get(metric)
+        if old is None or new is None:
+            ok, diff, allowed = old is None, None, None  # a new metric is fine, a lost one not
+        else:
+            diff = new - old
+            allowed = tol.get("abs", 0.0) + tol.get("rel", 0.0) * abs(old)
+            ok = abs(diff) <= allowed
+        rows.append({"experiment": name, "metric": metric, "baseline": old, "current": new,
+                     "diff": diff, "tolerance": allowed, "ok": ok})
+    return rows
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.regress", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--only", nargs="+", help="reference experiments to run (default: all)")
+    parser.add_argument("--baseline", type=Path, default=BASELINE)
+    parser.add_argument("--work", type=Path, help="where the runs go (default: a temp dir)")
+    parser.add_argument("--reuse", action="store_true", help="reuse runs already in --work")
+    parser.add_argument("--update", action="store_true", help="write current metrics as baseline")
+    parser.add_argument("--all-rows", action="store_true", help="print every metric, not only failures")
+    args = parser.parse_args(argv)
+
+    experiments = yaml.safe_load((args.baseline / "experiments.yaml").read_text())
+    names = args.only or list(experiments)
+    unknown = [n for n in names if n not in experiments]
+    if unknown:
+        print(f"error: unknown reference experiment(s) {unknown}; known: {list(experiments)}",
+              file=sys.stderr)
+        return 2
+    tolerances = load_tolerances(args.baseline)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.work or Path(tmp)
+        rows = []
+        for name in names:
+            print(f"running {name}: {' '.join(experiments[name]) or '(defaults)'}", flush=True)
+            current = run_experiment(name, experiments[name], work, args.reuse)
+            path = args.baseline / f"{name}.json"
+            if args.update:
+                kept = {k: v for k, v in current.items() if tolerance_for(k, tolerances) != "ignore"}
+                path.write_text(json.dumps(kept, indent=1, sort_keys=True) + "\n")
+                continue
+            if not path.exists():
+                print(f"error: no baseline {path}; create it with --update", file=sys.stderr)
+                return 2
+            rows += compare(name, json.loads(path.read_text()), current, tolerances)
+    if args.update:
+        print(f"baseline updated for {names}")
+        return 0
+    table = pd.DataFrame(rows)
+    failed = table[~table.ok]
+    shown = table if args.all_rows else failed
+    if len(shown):
+        print(shown.to_string(index=False, float_format=lambda v: f"{v:.6g}"))
+    print(f"{len(table) - len(failed)} of {len(table)} metrics within tolerance "
+          f"({len(names)} experiments); {len(failed)} regressions")
+    return 1 if len(failed) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,213 @@
+"""Offline viewer: turn a run's MCAP artefacts into a rerun recording (.rrd) with a blueprint.
+
+    python -m pipeline.viewer RUN_DIR [--out FILE] [--no-open]
+
+Static: the scene, demonstrations and final learned paths. Graph growth replays on the
+`iteration` timeline, BIRL on `birl_iteration` (learned paths and curves). Written against
+rerun-sdk 0.41 (pinned): its API changes between releases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from pipeline.artefacts import Artefact, read_artefact
+from pipeline.errors import PipelineError
+
+APP_ID = "birlg"
+HEADING_LEN = 0.4  # m, length of the person heading arrows
+KIND_COLORS = {"start": (40, 180, 60), "goal": (220, 40, 40), "voronoi": (60, 110, 230),
+               "demo": (240, 150, 30), "sampled": (150, 150, 150)}
+
+
+def _strips(polylines) -> list[np.ndarray]:
+    return [np.asarray(p, dtype=float).reshape(-1, 2) for p in polylines]
+
+
+def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
+    r = scene["room"]
+    room = [(r["x_min"], r["y_min"]), (r["x_max"], r["y_min"]), (r["x_max"], r["y_max"]),
+            (r["x_min"], r["y_max"]), (r["x_min"], r["y_min"])]
+    persons = scene["persons"]
+    pos = {p["id"]: (p["x"], p["y"]) for p in persons}
+    xy = np.array([pos[p["id"]] for p in persons], dtype=float).reshape(-1, 2)
+    theta = np.array([p["theta"] for p in persons], dtype=float)
+    rec.log("scene/room", rr.LineStrips2D([room], colors=(80, 80, 80)), static=True, strict=True)
+    rec.log("scene/persons", rr.Points2D(xy, radii=scene["body_radius"], colors=(200, 60, 160),
+                                         labels=[str(p["id"]) for p in persons]),
+            static=True, strict=True)
+    heading = HEADING_LEN * np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+    rec.log("scene/person_heading", rr.Arrows2D(origins=xy, vectors=heading), static=True,
+            strict=True)
+    links = [[pos[a], pos[b]] for a, b in scene["relations"]]
+    rec.log("scene/links", rr.LineStrips2D(_strips(links), colors=(200, 60, 160)), static=True,
+            strict=True)
+    rec.log("scene/starts", rr.Points2D(scene["starts"], radii=0.12, colors=KIND_COLORS["start"]),
+            static=True, strict=True)
+    rec.log("scene/goal", rr.Points2D([scene["goal"]], radii=scene.get("goal_tolerance", 0.2),
+                                      colors=KIND_COLORS["goal"]), static=True, strict=True)
+
+
+def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
+    nodes, edges = graph.all("/graph/node"), graph.all("/graph/edge")
+    best = graph.all("/graph/best_paths")
+    pos = {n["id"]: (n["x"], n["y"]) for n in nodes}
+    iterations = sorted({n["iteration"] for n in nodes} | {e["iteration"] for e in edges}
+                        | {b["iteration"] for b in best})
+    best_at = {b["iteration"]: b for b in best}
+    for k in iterations:
+        rec.set_time("iteration", sequence=k)
+        # Nodes cumulative (cheap); edges only the new ones, made cumulative in the view by a
+        # visible-time-range override: cumulative edges would grow quadratically in the file.
+        grown = [n for n in nodes if n["iteration"] <= k]
+        rec.log("graph/nodes", rr.Points2D(
+            [(n["x"], n["y"]) for n in grown], radii=0.05,
+            colors=[KIND_COLORS.get(n["kind"], (0, 0, 0)) for n in grown]), strict=True)
+        new = [e["waypoints"] for e in edges if e["iteration"] == k]
+        if new:
+            rec.log("graph/edges", rr.LineStrips2D(_strips(new), radii=0.01,
+                                                   colors=(120, 140, 200)), strict=True)
+        if k in best_at:  # one row per /graph/best_paths message, even if it has no paths
+            paths = [[pos[i] for i in p] for p in best_at[k]["paths"] if p]
+            rec.log("graph/best_paths", rr.LineStrips2D(_strips(paths), radii=0.04,
+                                                        colors=(250, 200, 0)), strict=True)
+    rec.reset_time()
+
+
+def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | None,
+              names: list[str]) -> None:
+    for it in birl.all("/birl/iteration") if birl else []:
+        rec.set_time("birl_iteration", sequence=it["index"])
+        paths = [g["points"] for g in it["generated"] if g.get("points")]
+        rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.04,
+                                                      colors=(0, 190, 190)), strict=True)
+        for i, w in enumerate(it["weights"]):
+            name = names[i] if i < len(names) else f"w{i}"
+            rec.log(f"curves/weights/{name}", rr.Scalars(w), strict=True)
+        if it.get("log_posterior") is not None:
+            rec.log("curves/log_posterior", rr.Scalars(it["log_posterior"]), strict=True)
+    for loss in ev.all("/eval/policy_loss") if ev else []:
+        rec.set_time("birl_iteration", sequence=loss["iteration"])
+        for key in ("graph", "ref", "norm"):
+            if loss.get(key) is not None:
+                rec.log(f"curves/policy_loss/{key}", rr.Scalars(loss[key]), strict=True)
+    rec.reset_time()
+    if ev is not None and "/eval/paths" in ev.messages:
+        final = [p for p in ev.all("/eval/paths") if p.get("graph") == "graph" and p["points"]]
+        rec.log("eval/paths", rr.LineStrips2D(
+            _strips([p["points"] for p in final]), radii=0.05, colors=(30, 200, 30),
+            labels=[f"start {p['start']}" for p in final]), static=True, strict=True)
+
+
+def _blueprint(room: dict) -> rrb.Blueprint:
+    # Edges are logged once, at the iteration that added them: show all up to the cursor.
+    grown = rrb.VisibleTimeRanges(timeline="iteration", start=rrb.TimeRangeBoundary.infinite(),
+                                  end=rrb.TimeRangeBoundary.cursor_relative())
+    margin = 0.5
+    space = rrb.Spatial2DView(
+        name="scene", origin="/", contents=["+ /**", "- /curves/**"],
+        overrides={"graph/edges": grown},
+        visual_bounds=rrb.VisualBounds2D(x_range=[room["x_min"] - margin, room["x_max"] + margin],
+                                         y_range=[room["y_min"] - margin, room["y_max"] + margin]))
+    curves = rrb.Vertical(rrb.TimeSeriesView(name="policy loss", origin="/curves/policy_loss"),
+                          rrb.TimeSeriesView(name="weights", origin="/curves/weights"),
+                          rrb.TimeSeriesView(name="log posterior", origin="/curves/log_posterior"))
+    return rrb.Blueprint(rrb.Horizontal(space, curves, column_shares=[3, 2]),
+                         rrb.TimePanel(timeline="iteration"), collapse_panels=False)
+
+
+def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
+    """Read the artefacts present in run_dir (scene.mcap required) and write an .rrd."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise PipelineError(f"run dir {run_dir} does not exist or is not a directory")
+    scene = read_artefact(run_dir / "scene.mcap").one("/scene")
+    arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
+            if (run_dir / f"{n}.mcap").exists()}
+    rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
+    tmp = rrd_path.with_name(rrd_path.name + ".tmp")
+    # Same run dir -> same recording id: a rebuilt .rrd is the same recording, not a new one.
+    rec_id = uuid.uuid5(uuid.NAMESPACE_URL, f"birlg:{run_dir.resolve()}")
+    rec = rr.RecordingStream(APP_ID, recording_id=rec_id)
+    if not rec.is_enabled():
+        raise PipelineError("rerun logging is disabled (RERUN=off in the environment)")
+    rec.set_log_time_enabled(False)  # wall-clock log_time would add a meaningless timeline
+    try:
+        try:
+            rec.save(tmp)
+        except RuntimeError as e:  # the bindings report an unwritable path this way
+            raise PipelineError(f"cannot write {rrd_path}: {e}") from None
+        rec.send_recording_name(run_dir.resolve().name)
+        rec.send_blueprint(_blueprint(scene["room"]))
+        _log_scene(rec, scene)
+        if "demos" in arts:
+            rec.log("demos/trajectories", rr.LineStrips2D(
+                _strips([d["points"] for d in arts["demos"].all("/demos")]), radii=0.03,
+                colors=(240, 150, 30)), static=True, strict=True)
+        if "graph" in arts:
+            _log_graph(rec, arts["graph"])
+        names = next((a.messages[t][0]["feature_names"] for a, t in
+                      ((arts.get("birl"), "/birl/expert"), (arts.get("demos"), "/demos/expert"))
+                      if a is not None and a.messages.get(t)), [])
+        _log_birl(rec, arts.get("birl"), arts.get("eval"), names)
+        rec.flush()
+        rec.disconnect()  # closes the file sink, writing the footer
+        os.replace(tmp, rrd_path)
+    finally:
+        rec.disconnect()  # idempotent; on failure, stop writing into the temp file
+        tmp.unlink(missing_ok=True)
+    return rrd_path
+
+
+def _viewer_command(rrd: Path) -> list[str]:
+    exe = Path(sys.executable).parent / "rerun"
+    if exe.exists():
+        return [str(exe), str(rrd)]
+    found = shutil.which("rerun")
+    return [found, str(rrd)] if found else [sys.executable, "-m", "rerun", str(rrd)]
+
+
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) \
+        or sys.platform == "darwin"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipeline.viewer",
+                                 description=__doc__.split("\n")[0])
+    ap.add_argument("run_dir", type=Path, help="a run directory holding the stage artefacts")
+    ap.add_argument("--out", type=Path, default=None, help="the .rrd to write "
+                    "(default RUN_DIR/run.rrd)")
+    ap.add_argument("--no-open", action="store_true", help="only write the .rrd")
+    args = ap.parse_args(argv)
+    try:
+        rrd = build_recording(args.run_dir, args.out)
+    except PipelineError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # e.g. a read-only run dir at the final rename
+        print(f"error: {e.filename or args.run_dir}: {e.strerror or e}", file=sys.stderr)
+        return 2
+    cmd = _viewer_command(rrd)
+    if args.no_open or not _has_display():
+        print(f"wrote {rrd}; open it with: {' '.join(cmd)}")
+        return 0
+    # Detached, so the viewer outlives this command.
+    subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
+                     stderr=subprocess.DEVNULL)
+    print(f"wrote {rrd}; opened it with: {' '.join(cmd)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

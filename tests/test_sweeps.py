@@ -1,0 +1,90 @@
+"""Sweeps with the joblib launcher, aggregation (also of partly failed sweeps), and the
+metric regression check against results/baseline/."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from tests.conftest import ROOT, run_app
+
+
+def aggregate(sweep_dir):
+    return subprocess.run([sys.executable, "-m", "pipeline.aggregate", str(sweep_dir)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_two_by_two_multirun_is_aggregated(tmp_path):
+    result = run_app("-m", "experiment=quick", f"hydra.sweep.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-2000:]
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 0, agg.stderr
+    table = pd.read_csv(tmp_path / "summary.csv")
+    assert len(table) == 4 and (table.status == "ok").all()
+    assert sorted(zip(table.seed, table.reward)) == [(0, "polite"), (0, "rude"),
+                                                      (1, "polite"), (1, "rude")]
+    assert {f"policy_loss_iter_{k:02d}" for k in range(6)} <= set(table.columns)
+    assert (tmp_path / "policy_loss.png").stat().st_size > 10_000
+    assert (tmp_path / "scene.png").stat().st_size > 10_000
+    # Polite experts learn to avoid links, rude ones cross them.
+    by_reward = table.groupby("reward").relation_crossings.max()
+    assert by_reward["polite"] == 0 and by_reward["rude"] > 0
+
+
+def test_failing_job_does_not_stop_the_sweep(tmp_path):
+    # Two jobs; the second has an invalid body radius and fails in validation.
+    result = run_app("-m", "experiment=quick", "seed=0", "reward=polite",
+                     "scene.body_radius=0.25,-1", f"hydra.sweep.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-2000:]
+    statuses = {p.parent.name: json.loads(p.read_text())["ok"]
+                for p in tmp_path.glob("*/status.json")}
+    assert statuses == {"0": True, "1": False}
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 1  # something failed, and the exit status says so
+    assert "FAILED 1: config error: scene.body_radius=-1" in agg.stderr
+    table = pd.read_csv(tmp_path / "summary.csv")
+    assert list(table.status) == ["ok", "failed"]
+    assert table.policy_loss.notna().tolist() == [True, False]
+    assert (tmp_path / "policy_loss.png").exists()
+
+
+def test_aggregate_rejects_a_dir_without_jobs(tmp_path):
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 2 and "holds no Hydra jobs" in agg.stderr
+
+
+@pytest.fixture(scope="module")
+def regress_work(tmp_path_factory):
+    return tmp_path_factory.mktemp("regress")
+
+
+def regress(*args):
+    return subprocess.run([sys.executable, "-m", "pipeline.regress", *map(str, args)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_regression_subset_passes(regress_work):
+    result = regress("--only", "metropolis_polite_s0", "--work", regress_work)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "0 regressions" in result.stdout
+
+
+def test_metric_beyond_tolerance_fails(tmp_path, regress_work):
+    baseline = tmp_path / "baseline"
+    shutil.copytree(ROOT / "results" / "baseline", baseline)
+    path = baseline / "metropolis_polite_s0.json"
+    metrics = json.loads(path.read_text())
+    metrics["policy_loss_ref"] += 0.2
+    path.write_text(json.dumps(metrics))
+    result = regress("--only", "metropolis_polite_s0", "--baseline", baseline, "--work",
+                     regress_work, "--reuse")
+    assert result.returncode == 1
+    assert "policy_loss_ref" in result.stdout and "1 regressions" in result.stdout
+    # Within tolerance is not a regression.
+    metrics["policy_loss_ref"] -= 0.2 - 0.001
+    path.write_text(json.dumps(metrics))
+    assert regress("--only", "metropolis_polite_s0", "--baseline", baseline, "--work",
+                   regress_work, "--reuse").returncode == 0

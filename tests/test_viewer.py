@@ -1,0 +1,169 @@
+"""The offline viewer: a real run turned into an .rrd, read back with rerun's own reader."""
+
+import os
+import subprocess
+import sys
+from collections import defaultdict
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+from rerun.error_utils import RerunWarning
+
+from pipeline.artefacts import ArtefactError, read_artefact
+from pipeline.errors import PipelineError
+from pipeline.viewer import build_recording
+from tests.conftest import ROOT, run_app
+
+SPATIAL = ["/scene/room", "/scene/persons", "/scene/person_heading", "/scene/links",
+           "/scene/starts", "/scene/goal", "/demos/trajectories", "/graph/nodes",
+           "/graph/edges", "/graph/best_paths", "/birl/learned_paths", "/eval/paths"]
+STATIC = ["/scene/room", "/scene/persons", "/scene/person_heading", "/scene/links",
+          "/scene/starts", "/scene/goal", "/demos/trajectories", "/eval/paths"]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("viewer_run")
+    res = run_app(f"hydra.run.dir={d}", "graph=small", "birl.n_iterations=4")
+    assert res.returncode == 0, res.stderr[-2000:]
+    return d
+
+
+@pytest.fixture(scope="module")
+def rrd(run_dir):
+    import warnings
+    with warnings.catch_warnings():  # rerun reports bad data as warnings unless strict
+        warnings.simplefilter("error", RerunWarning)
+        return build_recording(run_dir)
+
+
+def chunks_by_entity(path, store=None):
+    """entity path -> list of (is_static, arrow record batch), one per chunk."""
+    reader = RrdReader(path)
+    out = defaultdict(list)
+    for ch in reader.stream(store=store):
+        out[ch.entity_path].append((ch.is_static, ch.to_record_batch()))
+    return out
+
+
+def column(chunks, name):
+    return [v for _, rb in chunks for v in rb.column(name).to_pylist()]
+
+
+def test_rrd_has_the_entities_timelines_and_no_temp_file(run_dir, rrd):
+    assert rrd == run_dir / "run.rrd" and rrd.stat().st_size > 0
+    assert not (run_dir / "run.rrd.tmp").exists()
+    reader = RrdReader(rrd)
+    (rec,) = reader.recordings()
+    assert rec.application_id == "birlg"
+    schema = reader.store().schema()
+    paths = set(schema.entity_paths())
+    assert set(SPATIAL) <= paths
+    assert {"/curves/policy_loss/graph", "/curves/policy_loss/ref", "/curves/policy_loss/norm",
+            "/curves/log_posterior"} <= paths
+    assert {c.name for c in schema.index_columns()} >= {"iteration", "birl_iteration"}
+    chunks = chunks_by_entity(rrd)
+    for p in STATIC:
+        assert all(static for static, _ in chunks[p]), p
+    persons = read_artefact(run_dir / "scene.mcap").one("/scene")["persons"]
+    assert column(chunks["/scene/persons"], "Points2D:labels")[0] == \
+        [str(p["id"]) for p in persons]
+
+
+def test_graph_growth_replays_one_step_per_best_paths_message(run_dir, rrd):
+    graph = read_artefact(run_dir / "graph.mcap")
+    chunks = chunks_by_entity(rrd)
+    best = graph.all("/graph/best_paths")
+    steps = column(chunks["/graph/best_paths"], "iteration")
+    assert len(set(steps)) == len(steps) == len(best)
+    # nodes are cumulative: the last step shows every node
+    nodes = column(chunks["/graph/nodes"], "Points2D:positions")
+    assert len(nodes[-1]) == len(graph.all("/graph/node"))
+    # edges are logged once each, at the iteration that added them
+    strips = column(chunks["/graph/edges"], "LineStrips2D:strips")
+    assert sum(len(s) for s in strips) == len(graph.all("/graph/edge"))
+
+
+def test_curves_have_one_value_per_birl_iteration(run_dir, rrd):
+    birl = read_artefact(run_dir / "birl.mcap")
+    its = birl.all("/birl/iteration")
+    names = birl.one("/birl/expert")["feature_names"]
+    chunks = chunks_by_entity(rrd)
+    for i, name in enumerate(names):
+        series = chunks[f"/curves/weights/{name}"]
+        assert column(series, "birl_iteration") == [it["index"] for it in its]
+        got = [v[0] for v in column(series, "Scalars:scalars")]
+        np.testing.assert_allclose(got, [it["weights"][i] for it in its])
+    assert len(column(chunks["/curves/log_posterior"], "Scalars:scalars")) == len(its)
+    assert len(column(chunks["/birl/learned_paths"], "birl_iteration")) == len(its)
+    losses = read_artefact(run_dir / "eval.mcap").all("/eval/policy_loss")
+    got = [v[0] for v in column(chunks["/curves/policy_loss/graph"], "Scalars:scalars")]
+    np.testing.assert_allclose(got, [m["graph"] for m in losses])
+
+
+def test_blueprint_has_a_2d_view_beside_time_series(rrd):
+    reader = RrdReader(rrd)
+    (bp,) = reader.blueprints()
+    views, queries = {}, {}
+    for path, chunks in chunks_by_entity(rrd, store=bp).items():
+        names = chunks[0][1].schema.names
+        if "ViewBlueprint:class_identifier" in names:
+            views[path] = (column(chunks, "ViewBlueprint:class_identifier")[0][0],
+                           column(chunks, "ViewBlueprint:space_origin")[0][0])
+        if "ViewContents:query" in names:
+            queries[path.removesuffix("/ViewContents")] = column(chunks, "ViewContents:query")[0]
+    kinds = sorted(views.values())
+    assert kinds == [("2D", "/"), ("TimeSeries", "/curves/log_posterior"),
+                     ("TimeSeries", "/curves/policy_loss"), ("TimeSeries", "/curves/weights")]
+    (spatial,) = [p for p, v in views.items() if v[0] == "2D"]
+    assert "- /curves/**" in queries[spatial]
+
+
+def test_only_the_scene_is_required(run_dir, tmp_path):
+    (tmp_path / "scene.mcap").write_bytes((run_dir / "scene.mcap").read_bytes())
+    out = build_recording(tmp_path, tmp_path / "only_scene.rrd")
+    paths = set(RrdReader(out).store().schema().entity_paths())
+    assert "/scene/persons" in paths and "/graph/nodes" not in paths
+
+
+def test_missing_scene_or_truncated_artefact_is_a_clear_error(run_dir, tmp_path):
+    with pytest.raises(ArtefactError, match="scene.mcap"):
+        build_recording(tmp_path)
+    with pytest.raises(PipelineError, match="does not exist"):
+        build_recording(tmp_path / "nope")
+    (tmp_path / "scene.mcap").write_bytes((run_dir / "scene.mcap").read_bytes())
+    data = (run_dir / "graph.mcap").read_bytes()
+    (tmp_path / "graph.mcap").write_bytes(data[: len(data) // 2])
+    with pytest.raises(ArtefactError, match="graph.mcap.*truncated"):
+        build_recording(tmp_path)
+    assert not list(tmp_path.glob("*.rrd*"))
+
+
+def _cli(*args):
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    return subprocess.run([sys.executable, "-m", "pipeline.viewer", *map(str, args)], cwd=ROOT,
+                          env=env, capture_output=True, text=True, timeout=120, check=False)
+
+
+def test_cli_writes_the_rrd_and_says_how_to_open_it(run_dir, tmp_path):
+    out = tmp_path / "cli.rrd"
+    res = _cli(run_dir, "--out", out, "--no-open")
+    assert res.returncode == 0, res.stderr
+    assert out.stat().st_size > 0
+    assert f"wrote {out}; open it with: " in res.stdout and str(out) in res.stdout.splitlines()[-1]
+
+
+@pytest.mark.skipif(sys.platform == "darwin", reason="macOS always counts as having a display")
+def test_cli_without_a_display_only_writes_the_file(run_dir, tmp_path):
+    out = tmp_path / "nodisplay.rrd"
+    res = _cli(run_dir, "--out", out)
+    assert res.returncode == 0, res.stderr
+    assert out.exists() and "open it with: " in res.stdout
+
+
+def test_cli_error_is_one_line_and_exit_2(tmp_path):
+    res = _cli(tmp_path, "--no-open")
+    assert res.returncode == 2
+    assert res.stderr.startswith("error: ") and "scene.mcap" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
