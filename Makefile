@@ -60,3 +60,4 @@ clean:
 bench: $(STAMP)
 	$(PY) -m pipeline.bench graph
 	$(PY) -m pipeline.bench experiment
+	$(PY) -m pipeline.bench irl

@@ -3,6 +3,7 @@
     python -m pipeline.bench graph            # adaptive-graph scaling on metropolis
     python -m pipeline.bench graph --sizes 250 500
     python -m pipeline.bench experiment       # the default experiment's time per stage
+    python -m pipeline.bench irl              # BIRL-G against PolicyWalk and MaxEnt IRL
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
 """
@@ -115,6 +116,77 @@ def experiment_timings(repeats: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+IRL_METHODS = ["map", "mcmc", "policywalk", "maxent"]
+IRL_SCENES = {"metropolis": ["scene=metropolis"], "random1": ["scene=random", "scene.seed=1"],
+              "random2": ["scene=random", "scene.seed=2"], "random3": ["scene=random", "scene.seed=3"]}
+
+
+def _app(run_dir: Path, *overrides: str) -> dict:
+    subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}", *overrides],
+                   check=True, capture_output=True, cwd=PROJECT_ROOT)
+    return json.loads((run_dir / "metrics.json").read_text()) \
+        if (run_dir / "metrics.json").exists() else {}
+
+
+def irl_methods(seeds: list[int], methods: list[str], scenes: list[str]):
+    """Every method on the same scene, demos and adaptive graph: the first three stages run
+    once per (scene, seed), then each method's learning and evaluation from that run."""
+    import tempfile
+
+    rows, curves = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for scene in scenes:
+            for seed in seeds:
+                base = Path(tmp) / f"{scene}-{seed}"
+                _app(base, *IRL_SCENES[scene], f"seed={seed}", "stages=[scene,demos,graph]")
+                for method in methods:
+                    run = Path(tmp) / f"{scene}-{seed}-{method}"
+                    m = _app(run, *IRL_SCENES[scene], f"seed={seed}", f"birl={method}",
+                             "stages=[birl,evaluate]", f"from_run={base}")
+                    its = read_artefact_iterations(run)
+                    rows.append({"method": method, "scene": scene, "seed": seed,
+                                 "wall_s": m["time_birl_learn_s"], "mdp_solves": its[-1]["mdp_solves"],
+                                 "policy_loss": m["policy_loss"],
+                                 "policy_loss_ref": m["policy_loss_ref"],
+                                 "policy_loss_norm": m["policy_loss_norm"],
+                                 "ref_relation_crossings": m["ref_relation_crossings"]})
+                    n = len(its) - 1
+                    for k in range(len(its)):
+                        curves.append({"method": method, "scene": scene, "seed": seed,
+                                       "wall_s": m["time_birl_learn_s"] * k / max(n, 1),
+                                       "policy_loss_ref": m[f"policy_loss_ref_iter_{k:02d}"]})
+                    print(f"  {rows[-1]}", flush=True)
+    return pd.DataFrame(rows), pd.DataFrame(curves)
+
+
+def read_artefact_iterations(run: Path) -> list[dict]:
+    from pipeline.artefacts import read_artefact
+
+    return read_artefact(run / "birl.mcap").all("/birl/iteration")
+
+
+def plot_loss_vs_time(curves: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for method, part in curves.groupby("method"):
+        # Iteration k of every run at its mean elapsed time, loss averaged over runs.
+        part = part.assign(k=part.groupby(["scene", "seed"]).cumcount())
+        mean = part.groupby("k")[["wall_s", "policy_loss_ref"]].mean()
+        ax.plot(mean.wall_s.clip(lower=1e-4), mean.policy_loss_ref, marker=".", label=method)
+    ax.set_xscale("log")
+    ax.set_xlabel("learning wall time (s, log scale)")
+    ax.set_ylabel("policy loss on the reference roadmap (mean over runs)")
+    ax.set_title("IRL methods on metropolis and three random scenes")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.bench")
     sub = parser.add_subparsers(dest="suite", required=True)
@@ -123,6 +195,10 @@ def main(argv=None) -> None:
     g.add_argument("--seed", type=int, default=0)
     e = sub.add_parser("experiment", help="default experiment -> results/bench/experiment.csv")
     e.add_argument("--repeats", type=int, default=3)
+    irl = sub.add_parser("irl", help="IRL methods -> results/bench/irl_methods.csv and .png")
+    irl.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    irl.add_argument("--methods", nargs="+", default=IRL_METHODS)
+    irl.add_argument("--scenes", nargs="+", default=list(IRL_SCENES))
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
@@ -132,7 +208,15 @@ def main(argv=None) -> None:
         print(json.dumps(_graph_once(args.nodes, args.seed)))
         return
     RESULTS.mkdir(parents=True, exist_ok=True)
-    if args.suite == "experiment":
+    if args.suite == "irl":
+        print(f"IRL methods {args.methods} on {args.scenes}, seeds {args.seeds}:", flush=True)
+        table, curves = irl_methods(args.seeds, args.methods, args.scenes)
+        plot_loss_vs_time(curves, RESULTS / "irl_methods.png")
+        path = RESULTS / "irl_methods.csv"
+        summary = table.groupby("method")[["wall_s", "mdp_solves", "policy_loss_ref",
+                                           "policy_loss_norm"]].mean()
+        print(summary.to_string())
+    elif args.suite == "experiment":
         print(f"default experiment, {args.repeats} runs:", flush=True)
         table = experiment_timings(args.repeats)
         path = RESULTS / "experiment.csv"

@@ -34,6 +34,7 @@ class FileSceneConfig(SceneConfig):
 @dataclass
 class RandomSceneConfig(SceneConfig):
     kind: str = "random"
+    seed: Optional[int] = None  # scene generator seed; null: the run seed
     width: float = 10.0
     height: float = 10.0
     n_singles: int = 3  # persons standing alone
@@ -129,7 +130,7 @@ class PriorConfig:
 
 @dataclass
 class BirlConfig:
-    kind: str = "map"  # map | mcmc
+    kind: str = "map"  # map | mcmc (BIRL-G) | policywalk | maxent (baselines)
     beta: float = 10.0  # expert optimality β
     prior: PriorConfig = field(default_factory=PriorConfig)
     lower: list[float] = field(default_factory=lambda: [-1.0] * len(FEATURE_NAMES))
@@ -140,7 +141,9 @@ class BirlConfig:
     n_samples: int = 2000
     burn_in: int = 500
     thin: int = 2
-    step: float = 0.05  # random-walk proposal std
+    step: float = 0.05  # random-walk proposal std (PolicyWalk: grid step)
+    alpha: float = 10.0  # PolicyWalk: expert confidence in its Boltzmann likelihood
+    learning_rate: float = 0.5  # MaxEnt: projected Adam step (decays as 1/sqrt(t))
 
 
 @dataclass
@@ -264,7 +267,10 @@ def validate_graph(g: Any) -> None:
 
 def validate_birl(b: Any) -> None:
     d = len(FEATURE_NAMES)
-    _require(b.kind in ("map", "mcmc"), "birl.kind", b.kind, "'map' or 'mcmc'")
+    _require(b.kind in ("map", "mcmc", "policywalk", "maxent"), "birl.kind", b.kind,
+             "'map', 'mcmc', 'policywalk' or 'maxent'")
+    _positive("birl.alpha", b.alpha)
+    _positive("birl.learning_rate", b.learning_rate)
     _positive("birl.beta", b.beta)
     _require(b.prior.kind in ("gaussian", "laplace", "uniform"), "birl.prior.kind",
              b.prior.kind, "'gaussian', 'laplace' or 'uniform'")

@@ -66,9 +66,10 @@ class RunContext:
     metadata: dict[str, str]
     timings: dict[str, float] = field(default_factory=dict)  # extra wall-clock measurements
 
-    def rng(self, stage: str) -> np.random.Generator:
-        """An independent generator per stage, derived from the run seed only."""
-        return np.random.default_rng([int(self.cfg.seed), ALL_STAGES.index(stage)])
+    def rng(self, stage: str, seed: int | None = None) -> np.random.Generator:
+        """An independent generator per stage, derived from the run seed (or `seed`) only."""
+        seed = int(self.cfg.seed if seed is None else seed)
+        return np.random.default_rng([seed, ALL_STAGES.index(stage)])
 
     def read(self, stage: str, required_topics=()) -> Artefact:
         """The artefact of an earlier `stage`: from this run dir, else from `from_run`."""

@@ -85,3 +85,20 @@ def test_file_demos_report_similarity(tmp_path_factory):
                              f"expert.path={ROOT}/data/demos/metropolis_polite_smoothed.json")
     assert "policy_loss" not in m  # no true weights, no policy loss
     assert 0 < m["frechet_to_demos"] < 1.0 and m["relation_crossings"] == 0
+
+
+@pytest.mark.parametrize("method, overrides", [
+    ("policywalk", ["birl.n_samples=100", "birl.burn_in=20", "birl.n_iterations=5"]),
+    ("maxent", ["birl.n_iterations=8"]),
+])
+def test_baselines_write_the_same_topics(tmp_path_factory, method, overrides):
+    run_dir, m, _ = run_experiment(tmp_path_factory, f"birl={method}", "graph=small", *overrides)
+    its = read_artefact(run_dir / "birl.mcap", required_topics=["/birl/iteration"]).all(
+        "/birl/iteration")
+    assert all(it["method"] == method for it in its)
+    solves = [it["mdp_solves"] for it in its]
+    assert solves == sorted(solves) and solves[-1] > solves[0]
+    assert len(its) == len([k for k in m if k.startswith("policy_loss_ref_iter_")])
+    assert m["policy_loss_ref"] >= 0 and m["time_birl_learn_s"] > 0
+    if method == "policywalk":  # every proposal solves the MDP: many more than iterations
+        assert solves[-1] > 100

@@ -1,5 +1,9 @@
 """Stage 4: BIRL-G reward learning on the adaptive graph -> birl.mcap (DESIGN §8).
 
+`birl=map` (default) and `birl=mcmc` are BIRL-G; `birl=policywalk` (Ramachandran & Amir
+2007, on the same graph) and `birl=maxent` (Ziebart et al. 2008, on the reference roadmap)
+are the baselines, written to the same topics so stage 5 scores every method alike.
+
 Topics: /birl/expert (the demonstrations as the likelihood sees them), /birl/iteration (one
 per iteration: weights, log likelihood, log prior, generated trajectories), and for
 birl=mcmc /birl/posterior (posterior mean, std, acceptance, samples of every iteration).
@@ -12,11 +16,17 @@ import time
 
 import numpy as np
 
+from scipy.spatial import cKDTree
+
+from pipeline.baselines import expert_state_actions, maxent_irl, policywalk
 from pipeline.birl import Iteration, McmcResult, TrajectoryStats, birl_map, mcmc
+from pipeline.errors import PipelineError
 from pipeline.features import FEATURE_NAMES
-from pipeline.graph_mdp import SpatialGraph
+from pipeline.graph_mdp import Path, SpatialGraph
 from pipeline.run import RunContext
+from pipeline.stages.demos import load_roadmap
 from pipeline.stages.graph import load_graph, make_prior
+from pipeline.stages.scene import load_scene
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +55,56 @@ class GraphEnvironment:
                                            self.gamma, p.reached) for k, p in enumerate(paths)]
 
 
+def demo_graph_paths(graph: SpatialGraph, demo_msgs, tolerance: float) -> list[Path]:
+    """The demonstrations as paths of a graph: waypoints snapped to nodes within
+    `tolerance`, consecutive nodes joined by existing edges (internal indices)."""
+    tree = cKDTree(graph.positions)
+    mdp = graph.mdp
+    edge_of = {(int(a), int(b)): e for e, (a, b) in enumerate(zip(mdp.src, mdp.dst))}
+    paths = []
+    for k, msg in enumerate(demo_msgs):
+        dist, nodes = tree.query(np.asarray(msg["points"], float))
+        if dist.max() > tolerance:
+            raise PipelineError(f"demonstration {k} is not a path of the graph: a waypoint lies "
+                                f"{dist.max():.3f} m from the nearest node")
+        nodes = [int(n) for i, n in enumerate(nodes) if i == 0 or n != nodes[i - 1]]
+        missing = [(a, b) for a, b in zip(nodes[:-1], nodes[1:]) if (a, b) not in edge_of]
+        if missing:
+            raise PipelineError(f"demonstration {k} is not a path of the graph: no edge {missing[0]}")
+        edges = [edge_of[(a, b)] for a, b in zip(nodes[:-1], nodes[1:])]
+        paths.append(Path(np.array(nodes), np.array(edges, dtype=np.int64),
+                          bool(mdp.terminal[nodes[-1]])))
+    return paths
+
+
+def run_baseline(ctx, b, demos, graph, prior, rng, w0, env) -> tuple[list[Iteration], dict]:
+    """PolicyWalk on the adaptive graph or MaxEnt IRL on the reference roadmap, reported as
+    BIRL iterations (weights after each recorded step, greedy paths on the graph)."""
+    r_goal = ctx.cfg.mdp.r_goal
+    if b.kind == "policywalk":
+        min_sep = ctx.cfg.graph.min_separation or graph_min_separation(ctx, graph)
+        expert = expert_state_actions(graph.mdp, demo_graph_paths(graph, demos, min_sep))
+        result = policywalk(graph.mdp, expert, prior, rng, alpha=b.alpha, n_samples=b.n_samples,
+                            burn_in=b.burn_in, thin=b.thin, step=b.step, w0=w0,
+                            n_records=b.n_iterations)
+        solves = result.extra["solves_at_record"]
+    else:
+        roadmap = load_roadmap(ctx)
+        paths = demo_graph_paths(roadmap, demos, 1e-6)
+        result = maxent_irl(roadmap.mdp, paths, (prior.lower, prior.upper),
+                            n_iterations=b.n_iterations, learning_rate=b.learning_rate, w0=w0)
+        solves = list(range(1, len(result.history) + 1))
+    records = [Iteration(k, w, ll, prior.log_pdf(w), env(w))
+               for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood))]
+    return records, {"mdp_solves": solves, "method_extra": result.extra}
+
+
+def graph_min_separation(ctx, graph: SpatialGraph) -> float:
+    """The node separation the graph stage used when it was left to its default."""
+    room = load_scene(ctx).room
+    return 0.35 * float(np.sqrt(room.area / ctx.cfg.graph.max_nodes))
+
+
 def run(ctx: RunContext) -> None:
     cfg, b = ctx.cfg, ctx.cfg.birl
     demos = ctx.read("demos", required_topics=["/demos"]).all("/demos")
@@ -55,6 +115,14 @@ def run(ctx: RunContext) -> None:
     w0 = np.asarray(b.init_weights, float) if b.init_weights is not None else prior.sample(rng)
     env = GraphEnvironment(graph, cfg.mdp.gamma)
     posteriors: list[McmcResult] = []
+    if b.kind in ("policywalk", "maxent"):
+        t0 = time.perf_counter()
+        records, info = run_baseline(ctx, b, demos, graph, prior, rng, w0, env)
+        learn = time.perf_counter() - t0
+        ctx.timings["time_birl_learn_s"] = round(learn, 4)
+        ctx.timings["time_birl_iteration_s"] = round(learn / len(records), 5)
+        write_birl(ctx, b, expert, records, env, graph, posteriors, info["mdp_solves"])
+        return
 
     def fit_mcmc(posterior, w_prev):
         result = mcmc(posterior, w_prev, rng, n_samples=b.n_samples, burn_in=b.burn_in,
@@ -76,16 +144,24 @@ def run(ctx: RunContext) -> None:
                        n_iterations=b.n_iterations, w0=w0, progress=progress,
                        fit=fit_mcmc if b.kind == "mcmc" else None)
     # The loop alone (MAP steps and warm-started policy iteration), without artefact I/O.
-    ctx.timings["time_birl_iteration_s"] = round((time.perf_counter() - t0) / (len(records)), 5)
+    learn = time.perf_counter() - t0
+    ctx.timings["time_birl_learn_s"] = round(learn, 4)
+    ctx.timings["time_birl_iteration_s"] = round(learn / len(records), 5)
+    # BIRL-G solves the graph MDP once per iteration (its greedy trajectories).
+    write_birl(ctx, b, expert, records, env, graph, posteriors, list(range(1, len(records) + 1)))
 
+
+def write_birl(ctx, b, expert, records, env, graph, posteriors, mdp_solves) -> None:
+    cfg = ctx.cfg
     with ctx.writer("birl") as w:
         w.add("/birl/expert", "BirlExpert", {
             "feature_names": list(FEATURE_NAMES), "beta": b.beta, "prior": b.prior.kind,
             "trajectories": [{"start": t.start, "phi": t.phi, "end_discount": t.end_discount,
                               "reached": t.reached} for t in expert]}, log_time=0)
-        for it, paths in zip(records, env.paths):
+        for it, paths in zip(records, env.paths[-len(records):]):
             w.add("/birl/iteration", "BirlIteration", {
-                "index": it.index, "weights": it.weights, "log_likelihood": it.log_likelihood,
+                "index": it.index, "method": b.kind, "mdp_solves": int(mdp_solves[it.index]),
+                "weights": it.weights, "log_likelihood": it.log_likelihood,
                 "log_prior": it.log_prior, "log_posterior": it.log_likelihood + it.log_prior,
                 "generated": [{"start": t.start, "nodes": p.nodes, "points": graph.polyline(p),
                                "phi": t.phi, "end_discount": t.end_discount,

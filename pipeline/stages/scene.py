@@ -15,8 +15,9 @@ def make_scene(ctx: RunContext) -> Scene:
     sc = ctx.cfg.scene
     if sc.kind == "random":
         fields = {k: sc[k] for k in RandomSceneSpec.__dataclass_fields__}
-        return random_scene(RandomSceneSpec(**fields), ctx.rng("scene"),
-                            name=f"random-{ctx.cfg.seed}")
+        seed = ctx.cfg.seed if sc.seed is None else sc.seed
+        return random_scene(RandomSceneSpec(**fields), ctx.rng("scene", seed),
+                            name=f"random-{seed}")
     return load_scene_file(resolve_path(sc.path), body_radius=sc.body_radius,
                            goal_tolerance=sc.goal_tolerance)
 
