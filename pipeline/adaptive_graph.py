@@ -396,7 +396,10 @@ class AdaptiveGraph:
         self.iteration += 1
         terminal = self.terminal
         on_best = np.zeros(self.n_nodes, dtype=bool)
-        for path in self.best_paths:
+        # A start whose best trajectory does not reach the goal yet has the lowest quality
+        # (V = −V_max) and would almost never be expanded; its trajectory is N_b until it does.
+        stuck = [p for p, reached in zip(self.best_paths, self.best_reached) if not reached]
+        for path in stuck or self.best_paths:
             on_best[path] = True
         best_set = np.flatnonzero(on_best & ~terminal)
         other_set = np.flatnonzero(~on_best & ~terminal)

@@ -27,8 +27,11 @@ from pipeline.errors import PipelineError
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
     """Every job of the sweep: the dirs holding Hydra's .hydra/overrides.yaml."""
+    def natural(p: Path):  # job 2 before job 10
+        return len(p.parts), [int(x) if x.isdigit() else x for x in p.parts]
+
     return sorted((p.parent.parent for p in sweep_dir.glob("**/.hydra/overrides.yaml")),
-                  key=lambda p: (len(p.parts), str(p)))
+                  key=natural)
 
 
 def parse_overrides(job: Path) -> dict[str, str]:

@@ -206,7 +206,9 @@ def discounted_counts(edge_features, durations, gamma) -> tuple[np.ndarray, floa
     """Φ(ξ) = Σ_t γ^{T_t} φ(e_t), T_t the time before edge t; also γ^T for the whole path."""
     durations = np.asarray(durations, dtype=float)
     t_before = np.concatenate([[0.0], np.cumsum(durations)[:-1]]) if len(durations) else durations
-    phi = (gamma ** t_before) @ np.asarray(edge_features, float).reshape(len(durations), -1)
+    feats = np.asarray(edge_features, float)
+    feats = feats.reshape(len(durations), -1) if feats.ndim == 1 else feats  # (T, d), T may be 0
+    phi = (gamma ** t_before) @ feats
     return phi, float(gamma ** durations.sum())
 
 

@@ -125,3 +125,9 @@ def test_pointer_doubling_evaluation_equals_sparse_solve(seed):
     r = mdp.rewards(w)
     np.testing.assert_allclose(mdp._evaluate(policy, r), mdp._evaluate_sparse(policy, r),
                                atol=1e-12)
+
+
+def test_discounted_counts_of_an_empty_path():
+    phi, end = discounted_counts(np.zeros((0, 4)), np.zeros(0), 0.9)
+    np.testing.assert_array_equal(phi, np.zeros(4))
+    assert end == 1.0
