@@ -193,6 +193,7 @@ class SpatialGraph:
     mdp: GraphMDP
     start_nodes: np.ndarray
     waypoints: list[np.ndarray]  # per edge (caller's order)
+    snap_tolerance: float = 0.0  # input points this close to a node were merged into it
 
     def polyline(self, path) -> np.ndarray:
         """The driven path of a graph path: the edges' controller waypoints joined."""

@@ -26,7 +26,6 @@ from pipeline.graph_mdp import Path, SpatialGraph
 from pipeline.run import RunContext
 from pipeline.stages.demos import load_roadmap
 from pipeline.stages.graph import load_graph, make_prior
-from pipeline.stages.scene import load_scene
 
 log = logging.getLogger(__name__)
 
@@ -55,16 +54,16 @@ class GraphEnvironment:
                                            self.gamma, p.reached) for k, p in enumerate(paths)]
 
 
-def demo_graph_paths(graph: SpatialGraph, demo_msgs, tolerance: float) -> list[Path]:
-    """The demonstrations as paths of a graph: waypoints snapped to nodes within
-    `tolerance`, consecutive nodes joined by existing edges (internal indices)."""
+def demo_graph_paths(graph: SpatialGraph, demo_msgs) -> list[Path]:
+    """The demonstrations as paths of a graph: waypoints snapped to the nodes the graph
+    merged them into, consecutive nodes joined by existing edges (internal indices)."""
     tree = cKDTree(graph.positions)
     mdp = graph.mdp
     edge_of = {(int(a), int(b)): e for e, (a, b) in enumerate(zip(mdp.src, mdp.dst))}
     paths = []
     for k, msg in enumerate(demo_msgs):
         dist, nodes = tree.query(np.asarray(msg["points"], float))
-        if dist.max() > tolerance:
+        if dist.max() > graph.snap_tolerance + 1e-9:
             raise PipelineError(f"demonstration {k} is not a path of the graph: a waypoint lies "
                                 f"{dist.max():.3f} m from the nearest node")
         nodes = [int(n) for i, n in enumerate(nodes) if i == 0 or n != nodes[i - 1]]
@@ -77,32 +76,25 @@ def demo_graph_paths(graph: SpatialGraph, demo_msgs, tolerance: float) -> list[P
     return paths
 
 
-def run_baseline(ctx, b, demos, graph, prior, rng, w0, env) -> tuple[list[Iteration], dict]:
+def run_baseline(ctx, b, demos, graph, prior, rng, w0, env) -> tuple[list[Iteration], list[int]]:
     """PolicyWalk on the adaptive graph or MaxEnt IRL on the reference roadmap, reported as
-    BIRL iterations (weights after each recorded step, greedy paths on the graph)."""
-    r_goal = ctx.cfg.mdp.r_goal
+    BIRL iterations (weights after each recorded step, greedy paths on the graph), with the
+    number of MDP solves spent up to each."""
     if b.kind == "policywalk":
-        min_sep = ctx.cfg.graph.min_separation or graph_min_separation(ctx, graph)
-        expert = expert_state_actions(graph.mdp, demo_graph_paths(graph, demos, min_sep))
+        expert = expert_state_actions(graph.mdp, demo_graph_paths(graph, demos))
         result = policywalk(graph.mdp, expert, prior, rng, alpha=b.alpha, n_samples=b.n_samples,
                             burn_in=b.burn_in, thin=b.thin, step=b.step, w0=w0,
                             n_records=b.n_iterations)
         solves = result.extra["solves_at_record"]
     else:
         roadmap = load_roadmap(ctx)
-        paths = demo_graph_paths(roadmap, demos, 1e-6)
-        result = maxent_irl(roadmap.mdp, paths, (prior.lower, prior.upper),
-                            n_iterations=b.n_iterations, learning_rate=b.learning_rate, w0=w0)
+        result = maxent_irl(roadmap.mdp, demo_graph_paths(roadmap, demos),
+                            (prior.lower, prior.upper), n_iterations=b.n_iterations,
+                            learning_rate=b.learning_rate, w0=w0)
         solves = list(range(1, len(result.history) + 1))
     records = [Iteration(k, w, ll, prior.log_pdf(w), env(w))
                for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood))]
-    return records, {"mdp_solves": solves, "method_extra": result.extra}
-
-
-def graph_min_separation(ctx, graph: SpatialGraph) -> float:
-    """The node separation the graph stage used when it was left to its default."""
-    room = load_scene(ctx).room
-    return 0.35 * float(np.sqrt(room.area / ctx.cfg.graph.max_nodes))
+    return records, solves
 
 
 def run(ctx: RunContext) -> None:
@@ -117,11 +109,11 @@ def run(ctx: RunContext) -> None:
     posteriors: list[McmcResult] = []
     if b.kind in ("policywalk", "maxent"):
         t0 = time.perf_counter()
-        records, info = run_baseline(ctx, b, demos, graph, prior, rng, w0, env)
+        records, solves = run_baseline(ctx, b, demos, graph, prior, rng, w0, env)
         learn = time.perf_counter() - t0
         ctx.timings["time_birl_learn_s"] = round(learn, 4)
         ctx.timings["time_birl_iteration_s"] = round(learn / len(records), 5)
-        write_birl(ctx, b, expert, records, env, graph, posteriors, info["mdp_solves"])
+        write_birl(ctx, b, expert, records, env, graph, posteriors, solves)
         return
 
     def fit_mcmc(posterior, w_prev):

@@ -75,7 +75,8 @@ def load_graph(ctx: RunContext) -> SpatialGraph:
                    sol["terminal"], gamma=md.gamma, r_goal=md.r_goal, v_max=md.v_max)
     positions = np.array([[n["x"], n["y"]] for n in sorted(nodes, key=lambda n: n["id"])])
     return SpatialGraph(positions, mdp, np.asarray(sol["start_nodes"]),
-                       [np.asarray(e["waypoints"], float) for e in edges])
+                       [np.asarray(e["waypoints"], float) for e in edges],
+                       snap_tolerance=sol["min_separation"])
 
 
 def _none_if_nan(x: float):
@@ -143,5 +144,6 @@ def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights, weights_source: 
             "weights": weights, "weights_source": weights_source, "values": graph.values,
             "policy_dst": policy_dst, "terminal": graph.terminal,
             "start_nodes": graph.start_nodes, "goal_node": graph.goal_node,
-            "n_nodes": graph.n_nodes, "n_edges": len(graph.src), "iterations": graph.iteration},
+            "n_nodes": graph.n_nodes, "n_edges": len(graph.src), "iterations": graph.iteration,
+            "min_separation": graph.p.min_separation},
             log_time=graph.iteration)
