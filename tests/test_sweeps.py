@@ -88,3 +88,19 @@ def test_metric_beyond_tolerance_fails(tmp_path, regress_work):
     path.write_text(json.dumps(metrics))
     assert regress("--only", "metropolis_polite_s0", "--baseline", baseline, "--work",
                    regress_work, "--reuse").returncode == 0
+
+
+def test_slurm_launcher_preset_composes():
+    from hydra import compose, initialize_config_dir
+
+    from pipeline.config import register_configs
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", return_hydra_config=True,
+                      overrides=["experiment=scenes", "hydra/launcher=slurm",
+                                 "hydra.launcher.partition=cpu"])
+    launcher = cfg.hydra.launcher
+    assert launcher._target_.endswith("SlurmLauncher")
+    assert launcher.partition == "cpu" and launcher.cpus_per_task == 2
+    assert "scene" in cfg.hydra.sweeper.params
