@@ -361,6 +361,34 @@ class AdaptiveGraph:
         self.history.pop()  # _solve records this iteration anew
         self._solve()
 
+    def restore(self, nodes: list[dict], edges: list[dict], start_nodes) -> None:
+        """Rebuild a stored graph (graph.mcap's node and edge records, ids in order) instead
+        of initialise(), so that it can grow further."""
+        nan = float("nan")
+        for n in nodes:
+            self.iteration = n["iteration"]
+            self._add_node([n["x"], n["y"], n["theta"]], n["kind"], n["parent"],
+                           nan if n["gp_mean"] is None else n["gp_mean"],
+                           nan if n["gp_std"] is None else n["gp_std"],
+                           nan if n["score"] is None else n["score"])
+        for e in edges:
+            self._add_edges([e["src"]], [e["dst"]], [e["duration"]], [e["features"]],
+                            [np.asarray(e["waypoints"], float)], is_demo=e["demo"])
+        self.start_nodes = np.asarray(start_nodes, dtype=np.int64)
+        self.goal_node = next(i for i, n in enumerate(nodes) if n["kind"] == GOAL)
+        self.iteration = max(n["iteration"] for n in nodes)
+        self.solver.solve_full()
+        self._solve()
+
+    def grow_by(self, n_nodes: int, max_stalls: int = 200) -> int:
+        """Add about n_nodes more nodes (an expansion may add up to n_add); returns how many."""
+        before, stalls = self.n_nodes, 0
+        self.p = dataclasses.replace(self.p, max_nodes=max(self.p.max_nodes, before + n_nodes))
+        with threadpool_limits(1):
+            while self.n_nodes < before + n_nodes and stalls < max_stalls:
+                stalls = stalls + 1 if self.step() == 0 else 0
+        return self.n_nodes - before
+
     def _normalisation(self) -> dict:
         """Value of the best path through every node and the ranges that normalise quality
         and concentration; cached until the graph changes (failed expansions reuse it)."""

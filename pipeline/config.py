@@ -144,6 +144,7 @@ class BirlConfig:
     step: float = 0.05  # random-walk proposal std (PolicyWalk: grid step)
     alpha: float = 10.0  # PolicyWalk: expert confidence in its Boltzmann likelihood
     learning_rate: float = 0.5  # MaxEnt: projected Adam step (decays as 1/sqrt(t))
+    grow_nodes: int = 0  # BIRL-G: nodes the graph grows per iteration under the current weights
 
 
 @dataclass
@@ -270,6 +271,8 @@ def validate_birl(b: Any) -> None:
     _require(b.kind in ("map", "mcmc", "policywalk", "maxent"), "birl.kind", b.kind,
              "'map', 'mcmc', 'policywalk' or 'maxent'")
     _positive("birl.alpha", b.alpha)
+    _require(b.grow_nodes >= 0 and (b.grow_nodes == 0 or b.kind in ("map", "mcmc")),
+             "birl.grow_nodes", b.grow_nodes, "an integer >= 0 (> 0 only for birl=map or mcmc)")
     _positive("birl.learning_rate", b.learning_rate)
     _positive("birl.beta", b.beta)
     _require(b.prior.kind in ("gaussian", "laplace", "uniform"), "birl.prior.kind",

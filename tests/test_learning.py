@@ -102,3 +102,19 @@ def test_baselines_write_the_same_topics(tmp_path_factory, method, overrides):
     assert m["policy_loss_ref"] >= 0 and m["time_birl_learn_s"] > 0
     if method == "policywalk":  # every proposal solves the MDP: many more than iterations
         assert solves[-1] > 100
+
+
+def test_graph_grows_under_the_learned_weights(tmp_path_factory):
+    run_dir, m, _ = run_experiment(tmp_path_factory, "graph=small", "birl.n_iterations=3",
+                                   "birl.grow_nodes=5")
+    birl = read_artefact(run_dir / "birl.mcap", required_topics=["/birl/graph_node",
+                                                                 "/birl/graph_edge"])
+    base = read_artefact(run_dir / "graph.mcap").one("/graph/solution")
+    grown = birl.all("/birl/graph_node")
+    assert 15 <= len(grown) <= 18  # 5 per iteration after the first (an expansion adds <= 2)
+    assert [n["id"] for n in grown] == list(range(base["n_nodes"], base["n_nodes"] + len(grown)))
+    assert all(n["kind"] == "sampled" and n["parent"] >= 0 for n in grown)
+    # The last iteration's trajectories run on the grown graph and stage 5 scores that graph.
+    last = birl.all("/birl/iteration")[-1]
+    assert max(max(g["nodes"]) for g in last["generated"]) < base["n_nodes"] + len(grown)
+    assert m["policy_loss"] >= 0 and m["success"] == 1.0

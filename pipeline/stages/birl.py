@@ -11,6 +11,7 @@ birl=mcmc /birl/posterior (posterior mean, std, acceptance, samples of every ite
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 
@@ -18,14 +19,18 @@ import numpy as np
 
 from scipy.spatial import cKDTree
 
+from pipeline.adaptive_graph import AdaptiveGraph
 from pipeline.baselines import expert_state_actions, maxent_irl, policywalk
 from pipeline.birl import Iteration, McmcResult, TrajectoryStats, birl_map, mcmc
 from pipeline.errors import PipelineError
 from pipeline.features import FEATURE_NAMES
 from pipeline.graph_mdp import Path, SpatialGraph
+from pipeline.config import ALL_STAGES
 from pipeline.run import RunContext
-from pipeline.stages.demos import load_roadmap
-from pipeline.stages.graph import load_graph, make_prior
+from pipeline.stages.demos import feature_model, load_roadmap
+from pipeline.stages.graph import (edge_record, graph_params, load_graph, make_controller,
+                                   make_prior, node_record)
+from pipeline.stages.scene import load_scene
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +57,48 @@ class GraphEnvironment:
         self.paths.append(paths)
         return [TrajectoryStats.from_edges(k, mdp.features[p.edges], mdp.duration[p.edges],
                                            self.gamma, p.reached) for k, p in enumerate(paths)]
+
+
+class GrowingGraphEnvironment(GraphEnvironment):
+    """`birl.grow_nodes: k`: before each iteration's solve, the adaptive graph grows k more
+    nodes under the current weights, so it adapts to the reward being learned."""
+
+    def __init__(self, adaptive: AdaptiveGraph, gamma: float, grow_nodes: int):
+        super().__init__(self._spatial(adaptive), gamma)
+        self.adaptive, self.grow_nodes, self.calls = adaptive, grow_nodes, 0
+        self.base_nodes, self.base_edges = adaptive.n_nodes, len(adaptive.src)
+
+    @staticmethod
+    def _spatial(g: AdaptiveGraph) -> SpatialGraph:
+        return SpatialGraph(g.positions.copy(), g.mdp(), g.start_nodes, list(g.waypoints),
+                            snap_tolerance=g.p.min_separation)
+
+    def __call__(self, w: np.ndarray) -> list[TrajectoryStats]:
+        if self.calls > 0:  # iteration 0 scores the stored graph under w0
+            self.adaptive.set_weights(w)
+            added = self.adaptive.grow_by(self.grow_nodes)
+            self.graph = self._spatial(self.adaptive)
+            self.values = None  # node set changed: a cold solve (cheap next to the growth)
+            log.info("    graph grown by %d nodes under the current weights (%d nodes)", added,
+                     self.adaptive.n_nodes)
+        self.calls += 1
+        return super().__call__(w)
+
+
+def restore_adaptive_graph(ctx: RunContext) -> AdaptiveGraph:
+    """The stored adaptive graph as a growable AdaptiveGraph (for birl.grow_nodes)."""
+    cfg = ctx.cfg
+    art = ctx.read("graph", required_topics=["/graph/node", "/graph/edge", "/graph/solution"])
+    sol = art.one("/graph/solution")
+    scene = load_scene(ctx)
+    params = dataclasses.replace(graph_params(cfg.graph), min_separation=sol["min_separation"])
+    # Its own generator: growing must not change the stage's other random draws.
+    rng = np.random.default_rng([int(cfg.seed), ALL_STAGES.index("birl"), 1])
+    g = AdaptiveGraph(scene, feature_model(cfg, scene), make_controller(cfg), sol["weights"],
+                      params, rng, gamma=cfg.mdp.gamma, r_goal=cfg.mdp.r_goal, v_max=cfg.mdp.v_max)
+    g.restore(sorted(art.all("/graph/node"), key=lambda n: n["id"]),
+              sorted(art.all("/graph/edge"), key=lambda e: e["id"]), sol["start_nodes"])
+    return g
 
 
 def demo_graph_paths(graph: SpatialGraph, demo_msgs) -> list[Path]:
@@ -105,7 +152,10 @@ def run(ctx: RunContext) -> None:
     prior = make_prior(b)
     rng = ctx.rng("birl")
     w0 = np.asarray(b.init_weights, float) if b.init_weights is not None else prior.sample(rng)
-    env = GraphEnvironment(graph, cfg.mdp.gamma)
+    if b.grow_nodes > 0:
+        env = GrowingGraphEnvironment(restore_adaptive_graph(ctx), cfg.mdp.gamma, b.grow_nodes)
+    else:
+        env = GraphEnvironment(graph, cfg.mdp.gamma)
     posteriors: list[McmcResult] = []
     if b.kind in ("policywalk", "maxent"):
         t0 = time.perf_counter()
@@ -140,7 +190,8 @@ def run(ctx: RunContext) -> None:
     ctx.timings["time_birl_learn_s"] = round(learn, 4)
     ctx.timings["time_birl_iteration_s"] = round(learn / len(records), 5)
     # BIRL-G solves the graph MDP once per iteration (its greedy trajectories).
-    write_birl(ctx, b, expert, records, env, graph, posteriors, list(range(1, len(records) + 1)))
+    write_birl(ctx, b, expert, records, env, env.graph, posteriors,
+               list(range(1, len(records) + 1)))
 
 
 def write_birl(ctx, b, expert, records, env, graph, posteriors, mdp_solves) -> None:
@@ -159,7 +210,21 @@ def write_birl(ctx, b, expert, records, env, graph, posteriors, mdp_solves) -> N
                                "phi": t.phi, "end_discount": t.end_discount,
                                "reached": t.reached, "quality": t.quality(it.weights, cfg.mdp.r_goal)}
                               for t, p in zip(it.generated, paths)]}, log_time=it.index)
+        if isinstance(env, GrowingGraphEnvironment):
+            write_growth(w, env)
         for n, post in enumerate(posteriors, start=1):
             w.add("/birl/posterior", "BirlPosterior", {
                 "iteration": n, "mean": post.mean, "std": post.std,
                 "acceptance_rate": post.acceptance_rate, "samples": post.samples}, log_time=n)
+
+
+def write_growth(w, env: GrowingGraphEnvironment) -> None:
+    """The nodes and edges grown during learning (graph.mcap holds the rest), so stage 5 and
+    the viewer see the final graph: /birl/graph_node, /birl/graph_edge."""
+    g = env.adaptive
+    for i in range(env.base_nodes, g.n_nodes):
+        w.add("/birl/graph_node", "GraphNode", {**node_record(g, i), "terminal": bool(g.terminal[i])},
+              log_time=int(g.added_at[i]))
+    for e in range(env.base_edges, len(g.src)):
+        rec = edge_record(g, e)
+        w.add("/birl/graph_edge", "GraphEdge", rec, log_time=rec["iteration"])

@@ -76,7 +76,7 @@ def run(ctx: RunContext) -> None:
     iterations = birl_art.all("/birl/iteration")
     weights = np.array([it["weights"] for it in iterations], float)
     w_final = weights[-1]
-    graph, roadmap = load_graph(ctx), load_roadmap(ctx)
+    graph, roadmap = load_graph(ctx, grown=birl_art), load_roadmap(ctx)
 
     metrics: dict[str, float] = {f"weight_{n}": float(v) for n, v in zip(FEATURE_NAMES, w_final)}
     if birl_art.messages.get("/birl/posterior"):  # birl=mcmc: the final posterior's spread

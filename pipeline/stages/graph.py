@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from pipeline.adaptive_graph import AdaptiveGraph, Demo, GraphParams
+from pipeline.artefacts import Artefact
 from pipeline.birl import Prior
 from pipeline.controllers import LinearController, PosqController
 from pipeline.errors import PipelineError
@@ -64,23 +65,45 @@ def demos_for_graph(demo_msgs, features, speed) -> list[Demo]:
     return out
 
 
-def load_graph(ctx: RunContext) -> SpatialGraph:
+def load_graph(ctx: RunContext, grown: Artefact | None = None) -> SpatialGraph:
+    """The adaptive graph of graph.mcap, plus the nodes and edges the BIRL stage grew
+    (`grown` = birl.mcap, with birl.grow_nodes > 0)."""
     art = ctx.read("graph", required_topics=["/graph/node", "/graph/edge", "/graph/solution"])
-    nodes = art.all("/graph/node")
-    edges = sorted(art.all("/graph/edge"), key=lambda e: e["id"])
     sol = art.one("/graph/solution")
+    extra_nodes = grown.messages.get("/birl/graph_node", []) if grown else []
+    extra_edges = grown.messages.get("/birl/graph_edge", []) if grown else []
+    nodes = sorted(art.all("/graph/node") + extra_nodes, key=lambda n: n["id"])
+    edges = sorted(art.all("/graph/edge") + extra_edges, key=lambda e: e["id"])
+    terminal = list(sol["terminal"]) + [n["terminal"] for n in sorted(extra_nodes,
+                                                                      key=lambda n: n["id"])]
     md = ctx.cfg.mdp
     mdp = GraphMDP([e["src"] for e in edges], [e["dst"] for e in edges],
                    [e["duration"] for e in edges], [e["features"] for e in edges],
-                   sol["terminal"], gamma=md.gamma, r_goal=md.r_goal, v_max=md.v_max)
-    positions = np.array([[n["x"], n["y"]] for n in sorted(nodes, key=lambda n: n["id"])])
+                   terminal, gamma=md.gamma, r_goal=md.r_goal, v_max=md.v_max)
+    positions = np.array([[n["x"], n["y"]] for n in nodes])
     return SpatialGraph(positions, mdp, np.asarray(sol["start_nodes"]),
-                       [np.asarray(e["waypoints"], float) for e in edges],
-                       snap_tolerance=sol["min_separation"])
+                        [np.asarray(e["waypoints"], float) for e in edges],
+                        snap_tolerance=sol["min_separation"])
 
 
 def _none_if_nan(x: float):
     return None if not np.isfinite(x) else float(x)
+
+
+def node_record(graph: AdaptiveGraph, i: int) -> dict:
+    """A /graph/node message (log_time: its "iteration")."""
+    return {"id": i, "x": graph.pose[i, 0], "y": graph.pose[i, 1], "theta": graph.pose[i, 2],
+            "kind": graph.node_kind[i], "parent": int(graph.parent[i]),
+            "iteration": int(graph.added_at[i]), "gp_mean": _none_if_nan(graph.gp_mean[i]),
+            "gp_std": _none_if_nan(graph.gp_std[i]), "score": _none_if_nan(graph.score[i])}
+
+
+def edge_record(graph: AdaptiveGraph, e: int) -> dict:
+    """A /graph/edge message; an edge exists from the iteration both its ends do."""
+    return {"id": int(e), "src": int(graph.src[e]), "dst": int(graph.dst[e]),
+            "duration": graph.duration[e], "features": graph.features[e],
+            "waypoints": graph.waypoints[e], "demo": graph.edge_is_demo[e],
+            "iteration": int(max(graph.added_at[graph.src[e]], graph.added_at[graph.dst[e]]))}
 
 
 def run(ctx: RunContext) -> None:
@@ -123,18 +146,11 @@ def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights, weights_source: 
     edge_iteration = np.maximum(graph.added_at[graph.src], graph.added_at[graph.dst])
     with ctx.writer("graph") as w:
         for i in range(graph.n_nodes):
-            w.add("/graph/node", "GraphNode", {
-                "id": i, "x": graph.pose[i, 0], "y": graph.pose[i, 1], "theta": graph.pose[i, 2],
-                "kind": graph.node_kind[i], "parent": int(graph.parent[i]),
-                "iteration": int(graph.added_at[i]), "gp_mean": _none_if_nan(graph.gp_mean[i]),
-                "gp_std": _none_if_nan(graph.gp_std[i]), "score": _none_if_nan(graph.score[i])},
-                log_time=int(graph.added_at[i]))
+            w.add("/graph/node", "GraphNode", node_record(graph, i),
+                  log_time=int(graph.added_at[i]))
         for e in np.argsort(edge_iteration, kind="stable"):
-            w.add("/graph/edge", "GraphEdge", {
-                "id": int(e), "src": int(graph.src[e]), "dst": int(graph.dst[e]),
-                "duration": graph.duration[e], "features": graph.features[e],
-                "waypoints": graph.waypoints[e], "demo": graph.edge_is_demo[e],
-                "iteration": int(edge_iteration[e])}, log_time=int(edge_iteration[e]))
+            w.add("/graph/edge", "GraphEdge", edge_record(graph, e),
+                  log_time=int(edge_iteration[e]))
         for h in graph.history:
             w.add("/graph/best_paths", "BestPaths", {
                 "iteration": h["iteration"], "n_nodes": h["n_nodes"], "paths": h["paths"],
