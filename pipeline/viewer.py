@@ -102,6 +102,10 @@ def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | Non
             if loss.get(key) is not None:
                 rec.log(f"curves/policy_loss/{key}", rr.Scalars(loss[key]), strict=True)
     rec.reset_time()
+    if birl is not None and birl.messages.get("/birl/graph_node"):  # birl.grow_nodes > 0
+        grown = birl.all("/birl/graph_node")
+        rec.log("birl/grown_nodes", rr.Points2D([(n["x"], n["y"]) for n in grown], radii=0.05,
+                                                colors=(0, 190, 190)), static=True, strict=True)
     if ev is not None and "/eval/paths" in ev.messages:
         final = [p for p in ev.all("/eval/paths") if p.get("graph") == "graph" and p["points"]]
         rec.log("eval/paths", rr.LineStrips2D(

@@ -118,3 +118,10 @@ def test_graph_grows_under_the_learned_weights(tmp_path_factory):
     last = birl.all("/birl/iteration")[-1]
     assert max(max(g["nodes"]) for g in last["generated"]) < base["n_nodes"] + len(grown)
     assert m["policy_loss"] >= 0 and m["success"] == 1.0
+    # The viewer shows the grown nodes too.
+    from rerun.chunk import RrdReader
+
+    from pipeline.viewer import build_recording
+
+    rrd = build_recording(run_dir)
+    assert "/birl/grown_nodes" in {str(p) for p in RrdReader(rrd).store().schema().entity_paths()}
