@@ -152,6 +152,9 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
                 raise fail(f"relation [{a}, {b}] names unknown person id {pid}")
         if a == b:
             raise fail(f"relation [{a}, {b}] links a person to itself")
+        pa, pb = (next(p for p in persons if p.id == pid) for pid in (a, b))
+        if math.hypot(pa.x - pb.x, pa.y - pb.y) < 1e-6:  # a zero-length social link
+            raise fail(f"relation [{a}, {b}] links two persons at the same place")
         relations.append((a, b))
 
     try:

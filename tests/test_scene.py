@@ -32,6 +32,7 @@ def _metropolis_dict():
     (lambda d: d.update(starts=[]), "'starts' is empty"),
     (lambda d: d["persons"][0].pop("x"), "person #0 needs numbers"),
     (lambda d: d.pop("room"), "missing key 'room'"),
+    (lambda d: d["persons"][1].update(x=2.0, y=5.0), "relation [1, 2] links two persons at the same place"),
 ])
 def test_malformed_scene_names_the_culprit(mutate, message):
     data = _metropolis_dict()
