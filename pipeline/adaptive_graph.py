@@ -31,7 +31,6 @@ from pipeline.roadmap import segments_feasible
 
 # Node kinds, as stored in graph.mcap.
 START, GOAL, VORONOI, DEMO, SAMPLED = "start", "goal", "voronoi", "demo", "sampled"
-NODE_KINDS = (START, GOAL, VORONOI, DEMO, SAMPLED)
 
 
 @dataclass(frozen=True)
