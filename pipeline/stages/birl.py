@@ -147,15 +147,15 @@ def run_baseline(ctx, b, demos, graph, prior, rng, w0, env) -> tuple[list[Iterat
 def run(ctx: RunContext) -> None:
     cfg, b = ctx.cfg, ctx.cfg.birl
     demos = ctx.read("demos", required_topics=["/demos"]).all("/demos")
-    graph = load_graph(ctx)
     expert = expert_stats(demos)
     prior = make_prior(b)
     rng = ctx.rng("birl")
     w0 = np.asarray(b.init_weights, float) if b.init_weights is not None else prior.sample(rng)
-    if b.grow_nodes > 0:
+    if b.grow_nodes > 0:  # the restored graph reads graph.mcap itself
         env = GrowingGraphEnvironment(restore_adaptive_graph(ctx), cfg.mdp.gamma, b.grow_nodes)
     else:
-        env = GraphEnvironment(graph, cfg.mdp.gamma)
+        env = GraphEnvironment(load_graph(ctx), cfg.mdp.gamma)
+    graph = env.graph
     posteriors: list[McmcResult] = []
     if b.kind in ("policywalk", "maxent"):
         t0 = time.perf_counter()

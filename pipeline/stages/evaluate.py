@@ -87,10 +87,11 @@ def run(ctx: RunContext) -> None:
     if expert["true_weights"] is not None:
         w_true = np.asarray(expert["true_weights"], float)
         curves["graph"], final_graph, _ = loss_curve(graph, w_true, weights)
-        curves["ref"], final_ref, _ = loss_curve(roadmap, w_true, weights)
+        curves["ref"], final_ref, ref_optimal = loss_curve(roadmap, w_true, weights)
         # Normalise by the loss of the contrasting behaviour (rude; polite if w* is rude).
         contrast = "polite" if np.allclose(w_true, preset_weights("rude")) else "rude"
-        baseline = loss_curve(roadmap, w_true, [preset_weights(contrast)])[0][0]
+        baseline = policy_loss(roadmap.mdp, w_true, preset_weights(contrast),
+                               roadmap.start_nodes, ref_optimal).loss
         curves["norm"] = curves["ref"] / baseline if baseline > 0 else np.full(len(weights), np.nan)
         metrics.update({
             "policy_loss": curves["graph"][-1], "policy_loss_ref": curves["ref"][-1],
