@@ -27,21 +27,21 @@ experiment: $(STAMP)
 ## A failing job does not stop the others; the exit status says whether any failed.
 sweep: $(STAMP)
 	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) hydra.sweep.dir=$(SWEEP_DIR) $(ARGS)
-	$(PY) -m pipeline.aggregate $(SWEEP_DIR)
+	$(PY) -m pipeline.tools.aggregate $(SWEEP_DIR)
 
 ## Table (summary.csv) and figures of a sweep dir: make aggregate SWEEP=multirun/...
 aggregate: $(STAMP)
 	@test -n "$(SWEEP)" || { echo "usage: make aggregate SWEEP=<sweep dir>"; exit 2; }
-	$(PY) -m pipeline.aggregate $(SWEEP)
+	$(PY) -m pipeline.tools.aggregate $(SWEEP)
 
 ## Rerun recording of a run dir (opens the viewer when there is a display): make view RUN=outputs/...
 view: $(STAMP)
 	@test -n "$(RUN)" || { echo "usage: make view RUN=<run dir>"; exit 2; }
-	$(PY) -m pipeline.viewer $(RUN)
+	$(PY) -m pipeline.tools.viewer $(RUN)
 
 ## Re-run the reference experiments and compare with results/baseline/.
 regress: $(STAMP)
-	$(PY) -m pipeline.regress
+	$(PY) -m pipeline.tools.regress
 
 ## Fast test suite (slow and benchmark tests excluded).
 test: $(STAMP)
@@ -58,6 +58,6 @@ clean:
 
 ## Benchmarks: tables under results/bench/ (adaptive-graph scaling, ...).
 bench: $(STAMP)
-	$(PY) -m pipeline.bench graph
-	$(PY) -m pipeline.bench experiment
-	$(PY) -m pipeline.bench irl
+	$(PY) -m pipeline.tools.bench graph
+	$(PY) -m pipeline.tools.bench experiment
+	$(PY) -m pipeline.tools.bench irl

@@ -12,9 +12,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from pipeline.config import register_configs
+from pipeline.app.config import register_configs
 from pipeline.errors import PipelineError
-from pipeline.run import run_pipeline
+from pipeline.stages import run_pipeline
 
 register_configs()
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.world import load_scene_file
+from pipeline.inputs.scene_file import load_scene_file
 
 ROOT = Path(__file__).resolve().parent.parent
 METROPOLIS = ROOT / "data" / "scenes" / "metropolis.json"

@@ -4,14 +4,14 @@ demonstrations as graph paths, adaptivity and social compliance on metropolis.""
 import numpy as np
 import pytest
 
-from pipeline.adaptive_graph import (AdaptiveGraph, Demo, GraphParams, _probabilities,
+from pipeline.core.adaptive_graph import (AdaptiveGraph, Demo, GraphParams, _probabilities,
                                      choose_expansion_set, gp_value_estimate, voronoi_centroids)
-from pipeline.controllers import LinearController, PosqController
-from pipeline.experts import optimal_demos
-from pipeline.features import FeatureModel
-from pipeline.roadmap import build_roadmap, segments_feasible
-from pipeline.social import relation_crossings
-from pipeline.world import Room
+from pipeline.core.controllers import LinearController, PosqController
+from pipeline.core.experts import optimal_demos
+from pipeline.core.features import FeatureModel
+from pipeline.core.roadmap import build_roadmap, segments_feasible
+from pipeline.core.social import relation_crossings
+from pipeline.core.world import Room
 from tests.conftest import POLITE
 
 PRIOR_MEAN = np.full(4, -0.361)  # the default Gaussian prior's mean within [−1, 0]^4
@@ -170,7 +170,7 @@ def test_posq_graph_is_feasible_and_reaches_goal(metropolis, demos):
 
 
 def test_restored_graph_equals_original_and_keeps_growing(metropolis, demos):
-    from pipeline.stages.graph import edge_record, node_record
+    from pipeline.artefacts.codec import edge_record, node_record
 
     g = grow(metropolis, demos, PRIOR_MEAN, max_nodes=150, seed=3)
     nodes = [node_record(g, i) for i in range(g.n_nodes)]

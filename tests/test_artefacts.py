@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from pipeline.artefacts import (
+from pipeline.artefacts.store import (
     SCHEMA_PREFIX,
     ArtefactError,
     ArtefactWriter,

@@ -6,16 +6,11 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from pipeline.baselines import (
-    expected_discounted_counts,
-    expert_state_actions,
-    maxent_irl,
-    policywalk,
-    soft_policy,
-    soft_values,
-)
-from pipeline.birl import Prior
-from pipeline.graph_mdp import GraphMDP, Path, discounted_counts
+from pipeline.irl.birl import ChainParams
+from pipeline.irl.maxent import expected_discounted_counts, maxent_irl, soft_policy, soft_values
+from pipeline.irl.policywalk import expert_state_actions, policywalk
+from pipeline.irl.prior import Prior
+from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
 
 BOX = (np.array([-1.0, -1.0]), np.array([0.0, 0.0]))
 UNIFORM = Prior("uniform", 1.0, *BOX)
@@ -147,8 +142,8 @@ def test_policywalk_recovers_the_expert_region():
     mdp, routes = three_routes()
     expert = expert_state_actions(mdp, [routes["A"]] * 3)
     assert expert == [(0, 0), (1, 4)] * 3
-    res = policywalk(mdp, expert, UNIFORM, np.random.default_rng(0), alpha=5.0, n_samples=1500,
-                     burn_in=200, thin=1, step=0.1, w0=np.array([-0.5, -0.5]), n_records=10)
+    res = policywalk(mdp, expert, UNIFORM, np.random.default_rng(0), alpha=5.0,
+                     chain=ChainParams(n_samples=1500, burn_in=200, thin=1, step=0.1), w0=np.array([-0.5, -0.5]), n_records=10)
     w = res.weights
     assert w[1] < w[0] - 0.2  # clearly inside the region where A is optimal
     assert greedy_route(mdp, w) == list(routes["A"].edges)
@@ -190,9 +185,11 @@ def test_maxent_with_one_expert_route_heads_for_its_region():
 # ---------------------------------------------------------------- PolicyWalk as an MCMC
 
 def run_walk(mdp, expert, prior, seed, **kw):
-    args = {"alpha": 2.0, "n_samples": 6000, "burn_in": 100, "thin": 1, "step": 0.25,
-            "w0": np.array([-0.5, -0.5])}
-    return policywalk(mdp, expert, prior, np.random.default_rng(seed), **(args | kw))
+    chain = {"n_samples": 6000, "burn_in": 100, "thin": 1, "step": 0.25}
+    chain |= {k: kw.pop(k) for k in list(kw) if k in chain}
+    args = {"alpha": 2.0, "w0": np.array([-0.5, -0.5])}
+    return policywalk(mdp, expert, prior, np.random.default_rng(seed),
+                      chain=ChainParams(**chain), **(args | kw))
 
 
 def test_policywalk_with_flat_likelihood_samples_the_uniform_box():

@@ -7,7 +7,9 @@ import pytest
 from scipy.integrate import quad
 from scipy.stats import truncnorm
 
-from pipeline.birl import Posterior, Prior, TrajectoryStats, birl_map, mcmc
+from pipeline.core.graph_mdp import TrajectoryStats
+from pipeline.irl.birl import ChainParams, Posterior, birl_map, mcmc
+from pipeline.irl.prior import Prior
 
 D = 4
 BOX = (-np.ones(D), np.zeros(D))
@@ -288,8 +290,8 @@ def test_mcmc_matches_numerical_posterior():
     mean = np.trapezoid(grid * density, grid) / mass
     std = np.sqrt(np.trapezoid((grid - mean) ** 2 * density, grid) / mass)
 
-    result = mcmc(post, [-0.5], np.random.default_rng(0), n_samples=20_000, burn_in=1000,
-                  thin=2, step=0.4)
+    result = mcmc(post, [-0.5], np.random.default_rng(0),
+                  ChainParams(n_samples=20_000, burn_in=1000, thin=2, step=0.4))
     assert result.samples.shape == (20_000, 1)
     assert 0 < result.acceptance_rate < 1
     assert np.all((result.samples >= -1) & (result.samples <= 0))
@@ -302,12 +304,12 @@ def test_mcmc_matches_numerical_posterior():
 
 def test_mcmc_is_reproducible_and_validates():
     post = one_weight_posterior()
-    kwargs = dict(n_samples=500, burn_in=100, thin=3, step=0.3)
-    a = mcmc(post, [-0.5], np.random.default_rng(7), **kwargs)
-    b = mcmc(post, [-0.5], np.random.default_rng(7), **kwargs)
+    chain = ChainParams(n_samples=500, burn_in=100, thin=3, step=0.3)
+    a = mcmc(post, [-0.5], np.random.default_rng(7), chain)
+    b = mcmc(post, [-0.5], np.random.default_rng(7), chain)
     np.testing.assert_array_equal(a.samples, b.samples)
     assert a.acceptance_rate == b.acceptance_rate
     with pytest.raises(ValueError, match="inside the box"):
-        mcmc(post, [0.5], np.random.default_rng(0), **kwargs)
-    with pytest.raises(ValueError, match="thin"):
-        mcmc(post, [-0.5], np.random.default_rng(0), **kwargs | dict(thin=0))
+        mcmc(post, [0.5], np.random.default_rng(0), chain)
+    with pytest.raises(ValueError, match="thin=0 is not allowed"):
+        ChainParams(thin=0)

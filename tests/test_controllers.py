@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.controllers import (
+from pipeline.core.controllers import (
     LinearController,
     PosqController,
     Trajectory,
@@ -72,14 +72,27 @@ def test_linear_345_triangle():
     assert ctrl.steer(np.array([1.0, 1.0]), np.array([1.0, 1.0 + 1e-12])) is None
 
 
-def test_linear_steer_many_matches_steer():
+@pytest.mark.parametrize("ctrl", [LinearController(speed=0.7), PosqController()],
+                         ids=["linear", "posq"])
+def test_steer_many_matches_steer_pair_by_pair(ctrl):
     rng = np.random.default_rng(0)
-    starts, targets = rng.uniform(-3, 3, (50, 2)), rng.uniform(-3, 3, (50, 2))
-    ctrl = LinearController(speed=0.7)
-    lengths, durations = ctrl.steer_many(starts, targets)
-    for s, t, length, dur in zip(starts, targets, lengths, durations):
-        traj = ctrl.steer(s, t)
-        assert traj.length == pytest.approx(length) and traj.duration == pytest.approx(dur)
+    starts = np.column_stack([rng.uniform(-3, 3, (30, 2)), rng.uniform(-np.pi, np.pi, 30)])
+    targets = np.column_stack([rng.uniform(-3, 3, (30, 2)), rng.uniform(-np.pi, np.pi, 30)])
+    targets[4] = starts[4]  # no run: start and target coincide
+    runs = ctrl.steer_many(starts, targets)
+    single = [ctrl.steer(s, t) for s, t in zip(starts, targets)]
+    assert list(runs.index) == [i for i, traj in enumerate(single) if traj is not None]
+    assert 4 not in runs.index
+    a, b, owner = runs.segments()
+    for k, i in enumerate(runs.index):
+        np.testing.assert_array_equal(runs.waypoints(k), single[i].points)
+        assert runs.durations[k] == pytest.approx(single[i].duration)
+        np.testing.assert_array_equal(a[owner == k], single[i].points[:-1])
+        np.testing.assert_array_equal(b[owner == k], single[i].points[1:])
+        np.testing.assert_allclose(runs.end_poses[k, :2], single[i].points[-1])
+    kept = runs.subset(np.arange(len(runs)) % 2 == 0)
+    assert list(kept.index) == list(runs.index[::2])
+    np.testing.assert_array_equal(kept.waypoints(1), runs.waypoints(2))
 
 
 def test_posq_reaches_every_target_position(posq_runs):
@@ -178,7 +191,7 @@ def test_posq_rejects_bad_params(name, bad):
 def test_linear_rejects_bad_speed_and_make_controller():
     with pytest.raises(ValueError, match="speed"):
         LinearController(speed=0)
-    with pytest.raises(ValueError, match="controller must be 'linear' or 'posq', got 'foo'"):
+    with pytest.raises(ValueError, match="kind=foo is not allowed"):
         make_controller("foo")
     assert make_controller("linear", speed=2.0) == LinearController(speed=2.0)
     assert make_controller("posq", dt=0.1).dt == 0.1

@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from pipeline.errors import PipelineError
-from pipeline.experts import boltzmann_demos, load_demo_file, optimal_demos
-from pipeline.features import FeatureModel
-from pipeline.graph_mdp import discounted_counts
-from pipeline.roadmap import build_roadmap, segments_feasible
-from pipeline.social import INTIMATE_ZONE, min_distance_to_person, path_metrics
+from pipeline.core.experts import BoltzmannParams, boltzmann_demos, optimal_demos
+from pipeline.inputs.demo_file import load_demo_file
+from pipeline.core.features import FeatureModel
+from pipeline.core.graph_mdp import discounted_counts
+from pipeline.core.roadmap import build_roadmap, segments_feasible
+from pipeline.core.social import INTIMATE_ZONE, min_distance_to_person, path_metrics
 from tests.conftest import POLITE, RUDE
 
 
@@ -78,7 +79,7 @@ def test_optimal_demo_value_equals_roadmap_value(roadmap, mdp):
 def test_boltzmann_demos_are_seeded_noisy_and_worse(roadmap, mdp):
     sol = mdp.solve(POLITE)
     make = lambda seed: boltzmann_demos(mdp, roadmap.positions, roadmap.start_nodes, POLITE, sol,
-                                        50.0, np.random.default_rng(seed), 2000, 50)
+                                        BoltzmannParams(50.0, 2000, 50), np.random.default_rng(seed))
     a, b, c = make(1), make(1), make(2)
     assert all(np.array_equal(x.points, y.points) for x, y in zip(a, b))
     assert any(not np.array_equal(x.points, y.points) for x, y in zip(a, c))

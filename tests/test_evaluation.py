@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from pipeline.evaluation import discrete_frechet, policy_loss
-from pipeline.features import FeatureModel
-from pipeline.roadmap import build_roadmap
+from pipeline.core.evaluation import discrete_frechet, policy_loss
+from pipeline.core.features import FeatureModel
+from pipeline.core.roadmap import build_roadmap
 from tests.conftest import POLITE, RUDE
 from tests.test_graph_mdp import random_graph
 

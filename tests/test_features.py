@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.features import FEATURE_NAMES, FeatureModel
+from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
 
 REL, SOC, DEV, LEN = (FEATURE_NAMES.index(n) for n in FEATURE_NAMES)
 
@@ -63,8 +63,8 @@ def test_resolution_independence(metropolis, name):
     # A wiggly path through the metropolis group; 0.1 m and 0.01 m sampling agree within 1 %.
     t = np.linspace(0, 1, 7)
     path = np.column_stack([1.0 + 8.0 * t, 2.0 + 5.0 * t + 1.5 * np.sin(9 * t)])
-    coarse = FeatureModel.from_scene(metropolis, resolution=0.1).polyline(path)
-    fine = FeatureModel.from_scene(metropolis, resolution=0.01).polyline(path)
+    coarse = FeatureModel.from_scene(metropolis, FeatureParams(resolution=0.1)).polyline(path)
+    fine = FeatureModel.from_scene(metropolis, FeatureParams(resolution=0.01)).polyline(path)
     k = FEATURE_NAMES.index(name)
     assert fine[k] > 0
     assert coarse[k] == pytest.approx(fine[k], rel=0.01)

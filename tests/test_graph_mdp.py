@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-from pipeline.graph_mdp import NO_EDGE, GraphMDP, discounted_counts, path_quality
+from pipeline.core.graph_mdp import NO_EDGE, GraphMDP, discounted_counts, path_quality
 
 
 def random_graph(rng, n=40, p=0.12, d=3, n_terminal=2):

@@ -5,7 +5,7 @@ import pytest
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.incremental_mdp import IncrementalGraphMDP
+from pipeline.core.incremental_mdp import IncrementalGraphMDP
 
 
 @pytest.mark.parametrize("seed", range(4))

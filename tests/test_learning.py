@@ -121,7 +121,7 @@ def test_graph_grows_under_the_learned_weights(tmp_path_factory):
     # The viewer shows the grown nodes too.
     from rerun.chunk import RrdReader
 
-    from pipeline.viewer import build_recording
+    from pipeline.tools.viewer import build_recording
 
     rrd = build_recording(run_dir)
     assert "/birl/grown_nodes" in {str(p) for p in RrdReader(rrd).store().schema().entity_paths()}

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from pipeline.errors import PipelineError
-from pipeline.scenegen import RandomSceneSpec, all_starts_reach_goal, random_scene
-from pipeline.world import SceneError, load_scene_file, scene_from_dict
+from pipeline.core.scenegen import RandomSceneSpec, all_starts_reach_goal, random_scene
+from pipeline.core.world import SceneError, scene_from_dict
+from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import METROPOLIS
 
 

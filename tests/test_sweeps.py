@@ -13,7 +13,7 @@ from tests.conftest import ROOT, run_app
 
 
 def aggregate(sweep_dir):
-    return subprocess.run([sys.executable, "-m", "pipeline.aggregate", str(sweep_dir)], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate", str(sweep_dir)], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
 
 
@@ -62,7 +62,7 @@ def regress_work(tmp_path_factory):
 
 
 def regress(*args):
-    return subprocess.run([sys.executable, "-m", "pipeline.regress", *map(str, args)], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "pipeline.tools.regress", *map(str, args)], cwd=ROOT,
                           capture_output=True, text=True, timeout=600)
 
 
@@ -93,7 +93,7 @@ def test_metric_beyond_tolerance_fails(tmp_path, regress_work):
 def test_slurm_launcher_preset_composes():
     from hydra import compose, initialize_config_dir
 
-    from pipeline.config import register_configs
+    from pipeline.app.config import register_configs
 
     register_configs()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):

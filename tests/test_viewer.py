@@ -12,7 +12,7 @@ from rerun.error_utils import RerunWarning
 
 from pipeline.artefacts import ArtefactError, read_artefact
 from pipeline.errors import PipelineError
-from pipeline.viewer import build_recording
+from pipeline.tools.viewer import build_recording
 from tests.conftest import ROOT, run_app
 
 SPATIAL = ["/scene/room", "/scene/persons", "/scene/person_heading", "/scene/links",
@@ -142,7 +142,7 @@ def test_missing_scene_or_truncated_artefact_is_a_clear_error(run_dir, tmp_path)
 
 def _cli(*args):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    return subprocess.run([sys.executable, "-m", "pipeline.viewer", *map(str, args)], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "pipeline.tools.viewer", *map(str, args)], cwd=ROOT,
                           env=env, capture_output=True, text=True, timeout=120, check=False)
 
 

@@ -13,44 +13,27 @@ import time
 
 import numpy as np
 
+from pipeline.app import build
+from pipeline.app.config import BoltzmannExpertConfig, FileExpertConfig
+from pipeline.app.context import RunContext, resolve_path
+from pipeline.artefacts import codec, topics
+from pipeline.core.experts import Demonstration, boltzmann_demos, optimal_demos
+from pipeline.core.graph_mdp import path_quality
+from pipeline.core.roadmap import build_roadmap
 from pipeline.errors import PipelineError
-from pipeline.experts import boltzmann_demos, load_demo_file, optimal_demos
-from pipeline.features import FEATURE_NAMES, FeatureModel
-from pipeline.graph_mdp import GraphMDP, SpatialGraph, path_quality
-from pipeline.roadmap import build_roadmap
-from pipeline.run import RunContext, resolve_path
-from pipeline.stages.scene import load_scene
+from pipeline.inputs.demo_file import load_demo_file
 
 log = logging.getLogger(__name__)
 
 
-def feature_model(cfg, scene) -> FeatureModel:
-    rw = cfg.reward
-    return FeatureModel.from_scene(scene, rw.rho_relation, rw.rho_personal, rw.resolution)
-
-
-def load_roadmap(ctx: RunContext):
-    """The reference roadmap of demos.mcap as a SpatialGraph (straight edges)."""
-    msg = ctx.read("demos", required_topics=["/demos/roadmap"]).one("/demos/roadmap")
-    positions = np.asarray(msg["positions"], float)
-    src, dst = np.asarray(msg["src"]), np.asarray(msg["dst"])
-    md = ctx.cfg.mdp
-    mdp = GraphMDP(src, dst, msg["duration"], msg["features"], msg["terminal"],
-                   gamma=md.gamma, r_goal=md.r_goal, v_max=md.v_max)
-    return SpatialGraph(positions, mdp, np.asarray(msg["start_nodes"]),
-                       [positions[[a, b]] for a, b in zip(src, dst)])
-
-
 def run(ctx: RunContext) -> None:
-    cfg = ctx.cfg
-    scene = load_scene(ctx)
-    features = feature_model(cfg, scene)
+    cfg, md, expert = ctx.cfg, ctx.cfg.mdp, ctx.cfg.expert
+    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
+    features = build.feature_model(cfg, scene)
     w_true = np.asarray(cfg.reward.weights, dtype=float)
-    md = cfg.mdp
 
     t0 = time.perf_counter()
-    roadmap = build_roadmap(scene, features, cfg.roadmap.spacing, cfg.roadmap.connectivity,
-                            md.speed)
+    roadmap = build_roadmap(scene, features, cfg.roadmap, md.speed)
     mdp = roadmap.mdp(md.gamma, md.r_goal, md.v_max)
     t1 = time.perf_counter()
     solution = mdp.solve(w_true)
@@ -60,44 +43,43 @@ def run(ctx: RunContext) -> None:
              "(%d policy-iteration sweeps)", len(roadmap.positions), mdp.n_edges, t1 - t0,
              t2 - t1, solution.iterations)
 
-    kind = cfg.expert.kind
-    if kind == "optimal":
-        demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
-    elif kind == "boltzmann":
+    demos: list[Demonstration]
+    if isinstance(expert, BoltzmannExpertConfig):
         demos = boltzmann_demos(mdp, roadmap.positions, roadmap.start_nodes, w_true, solution,
-                                cfg.expert.beta, ctx.rng("demos"), cfg.expert.max_steps,
-                                cfg.expert.max_tries)
+                                expert, ctx.rng("demos"))
+    elif isinstance(expert, FileExpertConfig):
+        demos = load_demo_file(resolve_path(expert.path), scene, features, md.speed)
     else:
-        demos = load_demo_file(resolve_path(cfg.expert.path), scene, features, md.speed)
-    if cfg.expert.n_demos is not None:
-        demos = [d for d in demos if d.start_index < cfg.expert.n_demos]
+        demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
+    if expert.n_demos is not None:
+        demos = [d for d in demos if d.start_index < expert.n_demos]
         if not demos:
-            raise PipelineError(f"expert.n_demos={cfg.expert.n_demos} leaves no demonstration")
+            raise PipelineError(f"expert.n_demos={expert.n_demos} leaves no demonstration")
     unreached = [d.start_index for d in demos if not d.reached]
     if unreached:
         log.warning("demonstrations from starts %s do not reach the goal", unreached)
-    log.info("%s expert: %d demonstrations", kind, len(demos))
+    log.info("%s expert: %d demonstrations", expert.kind, len(demos))
 
-    synthetic = kind != "file"  # file demos have no known true weights
+    synthetic = not isinstance(expert, FileExpertConfig)  # file demos have no true weights
     with ctx.writer("demos") as w:
-        w.add("/demos/expert", "Expert", {
-            "kind": kind, "reward": cfg.reward.name if synthetic else None,
-            "true_weights": w_true if synthetic else None, "feature_names": list(FEATURE_NAMES),
-            "beta": cfg.expert.beta if kind == "boltzmann" else None,
+        w.add(topics.DEMOS_EXPERT, "Expert", {
+            "kind": expert.kind, "reward": cfg.reward.name if synthetic else None,
+            "true_weights": w_true if synthetic else None,
+            "feature_names": list(cfg.reward.features),
+            "beta": expert.beta if isinstance(expert, BoltzmannExpertConfig) else None,
             "gamma": md.gamma, "r_goal": md.r_goal, "speed": md.speed}, log_time=0)
         for i, d in enumerate(demos):
             phi, end_discount = d.discounted(md.gamma)
-            w.add("/demos", "Demonstration", {
+            w.add(topics.DEMOS, "Demonstration", {
                 "start_index": d.start_index, "points": d.points, "features": d.features,
                 "discounted_features": phi, "end_discount": end_discount,
                 "duration": float(d.durations.sum()), "reached": d.reached,
                 "value_true": path_quality(phi, end_discount, w_true, md.r_goal, d.reached)
                 if synthetic else None}, log_time=i)
-        policy = mdp.caller_edges(solution.policy)
-        w.add("/demos/roadmap", "Roadmap", {
+        w.add(topics.DEMOS_ROADMAP, "Roadmap", {
             "spacing": cfg.roadmap.spacing, "connectivity": cfg.roadmap.connectivity,
             "positions": roadmap.positions, "src": roadmap.src, "dst": roadmap.dst,
             "duration": roadmap.duration, "features": roadmap.features,
             "terminal": roadmap.terminal, "start_nodes": roadmap.start_nodes,
             "goal_node": roadmap.goal_node, "true_values": solution.values if synthetic else None,
-            "true_policy": policy if synthetic else None}, log_time=0)
+            "true_policy": mdp.caller_edges(solution.policy) if synthetic else None}, log_time=0)

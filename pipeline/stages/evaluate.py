@@ -15,26 +15,28 @@ import time
 import numpy as np
 from omegaconf import OmegaConf
 
-from pipeline.config import ALL_STAGES
-from pipeline.evaluation import discrete_frechet, follow_all, policy_loss
-from pipeline.features import FEATURE_NAMES
-from pipeline.graph_mdp import SpatialGraph
-from pipeline.run import PROJECT_ROOT, RunContext
-from pipeline.social import path_metrics
-from pipeline.stages.demos import load_roadmap
-from pipeline.stages.graph import load_graph
-from pipeline.stages.scene import load_scene
+from pipeline.app.context import PROJECT_ROOT, RunContext
+from pipeline.artefacts import codec, topics
+from pipeline.artefacts.topics import STAGES
+from pipeline.core.evaluation import PolicyLoss, discrete_frechet, follow_all, policy_loss
+from pipeline.core.features import FEATURE_NAMES
+from pipeline.core.graph_mdp import SpatialGraph
+from pipeline.core.social import path_metrics
+from pipeline.core.world import Scene
 
 log = logging.getLogger(__name__)
 
 
-def preset_weights(name: str) -> np.ndarray:
-    """Behaviour presets straight from conf/reward (one source for the numbers)."""
-    return np.asarray(OmegaConf.load(PROJECT_ROOT / "conf" / "reward" / f"{name}.yaml").weights,
-                      float)
+def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
+    """Behaviour presets straight from conf/reward (one source for the numbers), on the
+    run's features (a feature the preset does not weigh gets 0)."""
+    preset = OmegaConf.load(PROJECT_ROOT / "conf" / "reward" / f"{name}.yaml")
+    by_name = dict(zip(preset.get("features", FEATURE_NAMES), preset.weights))
+    return np.array([float(by_name.get(n, 0.0)) for n in feature_names])
 
 
-def loss_curve(graph: SpatialGraph, w_true, weights_per_iteration):
+def loss_curve(graph: SpatialGraph, w_true: np.ndarray,
+               weights_per_iteration: np.ndarray) -> tuple[np.ndarray, PolicyLoss, np.ndarray]:
     """Policy loss of every iteration's weights on one graph, and the final policy."""
     mdp = graph.mdp
     optimal = mdp.solve(w_true).values
@@ -46,7 +48,8 @@ def loss_curve(graph: SpatialGraph, w_true, weights_per_iteration):
     return np.array(losses), last, optimal
 
 
-def summed_path_metrics(graph: SpatialGraph, policy, scene, prefix="") -> tuple[dict, list]:
+def summed_path_metrics(graph: SpatialGraph, policy: np.ndarray, scene: Scene,
+                        prefix: str = "") -> tuple[dict, list]:
     """Social metrics of the greedy paths from every start, aggregated over starts."""
     paths = follow_all(graph.mdp, policy, graph.start_nodes)
     per_path = []
@@ -69,19 +72,24 @@ def summed_path_metrics(graph: SpatialGraph, policy, scene, prefix="") -> tuple[
 
 def run(ctx: RunContext) -> None:
     t0 = time.perf_counter()
-    scene = load_scene(ctx)
-    demos_art = ctx.read("demos", required_topics=["/demos", "/demos/expert"])
-    expert = demos_art.one("/demos/expert")
-    birl_art = ctx.read("birl", required_topics=["/birl/iteration"])
-    iterations = birl_art.all("/birl/iteration")
+    md, names = ctx.cfg.mdp, list(ctx.cfg.reward.features)
+    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
+    demos_art = ctx.read("demos", required_topics=[topics.DEMOS, topics.DEMOS_EXPERT,
+                                                   topics.DEMOS_ROADMAP])
+    expert = demos_art.one(topics.DEMOS_EXPERT)
+    birl_art = ctx.read("birl", required_topics=[topics.BIRL_ITERATION])
+    iterations = birl_art.all(topics.BIRL_ITERATION)
     weights = np.array([it["weights"] for it in iterations], float)
     w_final = weights[-1]
-    graph, roadmap = load_graph(ctx, grown=birl_art), load_roadmap(ctx)
+    graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
+                                                   topics.GRAPH_SOLUTION])
+    graph = codec.decode_graph(graph_art, md, grown=birl_art)
+    roadmap = codec.decode_roadmap(demos_art, md)
 
-    metrics: dict[str, float] = {f"weight_{n}": float(v) for n, v in zip(FEATURE_NAMES, w_final)}
-    if birl_art.messages.get("/birl/posterior"):  # birl=mcmc: the final posterior's spread
-        post = birl_art.all("/birl/posterior")[-1]
-        metrics.update({f"weight_std_{n}": float(v) for n, v in zip(FEATURE_NAMES, post["std"])})
+    metrics: dict[str, float] = {f"weight_{n}": float(v) for n, v in zip(names, w_final)}
+    if birl_art.messages.get(topics.BIRL_POSTERIOR):  # sampling methods: the final spread
+        post = birl_art.all(topics.BIRL_POSTERIOR)[-1]
+        metrics.update({f"weight_std_{n}": float(v) for n, v in zip(names, post["std"])})
         metrics["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
     curves = {}
     if expert["true_weights"] is not None:
@@ -89,8 +97,8 @@ def run(ctx: RunContext) -> None:
         curves["graph"], final_graph, _ = loss_curve(graph, w_true, weights)
         curves["ref"], final_ref, ref_optimal = loss_curve(roadmap, w_true, weights)
         # Normalise by the loss of the contrasting behaviour (rude; polite if w* is rude).
-        contrast = "polite" if np.allclose(w_true, preset_weights("rude")) else "rude"
-        baseline = policy_loss(roadmap.mdp, w_true, preset_weights(contrast),
+        contrast = "polite" if np.allclose(w_true, preset_weights("rude", names)) else "rude"
+        baseline = policy_loss(roadmap.mdp, w_true, preset_weights(contrast, names),
                                roadmap.start_nodes, ref_optimal).loss
         curves["norm"] = curves["ref"] / baseline if baseline > 0 else np.full(len(weights), np.nan)
         metrics.update({
@@ -110,7 +118,7 @@ def run(ctx: RunContext) -> None:
     metrics.update(social)
     metrics.update(social_ref)
     if expert["kind"] == "file":
-        demos = demos_art.all("/demos")
+        demos = demos_art.all(topics.DEMOS)
         dists = [discrete_frechet(graph_paths[d["start_index"]][0], d["points"]) for d in demos]
         metrics["frechet_to_demos"] = float(np.mean(dists))
         metrics["frechet_to_demos_max"] = float(np.max(dists))
@@ -124,7 +132,7 @@ def run(ctx: RunContext) -> None:
 
     with ctx.writer("evaluate") as w:
         for k in range(len(weights)):
-            w.add("/eval/policy_loss", "PolicyLoss", {
+            w.add(topics.EVAL_POLICY_LOSS, "PolicyLoss", {
                 "iteration": k, "weights": weights[k],
                 **{name: (float(c[k]) if np.isfinite(c[k]) else None)
                    for name, c in (("graph", curves.get("graph")), ("ref", curves.get("ref")),
@@ -132,10 +140,10 @@ def run(ctx: RunContext) -> None:
                 log_time=k)
         for where, paths in (("graph", graph_paths), ("ref", ref_paths)):
             for s, (pts, m) in enumerate(paths):
-                w.add("/eval/paths", "LearnedPath", {"graph": where, "start": s, "points": pts,
+                w.add(topics.EVAL_PATHS, "LearnedPath", {"graph": where, "start": s, "points": pts,
                                                      **m}, log_time=s)
         # Wall-clock timings are metrics, not artefact content (same seed, same bytes).
-        w.add("/eval/metrics", "Metrics", {k: v for k, v in metrics.items()
+        w.add(topics.EVAL_METRICS, "Metrics", {k: v for k, v in metrics.items()
                                            if not (k.startswith("time_") and k.endswith("_s"))},
               log_time=0)
     tmp = ctx.run_dir / "metrics.json.tmp"
@@ -145,13 +153,13 @@ def run(ctx: RunContext) -> None:
 
 
 def print_summary(m: dict, ctx: RunContext) -> None:
-    def fmt(key, spec=".4f"):
+    def fmt(key: str, spec: str = ".4f") -> str:
         v = m.get(key)
         return "n/a" if v is None else format(v, spec)
 
     lines = [
         f"BIRL-G run: {ctx.run_dir}",
-        "  learned weights  " + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in FEATURE_NAMES),
+        "  learned weights  " + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in ctx.cfg.reward.features),
         f"  policy loss      graph {fmt('policy_loss')} (initial {fmt('policy_loss_initial')}), "
         f"roadmap {fmt('policy_loss_ref')}, normalised {fmt('policy_loss_norm')}",
         f"  learned paths    crossings {fmt('relation_crossings', '.0f')}, intimate "
@@ -161,5 +169,5 @@ def print_summary(m: dict, ctx: RunContext) -> None:
     if "frechet_to_demos" in m:
         lines.append(f"  vs demos         discrete Fréchet mean {fmt('frechet_to_demos', '.3f')} m")
     lines.append("  stage seconds    " + ", ".join(
-        f"{stage} {m[f'time_{stage}_s']:.2f}" for stage in ALL_STAGES if f"time_{stage}_s" in m))
+        f"{stage} {m[f'time_{stage}_s']:.2f}" for stage in STAGES if f"time_{stage}_s" in m))
     print("\n".join(lines), flush=True)

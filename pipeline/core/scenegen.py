@@ -15,26 +15,35 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from pipeline.core.params import require, require_count, require_non_negative, require_positive
+from pipeline.core.roadmap import lattice_graph
+from pipeline.core.world import BodyParams, Person, Room, Scene
 from pipeline.errors import PipelineError
-from pipeline.roadmap import lattice_graph
-from pipeline.world import Person, Room, Scene
 
 
-@dataclass(frozen=True)
-class RandomSceneSpec:
-    width: float = 10.0
-    height: float = 10.0
-    n_singles: int = 3
-    n_groups: int = 3
+@dataclass
+class RandomSceneSpec(BodyParams):
+    width: float = 10.0  # m
+    height: float = 10.0  # m
+    n_singles: int = 3  # persons standing alone
+    n_groups: int = 3  # F-formation groups
     group_size_min: int = 2
     group_size_max: int = 4
-    formation_radius: float = 0.7
-    min_person_gap: float = 0.7
+    formation_radius: float = 0.7  # m, distance of group members from the group centre
+    min_person_gap: float = 0.7  # m, minimum distance between any two persons
     n_starts: int = 5
-    border_margin: float = 0.3
-    max_tries: int = 200
-    body_radius: float = 0.25
-    goal_tolerance: float = 0.3
+    border_margin: float = 0.3  # m, starts and goal this far inside the walls
+    max_tries: int = 200  # resamples until every start reaches the goal
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require_positive(self, "width", "height", "formation_radius", "min_person_gap")
+        require_count(self, "n_singles", "n_groups", minimum=0)
+        require_count(self, "n_starts", "max_tries")
+        require(2 <= self.group_size_min <= self.group_size_max <= 4, "group_size_min",
+                f"{self.group_size_min} (max {self.group_size_max})",
+                "2 <= group_size_min <= group_size_max <= 4")
+        require_non_negative(self, "border_margin")
 
 
 def _place_persons(spec: RandomSceneSpec, rng: np.random.Generator):

@@ -15,9 +15,25 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 from scipy.sparse.linalg import spsolve
 
+from pipeline.core.params import require, require_positive
+
 NO_EDGE = -1
+
+
+@dataclass
+class MDPParams:
+    gamma: float = 0.95  # discount per second
+    r_goal: float = 1.0  # terminal reward R_goal
+    v_max: float = 10.0  # dead ends have V = −v_max
+    speed: float = 1.0  # m/s, robot speed: straight edge duration = length / speed
+
+    def __post_init__(self) -> None:
+        require(0 < self.gamma < 1, "gamma", self.gamma, "0 < gamma < 1")
+        require_positive(self, "v_max", "speed")
+        require(bool(np.isfinite(self.r_goal)), "r_goal", self.r_goal, "a finite number")
 
 
 @dataclass(frozen=True)
@@ -37,8 +53,8 @@ class Path:
 class GraphMDP:
     """A graph semi-MDP. Edges are stored sorted by source node (CSR layout)."""
 
-    def __init__(self, src, dst, duration, features, terminal, *, gamma=0.95, r_goal=1.0,
-                 v_max=10.0):
+    def __init__(self, src, dst, duration, features, terminal, *, gamma: float = 0.95,
+                 r_goal: float = 1.0, v_max: float = 10.0):
         src = np.asarray(src, dtype=np.int64)
         dst = np.asarray(dst, dtype=np.int64)
         duration = np.asarray(duration, dtype=float)
@@ -124,6 +140,19 @@ class GraphMDP:
         rhs[rows] = rewards[e]
         return np.asarray(spsolve(mat.tocsc(), rhs)).reshape(n)
 
+    def log_sum_exp(self, x: np.ndarray) -> np.ndarray:
+        """log Σ_{e ∈ out(s)} exp(x_e) per node (−inf without out-edges), max-shifted so that
+        large |x| neither overflows nor underflows. x holds one value per (internal) edge."""
+        out = np.full(self.n_nodes, -np.inf)
+        nodes = np.flatnonzero(self.has_out)
+        if len(nodes) == 0:
+            return out
+        starts = self.indptr[nodes]  # non-empty, increasing segments: what reduceat needs
+        peak = np.full(self.n_nodes, 0.0)
+        peak[nodes] = np.maximum.reduceat(x, starts)
+        out[nodes] = peak[nodes] + np.log(np.add.reduceat(np.exp(x - peak[self.src]), starts))
+        return out
+
     def greedy(self, q, current=None) -> np.ndarray:
         """Best edge per node given Q per edge; keeps `current` on ties so PI terminates."""
         policy = np.full(self.n_nodes, NO_EDGE, dtype=np.int64)
@@ -195,12 +224,28 @@ class SpatialGraph:
     waypoints: list[np.ndarray]  # per edge (caller's order)
     snap_tolerance: float = 0.0  # input points this close to a node were merged into it
 
-    def polyline(self, path) -> np.ndarray:
+    def polyline(self, path: Path) -> np.ndarray:
         """The driven path of a graph path: the edges' controller waypoints joined."""
         if len(path.edges) == 0:
             return self.positions[path.nodes[:1]]
         ways = [self.waypoints[e] for e in self.mdp.edge_ids[path.edges]]
         return np.vstack([ways[0]] + [w[1:] for w in ways[1:]])
+
+    def snap_path(self, points: np.ndarray) -> Path:
+        """A polyline (K, 2) whose waypoints the graph merged into its nodes, as a path of
+        the graph (internal edge indices); ValueError if it is not one."""
+        dist, nodes = cKDTree(self.positions).query(np.asarray(points, float))
+        if dist.max() > self.snap_tolerance + 1e-9:
+            raise ValueError(f"not a path of the graph: a waypoint lies {dist.max():.3f} m "
+                             f"from the nearest node")
+        nodes = [int(n) for i, n in enumerate(nodes) if i == 0 or n != nodes[i - 1]]
+        edge_of = {(int(a), int(b)): e for e, (a, b) in enumerate(zip(self.mdp.src, self.mdp.dst))}
+        missing = [(a, b) for a, b in zip(nodes[:-1], nodes[1:]) if (a, b) not in edge_of]
+        if missing:
+            raise ValueError(f"not a path of the graph: no edge {missing[0]}")
+        edges = [edge_of[(a, b)] for a, b in zip(nodes[:-1], nodes[1:])]
+        return Path(np.array(nodes), np.array(edges, dtype=np.int64),
+                    bool(self.mdp.terminal[nodes[-1]]))
 
 
 def discounted_counts(edge_features, durations, gamma) -> tuple[np.ndarray, float]:
@@ -216,3 +261,22 @@ def discounted_counts(edge_features, durations, gamma) -> tuple[np.ndarray, floa
 def path_quality(phi, end_discount, w, r_goal, reached=True) -> float:
     """Q(ξ; w) = w·Φ(ξ) + γ^T R_goal (DESIGN §8); the goal term only if the goal is reached."""
     return float(np.dot(w, phi) + (end_discount * r_goal if reached else 0.0))
+
+
+@dataclass(frozen=True, eq=False)
+class TrajectoryStats:
+    """A trajectory as IRL sees it: its quality is linear in the weights,
+    Q(ξ; w) = w·Φ(ξ) + γ^T R_goal [reached]."""
+    start: int  # start index
+    phi: np.ndarray  # (d,) discounted feature counts
+    end_discount: float  # γ^T
+    reached: bool
+
+    @classmethod
+    def from_edges(cls, start: int, edge_features: np.ndarray, durations: np.ndarray,
+                   gamma: float, reached: bool) -> TrajectoryStats:
+        phi, end_discount = discounted_counts(edge_features, durations, gamma)
+        return cls(int(start), phi, end_discount, bool(reached))
+
+    def quality(self, w: np.ndarray, r_goal: float) -> float:
+        return path_quality(self.phi, self.end_discount, w, r_goal, self.reached)

@@ -1,6 +1,6 @@
 """Offline viewer: turn a run's MCAP artefacts into a rerun recording (.rrd) with a blueprint.
 
-    python -m pipeline.viewer RUN_DIR [--out FILE] [--no-open]
+    python -m pipeline.tools.viewer RUN_DIR [--out FILE] [--no-open]
 
 Static: the scene, demonstrations and final learned paths. Graph growth replays on the
 `iteration` timeline, BIRL on `birl_iteration` (learned paths and curves). Written against
@@ -21,6 +21,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from pipeline.artefacts import topics
 from pipeline.artefacts import Artefact, read_artefact
 from pipeline.errors import PipelineError
 
@@ -59,8 +60,8 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
 
 
 def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
-    nodes, edges = graph.all("/graph/node"), graph.all("/graph/edge")
-    best = graph.all("/graph/best_paths")
+    nodes, edges = graph.all(topics.GRAPH_NODE), graph.all(topics.GRAPH_EDGE)
+    best = graph.all(topics.GRAPH_BEST_PATHS)
     pos = {n["id"]: (n["x"], n["y"]) for n in nodes}
     iterations = sorted({n["iteration"] for n in nodes} | {e["iteration"] for e in edges}
                         | {b["iteration"] for b in best})
@@ -86,7 +87,7 @@ def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
 
 def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | None,
               names: list[str]) -> None:
-    for it in birl.all("/birl/iteration") if birl else []:
+    for it in birl.all(topics.BIRL_ITERATION) if birl else []:
         rec.set_time("birl_iteration", sequence=it["index"])
         paths = [g["points"] for g in it["generated"] if g.get("points")]
         rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.04,
@@ -96,18 +97,18 @@ def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | Non
             rec.log(f"curves/weights/{name}", rr.Scalars(w), strict=True)
         if it.get("log_posterior") is not None:
             rec.log("curves/log_posterior", rr.Scalars(it["log_posterior"]), strict=True)
-    for loss in ev.all("/eval/policy_loss") if ev else []:
+    for loss in ev.all(topics.EVAL_POLICY_LOSS) if ev else []:
         rec.set_time("birl_iteration", sequence=loss["iteration"])
         for key in ("graph", "ref", "norm"):
             if loss.get(key) is not None:
                 rec.log(f"curves/policy_loss/{key}", rr.Scalars(loss[key]), strict=True)
     rec.reset_time()
-    if birl is not None and birl.messages.get("/birl/graph_node"):  # birl.grow_nodes > 0
-        grown = birl.all("/birl/graph_node")
+    if birl is not None and birl.messages.get(topics.BIRL_GRAPH_NODE):  # birl.grow_nodes > 0
+        grown = birl.all(topics.BIRL_GRAPH_NODE)
         rec.log("birl/grown_nodes", rr.Points2D([(n["x"], n["y"]) for n in grown], radii=0.05,
                                                 colors=(0, 190, 190)), static=True, strict=True)
-    if ev is not None and "/eval/paths" in ev.messages:
-        final = [p for p in ev.all("/eval/paths") if p.get("graph") == "graph" and p["points"]]
+    if ev is not None and topics.EVAL_PATHS in ev.messages:
+        final = [p for p in ev.all(topics.EVAL_PATHS) if p.get("graph") == "graph" and p["points"]]
         rec.log("eval/paths", rr.LineStrips2D(
             _strips([p["points"] for p in final]), radii=0.05, colors=(30, 200, 30),
             labels=[f"start {p['start']}" for p in final]), static=True, strict=True)
@@ -135,7 +136,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise PipelineError(f"run dir {run_dir} does not exist or is not a directory")
-    scene = read_artefact(run_dir / "scene.mcap").one("/scene")
+    scene = read_artefact(run_dir / "scene.mcap").one(topics.SCENE)
     arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
             if (run_dir / f"{n}.mcap").exists()}
     rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
@@ -156,12 +157,12 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
         _log_scene(rec, scene)
         if "demos" in arts:
             rec.log("demos/trajectories", rr.LineStrips2D(
-                _strips([d["points"] for d in arts["demos"].all("/demos")]), radii=0.03,
+                _strips([d["points"] for d in arts["demos"].all(topics.DEMOS)]), radii=0.03,
                 colors=(240, 150, 30)), static=True, strict=True)
         if "graph" in arts:
             _log_graph(rec, arts["graph"])
         names = next((a.messages[t][0]["feature_names"] for a, t in
-                      ((arts.get("birl"), "/birl/expert"), (arts.get("demos"), "/demos/expert"))
+                      ((arts.get("birl"), topics.BIRL_EXPERT), (arts.get("demos"), topics.DEMOS_EXPERT))
                       if a is not None and a.messages.get(t)), [])
         _log_birl(rec, arts.get("birl"), arts.get("eval"), names)
         rec.flush()
@@ -187,7 +188,7 @@ def _has_display() -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipeline.viewer",
+    ap = argparse.ArgumentParser(prog="python -m pipeline.tools.viewer",
                                  description=__doc__.split("\n")[0])
     ap.add_argument("run_dir", type=Path, help="a run directory holding the stage artefacts")
     ap.add_argument("--out", type=Path, default=None, help="the .rrd to write "

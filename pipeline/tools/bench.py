@@ -1,9 +1,9 @@
 """Benchmarks (`make bench`): results go to results/bench/*.csv, never into tests.
 
-    python -m pipeline.bench graph            # adaptive-graph scaling on metropolis
-    python -m pipeline.bench graph --sizes 250 500
-    python -m pipeline.bench experiment       # the default experiment's time per stage
-    python -m pipeline.bench irl              # BIRL-G against PolicyWalk and MaxEnt IRL
+    python -m pipeline.tools.bench graph            # adaptive-graph scaling on metropolis
+    python -m pipeline.tools.bench graph --sizes 250 500
+    python -m pipeline.tools.bench experiment       # the default experiment's time per stage
+    python -m pipeline.tools.bench irl              # BIRL-G against PolicyWalk and MaxEnt IRL
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
 """
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.run import PROJECT_ROOT
+from pipeline.app.context import PROJECT_ROOT
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 GRAPH_SIZES = [250, 500, 1000, 2000, 5000]
@@ -30,13 +30,13 @@ GRAPH_SIZES = [250, 500, 1000, 2000, 5000]
 def _graph_once(max_nodes: int, seed: int) -> dict:
     """Grow one graph on metropolis from polite optimal demos under the prior-mean weights
     (what the default experiment does); time only the graph stage's own work."""
-    from pipeline.adaptive_graph import AdaptiveGraph, Demo, GraphParams
-    from pipeline.birl import Prior
-    from pipeline.controllers import LinearController
-    from pipeline.experts import optimal_demos
-    from pipeline.features import FeatureModel
-    from pipeline.roadmap import build_roadmap
-    from pipeline.world import load_scene_file
+    from pipeline.core.adaptive_graph import AdaptiveGraph, Demo, GraphParams
+    from pipeline.core.controllers import LinearController
+    from pipeline.core.experts import optimal_demos
+    from pipeline.core.features import FeatureModel
+    from pipeline.core.roadmap import build_roadmap
+    from pipeline.inputs.scene_file import load_scene_file
+    from pipeline.irl.prior import Prior
 
     scene = load_scene_file(PROJECT_ROOT / "data" / "scenes" / "metropolis.json")
     fm = FeatureModel.from_scene(scene)
@@ -82,7 +82,7 @@ def _reset_peak_rss() -> float:
 def graph_scaling(sizes: list[int], seed: int) -> pd.DataFrame:
     rows = []
     for n in sizes:
-        out = subprocess.run([sys.executable, "-m", "pipeline.bench", "graph-once", str(n),
+        out = subprocess.run([sys.executable, "-m", "pipeline.tools.bench", "graph-once", str(n),
                               "--seed", str(seed)], capture_output=True, text=True, check=True)
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
         print(f"  {rows[-1]}", flush=True)
@@ -160,9 +160,9 @@ def irl_methods(seeds: list[int], methods: list[str], scenes: list[str]):
 
 
 def read_artefact_iterations(run: Path) -> list[dict]:
-    from pipeline.artefacts import read_artefact
+    from pipeline.artefacts import read_artefact, topics
 
-    return read_artefact(run / "birl.mcap").all("/birl/iteration")
+    return read_artefact(run / "birl.mcap").all(topics.BIRL_ITERATION)
 
 
 def plot_loss_vs_time(curves: pd.DataFrame, path: Path) -> None:
@@ -188,7 +188,7 @@ def plot_loss_vs_time(curves: pd.DataFrame, path: Path) -> None:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.bench")
+    parser = argparse.ArgumentParser(prog="python -m pipeline.tools.bench")
     sub = parser.add_subparsers(dest="suite", required=True)
     g = sub.add_parser("graph", help="adaptive-graph scaling -> results/bench/graph_scaling.csv")
     g.add_argument("--sizes", type=int, nargs="+", default=GRAPH_SIZES)

@@ -23,7 +23,7 @@ from collections import deque
 
 import numpy as np
 
-from pipeline.graph_mdp import NO_EDGE, GraphMDP
+from pipeline.core.graph_mdp import NO_EDGE, GraphMDP
 
 
 class GrowableArray:

@@ -16,14 +16,34 @@ and `length` are computed exactly per straight segment.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.core.params import require, require_positive
+from pipeline.core.world import Scene
+
 FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "length")
+_COLUMN = {name: k for k, name in enumerate(FEATURE_NAMES)}
 
 # Keeps the (points x links) distance matrices of a batch to a few tens of MB.
 _CHUNK_POINTS = 200_000
+
+
+@dataclass
+class FeatureParams:
+    """Which features make up the reward, in which order, and their constants."""
+    features: list[str] = field(default_factory=lambda: list(FEATURE_NAMES))
+    rho_relation: float = 0.6  # m, ρ_r
+    rho_personal: float = 1.2  # m, ρ_p
+    resolution: float = 0.05  # m, integration step of the density features
+
+    def __post_init__(self) -> None:
+        require_positive(self, "rho_relation", "rho_personal", "resolution")
+        names = list(self.features)
+        require(len(names) > 0 and len(set(names)) == len(names)
+                and all(n in _COLUMN for n in names), "features", names,
+                f"distinct names from {list(FEATURE_NAMES)}")
 
 
 @dataclass(frozen=True)
@@ -35,21 +55,21 @@ class FeatureModel:
     rho_relation: float = 0.6
     rho_personal: float = 1.2
     resolution: float = 0.05
+    names: tuple[str, ...] = FEATURE_NAMES  # the selected features, in column order
 
-    def __post_init__(self):
-        for name in ("rho_relation", "rho_personal", "resolution"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+    def __post_init__(self) -> None:
+        FeatureParams(list(self.names), self.rho_relation, self.rho_personal, self.resolution)
 
     @classmethod
-    def from_scene(cls, scene, rho_relation=0.6, rho_personal=1.2, resolution=0.05):
+    def from_scene(cls, scene: Scene, params: FeatureParams | None = None) -> FeatureModel:
+        params = params or FeatureParams()
         a, b = scene.links
-        return cls(a, b, scene.person_xy, np.asarray(scene.goal, float),
-                   rho_relation, rho_personal, resolution)
+        return cls(a, b, scene.person_xy, np.asarray(scene.goal, float), params.rho_relation,
+                   params.rho_personal, params.resolution, tuple(params.features))
 
     @property
     def dim(self) -> int:
-        return len(FEATURE_NAMES)
+        return len(self.names)
 
     # -- densities at points -------------------------------------------------------------
     def relation_density(self, p: np.ndarray) -> np.ndarray:
@@ -75,11 +95,18 @@ class FeatureModel:
 
     # -- features of straight segments ---------------------------------------------------
     def segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Features (n, 4) of the straight segments a[i] → b[i], each (n, 2)."""
+        """Features (n, d) of the straight segments a[i] → b[i], each (n, 2)."""
+        out = self._all_segments(a, b)
+        if self.names == FEATURE_NAMES:
+            return out
+        return out[:, [_COLUMN[n] for n in self.names]]
+
+    def _all_segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """All four features (n, 4), in FEATURE_NAMES order."""
         a = np.asarray(a, float).reshape(-1, 2)
         b = np.asarray(b, float).reshape(-1, 2)
         n = len(a)
-        out = np.zeros((n, self.dim))
+        out = np.zeros((n, len(FEATURE_NAMES)))
         if n == 0:
             return out
         seg = b - a
@@ -102,12 +129,12 @@ class FeatureModel:
         return out
 
     def polyline(self, points: np.ndarray) -> np.ndarray:
-        """Features (4,) of a polyline (K+1, 2)."""
+        """Features (d,) of a polyline (K+1, 2)."""
         points = np.asarray(points, float).reshape(-1, 2)
         return self.segments(points[:-1], points[1:]).sum(axis=0)
 
     def polylines(self, polylines: list[np.ndarray]) -> np.ndarray:
-        """Features (n, 4) of many polylines in one vectorised pass."""
+        """Features (n, d) of many polylines in one vectorised pass."""
         if not polylines:
             return np.zeros((0, self.dim))
         pts = [np.asarray(p, float).reshape(-1, 2) for p in polylines]

@@ -1,7 +1,7 @@
 """Aggregate a Hydra sweep: one table row per job, figures, and an exit status that says
 whether any job failed.
 
-    python -m pipeline.aggregate multirun/<sweep dir>      (also: make aggregate SWEEP=...)
+    python -m pipeline.tools.aggregate multirun/<sweep dir>      (also: make aggregate SWEEP=...)
 
 Writes into the sweep dir: `summary.csv` (overrides, status and every metric of every job),
 `policy_loss.png` (policy loss against BIRL iteration, mean and spread across seeds: the
@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from pipeline.artefacts import topics
 from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
 
@@ -114,7 +115,7 @@ def plot_scene(job: Path, path: Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle
 
-    scene = read_artefact(job / "scene.mcap").one("/scene")
+    scene = read_artefact(job / "scene.mcap").one(topics.SCENE)
     fig, ax = plt.subplots(figsize=(6, 6))
     room = scene["room"]
     ax.plot([room["x_min"], room["x_max"], room["x_max"], room["x_min"], room["x_min"]],
@@ -127,12 +128,12 @@ def plot_scene(job: Path, path: Path) -> None:
         ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange"))
         ax.arrow(p["x"], p["y"], 0.4 * np.cos(p["theta"]), 0.4 * np.sin(p["theta"]),
                  head_width=0.12, color="k")
-    for i, d in enumerate(read_artefact(job / "demos.mcap").all("/demos")):
+    for i, d in enumerate(read_artefact(job / "demos.mcap").all(topics.DEMOS)):
         pts = np.asarray(d["points"])
         ax.plot(pts[:, 0], pts[:, 1], "--", color="tab:green", lw=1.5,
                 label="demonstrations" if i == 0 else None)
     if (job / "eval.mcap").exists():
-        learned = [p for p in read_artefact(job / "eval.mcap").all("/eval/paths")
+        learned = [p for p in read_artefact(job / "eval.mcap").all(topics.EVAL_PATHS)
                    if p["graph"] == "graph"]
         for i, p in enumerate(learned):
             pts = np.asarray(p["points"])
@@ -160,7 +161,7 @@ def aggregate(sweep_dir: Path) -> pd.DataFrame:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.aggregate", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m pipeline.tools.aggregate", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweep_dir", type=Path)
     args = parser.parse_args(argv)

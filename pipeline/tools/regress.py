@@ -1,8 +1,8 @@
 """Metric regression tests against results/baseline/ (`make regress`).
 
-    python -m pipeline.regress                       # run every reference experiment, compare
-    python -m pipeline.regress --only metropolis_polite_s0
-    python -m pipeline.regress --update              # accept the current metrics as baseline
+    python -m pipeline.tools.regress                       # run every reference experiment, compare
+    python -m pipeline.tools.regress --only metropolis_polite_s0
+    python -m pipeline.tools.regress --update              # accept the current metrics as baseline
 
 results/baseline/experiments.yaml names the reference experiments (Hydra overrides each),
 results/baseline/<name>.json holds their metrics, results/baseline/tolerances.yaml says how
@@ -22,7 +22,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from pipeline.run import PROJECT_ROOT
+from pipeline.app.context import PROJECT_ROOT
 
 BASELINE = PROJECT_ROOT / "results" / "baseline"
 
@@ -65,7 +65,7 @@ def compare(name: str, baseline: dict, current: dict, tolerances) -> list[dict]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m pipeline.regress", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m pipeline.tools.regress", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--only", nargs="+", help="reference experiments to run (default: all)")
     parser.add_argument("--baseline", type=Path, default=BASELINE)

@@ -11,12 +11,23 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from pipeline.features import FeatureModel
-from pipeline.graph_mdp import GraphMDP
+from pipeline.core.features import FeatureModel
+from pipeline.core.graph_mdp import GraphMDP
+from pipeline.core.params import require, require_positive
 
 # Lattice offsets (di, dj): 8 king moves plus 8 knight moves = 16-connected.
 _OFFSETS_8 = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
 _OFFSETS_16 = _OFFSETS_8 + [(1, 2), (2, 1), (-1, 2), (-2, 1), (1, -2), (2, -1), (-1, -2), (-2, -1)]
+
+
+@dataclass
+class RoadmapParams:
+    spacing: float = 0.25  # m, lattice spacing
+    connectivity: int = 16  # 8 (king moves) or 16 (plus knight moves)
+
+    def __post_init__(self) -> None:
+        require_positive(self, "spacing")
+        require(self.connectivity in (8, 16), "connectivity", self.connectivity, "8 or 16")
 
 
 @dataclass(frozen=True)
@@ -101,10 +112,11 @@ def lattice_graph(scene, spacing=0.25, connectivity=16):
     return positions, src[ok], dst[ok]
 
 
-def build_roadmap(scene, feature_model: FeatureModel, spacing=0.25, connectivity=16,
-                  speed=1.0) -> Roadmap:
+def build_roadmap(scene, feature_model: FeatureModel, params: RoadmapParams | None = None,
+                  speed: float = 1.0) -> Roadmap:
     """Lattice of `spacing` over the room, nodes in body disks removed, plus starts and goal."""
-    positions, src, dst = lattice_graph(scene, spacing, connectivity)
+    params = params or RoadmapParams()
+    positions, src, dst = lattice_graph(scene, params.spacing, params.connectivity)
     a, b = positions[src], positions[dst]
     features = feature_model.segments(a, b)
     duration = np.linalg.norm(b - a, axis=1) / speed

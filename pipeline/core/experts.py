@@ -1,18 +1,29 @@
-"""Expert demonstrations (DESIGN §6): optimal, Boltzmann-noisy, or read from a file.
+"""Expert demonstrations (DESIGN §6): optimal or Boltzmann-noisy synthetic experts.
 
-Synthetic experts act on the reference roadmap under the true weights w*.
+Synthetic experts act on the reference roadmap under the true weights w*; demonstrations
+read from files (pipeline.inputs) become the same `Demonstration` objects.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from pipeline.core.graph_mdp import GraphMDP, Solution, discounted_counts
+from pipeline.core.params import require_count, require_positive
 from pipeline.errors import PipelineError
-from pipeline.graph_mdp import GraphMDP, Solution, discounted_counts
+
+
+@dataclass
+class BoltzmannParams:
+    beta: float = 50.0  # β_E: each step samples an out-edge with probability ∝ exp(β_E Q*(s, e))
+    max_steps: int = 2000  # walks longer than this are resampled
+    max_tries: int = 100  # resamples per start before giving up
+
+    def __post_init__(self) -> None:
+        require_positive(self, "beta")
+        require_count(self, "max_steps", "max_tries")
 
 
 @dataclass(frozen=True)
@@ -46,10 +57,12 @@ def optimal_demos(mdp: GraphMDP, positions, start_nodes, solution: Solution) -> 
     return demos
 
 
-def boltzmann_demos(mdp: GraphMDP, positions, start_nodes, w, solution: Solution, beta: float,
-                    rng: np.random.Generator, max_steps: int, max_tries: int):
+def boltzmann_demos(mdp: GraphMDP, positions: np.ndarray, start_nodes: np.ndarray,
+                    w: np.ndarray, solution: Solution, params: BoltzmannParams,
+                    rng: np.random.Generator) -> list[Demonstration]:
     """Walks that pick each out-edge with probability ∝ exp(β Q*(s, e)); walks that have not
     reached the goal after `max_steps` edges are resampled (up to `max_tries` times)."""
+    beta, max_steps, max_tries = params.beta, params.max_steps, params.max_tries
     q = mdp.q_values(w, solution.values)
     demos = []
     for k, s in enumerate(start_nodes):
@@ -72,39 +85,4 @@ def boltzmann_demos(mdp: GraphMDP, positions, start_nodes, w, solution: Solution
                 f"boltzmann expert: no walk from start {k} reached the goal within "
                 f"expert.max_steps={max_steps} in expert.max_tries={max_tries} tries; "
                 f"raise expert.beta (now {beta:g}) or expert.max_steps")
-    return demos
-
-
-def load_demo_file(path: Path, scene, feature_model, speed: float) -> list[Demonstration]:
-    """Read a demonstration file (DESIGN §3); each polyline is matched to its nearest start."""
-    where = f"demonstration file {path}"
-    if not path.is_file():
-        raise PipelineError(f"{where} not found")
-    try:
-        data = json.loads(path.read_text())
-        trajectories = [np.asarray(t, dtype=float) for t in data["trajectories"]]
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise PipelineError(f"{where} is not valid JSON") from None
-    except (KeyError, TypeError, ValueError):
-        raise PipelineError(f"{where} needs 'trajectories': a list of [[x, y], ...] polylines") \
-            from None
-    if not trajectories:
-        raise PipelineError(f"{where} has no trajectories")
-    demos = []
-    far_limit = max(1.0, scene.goal_tolerance)
-    for i, t in enumerate(trajectories):
-        if t.ndim != 2 or t.shape[1] != 2 or len(t) < 2:
-            raise PipelineError(f"{where}: trajectory {i} must be a list of at least two [x, y]")
-        if not scene.room.contains(t).all():
-            raise PipelineError(f"{where}: trajectory {i} leaves the room {scene.room.describe()}")
-        keep = np.concatenate([[True], np.linalg.norm(np.diff(t, axis=0), axis=1) > 1e-9])
-        t = t[keep]  # repeated points would be zero-duration segments
-        end_gap = float(np.linalg.norm(t[-1] - scene.goal))
-        if end_gap > far_limit:
-            raise PipelineError(f"{where}: trajectory {i} ends {end_gap:.2f} m from the goal "
-                                f"({scene.goal[0]:g}, {scene.goal[1]:g}); at most {far_limit:g} m")
-        start = int(np.argmin(np.linalg.norm(scene.starts - t[0], axis=1)))
-        feats = feature_model.segments(t[:-1], t[1:])
-        durations = np.linalg.norm(np.diff(t, axis=0), axis=1) / speed
-        demos.append(Demonstration(start, t, feats, durations, True))
     return demos

@@ -7,10 +7,12 @@ Astolfi's polar-coordinates controller with a saturated forward speed.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
+
+from pipeline.core.params import ParameterError, require_positive
 
 
 def wrap_angle(a):
@@ -22,14 +24,6 @@ def wrap_angle(a):
 def _wrap(a: float) -> float:
     """Scalar wrap_angle with plain floats: the POSQ loop calls it thousands of times."""
     return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))
-
-
-def _require_positive(obj, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        if not (ok and math.isfinite(value) and value > 0):
-            raise ValueError(f"{type(obj).__name__}: {name} must be a positive number, got {value!r}")
 
 
 def _as_vector(a, name: str, sizes: tuple[int, ...]) -> np.ndarray:
@@ -53,12 +47,73 @@ class Trajectory:
         return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
+class Runs:
+    """The controller runs of a batch of (start, target) pairs, flattened: run k came from
+    input pair `index[k]` and drove through `points[offsets[k]:offsets[k + 1]]`."""
+    index: np.ndarray  # (m,) input pairs that produced a run (the others had none)
+    points: np.ndarray  # (P, 2) waypoints of all runs, run after run
+    offsets: np.ndarray  # (m + 1,)
+    durations: np.ndarray  # (m,) seconds
+    end_poses: np.ndarray  # (m, 3) the pose each run ends in
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def waypoints(self, k: int) -> np.ndarray:
+        """(K+1, 2) waypoints of run k."""
+        return self.points[self.offsets[k]:self.offsets[k + 1]]
+
+    def segments(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every straight piece of every run: start points (S, 2), end points (S, 2) and the
+        run each belongs to (S,)."""
+        last = np.zeros(len(self.points), dtype=bool)
+        last[self.offsets[1:] - 1] = True  # a run's last point starts no segment
+        first = np.flatnonzero(~last)
+        owner = np.repeat(np.arange(len(self)), np.diff(self.offsets) - 1)
+        return self.points[first], self.points[first + 1], owner
+
+    def subset(self, keep: np.ndarray) -> Runs:
+        """The runs selected by the boolean mask or index array `keep`."""
+        keep = np.arange(len(self))[keep]
+        pieces = [self.waypoints(k) for k in keep]
+        return Runs.from_paths(self.index[keep], pieces, self.durations[keep],
+                               self.end_poses[keep])
+
+    @staticmethod
+    def from_paths(index, paths: list[np.ndarray], durations, end_poses) -> Runs:
+        lengths = [len(p) for p in paths]
+        points = np.concatenate(paths) if paths else np.zeros((0, 2))
+        return Runs(np.asarray(index, dtype=np.int64), points,
+                    np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64),
+                    np.asarray(durations, dtype=float).reshape(len(paths)),
+                    np.asarray(end_poses, dtype=float).reshape(len(paths), 3))
+
+
+class Controller(Protocol):
+    """A local controller (steer function): what the adaptive graph needs of one."""
+
+    @property
+    def cruise_speed(self) -> float:
+        """Typical forward speed (m/s): how far a run of t seconds gets."""
+        ...
+
+    def steer_many(self, starts: np.ndarray, targets: np.ndarray) -> Runs:
+        """Runs from starts[i] to targets[i], both (n, 3) poses; pairs without a run are
+        left out."""
+        ...
+
+
+@dataclass
 class LinearController:
     speed: float = 1.0  # m/s
 
-    def __post_init__(self):
-        _require_positive(self, "speed")
+    def __post_init__(self) -> None:
+        require_positive(self, "speed")
+
+    @property
+    def cruise_speed(self) -> float:
+        return self.speed
 
     def steer(self, start: np.ndarray, target: np.ndarray) -> Trajectory | None:
         """Straight segment start -> target (headings ignored); None if it has zero length."""
@@ -71,14 +126,18 @@ class LinearController:
         poses = np.array([[p[0], p[1], heading], [q[0], q[1], heading]])
         return Trajectory(poses, length / self.speed)
 
-    def steer_many(self, starts: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Vectorised lengths and durations for (n, 2) starts/targets (zero-length rows give 0)."""
-        d = np.asarray(targets, dtype=float)[:, :2] - np.asarray(starts, dtype=float)[:, :2]
-        lengths = np.hypot(d[:, 0], d[:, 1])
-        return lengths, lengths / self.speed
+    def steer_many(self, starts: np.ndarray, targets: np.ndarray) -> Runs:
+        """Straight segments, vectorised; a run ends in the target pose as given."""
+        a, b = np.asarray(starts, dtype=float), np.asarray(targets, dtype=float)
+        ok = np.flatnonzero(np.linalg.norm(b[:, :2] - a[:, :2], axis=1) > 1e-9)
+        a, b = a[ok], b[ok]
+        points = np.stack([a[:, :2], b[:, :2]], axis=1).reshape(-1, 2)
+        end_poses = b if b.shape[1] == 3 else np.column_stack([b, np.zeros(len(b))])
+        return Runs(ok.astype(np.int64), points, np.arange(0, 2 * len(ok) + 1, 2),
+                    np.linalg.norm(b[:, :2] - a[:, :2], axis=1) / self.speed, end_poses)
 
 
-@dataclass(frozen=True)
+@dataclass
 class PosqController:
     """POSQ steering. It stops on rho < eps alone; with the reference gains the heading error
     near the goal only decays like rho**0.29, so at eps = 0.05 a pose target's heading can be
@@ -88,20 +147,40 @@ class PosqController:
     k_rho: float = 1.0
     k_alpha: float = 6.0
     k_beta: float = -1.0
-    wheel_base: float = 0.4
+    wheel_base: float = 0.4  # m
     max_speed: float = 1.0  # max wheel speed, m/s
-    dt: float = 0.05
-    eps: float = 0.05
-    max_time: float = 30.0
+    dt: float = 0.05  # s, integration step
+    eps: float = 0.05  # m, arrival tolerance
+    max_time: float = 10.0  # s, runs that take longer are dropped
     allow_backward: bool = False  # reverse while the target is behind (|alpha| > pi/2), re-decided each step
 
-    def __post_init__(self):
-        _require_positive(self, "k_v", "k_rho", "wheel_base", "max_speed", "dt", "eps", "max_time")
+    def __post_init__(self) -> None:
+        require_positive(self, "k_v", "k_rho", "k_alpha", "wheel_base", "max_speed", "dt", "eps",
+                         "max_time")
+
+    @property
+    def cruise_speed(self) -> float:
+        return self.k_rho  # v = K_ρ·tanh(K_v·ρ) ≤ K_ρ
 
     @property
     def max_angular_rate(self) -> float:
         """Largest |omega| the clipped wheel speeds allow (wheels at +-max_speed)."""
         return 2.0 * self.max_speed / self.wheel_base
+
+    def steer_many(self, starts: np.ndarray, targets: np.ndarray) -> Runs:
+        """One POSQ integration per pair; a run ends heading along its last step."""
+        index, paths, durations, ends = [], [], [], []
+        for i, (a, b) in enumerate(zip(starts, targets)):
+            traj = self.steer(a, b)
+            if traj is None:
+                continue
+            pts = traj.points
+            d = pts[-1] - pts[-2]
+            index.append(i)
+            paths.append(pts)
+            durations.append(traj.duration)
+            ends.append([pts[-1, 0], pts[-1, 1], math.atan2(d[1], d[0])])
+        return Runs.from_paths(index, paths, durations, ends)
 
     def steer(self, start: np.ndarray, target: np.ndarray) -> Trajectory | None:
         """Integrate POSQ from start until rho < eps; None if that takes longer than max_time
@@ -142,9 +221,12 @@ class PosqController:
         return Trajectory(np.array(poses), (len(poses) - 1) * self.dt)
 
 
-def make_controller(kind: str, **params) -> LinearController | PosqController:
-    if kind == "linear":
-        return LinearController(**params)
-    if kind == "posq":
-        return PosqController(**params)
-    raise ValueError(f"controller must be 'linear' or 'posq', got {kind!r}")
+CONTROLLERS: dict[str, type[LinearController] | type[PosqController]] = {
+    "linear": LinearController, "posq": PosqController}
+
+
+def make_controller(kind: str, **params: float) -> Controller:
+    """The controller `kind` ('linear' or 'posq') with the given parameters."""
+    if kind not in CONTROLLERS:
+        raise ParameterError("kind", kind, " or ".join(repr(k) for k in CONTROLLERS))
+    return CONTROLLERS[kind](**params)  # type: ignore[arg-type]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.graph_mdp import GraphMDP, Path
+from pipeline.core.graph_mdp import GraphMDP, Path
 
 
 @dataclass(frozen=True)

@@ -1,22 +1,32 @@
 """World model (DESIGN §3): room, persons, social relations, starts and goal.
 
-Plain data plus validation and the scene-file format; no Hydra, no MCAP.
+Plain data plus validation of the scene-file structure; no Hydra, no I/O.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from pipeline.core.params import require_positive
 from pipeline.errors import PipelineError
 
 
 class SceneError(PipelineError):
     """A scene (file or generated) violates the world model."""
+
+
+@dataclass
+class BodyParams:
+    """Sizes every scene has, whatever its source."""
+    body_radius: float = 0.25  # m, no robot path may enter a person's body disk
+    goal_tolerance: float = 0.3  # m, states this close to the goal are terminal
+
+    def __post_init__(self) -> None:
+        require_positive(self, "body_radius", "goal_tolerance")
 
 
 @dataclass(frozen=True)
@@ -185,15 +195,3 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
             if scene.in_body(pt)[0]:
                 raise fail(f"{name} ({pt[0]:g}, {pt[1]:g}) is inside a person's body disk")
     return scene
-
-
-def load_scene_file(path: str | Path, **overrides) -> Scene:
-    """Read and validate a scene JSON file (DESIGN §3)."""
-    path = Path(path)
-    if not path.is_file():
-        raise SceneError(f"scene file {path} not found")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneError(f"scene file {path} is not valid JSON ({e})") from None
-    return scene_from_dict(data, source=f"scene file {path}", **overrides)

@@ -1,0 +1,65 @@
+"""Objects built from the settings: one factory per concept."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from pipeline.app.config import Config, RandomSceneConfig
+from pipeline.app.context import resolve_path
+from pipeline.core.controllers import Controller, PosqController, make_controller
+from pipeline.core.features import FeatureModel
+from pipeline.core.scenegen import RandomSceneSpec, random_scene
+from pipeline.core.world import Scene
+from pipeline.errors import PipelineError
+from pipeline.inputs.scene_file import load_scene_file
+from pipeline.irl import methods
+from pipeline.irl.base import Method
+from pipeline.irl.prior import Prior
+
+
+def scene(cfg: Config, rng_for_seed) -> Scene:
+    """The configured scene: generated (`scene=random`) or read from a scene file."""
+    sc = cfg.scene
+    if isinstance(sc, RandomSceneConfig):
+        seed = cfg.seed if sc.seed is None else sc.seed
+        spec = RandomSceneSpec(**{f.name: getattr(sc, f.name)
+                                  for f in dataclasses.fields(RandomSceneSpec)})
+        return random_scene(spec, rng_for_seed(seed), name=f"random-{seed}")
+    return load_scene_file(resolve_path(sc.path), body_radius=sc.body_radius,
+                           goal_tolerance=sc.goal_tolerance)
+
+
+def feature_model(cfg: Config, scene: Scene) -> FeatureModel:
+    return FeatureModel.from_scene(scene, cfg.reward)
+
+
+def controller(cfg: Config) -> Controller:
+    """graph.controller: linear at mdp.speed, or POSQ with its gains."""
+    c = cfg.graph.controller
+    if c.kind == "linear":
+        return make_controller("linear", speed=cfg.mdp.speed)
+    return make_controller(c.kind, **{f.name: getattr(c, f.name)
+                                      for f in dataclasses.fields(PosqController)})
+
+
+def prior(cfg: Config) -> Prior:
+    return cfg.birl.make_prior(cfg.n_features)
+
+
+def irl_method(cfg: Config) -> Method:
+    return methods()[cfg.birl.kind]
+
+
+def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.ndarray, str]:
+    """The reward that grows the graph: the learner's prior mean unless asked otherwise."""
+    w = cfg.graph.weights
+    if w is None or w == "prior":
+        return prior(cfg).box_mean(), "prior_mean"
+    if w is True or w == "true":
+        if true_weights is None:
+            raise PipelineError("config error: graph.weights=true needs true weights, but the "
+                                "demonstrations come from a file (expert=file)")
+        return np.asarray(true_weights, float), "true"
+    return np.asarray(list(w), float), "given"

@@ -1,0 +1,233 @@
+"""Typed configuration: the Hydra schemas, built on the algorithms' own parameter classes.
+
+Each parameter set is declared once, in the algorithm module that uses it (GraphParams,
+PosqController, RandomSceneSpec, FeatureParams, MDPParams, RoadmapParams, BoltzmannParams,
+each IRL method's config); the schemas here subclass them and add only what selects or
+feeds them (`kind`, `path`, `seed`, `weights`). Hydra rejects unknown keys and wrong types
+at start-up against these schemas; `load_settings` then instantiates every section, which
+runs the same range checks a direct call would, and reports the first violation in one
+line naming the full key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+from omegaconf.errors import MissingMandatoryValue
+
+from pipeline.artefacts.topics import STAGES
+from pipeline.core.adaptive_graph import GraphParams
+from pipeline.core.controllers import CONTROLLERS, PosqController
+from pipeline.core.experts import BoltzmannParams
+from pipeline.core.features import FeatureParams
+from pipeline.core.graph_mdp import MDPParams
+from pipeline.core.params import ParameterError, is_number, require, require_count
+from pipeline.core.roadmap import RoadmapParams
+from pipeline.core.scenegen import RandomSceneSpec
+from pipeline.core.world import BodyParams
+from pipeline.errors import PipelineError
+from pipeline.irl import methods
+from pipeline.irl.base import IRLConfig
+from pipeline.irl.prior import broadcast
+
+# -- scene ---------------------------------------------------------------------------------
+
+
+@dataclass
+class FileSceneConfig(BodyParams):
+    kind: str = "file"
+    path: str = MISSING  # scene JSON (DESIGN §3); relative paths: cwd, then project root
+
+
+@dataclass
+class RandomSceneConfig(RandomSceneSpec):
+    kind: str = "random"
+    seed: Optional[int] = None  # scene generator seed; null: the run seed
+
+
+SCENES: dict[str, type] = {"file": FileSceneConfig, "random": RandomSceneConfig}
+
+
+# -- reward and expert ---------------------------------------------------------------------
+
+
+@dataclass
+class RewardConfig(FeatureParams):
+    name: str = MISSING
+    weights: list[float] = MISSING  # true weights w* of the synthetic expert, one per feature
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(len(self.weights) == len(self.features)
+                and all(is_number(w) for w in self.weights), "weights", list(self.weights),
+                f"{len(self.features)} finite numbers, one per feature {list(self.features)}")
+
+
+@dataclass
+class ExpertConfig:
+    kind: str = MISSING  # optimal | boltzmann | file
+    n_demos: Optional[int] = None  # learn from the demonstrations of the first n starts (null: all)
+
+    def __post_init__(self) -> None:
+        if self.n_demos is not None:
+            require_count(self, "n_demos")
+
+
+@dataclass
+class OptimalExpertConfig(ExpertConfig):
+    kind: str = "optimal"
+
+
+@dataclass
+class BoltzmannExpertConfig(ExpertConfig, BoltzmannParams):
+    kind: str = "boltzmann"
+
+    def __post_init__(self) -> None:
+        ExpertConfig.__post_init__(self)
+        BoltzmannParams.__post_init__(self)
+
+
+@dataclass
+class FileExpertConfig(ExpertConfig):
+    kind: str = "file"
+    path: str = MISSING  # demonstration file (DESIGN §3)
+
+
+EXPERTS: dict[str, type] = {"optimal": OptimalExpertConfig, "boltzmann": BoltzmannExpertConfig,
+                            "file": FileExpertConfig}
+
+
+# -- graph ---------------------------------------------------------------------------------
+
+
+@dataclass
+class ControllerConfig(PosqController):
+    """`kind` picks the controller; the other keys are POSQ's (the linear controller drives
+    at mdp.speed)."""
+    kind: str = "linear"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require(self.kind in CONTROLLERS, "kind", self.kind,
+                " or ".join(repr(k) for k in CONTROLLERS))
+
+
+@dataclass
+class GraphConfig(GraphParams):
+    # Reward that drives the growth: null = the learner's initial weights (the prior's
+    # mean within the bounds); true = the expert's true weights (oracle mode, DESIGN §7);
+    # or one number per feature. Typed Any because DESIGN fixes `true` | list | null.
+    weights: Any = None
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+
+
+# -- the whole run -------------------------------------------------------------------------
+
+
+@dataclass
+class Config:
+    seed: int = 0
+    stages: list[str] = field(default_factory=lambda: list(STAGES))
+    from_run: Optional[str] = None  # run dir whose artefacts feed stages not run now
+    scene: BodyParams = MISSING
+    reward: RewardConfig = MISSING
+    expert: ExpertConfig = MISSING
+    mdp: MDPParams = field(default_factory=MDPParams)
+    roadmap: RoadmapParams = field(default_factory=RoadmapParams)
+    graph: GraphConfig = MISSING
+    birl: IRLConfig = MISSING
+
+    @property
+    def n_features(self) -> int:
+        return len(self.reward.features)
+
+
+def register_configs() -> None:
+    cs = ConfigStore.instance()
+    cs.store(name="base_config", node=Config)
+    for kind, node in SCENES.items():
+        cs.store(group="scene", name=f"base_{kind}", node=node)
+    cs.store(group="reward", name="base_reward", node=RewardConfig)
+    for kind, node in EXPERTS.items():
+        cs.store(group="expert", name=f"base_{kind}", node=node)
+    cs.store(group="graph", name="base_graph", node=GraphConfig)
+    for name, method in methods().items():
+        cs.store(group="birl", name=f"base_{name}", node=method.config)
+
+
+# -- instantiation and checks --------------------------------------------------------------
+
+_HINTS = {"scene.path": "scene=file scene.path=PATH", "expert.path": "expert=file expert.path=PATH",
+          "reward.weights": "one number per feature", "reward.name": "a name"}
+
+
+def config_error(key: str, value: Any, allowed: str) -> PipelineError:
+    return PipelineError(f"config error: {key}={value} is not allowed (allowed: {allowed})")
+
+
+def _instantiate(node: DictConfig, key: str) -> Any:
+    """The node's dataclass instance, its children first so an error names the deepest key."""
+    for child in node:
+        sub = node._get_node(child)
+        if isinstance(sub, DictConfig) and OmegaConf.get_type(sub) not in (dict, None):
+            _instantiate(sub, f"{key}.{child}")
+    try:
+        return OmegaConf.to_object(node)
+    except ParameterError as e:
+        raise config_error(f"{key}.{e.field}", e.value, e.allowed) from None
+    except MissingMandatoryValue as e:
+        full = f"{key}.{e.key}" if e.key else key
+        hint = _HINTS.get(full, f"{full}=VALUE")
+        raise PipelineError(f"config error: {full} is missing (set it: {hint})") from None
+
+
+def _check_kind(section: str, obj: Any, registry: dict[str, type]) -> None:
+    """`section.kind` must name the schema in use (a kind is chosen with `section=NAME`)."""
+    expected = next((k for k, cls in registry.items() if type(obj) is cls), None)
+    require_kind = obj.kind == expected
+    if not require_kind:
+        raise config_error(f"{section}.kind", obj.kind,
+                           f"'{expected}' (choose another with {section}=NAME)")
+
+
+def load_settings(cfg: DictConfig) -> Config:
+    """The composed config as checked, typed objects (a Config instance)."""
+    sections = {}
+    for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl"):
+        sections[key] = _instantiate(cfg[key], key)
+    top = OmegaConf.to_object(OmegaConf.masked_copy(cfg, ["seed", "stages", "from_run"]))
+    settings = Config(**top, **sections)  # type: ignore[arg-type]
+
+    unknown = [s for s in settings.stages if s not in STAGES]
+    if unknown or not settings.stages:
+        raise config_error("stages", list(settings.stages), f"a non-empty subset of {list(STAGES)}")
+    if settings.seed < 0:
+        raise config_error("seed", settings.seed, "an integer >= 0")
+    _check_kind("scene", settings.scene, SCENES)
+    _check_kind("expert", settings.expert, EXPERTS)
+    _check_kind("birl", settings.birl, {n: m.config for n, m in methods().items()})
+
+    d = settings.n_features
+    try:
+        prior = settings.birl.make_prior(d)
+    except ParameterError as e:
+        raise config_error(f"birl.{e.field}", e.value, e.allowed) from None
+    w0 = settings.birl.init_weights
+    if w0 is not None and not (len(w0) == d and prior.in_box(broadcast(w0, d, "init_weights"))):
+        raise config_error("birl.init_weights", list(w0),
+                           f"null or {d} numbers within [birl.lower, birl.upper]")
+    w = settings.graph.weights
+    ok = w is None or w is True or w in ("true", "prior") or (
+        isinstance(w, list) and len(w) == d and all(is_number(x) for x in w))
+    if not ok:
+        raise config_error("graph.weights", w, f"null (prior mean), true (oracle) or {d} numbers")
+    return settings
+
+
+def replace(settings: Config, **changes: Any) -> Config:
+    """A copy of the settings with some sections replaced."""
+    return dataclasses.replace(settings, **changes)

@@ -1,0 +1,73 @@
+"""What the stages share: the checked settings, the run dir, seeds, artefact I/O."""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.app.config import Config
+from pipeline.artefacts.store import Artefact, ArtefactWriter, read_artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent.parent
+_VERSIONED = ["numpy", "scipy", "scikit-learn", "mcap", "hydra-core", "pandas", "rerun-sdk"]
+
+
+def resolve_path(path: str) -> Path:
+    """A user-given input path: as given (relative to the cwd), else relative to the project."""
+    p = Path(path).expanduser()
+    if p.is_absolute() or p.exists():
+        return p
+    return PROJECT_ROOT / p if (PROJECT_ROOT / p).exists() else p
+
+
+def git_revision() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT, capture_output=True,
+                             text=True, timeout=10)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def run_metadata(seed: int) -> dict[str, str]:
+    meta = {"seed": str(seed), "git_revision": git_revision()}
+    for dist in ["birlg-pipeline"] + _VERSIONED:
+        try:
+            meta[f"version.{dist}"] = importlib_metadata.version(dist)
+        except importlib_metadata.PackageNotFoundError:
+            meta[f"version.{dist}"] = "not installed"
+    return meta
+
+
+@dataclass
+class RunContext:
+    cfg: Config  # the checked, typed settings
+    run_dir: Path
+    from_run: Path | None
+    config_yaml: str  # the resolved config, attached to every artefact
+    metadata: dict[str, str]
+    timings: dict[str, float] = field(default_factory=dict)  # extra wall-clock measurements
+
+    def rng(self, stage: str, seed: int | None = None, *stream: int) -> np.random.Generator:
+        """An independent generator per stage (and optional sub-stream), derived from the run
+        seed (or `seed`) only."""
+        seed = int(self.cfg.seed if seed is None else seed)
+        return np.random.default_rng([seed, STAGES.index(stage), *stream])
+
+    def read(self, stage: str, required_topics: Iterable[str] = ()) -> Artefact:
+        """The artefact of an earlier `stage`: from this run dir, else from `from_run`."""
+        name = ARTEFACT_FILE[stage]
+        path = self.run_dir / name
+        if not path.exists() and self.from_run is not None:
+            path = self.from_run / name
+        return read_artefact(path, required_topics=required_topics, producer_stage=stage)
+
+    def writer(self, stage: str) -> ArtefactWriter:
+        return ArtefactWriter(self.run_dir / ARTEFACT_FILE[stage],
+                              config_yaml=self.config_yaml, metadata=self.metadata)

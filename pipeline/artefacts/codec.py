@@ -1,0 +1,79 @@
+"""Messages of the stage artefacts decoded back into core objects, and core objects encoded
+as messages, so that every reader of an artefact builds the same objects the same way."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.artefacts import topics
+from pipeline.artefacts.store import Artefact
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, SpatialGraph, TrajectoryStats
+from pipeline.core.state_graph import StateGraph
+from pipeline.core.world import Scene, scene_from_dict
+
+
+def decode_scene(art: Artefact) -> Scene:
+    """The scene of scene.mcap."""
+    return scene_from_dict(art.one(topics.SCENE), source=f"artefact {art.path}")
+
+
+def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:
+    """The reference roadmap of demos.mcap as a SpatialGraph (straight edges)."""
+    msg = art.one(topics.DEMOS_ROADMAP)
+    positions = np.asarray(msg["positions"], float)
+    src, dst = np.asarray(msg["src"]), np.asarray(msg["dst"])
+    graph_mdp = GraphMDP(src, dst, msg["duration"], msg["features"], msg["terminal"],
+                         gamma=mdp.gamma, r_goal=mdp.r_goal, v_max=mdp.v_max)
+    return SpatialGraph(positions, graph_mdp, np.asarray(msg["start_nodes"]),
+                        [positions[[a, b]] for a, b in zip(src, dst)])
+
+
+def graph_records(art: Artefact, grown: Artefact | None = None) -> tuple[list[dict], list[dict]]:
+    """Node and edge records of graph.mcap in id order, plus those the BIRL stage grew
+    (`grown` = birl.mcap with birl.grow_nodes > 0)."""
+    extra_nodes = grown.messages.get(topics.BIRL_GRAPH_NODE, []) if grown else []
+    extra_edges = grown.messages.get(topics.BIRL_GRAPH_EDGE, []) if grown else []
+    nodes = sorted(art.all(topics.GRAPH_NODE) + extra_nodes, key=lambda n: n["id"])
+    edges = sorted(art.all(topics.GRAPH_EDGE) + extra_edges, key=lambda e: e["id"])
+    return nodes, edges
+
+
+def decode_graph(art: Artefact, mdp: MDPParams, grown: Artefact | None = None) -> SpatialGraph:
+    """The adaptive graph of graph.mcap (and the part grown during learning)."""
+    sol = art.one(topics.GRAPH_SOLUTION)
+    nodes, edges = graph_records(art, grown)
+    extra = grown.messages.get(topics.BIRL_GRAPH_NODE, []) if grown else []
+    terminal = list(sol["terminal"]) + [n["terminal"] for n in sorted(extra, key=lambda n: n["id"])]
+    graph_mdp = GraphMDP([e["src"] for e in edges], [e["dst"] for e in edges],
+                         [e["duration"] for e in edges], [e["features"] for e in edges],
+                         terminal, gamma=mdp.gamma, r_goal=mdp.r_goal, v_max=mdp.v_max)
+    positions = np.array([[n["x"], n["y"]] for n in nodes])
+    return SpatialGraph(positions, graph_mdp, np.asarray(sol["start_nodes"]),
+                        [np.asarray(e["waypoints"], float) for e in edges],
+                        snap_tolerance=sol["min_separation"])
+
+
+def decode_expert_stats(demo_msgs: list[dict]) -> list[TrajectoryStats]:
+    """The demonstrations of demos.mcap as the BIRL likelihood sees them."""
+    return [TrajectoryStats(int(m["start_index"]), np.asarray(m["discounted_features"], float),
+                            float(m["end_discount"]), bool(m["reached"])) for m in demo_msgs]
+
+
+def _none_if_nan(x: float) -> float | None:
+    return None if not np.isfinite(x) else float(x)
+
+
+def node_record(graph: StateGraph, i: int) -> dict:
+    """A GraphNode message for node i (log_time: its "iteration")."""
+    return {"id": i, "x": graph.pose[i, 0], "y": graph.pose[i, 1], "theta": graph.pose[i, 2],
+            "kind": graph.node_kind[i], "parent": int(graph.parent[i]),
+            "iteration": int(graph.added_at[i]), "gp_mean": _none_if_nan(graph.gp_mean[i]),
+            "gp_std": _none_if_nan(graph.gp_std[i]), "score": _none_if_nan(graph.score[i])}
+
+
+def edge_record(graph: StateGraph, e: int) -> dict:
+    """A GraphEdge message for edge e; an edge exists from the iteration both its ends do."""
+    return {"id": int(e), "src": int(graph.src[e]), "dst": int(graph.dst[e]),
+            "duration": graph.duration[e], "features": graph.features[e],
+            "waypoints": graph.waypoints[e], "demo": graph.edge_is_demo[e],
+            "iteration": int(max(graph.added_at[graph.src[e]], graph.added_at[graph.dst[e]]))}

@@ -1,0 +1,30 @@
+"""The stable names of the artefact layout (DESIGN §2, §10): stages in pipeline order, the
+file each writes, and every topic. Nothing else spells these strings."""
+
+from __future__ import annotations
+
+STAGES: tuple[str, ...] = ("scene", "demos", "graph", "birl", "evaluate")
+ARTEFACT_FILE: dict[str, str] = {"scene": "scene.mcap", "demos": "demos.mcap",
+                                 "graph": "graph.mcap", "birl": "birl.mcap",
+                                 "evaluate": "eval.mcap"}
+
+SCENE = "/scene"
+
+DEMOS = "/demos"
+DEMOS_EXPERT = "/demos/expert"
+DEMOS_ROADMAP = "/demos/roadmap"
+
+GRAPH_NODE = "/graph/node"
+GRAPH_EDGE = "/graph/edge"
+GRAPH_BEST_PATHS = "/graph/best_paths"
+GRAPH_SOLUTION = "/graph/solution"
+
+BIRL_EXPERT = "/birl/expert"
+BIRL_ITERATION = "/birl/iteration"
+BIRL_POSTERIOR = "/birl/posterior"
+BIRL_GRAPH_NODE = "/birl/graph_node"  # nodes grown during learning (birl.grow_nodes > 0)
+BIRL_GRAPH_EDGE = "/birl/graph_edge"
+
+EVAL_POLICY_LOSS = "/eval/policy_loss"
+EVAL_PATHS = "/eval/paths"
+EVAL_METRICS = "/eval/metrics"

@@ -1,0 +1,379 @@
+"""Adaptive state graph (Neumann et al. 2007, as used by BIRL-G; DESIGN §7).
+
+The graph starts from the starts, the goal, the centroids of the Voronoi cells of the
+persons (clipped to the room) and the demonstrations' waypoints, and grows where it matters.
+One expansion (`step`) is DESIGN §7's steps 1–6:
+
+1. `expansion_set`: N_b (nodes on the best trajectories) with probability p_best, else N \\ N_b;
+2. `pick_node`: a node of it, with probability ∝ its exploration score;
+3. `sample_candidates`: controller runs from it with random heading and annealed duration;
+4. `score_candidates` (GP value estimate) and `pick_candidates` (probability ∝ score);
+5. `add_candidates`: new nodes, connected both ways to their neighbours;
+6. `solve`: incremental policy iteration, best trajectories recorded.
+
+Storage, geometry and the solver live in `StateGraph` (state_graph.py). Plain
+numpy/scipy/scikit-learn; no Hydra, no I/O.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import Voronoi
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+from threadpoolctl import threadpool_limits
+
+from pipeline.core.controllers import Controller, Runs
+from pipeline.core.features import FeatureModel
+from pipeline.core.graph_mdp import MDPParams
+from pipeline.core.params import require, require_count, require_non_negative, require_positive
+from pipeline.core.state_graph import DEMO, GOAL, SAMPLED, START, VORONOI, StateGraph
+from pipeline.core.world import Room, Scene
+
+
+@dataclass
+class GraphParams:
+    max_nodes: int = 460  # the paper's Fig. 1
+    radius: float = 1.2  # m, neighbourhood for edges, GP training set and concentration
+    max_edges: int = 8  # nearest neighbours a new node connects to (each direction)
+    n_new: int = 8  # candidates sampled per expansion
+    n_add: int = 2  # candidates added per expansion
+    p_best: float = 0.7  # probability of expanding a node on the best trajectories
+    lambda_q: float = 0.6  # weight of quality in the exploration score
+    lambda_c: float = 0.4  # weight of concentration (sparse regions score high)
+    t_min: float = 0.4  # s, shortest controller run for a candidate
+    t_max: float = 1.6  # s, longest run at the start; annealed towards t_min as the graph grows
+    # m, no two nodes closer (zero-duration edges are loops); None: 0.35·√(room area /
+    # max_nodes), so the graph's finest resolution follows its size and growth never jams
+    min_separation: float | None = None
+    gp_length_scale: float = 1.0  # m, RBF length scale of the value GP
+    gp_signal_std: float = 1.0  # prior std of the (normalised) value GP
+    gp_noise: float = 1e-4
+    gp_kappa: float = 1.0  # optimism: candidate value = GP mean + kappa · GP std
+    gp_max_points: int = 40  # nearest nodes within radius the GP is fitted to
+    max_stalls: int = 500  # stop early after this many expansions in a row add nothing
+
+    def __post_init__(self) -> None:
+        require_positive(self, "radius", "t_min", "t_max", "gp_length_scale", "gp_signal_std",
+                         "gp_noise")
+        require_count(self, "max_nodes", "max_edges", "n_new", "n_add", "gp_max_points",
+                      "max_stalls")
+        require_non_negative(self, "lambda_q", "lambda_c", "gp_kappa")
+        require(0 <= self.p_best <= 1, "p_best", self.p_best, "0 <= p_best <= 1")
+        require(self.t_min <= self.t_max, "t_min", self.t_min, f"<= t_max ({self.t_max})")
+        require(self.n_add <= self.n_new, "n_add", self.n_add, f"<= n_new ({self.n_new})")
+        require(self.lambda_q + self.lambda_c > 0, "lambda_q", self.lambda_q,
+                "lambda_q + lambda_c > 0")
+        if self.min_separation is not None:
+            require_positive(self, "min_separation")
+
+    def separation(self, room_area: float) -> float:
+        """min_separation, or its default for a room of this area."""
+        if self.min_separation is not None:
+            return self.min_separation
+        return 0.35 * math.sqrt(room_area / self.max_nodes)
+
+
+@dataclass(frozen=True)
+class Demo:
+    """A demonstration as the graph sees it: waypoints with per-segment features/durations."""
+    points: np.ndarray  # (K+1, 2)
+    segment_features: np.ndarray  # (K, d)
+    segment_durations: np.ndarray  # (K,)
+
+
+@dataclass(frozen=True, eq=False)
+class Candidates:
+    """Candidate states of one expansion from node `parent` (DESIGN §7 steps 3–4)."""
+    parent: int
+    ends: np.ndarray  # (m, 3) poses the runs end in
+    runs: Runs
+    features: np.ndarray  # (m, d) of each run
+    gp_mean: np.ndarray | None = None  # (m,) GP value estimate, once scored
+    gp_std: np.ndarray | None = None
+    score: np.ndarray | None = None  # (m,) exploration score
+
+
+def voronoi_centroids(points: np.ndarray, room: Room) -> np.ndarray:
+    """Centroids (n, 2) of the Voronoi cells of `points` (n, 2) clipped to the room.
+
+    Reflecting the points across the four walls makes every original cell bounded and cut
+    exactly by the walls (a wall is the bisector of a point and its mirror image).
+    """
+    if len(points) == 0:
+        return np.zeros((0, 2))
+    x0, y0, x1, y1 = room.x_min, room.y_min, room.x_max, room.y_max
+    mirrors = [points,
+               np.column_stack([2 * x0 - points[:, 0], points[:, 1]]),
+               np.column_stack([2 * x1 - points[:, 0], points[:, 1]]),
+               np.column_stack([points[:, 0], 2 * y0 - points[:, 1]]),
+               np.column_stack([points[:, 0], 2 * y1 - points[:, 1]])]
+    vor = Voronoi(np.vstack(mirrors))
+    centroids = []
+    for i in range(len(points)):
+        poly = vor.vertices[vor.regions[vor.point_region[i]]]
+        centre = poly.mean(axis=0)  # order the vertices by angle for the shoelace formula
+        poly = poly[np.argsort(np.arctan2(*(poly - centre).T[::-1]))]
+        x, y = poly[:, 0], poly[:, 1]
+        cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+        area = cross.sum() / 2
+        centroids.append([((x + np.roll(x, -1)) * cross).sum() / (6 * area),
+                          ((y + np.roll(y, -1)) * cross).sum() / (6 * area)])
+    return np.array(centroids)
+
+
+class AdaptiveGraph(StateGraph):
+    """The adaptive state graph: `initialise`, then `grow` (or `grow_by`) by `step`s."""
+
+    def __init__(self, scene: Scene, feature_model: FeatureModel, controller: Controller,
+                 weights: np.ndarray, params: GraphParams, rng: np.random.Generator,
+                 mdp: MDPParams | None = None):
+        params = dataclasses.replace(params, min_separation=params.separation(scene.room.area))
+        super().__init__(scene, feature_model, controller, weights, radius=params.radius,
+                         max_edges=params.max_edges, min_separation=params.min_separation,
+                         mdp=mdp or MDPParams())
+        self.p, self.rng = params, rng
+        self.start_nodes = np.zeros(0, dtype=np.int64)
+        self.goal_node = -1
+        self._norm: dict | None = None
+        self.best_paths: list[np.ndarray] = []
+        self.best_path_values = np.zeros(0)
+        self.best_reached = np.zeros(0, dtype=bool)
+        self.history: list[dict] = []  # per iteration: best paths and values
+
+    # -- initialisation ------------------------------------------------------------------
+    def initialise(self, demos: Sequence[Demo] = ()) -> None:
+        """Starts, goal, Voronoi centroids, demo waypoints and demo edges; then connect and
+        solve."""
+        scene = self.scene
+
+        def heading_to_goal(p: np.ndarray) -> float:
+            return math.atan2(scene.goal[1] - p[1], scene.goal[0] - p[0])
+
+        self.start_nodes = np.array([self.add_node([*s, heading_to_goal(s)], START)
+                                     for s in scene.starts], dtype=np.int64)
+        self.goal_node = self.add_node([*scene.goal, 0.0], GOAL)
+        for c in voronoi_centroids(scene.person_xy, scene.room):
+            if scene.free(c)[0] and not self.too_close(c):
+                self.add_node([*c, heading_to_goal(c)], VORONOI)
+        for demo in demos:
+            self._add_demo(demo)
+        self.connect(range(self.n_nodes))
+        self.solver.solve_full()
+        self.solve()
+
+    def _add_demo(self, demo: Demo) -> None:
+        """Demo waypoints become nodes (or merge into a node closer than min_separation);
+        demo edges carry the features of the demo's own polyline segments."""
+        nodes = []
+        for k, pt in enumerate(demo.points):
+            near = self.neighbours(pt, self.min_separation, k=1)
+            if len(near):
+                nodes.append(int(near[0]))
+                continue
+            nxt = demo.points[min(k + 1, len(demo.points) - 1)] - demo.points[max(k - 1, 0)]
+            nodes.append(self.add_node([*pt, math.atan2(nxt[1], nxt[0])], DEMO))
+        self.add_edges(nodes[:-1], nodes[1:], demo.segment_durations, demo.segment_features,
+                       [demo.points[k:k + 2] for k in range(len(nodes) - 1)], is_demo=True)
+
+    def restore(self, nodes: list[dict], edges: list[dict], start_nodes=None) -> None:
+        """Rebuild a stored graph (graph.mcap's node and edge records, ids in order) instead
+        of initialise(), so that it can grow further."""
+        super().restore(nodes, edges)
+        self.start_nodes = np.asarray(start_nodes, dtype=np.int64)
+        self.goal_node = next(i for i, n in enumerate(nodes) if n["kind"] == GOAL)
+        self.iteration = max(n["iteration"] for n in nodes)
+        self.solver.solve_full()
+        self.solve()
+
+    # -- growth --------------------------------------------------------------------------
+    def grow(self, progress: Callable[[AdaptiveGraph], None] | None = None) -> None:
+        """Expand until `max_nodes`; stop early (with what exists) after `max_stalls`
+        consecutive expansions that found no feasible candidate."""
+        stalls = 0
+        # Tiny GP matrices: BLAS threads cost more in wake-ups than they save.
+        with threadpool_limits(1):
+            while self.n_nodes < self.p.max_nodes and stalls < self.p.max_stalls:
+                stalls = stalls + 1 if self.step() == 0 else 0
+                if progress is not None:
+                    progress(self)
+        # One full warm-started sweep removes the rounding the incremental updates collect.
+        self.solver.solve_full()
+        self.history.pop()
+        self.solve()
+
+    def grow_by(self, n_nodes: int) -> int:
+        """Add about n_nodes more nodes (an expansion may add up to n_add); returns how many."""
+        before, stalls = self.n_nodes, 0
+        self.p = dataclasses.replace(self.p, max_nodes=max(self.p.max_nodes, before + n_nodes))
+        with threadpool_limits(1):
+            while self.n_nodes < before + n_nodes and stalls < self.p.max_stalls:
+                stalls = stalls + 1 if self.step() == 0 else 0
+        return self.n_nodes - before
+
+    def set_weights(self, weights: np.ndarray) -> None:
+        """Grow under new weights from now on (BIRL's grow_nodes): full re-solve."""
+        super().set_weights(weights)
+        self.history.pop()  # solve() records this iteration anew
+        self.solve()
+
+    def step(self) -> int:
+        """One expansion (DESIGN §7 steps 1–6); returns the number of nodes added."""
+        self.iteration += 1
+        v = self.pick_node(self.expansion_set())
+        candidates = self.sample_candidates(v)
+        if candidates is None:
+            self.record()  # nothing changed, but every iteration has its record
+            return 0
+        added = self.add_candidates(self.pick_candidates(self.score_candidates(candidates)))
+        self.connect(added)
+        self.solve()
+        return len(added)
+
+    # -- DESIGN §7 steps -------------------------------------------------------------------
+    def expansion_set(self) -> np.ndarray:
+        """Step 1: N_e = N_b (non-terminal nodes on the best trajectories) with probability
+        p_best, else the other non-terminal nodes."""
+        on_best = np.zeros(self.n_nodes, dtype=bool)
+        # A start whose best trajectory does not reach the goal yet has the lowest quality
+        # (V = −V_max) and would almost never be expanded; its trajectory is N_b until it does.
+        stuck = [path for path, reached in zip(self.best_paths, self.best_reached) if not reached]
+        for path in stuck or self.best_paths:
+            on_best[path] = True
+        best_set = np.flatnonzero(on_best & ~self.terminal)
+        other_set = np.flatnonzero(~on_best & ~self.terminal)
+        return choose_expansion_set(self.rng, best_set, other_set, self.p.p_best)
+
+    def pick_node(self, pool: np.ndarray) -> int:
+        """Step 2: v ∈ N_e with probability ∝ its exploration score."""
+        return int(pool[self.rng.choice(len(pool), p=_probabilities(self.exploration_scores(pool)))])
+
+    def sample_candidates(self, v: int) -> Candidates | None:
+        """Step 3: n_new controller runs from v with random heading and a duration in
+        [t_min, t_hi], t_hi annealed from t_max to t_min as the graph fills; infeasible runs
+        and ends too close to a node are dropped (None if nothing is left)."""
+        p = self.p
+        progress = min(1.0, self.n_nodes / p.max_nodes)
+        t_hi = p.t_max - progress * (p.t_max - p.t_min)
+        heading = self.rng.uniform(-math.pi, math.pi, p.n_new)
+        reach = self.controller.cruise_speed * self.rng.uniform(p.t_min, t_hi, p.n_new)
+        targets = np.column_stack([self.pose[v, 0] + reach * np.cos(heading),
+                                   self.pose[v, 1] + reach * np.sin(heading), heading])
+        runs, feats = self.steer(np.repeat(self.pose[v:v + 1], p.n_new, 0), targets)
+        keep = [k for k in range(len(runs)) if not self.too_close(runs.end_poses[k])]
+        if not keep:
+            return None
+        runs = runs.subset(np.array(keep))
+        return Candidates(v, runs.end_poses, runs, feats[keep])
+
+    def score_candidates(self, c: Candidates) -> Candidates:
+        """Step 4a: score candidates like nodes: the value of the best path through them (the
+        GP estimate of V, optimistic by gp_kappa·std) and the sparsity around them."""
+        p, norm, v = self.p, self._normalisation(), c.parent
+        mean, std = self._gp_estimate(v, c.ends)
+        through = norm["through"][v] - self.values[v] + c.features @ self.w + \
+            self.gamma ** c.runs.durations * (mean + p.gp_kappa * std)
+        quality = np.clip((through - norm["q_lo"]) / norm["q_span"], 0.0, 1.0)
+        n_close = np.array([self.count_within(e, p.radius) for e in c.ends])
+        conc = np.minimum(1.0 / (1.0 + n_close) / norm["c_max"], 1.0)
+        return dataclasses.replace(c, gp_mean=mean, gp_std=std,
+                                   score=p.lambda_q * quality + p.lambda_c * conc)
+
+    def pick_candidates(self, c: Candidates) -> tuple[Candidates, np.ndarray]:
+        """Step 4b: n_add of them (fewer near max_nodes) with probability ∝ score."""
+        n_pick = min(self.p.n_add, len(c.ends), self.p.max_nodes - self.n_nodes)
+        return c, self.rng.choice(len(c.ends), n_pick, replace=False, p=_probabilities(c.score))
+
+    def add_candidates(self, picked: tuple[Candidates, np.ndarray]) -> list[int]:
+        """Step 5 (first half): the picked candidates become nodes with the edge from their
+        parent; two picked candidates can be too close to each other."""
+        c, chosen = picked
+        assert c.gp_mean is not None and c.gp_std is not None and c.score is not None
+        added = []
+        for i in chosen:
+            if self.too_close(c.ends[i]):
+                continue
+            node = self.add_node(c.ends[i], SAMPLED, parent=c.parent, gp_mean=c.gp_mean[i],
+                                 gp_std=c.gp_std[i], score=c.score[i])
+            self.add_edges([c.parent], [node], c.runs.durations[i:i + 1], c.features[i:i + 1],
+                           [c.runs.waypoints(i)])
+            added.append(node)
+        return added
+
+    def solve(self) -> None:
+        """Step 6: repair the solution (incremental policy iteration), record the best
+        trajectories of this iteration."""
+        self.solver.update()
+        self._norm = None
+        self.record()
+
+    def record(self) -> None:
+        paths = [self.solver.follow(int(s)) for s in self.start_nodes]
+        self.best_paths = [nodes for nodes, _ in paths]
+        self.best_reached = np.array([reached for _, reached in paths])
+        self.best_path_values = self.values[self.start_nodes].copy()
+        self.history.append({"iteration": self.iteration, "n_nodes": self.n_nodes,
+                             "paths": [p.copy() for p in self.best_paths],
+                             "values": self.best_path_values.copy(),
+                             "reached": self.best_reached.copy()})
+
+    # -- exploration score -----------------------------------------------------------------
+    def _normalisation(self) -> dict:
+        """Value of the best path through every node and the ranges that normalise quality
+        and concentration; cached until the graph changes (failed expansions reuse it)."""
+        if self._norm is None:
+            through = self.values - self.solver.cost_to_come  # value of the best path through s
+            finite = np.isfinite(through)
+            q_lo = through[finite].min() if finite.any() else 0.0
+            q_hi = through[finite].max() if finite.any() else 1.0
+            self._norm = {"through": np.where(finite, through, q_lo), "q_lo": q_lo,
+                          "q_span": max(q_hi - q_lo, 1e-12),
+                          "c_max": 1.0 / (1.0 + self.n_close.min())}
+        return self._norm
+
+    def exploration_scores(self, nodes: np.ndarray) -> np.ndarray:
+        """ES(s) = λ_q·quality(s) + λ_c·concentration(s), both normalised over all nodes."""
+        norm = self._normalisation()
+        quality = (norm["through"][nodes] - norm["q_lo"]) / norm["q_span"]
+        concentration = 1.0 / (1.0 + self.n_close[nodes]) / norm["c_max"]
+        return self.p.lambda_q * quality + self.p.lambda_c * concentration
+
+    def _gp_estimate(self, v: int, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """GP estimate of V at the candidates from the nodes within radius of v."""
+        values = self.values
+        train = self.neighbours(self.pose[v], self.p.radius, k=self.p.gp_max_points)
+        train = train[values[train] > -self.v_max]  # dead ends would drag the field down
+        if len(train) == 0:
+            return np.full(len(cand), values[v]), np.full(len(cand), self.p.gp_signal_std)
+        return gp_value_estimate(self.positions[train], values[train], cand[:, :2], self.p)
+
+
+def choose_expansion_set(rng: np.random.Generator, best_set: np.ndarray, other_set: np.ndarray,
+                         p_best: float) -> np.ndarray:
+    """N_e = N_b with probability p_best, else N \\ N_b (whichever is non-empty otherwise)."""
+    use_best = rng.random() < p_best
+    if (use_best and len(best_set)) or not len(other_set):
+        return best_set
+    return other_set
+
+
+def gp_value_estimate(train_xy: np.ndarray, train_values: np.ndarray, query_xy: np.ndarray,
+                      p: GraphParams) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian-process regression (fixed RBF kernel, normalised targets) of node values
+    (n,) at (n, 2); returns mean and standard deviation (m,) at the (m, 2) query points."""
+    kernel = ConstantKernel(p.gp_signal_std ** 2, "fixed") * RBF(p.gp_length_scale, "fixed") \
+        + WhiteKernel(p.gp_noise, "fixed")
+    gp = GaussianProcessRegressor(kernel, optimizer=None, normalize_y=len(train_values) > 1)
+    gp.fit(train_xy, train_values)
+    return gp.predict(query_xy, return_std=True)
+
+
+def _probabilities(scores: np.ndarray) -> np.ndarray:
+    """Selection probabilities ∝ score (uniform if all scores are zero)."""
+    s = np.maximum(np.nan_to_num(scores, nan=0.0), 0.0) + 1e-12
+    return s / s.sum()

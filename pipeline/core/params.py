@@ -1,0 +1,53 @@
+"""Range checks for the plain parameter dataclasses of the algorithms.
+
+Each parameter set is declared once, in the algorithm module that uses it, with its checks
+in `__post_init__`; the Hydra schemas of `pipeline.app.config` subclass these dataclasses,
+so the same check guards a config value and a direct call. A failed check raises
+ParameterError naming the field; the app prefixes the config key.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from typing import Any
+
+
+class ParameterError(ValueError):
+    """A parameter outside its allowed range: `field=value is not allowed (allowed: …)`."""
+
+    def __init__(self, field: str, value: Any, allowed: str):
+        self.field, self.value, self.allowed = field, value, allowed
+        super().__init__(f"{field}={value} is not allowed (allowed: {allowed})")
+
+
+def is_number(value: Any) -> bool:
+    """A finite real number (bools are not numbers here)."""
+    return (isinstance(value, numbers.Real) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
+def require(ok: bool, field: str, value: Any, allowed: str) -> None:
+    if not ok:
+        raise ParameterError(field, value, allowed)
+
+
+def require_positive(obj: Any, *fields: str) -> None:
+    """Each named attribute of `obj` is a finite number > 0."""
+    for name in fields:
+        value = getattr(obj, name)
+        require(is_number(value) and value > 0, name, value, "a finite number > 0")
+
+
+def require_non_negative(obj: Any, *fields: str) -> None:
+    for name in fields:
+        value = getattr(obj, name)
+        require(is_number(value) and value >= 0, name, value, "a finite number >= 0")
+
+
+def require_count(obj: Any, *fields: str, minimum: int = 1) -> None:
+    """Each named attribute of `obj` is an integer >= minimum."""
+    for name in fields:
+        value = getattr(obj, name)
+        require(isinstance(value, numbers.Integral) and not isinstance(value, bool)
+                and value >= minimum, name, value, f"an integer >= {minimum}")

@@ -1,0 +1,271 @@
+"""Storage and geometry of a growing navigation graph (the adaptive graph's substrate).
+
+Nodes are poses with bookkeeping (kind, parent, iteration added, GP estimate); edges are
+feasible controller runs with their features and durations; a spatial index answers the
+neighbour queries; an IncrementalGraphMDP keeps the solution under the current weights.
+`AdaptiveGraph` (adaptive_graph.py) grows it; nothing here decides where to grow.
+
+Plain numpy/scipy; no Hydra, no I/O.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pipeline.core.controllers import Controller
+from pipeline.core.features import FeatureModel
+from pipeline.core.graph_mdp import GraphMDP, MDPParams
+from pipeline.core.incremental_mdp import GrowableArray, IncrementalGraphMDP
+from pipeline.core.roadmap import segments_feasible
+from pipeline.core.world import Scene
+
+# Node kinds, as stored in graph.mcap.
+START, GOAL, VORONOI, DEMO, SAMPLED = "start", "goal", "voronoi", "demo", "sampled"
+
+
+class SpatialIndex:
+    """Neighbour queries on a growing point set: a cKDTree, rebuilt when the points added
+    since the last build reach a quarter of it (amortised O(log n) per insertion), plus a
+    brute-force scan of those few recent points."""
+
+    def __init__(self) -> None:
+        self.points = GrowableArray((2,))
+        self.tree: cKDTree | None = None
+        self.n_tree = 0
+
+    def add(self, p: np.ndarray) -> None:
+        self.points.extend(p[:2])
+        if self.points.n - self.n_tree > max(32, self.n_tree // 4):
+            self.n_tree = self.points.n
+            self.tree = cKDTree(self.points.a.copy())
+
+    def _recent(self, p: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+        recent = self.points.a[self.n_tree:]
+        d = np.linalg.norm(recent - p[:2], axis=1)
+        keep = np.flatnonzero(d <= r)
+        return keep + self.n_tree, d[keep]
+
+    def within(self, p: np.ndarray, r: float, ordered: bool = True) -> np.ndarray:
+        """Indices within distance r of p, nearest first (any order if not `ordered`)."""
+        idx, dist = self._recent(p, r)
+        if not ordered:
+            old = self.tree.query_ball_point(p[:2], r) if self.tree is not None else []
+            return np.concatenate([np.asarray(old, dtype=np.int64), idx])
+        if self.tree is not None:
+            old = np.asarray(self.tree.query_ball_point(p[:2], r), dtype=np.int64)
+            idx = np.concatenate([old, idx])
+            dist = np.concatenate([np.linalg.norm(self.points.a[old] - p[:2], axis=1), dist])
+        order = np.lexsort((idx, dist))  # ties broken by index: deterministic
+        return idx[order]
+
+    def nearest(self, p: np.ndarray, k: int, r: float) -> np.ndarray:
+        """Up to k indices within r of p, nearest first."""
+        idx, dist = self._recent(p, r)
+        if self.tree is not None:
+            d_old, i_old = self.tree.query(p[:2], k=min(k, self.n_tree), distance_upper_bound=r)
+            d_old, i_old = np.atleast_1d(d_old), np.atleast_1d(i_old)
+            ok = np.isfinite(d_old)
+            idx = np.concatenate([i_old[ok].astype(np.int64), idx])
+            dist = np.concatenate([d_old[ok], dist])
+        order = np.lexsort((idx, dist))[:k]
+        return idx[order]
+
+    def count_within(self, p: np.ndarray, r: float) -> int:
+        n = len(self._recent(p, r)[0])
+        if self.tree is not None:
+            n += int(self.tree.query_ball_point(p[:2], r, return_length=True))
+        return n
+
+
+class StateGraph:
+    """Nodes, feasible edges and the incrementally solved graph MDP under weights `w`.
+
+    `radius` bounds neighbourhoods (edges, concentration counts); `min_separation` keeps
+    nodes apart (two nodes at one place would make a zero-duration loop, DESIGN §5)."""
+
+    def __init__(self, scene: Scene, feature_model: FeatureModel, controller: Controller,
+                 weights: np.ndarray, *, radius: float, max_edges: int, min_separation: float,
+                 mdp: MDPParams):
+        self.scene, self.fm, self.controller = scene, feature_model, controller
+        self.w = np.asarray(weights, dtype=float)
+        self.radius, self.max_edges, self.min_separation = radius, max_edges, min_separation
+        self.gamma, self.r_goal, self.v_max = mdp.gamma, mdp.r_goal, mdp.v_max
+        self.iteration = 0  # growth iteration; new nodes are stamped with it
+        self._pose = GrowableArray((3,))
+        self.node_kind: list[str] = []
+        self._parent = GrowableArray(dtype=np.int64)
+        self._added_at = GrowableArray(dtype=np.int64)
+        self._gp = GrowableArray((3,))  # GP mean, GP std, exploration score at insertion
+        self._n_close = GrowableArray(dtype=np.int64)  # nodes within radius (concentration)
+        self.solver = IncrementalGraphMDP(mdp.gamma, mdp.r_goal, mdp.v_max)
+        self._features = GrowableArray((feature_model.dim,))
+        self.waypoints: list[np.ndarray] = []  # per edge, the controller's (K+1, 2) path
+        self.edge_is_demo: list[bool] = []
+        self._edge_of: dict[tuple[int, int], int] = {}
+        self._index = SpatialIndex()
+
+    # -- per-node and per-edge arrays ------------------------------------------------------
+    @property
+    def pose(self) -> np.ndarray:
+        return self._pose.a  # (n, 3) x, y, heading
+
+    @property
+    def parent(self) -> np.ndarray:
+        return self._parent.a  # (n,) node expanded to create it, −1 if initial
+
+    @property
+    def added_at(self) -> np.ndarray:
+        return self._added_at.a  # (n,) iteration it was added (0 = initial)
+
+    @property
+    def gp_mean(self) -> np.ndarray:
+        return self._gp.a[:, 0]  # (n,) NaN for initial nodes
+
+    @property
+    def gp_std(self) -> np.ndarray:
+        return self._gp.a[:, 1]
+
+    @property
+    def score(self) -> np.ndarray:
+        return self._gp.a[:, 2]
+
+    @property
+    def n_close(self) -> np.ndarray:
+        return self._n_close.a  # (n,) nodes within radius
+
+    @property
+    def src(self) -> np.ndarray:
+        return self.solver.src  # (E,)
+
+    @property
+    def dst(self) -> np.ndarray:
+        return self.solver.dst
+
+    @property
+    def duration(self) -> np.ndarray:
+        return self.solver.duration  # (E,) seconds
+
+    @property
+    def features(self) -> np.ndarray:
+        return self._features.a  # (E, d)
+
+    @property
+    def values(self) -> np.ndarray:
+        return self.solver.values  # (n,) V under the current weights
+
+    @property
+    def policy(self) -> np.ndarray:
+        return self.solver.policy  # (n,) chosen edge id per node, −1 if none
+
+    @property
+    def terminal(self) -> np.ndarray:
+        return self.solver.terminal
+
+    @property
+    def n_nodes(self) -> int:
+        return self._pose.n
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.pose[:, :2]
+
+    # -- queries ---------------------------------------------------------------------------
+    def neighbours(self, p: np.ndarray, radius: float, k: int | None = None) -> np.ndarray:
+        """Node indices within `radius` of p (at most k of them), nearest first."""
+        p = np.asarray(p, float)
+        if k is None:
+            return self._index.within(p, radius)
+        return self._index.nearest(p, k, radius)
+
+    def too_close(self, p: np.ndarray) -> bool:
+        return len(self._index.nearest(np.asarray(p, float), 1, self.min_separation)) > 0
+
+    def count_within(self, p: np.ndarray, radius: float) -> int:
+        return self._index.count_within(np.asarray(p, float), radius)
+
+    def mdp(self) -> GraphMDP:
+        return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
+                        gamma=self.gamma, r_goal=self.r_goal, v_max=self.v_max)
+
+    # -- building --------------------------------------------------------------------------
+    def add_node(self, pose, kind: str, parent: int = -1, gp_mean: float = np.nan,
+                 gp_std: float = np.nan, score: float = np.nan) -> int:
+        idx = self.n_nodes
+        close = self._index.within(np.asarray(pose[:2], float), self.radius, ordered=False)
+        self.n_close[close] += 1
+        self._pose.extend(pose)
+        self.node_kind.append(kind)
+        self._parent.extend(parent)
+        self._added_at.extend(self.iteration)
+        self._gp.extend([gp_mean, gp_std, score])
+        self._n_close.extend(len(close))
+        self._index.add(self.pose[idx])
+        at_goal = np.linalg.norm(self.pose[idx, :2] - self.scene.goal) <= self.scene.goal_tolerance
+        self.solver.add_node(bool(at_goal), source=(kind == START))
+        return idx
+
+    def add_edges(self, src, dst, durations, features, waypoints, is_demo: bool = False) -> None:
+        """Append edges, skipping self-loops and (src, dst) pairs that already exist."""
+        keep = []
+        for i, (a, b) in enumerate(zip(src, dst)):
+            if a != b and (a, b) not in self._edge_of:
+                self._edge_of[(a, b)] = len(self.waypoints) + len(keep)
+                keep.append(i)
+        if not keep:
+            return
+        feats = np.asarray(features).reshape(len(src), -1)[keep]
+        self.solver.add_edges(np.asarray(src)[keep], np.asarray(dst)[keep],
+                              np.asarray(durations)[keep], feats @ self.w)
+        self._features.extend(feats)
+        self.waypoints += [waypoints[i] for i in keep]
+        self.edge_is_demo += [is_demo] * len(keep)
+
+    def steer(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Controller runs a[i] → b[i] for paired (n, 3) poses, feasible ones only: the
+        runs (controllers.Runs) and the features (m, d) of each run's own path."""
+        runs = self.controller.steer_many(a, b)
+        seg_a, seg_b, owner = runs.segments()
+        infeasible = np.bincount(owner[~segments_feasible(self.scene, seg_a, seg_b)],
+                                 minlength=len(runs))
+        if infeasible.any():
+            runs = runs.subset(infeasible == 0)
+            seg_a, seg_b, owner = runs.segments()
+        feats = np.zeros((len(runs), self.fm.dim))
+        np.add.at(feats, owner, self.fm.segments(seg_a, seg_b))
+        return runs, feats
+
+    def connect(self, nodes) -> None:
+        """Edges both ways between each of `nodes` and its nearest neighbours within radius
+        (at most max_edges each way), feasible controller runs only; one batched steer."""
+        pairs = []
+        for node in nodes:
+            near = [int(j) for j in self.neighbours(self.pose[node], self.radius,
+                                                    k=self.max_edges + 1) if j != node]
+            near = near[: self.max_edges]
+            pairs += [(node, j) for j in near] + [(j, node) for j in near]
+        pairs = [pq for pq in dict.fromkeys(pairs) if pq not in self._edge_of]
+        if not pairs:
+            return
+        src, dst = map(np.array, zip(*pairs))
+        runs, feats = self.steer(self.pose[src], self.pose[dst])
+        self.add_edges(src[runs.index], dst[runs.index], runs.durations, feats,
+                       [runs.waypoints(k) for k in range(len(runs))])
+
+    def set_weights(self, weights: np.ndarray) -> None:
+        """Solve under new weights from now on (a full re-solve at the next update)."""
+        self.w = np.asarray(weights, dtype=float)
+        self.solver.set_rewards(self.features @ self.w)
+
+    def restore(self, nodes: list[dict], edges: list[dict]) -> None:
+        """Rebuild stored nodes and edges (graph.mcap's records, ids in order)."""
+        nan = float("nan")
+        for n in nodes:
+            self.iteration = n["iteration"]
+            self.add_node([n["x"], n["y"], n["theta"]], n["kind"], n["parent"],
+                          nan if n["gp_mean"] is None else n["gp_mean"],
+                          nan if n["gp_std"] is None else n["gp_std"],
+                          nan if n["score"] is None else n["score"])
+        for e in edges:
+            self.add_edges([e["src"]], [e["dst"]], [e["duration"]], [e["features"]],
+                           [np.asarray(e["waypoints"], float)], is_demo=e["demo"])

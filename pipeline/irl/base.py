@@ -1,0 +1,118 @@
+"""What every IRL method shares: the problem it is given, the result it returns, its
+config base class, and the registry that `birl=<name>` looks methods up in.
+
+Adding a method is one module in this package that defines a config dataclass (a subclass
+of IRLConfig) and a `fit(problem, config) -> IRLResult` function decorated with
+`@register("name", ConfigClass)`, plus `conf/birl/<name>.yaml`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from pipeline.core.graph_mdp import Path, SpatialGraph, TrajectoryStats
+from pipeline.core.params import require_count
+from pipeline.errors import PipelineError
+from pipeline.irl.prior import BoxConfig, Prior
+
+
+@dataclass
+class IRLConfig(BoxConfig):
+    """Settings every method has: the weight box and prior (BoxConfig), how many
+    iterations, and the initial weights."""
+    kind: str = ""  # the method's registry name; each subclass fixes its default
+    n_iterations: int = 20
+    init_weights: Optional[list[float]] = None  # null: drawn from the prior with the seed
+
+    def __post_init__(self) -> None:
+        require_count(self, "n_iterations")
+
+
+@dataclass(frozen=True, eq=False)
+class Iteration:
+    index: int  # 0 = initial weights, 1..N
+    weights: np.ndarray  # (d,)
+    log_likelihood: float
+    log_prior: float
+    generated: list[TrajectoryStats]  # greedy trajectories under these weights (one per start)
+
+
+@dataclass(frozen=True, eq=False)
+class PosteriorSamples:
+    samples: np.ndarray  # (n_kept, d)
+    mean: np.ndarray  # (d,)
+    std: np.ndarray  # (d,)
+    acceptance_rate: float  # over all steps, burn-in included
+
+
+@dataclass(eq=False)
+class IRLProblem:
+    """Everything a method may use. `generate(w)` solves the adaptive graph under weights w
+    (warm-started) and returns the greedy trajectory from every start; the stage records
+    those paths, so every recorded iteration should come from one call of it."""
+    expert: list[TrajectoryStats]  # the demonstrations as the likelihood sees them
+    demo_points: list[np.ndarray]  # their polylines (K, 2)
+    graph: SpatialGraph  # the adaptive graph
+    generate: Callable[[np.ndarray], list[TrajectoryStats]]
+    prior: Prior
+    w0: np.ndarray  # (d,) initial weights, in the prior's box
+    r_goal: float
+    rng: np.random.Generator
+    roadmap: Callable[[], SpatialGraph]  # the reference roadmap, read on demand
+    progress: Callable[[Iteration], None] | None = None
+
+    def demo_paths(self, graph: SpatialGraph) -> list[Path]:
+        """The demonstrations as paths of `graph` (their waypoints are its nodes)."""
+        paths = []
+        for k, points in enumerate(self.demo_points):
+            try:
+                paths.append(graph.snap_path(points))
+            except ValueError as e:
+                raise PipelineError(f"demonstration {k} is {e}") from None
+        return paths
+
+    def record(self, index: int, w: np.ndarray, log_likelihood: float) -> Iteration:
+        """An iteration for the weights w: their greedy trajectories (one `generate` call)."""
+        it = Iteration(index, np.asarray(w, float), float(log_likelihood),
+                       self.prior.log_pdf(w), self.generate(np.asarray(w, float)))
+        if self.progress is not None:
+            self.progress(it)
+        return it
+
+
+@dataclass(frozen=True, eq=False)
+class IRLResult:
+    iterations: list[Iteration]  # iteration 0 holds the initial weights
+    mdp_solves: list[int]  # full MDP solves spent up to each iteration
+    posteriors: list[PosteriorSamples] = field(default_factory=list)  # sampling methods
+
+    @property
+    def weights(self) -> np.ndarray:
+        return self.iterations[-1].weights
+
+
+Fit = Callable[[IRLProblem, IRLConfig], IRLResult]
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    config: type[IRLConfig]
+    fit: Fit
+
+
+REGISTRY: dict[str, Method] = {}
+
+
+def register(name: str, config: type[IRLConfig]) -> Callable[[Fit], Fit]:
+    """Decorator: make `fit` the IRL method `birl=name`, configured by `config`."""
+    def add(fit: Fit) -> Fit:
+        if name in REGISTRY:
+            raise ValueError(f"IRL method '{name}' is registered twice")
+        REGISTRY[name] = Method(name, config, fit)
+        return fit
+    return add

@@ -1,0 +1,153 @@
+"""Priors over reward weights (DESIGN §8): Gaussian, Laplace or uniform, truncated to a box.
+
+Features are costs, so the box is where the weights may live (default [−1, 0]^d).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+from scipy.stats import truncnorm
+
+from pipeline.core.params import require, require_positive
+
+PRIORS = ("gaussian", "laplace", "uniform")
+
+
+@dataclass
+class PriorConfig:
+    kind: str = "uniform"  # uniform (on the box) | gaussian | laplace
+    scale: float = 0.5  # σ (gaussian) or b (laplace)
+    mean: Optional[list[float]] = None  # one number, or one per feature; null: 0 clipped into the box
+
+    def __post_init__(self) -> None:
+        require(self.kind in PRIORS, "kind", self.kind, " or ".join(repr(k) for k in PRIORS))
+        require_positive(self, "scale")
+
+
+@dataclass
+class BoxConfig:
+    """The weight box and prior shared by every IRL method; one number applies to every
+    feature, or give one per feature."""
+    prior: PriorConfig = field(default_factory=PriorConfig)
+    lower: list[float] = field(default_factory=lambda: [-1.0])
+    upper: list[float] = field(default_factory=lambda: [0.0])
+
+    def make_prior(self, dim: int) -> Prior:
+        """The prior on the box for `dim` features; ParameterError naming a wrong entry."""
+        lower, upper = broadcast(self.lower, dim, "lower"), broadcast(self.upper, dim, "upper")
+        require(bool(np.all(lower < upper)), "lower", list(self.lower),
+                f"below upper ({list(self.upper)}) in every entry")
+        mean = None if self.prior.mean is None else broadcast(self.prior.mean, dim, "prior.mean")
+        return Prior(self.prior.kind, self.prior.scale, lower, upper, mean)
+
+
+def broadcast(values: list[float], dim: int, name: str) -> np.ndarray:
+    """A config list of one number (for every feature) or `dim` numbers, as a (dim,) array."""
+    arr = np.asarray(list(values), dtype=float).reshape(-1)
+    require(len(arr) in (1, dim) and bool(np.all(np.isfinite(arr))), name, list(values),
+            f"one finite number, or {dim} (one per feature)")
+    return np.broadcast_to(arr, (dim,)).copy()
+
+
+def _truncated_exponential_mean(length, b):
+    """Mean of the density ∝ exp(−z/b) on [0, L]: b − L / (exp(L/b) − 1), and 0 if L = 0."""
+    x = np.where(length > 0, length / b, 1.0)
+    return np.where(length > 0, b - length * np.exp(-x) / -np.expm1(-x), 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Prior:
+    kind: str  # 'gaussian' | 'laplace' | 'uniform'
+    scale: float  # σ or b (ignored for uniform); > 0
+    lower: np.ndarray  # (d,)
+    upper: np.ndarray  # (d,)
+    mean: np.ndarray | None = None  # default: zeros(d) clipped into the box
+
+    def __post_init__(self):
+        if self.kind not in PRIORS:
+            raise ValueError(f"prior kind must be one of {PRIORS}, got {self.kind!r}")
+        if not self.scale > 0:
+            raise ValueError(f"prior scale must be > 0, got {self.scale!r}")
+        lower = np.atleast_1d(np.asarray(self.lower, dtype=float))
+        upper = np.atleast_1d(np.asarray(self.upper, dtype=float))
+        if lower.ndim != 1 or lower.shape != upper.shape:
+            raise ValueError(f"prior bounds need equal 1-D shape, got {lower.shape}, {upper.shape}")
+        if not np.all(np.isfinite(lower) & np.isfinite(upper) & (lower < upper)):
+            raise ValueError(f"prior needs finite lower < upper in every dimension, "
+                             f"got {lower} and {upper}")
+        mean = np.clip(0.0, lower, upper) if self.mean is None else np.asarray(self.mean, float)
+        if mean.shape != lower.shape:
+            raise ValueError(f"prior mean must have shape {lower.shape}, got {mean.shape}")
+        for name, value in (("lower", lower), ("upper", upper), ("mean", mean)):
+            object.__setattr__(self, name, value)
+
+    @property
+    def dim(self) -> int:
+        return len(self.lower)
+
+    def in_box(self, w) -> bool:
+        return bool(np.all((w >= self.lower) & (w <= self.upper)))
+
+    def log_pdf(self, w) -> float:
+        """Log density up to a constant; −inf outside the box."""
+        w = np.asarray(w, dtype=float)
+        if not self.in_box(w):
+            return -np.inf
+        if self.kind == "gaussian":
+            return float(-np.sum((w - self.mean) ** 2) / (2 * self.scale**2))
+        if self.kind == "laplace":
+            return float(-np.sum(np.abs(w - self.mean)) / self.scale)
+        return 0.0
+
+    def grad_log_pdf(self, w) -> np.ndarray:
+        w = np.asarray(w, dtype=float)
+        if self.kind == "gaussian":
+            return -(w - self.mean) / self.scale**2
+        if self.kind == "laplace":
+            return -np.sign(w - self.mean) / self.scale  # subgradient, sign(0) = 0
+        return np.zeros_like(w)
+
+    def _laplace_sides(self):
+        """Split the box at the Laplace peak (the mean): for the side above and the side below,
+        the distance p of its near end from the mean and its length; and P(side above)."""
+        a, c = self.lower - self.mean, self.upper - self.mean
+        p_up, p_dn = np.maximum(a, 0.0), np.maximum(-c, 0.0)
+        len_up, len_dn = np.maximum(c - p_up, 0.0), np.maximum(-a - p_dn, 0.0)
+        # Side masses ∝ ∫_p^{p+L} exp(−z/b); both sides are non-empty only when the box holds
+        # the mean (p = 0 on both), so the common factor exp(−p/b) can be dropped: no underflow.
+        m_up, m_dn = -np.expm1(-len_up / self.scale), -np.expm1(-len_dn / self.scale)
+        return (p_up, len_up), (p_dn, len_dn), m_up / (m_up + m_dn)
+
+    def sample(self, rng: np.random.Generator, size: int | None = None) -> np.ndarray:
+        """Draws from the prior truncated to the box (it factorises per dimension):
+        shape (d,), or (size, d) if size is given."""
+        shape = (self.dim,) if size is None else (size, self.dim)
+        if self.kind == "uniform":
+            return rng.uniform(self.lower, self.upper, size=shape)
+        if self.kind == "gaussian":
+            a, c = (self.lower - self.mean) / self.scale, (self.upper - self.mean) / self.scale
+            return truncnorm.rvs(a, c, loc=self.mean, scale=self.scale, size=shape,
+                                 random_state=rng)
+        # Laplace: pick a side by its mass, then invert the truncated exponential's CDF.
+        (p_up, len_up), (p_dn, len_dn), prob_up = self._laplace_sides()
+        up = rng.uniform(size=shape) < prob_up
+        p, length = np.where(up, p_up, p_dn), np.where(up, len_up, len_dn)
+        z = p - self.scale * np.log1p(rng.uniform(size=shape) * np.expm1(-length / self.scale))
+        return np.clip(self.mean + np.where(up, z, -z), self.lower, self.upper)  # round-off
+
+    def box_mean(self) -> np.ndarray:
+        """Mean of the prior truncated to the box, per dimension."""
+        if self.kind == "uniform":
+            return (self.lower + self.upper) / 2
+        if self.kind == "gaussian":
+            a, c = (self.lower - self.mean) / self.scale, (self.upper - self.mean) / self.scale
+            return np.atleast_1d(truncnorm.mean(a, c, loc=self.mean, scale=self.scale))
+        (p_up, len_up), (p_dn, len_dn), prob_up = self._laplace_sides()
+        mean_up = p_up + _truncated_exponential_mean(len_up, self.scale)
+        mean_dn = p_dn + _truncated_exponential_mean(len_dn, self.scale)
+        return self.mean + prob_up * mean_up - (1 - prob_up) * mean_dn
+
+
