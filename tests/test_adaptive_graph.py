@@ -4,8 +4,15 @@ demonstrations as graph paths, adaptivity and social compliance on metropolis.""
 import numpy as np
 import pytest
 
-from pipeline.core.adaptive_graph import (AdaptiveGraph, Demo, GraphParams, _probabilities,
-                                     choose_expansion_set, gp_value_estimate, voronoi_centroids)
+from pipeline.core.adaptive_graph import (
+    AdaptiveGraph,
+    Demo,
+    GraphParams,
+    _probabilities,
+    choose_expansion_set,
+    gp_value_estimate,
+    voronoi_centroids,
+)
 from pipeline.core.controllers import LinearController, PosqController
 from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FeatureModel
@@ -66,7 +73,8 @@ def test_nodes_are_picked_in_proportion_to_their_scores():
 
 def test_gp_interpolates_a_smooth_value_field():
     rng = np.random.default_rng(2)
-    field = lambda p: np.sin(p[:, 0]) + 0.5 * p[:, 1]
+    def field(p):
+        return np.sin(p[:, 0]) + 0.5 * p[:, 1]
     train = rng.uniform(0, 2, (60, 2))
     query = rng.uniform(0.3, 1.7, (20, 2))
     mean, std = gp_value_estimate(train, field(train), query, GraphParams())
@@ -109,11 +117,11 @@ def test_values_satisfy_bellman_on_final_graph(graph):
 
 
 def test_every_demonstration_is_a_path_of_the_graph(graph, demos):
-    edges = set(zip(graph.src.tolist(), graph.dst.tolist()))
+    edges = set(zip(graph.src.tolist(), graph.dst.tolist(), strict=True))
     for d in demos:
         nodes = [int(graph.neighbours(p, graph.p.min_separation)[0]) for p in d.points]
         np.testing.assert_allclose(graph.positions[nodes], d.points, atol=1e-12)
-        assert all((a, b) in edges for a, b in zip(nodes[:-1], nodes[1:]))
+        assert all((a, b) in edges for a, b in zip(nodes[:-1], nodes[1:], strict=True))
 
 
 def _distance_to_paths(points, paths):

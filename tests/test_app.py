@@ -4,20 +4,12 @@ import shutil
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
+from hydra.errors import ConfigCompositionException
 
-from pipeline.artefacts import read_artefact
 from pipeline.app.config import load_settings as validate
-from pipeline.app.config import register_configs
+from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
-from tests.conftest import ROOT, run_app
-
-register_configs()
-
-
-def compose_cfg(*overrides):
-    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+from tests.conftest import ROOT, compose_config, run_app, run_in_process
 
 
 @pytest.mark.parametrize("overrides", [
@@ -27,7 +19,7 @@ def compose_cfg(*overrides):
     ["graph.weights=[-1,-1,-1,-1]"], ["birl=mcmc"],
 ])
 def test_every_config_group_option_composes_and_validates(overrides):
-    validate(compose_cfg(*overrides))
+    validate(compose_config(*overrides))
 
 
 @pytest.mark.parametrize("override, key", [
@@ -41,34 +33,54 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("graph.controller.kind=spline", "graph.controller.kind"),
     ("birl.prior.kind=cauchy", "birl.prior.kind"),
     ("birl.lower=[0,0,0,0]", "birl.lower"),
+    ("birl.beta=-1", "birl.beta"),
+    ("graph.controller.max_speed=-1", "graph.controller.max_speed"),
+    ("graph.controller.k_rho=0", "graph.controller.k_rho"),
+    ("reward.features=[social,dance]", "reward.features"),
+    ("reward.features=[social,length]", "reward.weights"),  # 4 weights for 2 features
 ])
 def test_out_of_range_values_name_the_key(override, key):
     with pytest.raises(PipelineError) as err:
-        validate(compose_cfg(override))
+        validate(compose_config(override))
     message = str(err.value)
     assert message.startswith((f"config error: {key}=", f"config error: {key} is missing"))
     assert "\n" not in message
 
 
+@pytest.mark.parametrize("overrides, key", [
+    (["birl=maxent", "birl.alpha=3"], "birl.alpha"),  # a PolicyWalk key on MaxEnt
+    (["birl=map", "birl.n_samples=10"], "birl.n_samples"),  # an MCMC key on the MAP method
+    (["expert=optimal", "expert.beta=5"], "expert.beta"),  # a Boltzmann key on the optimal one
+])
+def test_a_key_of_another_method_is_refused(overrides, key):
+    with pytest.raises(ConfigCompositionException, match=f"override '{key}'"):
+        compose_config(*overrides)
+
+
+def test_a_subset_of_the_features_runs_end_to_end(tmp_path):
+    metrics, _ = run_in_process(tmp_path, "reward.features=[social,length]",
+                                "reward.weights=[-0.7,-0.1]", "graph=small", "birl.n_iterations=3")
+    assert {k for k in metrics if k.startswith("weight_")} == {"weight_social", "weight_length"}
+    assert metrics["policy_loss"] >= 0
+    assert read_artefact(tmp_path / "graph.mcap").one("/graph/solution")["n_nodes"] > 0
+
+
 @pytest.fixture(scope="module")
-def default_run(tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("run")
-    result = run_app(f"hydra.run.dir={run_dir}")
-    assert result.returncode == 0, result.stderr
-    return run_dir
+def default_dir(default_run):
+    return default_run[0]
 
 
-def test_default_experiment_writes_artefacts(default_run):
-    scene = read_artefact(default_run / "scene.mcap", required_topics=["/scene"])
+def test_default_experiment_writes_artefacts(default_dir):
+    scene = read_artefact(default_dir / "scene.mcap", required_topics=["/scene"])
     assert scene.one("/scene")["name"] == "metropolis"
     assert "reward:" in scene.config_yaml and "seed: 0" in scene.config_yaml
     assert scene.metadata["seed"] == "0" and "version.numpy" in scene.metadata
-    demos = read_artefact(default_run / "demos.mcap",
+    demos = read_artefact(default_dir / "demos.mcap",
                           required_topics=["/demos", "/demos/expert", "/demos/roadmap"])
     assert len(demos.all("/demos")) == 7
     assert demos.one("/demos/expert")["true_weights"] == [-1.0, -0.7, -0.85, -0.1]
     assert all(d["reached"] for d in demos.all("/demos"))
-    graph = read_artefact(default_run / "graph.mcap", required_topics=[
+    graph = read_artefact(default_dir / "graph.mcap", required_topics=[
         "/graph/node", "/graph/edge", "/graph/best_paths", "/graph/solution"])
     nodes, edges = graph.all("/graph/node"), graph.all("/graph/edge")
     solution = graph.one("/graph/solution")
@@ -88,10 +100,12 @@ def _payloads(run_dir):
 
 
 def test_same_seed_same_payloads_and_other_seed_differs(tmp_path):
-    args = ["scene=random", "expert=boltzmann", "graph=small"]
-    for name, seed in [("a", 3), ("b", 3), ("c", 4)]:
-        result = run_app(f"hydra.run.dir={tmp_path / name}", f"seed={seed}", *args)
-        assert result.returncode == 0, result.stderr
+    # One run in a fresh process, two in this one: equal artefacts across processes too.
+    args = ["scene=random", "expert=boltzmann", "graph=small", "stages=[scene,demos,graph]"]
+    result = run_app(f"hydra.run.dir={tmp_path / 'a'}", "seed=3", *args)
+    assert result.returncode == 0, result.stderr
+    run_in_process(tmp_path / "b", "seed=3", *args)
+    run_in_process(tmp_path / "c", "seed=4", *args)
     a, b, c = (_payloads(tmp_path / n) for n in "abc")
     assert a == b
     for name in ("demos.mcap", "graph.mcap"):
@@ -99,14 +113,12 @@ def test_same_seed_same_payloads_and_other_seed_differs(tmp_path):
     assert a["scene.mcap"] != c["scene.mcap"]
 
 
-def test_stage_subset_from_earlier_run(tmp_path, default_run):
-    result = run_app(f"hydra.run.dir={tmp_path}", "stages=[demos,graph]",
-                     f"from_run={default_run}")
-    assert result.returncode == 0, result.stderr
+def test_stage_subset_from_earlier_run(tmp_path, default_dir):
+    run_in_process(tmp_path, "stages=[demos,graph]", f"from_run={default_dir}")
     assert not (tmp_path / "scene.mcap").exists()
     for name in ("demos.mcap", "graph.mcap"):
         assert read_artefact(tmp_path / name).messages == \
-            read_artefact(default_run / name).messages
+            read_artefact(default_dir / name).messages
 
 
 def _fails_with_one_line(result, *fragments):
@@ -131,30 +143,40 @@ def test_out_of_range_value_exits_with_one_line(tmp_path):
                          "scene.body_radius=-1")
 
 
-def test_malformed_scene_file_exits_with_one_line(tmp_path):
+def _refused_with_one_line(run_dir, overrides, *fragments):
+    """In-process twin of _fails_with_one_line: the PipelineError the CLI prints as one line."""
+    with pytest.raises(PipelineError) as err:
+        run_in_process(run_dir, *overrides)
+    message = str(err.value)
+    assert "\n" not in message
+    for f in fragments:
+        assert f in message
+
+
+def test_malformed_scene_file_is_refused_with_one_line(tmp_path):
     bad = tmp_path / "bad.json"
-    bad.write_text((ROOT / "data/scenes/metropolis.json").read_text().replace('"x": 9.2', '"x": 19.2'))
-    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path / 'run'}", "scene=file",
-                                 f"scene.path={bad}"), str(bad), "person 5", "outside the room")
+    text = (ROOT / "data/scenes/metropolis.json").read_text()
+    bad.write_text(text.replace('"x": 9.2', '"x": 19.2'))
+    _refused_with_one_line(tmp_path / "run", ["scene=file", f"scene.path={bad}"],
+                           str(bad), "person 5", "outside the room")
 
 
-def test_truncated_input_artefact_exits_with_one_line(tmp_path, default_run):
+def test_truncated_input_artefact_is_refused_with_one_line(tmp_path, default_dir):
     src = tmp_path / "src"
     src.mkdir()
-    data = (default_run / "scene.mcap").read_bytes()
+    data = (default_dir / "scene.mcap").read_bytes()
     (src / "scene.mcap").write_bytes(data[: len(data) // 2])
-    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path / 'run'}", "stages=[demos]",
-                                 f"from_run={src}"), str(src / "scene.mcap"), "truncated")
+    overrides = ["stages=[demos]", f"from_run={src}"]
+    _refused_with_one_line(tmp_path / "run", overrides, str(src / "scene.mcap"), "truncated")
     (src / "scene.mcap").write_text("{}")
-    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path / 'run'}", "stages=[demos]",
-                                 f"from_run={src}"), "not an MCAP file")
+    _refused_with_one_line(tmp_path / "run", overrides, "not an MCAP file")
 
 
-def test_failing_run_keeps_earlier_artefacts(tmp_path, default_run):
+def test_failing_run_keeps_earlier_artefacts(tmp_path, default_dir):
     run_dir = tmp_path / "run"
-    shutil.copytree(default_run, run_dir)
+    shutil.copytree(default_dir, run_dir)
     before = (run_dir / "demos.mcap").read_bytes()
-    result = run_app(f"hydra.run.dir={run_dir}", "expert=file", f"expert.path={tmp_path}/none.json")
-    _fails_with_one_line(result, "none.json", "not found")
+    _refused_with_one_line(run_dir, ["expert=file", f"expert.path={tmp_path}/none.json"],
+                           "none.json", "not found")
     assert (run_dir / "demos.mcap").read_bytes() == before
     assert not list(Path(run_dir).glob("*.tmp"))

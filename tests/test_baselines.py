@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
+from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
 from pipeline.irl.birl import ChainParams
 from pipeline.irl.maxent import expected_discounted_counts, maxent_irl, soft_policy, soft_values
 from pipeline.irl.policywalk import expert_state_actions, policywalk
 from pipeline.irl.prior import Prior
-from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
 
 BOX = (np.array([-1.0, -1.0]), np.array([0.0, 0.0]))
 UNIFORM = Prior("uniform", 1.0, *BOX)
@@ -26,7 +26,7 @@ def three_routes():
     terminal[4] = True
     mdp = GraphMDP(src, dst, np.ones(7), feats, terminal, gamma=0.95)
     routes = {k: Path(np.array([0, via, 4]), np.array([via - 1, via + 3]), True)
-              for k, via in zip("ABC", (1, 2, 3))}
+              for k, via in zip("ABC", (1, 2, 3), strict=True)}
     return mdp, routes
 
 
@@ -37,7 +37,7 @@ def greedy_route(mdp, w):
 def tiny_dag(seed, gamma=0.9, n=6, d=2):
     rng = np.random.default_rng(seed)
     pairs = [(i, j) for i, j in itertools.combinations(range(n), 2) if rng.random() < 0.7]
-    src, dst = map(np.array, zip(*pairs))
+    src, dst = map(np.array, zip(*pairs, strict=True))
     terminal = np.zeros(n, bool)
     terminal[n - 1] = True  # any other sink is a dead end
     return GraphMDP(src, dst, rng.uniform(0.3, 1.5, len(src)), rng.uniform(0, 1, (len(src), d)),
@@ -143,7 +143,8 @@ def test_policywalk_recovers_the_expert_region():
     expert = expert_state_actions(mdp, [routes["A"]] * 3)
     assert expert == [(0, 0), (1, 4)] * 3
     res = policywalk(mdp, expert, UNIFORM, np.random.default_rng(0), alpha=5.0,
-                     chain=ChainParams(n_samples=1500, burn_in=200, thin=1, step=0.1), w0=np.array([-0.5, -0.5]), n_records=10)
+                     chain=ChainParams(n_samples=1500, burn_in=200, thin=1, step=0.1),
+                     w0=np.array([-0.5, -0.5]), n_records=10)
     w = res.weights
     assert w[1] < w[0] - 0.2  # clearly inside the region where A is optimal
     assert greedy_route(mdp, w) == list(routes["A"].edges)

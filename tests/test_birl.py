@@ -142,7 +142,7 @@ def test_prior_samples_in_box_with_box_mean(kind):
     assert np.all(np.abs(draws.mean(axis=0) - prior.box_mean()) < 4 * se + 1e-12)
     # box_mean against direct numerical integration of the truncated density
     for j in range(D):
-        def density(x):
+        def density(x, j=j):
             return math.exp(prior.log_pdf(np.where(np.arange(D) == j, x, prior.box_mean())))
         kink = [TEST_MEANS[j]] if -1 < TEST_MEANS[j] < 0 else None
         mass = quad(density, -1, 0, points=kink)[0]
@@ -155,7 +155,7 @@ def test_box_means_uniform_and_truncnorm():
     np.testing.assert_allclose(Prior("uniform", 1.0, lower, upper).box_mean(), [-0.5, -0.5])
     mu, sigma = np.array([0.3, -1.0]), 0.8
     expected = [truncnorm.mean((lo - m) / sigma, (hi - m) / sigma, loc=m, scale=sigma)
-                for lo, hi, m in zip(lower, upper, mu)]
+                for lo, hi, m in zip(lower, upper, mu, strict=True)]
     np.testing.assert_allclose(Prior("gaussian", sigma, lower, upper, mu).box_mean(), expected)
 
 
@@ -252,7 +252,7 @@ def test_birl_map_is_deterministic():
     prior = Prior("laplace", 0.5, -np.ones(3), np.zeros(3))
     runs = [birl_map(expert, generate, prior, beta=5.0, r_goal=1.0, n_iterations=4,
                      w0=np.full(3, -0.5)) for _ in range(2)]
-    for a, b in zip(*runs):
+    for a, b in zip(*runs, strict=True):
         np.testing.assert_array_equal(a.weights, b.weights)
         assert a.log_likelihood == b.log_likelihood
 

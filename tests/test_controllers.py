@@ -19,7 +19,8 @@ HEADING_OFFSETS = (0.0, np.pi / 4, -np.pi / 4, np.pi / 2, -np.pi / 2, np.pi)
 TARGET_HEADINGS = (None, 0.0, np.pi / 2, np.pi, -np.pi / 2)  # None: (2,) point target
 
 
-def grid_cases(distances=DISTANCES, bearings=BEARINGS, offsets=HEADING_OFFSETS, headings=TARGET_HEADINGS):
+def grid_cases(distances=DISTANCES, bearings=BEARINGS, offsets=HEADING_OFFSETS,
+               headings=TARGET_HEADINGS):
     goal = np.array([0.3, -0.2])  # not the origin, so nothing relies on it
     for d in distances:
         for b in bearings:
@@ -65,7 +66,8 @@ def test_wrap_angle():
 
 def test_linear_345_triangle():
     ctrl = LinearController(speed=2.0)
-    traj = ctrl.steer(np.array([1.0, 1.0, 2.5]), np.array([4.0, 5.0, -1.0]))  # input headings ignored
+    # input headings are ignored
+    traj = ctrl.steer(np.array([1.0, 1.0, 2.5]), np.array([4.0, 5.0, -1.0]))
     heading = math.atan2(4, 3)
     np.testing.assert_allclose(traj.poses, [[1, 1, heading], [4, 5, heading]])
     assert traj.length == pytest.approx(5.0) and traj.duration == pytest.approx(2.5)
@@ -80,7 +82,7 @@ def test_steer_many_matches_steer_pair_by_pair(ctrl):
     targets = np.column_stack([rng.uniform(-3, 3, (30, 2)), rng.uniform(-np.pi, np.pi, 30)])
     targets[4] = starts[4]  # no run: start and target coincide
     runs = ctrl.steer_many(starts, targets)
-    single = [ctrl.steer(s, t) for s, t in zip(starts, targets)]
+    single = [ctrl.steer(s, t) for s, t in zip(starts, targets, strict=True)]
     assert list(runs.index) == [i for i, traj in enumerate(single) if traj is not None]
     assert 4 not in runs.index
     a, b, owner = runs.segments()
@@ -102,7 +104,8 @@ def test_posq_reaches_every_target_position(posq_runs):
     for s, t, _, traj in runs:
         np.testing.assert_array_equal(traj.poses[0], s)
         assert np.hypot(*(traj.points[-1] - t[:2])) < ctrl.eps
-        assert np.hypot(*(traj.points[-2] - t[:2])) >= ctrl.eps  # stops at the first pose inside eps
+        # stops at the first pose inside eps
+        assert np.hypot(*(traj.points[-2] - t[:2])) >= ctrl.eps
         assert traj.duration == pytest.approx((len(traj.poses) - 1) * ctrl.dt)
 
 
@@ -116,7 +119,8 @@ def test_posq_path_is_smooth_and_respects_wheel_limits(posq_runs):
         assert np.abs(omega).max() <= ctrl.max_angular_rate + 1e-9  # no heading jumps
         if not ctrl.allow_backward:
             assert v.min() >= -1e-9
-        wheels = np.abs(np.concatenate([v - omega * ctrl.wheel_base / 2, v + omega * ctrl.wheel_base / 2]))
+        half_turn = omega * ctrl.wheel_base / 2
+        wheels = np.abs(np.concatenate([v - half_turn, v + half_turn]))
         assert wheels.max() <= ctrl.max_speed + 1e-9
         max_wheel = max(max_wheel, wheels.max())
     assert max_wheel == pytest.approx(ctrl.max_speed)  # the clipping is actually exercised
@@ -124,16 +128,18 @@ def test_posq_path_is_smooth_and_respects_wheel_limits(posq_runs):
 
 def test_posq_backward_option_reverses_when_target_is_behind():
     ctrl = PosqController(allow_backward=True)
-    traj = ctrl.steer(np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0]))  # target straight behind
+    behind = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0])  # target straight behind
+    traj = ctrl.steer(*behind)
     v, omega = implied_speeds(traj, ctrl.dt)
     assert np.all(v < 0) and np.allclose(omega, 0) and np.allclose(traj.poses[:, 2], 0)
-    assert PosqController().steer(np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0])).duration > traj.duration
+    assert PosqController().steer(*behind).duration > traj.duration
 
 
 def test_posq_heading_at_reference_eps():
     # Termination is on rho only, and with the reference gains the angle errors decay only like
-    # rho**0.29 near the goal (linearisation: (k_alpha - k_rho*k_v) / (2*k_rho*k_v) = 2.2/7.6), so at
-    # eps = 0.05 a pose target's heading is NOT reliably met (grid median ~0.75 rad, max ~2.2).
+    # rho**0.29 near the goal (linearisation: (k_alpha - k_rho*k_v) / (2*k_rho*k_v) = 2.2/7.6),
+    # so at eps = 0.05 a pose target's heading is NOT reliably met (grid median ~0.75 rad,
+    # max ~2.2).
     # A point target has beta = 0 initially; then the error stays below ~0.72 rad on this grid.
     # (Forward only: with allow_backward a start facing away reverses in and must still turn round.)
     _, runs = grid_runs(False)
@@ -167,8 +173,9 @@ def test_posq_point_target_and_failures():
     traj = ctrl.steer(np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0]))
     assert len(traj.poses) == 26 and traj.duration == pytest.approx(1.25)  # 1 m straight ahead
     assert traj.points[-1, 0] == pytest.approx(0.9575, abs=1e-4)  # integrated end, not snapped
-    assert PosqController(max_time=1.0).steer(np.array([0.0, 0.0, 0.0]), np.array([3.0, 0.0])) is None
-    assert ctrl.steer(np.array([0.0, 0.0, 0.0]), np.array([0.01, 0.0, 1.0])) is None  # already there
+    origin = np.array([0.0, 0.0, 0.0])
+    assert PosqController(max_time=1.0).steer(origin, np.array([3.0, 0.0])) is None
+    assert ctrl.steer(origin, np.array([0.01, 0.0, 1.0])) is None  # already there
     with pytest.raises(ValueError, match="start"):
         ctrl.steer(np.array([0.0, 0.0]), np.array([1.0, 0.0]))
 
@@ -181,7 +188,8 @@ def test_posq_is_deterministic():
     assert a.duration == b.duration
 
 
-@pytest.mark.parametrize("name", ["dt", "eps", "max_time", "max_speed", "wheel_base", "k_v", "k_rho"])
+@pytest.mark.parametrize("name", ["dt", "eps", "max_time", "max_speed", "wheel_base", "k_v",
+                                  "k_rho"])
 @pytest.mark.parametrize("bad", [0.0, -1.0, float("nan")])
 def test_posq_rejects_bad_params(name, bad):
     with pytest.raises(ValueError, match=name):

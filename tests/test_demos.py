@@ -5,13 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.errors import PipelineError
 from pipeline.core.experts import BoltzmannParams, boltzmann_demos, optimal_demos
-from pipeline.inputs.demo_file import load_demo_file
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import discounted_counts
 from pipeline.core.roadmap import build_roadmap, segments_feasible
 from pipeline.core.social import INTIMATE_ZONE, min_distance_to_person, path_metrics
+from pipeline.errors import PipelineError
+from pipeline.inputs.demo_file import load_demo_file
 from tests.conftest import POLITE, RUDE
 
 
@@ -58,7 +58,7 @@ def test_rude_demos_are_shorter_and_cross_links(metropolis, roadmap, mdp):
     rude = demos_under(mdp, roadmap, RUDE)
     crossings = [path_metrics(d.points, metropolis, 0, True)["relation_crossings"] for d in rude]
     assert sum(crossings) >= 3
-    for p, r in zip(polite, rude):
+    for p, r in zip(polite, rude, strict=True):
         assert r.reached and r.features[3] <= p.features[3] + 1e-9
     assert sum(r.features[3] for r in rude) < sum(p.features[3] for p in polite) - 1.0
 
@@ -78,11 +78,14 @@ def test_optimal_demo_value_equals_roadmap_value(roadmap, mdp):
 
 def test_boltzmann_demos_are_seeded_noisy_and_worse(roadmap, mdp):
     sol = mdp.solve(POLITE)
-    make = lambda seed: boltzmann_demos(mdp, roadmap.positions, roadmap.start_nodes, POLITE, sol,
-                                        BoltzmannParams(50.0, 2000, 50), np.random.default_rng(seed))
+
+    def make(seed):
+        return boltzmann_demos(mdp, roadmap.positions, roadmap.start_nodes, POLITE, sol,
+                               BoltzmannParams(50.0, 2000, 50), np.random.default_rng(seed))
+
     a, b, c = make(1), make(1), make(2)
-    assert all(np.array_equal(x.points, y.points) for x, y in zip(a, b))
-    assert any(not np.array_equal(x.points, y.points) for x, y in zip(a, c))
+    assert all(np.array_equal(x.points, y.points) for x, y in zip(a, b, strict=True))
+    assert any(not np.array_equal(x.points, y.points) for x, y in zip(a, c, strict=True))
     assert all(d.reached for d in a)
     for k, d in enumerate(a):
         phi, end = discounted_counts(d.edge_features, d.durations, mdp.gamma)

@@ -52,7 +52,7 @@ def test_equals_brute_force_on_tiny_dag():
     rng = np.random.default_rng(7)
     n = 7
     pairs = [(i, j) for i, j in itertools.combinations(range(n), 2) if rng.random() < 0.6]
-    src, dst = map(np.array, zip(*pairs))
+    src, dst = map(np.array, zip(*pairs, strict=True))
     tau = rng.uniform(0.3, 1.5, len(src))
     feats = rng.uniform(0, 1, (len(src), 2))
     terminal = np.zeros(n, bool)

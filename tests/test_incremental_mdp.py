@@ -25,8 +25,8 @@ def test_growing_graph_matches_full_solution_at_every_step(seed):
             others = rng.choice(n, size=min(n, 6), replace=False)
             src += [c] * 3 + list(others[3:])
             dst += list(others[:3]) + [c] * len(others[3:])
-        pairs = [(a, b) for a, b in dict.fromkeys(zip(src, dst)) if a != b]
-        src, dst = map(np.array, zip(*pairs))
+        pairs = [(a, b) for a, b in dict.fromkeys(zip(src, dst, strict=True)) if a != b]
+        src, dst = map(np.array, zip(*pairs, strict=True))
         inc.add_edges(src, dst, rng.uniform(0.2, 1.5, len(src)), -rng.uniform(0, 0.3, len(src)))
         inc.update()
         mdp = inc.mdp()
@@ -47,7 +47,8 @@ def test_new_rewards_resolve_exactly():
     src = rng.integers(0, 20, 80)
     dst = rng.integers(0, 20, 80)
     keep = src != dst
-    inc.add_edges(src[keep], dst[keep], rng.uniform(0.5, 1, keep.sum()), -rng.uniform(0, 1, keep.sum()))
+    n = keep.sum()
+    inc.add_edges(src[keep], dst[keep], rng.uniform(0.5, 1, n), -rng.uniform(0, 1, n))
     inc.update()
     inc.set_rewards(-rng.uniform(0, 1, keep.sum()))
     np.testing.assert_allclose(inc.values, inc.mdp().solve([1.0]).values, atol=1e-12)

@@ -1,24 +1,21 @@
 """End to end through the real app: BIRL-G learns socially compliant rewards (issue 4)."""
 
-import json
-
 import numpy as np
 import pytest
 
 from pipeline.artefacts import read_artefact
-from tests.conftest import ROOT, run_app
+from tests.conftest import ROOT, run_in_process
 
 
 def run_experiment(tmp_path_factory, *overrides):
     run_dir = tmp_path_factory.mktemp("exp")
-    result = run_app(f"hydra.run.dir={run_dir}", *overrides)
-    assert result.returncode == 0, result.stderr[-2000:]
-    return run_dir, json.loads((run_dir / "metrics.json").read_text()), result.stdout
+    metrics, stdout = run_in_process(run_dir, *overrides)
+    return run_dir, metrics, stdout
 
 
 @pytest.fixture(scope="module")
-def polite(tmp_path_factory):
-    return run_experiment(tmp_path_factory)
+def polite(default_run):
+    return default_run
 
 
 def test_polite_expert_is_learned_on_metropolis(polite):

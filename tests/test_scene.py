@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.errors import PipelineError
 from pipeline.core.scenegen import RandomSceneSpec, all_starts_reach_goal, random_scene
 from pipeline.core.world import SceneError, scene_from_dict
+from pipeline.errors import PipelineError
 from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import METROPOLIS
 
@@ -33,7 +33,8 @@ def _metropolis_dict():
     (lambda d: d.update(starts=[]), "'starts' is empty"),
     (lambda d: d["persons"][0].pop("x"), "person #0 needs numbers"),
     (lambda d: d.pop("room"), "missing key 'room'"),
-    (lambda d: d["persons"][1].update(x=2.0, y=5.0), "relation [1, 2] links two persons at the same place"),
+    (lambda d: d["persons"][1].update(x=2.0, y=5.0),
+     "relation [1, 2] links two persons at the same place"),
 ])
 def test_malformed_scene_names_the_culprit(mutate, message):
     data = _metropolis_dict()
@@ -87,7 +88,8 @@ def test_random_scene_is_valid_and_seeded(seed):
     for members in groups.values():
         centre = np.mean([pos[m] for m in members], axis=0)
         assert 2 <= len(members) <= 4
-        assert len([r for r in scene.relations if r[0] in members]) == len(members) * (len(members) - 1) // 2
+        n_links = len([r for r in scene.relations if r[0] in members])
+        assert n_links == len(members) * (len(members) - 1) // 2
         for m in members:
             p = next(q for q in scene.persons if q.id == m)
             facing = np.array([np.cos(p.theta), np.sin(p.theta)])

@@ -13,10 +13,11 @@ from tests.conftest import ROOT, run_app
 
 
 def aggregate(sweep_dir):
-    return subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate", str(sweep_dir)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate", str(sweep_dir)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow  # four jobs; test_failing_job_does_not_stop_the_sweep is the default multirun
 def test_two_by_two_multirun_is_aggregated(tmp_path):
     result = run_app("-m", "experiment=quick", f"hydra.sweep.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-2000:]
@@ -24,7 +25,7 @@ def test_two_by_two_multirun_is_aggregated(tmp_path):
     assert agg.returncode == 0, agg.stderr
     table = pd.read_csv(tmp_path / "summary.csv")
     assert len(table) == 4 and (table.status == "ok").all()
-    assert sorted(zip(table.seed, table.reward)) == [(0, "polite"), (0, "rude"),
+    assert sorted(zip(table.seed, table.reward, strict=True)) == [(0, "polite"), (0, "rude"),
                                                       (1, "polite"), (1, "rude")]
     assert {f"policy_loss_iter_{k:02d}" for k in range(6)} <= set(table.columns)
     assert (tmp_path / "policy_loss.png").stat().st_size > 10_000
@@ -62,16 +63,18 @@ def regress_work(tmp_path_factory):
 
 
 def regress(*args):
-    return subprocess.run([sys.executable, "-m", "pipeline.tools.regress", *map(str, args)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, "-m", "pipeline.tools.regress", *map(str, args)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow  # `make regress` runs the full check
 def test_regression_subset_passes(regress_work):
     result = regress("--only", "metropolis_polite_s0", "--work", regress_work)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "0 regressions" in result.stdout
 
 
+@pytest.mark.slow
 def test_metric_beyond_tolerance_fails(tmp_path, regress_work):
     baseline = tmp_path / "baseline"
     shutil.copytree(ROOT / "results" / "baseline", baseline)

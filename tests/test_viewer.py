@@ -13,7 +13,7 @@ from rerun.error_utils import RerunWarning
 from pipeline.artefacts import ArtefactError, read_artefact
 from pipeline.errors import PipelineError
 from pipeline.tools.viewer import build_recording
-from tests.conftest import ROOT, run_app
+from tests.conftest import ROOT, run_in_process
 
 SPATIAL = ["/scene/room", "/scene/persons", "/scene/person_heading", "/scene/links",
            "/scene/starts", "/scene/goal", "/demos/trajectories", "/graph/nodes",
@@ -25,8 +25,7 @@ STATIC = ["/scene/room", "/scene/persons", "/scene/person_heading", "/scene/link
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     d = tmp_path_factory.mktemp("viewer_run")
-    res = run_app(f"hydra.run.dir={d}", "graph=small", "birl.n_iterations=4")
-    assert res.returncode == 0, res.stderr[-2000:]
+    run_in_process(d, "graph=small", "birl.n_iterations=4")
     return d
 
 
@@ -142,8 +141,9 @@ def test_missing_scene_or_truncated_artefact_is_a_clear_error(run_dir, tmp_path)
 
 def _cli(*args):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    return subprocess.run([sys.executable, "-m", "pipeline.tools.viewer", *map(str, args)], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=120, check=False)
+    return subprocess.run([sys.executable, "-m", "pipeline.tools.viewer", *map(str, args)],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+                          check=False)
 
 
 def test_cli_writes_the_rrd_and_says_how_to_open_it(run_dir, tmp_path):
