@@ -11,7 +11,7 @@ SWEEP ?=
 SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S))
 RUN ?=
 
-.PHONY: experiment test test-all clean bench sweep aggregate view regress
+.PHONY: experiment test test-all lint clean bench sweep aggregate view regress
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -50,6 +50,11 @@ test: $(STAMP)
 ## Everything, including slow tests.
 test-all: $(STAMP)
 	$(PY) -m pytest -q -m "not bench"
+
+## Style and types: ruff on the package and tests, mypy on the algorithm packages.
+lint: $(STAMP)
+	$(VENV)/bin/ruff check pipeline tests
+	$(VENV)/bin/mypy
 
 ## Remove the venv, run outputs and caches (not results/).
 clean:

@@ -11,7 +11,6 @@ line naming the full key.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -185,11 +184,10 @@ def _instantiate(node: DictConfig, key: str) -> Any:
         raise PipelineError(f"config error: {full} is missing (set it: {hint})") from None
 
 
-def _check_kind(section: str, obj: Any, registry: dict[str, type]) -> None:
+def _require_matching_kind(section: str, obj: Any, registry: dict[str, type]) -> None:
     """`section.kind` must name the schema in use (a kind is chosen with `section=NAME`)."""
     expected = next((k for k, cls in registry.items() if type(obj) is cls), None)
-    require_kind = obj.kind == expected
-    if not require_kind:
+    if obj.kind != expected:
         raise config_error(f"{section}.kind", obj.kind,
                            f"'{expected}' (choose another with {section}=NAME)")
 
@@ -207,9 +205,9 @@ def load_settings(cfg: DictConfig) -> Config:
         raise config_error("stages", list(settings.stages), f"a non-empty subset of {list(STAGES)}")
     if settings.seed < 0:
         raise config_error("seed", settings.seed, "an integer >= 0")
-    _check_kind("scene", settings.scene, SCENES)
-    _check_kind("expert", settings.expert, EXPERTS)
-    _check_kind("birl", settings.birl, {n: m.config for n, m in methods().items()})
+    _require_matching_kind("scene", settings.scene, SCENES)
+    _require_matching_kind("expert", settings.expert, EXPERTS)
+    _require_matching_kind("birl", settings.birl, {n: m.config for n, m in methods().items()})
 
     d = settings.n_features
     try:
@@ -226,8 +224,3 @@ def load_settings(cfg: DictConfig) -> Config:
     if not ok:
         raise config_error("graph.weights", w, f"null (prior mean), true (oracle) or {d} numbers")
     return settings
-
-
-def replace(settings: Config, **changes: Any) -> Config:
-    """A copy of the settings with some sections replaced."""
-    return dataclasses.replace(settings, **changes)

@@ -1,7 +1,12 @@
 """Artefact I/O: the MCAP store (store.py), the topic names (topics.py), and the codecs
 that turn messages back into core objects and core objects into messages (codec.py)."""
 
-from pipeline.artefacts.store import (Artefact, ArtefactError, ArtefactWriter, read_artefact,
-                                      write_artefact)
+from pipeline.artefacts.store import (
+    Artefact,
+    ArtefactError,
+    ArtefactWriter,
+    read_artefact,
+    write_artefact,
+)
 
 __all__ = ["Artefact", "ArtefactError", "ArtefactWriter", "read_artefact", "write_artefact"]

@@ -25,7 +25,7 @@ def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:
     graph_mdp = GraphMDP(src, dst, msg["duration"], msg["features"], msg["terminal"],
                          gamma=mdp.gamma, r_goal=mdp.r_goal, v_max=mdp.v_max)
     return SpatialGraph(positions, graph_mdp, np.asarray(msg["start_nodes"]),
-                        [positions[[a, b]] for a, b in zip(src, dst)])
+                        [positions[[a, b]] for a, b in zip(src, dst, strict=True)])
 
 
 def graph_records(art: Artefact, grown: Artefact | None = None) -> tuple[list[dict], list[dict]]:

@@ -21,8 +21,10 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial import Voronoi
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
@@ -132,15 +134,16 @@ class AdaptiveGraph(StateGraph):
 
     def __init__(self, scene: Scene, feature_model: FeatureModel, controller: Controller,
                  weights: np.ndarray, params: GraphParams, rng: np.random.Generator,
-                 mdp: MDPParams | None = None):
-        params = dataclasses.replace(params, min_separation=params.separation(scene.room.area))
+                 mdp: MDPParams | None = None) -> None:
+        min_separation = params.separation(scene.room.area)
+        params = dataclasses.replace(params, min_separation=min_separation)
         super().__init__(scene, feature_model, controller, weights, radius=params.radius,
-                         max_edges=params.max_edges, min_separation=params.min_separation,
+                         max_edges=params.max_edges, min_separation=min_separation,
                          mdp=mdp or MDPParams())
         self.p, self.rng = params, rng
         self.start_nodes = np.zeros(0, dtype=np.int64)
         self.goal_node = -1
-        self._norm: dict | None = None
+        self._norm: dict[str, Any] | None = None
         self.best_paths: list[np.ndarray] = []
         self.best_path_values = np.zeros(0)
         self.best_reached = np.zeros(0, dtype=bool)
@@ -181,10 +184,14 @@ class AdaptiveGraph(StateGraph):
         self.add_edges(nodes[:-1], nodes[1:], demo.segment_durations, demo.segment_features,
                        [demo.points[k:k + 2] for k in range(len(nodes) - 1)], is_demo=True)
 
-    def restore(self, nodes: list[dict], edges: list[dict], start_nodes=None) -> None:
+    def restore(self, nodes: list[dict], edges: list[dict],
+                start_nodes: ArrayLike | None = None) -> None:
         """Rebuild a stored graph (graph.mcap's node and edge records, ids in order) instead
-        of initialise(), so that it can grow further."""
+        of initialise(), so that it can grow further. start_nodes: (n_starts,) node ids of
+        the scene's starts in order (default: the start nodes in id order)."""
         super().restore(nodes, edges)
+        if start_nodes is None:
+            start_nodes = [i for i, n in enumerate(nodes) if n["kind"] == START]
         self.start_nodes = np.asarray(start_nodes, dtype=np.int64)
         self.goal_node = next(i for i, n in enumerate(nodes) if n["kind"] == GOAL)
         self.iteration = max(n["iteration"] for n in nodes)
@@ -242,7 +249,8 @@ class AdaptiveGraph(StateGraph):
         on_best = np.zeros(self.n_nodes, dtype=bool)
         # A start whose best trajectory does not reach the goal yet has the lowest quality
         # (V = −V_max) and would almost never be expanded; its trajectory is N_b until it does.
-        stuck = [path for path, reached in zip(self.best_paths, self.best_reached) if not reached]
+        stuck = [path for path, reached in zip(self.best_paths, self.best_reached, strict=True)
+                 if not reached]
         for path in stuck or self.best_paths:
             on_best[path] = True
         best_set = np.flatnonzero(on_best & ~self.terminal)
@@ -250,8 +258,9 @@ class AdaptiveGraph(StateGraph):
         return choose_expansion_set(self.rng, best_set, other_set, self.p.p_best)
 
     def pick_node(self, pool: np.ndarray) -> int:
-        """Step 2: v ∈ N_e with probability ∝ its exploration score."""
-        return int(pool[self.rng.choice(len(pool), p=_probabilities(self.exploration_scores(pool)))])
+        """Step 2: v ∈ N_e (`pool`, node ids) with probability ∝ its exploration score."""
+        return int(pool[self.rng.choice(len(pool),
+                                        p=_probabilities(self.exploration_scores(pool)))])
 
     def sample_candidates(self, v: int) -> Candidates | None:
         """Step 3: n_new controller runs from v with random heading and a duration in
@@ -286,6 +295,7 @@ class AdaptiveGraph(StateGraph):
 
     def pick_candidates(self, c: Candidates) -> tuple[Candidates, np.ndarray]:
         """Step 4b: n_add of them (fewer near max_nodes) with probability ∝ score."""
+        assert c.score is not None  # score_candidates sets it
         n_pick = min(self.p.n_add, len(c.ends), self.p.max_nodes - self.n_nodes)
         return c, self.rng.choice(len(c.ends), n_pick, replace=False, p=_probabilities(c.score))
 
@@ -323,7 +333,7 @@ class AdaptiveGraph(StateGraph):
                              "reached": self.best_reached.copy()})
 
     # -- exploration score -----------------------------------------------------------------
-    def _normalisation(self) -> dict:
+    def _normalisation(self) -> dict[str, Any]:
         """Value of the best path through every node and the ranges that normalise quality
         and concentration; cached until the graph changes (failed expansions reuse it)."""
         if self._norm is None:
@@ -337,14 +347,16 @@ class AdaptiveGraph(StateGraph):
         return self._norm
 
     def exploration_scores(self, nodes: np.ndarray) -> np.ndarray:
-        """ES(s) = λ_q·quality(s) + λ_c·concentration(s), both normalised over all nodes."""
+        """ES(s) = λ_q·quality(s) + λ_c·concentration(s), both normalised over all nodes;
+        `nodes` (k,) node ids, result (k,)."""
         norm = self._normalisation()
         quality = (norm["through"][nodes] - norm["q_lo"]) / norm["q_span"]
         concentration = 1.0 / (1.0 + self.n_close[nodes]) / norm["c_max"]
         return self.p.lambda_q * quality + self.p.lambda_c * concentration
 
     def _gp_estimate(self, v: int, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """GP estimate of V at the candidates from the nodes within radius of v."""
+        """GP estimate of V (mean and std, each (m,)) at the candidate poses `cand` (m, 3) from
+        the nodes within radius of v."""
         values = self.values
         train = self.neighbours(self.pose[v], self.p.radius, k=self.p.gp_max_points)
         train = train[values[train] > -self.v_max]  # dead ends would drag the field down
@@ -355,7 +367,8 @@ class AdaptiveGraph(StateGraph):
 
 def choose_expansion_set(rng: np.random.Generator, best_set: np.ndarray, other_set: np.ndarray,
                          p_best: float) -> np.ndarray:
-    """N_e = N_b with probability p_best, else N \\ N_b (whichever is non-empty otherwise)."""
+    """N_e = N_b with probability p_best, else N \\ N_b (whichever is non-empty otherwise);
+    best_set, other_set: node id arrays."""
     use_best = rng.random() < p_best
     if (use_best and len(best_set)) or not len(other_set):
         return best_set
@@ -374,6 +387,6 @@ def gp_value_estimate(train_xy: np.ndarray, train_values: np.ndarray, query_xy: 
 
 
 def _probabilities(scores: np.ndarray) -> np.ndarray:
-    """Selection probabilities ∝ score (uniform if all scores are zero)."""
+    """Selection probabilities (k,) ∝ scores (k,) (uniform if all scores are zero)."""
     s = np.maximum(np.nan_to_num(scores, nan=0.0), 0.0) + 1e-12
     return s / s.sum()

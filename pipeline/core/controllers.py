@@ -11,12 +11,14 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from pipeline.core.params import ParameterError, require_positive
 
 
-def wrap_angle(a):
-    """Wrap angle(s) to (-pi, pi]; works on scalars and arrays."""
+def wrap_angle(a: ArrayLike) -> np.ndarray | np.float64:
+    """Wrap angle(s) to (-pi, pi]; works on scalars and arrays (the result has a's shape, a
+    numpy float for a scalar)."""
     a = np.asarray(a, dtype=float)
     return a - 2.0 * np.pi * np.ceil((a - np.pi) / (2.0 * np.pi))
 
@@ -26,10 +28,11 @@ def _wrap(a: float) -> float:
     return a - 2.0 * math.pi * math.ceil((a - math.pi) / (2.0 * math.pi))
 
 
-def _as_vector(a, name: str, sizes: tuple[int, ...]) -> np.ndarray:
+def _as_vector(a: ArrayLike, name: str, sizes: tuple[int, ...]) -> np.ndarray:
     a = np.asarray(a, dtype=float)
     if a.ndim != 1 or a.shape[0] not in sizes:
-        raise ValueError(f"{name} must have shape {' or '.join(f'({s},)' for s in sizes)}, got {a.shape}")
+        shapes = ' or '.join(f'({s},)' for s in sizes)
+        raise ValueError(f"{name} must have shape {shapes}, got {a.shape}")
     return a
 
 
@@ -74,14 +77,17 @@ class Runs:
         return self.points[first], self.points[first + 1], owner
 
     def subset(self, keep: np.ndarray) -> Runs:
-        """The runs selected by the boolean mask or index array `keep`."""
+        """The runs selected by the boolean mask (m,) or index array `keep`."""
         keep = np.arange(len(self))[keep]
         pieces = [self.waypoints(k) for k in keep]
         return Runs.from_paths(self.index[keep], pieces, self.durations[keep],
                                self.end_poses[keep])
 
     @staticmethod
-    def from_paths(index, paths: list[np.ndarray], durations, end_poses) -> Runs:
+    def from_paths(index: ArrayLike, paths: list[np.ndarray], durations: ArrayLike,
+                   end_poses: ArrayLike) -> Runs:
+        """Runs from their input pair indices (m,), waypoints (m arrays (K+1, 2)), durations
+        (m,) and end poses (m, 3)."""
         lengths = [len(p) for p in paths]
         points = np.concatenate(paths) if paths else np.zeros((0, 2))
         return Runs(np.asarray(index, dtype=np.int64), points,
@@ -116,7 +122,8 @@ class LinearController:
         return self.speed
 
     def steer(self, start: np.ndarray, target: np.ndarray) -> Trajectory | None:
-        """Straight segment start -> target (headings ignored); None if it has zero length."""
+        """Straight segment start -> target, each (2,) or (3,) (headings ignored); None if it
+        has zero length."""
         p = _as_vector(start, "start", (2, 3))[:2]
         q = _as_vector(target, "target", (2, 3))[:2]
         length = float(np.hypot(*(q - p)))
@@ -127,7 +134,8 @@ class LinearController:
         return Trajectory(poses, length / self.speed)
 
     def steer_many(self, starts: np.ndarray, targets: np.ndarray) -> Runs:
-        """Straight segments, vectorised; a run ends in the target pose as given."""
+        """Straight segments between (n, 2) or (n, 3) starts and targets, vectorised; a run
+        ends in the target pose as given."""
         a, b = np.asarray(starts, dtype=float), np.asarray(targets, dtype=float)
         ok = np.flatnonzero(np.linalg.norm(b[:, :2] - a[:, :2], axis=1) > 1e-9)
         a, b = a[ok], b[ok]
@@ -152,7 +160,8 @@ class PosqController:
     dt: float = 0.05  # s, integration step
     eps: float = 0.05  # m, arrival tolerance
     max_time: float = 10.0  # s, runs that take longer are dropped
-    allow_backward: bool = False  # reverse while the target is behind (|alpha| > pi/2), re-decided each step
+    # Reverse while the target is behind (|alpha| > pi/2), re-decided each step.
+    allow_backward: bool = False
 
     def __post_init__(self) -> None:
         require_positive(self, "k_v", "k_rho", "k_alpha", "wheel_base", "max_speed", "dt", "eps",
@@ -168,9 +177,13 @@ class PosqController:
         return 2.0 * self.max_speed / self.wheel_base
 
     def steer_many(self, starts: np.ndarray, targets: np.ndarray) -> Runs:
-        """One POSQ integration per pair; a run ends heading along its last step."""
-        index, paths, durations, ends = [], [], [], []
-        for i, (a, b) in enumerate(zip(starts, targets)):
+        """One POSQ integration per pair of (n, 3) poses (targets may be (n, 2) points); a
+        run ends heading along its last step."""
+        index: list[int] = []
+        paths: list[np.ndarray] = []
+        durations: list[float] = []
+        ends: list[list[float]] = []
+        for i, (a, b) in enumerate(zip(starts, targets, strict=True)):
             traj = self.steer(a, b)
             if traj is None:
                 continue
@@ -183,8 +196,9 @@ class PosqController:
         return Runs.from_paths(index, paths, durations, ends)
 
     def steer(self, start: np.ndarray, target: np.ndarray) -> Trajectory | None:
-        """Integrate POSQ from start until rho < eps; None if that takes longer than max_time
-        (or the start is already within eps of the target: there is no edge to make)."""
+        """Integrate POSQ from start (3,) to target (3,) or (2,) until rho < eps; None if that
+        takes longer than max_time (or the start is already within eps of the target: there
+        is no edge to make)."""
         x, y, th = (float(c) for c in _as_vector(start, "start", (3,)))
         target = _as_vector(target, "target", (2, 3))
         xg, yg = float(target[0]), float(target[1])
@@ -199,7 +213,8 @@ class PosqController:
                 return None  # rho < eps not reached within max_time
             alpha = _wrap(math.atan2(yg - y, xg - x) - th)  # target direction relative to heading
             v = self.k_rho * math.tanh(self.k_v * rho)
-            if self.allow_backward and abs(alpha) > math.pi / 2:  # target behind: reverse, as POSQ does
+            # Target behind: reverse, as POSQ does.
+            if self.allow_backward and abs(alpha) > math.pi / 2:
                 v, alpha = -v, _wrap(alpha + math.pi)
             # beta = goal heading relative to the bearing line, theta_g - (theta + alpha) (as in the
             # original POSQ code). With k_beta < 0 the robot leads past the bearing line on the side

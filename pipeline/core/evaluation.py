@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from pipeline.core.graph_mdp import GraphMDP, Path
 
@@ -16,14 +17,17 @@ from pipeline.core.graph_mdp import GraphMDP, Path
 @dataclass(frozen=True)
 class PolicyLoss:
     loss: float  # mean over starts
-    per_start: np.ndarray
+    per_start: np.ndarray  # (n_starts,)
     policy: np.ndarray  # greedy policy under the learned weights
     values_learned: np.ndarray  # V^{π_w} under w (to warm-start the next solve)
 
 
-def policy_loss(mdp: GraphMDP, w_true, w, start_nodes, optimal_values,
-                init_values=None) -> PolicyLoss:
-    """Policy loss of the greedy policy under w; `optimal_values` = V* under w_true."""
+def policy_loss(mdp: GraphMDP, w_true: ArrayLike, w: ArrayLike, start_nodes: np.ndarray,
+                optimal_values: np.ndarray, init_values: np.ndarray | None = None) -> PolicyLoss:
+    """Policy loss of the greedy policy under w; `optimal_values` = V* under w_true.
+
+    w_true, w: (d,); start_nodes: (n_starts,) node ids; optimal_values, init_values: (n,).
+    """
     sol = mdp.solve(w, init_values=init_values)
     v_pi = mdp.evaluate(sol.policy, w_true)
     gap = optimal_values[start_nodes] - v_pi[start_nodes]
@@ -33,12 +37,13 @@ def policy_loss(mdp: GraphMDP, w_true, w, start_nodes, optimal_values,
     return PolicyLoss(float(gap.mean()), gap, sol.policy, sol.values)
 
 
-def follow_all(mdp: GraphMDP, policy, start_nodes) -> list[Path]:
+def follow_all(mdp: GraphMDP, policy: np.ndarray, start_nodes: np.ndarray) -> list[Path]:
     return [mdp.follow(policy, int(s)) for s in start_nodes]
 
 
 def discrete_frechet(p: np.ndarray, q: np.ndarray) -> float:
-    """Discrete Fréchet distance between two polylines (Eiter & Mannila 1994)."""
+    """Discrete Fréchet distance between polylines p (n, 2) and q (m, 2) (Eiter & Mannila
+    1994)."""
     p, q = np.asarray(p, float).reshape(-1, 2), np.asarray(q, float).reshape(-1, 2)
     d = np.linalg.norm(p[:, None] - q[None], axis=2)
     ca = np.full(d.shape, np.inf)

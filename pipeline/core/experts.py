@@ -6,6 +6,7 @@ read from files (pipeline.inputs) become the same `Demonstration` objects.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,13 +44,19 @@ class Demonstration:
         return discounted_counts(self.edge_features, self.durations, gamma)
 
 
-def _from_edges(mdp: GraphMDP, positions, start_index, nodes, edges, reached) -> Demonstration:
+def _from_edges(mdp: GraphMDP, positions: np.ndarray, start_index: int,
+               nodes: np.ndarray | Sequence[int], edges: np.ndarray | Sequence[int],
+               reached: bool) -> Demonstration:
     return Demonstration(start_index, positions[nodes], mdp.features[edges],
                          mdp.duration[edges], reached)
 
 
-def optimal_demos(mdp: GraphMDP, positions, start_nodes, solution: Solution) -> list[Demonstration]:
-    """Greedy paths under the optimal policy from every start."""
+def optimal_demos(mdp: GraphMDP, positions: np.ndarray, start_nodes: np.ndarray,
+                  solution: Solution) -> list[Demonstration]:
+    """Greedy paths under the optimal policy from every start.
+
+    positions: (n, 2) node positions; start_nodes: (n_starts,) node ids.
+    """
     demos = []
     for k, s in enumerate(start_nodes):
         path = mdp.follow(solution.policy, int(s))
@@ -61,13 +68,17 @@ def boltzmann_demos(mdp: GraphMDP, positions: np.ndarray, start_nodes: np.ndarra
                     w: np.ndarray, solution: Solution, params: BoltzmannParams,
                     rng: np.random.Generator) -> list[Demonstration]:
     """Walks that pick each out-edge with probability ∝ exp(β Q*(s, e)); walks that have not
-    reached the goal after `max_steps` edges are resampled (up to `max_tries` times)."""
+    reached the goal after `max_steps` edges are resampled (up to `max_tries` times).
+
+    positions: (n, 2) node positions; start_nodes: (n_starts,) node ids; w: (d,) weights.
+    """
     beta, max_steps, max_tries = params.beta, params.max_steps, params.max_tries
     q = mdp.q_values(w, solution.values)
     demos = []
     for k, s in enumerate(start_nodes):
         for _ in range(max_tries):
-            nodes, edges = [int(s)], []
+            nodes: list[int] = [int(s)]
+            edges: list[int] = []
             while not mdp.terminal[nodes[-1]] and len(edges) < max_steps:
                 lo, hi = mdp.indptr[nodes[-1]], mdp.indptr[nodes[-1] + 1]
                 if lo == hi:  # dead end

@@ -73,7 +73,8 @@ class FeatureModel:
 
     # -- densities at points -------------------------------------------------------------
     def relation_density(self, p: np.ndarray) -> np.ndarray:
-        """Σ_links max(0, ρ_r − d(p, link)) over links whose segment p projects onto."""
+        """Σ_links max(0, ρ_r − d(p, link)) over links whose segment p projects onto; p (n, 2),
+        result (n,)."""
         if len(self.link_a) == 0:
             return np.zeros(len(p))
         ab = self.link_b - self.link_a  # (L, 2)
@@ -87,7 +88,7 @@ class FeatureModel:
         return np.where(inside, np.maximum(0.0, self.rho_relation - d), 0.0).sum(axis=1)
 
     def social_density(self, p: np.ndarray) -> np.ndarray:
-        """max(0, ρ_p − distance to the nearest person)."""
+        """max(0, ρ_p − distance to the nearest person) (n,) at the points p (n, 2)."""
         if len(self.persons) == 0:
             return np.zeros(len(p))
         d = np.linalg.norm(p[:, None, :] - self.persons[None, :, :], axis=2).min(axis=1)
@@ -102,7 +103,8 @@ class FeatureModel:
         return out[:, [_COLUMN[n] for n in self.names]]
 
     def _all_segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """All four features (n, 4), in FEATURE_NAMES order."""
+        """All four features (n, 4) of the segments a[i] → b[i] (each (n, 2)), in
+        FEATURE_NAMES order."""
         a = np.asarray(a, float).reshape(-1, 2)
         b = np.asarray(b, float).reshape(-1, 2)
         n = len(a)
@@ -134,7 +136,7 @@ class FeatureModel:
         return self.segments(points[:-1], points[1:]).sum(axis=0)
 
     def polylines(self, polylines: list[np.ndarray]) -> np.ndarray:
-        """Features (n, d) of many polylines in one vectorised pass."""
+        """Features (n, d) of n polylines (each (K_i+1, 2)) in one vectorised pass."""
         if not polylines:
             return np.zeros((0, self.dim))
         pts = [np.asarray(p, float).reshape(-1, 2) for p in polylines]
@@ -148,7 +150,8 @@ class FeatureModel:
 
 
 def _distance_increase(a: np.ndarray, b: np.ndarray, g: np.ndarray) -> np.ndarray:
-    """Total increase of |p − g| while p moves straight from a to b (exact).
+    """Total increase (n,) of |p − g| while p moves straight from a to b (exact); a, b (n, 2),
+    g (2,).
 
     The distance to a point is convex along a line, so it first falls to its minimum over
     the segment and then rises: the increase is |b − g| − min_t |p(t) − g|.

@@ -15,8 +15,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
+from numpy.typing import ArrayLike
 from scipy.sparse.linalg import spsolve
+from scipy.spatial import cKDTree
 
 from pipeline.core.params import require, require_positive
 
@@ -51,10 +52,15 @@ class Path:
 
 
 class GraphMDP:
-    """A graph semi-MDP. Edges are stored sorted by source node (CSR layout)."""
+    """A graph semi-MDP. Edges are stored sorted by source node (CSR layout).
 
-    def __init__(self, src, dst, duration, features, terminal, *, gamma: float = 0.95,
-                 r_goal: float = 1.0, v_max: float = 10.0):
+    src, dst: (E,) node ids; duration: (E,) seconds; features: (E, d) (or (E,) for d = 1);
+    terminal: (n,) bool.
+    """
+
+    def __init__(self, src: ArrayLike, dst: ArrayLike, duration: ArrayLike,
+                 features: ArrayLike, terminal: ArrayLike, *, gamma: float = 0.95,
+                 r_goal: float = 1.0, v_max: float = 10.0) -> None:
         src = np.asarray(src, dtype=np.int64)
         dst = np.asarray(dst, dtype=np.int64)
         duration = np.asarray(duration, dtype=float)
@@ -88,26 +94,27 @@ class GraphMDP:
     def n_edges(self) -> int:
         return len(self.src)
 
-    def caller_edges(self, policy) -> np.ndarray:
-        """A policy as the caller's edge indices (NO_EDGE kept)."""
+    def caller_edges(self, policy: np.ndarray) -> np.ndarray:
+        """A policy (n,) of internal edge indices as the caller's edge indices (NO_EDGE kept)."""
         out = np.full(len(policy), NO_EDGE, dtype=np.int64)
         acting = policy != NO_EDGE
         out[acting] = self.edge_ids[policy[acting]]
         return out
 
-    def rewards(self, w) -> np.ndarray:
+    def rewards(self, w: ArrayLike) -> np.ndarray:
         return self.features @ np.asarray(w, dtype=float)
 
-    def q_values(self, w, values) -> np.ndarray:
-        """Q(s, e) for every (internal, src-sorted) edge."""
+    def q_values(self, w: ArrayLike, values: np.ndarray) -> np.ndarray:
+        """Q(s, e) (E,) for every (internal, src-sorted) edge; w (d,), values V (n,)."""
         return self.rewards(w) + self.discount * values[self.dst]
 
-    def evaluate(self, policy, w) -> np.ndarray:
-        """V^π under weights w for a policy given as internal edge index per node."""
+    def evaluate(self, policy: np.ndarray, w: ArrayLike) -> np.ndarray:
+        """V^π (n,) under weights w (d,) for a policy (n,) of internal edge index per node."""
         return self._evaluate(policy, self.rewards(w))
 
-    def _evaluate(self, policy, rewards) -> np.ndarray:
-        """Exact V^π by pointer doubling on the policy's successor function.
+    def _evaluate(self, policy: np.ndarray, rewards: np.ndarray) -> np.ndarray:
+        """Exact V^π (n,) by pointer doubling on the policy's successor function; policy (n,),
+        rewards (E,).
 
         Each node keeps (acc, disc, nxt): the discounted reward of its next 2^k steps, their
         total discount and the node reached. Absorbing nodes (terminal, dead end) have
@@ -128,8 +135,8 @@ class GraphMDP:
             acc, disc, nxt = acc + disc * acc[nxt], disc * disc[nxt], nxt[nxt]
         return self._evaluate_sparse(policy, rewards)  # a policy cycle with γ^τ ≈ 1
 
-    def _evaluate_sparse(self, policy, rewards) -> np.ndarray:
-        """V^π from the sparse linear system (I − P_π) V = r_π."""
+    def _evaluate_sparse(self, policy: np.ndarray, rewards: np.ndarray) -> np.ndarray:
+        """V^π (n,) from the sparse linear system (I − P_π) V = r_π; policy (n,), rewards (E,)."""
         acting = policy != NO_EDGE
         rows = np.flatnonzero(acting)
         e = policy[rows]
@@ -142,7 +149,8 @@ class GraphMDP:
 
     def log_sum_exp(self, x: np.ndarray) -> np.ndarray:
         """log Σ_{e ∈ out(s)} exp(x_e) per node (−inf without out-edges), max-shifted so that
-        large |x| neither overflows nor underflows. x holds one value per (internal) edge."""
+        large |x| neither overflows nor underflows. x (E,) holds one value per (internal)
+        edge; the result is (n,)."""
         out = np.full(self.n_nodes, -np.inf)
         nodes = np.flatnonzero(self.has_out)
         if len(nodes) == 0:
@@ -153,8 +161,9 @@ class GraphMDP:
         out[nodes] = peak[nodes] + np.log(np.add.reduceat(np.exp(x - peak[self.src]), starts))
         return out
 
-    def greedy(self, q, current=None) -> np.ndarray:
-        """Best edge per node given Q per edge; keeps `current` on ties so PI terminates."""
+    def greedy(self, q: np.ndarray, current: np.ndarray | None = None) -> np.ndarray:
+        """Best edge per node (n,) given Q per edge (E,); keeps the policy `current` (n,) on
+        ties so PI terminates."""
         policy = np.full(self.n_nodes, NO_EDGE, dtype=np.int64)
         nodes = np.flatnonzero(self.has_out)
         if len(nodes) == 0:
@@ -173,9 +182,10 @@ class GraphMDP:
             policy[keep] = current[keep]
         return policy
 
-    def solve(self, w, init_values=None, max_iterations=1000) -> Solution:
-        """Policy iteration. `init_values` (e.g. the previous solution, with a guess for new
-        nodes) warm-starts it from the greedy policy of those values."""
+    def solve(self, w: ArrayLike, init_values: np.ndarray | None = None,
+              max_iterations: int = 1000) -> Solution:
+        """Policy iteration under weights w (d,). `init_values` (n,) (e.g. the previous
+        solution, with a guess for new nodes) warm-starts it from their greedy policy."""
         r = self.rewards(w)
         if init_values is None:
             init_values = np.where(self.has_out, 0.0, self.fixed_values)
@@ -189,8 +199,9 @@ class GraphMDP:
             policy = new
         raise RuntimeError(f"policy iteration did not converge in {max_iterations} sweeps")
 
-    def bellman_residual(self, w, values) -> float:
-        """max_s |V(s) − max_e Q(s, e)| over acting nodes, and |V − fixed| elsewhere."""
+    def bellman_residual(self, w: ArrayLike, values: np.ndarray) -> float:
+        """max_s |V(s) − max_e Q(s, e)| over acting nodes, and |V − fixed| elsewhere; w (d,),
+        values (n,)."""
         q = self.q_values(w, values)
         target = self.fixed_values.copy()
         nodes = np.flatnonzero(self.has_out)
@@ -198,9 +209,12 @@ class GraphMDP:
             target[nodes] = np.maximum.reduceat(q, self.indptr[nodes])
         return float(np.max(np.abs(values - target)))
 
-    def follow(self, policy, start: int, max_steps: int | None = None) -> Path:
-        """The path from `start` under a policy, until a terminal node, dead end or loop."""
-        nodes, edges, seen = [start], [], {start}
+    def follow(self, policy: np.ndarray, start: int, max_steps: int | None = None) -> Path:
+        """The path from `start` under a policy (n,), until a terminal node, dead end or
+        loop."""
+        nodes: list[int] = [start]
+        edges: list[int] = []
+        seen = {start}
         node = start
         for _ in range(max_steps or self.n_nodes):
             e = policy[node]
@@ -218,9 +232,9 @@ class GraphMDP:
 @dataclass(frozen=True)
 class SpatialGraph:
     """A graph MDP with geometry: node positions, start nodes, each edge's driven path."""
-    positions: np.ndarray
+    positions: np.ndarray  # (n, 2)
     mdp: GraphMDP
-    start_nodes: np.ndarray
+    start_nodes: np.ndarray  # (n_starts,)
     waypoints: list[np.ndarray]  # per edge (caller's order)
     snap_tolerance: float = 0.0  # input points this close to a node were merged into it
 
@@ -239,17 +253,21 @@ class SpatialGraph:
             raise ValueError(f"not a path of the graph: a waypoint lies {dist.max():.3f} m "
                              f"from the nearest node")
         nodes = [int(n) for i, n in enumerate(nodes) if i == 0 or n != nodes[i - 1]]
-        edge_of = {(int(a), int(b)): e for e, (a, b) in enumerate(zip(self.mdp.src, self.mdp.dst))}
-        missing = [(a, b) for a, b in zip(nodes[:-1], nodes[1:]) if (a, b) not in edge_of]
+        edge_of = {(int(a), int(b)): e
+                   for e, (a, b) in enumerate(zip(self.mdp.src, self.mdp.dst, strict=True))}
+        missing = [(a, b) for a, b in zip(nodes[:-1], nodes[1:], strict=True)
+                   if (a, b) not in edge_of]
         if missing:
             raise ValueError(f"not a path of the graph: no edge {missing[0]}")
-        edges = [edge_of[(a, b)] for a, b in zip(nodes[:-1], nodes[1:])]
+        edges = [edge_of[(a, b)] for a, b in zip(nodes[:-1], nodes[1:], strict=True)]
         return Path(np.array(nodes), np.array(edges, dtype=np.int64),
                     bool(self.mdp.terminal[nodes[-1]]))
 
 
-def discounted_counts(edge_features, durations, gamma) -> tuple[np.ndarray, float]:
-    """Φ(ξ) = Σ_t γ^{T_t} φ(e_t), T_t the time before edge t; also γ^T for the whole path."""
+def discounted_counts(edge_features: ArrayLike, durations: ArrayLike,
+                      gamma: float) -> tuple[np.ndarray, float]:
+    """Φ(ξ) (d,) = Σ_t γ^{T_t} φ(e_t), T_t the time before edge t; also γ^T for the whole
+    path. edge_features: (T, d); durations: (T,) seconds."""
     durations = np.asarray(durations, dtype=float)
     t_before = np.concatenate([[0.0], np.cumsum(durations)[:-1]]) if len(durations) else durations
     feats = np.asarray(edge_features, float)
@@ -258,8 +276,10 @@ def discounted_counts(edge_features, durations, gamma) -> tuple[np.ndarray, floa
     return phi, float(gamma ** durations.sum())
 
 
-def path_quality(phi, end_discount, w, r_goal, reached=True) -> float:
-    """Q(ξ; w) = w·Φ(ξ) + γ^T R_goal (DESIGN §8); the goal term only if the goal is reached."""
+def path_quality(phi: np.ndarray, end_discount: float, w: ArrayLike, r_goal: float,
+                 reached: bool = True) -> float:
+    """Q(ξ; w) = w·Φ(ξ) + γ^T R_goal (DESIGN §8); the goal term only if the goal is reached.
+    phi, w: (d,)."""
     return float(np.dot(w, phi) + (end_discount * r_goal if reached else 0.0))
 
 

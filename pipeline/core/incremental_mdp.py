@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import heapq
 from collections import deque
+from collections.abc import Iterable
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
 from pipeline.core.graph_mdp import NO_EDGE, GraphMDP
 
@@ -29,11 +31,11 @@ from pipeline.core.graph_mdp import NO_EDGE, GraphMDP
 class GrowableArray:
     """An append-only numpy array with doubling capacity (np.append would copy every time)."""
 
-    def __init__(self, tail=(), dtype=float):
-        self.data = np.zeros((16, *tail), dtype=dtype)
+    def __init__(self, tail: tuple[int, ...] = (), dtype: DTypeLike = float) -> None:
+        self.data: np.ndarray = np.zeros((16, *tail), dtype=dtype)
         self.n = 0
 
-    def extend(self, rows) -> None:
+    def extend(self, rows: ArrayLike) -> None:
         rows = np.asarray(rows, dtype=self.data.dtype).reshape(-1, *self.data.shape[1:])
         while self.n + len(rows) > len(self.data):
             self.data = np.concatenate([self.data, np.zeros_like(self.data)])
@@ -46,7 +48,8 @@ class GrowableArray:
 
 
 class IncrementalGraphMDP:
-    def __init__(self, gamma=0.95, r_goal=1.0, v_max=10.0, tol=1e-12):
+    def __init__(self, gamma: float = 0.95, r_goal: float = 1.0, v_max: float = 10.0,
+                 tol: float = 1e-12) -> None:
         self.gamma, self.r_goal, self.v_max, self.tol = gamma, r_goal, v_max, tol
         self._terminal = GrowableArray(dtype=bool)
         self._value = GrowableArray()
@@ -64,14 +67,37 @@ class IncrementalGraphMDP:
         self.full_solves = 0
 
     # -- views -----------------------------------------------------------------------------
-    terminal = property(lambda self: self._terminal.a)
-    values = property(lambda self: self._value.a)
-    policy = property(lambda self: self._policy.a)  # edge id per node, NO_EDGE if none
-    cost_to_come = property(lambda self: self._ctc.a)
-    src = property(lambda self: self._src.a)
-    dst = property(lambda self: self._dst.a)
-    duration = property(lambda self: self._duration.a)
-    rewards = property(lambda self: self._reward.a)
+    @property
+    def terminal(self) -> np.ndarray:
+        return self._terminal.a
+
+    @property
+    def values(self) -> np.ndarray:
+        return self._value.a
+
+    @property
+    def policy(self) -> np.ndarray:
+        return self._policy.a  # edge id per node, NO_EDGE if none
+
+    @property
+    def cost_to_come(self) -> np.ndarray:
+        return self._ctc.a
+
+    @property
+    def src(self) -> np.ndarray:
+        return self._src.a
+
+    @property
+    def dst(self) -> np.ndarray:
+        return self._dst.a
+
+    @property
+    def duration(self) -> np.ndarray:
+        return self._duration.a
+
+    @property
+    def rewards(self) -> np.ndarray:
+        return self._reward.a
 
     @property
     def n_nodes(self) -> int:
@@ -95,7 +121,8 @@ class IncrementalGraphMDP:
         self._dirty_nodes.append(idx)
         return idx
 
-    def add_edges(self, src, dst, durations, rewards) -> None:
+    def add_edges(self, src: ArrayLike, dst: ArrayLike, durations: ArrayLike,
+                  rewards: ArrayLike) -> None:
         first = self._src.n
         src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
         rewards = np.asarray(rewards, float)
@@ -108,14 +135,15 @@ class IncrementalGraphMDP:
         self._reward.extend(rewards)
         self._discount.extend(self.gamma ** durations)
         self._cost.extend(np.maximum(-rewards, 0.0))
-        for k, (a, b) in enumerate(zip(src.tolist(), dst.tolist())):
+        for k, (a, b) in enumerate(zip(src.tolist(), dst.tolist(), strict=True)):
             self.out_edges[a].append(first + k)
             self.in_edges[b].append(first + k)
             self._dirty_nodes.append(a)
             self._new_edges.append(first + k)
 
-    def set_rewards(self, rewards) -> None:
-        """New edge rewards (new weights): everything may change, so solve from scratch."""
+    def set_rewards(self, rewards: ArrayLike) -> None:
+        """New edge rewards (E,) (new weights): everything may change, so solve from
+        scratch."""
         rewards = np.asarray(rewards, float)
         self._reward.data[: len(rewards)] = rewards
         self._cost.data[: len(rewards)] = np.maximum(-rewards, 0.0)
@@ -166,7 +194,7 @@ class IncrementalGraphMDP:
             node = int(dst[policy[node]])
         return False
 
-    def _improve(self, dirty) -> bool:
+    def _improve(self, dirty: Iterable[int]) -> bool:
         """Asynchronous policy iteration from the dirty nodes; False if a switch would close
         a policy cycle (whose exact value needs the full solve)."""
         value, policy, dst, discount = (self._value.data, self._policy.data, self._dst.data,
@@ -194,7 +222,8 @@ class IncrementalGraphMDP:
             self._policy_children[dst[e]].add(u)
             delta = q[best] - value[u]
             # Exact evaluation of the new policy: u and its policy ancestors shift together.
-            stack, shifted = [(u, 1.0)], set()
+            stack: list[tuple[int, float]] = [(u, 1.0)]
+            shifted: set[int] = set()
             while stack:
                 y, factor = stack.pop()
                 if y in shifted:  # a policy cycle from an earlier full solve
@@ -210,10 +239,10 @@ class IncrementalGraphMDP:
                     stack.append((z, factor * discount[policy[z]]))
         return True
 
-    def _repair_cost_to_come(self, new_edges) -> None:
+    def _repair_cost_to_come(self, new_edges: Iterable[int]) -> None:
         """Dijkstra relaxation from the new edges (edge insertions only lower costs)."""
         ctc, src, dst, cost = self._ctc.data, self._src.data, self._dst.data, self._cost.data
-        heap = []
+        heap: list[tuple[float, int]] = []
         for e in new_edges:
             d = ctc[src[e]] + cost[e]
             if d < ctc[dst[e]]:

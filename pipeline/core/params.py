@@ -16,7 +16,7 @@ from typing import Any
 class ParameterError(ValueError):
     """A parameter outside its allowed range: `field=value is not allowed (allowed: …)`."""
 
-    def __init__(self, field: str, value: Any, allowed: str):
+    def __init__(self, field: str, value: Any, allowed: str) -> None:
         self.field, self.value, self.allowed = field, value, allowed
         super().__init__(f"{field}={value} is not allowed (allowed: {allowed})")
 
@@ -50,4 +50,4 @@ def require_count(obj: Any, *fields: str, minimum: int = 1) -> None:
     for name in fields:
         value = getattr(obj, name)
         require(isinstance(value, numbers.Integral) and not isinstance(value, bool)
-                and value >= minimum, name, value, f"an integer >= {minimum}")
+                and int(value) >= minimum, name, value, f"an integer >= {minimum}")

@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP
 from pipeline.core.params import require, require_positive
+from pipeline.core.world import Scene
 
 # Lattice offsets (di, dj): 8 king moves plus 8 knight moves = 16-connected.
 _OFFSETS_8 = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
@@ -34,20 +35,21 @@ class RoadmapParams:
 class Roadmap:
     positions: np.ndarray  # (n, 2)
     src: np.ndarray  # (E,)
-    dst: np.ndarray
+    dst: np.ndarray  # (E,)
     duration: np.ndarray  # (E,) seconds
     features: np.ndarray  # (E, d)
     terminal: np.ndarray  # (n,) bool
     start_nodes: np.ndarray  # node index of every scene start
     goal_node: int
 
-    def mdp(self, gamma=0.95, r_goal=1.0, v_max=10.0) -> GraphMDP:
+    def mdp(self, gamma: float = 0.95, r_goal: float = 1.0, v_max: float = 10.0) -> GraphMDP:
         return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
                         gamma=gamma, r_goal=r_goal, v_max=v_max)
 
 
-def segments_feasible(scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Straight segments that stay in the (convex) room and keep out of every body disk."""
+def segments_feasible(scene: Scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Mask (n,) of the straight segments a[i] → b[i] (each (n, 2)) that stay in the
+    (convex) room and keep out of every body disk."""
     ok = scene.room.contains(a) & scene.room.contains(b)
     persons = scene.person_xy
     if len(persons) and len(a):
@@ -61,9 +63,10 @@ def segments_feasible(scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return ok
 
 
-def lattice_graph(scene, spacing=0.25, connectivity=16):
-    """Node positions and feasible edges (src, dst) of the roadmap; starts and goal are the
-    last nodes (starts first, then the goal).
+def lattice_graph(scene: Scene, spacing: float = 0.25,
+                  connectivity: int = 16) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Node positions (n, 2) and feasible edges src, dst (E,) of the roadmap; starts and goal
+    are the last nodes (starts first, then the goal).
 
     Lattice nodes closer than spacing/2 to a start or the goal are dropped so no two nodes
     sit at (almost) the same place; starts and goal connect to every lattice node within
@@ -79,7 +82,7 @@ def lattice_graph(scene, spacing=0.25, connectivity=16):
     special = np.vstack([scene.starts, scene.goal[None, :]])
     near_special = cKDTree(special).query(lattice)[0] < spacing / 2
     usable = ~scene.in_body(lattice) & ~near_special
-    index = np.full(len(lattice), -1)
+    index: np.ndarray = np.full(len(lattice), -1)
     index[usable] = np.arange(usable.sum())
     index = index.reshape(len(xs), len(ys))
 
@@ -112,7 +115,7 @@ def lattice_graph(scene, spacing=0.25, connectivity=16):
     return positions, src[ok], dst[ok]
 
 
-def build_roadmap(scene, feature_model: FeatureModel, params: RoadmapParams | None = None,
+def build_roadmap(scene: Scene, feature_model: FeatureModel, params: RoadmapParams | None = None,
                   speed: float = 1.0) -> Roadmap:
     """Lattice of `spacing` over the room, nodes in body disks removed, plus starts and goal."""
     params = params or RoadmapParams()

@@ -46,7 +46,9 @@ class RandomSceneSpec(BodyParams):
         require_non_negative(self, "border_margin")
 
 
-def _place_persons(spec: RandomSceneSpec, rng: np.random.Generator):
+def _place_persons(
+    spec: RandomSceneSpec, rng: np.random.Generator
+) -> tuple[tuple[Person, ...], tuple[tuple[int, int], ...]] | None:
     """Persons and relations, or None if they do not fit without overlapping."""
     margin = 0.5 + spec.body_radius
     lo = np.array([margin, margin])
@@ -88,12 +90,14 @@ def _place_persons(spec: RandomSceneSpec, rng: np.random.Generator):
                 break
         else:
             return None
-    persons = tuple(Person(i + 1, float(x), float(y), float(t)) for i, (x, y, t) in enumerate(placed))
+    persons = tuple(Person(i + 1, float(x), float(y), float(t))
+                    for i, (x, y, t) in enumerate(placed))
     return persons, tuple(relations)
 
 
-def _starts_and_goal(spec: RandomSceneSpec, rng: np.random.Generator):
-    """Goal near a random wall, starts spread along the opposite wall."""
+def _starts_and_goal(spec: RandomSceneSpec,
+                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Goal (2,) near a random wall, starts (n_starts, 2) spread along the opposite wall."""
     m = spec.border_margin
     side = int(rng.integers(4))  # 0: goal at top, 1: right, 2: bottom, 3: left
     along_len = spec.width if side in (0, 2) else spec.height
@@ -103,7 +107,8 @@ def _starts_and_goal(spec: RandomSceneSpec, rng: np.random.Generator):
     goal_along = rng.uniform(0.3 * along_len, 0.7 * along_len)
     if side in (0, 2):
         y_goal, y_start = (spec.height - m, m) if side == 0 else (m, spec.height - m)
-        return np.column_stack([along, np.full_like(along, y_start)]), np.array([goal_along, y_goal])
+        return (np.column_stack([along, np.full_like(along, y_start)]),
+                np.array([goal_along, y_goal]))
     x_goal, x_start = (spec.width - m, m) if side == 1 else (m, spec.width - m)
     return np.column_stack([np.full_like(along, x_start), along]), np.array([x_goal, goal_along])
 

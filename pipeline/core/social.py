@@ -3,18 +3,24 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+from pipeline.core.world import Scene
 
 INTIMATE_ZONE = 0.45  # m
 PERSONAL_ZONE = 1.2  # m
 
 
-def _cross(o, a, b):
+def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (
         b[..., 0] - o[..., 0])
 
 
 def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarray) -> int:
-    """Number of (path segment, social link) pairs that properly intersect."""
+    """Number of (path segment, social link) pairs that properly intersect.
+
+    points: (K+1, 2) polyline; link_a, link_b: (L, 2) link end points.
+    """
     p = np.asarray(points, float).reshape(-1, 2)
     if len(p) < 2 or len(link_a) == 0:
         return 0
@@ -27,7 +33,7 @@ def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarra
 
 def _zone_intrusion(points: np.ndarray, persons: np.ndarray, radius: float,
                     resolution: float = 0.01) -> float:
-    """Length (m) of the path that lies within `radius` of some person."""
+    """Length (m) of the path `points` (K+1, 2) within `radius` of some of `persons` (P, 2)."""
     p = np.asarray(points, float).reshape(-1, 2)
     if len(p) < 2 or len(persons) == 0:
         return 0.0
@@ -43,7 +49,8 @@ def _zone_intrusion(points: np.ndarray, persons: np.ndarray, radius: float,
 
 
 def min_distance_to_person(points: np.ndarray, persons: np.ndarray) -> float:
-    """Smallest distance from any point of the polyline (segments, not just vertices)."""
+    """Smallest distance from any point of the polyline `points` (K+1, 2) (segments, not just
+    vertices) to `persons` (P, 2)."""
     p = np.asarray(points, float).reshape(-1, 2)
     if len(persons) == 0:
         return float("inf")
@@ -56,8 +63,10 @@ def min_distance_to_person(points: np.ndarray, persons: np.ndarray) -> float:
     return float(np.linalg.norm(closest - persons[None], axis=2).min())
 
 
-def path_metrics(points, scene, duration: float, reached: bool) -> dict[str, float]:
-    """The social metrics of one path (`duration` in seconds), flat and numeric."""
+def path_metrics(points: ArrayLike, scene: Scene, duration: float,
+                 reached: bool) -> dict[str, float]:
+    """The social metrics of one path `points` (K+1, 2) (`duration` in seconds), flat and
+    numeric."""
     p = np.asarray(points, float).reshape(-1, 2)
     link_a, link_b = scene.links
     persons = scene.person_xy

@@ -10,10 +10,13 @@ Plain numpy/scipy; no Hydra, no I/O.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
+
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
-from pipeline.core.controllers import Controller
+from pipeline.core.controllers import Controller, Runs
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP, MDPParams
 from pipeline.core.incremental_mdp import GrowableArray, IncrementalGraphMDP
@@ -86,7 +89,7 @@ class StateGraph:
 
     def __init__(self, scene: Scene, feature_model: FeatureModel, controller: Controller,
                  weights: np.ndarray, *, radius: float, max_edges: int, min_separation: float,
-                 mdp: MDPParams):
+                 mdp: MDPParams) -> None:
         self.scene, self.fm, self.controller = scene, feature_model, controller
         self.w = np.asarray(weights, dtype=float)
         self.radius, self.max_edges, self.min_separation = radius, max_edges, min_separation
@@ -172,7 +175,8 @@ class StateGraph:
 
     # -- queries ---------------------------------------------------------------------------
     def neighbours(self, p: np.ndarray, radius: float, k: int | None = None) -> np.ndarray:
-        """Node indices within `radius` of p (at most k of them), nearest first."""
+        """Node indices within `radius` of the point p (2,) or pose (3,) (at most k of them),
+        nearest first."""
         p = np.asarray(p, float)
         if k is None:
             return self._index.within(p, radius)
@@ -189,8 +193,9 @@ class StateGraph:
                         gamma=self.gamma, r_goal=self.r_goal, v_max=self.v_max)
 
     # -- building --------------------------------------------------------------------------
-    def add_node(self, pose, kind: str, parent: int = -1, gp_mean: float = np.nan,
-                 gp_std: float = np.nan, score: float = np.nan) -> int:
+    def add_node(self, pose: Sequence[float] | np.ndarray, kind: str, parent: int = -1,
+                 gp_mean: float = np.nan, gp_std: float = np.nan, score: float = np.nan) -> int:
+        """Add a node at `pose` (3,) x, y, heading; returns its index."""
         idx = self.n_nodes
         close = self._index.within(np.asarray(pose[:2], float), self.radius, ordered=False)
         self.n_close[close] += 1
@@ -205,10 +210,16 @@ class StateGraph:
         self.solver.add_node(bool(at_goal), source=(kind == START))
         return idx
 
-    def add_edges(self, src, dst, durations, features, waypoints, is_demo: bool = False) -> None:
-        """Append edges, skipping self-loops and (src, dst) pairs that already exist."""
-        keep = []
-        for i, (a, b) in enumerate(zip(src, dst)):
+    def add_edges(self, src: Sequence[int] | np.ndarray, dst: Sequence[int] | np.ndarray,
+                  durations: ArrayLike, features: ArrayLike, waypoints: Sequence[np.ndarray],
+                  is_demo: bool = False) -> None:
+        """Append edges, skipping self-loops and (src, dst) pairs that already exist.
+
+        src, dst: (m,) node ids; durations: (m,); features: (m, d); waypoints: m arrays
+        (K+1, 2).
+        """
+        keep: list[int] = []
+        for i, (a, b) in enumerate(zip(src, dst, strict=True)):
             if a != b and (a, b) not in self._edge_of:
                 self._edge_of[(a, b)] = len(self.waypoints) + len(keep)
                 keep.append(i)
@@ -221,7 +232,7 @@ class StateGraph:
         self.waypoints += [waypoints[i] for i in keep]
         self.edge_is_demo += [is_demo] * len(keep)
 
-    def steer(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def steer(self, a: np.ndarray, b: np.ndarray) -> tuple[Runs, np.ndarray]:
         """Controller runs a[i] → b[i] for paired (n, 3) poses, feasible ones only: the
         runs (controllers.Runs) and the features (m, d) of each run's own path."""
         runs = self.controller.steer_many(a, b)
@@ -235,10 +246,10 @@ class StateGraph:
         np.add.at(feats, owner, self.fm.segments(seg_a, seg_b))
         return runs, feats
 
-    def connect(self, nodes) -> None:
+    def connect(self, nodes: Iterable[int]) -> None:
         """Edges both ways between each of `nodes` and its nearest neighbours within radius
         (at most max_edges each way), feasible controller runs only; one batched steer."""
-        pairs = []
+        pairs: list[tuple[int, int]] = []
         for node in nodes:
             near = [int(j) for j in self.neighbours(self.pose[node], self.radius,
                                                     k=self.max_edges + 1) if j != node]
@@ -247,13 +258,13 @@ class StateGraph:
         pairs = [pq for pq in dict.fromkeys(pairs) if pq not in self._edge_of]
         if not pairs:
             return
-        src, dst = map(np.array, zip(*pairs))
+        src, dst = map(np.array, zip(*pairs, strict=True))
         runs, feats = self.steer(self.pose[src], self.pose[dst])
         self.add_edges(src[runs.index], dst[runs.index], runs.durations, feats,
                        [runs.waypoints(k) for k in range(len(runs))])
 
     def set_weights(self, weights: np.ndarray) -> None:
-        """Solve under new weights from now on (a full re-solve at the next update)."""
+        """Solve under new weights (d,) from now on (a full re-solve at the next update)."""
         self.w = np.asarray(weights, dtype=float)
         self.solver.set_rewards(self.features @ self.w)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ class Room:
     y_max: float
 
     def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Mask of points (n, 2) inside the room shrunk by `margin`."""
+        """Mask (n,) of points (n, 2) inside the room shrunk by `margin`."""
         p = np.atleast_2d(points)
         return (
             (p[:, 0] >= self.x_min + margin)
@@ -88,7 +89,7 @@ class Scene:
         return a, b
 
     def in_body(self, points: np.ndarray, clearance: float = 0.0) -> np.ndarray:
-        """Mask of points (n, 2) inside some person's body disk (grown by `clearance`)."""
+        """Mask (n,) of points (n, 2) inside some person's body disk (grown by `clearance`)."""
         p = np.atleast_2d(points)
         if not self.persons:
             return np.zeros(len(p), dtype=bool)
@@ -96,10 +97,10 @@ class Scene:
         return (d < self.body_radius + clearance).any(axis=1)
 
     def free(self, points: np.ndarray) -> np.ndarray:
-        """Mask of points inside the room and outside every body disk."""
+        """Mask (n,) of points (n, 2) inside the room and outside every body disk."""
         return self.room.contains(points) & ~self.in_body(points)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "room": {k: getattr(self.room, k) for k in ("x_min", "y_min", "x_max", "y_max")},
@@ -182,7 +183,9 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
         relations=tuple(relations),
         starts=starts,
         goal=goal,
-        body_radius=float(body_radius if body_radius is not None else data.get("body_radius", 0.25)),
+        body_radius=float(
+            body_radius if body_radius is not None else data.get("body_radius", 0.25)
+        ),
         goal_tolerance=float(
             goal_tolerance if goal_tolerance is not None else data.get("goal_tolerance", 0.3)
         ),

@@ -13,7 +13,8 @@ from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 
 
-def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed: float) -> list[Demonstration]:
+def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel,
+                   speed: float) -> list[Demonstration]:
     """Read a demonstration file (DESIGN §3); each polyline is matched to its nearest start."""
     where = f"demonstration file {path}"
     if not path.is_file():

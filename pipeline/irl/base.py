@@ -76,7 +76,8 @@ class IRLProblem:
         return paths
 
     def record(self, index: int, w: np.ndarray, log_likelihood: float) -> Iteration:
-        """An iteration for the weights w: their greedy trajectories (one `generate` call)."""
+        """An iteration for the weights w (d,): their greedy trajectories (one `generate`
+        call)."""
         it = Iteration(index, np.asarray(w, float), float(log_likelihood),
                        self.prior.log_pdf(w), self.generate(np.asarray(w, float)))
         if self.progress is not None:

@@ -22,11 +22,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import minimize
 
 from pipeline.core.graph_mdp import TrajectoryStats
 from pipeline.core.params import require_count, require_positive
-from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, Iteration, PosteriorSamples, register
+from pipeline.irl.base import (
+    IRLConfig,
+    IRLProblem,
+    IRLResult,
+    Iteration,
+    PosteriorSamples,
+    register,
+)
 from pipeline.irl.prior import Prior
 
 
@@ -95,74 +103,79 @@ class Posterior:
     """log p(w | Ξ_E, Ξ_G) up to a constant = log likelihood + log prior."""
 
     def __init__(self, expert: list[TrajectoryStats], generated: list[TrajectoryStats],
-                 prior: Prior, beta: float, r_goal: float):
+                 prior: Prior, beta: float, r_goal: float) -> None:
         if not beta > 0:
             raise ValueError(f"beta must be > 0, got {beta!r}")
         self.prior, self.beta, self.r_goal = prior, float(beta), float(r_goal)
-        by_start = defaultdict(list)
+        by_start: defaultdict[int, list[TrajectoryStats]] = defaultdict(list)
         for t in generated:
             by_start[t.start].append(t)
         # One contiguous group of rows per demonstration: the expert first, then Ξ_G(s_k).
         # Generated trajectories from starts without a demonstration play no part.
-        rows, self.group_starts = [], []
+        rows: list[TrajectoryStats] = []
+        group_starts: list[int] = []
         for e in expert:
-            self.group_starts.append(len(rows))
+            group_starts.append(len(rows))
             rows += [e] + by_start[e.start]
         d = prior.dim
         if any(np.shape(t.phi) != (d,) for t in rows):
             raise ValueError(f"every trajectory's phi must have shape ({d},), like the prior")
         self.phi = np.array([t.phi for t in rows], dtype=float).reshape(len(rows), d)
         self.offset = np.array([t.quality(np.zeros(d), r_goal) for t in rows])  # goal term
-        self.group_starts = np.array(self.group_starts, dtype=np.int64)
+        self.group_starts = np.array(group_starts, dtype=np.int64)
         self.group = np.repeat(np.arange(len(expert)), np.diff([*self.group_starts, len(rows)]))
 
-    def _scores(self, w):
-        """βQ per row, log-sum-exp per group (max-shifted for stability)."""
+    def _scores(self, w: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """βQ per row, log-sum-exp per group (max-shifted for stability); w (d,)."""
         q = self.beta * (self.phi @ np.asarray(w, dtype=float) + self.offset)
         m = np.maximum.reduceat(q, self.group_starts)
         lse = m + np.log(np.add.reduceat(np.exp(q - m[self.group]), self.group_starts))
         return q, lse
 
-    def log_likelihood(self, w) -> float:
+    def log_likelihood(self, w: ArrayLike) -> float:
         if len(self.group_starts) == 0:
             return 0.0
         q, lse = self._scores(w)
         return float(np.sum(q[self.group_starts] - lse))
 
-    def grad_log_likelihood(self, w) -> np.ndarray:
+    def grad_log_likelihood(self, w: ArrayLike) -> np.ndarray:
         if len(self.group_starts) == 0:
             return np.zeros(self.prior.dim)
         q, lse = self._scores(w)
         softmax = np.exp(q - lse[self.group])  # sums to 1 within each group
         return self.beta * (self.phi[self.group_starts].sum(axis=0) - softmax @ self.phi)
 
-    def log_posterior(self, w) -> float:
+    def log_posterior(self, w: ArrayLike) -> float:
         lp = self.prior.log_pdf(w)
         return lp if lp == -np.inf else lp + self.log_likelihood(w)
 
-    def grad_log_posterior(self, w) -> np.ndarray:
+    def grad_log_posterior(self, w: ArrayLike) -> np.ndarray:
         return self.grad_log_likelihood(w) + self.prior.grad_log_pdf(w)
 
-    def map(self, w0) -> np.ndarray:
-        """Maximum a posteriori weights by L-BFGS-B within the prior box, starting at w0."""
+    def map(self, w0: ArrayLike) -> np.ndarray:
+        """Maximum a posteriori weights (d,) by L-BFGS-B within the prior box, starting at
+        w0 (d,)."""
         lower, upper = self.prior.lower, self.prior.upper
         x0 = np.clip(np.asarray(w0, dtype=float), lower, upper)
 
-        def neg(w):
+        def neg(w: np.ndarray) -> tuple[float, np.ndarray]:
             return -self.log_posterior(w), -self.grad_log_posterior(w)
 
-        res = minimize(neg, x0, method="L-BFGS-B", jac=True, bounds=list(zip(lower, upper)))
+        res = minimize(neg, x0, method="L-BFGS-B", jac=True,
+                       bounds=list(zip(lower, upper, strict=True)))
         # L-BFGS-B is monotone, so even a stalled line search (Laplace kinks) is no worse than x0.
         return np.clip(res.x, lower, upper)
 
 
-def birl_map(expert: list[TrajectoryStats], generate: Callable[[np.ndarray], list[TrajectoryStats]],
-             prior: Prior, *, beta: float, r_goal: float, n_iterations: int, w0: np.ndarray,
+def birl_map(expert: list[TrajectoryStats],
+             generate: Callable[[np.ndarray], list[TrajectoryStats]], prior: Prior, *,
+             beta: float, r_goal: float, n_iterations: int, w0: np.ndarray,
              progress: Callable[[Iteration], None] | None = None,
              fit: Callable[[Posterior, np.ndarray], np.ndarray] | None = None) -> list[Iteration]:
     """The BIRL-G loop. `generate(w)` sets the edge rewards w·φ, solves the MDP (warm start)
     and returns the greedy trajectory from every start. `fit(posterior, w_prev)` picks the
-    next weights: the MAP estimate by default (a posterior mean for `birl=mcmc`)."""
+    next weights: the MAP estimate by default (a posterior mean for `birl=mcmc`).
+    w0: (d,) initial weights in the prior box."""
     fit = fit or (lambda posterior, w_prev: posterior.map(w_prev))
     w = np.asarray(w0, dtype=float).copy()
     if w.shape != (prior.dim,) or not prior.in_box(w):
@@ -170,7 +183,8 @@ def birl_map(expert: list[TrajectoryStats], generate: Callable[[np.ndarray], lis
     if n_iterations < 0:
         raise ValueError(f"n_iterations must be >= 0, got {n_iterations}")
 
-    def record(index, w, posterior, generated):
+    def record(index: int, w: np.ndarray, posterior: Posterior,
+               generated: list[TrajectoryStats]) -> Iteration:
         it = Iteration(index, w, posterior.log_likelihood(w), prior.log_pdf(w), generated)
         if progress is not None:
             progress(it)
@@ -190,7 +204,7 @@ def birl_map(expert: list[TrajectoryStats], generate: Callable[[np.ndarray], lis
 def mcmc(posterior: Posterior, w0: np.ndarray, rng: np.random.Generator,
          chain: ChainParams) -> PosteriorSamples:
     """Random-walk Metropolis–Hastings on the log posterior (Ξ_G fixed). Runs
-    burn_in + n_samples·thin steps and keeps every thin-th state after burn-in."""
+    burn_in + n_samples·thin steps and keeps every thin-th state after burn-in; w0 (d,)."""
     n_samples, burn_in, thin, step = chain.n_samples, chain.burn_in, chain.thin, chain.step
     w = np.asarray(w0, dtype=float).copy()
     lp = posterior.log_posterior(w)

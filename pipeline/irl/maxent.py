@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 from scipy.sparse.linalg import spsolve
 
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
@@ -39,14 +40,16 @@ def fit_maxent(problem: IRLProblem, config: IRLConfig) -> IRLResult:
                         n_iterations=config.n_iterations, learning_rate=config.learning_rate,
                         w0=problem.w0)
     records = [problem.record(k, w, ll)
-               for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood))]
+               for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood,
+                                               strict=True))]
     return IRLResult(records, list(range(1, len(records) + 1)))
 
 
-def soft_values(mdp: GraphMDP, w, *, tol=1e-10, max_iter=10_000, init_values=None) -> np.ndarray:
-    """Soft value iteration V(s) = log Σ_e exp(w·φ(e) + γ^τ(e) V(dst(e))), fixed values at
-    terminals and dead ends. A γ-contraction in the sup norm, so it converges from any start;
-    `init_values` (e.g. the previous weights' values) warm-starts it."""
+def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10, max_iter: int = 10_000,
+                init_values: np.ndarray | None = None) -> np.ndarray:
+    """Soft value iteration V(s) (n,) = log Σ_e exp(w·φ(e) + γ^τ(e) V(dst(e))), fixed values at
+    terminals and dead ends; w (d,). A γ-contraction in the sup norm, so it converges from any
+    start; `init_values` (n,) (e.g. the previous weights' values) warm-starts it."""
     r = mdp.rewards(w)
     values = (np.where(mdp.has_out, 0.0, mdp.fixed_values) if init_values is None
               else np.where(mdp.has_out, init_values, mdp.fixed_values))
@@ -60,15 +63,17 @@ def soft_values(mdp: GraphMDP, w, *, tol=1e-10, max_iter=10_000, init_values=Non
                        f"(max edge discount {mdp.discount.max():.6f})")
 
 
-def soft_policy(mdp: GraphMDP, w, values) -> np.ndarray:
-    """π(e | src(e)) = exp(Q(s, e) − V(s)), normalised exactly per node (V is converged only
-    to tol)."""
+def soft_policy(mdp: GraphMDP, w: ArrayLike, values: np.ndarray) -> np.ndarray:
+    """π(e | src(e)) (E,) = exp(Q(s, e) − V(s)), normalised exactly per node (V is converged
+    only to tol); w (d,), values V (n,)."""
     q = mdp.q_values(w, values)
     return np.exp(q - mdp.log_sum_exp(q)[mdp.src])
 
 
-def expected_discounted_counts(mdp: GraphMDP, w, start_nodes, values=None) -> np.ndarray:
-    """E_π[Σ_t γ^{T_t} φ(e_t)] under the soft policy, summed over `start_nodes` (repeats count).
+def expected_discounted_counts(mdp: GraphMDP, w: ArrayLike, start_nodes: ArrayLike,
+                               values: np.ndarray | None = None) -> np.ndarray:
+    """E_π[Σ_t γ^{T_t} φ(e_t)] (d,) under the soft policy, summed over `start_nodes` (node ids,
+    repeats count); w (d,), values V_soft (n,).
 
     Exact, by one sparse linear solve for the discounted node visitation x:
     x = x_0 + P^T x, P[s, s'] = Σ_{e: s→s'} π(e|s) γ^τ(e); absorbing nodes have no out-edges,
@@ -90,7 +95,8 @@ def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndar
     Objective (concave in w): L(w) = Σ_k [w·Φ_E(k) + γ^{T_k} R_goal [reached] − V_soft(s_k)],
     gradient Φ_E − E_π[Φ] (empirical minus expected discounted counts). For γ → 1 and demos
     ending at the goal, L is Σ_k log P(ξ_k) under the soft policy. One soft VI per history
-    entry (n_iterations + 1 in all) is counted as one MDP solve."""
+    entry (n_iterations + 1 in all) is counted as one MDP solve. prior_box: (lower, upper),
+    each (d,); w0: (d,)."""
     lower, upper = (np.asarray(b, dtype=float) for b in prior_box)
     w = np.asarray(w0, dtype=float).copy()
     if w.shape != lower.shape or w.shape != upper.shape or w.shape != (mdp.features.shape[1],):
@@ -112,8 +118,10 @@ def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndar
 
     m, v = np.zeros_like(w), np.zeros_like(w)  # Adam moments
     beta1, beta2, eps = 0.9, 0.999, 1e-8
-    history, log_likelihood, grad_norm = [], [], []
-    values = None
+    history: list[np.ndarray] = []
+    log_likelihood: list[float] = []
+    grad_norm: list[float] = []
+    values: np.ndarray | None = None
     for t in range(n_iterations + 1):
         values = soft_values(mdp, w, init_values=values)  # warm start: few sweeps per step
         grad = empirical - expected_discounted_counts(mdp, w, starts, values)

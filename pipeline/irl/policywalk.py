@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from pipeline.core.graph_mdp import GraphMDP, Path
 from pipeline.core.params import require_positive
@@ -38,7 +39,8 @@ def fit_policywalk(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     result = policywalk(mdp, expert, problem.prior, problem.rng, alpha=config.alpha,
                         chain=config, w0=problem.w0, n_records=config.n_iterations)
     records = [problem.record(k, w, ll)
-               for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood))]
+               for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood,
+                                               strict=True))]
     return IRLResult(records, result.extra["solves_at_record"])
 
 
@@ -53,14 +55,17 @@ class BaselineResult:
 
 def expert_state_actions(mdp: GraphMDP, paths: list[Path]) -> list[tuple[int, int]]:
     """The (node, internal edge) pairs of graph paths, in order."""
-    pairs = [(int(s), int(e)) for p in paths for s, e in zip(p.nodes[:-1], p.edges)]
+    pairs = [(int(s), int(e)) for p in paths
+             for s, e in zip(p.nodes[:-1], p.edges, strict=True)]
     if any(mdp.src[e] != s for s, e in pairs):
         raise ValueError("a path edge does not leave the node before it: not a path of this MDP")
     return pairs
 
 
-def _boltzmann_log_likelihood(mdp: GraphMDP, nodes, edges, alpha, w, values) -> float:
-    """Σ_(s,e) [αQ*(s, e) − log Σ_e' exp(αQ*(s, e'))]."""
+def _boltzmann_log_likelihood(mdp: GraphMDP, nodes: np.ndarray, edges: np.ndarray,
+                              alpha: float, w: ArrayLike, values: np.ndarray) -> float:
+    """Σ_(s,e) [αQ*(s, e) − log Σ_e' exp(αQ*(s, e'))] over the expert's (node, internal edge)
+    pairs nodes, edges (k,); w (d,), values V* (n,)."""
     if len(edges) == 0:
         return 0.0
     q = alpha * mdp.q_values(w, values)
@@ -74,7 +79,8 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
     ±step (symmetric, so the acceptance is min(1, exp(Δ log posterior))); proposals outside
     the prior box are rejected without a solve (posterior 0), every other one solves the MDP
     warm-started from the current state's values. Runs burn_in + n_samples·thin steps and
-    keeps every thin-th state after burn-in; weights = posterior mean of the kept states."""
+    keeps every thin-th state after burn-in; weights = posterior mean of the kept states.
+    w0: (d,) initial weights in the prior box."""
     n_samples, burn_in, thin, step = chain.n_samples, chain.burn_in, chain.thin, chain.step
     if not (alpha > 0 and n_records >= 1):
         raise ValueError(f"policywalk needs alpha > 0 and n_records >= 1; got {alpha}, "
@@ -88,7 +94,7 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
                        or np.any(mdp.src[edges] != nodes)):
         raise ValueError("expert pairs must be (node, internal edge leaving that node)")
 
-    def log_lik(w, values):
+    def log_lik(w: np.ndarray, values: np.ndarray) -> float:
         return _boltzmann_log_likelihood(mdp, nodes, edges, alpha, w, values)
 
     n_steps = burn_in + n_samples * thin

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import truncnorm
 
 from pipeline.core.params import require, require_positive
@@ -20,7 +21,8 @@ PRIORS = ("gaussian", "laplace", "uniform")
 class PriorConfig:
     kind: str = "uniform"  # uniform (on the box) | gaussian | laplace
     scale: float = 0.5  # σ (gaussian) or b (laplace)
-    mean: Optional[list[float]] = None  # one number, or one per feature; null: 0 clipped into the box
+    # One number, or one per feature; null: 0 clipped into the box.
+    mean: Optional[list[float]] = None
 
     def __post_init__(self) -> None:
         require(self.kind in PRIORS, "kind", self.kind, " or ".join(repr(k) for k in PRIORS))
@@ -52,8 +54,9 @@ def broadcast(values: list[float], dim: int, name: str) -> np.ndarray:
     return np.broadcast_to(arr, (dim,)).copy()
 
 
-def _truncated_exponential_mean(length, b):
-    """Mean of the density ∝ exp(−z/b) on [0, L]: b − L / (exp(L/b) − 1), and 0 if L = 0."""
+def _truncated_exponential_mean(length: np.ndarray, b: float) -> np.ndarray:
+    """Mean of the density ∝ exp(−z/b) on [0, L]: b − L / (exp(L/b) − 1), and 0 if L = 0;
+    per entry of `length` (d,)."""
     x = np.where(length > 0, length / b, 1.0)
     return np.where(length > 0, b - length * np.exp(-x) / -np.expm1(-x), 0.0)
 
@@ -66,7 +69,7 @@ class Prior:
     upper: np.ndarray  # (d,)
     mean: np.ndarray | None = None  # default: zeros(d) clipped into the box
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.kind not in PRIORS:
             raise ValueError(f"prior kind must be one of {PRIORS}, got {self.kind!r}")
         if not self.scale > 0:
@@ -88,11 +91,11 @@ class Prior:
     def dim(self) -> int:
         return len(self.lower)
 
-    def in_box(self, w) -> bool:
+    def in_box(self, w: np.ndarray) -> bool:
         return bool(np.all((w >= self.lower) & (w <= self.upper)))
 
-    def log_pdf(self, w) -> float:
-        """Log density up to a constant; −inf outside the box."""
+    def log_pdf(self, w: ArrayLike) -> float:
+        """Log density up to a constant at w (d,); −inf outside the box."""
         w = np.asarray(w, dtype=float)
         if not self.in_box(w):
             return -np.inf
@@ -102,7 +105,7 @@ class Prior:
             return float(-np.sum(np.abs(w - self.mean)) / self.scale)
         return 0.0
 
-    def grad_log_pdf(self, w) -> np.ndarray:
+    def grad_log_pdf(self, w: ArrayLike) -> np.ndarray:
         w = np.asarray(w, dtype=float)
         if self.kind == "gaussian":
             return -(w - self.mean) / self.scale**2
@@ -110,9 +113,12 @@ class Prior:
             return -np.sign(w - self.mean) / self.scale  # subgradient, sign(0) = 0
         return np.zeros_like(w)
 
-    def _laplace_sides(self):
+    def _laplace_sides(
+        self,
+    ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray]:
         """Split the box at the Laplace peak (the mean): for the side above and the side below,
-        the distance p of its near end from the mean and its length; and P(side above)."""
+        the distance p of its near end from the mean and its length (each (d,)); and
+        P(side above) (d,)."""
         a, c = self.lower - self.mean, self.upper - self.mean
         p_up, p_dn = np.maximum(a, 0.0), np.maximum(-c, 0.0)
         len_up, len_dn = np.maximum(c - p_up, 0.0), np.maximum(-a - p_dn, 0.0)
@@ -139,7 +145,7 @@ class Prior:
         return np.clip(self.mean + np.where(up, z, -z), self.lower, self.upper)  # round-off
 
     def box_mean(self) -> np.ndarray:
-        """Mean of the prior truncated to the box, per dimension."""
+        """Mean (d,) of the prior truncated to the box, per dimension."""
         if self.kind == "uniform":
             return (self.lower + self.upper) / 2
         if self.kind == "gaussian":

@@ -138,7 +138,8 @@ def write_birl(ctx: RunContext, expert: list[TrajectoryStats], result: IRLResult
             "prior": b.prior.kind,
             "trajectories": [{"start": t.start, "phi": t.phi, "end_discount": t.end_discount,
                               "reached": t.reached} for t in expert]}, log_time=0)
-        for it, paths in zip(result.iterations, env.paths[-len(result.iterations):]):
+        for it, paths in zip(result.iterations, env.paths[-len(result.iterations):],
+                             strict=True):
             w.add(topics.BIRL_ITERATION, "BirlIteration", {
                 "index": it.index, "method": b.kind,
                 "mdp_solves": int(result.mdp_solves[it.index]),
@@ -147,7 +148,8 @@ def write_birl(ctx: RunContext, expert: list[TrajectoryStats], result: IRLResult
                 "generated": [{"start": t.start, "nodes": p.nodes, "points": graph.polyline(p),
                                "phi": t.phi, "end_discount": t.end_discount,
                                "reached": t.reached, "quality": t.quality(it.weights, r_goal)}
-                              for t, p in zip(it.generated, paths)]}, log_time=it.index)
+                              for t, p in zip(it.generated, paths, strict=True)]},
+                  log_time=it.index)
         if isinstance(env, GrowingGraphEnvironment):
             write_growth(w, env)
         for n, post in enumerate(result.posteriors, start=1):

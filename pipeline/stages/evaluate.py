@@ -23,6 +23,7 @@ from pipeline.core.features import FEATURE_NAMES
 from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.social import path_metrics
 from pipeline.core.world import Scene
+from pipeline.errors import PipelineError
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +32,7 @@ def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
     """Behaviour presets straight from conf/reward (one source for the numbers), on the
     run's features (a feature the preset does not weigh gets 0)."""
     preset = OmegaConf.load(PROJECT_ROOT / "conf" / "reward" / f"{name}.yaml")
-    by_name = dict(zip(preset.get("features", FEATURE_NAMES), preset.weights))
+    by_name = dict(zip(preset.get("features", FEATURE_NAMES), preset.weights, strict=True))
     return np.array([float(by_name.get(n, 0.0)) for n in feature_names])
 
 
@@ -81,15 +82,21 @@ def run(ctx: RunContext) -> None:
     iterations = birl_art.all(topics.BIRL_ITERATION)
     weights = np.array([it["weights"] for it in iterations], float)
     w_final = weights[-1]
+    if len(w_final) != len(names):
+        raise PipelineError(f"{birl_art.path} holds weights on {len(w_final)} features but "
+                            f"reward.features names {len(names)}: use the features of the run "
+                            "that learned them")
     graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
                                                    topics.GRAPH_SOLUTION])
     graph = codec.decode_graph(graph_art, md, grown=birl_art)
     roadmap = codec.decode_roadmap(demos_art, md)
 
-    metrics: dict[str, float] = {f"weight_{n}": float(v) for n, v in zip(names, w_final)}
+    metrics: dict[str, float] = {f"weight_{n}": float(v)
+                                 for n, v in zip(names, w_final, strict=True)}
     if birl_art.messages.get(topics.BIRL_POSTERIOR):  # sampling methods: the final spread
         post = birl_art.all(topics.BIRL_POSTERIOR)[-1]
-        metrics.update({f"weight_std_{n}": float(v) for n, v in zip(names, post["std"])})
+        metrics.update({f"weight_std_{n}": float(v)
+                        for n, v in zip(names, post["std"], strict=True)})
         metrics["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
     curves = {}
     if expert["true_weights"] is not None:
@@ -105,7 +112,7 @@ def run(ctx: RunContext) -> None:
             "policy_loss": curves["graph"][-1], "policy_loss_ref": curves["ref"][-1],
             "policy_loss_norm": curves["norm"][-1], "policy_loss_initial": curves["graph"][0],
             "policy_loss_ref_initial": curves["ref"][0], f"policy_loss_ref_{contrast}": baseline})
-        for k, (g, r) in enumerate(zip(curves["graph"], curves["ref"])):
+        for k, (g, r) in enumerate(zip(curves["graph"], curves["ref"], strict=True)):
             metrics[f"policy_loss_iter_{k:02d}"] = g
             metrics[f"policy_loss_ref_iter_{k:02d}"] = r
         graph_policy, ref_policy = final_graph.policy, final_ref.policy
@@ -159,7 +166,8 @@ def print_summary(m: dict, ctx: RunContext) -> None:
 
     lines = [
         f"BIRL-G run: {ctx.run_dir}",
-        "  learned weights  " + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in ctx.cfg.reward.features),
+        "  learned weights  "
+        + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in ctx.cfg.reward.features),
         f"  policy loss      graph {fmt('policy_loss')} (initial {fmt('policy_loss_initial')}), "
         f"roadmap {fmt('policy_loss_ref')}, normalised {fmt('policy_loss_norm')}",
         f"  learned paths    crossings {fmt('relation_crossings', '.0f')}, intimate "

@@ -21,8 +21,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from pipeline.artefacts import topics
-from pipeline.artefacts import read_artefact
+from pipeline.artefacts import read_artefact, topics
 from pipeline.errors import PipelineError
 
 
@@ -84,7 +83,9 @@ def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
     plotted = False
     groups = _group_columns(ok)
     for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
-        label = ", ".join(f"{g}={v}" for g, v in zip(groups, np.atleast_1d(key))) or "all jobs"
+        # Without groups the key is "all" and there is nothing to label: lengths differ.
+        label = ", ".join(f"{g}={v}" for g, v in
+                          zip(groups, np.atleast_1d(key), strict=False)) or "all jobs"
         for ax, prefix, title in ((axes[0], "policy_loss_iter_", "adaptive graph"),
                                   (axes[1], "policy_loss_ref_iter_", "reference roadmap")):
             cols = sorted(c for c in part.columns if c.startswith(prefix))
@@ -122,7 +123,7 @@ def plot_scene(job: Path, path: Path) -> None:
             [room["y_min"], room["y_min"], room["y_max"], room["y_max"], room["y_min"]], "k-")
     pos = {p["id"]: (p["x"], p["y"]) for p in scene["persons"]}
     for a, b in scene["relations"]:
-        ax.plot(*zip(pos[a], pos[b]), color="tab:red", lw=2, alpha=0.6)
+        ax.plot(*zip(pos[a], pos[b], strict=True), color="tab:red", lw=2, alpha=0.6)
     for p in scene["persons"]:
         ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08))
         ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange"))

@@ -118,7 +118,8 @@ def experiment_timings(repeats: int) -> pd.DataFrame:
 
 IRL_METHODS = ["map", "mcmc", "policywalk", "maxent"]
 IRL_SCENES = {"metropolis": ["scene=metropolis"], "random1": ["scene=random", "scene.seed=1"],
-              "random2": ["scene=random", "scene.seed=2"], "random3": ["scene=random", "scene.seed=3"]}
+              "random2": ["scene=random", "scene.seed=2"],
+              "random3": ["scene=random", "scene.seed=3"]}
 
 
 def _app(run_dir: Path, *overrides: str) -> dict:
@@ -145,7 +146,8 @@ def irl_methods(seeds: list[int], methods: list[str], scenes: list[str]):
                              "stages=[birl,evaluate]", f"from_run={base}")
                     its = read_artefact_iterations(run)
                     rows.append({"method": method, "scene": scene, "seed": seed,
-                                 "wall_s": m["time_birl_learn_s"], "mdp_solves": its[-1]["mdp_solves"],
+                                 "wall_s": m["time_birl_learn_s"],
+                                 "mdp_solves": its[-1]["mdp_solves"],
                                  "policy_loss": m["policy_loss"],
                                  "policy_loss_ref": m["policy_loss_ref"],
                                  "policy_loss_norm": m["policy_loss_norm"],

@@ -72,7 +72,8 @@ def main(argv=None) -> int:
     parser.add_argument("--work", type=Path, help="where the runs go (default: a temp dir)")
     parser.add_argument("--reuse", action="store_true", help="reuse runs already in --work")
     parser.add_argument("--update", action="store_true", help="write current metrics as baseline")
-    parser.add_argument("--all-rows", action="store_true", help="print every metric, not only failures")
+    parser.add_argument("--all-rows", action="store_true",
+                        help="print every metric, not only failures")
     args = parser.parse_args(argv)
 
     experiments = yaml.safe_load((args.baseline / "experiments.yaml").read_text())
@@ -91,7 +92,8 @@ def main(argv=None) -> int:
             current = run_experiment(name, experiments[name], work, args.reuse)
             path = args.baseline / f"{name}.json"
             if args.update:
-                kept = {k: v for k, v in current.items() if tolerance_for(k, tolerances) != "ignore"}
+                kept = {k: v for k, v in current.items()
+                        if tolerance_for(k, tolerances) != "ignore"}
                 path.write_text(json.dumps(kept, indent=1, sort_keys=True) + "\n")
                 continue
             if not path.exists():

@@ -21,8 +21,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from pipeline.artefacts import topics
-from pipeline.artefacts import Artefact, read_artefact
+from pipeline.artefacts import Artefact, read_artefact, topics
 from pipeline.errors import PipelineError
 
 APP_ID = "birlg"
@@ -162,7 +161,8 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
         if "graph" in arts:
             _log_graph(rec, arts["graph"])
         names = next((a.messages[t][0]["feature_names"] for a, t in
-                      ((arts.get("birl"), topics.BIRL_EXPERT), (arts.get("demos"), topics.DEMOS_EXPERT))
+                      ((arts.get("birl"), topics.BIRL_EXPERT),
+                       (arts.get("demos"), topics.DEMOS_EXPERT))
                       if a is not None and a.messages.get(t)), [])
         _log_birl(rec, arts.get("birl"), arts.get("eval"), names)
         rec.flush()

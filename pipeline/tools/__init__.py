@@ -1,0 +1,1 @@
+"""Tools around runs: sweep aggregation, the rerun viewer, metric regression, benchmarks."""
