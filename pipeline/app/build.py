@@ -13,6 +13,7 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.scenegen import RandomSceneSpec, random_scene
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
+from pipeline.inputs.map_file import load_map
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.irl import methods
 from pipeline.irl.base import Method
@@ -26,9 +27,11 @@ def scene(cfg: Config, rng_for_seed) -> Scene:
         seed = cfg.seed if sc.seed is None else sc.seed
         spec = RandomSceneSpec(**{f.name: getattr(sc, f.name)
                                   for f in dataclasses.fields(RandomSceneSpec)})
-        return random_scene(spec, rng_for_seed(seed), name=f"random-{seed}")
+        map_grid = load_map(resolve_path(sc.map)) if sc.map else None
+        return random_scene(spec, rng_for_seed(seed), name=f"random-{seed}", map_grid=map_grid,
+                            map_source=sc.map)
     return load_scene_file(resolve_path(sc.path), body_radius=sc.body_radius,
-                           goal_tolerance=sc.goal_tolerance)
+                           goal_tolerance=sc.goal_tolerance, robot_radius=sc.robot_radius)
 
 
 def feature_model(cfg: Config, scene: Scene) -> FeatureModel:

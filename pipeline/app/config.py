@@ -24,7 +24,13 @@ from pipeline.core.controllers import CONTROLLERS, PosqController
 from pipeline.core.experts import BoltzmannParams
 from pipeline.core.features import FeatureParams
 from pipeline.core.graph_mdp import MDPParams
-from pipeline.core.params import ParameterError, is_number, require, require_count
+from pipeline.core.params import (
+    ParameterError,
+    is_number,
+    require,
+    require_count,
+    require_positive,
+)
 from pipeline.core.roadmap import RoadmapParams
 from pipeline.core.scenegen import RandomSceneSpec
 from pipeline.core.world import BodyParams
@@ -40,12 +46,21 @@ from pipeline.irl.prior import broadcast
 class FileSceneConfig(BodyParams):
     kind: str = "file"
     path: str = MISSING  # scene JSON (DESIGN §3); relative paths: cwd, then project root
+    # null: the scene file's value (or the world model's default)
+    body_radius: Optional[float] = None
+    goal_tolerance: Optional[float] = None
+    robot_radius: Optional[float] = None
+
+    def __post_init__(self) -> None:
+        require_positive(self, *(k for k in ("body_radius", "goal_tolerance", "robot_radius")
+                                 if getattr(self, k) is not None))
 
 
 @dataclass
 class RandomSceneConfig(RandomSceneSpec):
     kind: str = "random"
     seed: Optional[int] = None  # scene generator seed; null: the run seed
+    map: Optional[str] = None  # a map_server YAML: persons, starts and goal on that map
 
 
 SCENES: dict[str, type] = {"file": FileSceneConfig, "random": RandomSceneConfig}
@@ -93,7 +108,14 @@ class BoltzmannExpertConfig(ExpertConfig, BoltzmannParams):
 @dataclass
 class FileExpertConfig(ExpertConfig):
     kind: str = "file"
-    path: str = MISSING  # demonstration file (DESIGN §3)
+    path: str = MISSING  # demonstrations (DESIGN §3): .json, .csv, a ROS bag (dir, .mcap, .bag)
+    topic: Optional[str] = None  # bag topic; null: the only usable one
+    frame: Optional[str] = None  # required header.frame_id of bag messages; null: any
+    start_radius: float = 1.0  # m, a demonstration begins this close to a start
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require_positive(self, "start_radius")
 
 
 EXPERTS: dict[str, type] = {"optimal": OptimalExpertConfig, "boltzmann": BoltzmannExpertConfig,
@@ -132,7 +154,9 @@ class Config:
     seed: int = 0
     stages: list[str] = field(default_factory=lambda: list(STAGES))
     from_run: Optional[str] = None  # run dir whose artefacts feed stages not run now
-    scene: BodyParams = MISSING
+    # FileSceneConfig | RandomSceneConfig, each checked by its own schema (typed Any: the
+    # file scene's sizes are optional, which a BodyParams-typed node would not accept)
+    scene: Any = MISSING
     reward: RewardConfig = MISSING
     expert: ExpertConfig = MISSING
     mdp: MDPParams = field(default_factory=MDPParams)

@@ -3,18 +3,41 @@ as messages, so that every reader of an artefact builds the same objects the sam
 
 from __future__ import annotations
 
+import base64
+
 import numpy as np
 
 from pipeline.artefacts import topics
 from pipeline.artefacts.store import Artefact
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, SpatialGraph, TrajectoryStats
+from pipeline.core.obstacles import OccupancyGrid
 from pipeline.core.state_graph import StateGraph
 from pipeline.core.world import Scene, scene_from_dict
 
 
+def grid_record(grid: OccupancyGrid) -> dict:
+    """An occupancy grid as a message: row 0 is the bottom row (lowest y); `occupied` is the
+    (height, width) bool raster, row-major, bit-packed (numpy.packbits) and base64-encoded."""
+    height, width = grid.shape
+    return {"origin": list(grid.origin), "resolution": grid.resolution, "width": width,
+            "height": height,
+            "occupied": base64.b64encode(np.packbits(grid.occupied)).decode("ascii")}
+
+
+def decode_grid(msg: dict) -> OccupancyGrid:
+    bits = np.frombuffer(base64.b64decode(msg["occupied"]), dtype=np.uint8)
+    shape = (int(msg["height"]), int(msg["width"]))
+    occupied = np.unpackbits(bits, count=shape[0] * shape[1]).reshape(shape).astype(bool)
+    return OccupancyGrid(occupied, (float(msg["origin"][0]), float(msg["origin"][1])),
+                         float(msg["resolution"]))
+
+
 def decode_scene(art: Artefact) -> Scene:
-    """The scene of scene.mcap."""
-    return scene_from_dict(art.one(topics.SCENE), source=f"artefact {art.path}")
+    """The scene of scene.mcap (with its map, when it has one)."""
+    map_grid = decode_grid(art.one(topics.SCENE_MAP)) if art.messages.get(topics.SCENE_MAP) \
+        else None
+    return scene_from_dict(art.one(topics.SCENE), source=f"artefact {art.path}",
+                           map_grid=map_grid)
 
 
 def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:

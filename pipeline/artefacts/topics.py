@@ -9,6 +9,7 @@ ARTEFACT_FILE: dict[str, str] = {"scene": "scene.mcap", "demos": "demos.mcap",
                                  "evaluate": "eval.mcap"}
 
 SCENE = "/scene"
+SCENE_MAP = "/scene/map"  # the scene's occupancy map, when it has one (DESIGN §3)
 
 DEMOS = "/demos"
 DEMOS_EXPERT = "/demos/expert"

@@ -34,6 +34,7 @@ from pipeline.core.controllers import Controller, Runs
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.params import require, require_count, require_non_negative, require_positive
+from pipeline.core.roadmap import segments_feasible
 from pipeline.core.state_graph import DEMO, GOAL, SAMPLED, START, VORONOI, StateGraph
 from pipeline.core.world import Room, Scene
 
@@ -173,16 +174,27 @@ class AdaptiveGraph(StateGraph):
     def _add_demo(self, demo: Demo) -> None:
         """Demo waypoints become nodes (or merge into a node closer than min_separation);
         demo edges carry the features of the demo's own polyline segments."""
-        nodes = []
+        nodes: list[int] = []
         for k, pt in enumerate(demo.points):
             near = self.neighbours(pt, self.min_separation, k=1)
-            if len(near):
+            # merge into a close node only when the robot can drive from it to the waypoint
+            if len(near) and segments_feasible(self.scene, self.positions[near[:1]], pt[None])[0]:
                 nodes.append(int(near[0]))
                 continue
             nxt = demo.points[min(k + 1, len(demo.points) - 1)] - demo.points[max(k - 1, 0)]
             nodes.append(self.add_node([*pt, math.atan2(nxt[1], nxt[0])], DEMO))
+        # The driven polyline of a demo edge runs from its node to the demonstration's
+        # waypoint, along the demonstration's segment and on to the next node (hops of at
+        # most min_separation where waypoints merged); the features stay the
+        # demonstration's own, as the likelihood compares against them.
+        waypoints = []
+        for k in range(len(nodes) - 1):
+            ways = np.array([self.positions[nodes[k]], demo.points[k], demo.points[k + 1],
+                             self.positions[nodes[k + 1]]])
+            keep = np.concatenate([[True], np.any(np.diff(ways, axis=0) != 0, axis=1)])
+            waypoints.append(ways[keep])
         self.add_edges(nodes[:-1], nodes[1:], demo.segment_durations, demo.segment_features,
-                       [demo.points[k:k + 2] for k in range(len(nodes) - 1)], is_demo=True)
+                       waypoints, is_demo=True)
 
     def restore(self, nodes: list[dict], edges: list[dict],
                 start_nodes: ArrayLike | None = None) -> None:

@@ -49,8 +49,11 @@ class Roadmap:
 
 def segments_feasible(scene: Scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Mask (n,) of the straight segments a[i] → b[i] (each (n, 2)) that stay in the
-    (convex) room and keep out of every body disk."""
+    (convex) room, keep out of every body disk and keep robot_radius from every obstacle
+    (clearance sampled at most half a raster cell apart)."""
     ok = scene.room.contains(a) & scene.room.contains(b)
+    if scene.obstacles is not None and len(a):
+        ok &= scene.obstacles.segments_free(a, b, scene.robot_radius)
     persons = scene.person_xy
     if len(persons) and len(a):
         seg = b - a
@@ -81,7 +84,7 @@ def lattice_graph(scene: Scene, spacing: float = 0.25,
     lattice = np.column_stack([xs[gi.ravel()], ys[gj.ravel()]])
     special = np.vstack([scene.starts, scene.goal[None, :]])
     near_special = cKDTree(special).query(lattice)[0] < spacing / 2
-    usable = ~scene.in_body(lattice) & ~near_special
+    usable = scene.free(lattice) & ~near_special
     index: np.ndarray = np.full(len(lattice), -1)
     index[usable] = np.arange(usable.sum())
     index = index.reshape(len(xs), len(ys))

@@ -3,18 +3,23 @@
 Group members stand on a circle around the group's centre, facing it (an F-formation's
 o-space), and every pair of members is related. Starts lie near one wall and the goal near
 the opposite one. A scene is resampled until every start can reach the goal without
-entering a body disk.
+entering a body disk. On a map (`map_grid`) the room is the map's extent, persons stand
+clear of obstacles, and starts and goal are drawn anywhere in free space, the starts at least
+a third of the room's diagonal from the goal.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from pipeline.core.obstacles import ObstacleMap, OccupancyGrid
 from pipeline.core.params import require, require_count, require_non_negative, require_positive
 from pipeline.core.roadmap import lattice_graph
 from pipeline.core.world import BodyParams, Person, Room, Scene
@@ -47,17 +52,20 @@ class RandomSceneSpec(BodyParams):
 
 
 def _place_persons(
-    spec: RandomSceneSpec, rng: np.random.Generator
+    spec: RandomSceneSpec, rng: np.random.Generator, room: Room,
+    obstacles: ObstacleMap | None = None,
 ) -> tuple[tuple[Person, ...], tuple[tuple[int, int], ...]] | None:
     """Persons and relations, or None if they do not fit without overlapping."""
     margin = 0.5 + spec.body_radius
-    lo = np.array([margin, margin])
-    hi = np.array([spec.width - margin, spec.height - margin])
+    lo = np.array([room.x_min + margin, room.y_min + margin])
+    hi = np.array([room.x_max - margin, room.y_max - margin])
     placed: list[tuple[float, float, float]] = []
     relations: list[tuple[int, int]] = []
 
     def fits(pts: np.ndarray) -> bool:
         if not ((pts >= lo) & (pts <= hi)).all():
+            return False
+        if obstacles is not None and not obstacles.points_free(pts, margin).all():
             return False
         if placed:
             other = np.array([(x, y) for x, y, _ in placed])
@@ -113,6 +121,28 @@ def _starts_and_goal(spec: RandomSceneSpec,
     return np.column_stack([np.full_like(along, x_start), along]), np.array([x_goal, goal_along])
 
 
+def _starts_and_goal_on_map(spec: RandomSceneSpec, rng: np.random.Generator,
+                            scene_free: Callable[[np.ndarray], np.ndarray],
+                            room: Room) -> tuple[np.ndarray, np.ndarray] | None:
+    """Goal (2,) and starts (n_starts, 2) in free space, starts far from the goal; None when
+    free space is too scarce."""
+    lo, hi = np.array([room.x_min, room.y_min]), np.array([room.x_max, room.y_max])
+    candidates = rng.uniform(lo, hi, (50 * (spec.n_starts + 1), 2))
+    candidates = candidates[scene_free(candidates)]
+    if len(candidates) < spec.n_starts + 1:
+        return None
+    goal = candidates[0]
+    far = candidates[1:][np.linalg.norm(candidates[1:] - goal, axis=1)
+                         >= np.linalg.norm(hi - lo) / 3]
+    starts: list[np.ndarray] = []
+    for p in far:  # spread out: at least 1 m apart
+        if all(np.linalg.norm(p - q) >= 1.0 for q in starts):
+            starts.append(p)
+        if len(starts) == spec.n_starts:
+            return np.array(starts), goal
+    return None
+
+
 def all_starts_reach_goal(scene: Scene, spacing: float = 0.2) -> bool:
     """Every start is connected to the goal on a fine collision-free lattice."""
     positions, src, dst = lattice_graph(scene, spacing=spacing, connectivity=8)
@@ -124,20 +154,45 @@ def all_starts_reach_goal(scene: Scene, spacing: float = 0.2) -> bool:
     return bool((label[n - 1 - n_starts:goal_node] == label[goal_node]).all())
 
 
-def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "random") -> Scene:
-    room = Room(0.0, 0.0, spec.width, spec.height)
+def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "random",
+                 map_grid: OccupancyGrid | None = None, map_source: str | None = None) -> Scene:
+    """A seeded random scene in a width x height room, or on `map_grid` (its extent is the
+    room; width and height are then unused)."""
+    room = Room(*map_grid.extent()) if map_grid is not None else \
+        Room(0.0, 0.0, spec.width, spec.height)
+    empty = Scene(name, room, (), (), np.zeros((0, 2)), np.zeros(2), spec.body_radius,
+                  spec.goal_tolerance, spec.robot_radius, map_grid=map_grid,
+                  map_source=map_source)
+    obstacles = empty.obstacles
     for _ in range(spec.max_tries):
-        placed = _place_persons(spec, rng)
+        placed = _place_persons(spec, rng, room, obstacles)
         if placed is None:
             continue
         persons, relations = placed
-        starts, goal = _starts_and_goal(spec, rng)
-        scene = Scene(name, room, persons, relations, starts, goal,
-                      spec.body_radius, spec.goal_tolerance)
+        if map_grid is None:
+            starts, goal = _starts_and_goal(spec, rng)
+        else:
+            with_persons = dataclasses.replace(empty, persons=persons)
+
+            def free(p: np.ndarray, s: Scene = with_persons) -> np.ndarray:
+                # clear of bodies by 0.1 m more, like the starts of a plain room below
+                return s.free(p) & ~s.in_body(p, 0.1)
+            ends = _starts_and_goal_on_map(spec, rng, free, room)
+            if ends is None:
+                continue
+            starts, goal = ends
+        scene = dataclasses.replace(empty, persons=persons, relations=relations,
+                                    starts=starts, goal=goal)
         clear = ~scene.in_body(np.vstack([starts, goal[None]]), clearance=0.1)
-        if clear.all() and all_starts_reach_goal(scene):
+        if not clear.all():
+            continue
+        if map_grid is None and all_starts_reach_goal(scene):
             return scene
+        if map_grid is not None and not scene.unreachable_starts():
+            return scene
+    where = f"on the map {map_source}" if map_grid is not None else \
+        f"in a {spec.width:g} x {spec.height:g} m room"
     raise PipelineError(
         f"random scene: no valid scene in scene.max_tries={spec.max_tries} attempts "
-        f"({spec.n_groups} groups and {spec.n_singles} singles in a {spec.width:g} x "
-        f"{spec.height:g} m room); use fewer persons or a larger room")
+        f"({spec.n_groups} groups and {spec.n_singles} singles {where}); use fewer persons "
+        "or a larger room")

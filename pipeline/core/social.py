@@ -71,7 +71,7 @@ def path_metrics(points: ArrayLike, scene: Scene, duration: float,
     link_a, link_b = scene.links
     persons = scene.person_xy
     length = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-    return {
+    metrics = {
         "relation_crossings": relation_crossings(p, link_a, link_b),
         "intimate_intrusion_m": _zone_intrusion(p, persons, INTIMATE_ZONE),
         "personal_intrusion_m": _zone_intrusion(p, persons, PERSONAL_ZONE),
@@ -80,3 +80,8 @@ def path_metrics(points: ArrayLike, scene: Scene, duration: float,
         "time_to_goal": float(duration),
         "success": float(reached),
     }
+    if scene.obstacles is not None:  # DESIGN §3: only scenes with obstacles have these
+        clearance = scene.obstacles.min_clearance_along(p)
+        metrics["min_distance_to_obstacle"] = clearance
+        metrics["obstacle_collisions"] = float(clearance < scene.robot_radius)
+    return metrics

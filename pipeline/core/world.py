@@ -1,17 +1,21 @@
-"""World model (DESIGN §3): room, persons, social relations, starts and goal.
+"""World model (DESIGN §3): room, persons, social relations, starts and goal, and static
+obstacles (polygons and/or an occupancy map) with the robot's radius.
 
-Plain data plus validation of the scene-file structure; no Hydra, no I/O.
+Plain data plus validation of the scene-file structure; no Hydra, no I/O (map files are
+read by pipeline.inputs and handed in as an OccupancyGrid).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
 from pipeline.core.params import require_positive
 from pipeline.errors import PipelineError
 
@@ -20,14 +24,21 @@ class SceneError(PipelineError):
     """A scene (file or generated) violates the world model."""
 
 
+OBSTACLE_RESOLUTION = 0.05  # m, raster of polygon obstacles when the scene has no map
+
+
 @dataclass
 class BodyParams:
     """Sizes every scene has, whatever its source."""
     body_radius: float = 0.25  # m, no robot path may enter a person's body disk
     goal_tolerance: float = 0.3  # m, states this close to the goal are terminal
+    robot_radius: float = 0.25  # m, closer than this to an obstacle is a collision
 
     def __post_init__(self) -> None:
-        require_positive(self, "body_radius", "goal_tolerance")
+        require_positive(self, "body_radius", "goal_tolerance", "robot_radius")
+
+
+ROBOT_RADIUS = BodyParams.robot_radius  # m, scene files without "robot_radius"
 
 
 @dataclass(frozen=True)
@@ -75,6 +86,20 @@ class Scene:
     goal: np.ndarray  # (2,)
     body_radius: float = 0.25
     goal_tolerance: float = 0.3
+    robot_radius: float = ROBOT_RADIUS
+    polygons: tuple[np.ndarray, ...] = ()  # obstacle polygons, each (k, 2), closed implicitly
+    map_grid: OccupancyGrid | None = None  # the scene's map (DESIGN §3), polygons not burnt in
+    map_source: str | None = None  # the map file as the scene file names it
+
+    @cached_property
+    def obstacles(self) -> ObstacleMap | None:
+        """Clearance queries on the map with the polygons burnt in; None without obstacles."""
+        if self.map_grid is None and not self.polygons:
+            return None
+        room = self.room
+        grid = rasterise(list(self.polygons), self.map_grid,
+                         (room.x_min, room.y_min, room.x_max, room.y_max), OBSTACLE_RESOLUTION)
+        return ObstacleMap(grid)
 
     @property
     def person_xy(self) -> np.ndarray:
@@ -97,8 +122,23 @@ class Scene:
         return (d < self.body_radius + clearance).any(axis=1)
 
     def free(self, points: np.ndarray) -> np.ndarray:
-        """Mask (n,) of points (n, 2) inside the room and outside every body disk."""
-        return self.room.contains(points) & ~self.in_body(points)
+        """Mask (n,) of points (n, 2) inside the room, outside every body disk and at least
+        robot_radius from every obstacle."""
+        ok = self.room.contains(points) & ~self.in_body(points)
+        if self.obstacles is not None:
+            ok &= self.obstacles.points_free(np.atleast_2d(points), self.robot_radius)
+        return ok
+
+    def unreachable_starts(self) -> list[int]:
+        """Starts from which no collision-free path reaches the goal, checked on the
+        obstacle raster (or a raster of the room) with the body disks blocked."""
+        room = self.room
+        obstacles = self.obstacles or ObstacleMap(rasterise(
+            [], None, (room.x_min, room.y_min, room.x_max, room.y_max), OBSTACLE_RESOLUTION))
+        radius = self.robot_radius if self.obstacles is not None else 0.0
+        blocked = obstacles.blocked_disks(self.person_xy, self.body_radius)
+        reached = obstacles.reachable(self.goal, self.starts, radius, blocked)
+        return [k for k in range(len(self.starts)) if not reached[k]]
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -113,37 +153,59 @@ class Scene:
             "goal": self.goal.tolist(),
             "body_radius": self.body_radius,
             "goal_tolerance": self.goal_tolerance,
+            "robot_radius": self.robot_radius,
+            "obstacles": [p.tolist() for p in self.polygons],
+            **({"map": self.map_source} if self.map_grid is not None else {}),
         }
 
 
-def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None = None,
-                    goal_tolerance: float | None = None) -> Scene:
-    """Build and validate a Scene from the JSON structure of DESIGN §3.
+def _finite_number(value: Any) -> float:
+    """float(value), refusing NaN, inf, booleans and non-numbers with ValueError."""
+    if isinstance(value, bool):
+        raise ValueError(value)
+    x = float(value)
+    if not math.isfinite(x):
+        raise ValueError(value)
+    return x
 
-    Raises SceneError with one line naming `source` and the offending entry.
-    """
-    def fail(msg: str) -> SceneError:
-        return SceneError(f"{source}: {msg}")
 
-    if not isinstance(data, dict):
-        raise fail("top level must be a JSON object")
-    for key in ("room", "persons", "starts", "goal"):
-        if key not in data:
-            raise fail(f"missing key '{key}'")
+def _points(value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """A finite float array of the given reshape target, or ValueError."""
+    if isinstance(value, (str, bytes, dict)):
+        raise ValueError(value)
+    arr = np.array(value, dtype=float).reshape(shape)
+    if not np.isfinite(arr).all():
+        raise ValueError(value)
+    return arr
+
+
+def _read_room(data: dict, map_grid: OccupancyGrid | None, fail: Any) -> Room:
+    if "room" not in data:
+        if map_grid is None:
+            raise fail("missing key 'room' (needed when the scene has no map)")
+        return Room(*map_grid.extent())  # DESIGN §3: without a room, the map's extent
     try:
         room_d = data["room"]
-        room = Room(*(float(room_d[k]) for k in ("x_min", "y_min", "x_max", "y_max")))
+        room = Room(*(_finite_number(room_d[k]) for k in ("x_min", "y_min", "x_max", "y_max")))
     except (KeyError, TypeError, ValueError):
         raise fail("'room' needs numbers x_min, y_min, x_max, y_max") from None
     if not (room.x_max > room.x_min and room.y_max > room.y_min):
         raise fail(f"room {room.describe()} is empty")
+    return room
 
+
+def _read_persons(data: dict, room: Room, fail: Any) -> list[Person]:
+    if not isinstance(data["persons"], list):
+        raise fail("'persons' must be a list of {id, x, y, ...} objects")
     persons = []
     for i, p in enumerate(data["persons"]):
         try:
-            vx, vy = float(p.get("vx", 0.0)), float(p.get("vy", 0.0))
-            theta = float(p["theta"]) if "theta" in p else math.atan2(vy, vx)
-            persons.append(Person(int(p["id"]), float(p["x"]), float(p["y"]), theta, vx, vy))
+            if isinstance(p["id"], bool) or float(p["id"]) != int(p["id"]):
+                raise ValueError(p["id"])
+            vx, vy = _finite_number(p.get("vx", 0.0)), _finite_number(p.get("vy", 0.0))
+            theta = _finite_number(p["theta"]) if "theta" in p else math.atan2(vy, vx)
+            persons.append(Person(int(p["id"]), _finite_number(p["x"]), _finite_number(p["y"]),
+                                  theta, vx, vy))
         except (KeyError, TypeError, ValueError, AttributeError):
             raise fail(f"person #{i} needs numbers id, x, y (and optional theta, vx, vy)") from None
     ids = [p.id for p in persons]
@@ -152,49 +214,115 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
     for p in persons:
         if not room.contains(np.array([p.x, p.y]))[0]:
             raise fail(f"person {p.id} at ({p.x:g}, {p.y:g}) is outside the room {room.describe()}")
+    return persons
 
+
+def _read_relations(data: dict, persons: list[Person], fail: Any) -> list[tuple[int, int]]:
+    if not isinstance(data.get("relations", []), list):
+        raise fail("'relations' must be a list of [id, id] pairs")
+    by_id = {p.id: p for p in persons}
     relations = []
     for r in data.get("relations", []):
-        if not (isinstance(r, (list, tuple)) and len(r) == 2):
-            raise fail(f"relation {r!r} must be a pair of person ids")
+        try:
+            if not (isinstance(r, (list, tuple)) and len(r) == 2) or \
+                    any(isinstance(v, bool) or float(v) != int(v) for v in r):
+                raise ValueError(r)
+        except (TypeError, ValueError):
+            raise fail(f"relation {r!r} must be a pair of person ids") from None
         a, b = (int(v) for v in r)
         for pid in (a, b):
-            if pid not in ids:
+            if pid not in by_id:
                 raise fail(f"relation [{a}, {b}] names unknown person id {pid}")
         if a == b:
             raise fail(f"relation [{a}, {b}] links a person to itself")
-        pa, pb = (next(p for p in persons if p.id == pid) for pid in (a, b))
+        pa, pb = by_id[a], by_id[b]
         if math.hypot(pa.x - pb.x, pa.y - pb.y) < 1e-6:  # a zero-length social link
             raise fail(f"relation [{a}, {b}] links two persons at the same place")
         relations.append((a, b))
+    return relations
 
+
+def _read_polygons(data: dict, fail: Any) -> tuple[np.ndarray, ...]:
+    raw = data.get("obstacles", [])
+    if not isinstance(raw, list):
+        raise fail("'obstacles' must be a list of polygons [[x, y], ...]")
+    polygons = []
+    for i, poly in enumerate(raw):
+        try:
+            polygons.append(_points(poly, (-1, 2)))
+        except (TypeError, ValueError):
+            raise fail(f"obstacle {i} must be a polygon: a list of at least two finite [x, y]") \
+                from None
+        if len(polygons[-1]) < 2:
+            raise fail(f"obstacle {i} must be a polygon: a list of at least two finite [x, y]")
+    return tuple(polygons)
+
+
+def _check_placement(scene: Scene, fail: Any) -> None:
+    """Starts and goal in free space, persons off obstacles, the goal reachable."""
+    room, obstacles = scene.room, scene.obstacles
+    for p in scene.persons:
+        if obstacles is not None and obstacles.clearance_at(np.array([[p.x, p.y]]))[0] <= 0:
+            raise fail(f"person {p.id} at ({p.x:g}, {p.y:g}) stands inside an obstacle")
+    for k, pt in enumerate(np.vstack([scene.starts, scene.goal[None, :]])):
+        name = f"start {k}" if k < len(scene.starts) else "goal"
+        where = f"{name} ({pt[0]:g}, {pt[1]:g})"
+        if not room.contains(pt)[0]:
+            raise fail(f"{where} is outside the room {room.describe()}")
+        if scene.in_body(pt)[0]:
+            raise fail(f"{where} is inside a person's body disk")
+        if obstacles is not None and not obstacles.points_free(pt[None, :], scene.robot_radius)[0]:
+            clearance = obstacles.clearance_at(pt[None, :])[0]
+            raise fail(f"{where} is {clearance:.2f} m from an obstacle; the robot needs "
+                       f"robot_radius={scene.robot_radius:g} m")
+    unreachable = scene.unreachable_starts()
+    if unreachable:
+        raise fail(f"the goal cannot be reached from start(s) {unreachable} without entering "
+                   "an obstacle or a person's body disk")
+
+
+def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None = None,
+                    goal_tolerance: float | None = None, robot_radius: float | None = None,
+                    map_grid: OccupancyGrid | None = None, map_source: str | None = None) -> Scene:
+    """Build and validate a Scene from the JSON structure of DESIGN §3. A `"map"` key is
+    read by the caller (pipeline.inputs) and handed in as `map_grid`.
+
+    Raises SceneError with one line naming `source` and the offending entry.
+    """
+    def fail(msg: str) -> SceneError:
+        return SceneError(f"{source}: {msg}")
+
+    if not isinstance(data, dict):
+        raise fail("top level must be a JSON object")
+    for key in ("persons", "starts", "goal"):
+        if key not in data:
+            raise fail(f"missing key '{key}'")
+    if "map" in data and map_grid is None:
+        raise fail("has a 'map' but no map was loaded for it")
+    room = _read_room(data, map_grid, fail)
+    persons = _read_persons(data, room, fail)
+    relations = _read_relations(data, persons, fail)
     try:
-        starts = np.array(data["starts"], dtype=float).reshape(-1, 2)
-        goal = np.array(data["goal"], dtype=float).reshape(2)
+        starts = _points(data["starts"], (-1, 2))
+        goal = _points(data["goal"], (2,))
     except (TypeError, ValueError):
-        raise fail("'starts' must be a list of [x, y] and 'goal' one [x, y]") from None
+        raise fail("'starts' must be a list of finite [x, y] and 'goal' one [x, y]") from None
     if len(starts) == 0:
         raise fail("'starts' is empty: at least one start is needed")
-
-    scene = Scene(
-        name=str(data.get("name", Path(source).stem)),
-        room=room,
-        persons=tuple(persons),
-        relations=tuple(relations),
-        starts=starts,
-        goal=goal,
-        body_radius=float(
-            body_radius if body_radius is not None else data.get("body_radius", 0.25)
-        ),
-        goal_tolerance=float(
-            goal_tolerance if goal_tolerance is not None else data.get("goal_tolerance", 0.3)
-        ),
-    )
-    for label, pts in [("start", starts), ("goal", goal[None, :])]:
-        for k, pt in enumerate(pts):
-            name = f"{label} {k}" if label == "start" else "goal"
-            if not room.contains(pt)[0]:
-                raise fail(f"{name} ({pt[0]:g}, {pt[1]:g}) is outside the room {room.describe()}")
-            if scene.in_body(pt)[0]:
-                raise fail(f"{name} ({pt[0]:g}, {pt[1]:g}) is inside a person's body disk")
+    sizes = {}
+    for key, given, default in [("body_radius", body_radius, 0.25),
+                                ("goal_tolerance", goal_tolerance, 0.3),
+                                ("robot_radius", robot_radius, ROBOT_RADIUS)]:
+        try:
+            sizes[key] = _finite_number(given if given is not None else data.get(key, default))
+        except (TypeError, ValueError):
+            raise fail(f"'{key}' must be a finite number") from None
+        if sizes[key] <= 0:
+            raise fail(f"'{key}' must be > 0, got {sizes[key]:g}")
+    scene = Scene(name=str(data.get("name", Path(source).stem)), room=room,
+                  persons=tuple(persons), relations=tuple(relations), starts=starts, goal=goal,
+                  polygons=_read_polygons(data, fail), map_grid=map_grid,
+                  map_source=map_source if map_source is not None else data.get("map"),
+                  **sizes)
+    _check_placement(scene, fail)
     return scene

@@ -1,4 +1,5 @@
-"""Scene files (DESIGN §3): JSON read and validated into a core Scene."""
+"""Scene files (DESIGN §3): JSON read and validated into a core Scene; a `"map"` key names a
+ROS map_server YAML (relative to the scene file), read here into an OccupancyGrid."""
 
 from __future__ import annotations
 
@@ -6,17 +7,27 @@ import json
 from pathlib import Path
 
 from pipeline.core.world import Scene, SceneError, scene_from_dict
+from pipeline.inputs.map_file import load_map
 
 
 def load_scene_file(path: str | Path, body_radius: float | None = None,
-                    goal_tolerance: float | None = None) -> Scene:
-    """Read and validate a scene JSON file; `body_radius`/`goal_tolerance` override the file's."""
+                    goal_tolerance: float | None = None,
+                    robot_radius: float | None = None) -> Scene:
+    """Read and validate a scene JSON file; the keyword sizes, when given, override the
+    file's."""
     path = Path(path)
+    source = f"scene file {path}"
     if not path.is_file():
-        raise SceneError(f"scene file {path} not found")
+        raise SceneError(f"{source} not found")
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise SceneError(f"scene file {path} is not valid JSON ({e})") from None
-    return scene_from_dict(data, source=f"scene file {path}", body_radius=body_radius,
-                           goal_tolerance=goal_tolerance)
+        raise SceneError(f"{source} is not valid JSON ({e})") from None
+    map_grid = None
+    if isinstance(data, dict) and "map" in data:
+        if not isinstance(data["map"], str):
+            raise SceneError(f"{source}: 'map' must be the path of a map_server YAML file")
+        map_grid = load_map(path.parent / data["map"])
+    return scene_from_dict(data, source=source, body_radius=body_radius,
+                           goal_tolerance=goal_tolerance, robot_radius=robot_radius,
+                           map_grid=map_grid)

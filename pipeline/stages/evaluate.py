@@ -68,6 +68,9 @@ def summed_path_metrics(graph: SpatialGraph, policy: np.ndarray, scene: Scene,
         "time_to_goal": float(np.mean([x["time_to_goal"] for x in m])),
         "success": float(np.mean([x["success"] for x in m])),
     }
+    if scene.obstacles is not None:
+        total["obstacle_collisions"] = sum(x["obstacle_collisions"] for x in m)
+        total["min_distance_to_obstacle"] = min(x["min_distance_to_obstacle"] for x in m)
     return {prefix + k: v for k, v in total.items()}, per_path
 
 
@@ -174,6 +177,9 @@ def print_summary(m: dict, ctx: RunContext) -> None:
         f"{fmt('intimate_intrusion_m', '.2f')} m, personal {fmt('personal_intrusion_m', '.2f')} m, "
         f"min distance {fmt('min_distance_to_person', '.2f')} m, success {fmt('success', '.2f')}",
     ]
+    if "obstacle_collisions" in m:
+        lines.append(f"  obstacles        collisions {fmt('obstacle_collisions', '.0f')}, min "
+                     f"distance {fmt('min_distance_to_obstacle', '.2f')} m")
     if "frechet_to_demos" in m:
         lines.append(f"  vs demos         discrete Fréchet mean {fmt('frechet_to_demos', '.3f')} m")
     lines.append("  stage seconds    " + ", ".join(

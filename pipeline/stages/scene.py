@@ -6,7 +6,7 @@ import logging
 
 from pipeline.app import build
 from pipeline.app.context import RunContext
-from pipeline.artefacts import topics
+from pipeline.artefacts import codec, topics
 
 log = logging.getLogger(__name__)
 
@@ -15,5 +15,12 @@ def run(ctx: RunContext) -> None:
     scene = build.scene(ctx.cfg, lambda seed: ctx.rng("scene", seed))
     log.info("scene '%s': %d persons, %d relations, %d starts, goal (%g, %g)", scene.name,
              len(scene.persons), len(scene.relations), len(scene.starts), *scene.goal)
+    if scene.obstacles is not None:
+        log.info("obstacles: %d polygons%s, robot_radius %g m", len(scene.polygons),
+                 f", map {scene.map_source}" if scene.map_grid is not None else "",
+                 scene.robot_radius)
     with ctx.writer("scene") as w:
         w.add(topics.SCENE, "Scene", scene.to_dict(), log_time=0)
+        if scene.map_grid is not None:
+            w.add(topics.SCENE_MAP, "OccupancyGrid", codec.grid_record(scene.map_grid),
+                  log_time=0)

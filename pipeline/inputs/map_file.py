@@ -1,0 +1,127 @@
+"""ROS map_server occupancy maps (DESIGN §3 "Obstacles and maps"): YAML + PGM/PNG image.
+
+The YAML holds `image` (relative to the YAML's directory unless absolute), `resolution`
+(m/cell), `origin` [x, y, yaw] (the lower-left pixel's corner), `negate` (0/1),
+`occupied_thresh`, `free_thresh` and optional `mode` (trinary | scale | raw), as read by
+ROS 1 map_server and Nav2's map_server:
+
+- trinary, scale: p = (255 − v)/255 (negate 0) or v/255 (negate 1), v the grey value;
+  occupied if p > occupied_thresh, free if p < free_thresh, otherwise unknown (in scale
+  mode an intermediate occupancy, or a pixel that is not fully opaque);
+- raw: v is the occupancy in percent (negate is ignored, as in map_server); 0..100 are
+  compared with the thresholds as p = v/100, anything above 100 (255 = -1) is unknown.
+
+Only free cells are free: occupied and unknown (and intermediate) cells are obstacles.
+Image row 0 is the map's top (largest y); the grid is flipped so its row 0 is the bottom.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from PIL import Image, UnidentifiedImageError
+
+from pipeline.core.obstacles import OccupancyGrid
+from pipeline.errors import PipelineError
+
+MODES = ("trinary", "scale", "raw")
+
+
+def load_map(path: str | Path) -> OccupancyGrid:
+    """Read a map_server YAML and its image into an OccupancyGrid (True = obstacle)."""
+    path = Path(path)
+
+    def fail(msg: str) -> PipelineError:
+        return PipelineError(" ".join(f"map {path}: {msg}".split()))  # always one line
+
+    if not path.is_file():
+        raise fail("file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError) as e:
+        raise fail(f"cannot be read ({e})") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise fail(f"is not valid YAML{where} ({getattr(e, 'problem', None) or e})") from None
+    if not isinstance(data, dict):
+        raise fail(f"must be a YAML mapping of map_server keys, got {type(data).__name__}")
+
+    def get(key: str) -> Any:
+        if key not in data:
+            raise fail(f"missing key '{key}'")
+        return data[key]
+
+    def number(key: str, ok: Callable[[float], bool], allowed: str) -> float:
+        value = get(key)
+        if not _is_number(value) or not ok(float(value)):
+            raise fail(f"key '{key}'={value!r} is not allowed (allowed: {allowed})")
+        return float(value)
+
+    image = get("image")
+    if not isinstance(image, str) or not image.strip():
+        raise fail(f"key 'image'={image!r} must be an image file name")
+    resolution = number("resolution", lambda v: v > 0, "a finite number > 0")
+    origin = get("origin")
+    if not (isinstance(origin, list | tuple) and len(origin) == 3
+            and all(_is_number(v) for v in origin)):
+        raise fail(f"key 'origin'={origin!r} must be 3 finite numbers [x, y, yaw]")
+    if float(origin[2]) != 0.0:
+        raise fail(f"origin yaw {origin[2]} is not supported; rotate the image instead")
+    negate = get("negate")
+    if negate not in (0, 1) or isinstance(negate, float):
+        raise fail(f"key 'negate'={negate!r} must be 0 or 1")
+    occupied_thresh = number("occupied_thresh", lambda v: 0 <= v <= 1, "0..1")
+    free_thresh = number("free_thresh", lambda v: 0 <= v <= 1, "0..1")
+    if free_thresh >= occupied_thresh:
+        raise fail(f"key 'free_thresh'={free_thresh} must be below "
+                   f"occupied_thresh={occupied_thresh}")
+    mode = data.get("mode", "trinary")
+    if mode not in MODES:
+        raise fail(f"key 'mode'={mode!r} is not one of {', '.join(MODES)}")
+
+    image_path = Path(image)
+    if not image_path.is_absolute():
+        image_path = path.parent / image_path
+    value, opaque = _read_image(image_path, fail)
+    if mode == "raw":
+        p = value / 100.0  # above 100 (255 = -1 = unknown): p > 1, never free
+    else:
+        p = value / 255.0 if negate else (255.0 - value) / 255.0
+        if mode == "scale":
+            p = np.where(opaque, p, np.nan)
+    free = p < free_thresh  # NaN (unknown) compares False
+    return OccupancyGrid(np.ascontiguousarray(~free[::-1]),
+                         (float(origin[0]), float(origin[1])), resolution)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) \
+        and math.isfinite(value)
+
+
+def _read_image(path: Path, fail: Callable[[str], PipelineError]) -> tuple[np.ndarray, np.ndarray]:
+    """Grey values (H, W) uint8 (image row 0 first) and opaque (H, W) bool of an image."""
+    try:
+        with Image.open(path) as img:
+            img.load()
+            if img.mode.startswith(("I", "F")):
+                raise fail(f"image {path} (key 'image') has {img.mode} pixels; "
+                           "save it as 8-bit grey (PGM/PNG)")
+            value = np.asarray(img.convert("L"))
+            if "A" in img.getbands() or "transparency" in img.info:
+                opaque = np.asarray(img.convert("RGBA"))[..., 3] == 255
+            else:
+                opaque = np.ones(value.shape, dtype=bool)
+    except FileNotFoundError:
+        raise fail(f"image {path} (key 'image') not found") from None
+    except (OSError, UnidentifiedImageError, Image.DecompressionBombError, ValueError) as e:
+        raise fail(f"image {path} (key 'image') cannot be read ({e})") from None
+    if value.size == 0:
+        raise fail(f"image {path} (key 'image') is empty")
+    return value, opaque
