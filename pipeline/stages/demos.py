@@ -48,7 +48,9 @@ def run(ctx: RunContext) -> None:
         demos = boltzmann_demos(mdp, roadmap.positions, roadmap.start_nodes, w_true, solution,
                                 expert, ctx.rng("demos"))
     elif isinstance(expert, FileExpertConfig):
-        demos = load_demo_file(resolve_path(expert.path), scene, features, md.speed)
+        demos = load_demo_file(resolve_path(expert.path), scene, features, md.speed,
+                               topic=expert.topic, frame=expert.frame,
+                               start_radius=expert.start_radius)
     else:
         demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
     if expert.n_demos is not None:
