@@ -8,6 +8,8 @@ import numpy as np
 
 from pipeline.app.config import Config, RandomSceneConfig
 from pipeline.app.context import resolve_path
+from pipeline.artefacts import read_artefact, topics
+from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.controllers import Controller, PosqController, make_controller
 from pipeline.core.features import FeatureModel
 from pipeline.core.scenegen import RandomSceneSpec, random_scene
@@ -17,6 +19,7 @@ from pipeline.inputs.map_file import load_map
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.irl import methods
 from pipeline.irl.base import Method
+from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import Prior
 
 
@@ -55,9 +58,42 @@ def irl_method(cfg: Config) -> Method:
     return methods()[cfg.birl.kind]
 
 
+def fixed_weights(cfg: Config) -> np.ndarray | None:
+    """`birl=fixed`: its weights (given, or the final iteration of birl.from_run's
+    birl.mcap, checked against this run's features); None for methods that learn."""
+    b = cfg.birl
+    if not isinstance(b, FixedConfig):
+        return None
+    d = cfg.n_features
+    if b.weights is not None:
+        w = np.asarray(b.weights, float)
+        source = "birl.weights"
+    else:
+        run = resolve_path(b.from_run)
+        art = read_artefact(run / ARTEFACT_FILE["birl"],
+                            required_topics=[topics.BIRL_EXPERT, topics.BIRL_ITERATION])
+        names = art.one(topics.BIRL_EXPERT)["feature_names"]
+        if list(names) != list(cfg.reward.features):
+            raise PipelineError(f"config error: birl.from_run={b.from_run} learned weights on "
+                                f"{names}; set reward.features={list(names)}")
+        w = np.asarray(art.all(topics.BIRL_ITERATION)[-1]["weights"], float)
+        source = f"{run / ARTEFACT_FILE['birl']}"
+    if len(w) != d:
+        raise PipelineError(f"config error: birl.weights={w.tolist()} needs {d} numbers "
+                            f"(reward.features={list(cfg.reward.features)})")
+    if not prior(cfg).in_box(w):
+        raise PipelineError(f"config error: the weights from {source} {w.tolist()} lie outside "
+                            "[birl.lower, birl.upper]; widen them (e.g. birl.lower=[-100])")
+    return w
+
+
 def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.ndarray, str]:
-    """The reward that grows the graph: the learner's prior mean unless asked otherwise."""
+    """The reward that grows the graph: the learner's prior mean unless asked otherwise
+    (with `birl=fixed`, its weights)."""
     w = cfg.graph.weights
+    fixed = fixed_weights(cfg)
+    if (w is None or w == "prior") and fixed is not None:
+        return fixed, "fixed"
     if w is None or w == "prior":
         return prior(cfg).box_mean(), "prior_mean"
     if w is True or w == "true":

@@ -146,6 +146,13 @@ class GraphConfig(GraphParams):
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
 
+@dataclass
+class EvaluateConfig:
+    # DESIGN §9 Transfer: scene files on which the learned reward is also planned with and
+    # scored (reference roadmap of each), as transfer_<scene>_<metric> keys
+    transfer_scenes: list[str] = field(default_factory=list)
+
+
 # -- the whole run -------------------------------------------------------------------------
 
 
@@ -163,6 +170,7 @@ class Config:
     roadmap: RoadmapParams = field(default_factory=RoadmapParams)
     graph: GraphConfig = MISSING
     birl: IRLConfig = MISSING
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
 
     @property
     def n_features(self) -> int:
@@ -219,7 +227,7 @@ def _require_matching_kind(section: str, obj: Any, registry: dict[str, type]) ->
 def load_settings(cfg: DictConfig) -> Config:
     """The composed config as checked, typed objects (a Config instance)."""
     sections = {}
-    for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl"):
+    for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl", "evaluate"):
         sections[key] = _instantiate(cfg[key], key)
     top = OmegaConf.to_object(OmegaConf.masked_copy(cfg, ["seed", "stages", "from_run"]))
     settings = Config(**top, **sections)  # type: ignore[arg-type]

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from pipeline.core.features import FeatureModel
-from pipeline.core.graph_mdp import GraphMDP
+from pipeline.core.graph_mdp import GraphMDP, SpatialGraph
 from pipeline.core.params import require, require_positive
 from pipeline.core.world import Scene
 
@@ -45,6 +45,11 @@ class Roadmap:
     def mdp(self, gamma: float = 0.95, r_goal: float = 1.0, v_max: float = 10.0) -> GraphMDP:
         return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
                         gamma=gamma, r_goal=r_goal, v_max=v_max)
+
+    def spatial(self, mdp: GraphMDP) -> SpatialGraph:
+        """The roadmap with its MDP `mdp` as a SpatialGraph (straight edges)."""
+        ways = [self.positions[[a, b]] for a, b in zip(self.src, self.dst, strict=True)]
+        return SpatialGraph(self.positions, mdp, self.start_nodes, ways)
 
 
 def segments_feasible(scene: Scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -95,7 +95,12 @@ def run(ctx: RunContext) -> None:
     expert = codec.decode_expert_stats(demos)
     prior = build.prior(cfg)
     rng = ctx.rng("birl")
-    w0 = np.asarray(b.init_weights, float) if b.init_weights is not None else prior.sample(rng)
+    fixed = build.fixed_weights(cfg)  # birl=fixed: the given or transferred weights
+    if fixed is not None:
+        w0 = fixed
+    else:
+        w0 = np.asarray(b.init_weights, float) if b.init_weights is not None else \
+            prior.sample(rng)
     grow_nodes = getattr(b, "grow_nodes", 0)  # only methods that learn on the graph have it
     env: GraphEnvironment
     if grow_nodes > 0:

@@ -10,20 +10,25 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import time
+from pathlib import Path
 
 import numpy as np
 from omegaconf import OmegaConf
 
-from pipeline.app.context import PROJECT_ROOT, RunContext
+from pipeline.app import build
+from pipeline.app.context import PROJECT_ROOT, RunContext, resolve_path
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import PolicyLoss, discrete_frechet, follow_all, policy_loss
 from pipeline.core.features import FEATURE_NAMES
 from pipeline.core.graph_mdp import SpatialGraph
+from pipeline.core.roadmap import build_roadmap
 from pipeline.core.social import path_metrics
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
+from pipeline.inputs.scene_file import load_scene_file
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +79,45 @@ def summed_path_metrics(graph: SpatialGraph, policy: np.ndarray, scene: Scene,
     return {prefix + k: v for k, v in total.items()}, per_path
 
 
+TRANSFER_KEYS = ("policy_loss", "policy_loss_norm", "relation_crossings", "intimate_intrusion_m",
+                 "personal_intrusion_m", "min_distance_to_person", "path_length", "success",
+                 "obstacle_collisions", "min_distance_to_obstacle")
+
+
+def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
+                     true_weights: list[float] | None) -> dict[str, float]:
+    """DESIGN §9: the learned weights planned with on another scene's reference roadmap:
+    its policy loss (when the expert's true weights are known) and path metrics, as
+    transfer_<scene name>_<metric>."""
+    cfg, md = ctx.cfg, ctx.cfg.mdp
+    scene = load_scene_file(resolve_path(path))
+    features = build.feature_model(cfg, scene)
+    roadmap = build_roadmap(scene, features, cfg.roadmap, md.speed)
+    graph = roadmap.spatial(roadmap.mdp(md.gamma, md.r_goal, md.v_max))
+    out: dict[str, float] = {}
+    if true_weights is not None:
+        w_true = np.asarray(true_weights, float)
+        _, learned, optimal = loss_curve(graph, w_true, w_learned[None, :])
+        contrast = contrast_preset(w_true, list(cfg.reward.features))
+        baseline = policy_loss(graph.mdp, w_true, preset_weights(contrast, cfg.reward.features),
+                               graph.start_nodes, optimal).loss
+        out["policy_loss"] = learned.loss
+        out["policy_loss_norm"] = learned.loss / baseline if baseline > 0 else np.nan
+        policy = learned.policy
+    else:
+        policy = graph.mdp.solve(w_learned).policy
+    out.update(summed_path_metrics(graph, policy, scene)[0])
+    name = re.sub(r"\W+", "_", scene.name).strip("_") or Path(path).stem
+    log.info("transfer to %s (%s): %s", name, path, {k: round(out[k], 4) for k in out
+                                                      if k in ("policy_loss_norm", "success")})
+    return {f"transfer_{name}_{k}": v for k, v in out.items() if k in TRANSFER_KEYS}
+
+
+def contrast_preset(w_true: np.ndarray, names: list[str]) -> str:
+    """The behaviour a loss is normalised by: rude, or polite when w* is rude."""
+    return "polite" if np.allclose(w_true, preset_weights("rude", names)) else "rude"
+
+
 def run(ctx: RunContext) -> None:
     t0 = time.perf_counter()
     md, names = ctx.cfg.mdp, list(ctx.cfg.reward.features)
@@ -107,7 +151,7 @@ def run(ctx: RunContext) -> None:
         curves["graph"], final_graph, _ = loss_curve(graph, w_true, weights)
         curves["ref"], final_ref, ref_optimal = loss_curve(roadmap, w_true, weights)
         # Normalise by the loss of the contrasting behaviour (rude; polite if w* is rude).
-        contrast = "polite" if np.allclose(w_true, preset_weights("rude", names)) else "rude"
+        contrast = contrast_preset(w_true, names)
         baseline = policy_loss(roadmap.mdp, w_true, preset_weights(contrast, names),
                                roadmap.start_nodes, ref_optimal).loss
         curves["norm"] = curves["ref"] / baseline if baseline > 0 else np.full(len(weights), np.nan)
@@ -127,6 +171,8 @@ def run(ctx: RunContext) -> None:
     social_ref, ref_paths = summed_path_metrics(roadmap, ref_policy, scene, prefix="ref_")
     metrics.update(social)
     metrics.update(social_ref)
+    for path in ctx.cfg.evaluate.transfer_scenes:
+        metrics.update(transfer_metrics(ctx, path, w_final, expert["true_weights"]))
     if expert["kind"] == "file":
         demos = demos_art.all(topics.DEMOS)
         dists = [discrete_frechet(graph_paths[d["start_index"]][0], d["points"]) for d in demos]

@@ -1,0 +1,38 @@
+"""`birl=fixed` (DESIGN §9 Transfer): no learning. The weights come from `birl.weights` or
+from the final iteration of another run (`birl.from_run`, read by the app), so a learned
+reward can be planned with and evaluated on a new scene, with the same artefacts and
+metrics as any run."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+from pipeline.core.params import ParameterError
+from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, register
+
+
+@dataclass
+class FixedConfig(IRLConfig):
+    kind: str = "fixed"
+    n_iterations: int = 0  # nothing is learned: iteration 0 holds the given weights
+    weights: Optional[list[float]] = None  # one number per feature
+    from_run: Optional[str] = None  # a run dir: the final weights of its birl.mcap
+
+    def __post_init__(self) -> None:
+        if self.n_iterations != 0:
+            raise ParameterError("n_iterations", self.n_iterations, "0 (birl=fixed learns nothing)")
+        if (self.weights is None) == (self.from_run is None):
+            raise ParameterError("weights", self.weights,
+                                 "exactly one of birl.weights=[...] or birl.from_run=RUN_DIR")
+        if self.weights is not None and not all(
+                isinstance(x, (int, float)) and math.isfinite(x) for x in self.weights):
+            raise ParameterError("weights", self.weights, "finite numbers")
+
+
+@register("fixed", FixedConfig)
+def fit_fixed(problem: IRLProblem, config: IRLConfig) -> IRLResult:
+    """The given weights (problem.w0) as the only iteration; one MDP solve for its paths.
+    There is no likelihood to maximise: log_likelihood is recorded as 0."""
+    return IRLResult([problem.record(0, problem.w0, 0.0)], mdp_solves=[1])
