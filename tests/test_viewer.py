@@ -167,3 +167,14 @@ def test_cli_error_is_one_line_and_exit_2(tmp_path):
     assert res.returncode == 2
     assert res.stderr.startswith("error: ") and "scene.mcap" in res.stderr
     assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+
+
+def test_a_map_scene_draws_the_obstacle_outlines(tmp_path):
+    run_in_process(tmp_path, "scene=office", "stages=[scene]")
+    rrd = build_recording(tmp_path)
+    outlines = chunks_by_entity(rrd)["/scene/obstacles"]
+    (strips,) = column(outlines, "LineStrips2D:strips")  # one row holding every strip
+    assert len(strips) > 10  # outer walls, room walls, furniture
+    # every outline point lies on the map (20 x 14 m, outlines half a cell outside at most)
+    points = np.array([p for strip in strips for p in strip])
+    assert points.min() >= -0.05 and points[:, 0].max() <= 20.05 and points[:, 1].max() <= 14.05

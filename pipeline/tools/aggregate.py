@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from pipeline.artefacts import read_artefact, topics
+from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.errors import PipelineError
 
 
@@ -116,8 +116,14 @@ def plot_scene(job: Path, path: Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle
 
-    scene = read_artefact(job / "scene.mcap").one(topics.SCENE)
+    art = read_artefact(job / "scene.mcap")
+    scene = art.one(topics.SCENE)
     fig, ax = plt.subplots(figsize=(6, 6))
+    obstacles = codec.decode_scene(art).obstacles
+    if obstacles is not None:  # the map and polygons under the scene
+        x0, y0, x1, y1 = obstacles.grid.extent()
+        ax.imshow(obstacles.grid.occupied, origin="lower", extent=(x0, x1, y0, y1),
+                  cmap="Greys", vmin=0, vmax=1.5, interpolation="nearest")
     room = scene["room"]
     ax.plot([room["x_min"], room["x_max"], room["x_max"], room["x_min"], room["x_min"]],
             [room["y_min"], room["y_min"], room["y_max"], room["y_max"], room["y_min"]], "k-")

@@ -21,7 +21,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from pipeline.artefacts import Artefact, read_artefact, topics
+from pipeline.artefacts import Artefact, codec, read_artefact, topics
 from pipeline.errors import PipelineError
 
 APP_ID = "birlg"
@@ -32,6 +32,13 @@ KIND_COLORS = {"start": (40, 180, 60), "goal": (220, 40, 40), "voronoi": (60, 11
 
 def _strips(polylines) -> list[np.ndarray]:
     return [np.asarray(p, dtype=float).reshape(-1, 2) for p in polylines]
+
+
+def _log_obstacles(rec: rr.RecordingStream, outlines: list[np.ndarray]) -> None:
+    """The obstacle raster's outlines (map walls, polygons), under everything else."""
+    if outlines:
+        rec.log("scene/obstacles", rr.LineStrips2D(outlines, radii=0.02, colors=(40, 40, 40),
+                                                   draw_order=-10.0), static=True, strict=True)
 
 
 def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
@@ -135,7 +142,8 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise PipelineError(f"run dir {run_dir} does not exist or is not a directory")
-    scene = read_artefact(run_dir / "scene.mcap").one(topics.SCENE)
+    scene_art = read_artefact(run_dir / "scene.mcap")
+    scene = scene_art.one(topics.SCENE)
     arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
             if (run_dir / f"{n}.mcap").exists()}
     rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
@@ -154,6 +162,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
         rec.send_recording_name(run_dir.resolve().name)
         rec.send_blueprint(_blueprint(scene["room"]))
         _log_scene(rec, scene)
+        _log_obstacles(rec, codec.obstacle_outlines(codec.decode_scene(scene_art)))
         if "demos" in arts:
             rec.log("demos/trajectories", rr.LineStrips2D(
                 _strips([d["points"] for d in arts["demos"].all(topics.DEMOS)]), radii=0.03,
