@@ -216,10 +216,8 @@ def test_path_messages_are_trajectories(tmp_path, storage):
     demos = load(bag, frame="map")
     assert [k for k, _ in demos] == [0, 2]
     for (_, p), raw in zip(demos, (PATH_A, PATH_B), strict=True):
-        assert np.array_equal(p[0], raw[0]) and np.array_equal(p[-1], raw[-1])
-        assert on_polyline(p, raw).max() < 1e-9
-        assert np.linalg.norm(np.diff(p, axis=0), axis=1).max() <= 0.1 + 1e-12
-        assert length(p) <= length(raw) + 1e-9
+        # a polyline is kept as given, like a JSON file's; only repeated poses are dropped
+        assert np.array_equal(p, raw[np.r_[True, np.any(np.diff(raw, axis=0) != 0, axis=1)]])
 
 
 def test_odometry_stream_is_cut_into_two_trajectories(tmp_path):

@@ -170,10 +170,17 @@ def _finite_number(value: Any) -> float:
 
 
 def _points(value: Any, shape: tuple[int, ...]) -> np.ndarray:
-    """A finite float array of the given reshape target, or ValueError."""
-    if isinstance(value, (str, bytes, dict)):
+    """A finite float array of exactly `shape` (-1: any length), or ValueError: [x, y]
+    pairs are never re-read from lists of another shape."""
+    if not isinstance(value, list) or any(isinstance(v, bool) for v in np.ravel(
+            np.array(value, dtype=object))):
         raise ValueError(value)
-    arr = np.array(value, dtype=float).reshape(shape)
+    if value == [] and shape[0] == -1:
+        return np.zeros((0, *shape[1:]))
+    arr = np.array(value, dtype=float)
+    if arr.ndim != len(shape) or any(n not in (-1, m) for n, m in zip(shape, arr.shape,
+                                                                       strict=True)):
+        raise ValueError(value)
     if not np.isfinite(arr).all():
         raise ValueError(value)
     return arr

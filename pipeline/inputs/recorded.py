@@ -381,10 +381,12 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
                   spacing: float = 0.1, room: Room | None = None) -> list[tuple[int, np.ndarray]]:
     """Read a recorded demonstration into (start index, cleaned (K, 2) polyline) pairs.
 
-    A pose stream is cut with `cut_stream`. JSON polylines keep their points (only repeated
-    points are dropped), so results from hand-made files stay as they were; CSV and bag tracks
-    are cleaned with `clean_track(track, spacing)`. With `room`, every trajectory (before
-    cleaning) must stay inside it. Each trajectory is then matched with `match_to_starts`.
+    A pose stream (Odometry, PoseStamped, a CSV without `trajectory` ids) is cut with
+    `cut_stream` and cleaned with `clean_track(track, spacing)`: dense, noisy and repeated
+    poses become an evenly spaced polyline. Trajectories given as polylines (JSON, CSV with
+    ids, nav_msgs/Path) keep their points, only repeated points dropped, so the same
+    polylines learn the same reward whatever the file format. With `room`, every trajectory
+    (before cleaning) must stay inside it. Each trajectory is then matched with `match_to_starts`.
     """
     path = Path(path)
     where = describe(path)
@@ -401,10 +403,10 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         for i, t in enumerate(tracks):
             if not room.contains(t).all():
                 raise PipelineError(f"{where}: trajectory {i} leaves the room {room.describe()}")
-    if path.suffix.lower() == ".json":
-        cleaned = [drop_repeats(t) for t in tracks]
-    else:
+    if is_stream:
         cleaned = [clean_track(t, spacing) for t in tracks]
+    else:
+        cleaned = [drop_repeats(t) for t in tracks]
     for i, t in enumerate(cleaned):
         if len(t) < 2:
             raise PipelineError(f"{where}: trajectory {i} never moves (all its points are "
