@@ -66,3 +66,4 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench graph
 	$(PY) -m pipeline.tools.bench experiment
 	$(PY) -m pipeline.tools.bench irl
+	$(PY) -m pipeline.tools.bench obstacles

@@ -93,7 +93,7 @@ def graph_scaling(sizes: list[int], seed: int) -> pd.DataFrame:
     return table
 
 
-def experiment_timings(repeats: int) -> pd.DataFrame:
+def experiment_timings(repeats: int, *overrides: str) -> pd.DataFrame:
     """Run the default experiment end to end `repeats` times; stage seconds from metrics.json,
     with what one BIRL-G iteration costs (MAP step + warm policy iteration on the graph)
     against one exact policy-iteration solve of the reference roadmap."""
@@ -103,7 +103,7 @@ def experiment_timings(repeats: int) -> pd.DataFrame:
     for k in range(repeats):
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={tmp}"],
+            subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={tmp}", *overrides],
                            check=True, capture_output=True, cwd=PROJECT_ROOT)
             wall = time.perf_counter() - t0
             m = json.loads((Path(tmp) / "metrics.json").read_text())
@@ -114,6 +114,33 @@ def experiment_timings(repeats: int) -> pd.DataFrame:
         rows.append(row)
         print(f"  {row}", flush=True)
     return pd.DataFrame(rows)
+
+
+def obstacle_costs(repeats: int) -> pd.DataFrame:
+    """The default experiment on the office map against the empty metropolis room (stage
+    seconds, min of `repeats`), and the collision check alone (100k random segments)."""
+    from pipeline.inputs.scene_file import load_scene_file
+
+    rows = []
+    for name, overrides in [("metropolis", []), ("office", ["scene=office"]),
+                            ("office_preset", ["experiment=office"])]:
+        runs = experiment_timings(repeats, *overrides)
+        stages = runs[[f"{s}_s" for s in ("scene", "demos", "graph", "birl", "evaluate")]]
+        best = runs.loc[stages.sum(axis=1).idxmin()]
+        rows.append({"scene": name, "overrides": " ".join(overrides) or "(defaults)",
+                     "stage_seconds": round(float(stages.sum(axis=1).min()), 3),
+                     **{k: best[k] for k in stages.columns}})
+    table = pd.DataFrame(rows)
+    table["ratio_to_metropolis"] = (table.stage_seconds / table.stage_seconds[0]).round(2)
+    office = load_scene_file(PROJECT_ROOT / "data" / "scenes" / "office.json")
+    rng = np.random.default_rng(0)
+    a = rng.uniform([0, 0], [20, 14], (100_000, 2))
+    b = a + rng.normal(0, 0.3, a.shape)
+    assert office.obstacles is not None
+    t0 = time.perf_counter()
+    office.obstacles.segments_free(a, b, office.robot_radius)
+    table["segments_100k_check_s"] = round(time.perf_counter() - t0, 3)
+    return table
 
 
 IRL_METHODS = ["map", "mcmc", "policywalk", "maxent"]
@@ -201,6 +228,8 @@ def main(argv=None) -> None:
     irl.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     irl.add_argument("--methods", nargs="+", default=IRL_METHODS)
     irl.add_argument("--scenes", nargs="+", default=list(IRL_SCENES))
+    o = sub.add_parser("obstacles", help="office map vs metropolis -> results/bench/obstacles.csv")
+    o.add_argument("--repeats", type=int, default=3)
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
@@ -218,6 +247,10 @@ def main(argv=None) -> None:
         summary = table.groupby("method")[["wall_s", "mdp_solves", "policy_loss_ref",
                                            "policy_loss_norm"]].mean()
         print(summary.to_string())
+    elif args.suite == "obstacles":
+        print(f"office map vs metropolis, min of {args.repeats} runs:", flush=True)
+        table = obstacle_costs(args.repeats)
+        path = RESULTS / "obstacles.csv"
     elif args.suite == "experiment":
         print(f"default experiment, {args.repeats} runs:", flush=True)
         table = experiment_timings(args.repeats)
