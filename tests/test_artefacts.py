@@ -212,3 +212,17 @@ def test_to_jsonable():
                        "c": [np.str_("s"), None]})
     assert out == {"a": [1, 0.5], "b": [[True, False]], "c": ["s", None]}
     assert type(out["a"][0]) is int and type(out["a"][1]) is float
+
+
+def test_two_writers_of_one_file_do_not_share_a_temporary_file(tmp_path):
+    # Two runs writing the same artefact name at once: each writes its own temporary file,
+    # and the file that lands is one complete artefact (the last rename wins).
+    path = tmp_path / "scene.mcap"
+    first = ArtefactWriter(path, config_yaml="first", metadata={})
+    second = ArtefactWriter(path, config_yaml="second", metadata={})
+    with first as a, second as b:
+        a.add("/scene", "Scene", {"size": [1]}, 0)
+        b.add("/scene", "Scene", {"size": [2]}, 0)
+        assert a.tmp_path != b.tmp_path and a.tmp_path.exists() and b.tmp_path.exists()
+    assert read_artefact(path).config_yaml in ("first", "second")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.mcap"]

@@ -6,7 +6,9 @@ from pipeline.artefacts.store import (
     ArtefactError,
     ArtefactWriter,
     read_artefact,
+    unique_tmp,
     write_artefact,
 )
 
-__all__ = ["Artefact", "ArtefactError", "ArtefactWriter", "read_artefact", "write_artefact"]
+__all__ = ["Artefact", "ArtefactError", "ArtefactWriter", "read_artefact", "unique_tmp",
+           "write_artefact"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import uuid
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,12 @@ SCHEMA_PREFIX = "birlg."
 _MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_PREFIX_LEN = 1 + 8 + 8 + 8  # opcode, length, summary_start, summary_offset_start
 
+
+
+def unique_tmp(path: Path) -> Path:
+    """A temporary name beside `path` that no other writer uses (process id and a random
+    part), so two runs writing into one dir never write into each other's file."""
+    return path.with_name(f"{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
 
 class ArtefactError(PipelineError):
     """A missing, corrupt or incomplete artefact file (message is one line naming the file)."""
@@ -75,7 +82,7 @@ class ArtefactWriter:
 
     def __init__(self, path: str | os.PathLike, *, config_yaml: str, metadata: dict[str, str]):
         self.path = Path(path)
-        self.tmp_path = self.path.with_name(self.path.name + ".tmp")
+        self.tmp_path = unique_tmp(self.path)
         if not all(isinstance(k, str) and isinstance(v, str) for k, v in metadata.items()):
             raise ValueError("artefact metadata must be a str -> str dict")
         self._config_yaml, self._metadata = config_yaml, dict(sorted(metadata.items()))

@@ -19,7 +19,7 @@ from omegaconf import OmegaConf
 
 from pipeline.app import build
 from pipeline.app.context import PROJECT_ROOT, RunContext, resolve_path
-from pipeline.artefacts import codec, topics
+from pipeline.artefacts import codec, topics, unique_tmp
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import PolicyLoss, discrete_frechet, follow_all, policy_loss
 from pipeline.core.features import FEATURE_NAMES
@@ -202,7 +202,7 @@ def run(ctx: RunContext) -> None:
         w.add(topics.EVAL_METRICS, "Metrics", {k: v for k, v in metrics.items()
                                            if not (k.startswith("time_") and k.endswith("_s"))},
               log_time=0)
-    tmp = ctx.run_dir / "metrics.json.tmp"
+    tmp = unique_tmp(ctx.run_dir / "metrics.json")
     tmp.write_text(json.dumps(metrics, indent=1, sort_keys=True))
     os.replace(tmp, ctx.run_dir / "metrics.json")
     print_summary(metrics, ctx)

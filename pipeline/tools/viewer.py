@@ -21,7 +21,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from pipeline.artefacts import Artefact, codec, read_artefact, topics
+from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.errors import PipelineError
 
 APP_ID = "birlg"
@@ -147,7 +147,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
             if (run_dir / f"{n}.mcap").exists()}
     rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
-    tmp = rrd_path.with_name(rrd_path.name + ".tmp")
+    tmp = unique_tmp(rrd_path)
     # Same run dir -> same recording id: a rebuilt .rrd is the same recording, not a new one.
     rec_id = uuid.uuid5(uuid.NAMESPACE_URL, f"birlg:{run_dir.resolve()}")
     rec = rr.RecordingStream(APP_ID, recording_id=rec_id)
