@@ -91,10 +91,10 @@ def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.nd
     """The reward that grows the graph: the learner's prior mean unless asked otherwise
     (with `birl=fixed`, its weights)."""
     w = cfg.graph.weights
-    fixed = fixed_weights(cfg)
-    if (w is None or w == "prior") and fixed is not None:
-        return fixed, "fixed"
     if w is None or w == "prior":
+        fixed = fixed_weights(cfg)
+        if fixed is not None:
+            return fixed, "fixed"
         return prior(cfg).box_mean(), "prior_mean"
     if w is True or w == "true":
         if true_weights is None:

@@ -32,23 +32,6 @@ def decode_grid(msg: dict) -> OccupancyGrid:
                          float(msg["resolution"]))
 
 
-def obstacle_outlines(scene: Scene) -> list[np.ndarray]:
-    """Outlines (polylines (k, 2)) of the scene's obstacle raster, map and polygons, for
-    drawing; empty without obstacles."""
-    if scene.obstacles is None:
-        return []
-    import contourpy  # ships with matplotlib; imported only for drawing
-
-    grid = scene.obstacles.grid
-    centres = grid.cell_centres()
-    padded = np.pad(grid.occupied.astype(float), 1)  # close the outlines at the border
-    res = grid.resolution
-    x = np.concatenate([[centres[0, 0, 0] - res], centres[0, :, 0], [centres[0, -1, 0] + res]])
-    y = np.concatenate([[centres[0, 0, 1] - res], centres[:, 0, 1], [centres[-1, 0, 1] + res]])
-    lines = contourpy.contour_generator(x, y, padded).lines(0.5)
-    return [np.asarray(line, float) for line in lines]
-
-
 def decode_scene(art: Artefact) -> Scene:
     """The scene of scene.mcap (with its map, when it has one)."""
     map_grid = decode_grid(art.one(topics.SCENE_MAP)) if art.messages.get(topics.SCENE_MAP) \

@@ -38,9 +38,6 @@ class BodyParams:
         require_positive(self, "body_radius", "goal_tolerance", "robot_radius")
 
 
-ROBOT_RADIUS = BodyParams.robot_radius  # m, scene files without "robot_radius"
-
-
 @dataclass(frozen=True)
 class Room:
     x_min: float
@@ -57,6 +54,10 @@ class Room:
             & (p[:, 1] >= self.y_min + margin)
             & (p[:, 1] <= self.y_max - margin)
         )
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        return self.x_min, self.y_min, self.x_max, self.y_max
 
     @property
     def area(self) -> float:
@@ -84,9 +85,9 @@ class Scene:
     relations: tuple[tuple[int, int], ...]
     starts: np.ndarray  # (n_starts, 2)
     goal: np.ndarray  # (2,)
-    body_radius: float = 0.25
-    goal_tolerance: float = 0.3
-    robot_radius: float = ROBOT_RADIUS
+    body_radius: float = BodyParams.body_radius
+    goal_tolerance: float = BodyParams.goal_tolerance
+    robot_radius: float = BodyParams.robot_radius
     polygons: tuple[np.ndarray, ...] = ()  # obstacle polygons, each (k, 2), closed implicitly
     map_grid: OccupancyGrid | None = None  # the scene's map (DESIGN §3), polygons not burnt in
     map_source: str | None = None  # the map file as the scene file names it
@@ -96,9 +97,8 @@ class Scene:
         """Clearance queries on the map with the polygons burnt in; None without obstacles."""
         if self.map_grid is None and not self.polygons:
             return None
-        room = self.room
-        grid = rasterise(list(self.polygons), self.map_grid,
-                         (room.x_min, room.y_min, room.x_max, room.y_max), OBSTACLE_RESOLUTION)
+        grid = rasterise(list(self.polygons), self.map_grid, self.room.bounds,
+                         OBSTACLE_RESOLUTION)
         return ObstacleMap(grid)
 
     @property
@@ -132,9 +132,8 @@ class Scene:
     def unreachable_starts(self) -> list[int]:
         """Starts from which no collision-free path reaches the goal, checked on the
         obstacle raster (or a raster of the room) with the body disks blocked."""
-        room = self.room
-        obstacles = self.obstacles or ObstacleMap(rasterise(
-            [], None, (room.x_min, room.y_min, room.x_max, room.y_max), OBSTACLE_RESOLUTION))
+        obstacles = self.obstacles or ObstacleMap(rasterise([], None, self.room.bounds,
+                                                            OBSTACLE_RESOLUTION))
         radius = self.robot_radius if self.obstacles is not None else 0.0
         blocked = obstacles.blocked_disks(self.person_xy, self.body_radius)
         reached = obstacles.reachable(self.goal, self.starts, radius, blocked)
@@ -290,7 +289,7 @@ def _check_placement(scene: Scene, fail: Any) -> None:
 
 def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None = None,
                     goal_tolerance: float | None = None, robot_radius: float | None = None,
-                    map_grid: OccupancyGrid | None = None, map_source: str | None = None) -> Scene:
+                    map_grid: OccupancyGrid | None = None) -> Scene:
     """Build and validate a Scene from the JSON structure of DESIGN §3. A `"map"` key is
     read by the caller (pipeline.inputs) and handed in as `map_grid`.
 
@@ -317,9 +316,9 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
     if len(starts) == 0:
         raise fail("'starts' is empty: at least one start is needed")
     sizes = {}
-    for key, given, default in [("body_radius", body_radius, 0.25),
-                                ("goal_tolerance", goal_tolerance, 0.3),
-                                ("robot_radius", robot_radius, ROBOT_RADIUS)]:
+    for key, given, default in [("body_radius", body_radius, BodyParams.body_radius),
+                                ("goal_tolerance", goal_tolerance, BodyParams.goal_tolerance),
+                                ("robot_radius", robot_radius, BodyParams.robot_radius)]:
         try:
             sizes[key] = _finite_number(given if given is not None else data.get(key, default))
         except (TypeError, ValueError):
@@ -329,7 +328,7 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
     scene = Scene(name=str(data.get("name", Path(source).stem)), room=room,
                   persons=tuple(persons), relations=tuple(relations), starts=starts, goal=goal,
                   polygons=_read_polygons(data, fail), map_grid=map_grid,
-                  map_source=map_source if map_source is not None else data.get("map"),
+                  map_source=data.get("map"),
                   **sizes)
     _check_placement(scene, fail)
     return scene

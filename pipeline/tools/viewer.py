@@ -17,11 +17,13 @@ import sys
 import uuid
 from pathlib import Path
 
+import contourpy  # ships with matplotlib
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
+from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 
 APP_ID = "birlg"
@@ -32,6 +34,21 @@ KIND_COLORS = {"start": (40, 180, 60), "goal": (220, 40, 40), "voronoi": (60, 11
 
 def _strips(polylines) -> list[np.ndarray]:
     return [np.asarray(p, dtype=float).reshape(-1, 2) for p in polylines]
+
+
+def obstacle_outlines(scene: Scene) -> list[np.ndarray]:
+    """Outlines (polylines (k, 2)) of the scene's obstacle raster, map and polygons, for
+    drawing; empty without obstacles."""
+    if scene.obstacles is None:
+        return []
+    grid = scene.obstacles.grid
+    centres = grid.cell_centres()
+    padded = np.pad(grid.occupied.astype(float), 1)  # close the outlines at the border
+    res = grid.resolution
+    x = np.concatenate([[centres[0, 0, 0] - res], centres[0, :, 0], [centres[0, -1, 0] + res]])
+    y = np.concatenate([[centres[0, 0, 1] - res], centres[:, 0, 1], [centres[-1, 0, 1] + res]])
+    lines = contourpy.contour_generator(x, y, padded).lines(0.5)
+    return [np.asarray(line, float) for line in lines]
 
 
 def _log_obstacles(rec: rr.RecordingStream, outlines: list[np.ndarray]) -> None:
@@ -162,7 +179,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
         rec.send_recording_name(run_dir.resolve().name)
         rec.send_blueprint(_blueprint(scene["room"]))
         _log_scene(rec, scene)
-        _log_obstacles(rec, codec.obstacle_outlines(codec.decode_scene(scene_art)))
+        _log_obstacles(rec, obstacle_outlines(codec.decode_scene(scene_art)))
         if "demos" in arts:
             rec.log("demos/trajectories", rr.LineStrips2D(
                 _strips([d["points"] for d in arts["demos"].all(topics.DEMOS)]), radii=0.03,
