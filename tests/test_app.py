@@ -34,6 +34,9 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("birl.prior.kind=cauchy", "birl.prior.kind"),
     ("birl.lower=[0,0,0,0]", "birl.lower"),
     ("birl.beta=-1", "birl.beta"),
+    ("scene.robot_radius=-0.1", "scene.robot_radius"),
+    ("scene=random scene.robot_radius=0", "scene.robot_radius"),
+    ("expert=file expert.path=x.json expert.start_radius=0", "expert.start_radius"),
     ("graph.controller.max_speed=-1", "graph.controller.max_speed"),
     ("graph.controller.k_rho=0", "graph.controller.k_rho"),
     ("reward.features=[social,dance]", "reward.features"),
@@ -41,7 +44,7 @@ def test_every_config_group_option_composes_and_validates(overrides):
 ])
 def test_out_of_range_values_name_the_key(override, key):
     with pytest.raises(PipelineError) as err:
-        validate(compose_config(override))
+        validate(compose_config(*override.split()))
     message = str(err.value)
     assert message.startswith((f"config error: {key}=", f"config error: {key} is missing"))
     assert "\n" not in message

@@ -60,3 +60,17 @@ def test_bad_fixed_settings_are_one_line(tmp_path, overrides, fragment):
 def test_from_run_without_birl_artefact_names_the_file(tmp_path):
     with pytest.raises(PipelineError, match="birl.mcap"):
         run_in_process(tmp_path / "run", "birl=fixed", f"birl.from_run={tmp_path}", *SMALL)
+
+
+def test_a_missing_transfer_scene_is_one_line(tmp_path):
+    with pytest.raises(PipelineError) as err:
+        run_in_process(tmp_path, *SMALL, "birl.n_iterations=1",
+                       f"evaluate.transfer_scenes=[{tmp_path}/nowhere.json]")
+    assert "nowhere.json" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_missing_map_for_a_random_scene_is_one_line(tmp_path):
+    with pytest.raises(PipelineError) as err:
+        run_in_process(tmp_path, "scene=random", f"scene.map={tmp_path}/nowhere.yaml",
+                       "stages=[scene]")
+    assert "nowhere.yaml" in str(err.value) and "\n" not in str(err.value)
