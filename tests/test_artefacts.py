@@ -1,5 +1,6 @@
 """Artefact MCAP files: round trip, determinism, atomic writes and clear read errors."""
 
+import hashlib
 import json
 
 import numpy as np
@@ -10,6 +11,7 @@ from pipeline.artefacts.store import (
     SCHEMA_PREFIX,
     ArtefactError,
     ArtefactWriter,
+    content_digest,
     read_artefact,
     to_jsonable,
     write_artefact,
@@ -77,8 +79,13 @@ def test_file_layout_with_plain_mcap_reader(tmp_path):
         (att,) = list(reader.iter_attachments())
         assert (att.name, att.media_type, att.data, att.create_time, att.log_time) == (
             "config.yaml", "application/yaml", CONFIG.encode(), 0, 0)
-        (meta,) = list(reader.iter_metadata())
-        assert meta.name == "run" and meta.metadata == META
+        run, content = list(reader.iter_metadata())
+        assert run.name == "run" and run.metadata == META
+        # The content digest covers topic, log_time and data of every message, in order.
+        expected = hashlib.sha256(b"".join(b"%s\0%d\0%s\0" % (t.encode(), lt, d)
+                                           for t, lt, _, d in msgs)).hexdigest()
+        assert content.name == "content" and content.metadata == {"sha256": expected}
+        assert content_digest(path) == expected == read_artefact(path).digest
 
 
 def test_same_inputs_give_identical_bytes(tmp_path):

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.app.config import Config
-from pipeline.artefacts.store import Artefact, ArtefactWriter, read_artefact
+from pipeline.app.provenance import check_config, check_inputs, provenance_metadata
+from pipeline.artefacts.store import Artefact, ArtefactWriter, link_or_copy, read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent.parent
@@ -50,9 +51,11 @@ class RunContext:
     cfg: Config  # the checked, typed settings
     run_dir: Path
     from_run: Path | None
+    config: dict  # the resolved config as plain data (provenance digests)
     config_yaml: str  # the resolved config, attached to every artefact
     metadata: dict[str, str]
     timings: dict[str, float] = field(default_factory=dict)  # extra wall-clock measurements
+    inputs: dict[str, Artefact] = field(default_factory=dict)  # read by the current stage
 
     def rng(self, stage: str, seed: int | None = None, *stream: int) -> np.random.Generator:
         """An independent generator per stage (and optional sub-stream), derived from the run
@@ -61,13 +64,22 @@ class RunContext:
         return np.random.default_rng([seed, STAGES.index(stage), *stream])
 
     def read(self, stage: str, required_topics: Iterable[str] = ()) -> Artefact:
-        """The artefact of an earlier `stage`: from this run dir, else from `from_run`."""
-        name = ARTEFACT_FILE[stage]
-        path = self.run_dir / name
-        if not path.exists() and self.from_run is not None:
-            path = self.from_run / name
-        return read_artefact(path, required_topics=required_topics, producer_stage=stage)
+        """The artefact of an earlier `stage`: made by this run, else from `from_run` (linked
+        into this run dir, so the dir is complete), else already in this run dir. Refused
+        when it was made with other config values or does not belong with the other inputs
+        of the current stage."""
+        path = self.run_dir / ARTEFACT_FILE[stage]
+        linked = self.from_run is not None and stage not in self.cfg.stages
+        source = self.from_run / path.name if self.from_run is not None and linked else path
+        artefact = read_artefact(source, required_topics=required_topics, producer_stage=stage)
+        if linked:
+            link_or_copy(source, path)
+        check_config(stage, artefact, self.config)
+        self.inputs[stage] = artefact
+        check_inputs(self.inputs)
+        return artefact
 
     def writer(self, stage: str) -> ArtefactWriter:
+        meta = {**self.metadata, **provenance_metadata(stage, self.config, self.inputs)}
         return ArtefactWriter(self.run_dir / ARTEFACT_FILE[stage],
-                              config_yaml=self.config_yaml, metadata=self.metadata)
+                              config_yaml=self.config_yaml, metadata=meta)

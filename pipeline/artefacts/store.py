@@ -8,8 +8,10 @@ raises ArtefactError instead of silently yielding fewer messages.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import shutil
 import sys
 import uuid
 import zlib
@@ -19,13 +21,15 @@ from typing import Iterable
 
 import numpy as np
 from mcap.exceptions import EndOfFile
+from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, os_error_reason
 
 SCHEMA_PREFIX = "birlg."
+CONTENT_METADATA = "content"  # MCAP metadata record holding the content digest
 _MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_PREFIX_LEN = 1 + 8 + 8 + 8  # opcode, length, summary_start, summary_offset_start
 
@@ -35,6 +39,57 @@ def unique_tmp(path: Path) -> Path:
     """A temporary name beside `path` that no other writer uses (process id and a random
     part), so two runs writing into one dir never write into each other's file."""
     return path.with_name(f"{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
+
+
+def write_json_atomic(path: Path, obj) -> None:
+    """Write JSON to a unique temp file, fsync, rename: readers see the old or the new file,
+    never a partial one (also when the disk fills up: the temp file is removed)."""
+    tmp = unique_tmp(Path(path))
+    try:
+        with open(tmp, "w") as f:
+            f.write(json.dumps(to_jsonable(obj), indent=1, sort_keys=True))
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def content_digest(path: Path) -> str | None:
+    """The sha256 of an artefact's messages (topic, log_time, data), recorded by the writer.
+
+    It identifies what an artefact says, not the file: the resolved config attached to every
+    artefact changes with any key, the content only with what the stage made. Read from the
+    summary section without reading the messages; None for a missing or unreadable file.
+    """
+    try:
+        with open(path, "rb") as f:
+            for record in make_reader(f).iter_metadata():
+                if record.name == CONTENT_METADATA:
+                    return record.metadata.get("sha256")
+    except Exception:  # noqa: BLE001 - missing, truncated, foreign: no digest to compare
+        return None
+    return None
+
+
+def link_or_copy(source: Path, target: Path) -> None:
+    """Put `source` at `target` as a hard link (artefacts are replaced, never modified, so
+    sharing the inode is safe), or as a copy across filesystems; atomically either way."""
+    if target.exists() and os.path.samefile(source, target):
+        return
+    tmp = unique_tmp(target)
+    try:
+        try:
+            os.link(source, tmp)
+        except OSError:
+            shutil.copyfile(source, tmp)
+        os.replace(tmp, target)
+    except OSError as e:
+        raise ArtefactError(f"cannot put {source} into {target.parent}: "
+                            f"{os_error_reason(e)}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
 
 class ArtefactError(PipelineError):
     """A missing, corrupt or incomplete artefact file (message is one line naming the file)."""
@@ -63,6 +118,7 @@ class Artefact:
     messages: dict[str, list[dict]]  # topic -> payloads in log_time order
     config_yaml: str
     metadata: dict[str, str]
+    digest: str = ""  # content digest (see content_digest): what later artefacts record
 
     def all(self, topic: str) -> list[dict]:
         if topic not in self.messages:
@@ -89,9 +145,13 @@ class ArtefactWriter:
         self._schemas: dict[str, int] = {}  # type_name -> schema id
         self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, type_name)
         self._file = self._writer = None
+        self._content = hashlib.sha256()  # of the messages only: see content_digest()
 
     def __enter__(self) -> ArtefactWriter:
-        self._file = open(self.tmp_path, "wb")
+        try:
+            self._file = open(self.tmp_path, "wb")
+        except OSError as e:
+            raise self._os_error(e) from None
         try:
             # Data CRCs on too, so readers can check the whole data section, not only chunks.
             self._writer = Writer(self._file, compression=CompressionType.ZSTD,
@@ -139,18 +199,31 @@ class ArtefactWriter:
         if topic not in self._channels:
             self._channels[topic] = (
                 self._writer.register_channel(topic, "json", self._schemas[type_name]), type_name)
-        self._writer.add_message(self._channels[topic][0], log_time=int(log_time), data=data,
-                                 publish_time=int(log_time))
+        self._content.update(b"%s\0%d\0%s\0" % (topic.encode(), log_time, data))
+        try:
+            self._writer.add_message(self._channels[topic][0], log_time=int(log_time),
+                                     data=data, publish_time=int(log_time))
+        except OSError as e:
+            raise self._os_error(e) from None
+
+    def _os_error(self, e: OSError) -> ArtefactError:
+        e.filename = None  # the temp file's name would only confuse
+        return ArtefactError(f"cannot write artefact {self.path}: {os_error_reason(e)}")
 
     def __exit__(self, exc_type, exc, tb) -> None:
         done = False
         try:
             if exc_type is None:
-                self._writer.finish()
-                self._file.flush()
-                os.fsync(self._file.fileno())  # durable before it appears under the final name
-                self._file.close()
-                os.replace(self.tmp_path, self.path)
+                try:
+                    self._writer.add_metadata(CONTENT_METADATA,
+                                              {"sha256": self._content.hexdigest()})
+                    self._writer.finish()
+                    self._file.flush()
+                    os.fsync(self._file.fileno())  # durable before it gets the final name
+                    self._file.close()
+                    os.replace(self.tmp_path, self.path)
+                except OSError as e:
+                    raise self._os_error(e) from None
                 done = True
         finally:  # on any failure (in the block or while finishing) drop the partial temp file
             self._writer = None
@@ -213,6 +286,8 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
                    if isinstance(r, Attachment) and r.name == "config.yaml"), b"")
     meta = next((r.metadata for r in records
                  if isinstance(r, Metadata) and r.name == "run"), {})
+    digest = next((r.metadata.get("sha256", "") for r in records
+                   if isinstance(r, Metadata) and r.name == CONTENT_METADATA), "")
     timed: dict[str, list[tuple[int, dict]]] = {c.topic: [] for c in channels.values()}
     for m in (r for r in records if isinstance(r, Message)):
         ch = channels.get(m.channel_id)
@@ -231,4 +306,4 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
     missing = [t for t in required_topics if t not in messages]
     if missing:
         raise fail("has no topic " + ", ".join(f"'{t}'" for t in missing))
-    return Artefact(path, messages, config.decode("utf-8", errors="replace"), dict(meta))
+    return Artefact(path, messages, config.decode("utf-8", errors="replace"), dict(meta), digest)

@@ -17,31 +17,74 @@ from omegaconf import DictConfig, OmegaConf
 
 from pipeline.app.config import load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
+from pipeline.app.rundir import FAILED, INTERRUPTED, RUNNING, RunDir, read_status
+from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, os_error_reason
 
 log = logging.getLogger("pipeline")
 
 
 def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
-    """Check the config and run the selected stages in pipeline order; returns timings."""
+    """Check the config and run the selected stages in pipeline order; returns timings.
+
+    The run dir is locked for the run and says in status.json how far it got (see
+    pipeline.app.rundir); a disk-full or permission error becomes one PipelineError line.
+    """
     settings = load_settings(cfg)
     from_run = resolve_path(settings.from_run) if settings.from_run else None
-    if from_run is not None and not from_run.is_dir():
-        raise PipelineError(f"config error: from_run={settings.from_run} is not a directory")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_yaml(cfg, resolve=True),
-                     run_metadata(settings.seed))
-    timings_path = run_dir / "timings.json"
-    timings = json.loads(timings_path.read_text()) if timings_path.exists() else {}
-    for stage in [s for s in STAGES if s in settings.stages]:
-        log.info("stage %s ...", stage)
-        t0 = time.perf_counter()
-        importlib.import_module(f"pipeline.stages.{stage}").run(ctx)
-        timings[f"time_{stage}_s"] = round(time.perf_counter() - t0, 3)
-        timings.update(ctx.timings)
-        log.info("stage %s done in %.2f s -> %s", stage, timings[f"time_{stage}_s"],
-                 run_dir / ARTEFACT_FILE[stage])
-        # Wall-clock goes to a side file (later into metrics.json), never into artefacts.
-        timings_path.write_text(json.dumps(timings, indent=1, sort_keys=True))
+    if from_run is not None:
+        check_from_run(from_run, settings.from_run)
+    stages = [s for s in STAGES if s in settings.stages]
+    ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
+                     OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed))
+    with RunDir(run_dir, stages) as rundir:
+        timings = ctx.timings  # stages add their own measurements
+        timings.update(read_timings(run_dir / "timings.json"))
+        for stage in STAGES[STAGES.index(stages[0]):]:  # derived: re-measured or removed
+            timings.pop(f"time_{stage}_s", None)
+        for stage in stages:
+            try:
+                run_stage(stage, ctx, rundir)
+            except OSError as e:  # disk full, read-only dir, ...: one line, no traceback
+                raise PipelineError(f"stage {stage}: {os_error_reason(e)}") from None
     return timings
+
+
+def run_stage(stage: str, ctx: RunContext, rundir: RunDir) -> None:
+    rundir.start(stage)
+    log.info("stage %s ...", stage)
+    ctx.inputs.clear()
+    t0 = time.perf_counter()
+    importlib.import_module(f"pipeline.stages.{stage}").run(ctx)
+    rundir.done(stage)
+    ctx.timings[f"time_{stage}_s"] = round(time.perf_counter() - t0, 3)
+    log.info("stage %s done in %.2f s -> %s", stage, ctx.timings[f"time_{stage}_s"],
+             ctx.run_dir / ARTEFACT_FILE[stage])
+    # Wall-clock goes to a side file (later into metrics.json), never into artefacts.
+    write_json_atomic(ctx.run_dir / "timings.json", ctx.timings)
+
+
+def check_from_run(from_run: Path, given: str) -> None:
+    """from_run must be a dir whose run is over: not running now, not killed half-way."""
+    if not from_run.is_dir():
+        raise PipelineError(f"config error: from_run={given} is not a directory")
+    status = read_status(from_run)
+    if status.state in (RUNNING, INTERRUPTED):
+        raise PipelineError(f"from_run={given} is {status.describe()}: its artefacts may be "
+                            "half-made; let it finish, or re-run it (hydra.run.dir=...)")
+    if status.state == FAILED:
+        log.warning("from_run=%s %s; using the artefacts it completed", given,
+                    status.describe())
+
+
+def read_timings(path: Path) -> dict[str, float]:
+    """Earlier timings of this run dir; a damaged file (side information only) is dropped."""
+    try:
+        data = json.loads(path.read_text()) if path.exists() else {}
+    except (OSError, ValueError):
+        data = None
+    if not isinstance(data, dict):
+        log.warning("ignoring unreadable %s", path)
+        return {}
+    return data

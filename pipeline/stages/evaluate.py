@@ -7,9 +7,7 @@ true weights) the similarity of the learned paths to the demonstrations.
 
 from __future__ import annotations
 
-import json
 import logging
-import os
 import re
 import time
 from pathlib import Path
@@ -19,7 +17,8 @@ from omegaconf import OmegaConf
 
 from pipeline.app import build
 from pipeline.app.context import PROJECT_ROOT, RunContext, resolve_path
-from pipeline.artefacts import codec, topics, unique_tmp
+from pipeline.artefacts import codec, topics
+from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import PolicyLoss, discrete_frechet, follow_all, policy_loss
 from pipeline.core.features import FEATURE_NAMES
@@ -179,10 +178,9 @@ def run(ctx: RunContext) -> None:
         metrics["frechet_to_demos"] = float(np.mean(dists))
         metrics["frechet_to_demos_max"] = float(np.max(dists))
 
-    timings_path = ctx.run_dir / "timings.json"
-    timings = json.loads(timings_path.read_text()) if timings_path.exists() else {}
-    timings["time_evaluate_s"] = round(time.perf_counter() - t0, 3)
-    metrics.update(timings)
+    # The earlier stages' wall-clock times (timings.json, kept by run_pipeline) and this one.
+    metrics.update(ctx.timings)
+    metrics["time_evaluate_s"] = round(time.perf_counter() - t0, 3)
     # Flat and numeric: a metric that cannot be computed (e.g. 0/0) is left out.
     metrics = {k: float(v) for k, v in metrics.items() if np.isfinite(v)}
 
@@ -202,9 +200,7 @@ def run(ctx: RunContext) -> None:
         w.add(topics.EVAL_METRICS, "Metrics", {k: v for k, v in metrics.items()
                                            if not (k.startswith("time_") and k.endswith("_s"))},
               log_time=0)
-    tmp = unique_tmp(ctx.run_dir / "metrics.json")
-    tmp.write_text(json.dumps(metrics, indent=1, sort_keys=True))
-    os.replace(tmp, ctx.run_dir / "metrics.json")
+    write_json_atomic(ctx.run_dir / "metrics.json", metrics)
     print_summary(metrics, ctx)
 
 

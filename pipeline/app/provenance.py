@@ -1,0 +1,93 @@
+"""Provenance: every artefact records digests of the config sections it was made from and
+of the artefacts it read (their content digests, pipeline.artefacts.store.content_digest), so a stage can refuse inputs that belong to another config or to
+another run (stored as MCAP metadata `run`: `config_digest.<key>`, `input_digest.<stage>`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+
+import yaml
+
+from pipeline.artefacts.store import Artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE
+from pipeline.errors import PipelineError
+
+# The config keys each stage's artefact depends on (besides its input artefacts).
+STAGE_CONFIG: dict[str, tuple[str, ...]] = {
+    "scene": ("seed", "scene"),
+    "demos": ("seed", "expert", "reward", "mdp", "roadmap"),
+    "graph": ("seed", "graph", "reward", "mdp"),
+    "birl": ("seed", "birl", "graph", "reward", "mdp"),
+    "evaluate": ("evaluate", "reward", "mdp", "roadmap"),
+}
+CONFIG_KEY, INPUT_KEY = "config_digest.", "input_digest."
+
+
+def _digest(value) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True, separators=(",", ":"))
+                          .encode()).hexdigest()[:16]
+
+
+def provenance_metadata(stage: str, config: Mapping, inputs: Mapping[str, Artefact]) \
+        -> dict[str, str]:
+    """The metadata entries of `stage`'s artefact: its config digests and input digests."""
+    meta = {CONFIG_KEY + key: _digest(config.get(key)) for key in STAGE_CONFIG[stage]}
+    meta.update({INPUT_KEY + s: a.digest for s, a in inputs.items()})
+    return meta
+
+
+def _flatten(value, prefix: str) -> dict[str, object]:
+    if isinstance(value, Mapping):
+        out: dict[str, object] = {}
+        for k, v in value.items():
+            out.update(_flatten(v, f"{prefix}.{k}"))
+        return out or {prefix: {}}
+    return {prefix: value}
+
+
+def _first_difference(key: str, made_with, now) -> tuple[str, object, object]:
+    old, new = _flatten(made_with, key), _flatten(now, key)
+    for k in sorted(set(old) | set(new)):
+        if old.get(k, "<unset>") != new.get(k, "<unset>"):
+            return k, old.get(k, "<unset>"), new.get(k, "<unset>")
+    return key, made_with, now  # same values, different digest: say so plainly
+
+
+def check_config(stage: str, artefact: Artefact, config: Mapping) -> None:
+    """Refuse `artefact` (of `stage`) when it was made with other config values than this
+    run has for the keys it depends on. Artefacts without digests (older versions) pass."""
+    recorded = artefact.metadata
+    if not any(k.startswith(CONFIG_KEY) for k in recorded):
+        return
+    for key in STAGE_CONFIG[stage]:
+        if recorded.get(CONFIG_KEY + key) == _digest(config.get(key)):
+            continue
+        try:
+            made_with = (yaml.safe_load(artefact.config_yaml) or {}).get(key)
+        except yaml.YAMLError:
+            made_with = "<unreadable>"
+        path, old, new = _first_difference(key, made_with, config.get(key))
+        raise PipelineError(
+            f"{artefact.path} was made with {path}={_show(old)} but this run has "
+            f"{path}={_show(new)}: add '{stage}' to stages to re-make it, or run with "
+            f"{path}={_show(old)}")
+
+
+def check_inputs(read: Mapping[str, Artefact]) -> None:
+    """Refuse artefacts that do not belong together: one was made from a different version
+    of another (e.g. a graph grown from other demonstrations than the ones beside it)."""
+    for stage, art in read.items():
+        for other, other_art in read.items():
+            recorded = art.metadata.get(INPUT_KEY + other)
+            if recorded is not None and other_art.digest and recorded != other_art.digest:
+                raise PipelineError(
+                    f"{art.path} was made from another {ARTEFACT_FILE[other]} than "
+                    f"{other_art.path}: they come from different runs; re-run stage "
+                    f"'{stage}' (add it to stages) so they belong together")
+
+
+def _show(value) -> str:
+    return json.dumps(value) if not isinstance(value, str) else value

@@ -1,0 +1,156 @@
+"""A run dir that cannot be shared or left half-done without saying so.
+
+- An exclusive lock (`fcntl.flock` on `<run dir>/.lock`, released by the kernel even on
+  SIGKILL): a second run into a dir in use refuses with one line.
+- `status.json`, written atomically: `running` while stages run (with the stage), then
+  `complete` or `failed` (with the failing stage and the error). A run killed with -9 leaves
+  `running` behind; readers see that the lock is free and report it as `interrupted`.
+- Stale `*.tmp` files of a dead writer are removed when the next run takes the lock.
+- When a stage replaces its artefact with a different one, the artefacts derived from the
+  old one (later stages, `metrics.json`) are removed, so a dir never holds new inputs beside
+  old outputs; a failed or killed stage leaves the earlier files untouched.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.artefacts.store import content_digest, write_json_atomic
+from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
+from pipeline.errors import PipelineError, os_error_reason
+
+log = logging.getLogger("pipeline")
+
+LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
+RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "interrupted"
+
+
+def is_locked(run_dir: Path) -> bool:
+    """Whether a live process holds the run dir's lock (never blocks)."""
+    try:
+        fd = os.open(run_dir / LOCK_FILE, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        return False
+    except OSError:
+        return True
+    finally:
+        os.close(fd)
+
+
+@dataclass(frozen=True)
+class RunStatus:
+    state: str  # running | complete | failed | interrupted | unknown (no status.json)
+    stage: str | None = None  # the running or failing stage
+    error: str | None = None
+
+    @property
+    def complete(self) -> bool:
+        return self.state == COMPLETE
+
+    def describe(self) -> str:
+        at = f" at stage {self.stage}" if self.stage else ""
+        return f"{self.state}{at}" + (f" ({self.error})" if self.error else "")
+
+
+def read_status(run_dir: Path) -> RunStatus:
+    """The truth about a run dir: `interrupted` when it says running but nobody holds it."""
+    path = Path(run_dir) / STATUS_FILE
+    if not path.exists():
+        return RunStatus("unknown")
+    try:
+        data = json.loads(path.read_text())
+        state, stage, error = data["state"], data.get("stage"), data.get("error")
+    except (OSError, ValueError, KeyError, TypeError):
+        return RunStatus("unknown", error=f"unreadable {STATUS_FILE}")
+    if state == RUNNING and not is_locked(Path(run_dir)):
+        return RunStatus(INTERRUPTED, stage, "the run was killed or crashed")
+    return RunStatus(state, stage, error)
+
+
+class RunDir:
+    """`with RunDir(path, stages) as rd:` holds the lock; `rd.start(stage)` before each
+    stage, `rd.done(stage)` after; leaving the block marks the dir complete or failed."""
+
+    def __init__(self, path: Path, stages: list[str]):
+        self.path, self.stages = Path(path), list(stages)
+        self.done_stages: list[str] = []
+        self.stage: str | None = None
+        self._fd: int | None = None
+        self._before: str | None = None  # digest of the artefact the running stage replaces
+
+    def __enter__(self) -> RunDir:
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            self._fd = os.open(self.path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise PipelineError(f"cannot use run dir {self.path}: {os_error_reason(e)}") from None
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(self._fd)
+            self._fd = None
+            raise PipelineError(f"run dir {self.path} is in use by another run; wait for it "
+                                "to finish or choose another hydra.run.dir") from None
+        self._remove_stale_temp_files()
+        self._write(RUNNING)
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self._write(COMPLETE)
+            else:
+                error = str(exc) if isinstance(exc, PipelineError) else \
+                    f"{exc_type.__name__}: {exc}"
+                self._write(FAILED, error=" ".join(error.split()))
+        except OSError as e:  # e.g. disk full: the stage's own error matters more
+            log.error("cannot write %s: %s", self.path / STATUS_FILE, os_error_reason(e))
+        finally:
+            if self._fd is not None:
+                os.close(self._fd)  # releases the lock
+                self._fd = None
+
+    def start(self, stage: str) -> None:
+        self.stage = stage
+        self._write(RUNNING)
+        self._before = content_digest(self.path / ARTEFACT_FILE[stage])
+
+    def done(self, stage: str) -> None:
+        """`stage` wrote its artefact. If that changed it, what was derived from the old one
+        (later stages' artefacts, metrics.json) no longer belongs to it and is removed.
+        Until then a failed or killed stage leaves the earlier, consistent files alone."""
+        self.done_stages.append(stage)
+        after = content_digest(self.path / ARTEFACT_FILE[stage])
+        if self._before is not None and after == self._before:
+            return
+        later = [self.path / ARTEFACT_FILE[s] for s in STAGES[STAGES.index(stage) + 1:]]
+        if later:  # metrics.json comes with the last stage's artefact
+            later.append(self.path / METRICS_FILE)
+        removed = [p for p in later if p.exists()]
+        for p in removed:
+            p.unlink()
+        if removed:
+            log.info("removed %s: derived from the %s artefact this run replaced",
+                     ", ".join(p.name for p in removed), stage)
+
+    def _remove_stale_temp_files(self) -> None:
+        # We hold the lock, so no live writer owns a temp file in this dir.
+        stale = sorted(self.path.glob("*.tmp"))
+        for p in stale:
+            p.unlink(missing_ok=True)
+        if stale:
+            log.info("removed %d stale temporary file(s) of an earlier run from %s", len(stale),
+                     self.path)
+
+    def _write(self, state: str, error: str | None = None) -> None:
+        write_json_atomic(self.path / STATUS_FILE, {
+            "state": state, "stage": self.stage if state != COMPLETE else None, "error": error,
+            "stages": self.stages, "done": self.done_stages})
