@@ -207,6 +207,14 @@ def test_not_json_is_one_line(tmp_path, read, kind):
     assert "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("depth", [990, 5000])
+def test_deeply_nested_json_is_one_line(tmp_path, depth):
+    path = tmp_path / "deep.json"
+    path.write_text('{"persons": ' + "[" * depth + "]" * depth + "}")
+    with pytest.raises(SceneError, match=r"deep\.json: (JSON nested too deeply|persons: expected)"):
+        load_scene_file(path)
+
+
 def test_validate_names_the_source_and_error_type():
     with pytest.raises(SceneError, match=r"^here: persons: expected an array, got 5$"):
         validate({"persons": 5, "starts": [[0, 0]], "goal": [1, 1], "room": {

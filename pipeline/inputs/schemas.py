@@ -55,11 +55,13 @@ def read_json(path: Path, schema_name: str, source: str) -> Any:
     error = ERRORS[schema_name]
     try:
         data = json.loads(path.read_text(), parse_constant=NonFinite)
+        validate(data, schema_name, source)
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise error(f"{source} is not valid JSON ({e})") from None
     except OSError as e:
         raise error(f"{source} cannot be read ({e.strerror or e})") from None
-    validate(data, schema_name, source)
+    except RecursionError:  # parsing and checking recurse; no valid file is this deep
+        raise error(f"{source}: JSON nested too deeply") from None
     return data
 
 
