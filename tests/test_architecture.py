@@ -3,9 +3,10 @@
     errors  <  core  <  irl | inputs | artefacts  <  app  <  stages  <  tools, __main__
 
 Modules of one layer-2 package do not import another layer-2 package, stage modules never
-import each other, and the algorithm packages (core, irl) import no Hydra, OmegaConf, MCAP
-or rerun. The checks parse the source (every import statement, also inside functions), so a
-lazy import cannot slip past them.
+import each other, and the algorithm packages (core, irl) import no Hydra, OmegaConf, MCAP,
+rerun or jsonschema (input files are checked against their schemas in inputs). The checks
+parse the source (every import statement, also inside functions), so a lazy import cannot
+slip past them.
 """
 
 import ast
@@ -17,7 +18,7 @@ from tests.conftest import ROOT
 
 LAYER = {"errors": 0, "core": 1, "irl": 2, "inputs": 2, "artefacts": 2, "app": 3,
          "stages": 4, "tools": 5, "__main__": 5}
-FRAMEWORKS = ("hydra", "omegaconf", "mcap", "rerun")
+FRAMEWORKS = ("hydra", "omegaconf", "mcap", "rerun", "jsonschema")
 ALGORITHMS = ("core", "irl")
 
 
@@ -89,6 +90,7 @@ def test_imports_only_point_down():
 @pytest.mark.parametrize("module, source, expected", [
     ("pipeline.core.world", "import hydra\n", "algorithm code imports a framework"),
     ("pipeline.irl.birl", "from mcap.writer import Writer\n", "imports a framework"),
+    ("pipeline.core.world", "from jsonschema import validate\n", "imports a framework"),
     ("pipeline.core.world", "from pipeline.app.config import Config\n", "imports upward"),
     ("pipeline.core.world", "from ..app import config\n", "imports upward"),
     ("pipeline.irl.birl", "from pipeline.artefacts import topics\n", "sibling packages"),

@@ -162,14 +162,18 @@ SPLIT_WALL = [[7.45, 0.0], [7.55, 0.0], [7.55, 10.0], [7.45, 10.0]]  # start 2 e
      "the goal cannot be reached from start(s) [2] without entering an obstacle"),
     (lambda d: d["obstacles"].append([[0.0, WALL_Y], [10.0, WALL_Y]]),  # a segment: a wall
      "the goal cannot be reached from start(s) [0, 1, 2, 3] without entering an obstacle"),
-    (lambda d: d["obstacles"].append([[0, 0]]), "obstacle 3 must be a polygon"),
-    (lambda d: d["obstacles"].append("wall"), "obstacle 3 must be a polygon"),
+    # types and shapes (scene.schema.json, more in test_schemas.py)
+    (lambda d: d["obstacles"].append([[0, 0]]),
+     "obstacles[3]: expected at least 2 points, got 1 item"),
+    (lambda d: d["obstacles"].append("wall"),
+     'obstacles[3]: expected an array (polygon), got "wall"'),
     (lambda d: d["obstacles"].append([[0.0, 0.0], [1.0, float("nan")], [1.0, 1.0]]),
-     "obstacle 3 must be a polygon"),
-    (lambda d: d.update(obstacles="wall"), "'obstacles' must be a list of polygons"),
-    (lambda d: d["persons"][3].update(x=float("nan")), "person #3 needs numbers"),
-    (lambda d: d.update(persons=5), "'persons' must be a list"),
-    (lambda d: d["relations"].append(["a", 2]), "relation ['a', 2] must be a pair of person ids"),
+     "obstacles[3][1][1]: NaN is not a finite number"),
+    (lambda d: d.update(obstacles="wall"), 'obstacles: expected an array, got "wall"'),
+    (lambda d: d["persons"][3].update(x=float("nan")), "persons[3].x: NaN is not a finite number"),
+    (lambda d: d.update(persons=5), "persons: expected an array, got 5"),
+    (lambda d: d["relations"].append(["a", 2]),
+     'relations[10][0]: expected an integer (person id), got "a"'),
     (lambda d: d.update(goal=[5.5, 8.0]), "goal (5.5, 8) is 0.00 m from an obstacle"),
     (lambda d: d["persons"][0].update(y=8.0), "person 1 at (2, 8) stands inside an obstacle"),
 ])
@@ -204,10 +208,11 @@ def test_bad_map_is_one_line_naming_the_map(tmp_path, map_key, needle):
 
 @pytest.mark.parametrize("mutate, needle", [
     (lambda d: d["obstacles"].append([[8.0, 0.5, 0.0], [9.0, 0.5, 0.0], [9.0, 1.0, 0.0],
-                                      [8.0, 1.0, 0.0]]), "obstacle 3 must be a polygon"),
+                                      [8.0, 1.0, 0.0]]),
+     "obstacles[3][0]: expected 2 coordinates, got 3 items"),
     # on the open metropolis room these become 3 valid starts (0.5, 0.5), (0, 2), (3, 0)
     (lambda d: d.update(starts=[[0.5, 0.5, 0.0], [2.0, 3.0, 0.0]], obstacles=[]),
-     "'starts' must be"),
+     "starts[0]: expected 2 coordinates, got 3 items"),
 ])
 def test_points_with_three_coordinates_are_refused(tmp_path, mutate, needle):
     data = walled_metropolis()

@@ -384,7 +384,8 @@ def test_json_demonstration_far_from_every_start_is_refused(tmp_path, metropolis
     [d0, d1] = load_demo_file(path, metropolis, fm, 1.0, start_radius=5.0)
     assert d1.start_index == 3 and np.array_equal(d1.points, [[9.5, 9.5], [6.0, 9.0], [5.5, 9.0]])
     path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [float("nan"), 9.0]]]}))
-    refused(r"trajectory 0, point 1 is not finite", load_demo_file, path, metropolis, fm, 1.0)
+    refused(r"trajectories\[0\]\[1\]\[0\]: NaN is not a finite number", load_demo_file, path,
+            metropolis, fm, 1.0)
 
 
 def test_bag_through_load_demo_file(tmp_path, metropolis):

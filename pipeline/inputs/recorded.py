@@ -2,7 +2,8 @@
 
 Path forms read by `read_tracks`:
 
-- `.json`: `{"trajectories": [[[x, y], ...], ...]}`, one polyline per trajectory;
+- `.json`: `{"trajectories": [[[x, y], ...], ...]}`, one polyline per trajectory (checked
+  against the published `pipeline/schemas/demos.schema.json`);
 - `.csv`: columns `x,y`, optional `trajectory` (an id) and `t` (a time);
 - ROS bags, read with the `rosbags` library (`rosbags.highlevel.AnyReader`): a ROS 2 bag
   directory (with `metadata.yaml`; `mcap` or `sqlite3` storage, also zstd-compressed), a single
@@ -27,7 +28,6 @@ Every problem with the input is a `PipelineError` with one line naming the file.
 from __future__ import annotations
 
 import csv
-import json
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -37,6 +37,7 @@ import numpy as np
 
 from pipeline.core.world import Room
 from pipeline.errors import PipelineError
+from pipeline.inputs.schemas import read_json
 
 PATH_TYPE = "nav_msgs/msg/Path"
 # Pose stream message types and how to find the position in each.
@@ -85,23 +86,9 @@ def read_tracks(path: Path, *, topic: str | None = None,
 
 
 def _read_json(path: Path, where: str) -> list[np.ndarray]:
-    try:
-        data = json.loads(path.read_text())
-        tracks = [np.asarray(t, dtype=float) for t in data["trajectories"]]
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise PipelineError(f"{where} is not valid JSON") from None
-    except (KeyError, TypeError, ValueError):
-        raise PipelineError(f"{where} needs 'trajectories': a list of [[x, y], ...] polylines") \
-            from None
-    if not tracks:
-        raise PipelineError(f"{where} has no trajectories")
-    for i, t in enumerate(tracks):
-        if t.ndim != 2 or t.shape[1] != 2 or len(t) < 2:
-            raise PipelineError(f"{where}: trajectory {i} must be a list of at least two [x, y]")
-        if not np.isfinite(t).all():
-            k = int(np.flatnonzero(~np.isfinite(t).all(axis=1))[0])
-            raise PipelineError(f"{where}: trajectory {i}, point {k} is not finite")
-    return tracks
+    # demos.schema.json: at least one trajectory, each at least two finite [x, y]
+    data = read_json(path, "demos", where)
+    return [np.asarray(t, dtype=float) for t in data["trajectories"]]
 
 
 def _read_csv(path: Path, where: str) -> tuple[list[np.ndarray], bool]:

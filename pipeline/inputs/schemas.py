@@ -1,0 +1,174 @@
+"""JSON Schema checks of scene and demonstration files (DESIGN §3).
+
+The published schemas are `pipeline/schemas/scene.schema.json` and `demos.schema.json`
+(draft 2020-12, shipped as package data). A wrong type, shape or key is refused with one line:
+the file, the JSON path of the culprit (`persons[2].x`) and what was expected. Non-finite
+numbers are refused too: JSON has none, but Python's json module would read `NaN` and
+`Infinity` literals. What a schema cannot say (persons inside the room, relation ids that
+exist, ...) is checked by the readers after this.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from jsonschema import Draft202012Validator
+from jsonschema.exceptions import ValidationError, best_match
+
+from pipeline.core.world import SceneError
+from pipeline.errors import PipelineError
+
+# Schema name -> the error type its file's reader raises.
+ERRORS: dict[str, type[PipelineError]] = {"scene": SceneError, "demos": PipelineError}
+JSON_TYPES = {"number": "a number", "integer": "an integer", "string": "a string",
+              "array": "an array", "object": "an object", "boolean": "true or false",
+              "null": "null"}
+
+
+class NonFinite:
+    """What a `NaN`, `Infinity` or `-Infinity` literal parses to: a marker, not a float, so
+    `validate` can name the field that holds it."""
+
+    def __init__(self, literal: str) -> None:
+        self.literal = literal
+
+
+@functools.cache
+def load_schema(name: str) -> dict[str, Any]:
+    """The published schema `name` ("scene" or "demos"), read from the package."""
+    text = (resources.files("pipeline") / "schemas" / f"{name}.schema.json").read_text()
+    return json.loads(text)
+
+
+@functools.cache
+def _validator(name: str) -> Draft202012Validator:
+    return Draft202012Validator(load_schema(name))
+
+
+def read_json(path: Path, schema_name: str, source: str) -> Any:
+    """Parse the JSON file `path` and `validate` it; errors name `source`."""
+    error = ERRORS[schema_name]
+    try:
+        data = json.loads(path.read_text(), parse_constant=NonFinite)
+        validate(data, schema_name, source)
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise error(f"{source} is not valid JSON ({e})") from None
+    except OSError as e:
+        raise error(f"{source} cannot be read ({e.strerror or e})") from None
+    except RecursionError:  # parsing and checking recurse; no valid file is this deep
+        raise error(f"{source}: JSON nested too deeply") from None
+    return data
+
+
+def validate(data: Any, schema_name: str, source: str) -> None:
+    """Check parsed JSON `data` against the schema `schema_name`.
+
+    Raises the reader's error type (`ERRORS`) with one line: `source`, the JSON path of the
+    culprit and what was expected.
+    """
+    error = ERRORS[schema_name]
+
+    def fail(path: str, message: str) -> PipelineError:
+        return error(f"{source}: {path}: {message}" if path else f"{source}: {message}")
+
+    bad = _first_non_finite(data, "")
+    if bad is not None:
+        path, literal = bad
+        raise fail(path, f"{literal} is not a finite number (JSON has no NaN or Infinity)")
+    # The shallowest error, and of equals the first found: jsonschema's default key would
+    # report the last of several bad siblings (starts[6] before starts[0]).
+    found = best_match(_validator(schema_name).iter_errors(data), key=_depth)
+    if found is not None:
+        raise fail(_json_path(found), _expected(found, load_schema(schema_name)))
+
+
+def _depth(error: ValidationError) -> int:
+    return -len(error.path)
+
+
+def _first_non_finite(value: Any, path: str) -> tuple[str, str] | None:
+    """(JSON path, literal) of the first NaN/Infinity in `value`, or None."""
+    if isinstance(value, NonFinite):
+        return path, value.literal
+    if isinstance(value, float) and not math.isfinite(value):  # data not read by read_json
+        return path, repr(value)
+    items = value.items() if isinstance(value, dict) else \
+        enumerate(value) if isinstance(value, list) else ()
+    for key, item in items:
+        sub = f"{path}[{key}]" if isinstance(key, int) else f"{path}.{key}" if path else key
+        found = _first_non_finite(item, sub)
+        if found is not None:
+            return found
+    return None
+
+
+def _json_path(error: ValidationError) -> str:
+    """`persons[2].x` for the deque ['persons', 2, 'x']; '' for the top level."""
+    path = ""
+    for part in error.absolute_path:
+        path += f"[{part}]" if isinstance(part, int) else f".{part}" if path else str(part)
+    return path
+
+
+def _short(value: Any) -> str:
+    """The value as JSON, cut to 40 characters: a wrong value can be a whole list."""
+    text = json.dumps(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _title(schema: dict[str, Any], root: dict[str, Any]) -> str | None:
+    """The title of `schema`, following a local `$ref` into the root's `$defs`."""
+    ref = schema.get("$ref", "")
+    if ref.startswith("#/$defs/"):
+        schema = root["$defs"][ref.removeprefix("#/$defs/")]
+    return schema.get("title")
+
+
+def _plural(noun: str, n: int) -> str:
+    return noun if n == 1 else f"{noun}s"
+
+
+def _expected(error: ValidationError, root: dict[str, Any]) -> str:
+    """What was expected and what was found, in a few words (jsonschema's own message for
+    keywords the published schemas do not use)."""
+    kind, want, got = error.validator, error.validator_value, error.instance
+    if kind == "type":
+        names = [want] if isinstance(want, str) else want
+        title = _title(error.schema, root)
+        what = " or ".join(JSON_TYPES.get(n, n) for n in names)
+        return f"expected {what}{f' ({title})' if title else ''}, got {_short(got)}"
+    if kind in ("minItems", "maxItems"):
+        lo, hi = error.schema.get("minItems"), error.schema.get("maxItems")
+        if lo == hi:
+            count = f"{lo}"
+        elif hi is None or lo is None:
+            count = f"at least {lo}" if hi is None else f"at most {hi}"
+        else:
+            count = f"{lo} to {hi}"
+        noun = _title(error.schema.get("items", {}), root) or "item"
+        bound = hi if lo is None else lo
+        return f"expected {count} {_plural(noun, bound)}, got {len(got)} " \
+               f"{_plural('item', len(got))}"
+    if kind == "required":
+        key = next(k for k in want if k not in got)
+        # a requirement under a condition (room without a map) says why in its description
+        why = f" ({error.schema['description']})" if "then" in error.relative_schema_path \
+            and "description" in error.schema else ""
+        return f"missing key {key!r}{why}"
+    if kind == "additionalProperties":
+        known = list(error.schema.get("properties", {}))
+        unknown = [k for k in got if k not in known]
+        return f"unknown key{'s' if len(unknown) > 1 else ''} " \
+               f"{', '.join(repr(k) for k in unknown)}; expected one of {', '.join(known)}"
+    if kind == "exclusiveMinimum":
+        return f"expected a number > {want}, got {_short(got)}"
+    if kind == "minimum":
+        return f"expected a number >= {want}, got {_short(got)}"
+    if kind == "minLength":
+        return f"expected a string of at least {want} character(s), got {_short(got)}"
+    return error.message.splitlines()[0][:200]
