@@ -8,7 +8,7 @@ ARGS ?=
 EXP ?= quick
 JOBS ?= 2
 SWEEP ?=
-SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S))
+SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S-%N))
 RUN ?=
 
 .PHONY: experiment test test-all lint clean bench sweep aggregate view regress

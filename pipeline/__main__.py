@@ -1,9 +1,14 @@
-"""`python -m pipeline [overrides]`: the Hydra app that runs the BIRL-G pipeline stages."""
+"""`python -m pipeline [overrides]`: the Hydra app that runs the BIRL-G pipeline stages.
+
+Errors are one line and exit status 2: our own (PipelineError), Hydra's (a typo, a wrong
+type, a bad override: Hydra's wording, first line only) and anything unexpected.
+`HYDRA_FULL_ERROR=1` shows the full traceback instead.
+"""
 
 from __future__ import annotations
 
-import json
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -13,6 +18,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
+from pipeline.app.rundir import is_locked, write_status_if_missing
 from pipeline.errors import PipelineError
 from pipeline.stages import run_pipeline
 
@@ -26,24 +32,70 @@ def main(cfg: DictConfig) -> None:
     if hydra_cfg.mode != RunMode.MULTIRUN:
         try:
             run_pipeline(cfg, run_dir)
-        except PipelineError as e:
-            # One clear line and a non-zero exit; SystemExit passes through Hydra untouched.
-            print(f"error: {e}", file=sys.stderr)
-            sys.exit(2)
+        except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
+            exit_with_one_line(e)
         return
-    # In a sweep a failing job must not stop the others: record the failure in the job's
-    # dir (status.json, read by `make aggregate`, whose exit status reports it) and return.
-    status = {"ok": True, "error": None}
+    # In a sweep a failing job must not stop the others: its status.json (written by the
+    # run dir, or here when the job failed before it had one) says failed, and `make
+    # aggregate` reports it in its table and exit status.
     try:
         run_pipeline(cfg, run_dir)
     except Exception as e:  # noqa: BLE001 - any failure of one job, reported per job
-        status = {"ok": False, "error": f"{type(e).__name__}: {e}" if not isinstance(
-            e, PipelineError) else str(e)}
-        logging.getLogger("pipeline").error("job failed: %s", status["error"],
+        error = str(e) if isinstance(e, PipelineError) else f"{type(e).__name__}: {e}"
+        logging.getLogger("pipeline").error("job failed: %s", error,
                                             exc_info=not isinstance(e, PipelineError))
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "status.json").write_text(json.dumps(status))
+        write_status_if_missing(run_dir, error)
+
+
+def one_line(e: BaseException) -> str:
+    """Hydra's and OmegaConf's messages run over several lines (the key, the object type,
+    a hint); the first line of the error and of its cause say what went wrong."""
+    def first(x: BaseException) -> str:
+        lines = [ln.strip() for ln in str(x).splitlines() if ln.strip()]
+        return lines[0] if lines else type(x).__name__
+
+    line = first(e)
+    if e.__cause__ is not None and first(e.__cause__) not in line:
+        line += f" ({first(e.__cause__)})"
+    return line
+
+
+def refuse_locked_run_dir(argv: list[str]) -> None:
+    """Refuse before Hydra writes its .hydra/ files into a run dir another run holds."""
+    if "-m" in argv or "--multirun" in argv:
+        return
+    for arg in argv:
+        if arg.startswith("hydra.run.dir="):
+            run_dir = Path(arg.split("=", 1)[1])
+            if run_dir.is_dir() and is_locked(run_dir):
+                raise PipelineError(f"run dir {run_dir} is in use by another run; wait for it "
+                                    "to finish or choose another hydra.run.dir")
+
+
+def exit_with_one_line(e: Exception) -> None:
+    if _FULL_ERROR:
+        raise e
+    if isinstance(e, PipelineError):
+        message = str(e)
+    elif type(e).__module__.startswith(("hydra", "omegaconf")):
+        message = one_line(e)
+    else:  # a bug, not bad input: still one line, with the way to the traceback
+        message = f"{type(e).__name__}: {one_line(e)} (HYDRA_FULL_ERROR=1 shows the traceback)"
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+_FULL_ERROR = os.environ.get("HYDRA_FULL_ERROR") == "1"
+
+
+def cli() -> None:
+    os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
+    try:
+        refuse_locked_run_dir(sys.argv[1:])
+        main()
+    except Exception as e:  # noqa: BLE001 - Hydra's errors, ours before the job, bugs
+        exit_with_one_line(e)
 
 
 if __name__ == "__main__":
-    main()
+    cli()

@@ -40,9 +40,9 @@ def test_failing_job_does_not_stop_the_sweep(tmp_path):
     result = run_app("-m", "experiment=quick", "seed=0", "reward=polite",
                      "scene.body_radius=0.25,-1", f"hydra.sweep.dir={tmp_path}")
     assert result.returncode == 0, result.stderr[-2000:]
-    statuses = {p.parent.name: json.loads(p.read_text())["ok"]
+    statuses = {p.parent.name: json.loads(p.read_text())["state"]
                 for p in tmp_path.glob("*/status.json")}
-    assert statuses == {"0": True, "1": False}
+    assert statuses == {"0": "complete", "1": "failed"}
     agg = aggregate(tmp_path)
     assert agg.returncode == 1  # something failed, and the exit status says so
     assert "FAILED 1: config error: scene.body_radius=-1" in agg.stderr

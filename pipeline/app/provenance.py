@@ -1,6 +1,7 @@
 """Provenance: every artefact records digests of the config sections it was made from and
-of the artefacts it read (their content digests, pipeline.artefacts.store.content_digest), so a stage can refuse inputs that belong to another config or to
-another run (stored as MCAP metadata `run`: `config_digest.<key>`, `input_digest.<stage>`).
+of the artefacts it read (their content digests, pipeline.artefacts.store.content_digest),
+so a stage can refuse inputs that belong to another config or to another run (stored as
+MCAP metadata `run`: `config_digest.<key>`, `input_digest.<stage>`).
 """
 
 from __future__ import annotations

@@ -154,3 +154,12 @@ class RunDir:
         write_json_atomic(self.path / STATUS_FILE, {
             "state": state, "stage": self.stage if state != COMPLETE else None, "error": error,
             "stages": self.stages, "done": self.done_stages})
+
+
+def write_status_if_missing(run_dir: Path, error: str) -> None:
+    """A job that failed before its run dir had a status (e.g. a config error in a sweep)."""
+    if not (Path(run_dir) / STATUS_FILE).exists():
+        Path(run_dir).mkdir(parents=True, exist_ok=True)
+        write_json_atomic(Path(run_dir) / STATUS_FILE, {
+            "state": FAILED, "stage": None, "error": " ".join(error.split()), "stages": [],
+            "done": []})

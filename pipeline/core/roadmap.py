@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order
 from scipy.spatial import cKDTree
 
 from pipeline.core.features import FeatureModel
@@ -45,6 +47,14 @@ class Roadmap:
     def mdp(self, gamma: float = 0.95, r_goal: float = 1.0, v_max: float = 10.0) -> GraphMDP:
         return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
                         gamma=gamma, r_goal=r_goal, v_max=v_max)
+
+    def starts_without_path_to_goal(self) -> list[int]:
+        """Indices of the starts from which no sequence of roadmap edges reaches the goal."""
+        n = len(self.positions)
+        reverse = csr_matrix((np.ones(len(self.src)), (self.dst, self.src)), shape=(n, n))
+        reaches_goal = np.zeros(n, bool)
+        reaches_goal[breadth_first_order(reverse, self.goal_node, return_predecessors=False)] = True
+        return [k for k, s in enumerate(self.start_nodes) if not reaches_goal[s]]
 
     def spatial(self, mdp: GraphMDP) -> SpatialGraph:
         """The roadmap with its MDP `mdp` as a SpatialGraph (straight edges)."""

@@ -34,6 +34,12 @@ def run(ctx: RunContext) -> None:
 
     t0 = time.perf_counter()
     roadmap = build_roadmap(scene, features, cfg.roadmap, md.speed)
+    cut_off = roadmap.starts_without_path_to_goal()
+    if cut_off:  # nothing can be learned or scored from such a start: refuse, do not run on
+        raise PipelineError(
+            f"scene '{scene.name}': the goal cannot be reached from start(s) {cut_off} on the "
+            f"reference roadmap (spacing {cfg.roadmap.spacing:g} m): the way is closed by "
+            "persons' body disks or obstacles; move them or the start, or lower roadmap.spacing")
     mdp = roadmap.mdp(md.gamma, md.r_goal, md.v_max)
     t1 = time.perf_counter()
     solution = mdp.solve(w_true)

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from pipeline.app.rundir import read_status
 from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.errors import PipelineError
 
@@ -41,12 +42,12 @@ def parse_overrides(job: Path) -> dict[str, str]:
 
 def job_row(job: Path, sweep_dir: Path) -> dict:
     row = {"job": str(job.relative_to(sweep_dir)), **parse_overrides(job)}
-    status_file, metrics_file = job / "status.json", job / "metrics.json"
-    status = json.loads(status_file.read_text()) if status_file.exists() else None
-    if status is not None and not status["ok"]:
-        row.update(status="failed", error=status["error"])
+    status, metrics_file = read_status(job), job / "metrics.json"
+    if not status.complete:  # failed, killed, still running, or made before status.json
+        at = f"stage {status.stage}: " if status.stage else ""
+        row.update(status=status.state, error=at + (status.error or status.state))
     elif not metrics_file.exists():
-        row.update(status="failed", error="no metrics.json (job killed or incomplete)")
+        row.update(status="failed", error="no metrics.json (stage evaluate was not run)")
     else:
         row.update(status="ok", error="")
         row.update(json.loads(metrics_file.read_text()))
