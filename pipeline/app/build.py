@@ -6,13 +6,15 @@ import dataclasses
 
 import numpy as np
 
+from pipeline.app import limits
 from pipeline.app.config import Config, RandomSceneConfig
 from pipeline.app.context import resolve_path
 from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.controllers import Controller, PosqController, make_controller
 from pipeline.core.features import FeatureModel
-from pipeline.core.scenegen import RandomSceneSpec, random_scene
+from pipeline.core.roadmap import Roadmap, build_roadmap
+from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import load_map
@@ -31,6 +33,11 @@ def scene(cfg: Config, rng_for_seed) -> Scene:
         spec = RandomSceneSpec(**{f.name: getattr(sc, f.name)
                                   for f in dataclasses.fields(RandomSceneSpec)})
         map_grid = load_map(resolve_path(sc.map)) if sc.map else None
+        if map_grid is None:  # the start-goal reachability check runs on a 0.2 m lattice
+            limits.check_memory(
+                f"the reachability lattice of a {spec.width:g} m × {spec.height:g} m room",
+                limits.lattice_edges(spec.width * spec.height, REACHABILITY_SPACING, 8),
+                limits.BYTES_PER_LATTICE_EDGE, "lower scene.width and scene.height")
         return random_scene(spec, rng_for_seed(seed), name=f"random-{seed}", map_grid=map_grid,
                             map_source=sc.map)
     return load_scene_file(resolve_path(sc.path), body_radius=sc.body_radius,
@@ -39,6 +46,16 @@ def scene(cfg: Config, rng_for_seed) -> Scene:
 
 def feature_model(cfg: Config, scene: Scene) -> FeatureModel:
     return FeatureModel.from_scene(scene, cfg.reward)
+
+
+def reference_roadmap(cfg: Config, scene: Scene, features: FeatureModel) -> Roadmap:
+    """The reference roadmap (roadmap.*) of `scene`, refused up front if it cannot fit."""
+    rp = cfg.roadmap
+    limits.check_memory(f"the reference roadmap of scene '{scene.name}'",
+                        limits.lattice_edges(scene.room.area, rp.spacing, rp.connectivity),
+                        limits.BYTES_PER_LATTICE_EDGE,
+                        f"raise roadmap.spacing (now {rp.spacing:g} m) or use a smaller scene")
+    return build_roadmap(scene, features, rp, cfg.mdp.speed)
 
 
 def controller(cfg: Config) -> Controller:

@@ -11,6 +11,7 @@ line naming the full key.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -202,6 +203,13 @@ def config_error(key: str, value: Any, allowed: str) -> PipelineError:
 
 def _instantiate(node: DictConfig, key: str) -> Any:
     """The node's dataclass instance, its children first so an error names the deepest key."""
+    schema = OmegaConf.get_type(node)
+    if dataclasses.is_dataclass(schema):  # `+section.key=...` adds keys Hydra would ignore
+        known = {f.name for f in dataclasses.fields(schema)}
+        unknown = [k for k in node if k not in known]
+        if unknown:
+            raise PipelineError(f"config error: {key}.{unknown[0]} is not a setting of {key} "
+                                f"(known: {', '.join(sorted(known))})")
     for child in node:
         sub = node._get_node(child)
         if isinstance(sub, DictConfig) and OmegaConf.get_type(sub) not in (dict, None):
@@ -226,6 +234,11 @@ def _require_matching_kind(section: str, obj: Any, registry: dict[str, type]) ->
 
 def load_settings(cfg: DictConfig) -> Config:
     """The composed config as checked, typed objects (a Config instance)."""
+    known = {f.name for f in dataclasses.fields(Config)}
+    unknown = [k for k in cfg if k not in known]
+    if unknown:
+        raise PipelineError(f"config error: {unknown[0]} is not a setting (known: "
+                            f"{', '.join(sorted(known))})")
     sections = {}
     for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl", "evaluate"):
         sections[key] = _instantiate(cfg[key], key)

@@ -143,7 +143,10 @@ def _starts_and_goal_on_map(spec: RandomSceneSpec, rng: np.random.Generator,
     return None
 
 
-def all_starts_reach_goal(scene: Scene, spacing: float = 0.2) -> bool:
+REACHABILITY_SPACING = 0.2  # m, lattice of the start-goal reachability check
+
+
+def all_starts_reach_goal(scene: Scene, spacing: float = REACHABILITY_SPACING) -> bool:
     """Every start is connected to the goal on a fine collision-free lattice."""
     positions, src, dst = lattice_graph(scene, spacing=spacing, connectivity=8)
     n = len(positions)

@@ -19,7 +19,6 @@ from pipeline.app.context import RunContext, resolve_path
 from pipeline.artefacts import codec, topics
 from pipeline.core.experts import Demonstration, boltzmann_demos, optimal_demos
 from pipeline.core.graph_mdp import path_quality
-from pipeline.core.roadmap import build_roadmap
 from pipeline.errors import PipelineError
 from pipeline.inputs.demo_file import load_demo_file
 
@@ -33,7 +32,7 @@ def run(ctx: RunContext) -> None:
     w_true = np.asarray(cfg.reward.weights, dtype=float)
 
     t0 = time.perf_counter()
-    roadmap = build_roadmap(scene, features, cfg.roadmap, md.speed)
+    roadmap = build.reference_roadmap(cfg, scene, features)
     cut_off = roadmap.starts_without_path_to_goal()
     if cut_off:  # nothing can be learned or scored from such a start: refuse, do not run on
         raise PipelineError(

@@ -23,7 +23,6 @@ from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import PolicyLoss, discrete_frechet, follow_all, policy_loss
 from pipeline.core.features import FEATURE_NAMES
 from pipeline.core.graph_mdp import SpatialGraph
-from pipeline.core.roadmap import build_roadmap
 from pipeline.core.social import path_metrics
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
@@ -91,7 +90,7 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
     cfg, md = ctx.cfg, ctx.cfg.mdp
     scene = load_scene_file(resolve_path(path))
     features = build.feature_model(cfg, scene)
-    roadmap = build_roadmap(scene, features, cfg.roadmap, md.speed)
+    roadmap = build.reference_roadmap(cfg, scene, features)
     graph = roadmap.spatial(roadmap.mdp(md.gamma, md.r_goal, md.v_max))
     out: dict[str, float] = {}
     if true_weights is not None:
