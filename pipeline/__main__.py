@@ -25,7 +25,10 @@ from pipeline.stages import run_pipeline
 register_configs()
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")  # also when imported
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def main(cfg: DictConfig) -> None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
@@ -55,6 +58,8 @@ def one_line(e: BaseException) -> str:
         return lines[0] if lines else type(x).__name__
 
     line = first(e)
+    if isinstance(getattr(e, "override", None), str):  # Hydra's override parse errors
+        line = f"cannot parse override '{e.override}': {line}"  # type: ignore[attr-defined]
     if e.__cause__ is not None and first(e.__cause__) not in line:
         line += f" ({first(e.__cause__)})"
     return line
@@ -73,7 +78,7 @@ def refuse_locked_run_dir(argv: list[str]) -> None:
 
 
 def exit_with_one_line(e: Exception) -> None:
-    if _FULL_ERROR:
+    if _show_tracebacks[0]:
         raise e
     if isinstance(e, PipelineError):
         message = str(e)
@@ -85,16 +90,23 @@ def exit_with_one_line(e: Exception) -> None:
     sys.exit(2)
 
 
-_FULL_ERROR = os.environ.get("HYDRA_FULL_ERROR") == "1"
+_show_tracebacks = [False]  # HYDRA_FULL_ERROR=1 as the user set it
 
 
 def cli() -> None:
+    user_setting = os.environ.get("HYDRA_FULL_ERROR")
+    _show_tracebacks[0] = user_setting == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
     try:
         refuse_locked_run_dir(sys.argv[1:])
         main()
     except Exception as e:  # noqa: BLE001 - Hydra's errors, ours before the job, bugs
         exit_with_one_line(e)
+    finally:
+        if user_setting is None:
+            os.environ.pop("HYDRA_FULL_ERROR", None)
+        else:
+            os.environ["HYDRA_FULL_ERROR"] = user_setting
 
 
 if __name__ == "__main__":

@@ -31,6 +31,12 @@ def run(ctx: RunContext) -> None:
     features = build.feature_model(cfg, scene)
     w_true = np.asarray(cfg.reward.weights, dtype=float)
 
+    recorded: list[Demonstration] = []
+    if isinstance(expert, FileExpertConfig):  # read first: a bad file fails before the roadmap
+        recorded = load_demo_file(resolve_path(expert.path), scene, features, md.speed,
+                                  topic=expert.topic, frame=expert.frame,
+                                  start_radius=expert.start_radius)
+
     t0 = time.perf_counter()
     roadmap = build.reference_roadmap(cfg, scene, features)
     cut_off = roadmap.starts_without_path_to_goal()
@@ -53,9 +59,7 @@ def run(ctx: RunContext) -> None:
         demos = boltzmann_demos(mdp, roadmap.positions, roadmap.start_nodes, w_true, solution,
                                 expert, ctx.rng("demos"))
     elif isinstance(expert, FileExpertConfig):
-        demos = load_demo_file(resolve_path(expert.path), scene, features, md.speed,
-                               topic=expert.topic, frame=expert.frame,
-                               start_radius=expert.start_radius)
+        demos = recorded
     else:
         demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
     if expert.n_demos is not None:
