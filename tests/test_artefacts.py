@@ -1,7 +1,9 @@
 """Artefact MCAP files: round trip, determinism, atomic writes and clear read errors."""
 
+import errno
 import hashlib
 import json
+import os
 
 import numpy as np
 import pytest
@@ -15,6 +17,7 @@ from pipeline.artefacts.store import (
     read_artefact,
     to_jsonable,
     write_artefact,
+    write_json_atomic,
 )
 from pipeline.errors import PipelineError
 
@@ -233,3 +236,21 @@ def test_two_writers_of_one_file_do_not_share_a_temporary_file(tmp_path):
         assert a.tmp_path != b.tmp_path and a.tmp_path.exists() and b.tmp_path.exists()
     assert read_artefact(path).config_yaml in ("first", "second")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.mcap"]
+
+
+def _disk_full(*_args):
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_disk_full_is_one_line_and_leaves_the_old_file_and_no_temp_file(tmp_path, monkeypatch):
+    path = _write(tmp_path / "a.mcap")
+    before = path.read_bytes()
+    monkeypatch.setattr(os, "fsync", _disk_full)  # the OS reports ENOSPC when flushing
+    with pytest.raises(ArtefactError) as err:
+        _write(path)
+    assert str(err.value) == f"cannot write artefact {path}: the disk is full"
+    with pytest.raises(OSError):
+        write_json_atomic(tmp_path / "metrics.json", {"a": 1})
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]

@@ -178,3 +178,18 @@ def test_a_map_scene_draws_the_obstacle_outlines(tmp_path):
     # every outline point lies on the map (20 x 14 m, outlines half a cell outside at most)
     points = np.array([p for strip in strips for p in strip])
     assert points.min() >= -0.05 and points[:, 0].max() <= 20.05 and points[:, 1].max() <= 14.05
+
+
+def test_an_interrupted_run_is_shown_with_a_warning(run_dir, tmp_path):
+    import shutil
+
+    from pipeline.artefacts.store import write_json_atomic
+
+    copy = tmp_path / "copy"
+    shutil.copytree(run_dir, copy)
+    write_json_atomic(copy / "status.json", {"state": "running", "stage": "birl"})
+    res = _cli(copy, "--out", tmp_path / "x.rrd", "--no-open")
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.startswith("warning: ") and "interrupted at stage birl" in res.stderr
+    clean = _cli(run_dir, "--out", tmp_path / "y.rrd", "--no-open")
+    assert "warning" not in clean.stderr

@@ -22,6 +22,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
@@ -221,6 +222,10 @@ def main(argv: list[str] | None = None) -> int:
                     "(default RUN_DIR/run.rrd)")
     ap.add_argument("--no-open", action="store_true", help="only write the .rrd")
     args = ap.parse_args(argv)
+    status = read_status(args.run_dir)
+    if status.state not in (COMPLETE, "unknown"):  # unknown: made before status.json existed
+        print(f"warning: run dir {args.run_dir} is {status.describe()}; showing the artefacts "
+              "it has", file=sys.stderr)
     try:
         rrd = build_recording(args.run_dir, args.out)
     except PipelineError as e:
