@@ -19,7 +19,7 @@ from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
 from pipeline.app.rundir import is_locked, write_status_if_missing
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
 
 register_configs()
@@ -84,6 +84,8 @@ def exit_with_one_line(e: Exception) -> None:
         message = str(e)
     elif type(e).__module__.startswith(("hydra", "omegaconf")):
         message = one_line(e)
+    elif isinstance(e, OSError):  # e.g. Hydra creating a run dir where a file is
+        message = f"cannot create or write files: {os_error_reason(e)}"
     else:  # a bug, not bad input: still one line, with the way to the traceback
         message = f"{type(e).__name__}: {one_line(e)} (HYDRA_FULL_ERROR=1 shows the traceback)"
     print(f"error: {message}", file=sys.stderr)
