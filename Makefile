@@ -14,9 +14,11 @@ RUN ?=
 .PHONY: experiment test test-all lint clean bench sweep aggregate view regress
 
 $(STAMP): pyproject.toml
-	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	@test -x $(PY) || { echo "make: creating $(VENV) with the pinned dependencies (first time: 1-3 min) ..."; \
+	  $(PYTHON) -m venv $(VENV); }
+	@echo "make: installing the package and its pinned dependencies into $(VENV) ..."
+	@$(PY) -m pip install -qq --disable-pip-version-check --upgrade pip
+	@$(PY) -m pip install -qq --disable-pip-version-check -e '.[dev]'
 	@touch $(STAMP)
 
 ## Run the default experiment end to end (Hydra overrides via ARGS="scene=random seed=3").
@@ -26,8 +28,9 @@ experiment: $(STAMP)
 ## Hydra multirun over a preset of conf/experiment/ with the joblib launcher, then aggregate.
 ## A failing job does not stop the others; the exit status says whether any failed.
 sweep: $(STAMP)
-	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) hydra.sweep.dir=$(SWEEP_DIR) $(ARGS)
-	$(PY) -m pipeline.tools.aggregate $(SWEEP_DIR)
+	@# Aggregate also when jobs failed (the table lists them); exit non-zero if any did.
+	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) hydra.sweep.dir=$(SWEEP_DIR) $(ARGS); \
+	  sweep=$$?; $(PY) -m pipeline.tools.aggregate $(SWEEP_DIR) || exit $$?; exit $$sweep
 
 ## Table (summary.csv) and figures of a sweep dir: make aggregate SWEEP=multirun/...
 aggregate: $(STAMP)

@@ -18,14 +18,14 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
-from pipeline.app.rundir import is_locked, write_status_if_missing
+from pipeline.app.rundir import SweepOutcome, is_locked, write_status_if_missing
 from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
 
 register_configs()
 
 
-CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")  # also when imported
+CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ (see context)
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
@@ -99,6 +99,7 @@ def cli() -> None:
     user_setting = os.environ.get("HYDRA_FULL_ERROR")
     _show_tracebacks[0] = user_setting == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
+    SweepOutcome.failed.clear()
     try:
         refuse_locked_run_dir(sys.argv[1:])
         main()
@@ -109,6 +110,11 @@ def cli() -> None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
         else:
             os.environ["HYDRA_FULL_ERROR"] = user_setting
+    if SweepOutcome.failed:
+        print(f"error: {len(SweepOutcome.failed)} sweep job(s) failed, first "
+              f"{SweepOutcome.failed[0]} (its status.json says why; make aggregate lists all)",
+              file=sys.stderr)
+        sys.exit(1)
 
 
 if __name__ == "__main__":

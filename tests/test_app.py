@@ -185,3 +185,13 @@ def test_failing_run_keeps_earlier_artefacts(tmp_path, default_dir):
                            "none.json", "not found")
     assert (run_dir / "demos.mcap").read_bytes() == before
     assert not list(Path(run_dir).glob("*.tmp"))
+
+
+def test_help_lists_groups_and_options_without_schemas():
+    result = run_app("--help")
+    assert result.returncode == 0, result.stderr
+    text = result.stdout
+    assert text.startswith("birlg: BIRL-G")
+    assert "scene: file, metropolis, office, random" in text
+    assert "base_" not in text and "__main__" not in text and "powered by Hydra" not in text
+    assert len(text.splitlines()) < 40  # groups and options, not the whole config

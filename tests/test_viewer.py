@@ -193,3 +193,15 @@ def test_an_interrupted_run_is_shown_with_a_warning(run_dir, tmp_path):
     assert res.stderr.startswith("warning: ") and "interrupted at stage birl" in res.stderr
     clean = _cli(run_dir, "--out", tmp_path / "y.rrd", "--no-open")
     assert "warning" not in clean.stderr
+
+
+def test_a_viewer_that_dies_is_reported(tmp_path):
+    from pipeline.tools.viewer import open_viewer
+
+    rrd = tmp_path / "x.rrd"
+    rrd.write_bytes(b"")
+    crash = [sys.executable, "-c", "import sys; sys.exit('no display server found')"]
+    assert open_viewer(crash, rrd) == 1
+    assert "no display server found" in (tmp_path / "x.viewer.log").read_text()
+    stays = [sys.executable, "-c", "import time; time.sleep(3)"]
+    assert open_viewer(stays, rrd, grace_s=0.5) == 0

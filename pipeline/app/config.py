@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Optional
 
 from hydra.core.config_store import ConfigStore
@@ -178,7 +179,20 @@ class Config:
         return len(self.reward.features)
 
 
+def config_groups_help() -> str:
+    """The user-facing config groups and their options for `--help` (conf/<group>/*.yaml;
+    the `base_*` schema entries stay hidden)."""
+    conf = Path(__file__).resolve().parent.parent / "conf"
+    lines = []
+    for group in sorted(d for d in conf.iterdir() if d.is_dir() and d.name != "hydra"):
+        options = sorted(f.stem for f in group.glob("*.yaml"))
+        lines.append(f"{group.name}: {', '.join(options)}")
+    return "\n".join(lines)
+
+
 def register_configs() -> None:
+    if not OmegaConf.has_resolver("birlg_config_groups"):
+        OmegaConf.register_new_resolver("birlg_config_groups", config_groups_help)
     cs = ConfigStore.instance()
     cs.store(name="base_config", node=Config)
     for kind, node in SCENES.items():

@@ -16,15 +16,19 @@ from pipeline.artefacts.store import Artefact, ArtefactWriter, link_or_copy, rea
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent.parent
+# conf/ and data/ of the package: links to the top-level dirs in the source tree, real
+# copies in an installed wheel.
+PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 _VERSIONED = ["numpy", "scipy", "scikit-learn", "mcap", "hydra-core", "pandas", "rerun-sdk"]
 
 
 def resolve_path(path: str) -> Path:
-    """A user-given input path: as given (relative to the cwd), else relative to the project."""
+    """A user-given input path: as given (relative to the cwd), else relative to the package
+    (so `data/scenes/metropolis.json` works from anywhere, also from an installed wheel)."""
     p = Path(path).expanduser()
     if p.is_absolute() or p.exists():
         return p
-    return PROJECT_ROOT / p if (PROJECT_ROOT / p).exists() else p
+    return PACKAGE_ROOT / p if (PACKAGE_ROOT / p).exists() else p
 
 
 def git_revision() -> str:

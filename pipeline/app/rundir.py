@@ -20,6 +20,9 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
+
 from pipeline.artefacts.store import content_digest, write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.errors import PipelineError, os_error_reason
@@ -163,3 +166,23 @@ def write_status_if_missing(run_dir: Path, error: str) -> None:
         write_json_atomic(Path(run_dir) / STATUS_FILE, {
             "state": FAILED, "stage": None, "error": " ".join(error.split()), "stages": [],
             "done": []})
+
+
+def job_dirs(sweep_dir: Path) -> list[Path]:
+    """Every job of a Hydra sweep: the dirs holding Hydra's .hydra/overrides.yaml."""
+    def natural(p: Path):  # job 2 before job 10
+        return len(p.parts), [int(x) if x.isdigit() else x for x in p.parts]
+
+    return sorted((p.parent.parent for p in Path(sweep_dir).glob("**/.hydra/overrides.yaml")),
+                  key=natural)
+
+
+class SweepOutcome(Callback):
+    """Hydra callback (conf/config.yaml, hydra.callbacks): after a sweep, the jobs whose run
+    dir is not complete, so the command exits non-zero when any job failed."""
+
+    failed: list[str] = []  # job dirs of the last sweep in this process, read by cli()
+
+    def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
+        jobs = job_dirs(Path(config.hydra.sweep.dir))
+        SweepOutcome.failed[:] = [str(j) for j in jobs if not read_status(j).complete]

@@ -16,7 +16,7 @@ import numpy as np
 from omegaconf import OmegaConf
 
 from pipeline.app import build
-from pipeline.app.context import PROJECT_ROOT, RunContext, resolve_path
+from pipeline.app.context import PACKAGE_ROOT, RunContext, resolve_path
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import STAGES
@@ -34,7 +34,7 @@ log = logging.getLogger(__name__)
 def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
     """Behaviour presets straight from conf/reward (one source for the numbers), on the
     run's features (a feature the preset does not weigh gets 0)."""
-    preset = OmegaConf.load(PROJECT_ROOT / "conf" / "reward" / f"{name}.yaml")
+    preset = OmegaConf.load(PACKAGE_ROOT / "conf" / "reward" / f"{name}.yaml")
     by_name = dict(zip(preset.get("features", FEATURE_NAMES), preset.weights, strict=True))
     return np.array([float(by_name.get(n, 0.0)) for n in feature_names])
 

@@ -21,18 +21,9 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from pipeline.app.rundir import read_status
+from pipeline.app.rundir import job_dirs, read_status
 from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.errors import PipelineError
-
-
-def job_dirs(sweep_dir: Path) -> list[Path]:
-    """Every job of the sweep: the dirs holding Hydra's .hydra/overrides.yaml."""
-    def natural(p: Path):  # job 2 before job 10
-        return len(p.parts), [int(x) if x.isdigit() else x for x in p.parts]
-
-    return sorted((p.parent.parent for p in sweep_dir.glob("**/.hydra/overrides.yaml")),
-                  key=natural)
 
 
 def parse_overrides(job: Path) -> dict[str, str]:

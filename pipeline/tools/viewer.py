@@ -238,11 +238,28 @@ def main(argv: list[str] | None = None) -> int:
     if args.no_open or not _has_display():
         print(f"wrote {rrd}; open it with: {' '.join(cmd)}")
         return 0
-    # Detached, so the viewer outlives this command.
-    subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
-                     stderr=subprocess.DEVNULL)
-    print(f"wrote {rrd}; opened it with: {' '.join(cmd)}")
-    return 0
+    return open_viewer(cmd, rrd)
+
+
+def open_viewer(cmd: list[str], rrd: Path, grace_s: float = 3.0) -> int:
+    """Start the viewer detached (it outlives this command); a viewer that dies within
+    `grace_s` (no GPU, no display server, a broken install) is reported, not hidden."""
+    log_path = rrd.with_suffix(".viewer.log")
+    with open(log_path, "w") as log_file:
+        proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
+                                stderr=log_file)
+    try:
+        code = proc.wait(timeout=grace_s)
+    except subprocess.TimeoutExpired:
+        print(f"wrote {rrd}; opened it with: {' '.join(cmd)}")
+        return 0
+    if code == 0:  # a viewer that hands the file to an already open window exits at once
+        print(f"wrote {rrd}; opened it with: {' '.join(cmd)}")
+        return 0
+    last = (log_path.read_text().strip().splitlines() or ["no output"])[-1]
+    print(f"error: the viewer exited with status {code} ({last}); the recording is {rrd}, "
+          f"full viewer output in {log_path}", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":
