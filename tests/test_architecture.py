@@ -17,7 +17,7 @@ import pytest
 from tests.conftest import ROOT
 
 LAYER = {"errors": 0, "core": 1, "irl": 2, "inputs": 2, "artefacts": 2, "app": 3,
-         "stages": 4, "tools": 5, "__main__": 5}
+         "stages": 4, "tools": 5, "api": 5, "__main__": 5}
 FRAMEWORKS = ("hydra", "omegaconf", "mcap", "rerun", "jsonschema")
 ALGORITHMS = ("core", "irl")
 
