@@ -28,8 +28,19 @@ def test_two_by_two_multirun_is_aggregated(tmp_path):
     assert sorted(zip(table.seed, table.reward, strict=True)) == [(0, "polite"), (0, "rude"),
                                                       (1, "polite"), (1, "rude")]
     assert {f"policy_loss_iter_{k:02d}" for k in range(6)} <= set(table.columns)
-    assert (tmp_path / "policy_loss.png").stat().st_size > 10_000
-    assert (tmp_path / "scene.png").stat().st_size > 10_000
+    for figure in ("policy_loss", "scene"):
+        assert (tmp_path / f"{figure}.png").stat().st_size > 10_000
+        assert (tmp_path / f"{figure}.pdf").read_bytes().startswith(b"%PDF")
+    # Stable column order: the job, its outcome, the seed, the swept keys, then the metrics.
+    columns = list(table.columns)
+    assert columns[:4] == ["job", "status", "error", "seed"]
+    assert columns.index("reward") < columns.index("policy_loss_norm") == \
+        columns.index("policy_loss") - 1
+    assert table.columns[-1].startswith("time_")
+    markdown = (tmp_path / "table.md").read_text().splitlines()
+    assert "reward" in markdown[0] and "normalised policy loss" in markdown[0]
+    assert len(markdown) == 4 and all(" ± " in line for line in markdown[2:])  # polite, rude
+    assert "\\toprule" in (tmp_path / "table.tex").read_text()
     # Polite experts learn to avoid links, rude ones cross them.
     by_reward = table.groupby("reward").relation_crossings.max()
     assert by_reward["polite"] == 0 and by_reward["rude"] > 0

@@ -3,10 +3,12 @@ whether any job failed.
 
     python -m pipeline.tools.aggregate multirun/<sweep dir>      (also: make aggregate SWEEP=...)
 
-Writes into the sweep dir: `summary.csv` (overrides, status and every metric of every job),
-`policy_loss.png` (policy loss against BIRL iteration, mean and spread across seeds: the
-paper's Fig. 1 right) and `scene.png` (scene, social links, demonstrations and learned
-paths of one job: Fig. 1 left). Jobs that failed, or never wrote metrics, stay in the table
+Writes into the sweep dir: `summary.csv` (overrides, status and every metric of every job,
+columns in the order of `column_order`), `table.md` and `table.tex` (main results per swept
+setting, mean ± std over seeds), `policy_loss.png/.pdf` (policy loss against BIRL
+iteration, median and range across seeds: the paper's Fig. 1 right) and `scene.png/.pdf`
+(scene, graph nodes, social links, demonstrations and learned paths of one job: Fig. 1
+left). Jobs that failed, or never wrote metrics, stay in the table
 with their error; the exit status is 1 if there were any.
 """
 
@@ -49,7 +51,38 @@ def summary_table(sweep_dir: Path) -> pd.DataFrame:
     jobs = job_dirs(sweep_dir)
     if not jobs:
         raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
-    return pd.DataFrame([job_row(j, sweep_dir) for j in jobs])
+    table = pd.DataFrame([job_row(j, sweep_dir) for j in jobs])
+    return table[column_order(list(table.columns))]
+
+
+# summary.csv column order (README "Sweeps, tables and figures"): the job and its outcome,
+# the swept settings, the headline metrics, the social metrics (graph, then roadmap), the
+# learned weights, everything else, the per-iteration curves, the wall-clock timings.
+HEADLINE = ["policy_loss_norm", "policy_loss", "policy_loss_ref"]
+SOCIAL = ["relation_crossings", "intimate_intrusion_m", "personal_intrusion_m",
+          "min_distance_to_person", "path_length", "time_to_goal", "success"]
+
+
+def column_order(columns: list[str]) -> list[str]:
+    def rank(c: str) -> tuple:
+        if c in ("job", "status", "error"):
+            return (0, ["job", "status", "error"].index(c))
+        if not _is_metric(c):
+            return (1, c != "seed", c)  # seed first, then the swept keys alphabetically
+        if c in HEADLINE:
+            return (2, HEADLINE.index(c))
+        for k, prefix in enumerate(("", "ref_")):
+            if c.removeprefix(prefix) in SOCIAL and c.startswith(prefix):
+                return (3 + k, SOCIAL.index(c.removeprefix(prefix)))
+        if c.startswith("weight"):
+            return (5, c)
+        if c.startswith(("policy_loss_iter_", "policy_loss_ref_iter_")):
+            return (7, c)
+        if c.startswith("time_"):
+            return (8, c)
+        return (6, c)
+
+    return sorted(columns, key=rank)
 
 
 def _group_columns(table: pd.DataFrame) -> list[str]:
@@ -60,23 +93,43 @@ def _group_columns(table: pd.DataFrame) -> list[str]:
 
 
 def _is_metric(column: str) -> bool:
-    return column.startswith(("policy_loss", "weight", "time_", "ref_", "frechet", "mcmc")) or \
-        column in ("relation_crossings", "intimate_intrusion_m", "personal_intrusion_m",
-                   "min_distance_to_person", "path_length", "time_to_goal", "success")
+    return column.startswith(("policy_loss", "weight", "time_", "ref_", "frechet", "mcmc",
+                              "transfer_", "obstacle", "min_distance")) or column in SOCIAL
+
+
+# Names as in the paper and the README, for legends and table headers.
+METHOD_NAMES = {"map": "BIRL-G (MAP)", "mcmc": "BIRL-G (MCMC)", "policywalk": "PolicyWalk",
+                "maxent": "MaxEnt", "fixed": "fixed weights"}
+SETTING_NAMES = {"birl": "method", "expert.beta": "β_E", "expert.n_demos": "demos",
+                 "expert": "expert", "reward": "reward", "scene": "scene", "birl.beta": "β"}
+METRIC_NAMES = {"policy_loss_norm": "normalised policy loss", "policy_loss_ref":
+                "policy loss (roadmap)", "policy_loss": "policy loss (graph)",
+                "relation_crossings": "link crossings", "success": "success rate"}
+
+
+def setting_label(key: str, value) -> str:
+    value = METHOD_NAMES.get(str(value), value) if key == "birl" else value
+    return f"{SETTING_NAMES.get(key, key)} {value}"
+
+
+def _save(fig, path: Path) -> None:
+    """PNG for the README and slides, PDF (vector) for papers."""
+    fig.savefig(path, dpi=150)
+    fig.savefig(path.with_suffix(".pdf"))
 
 
 def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     ok = table[table.status == "ok"]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharex=True)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharex=True, sharey=True)
     plotted = False
     groups = _group_columns(ok)
     for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
-        # Without groups the key is "all" and there is nothing to label: lengths differ.
-        label = ", ".join(f"{g}={v}" for g, v in
+        label = ", ".join(setting_label(g, v) for g, v in
                           zip(groups, np.atleast_1d(key), strict=False)) or "all jobs"
         for ax, prefix, title in ((axes[0], "policy_loss_iter_", "adaptive graph"),
                                   (axes[1], "policy_loss_ref_iter_", "reference roadmap")):
@@ -85,19 +138,22 @@ def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
             if curves.size == 0 or np.isnan(curves).all():
                 continue
             x = np.arange(len(cols))
-            mean, std = np.nanmean(curves, axis=0), np.nanstd(curves, axis=0)
-            ax.plot(x, mean, label=f"{label} (n={len(part)})")
-            ax.fill_between(x, np.maximum(mean - std, 0), mean + std, alpha=0.2)
+            # Median and the full range over seeds: never below 0, honest with 2-3 seeds.
+            line, = ax.plot(x, np.nanmedian(curves, axis=0), label=f"{label} (n={len(part)})")
+            ax.fill_between(x, np.nanmin(curves, axis=0), np.nanmax(curves, axis=0),
+                            color=line.get_color(), alpha=0.15, lw=0)
             ax.set_title(f"policy loss on the {title}")
             plotted = True
     for ax in axes:
         ax.set_xlabel("BIRL-G iteration")
-        ax.set_ylabel("policy loss (mean ± std over seeds)")
-        ax.grid(alpha=0.3)
+        ax.set_yscale("symlog", linthresh=1e-4)  # spans 1 to 1e-4, and exact zeros
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(alpha=0.3, which="both")
+    axes[0].set_ylabel("policy loss (median; band: min–max over seeds)")
     if plotted:
-        axes[0].legend(fontsize=7)
+        axes[1].legend(fontsize=7, loc="upper right")
         fig.tight_layout()
-        fig.savefig(path, dpi=120)
+        _save(fig, path)
     plt.close(fig)
     return plotted
 
@@ -110,21 +166,29 @@ def plot_scene(job: Path, path: Path) -> None:
 
     art = read_artefact(job / "scene.mcap")
     scene = art.one(topics.SCENE)
-    fig, ax = plt.subplots(figsize=(6, 6))
+    fig, ax = plt.subplots(figsize=(7.5, 6))
     obstacles = codec.decode_scene(art).obstacles
     if obstacles is not None:  # the map and polygons under the scene
         x0, y0, x1, y1 = obstacles.grid.extent()
         ax.imshow(obstacles.grid.occupied, origin="lower", extent=(x0, x1, y0, y1),
                   cmap="Greys", vmin=0, vmax=1.5, interpolation="nearest")
+    if (job / "graph.mcap").exists():  # the graph's samples, as in the paper's Fig. 1 left
+        nodes = np.array([(n["x"], n["y"]) for n in
+                          read_artefact(job / "graph.mcap").all(topics.GRAPH_NODE)])
+        ax.plot(nodes[:, 0], nodes[:, 1], ".", color="0.55", ms=3,
+                label=f"graph nodes ({len(nodes)})")
     room = scene["room"]
     ax.plot([room["x_min"], room["x_max"], room["x_max"], room["x_min"], room["x_min"]],
             [room["y_min"], room["y_min"], room["y_max"], room["y_max"], room["y_min"]], "k-")
     pos = {p["id"]: (p["x"], p["y"]) for p in scene["persons"]}
-    for a, b in scene["relations"]:
-        ax.plot(*zip(pos[a], pos[b], strict=True), color="tab:red", lw=2, alpha=0.6)
-    for p in scene["persons"]:
-        ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08))
-        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange"))
+    for i, (a, b) in enumerate(scene["relations"]):
+        ax.plot(*zip(pos[a], pos[b], strict=True), color="tab:red", lw=2, alpha=0.6,
+                label="social links" if i == 0 else None)
+    for i, p in enumerate(scene["persons"]):
+        ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08,
+                            label="personal zone (1.2 m)" if i == 0 else None))
+        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange",
+                            label="persons" if i == 0 else None))
         ax.arrow(p["x"], p["y"], 0.4 * np.cos(p["theta"]), 0.4 * np.sin(p["theta"]),
                  head_width=0.12, color="k")
     for i, d in enumerate(read_artefact(job / "demos.mcap").all(topics.DEMOS)):
@@ -137,21 +201,53 @@ def plot_scene(job: Path, path: Path) -> None:
         for i, p in enumerate(learned):
             pts = np.asarray(p["points"])
             ax.plot(pts[:, 0], pts[:, 1], color="tab:blue", lw=1.5,
-                    label="learned (BIRL-G)" if i == 0 else None)
+                    label="learned paths" if i == 0 else None)
     starts = np.asarray(scene["starts"])
     ax.plot(starts[:, 0], starts[:, 1], "s", color="tab:purple", label="starts")
     ax.plot(*scene["goal"], "*", color="gold", ms=18, mec="k", label="goal")
     ax.set_aspect("equal")
-    ax.set_title(f"{scene['name']}: {job.name}")
-    ax.legend(loc="lower right", fontsize=7)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"scene '{scene['name']}': demonstrations and learned paths")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    _save(fig, path)
     plt.close(fig)
+
+
+def results_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Main results, one row per swept setting: mean ± std over seeds of the headline
+    metrics (the table a paper or a README shows)."""
+    ok = table[table.status == "ok"]
+    groups = _group_columns(ok)
+    metrics = [m for m in ("policy_loss_norm", "policy_loss_ref", "relation_crossings",
+                           "success") if m in ok.columns]
+    rows = []
+    for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
+        row = {SETTING_NAMES.get(g, g): (METHOD_NAMES.get(str(v), v) if g == "birl" else v)
+               for g, v in zip(groups, np.atleast_1d(key), strict=False)}
+        row["seeds"] = len(part)
+        for m in metrics:
+            values = part[m].astype(float)
+            row[METRIC_NAMES.get(m, m)] = f"{values.mean():.4f} ± {values.std(ddof=0):.4f}"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def write_tables(table: pd.DataFrame, sweep_dir: Path) -> None:
+    results = results_table(table)
+    if results.empty:
+        return
+    (sweep_dir / "table.md").write_text(results.to_markdown(index=False) + "\n")
+    latex = results.to_latex(index=False, escape=True).replace("±", "$\\pm$") \
+        .replace("β", "$\\beta$")
+    (sweep_dir / "table.tex").write_text(latex)
 
 
 def aggregate(sweep_dir: Path) -> pd.DataFrame:
     table = summary_table(sweep_dir)
     table.to_csv(sweep_dir / "summary.csv", index=False)
+    write_tables(table, sweep_dir)
     plot_policy_loss(table, sweep_dir / "policy_loss.png")
     ok = table[table.status == "ok"]
     if len(ok):
