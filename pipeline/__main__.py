@@ -7,9 +7,11 @@ type, a bad override: Hydra's wording, first line only) and anything unexpected.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 
 import hydra
@@ -18,7 +20,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
-from pipeline.app.rundir import SweepOutcome, is_locked, write_status_if_missing
+from pipeline.app.rundir import SweepOutcome, locked, write_status_if_missing
 from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
 
@@ -29,7 +31,7 @@ CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ 
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
-def main(cfg: DictConfig) -> None:
+def main(cfg: DictConfig) -> float | None:
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
     if hydra_cfg.mode != RunMode.MULTIRUN:
@@ -37,7 +39,7 @@ def main(cfg: DictConfig) -> None:
             run_pipeline(cfg, run_dir)
         except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
             exit_with_one_line(e)
-        return
+        return None
     # In a sweep a failing job must not stop the others: its status.json (written by the
     # run dir, or here when the job failed before it had one) says failed, and `make
     # aggregate` reports it in its table and exit status.
@@ -48,6 +50,15 @@ def main(cfg: DictConfig) -> None:
         logging.getLogger("pipeline").error("job failed: %s", error,
                                             exc_info=not isinstance(e, PipelineError))
         write_status_if_missing(run_dir, error)
+        return float("nan")
+    return objective_value(run_dir, cfg.objective)
+
+
+def objective_value(run_dir: Path, key: str) -> float:
+    """The job's metric for a sweeper that optimises (Optuna); NaN marks a failed trial."""
+    metrics_path = run_dir / "metrics.json"
+    metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    return float(metrics.get(key, float("nan")))
 
 
 def one_line(e: BaseException) -> str:
@@ -65,16 +76,16 @@ def one_line(e: BaseException) -> str:
     return line
 
 
-def refuse_locked_run_dir(argv: list[str]) -> None:
-    """Refuse before Hydra writes its .hydra/ files into a run dir another run holds."""
+def explicit_run_dir(argv: list[str]) -> Path | None:
+    """The run dir given on the command line (hydra.run.dir=, also with + or ++), for a
+    single run; None for sweeps and default dirs (those carry microseconds)."""
     if "-m" in argv or "--multirun" in argv:
-        return
+        return None
     for arg in argv:
-        if arg.startswith("hydra.run.dir="):
-            run_dir = Path(arg.split("=", 1)[1])
-            if run_dir.is_dir() and is_locked(run_dir):
-                raise PipelineError(f"run dir {run_dir} is in use by another run; wait for it "
-                                    "to finish or choose another hydra.run.dir")
+        key, _, value = arg.lstrip("+").partition("=")
+        if key == "hydra.run.dir" and value:
+            return Path(value)
+    return None
 
 
 def exit_with_one_line(e: Exception) -> None:
@@ -100,9 +111,12 @@ def cli() -> None:
     _show_tracebacks[0] = user_setting == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
     SweepOutcome.failed.clear()
+    run_dir = explicit_run_dir(sys.argv[1:])
     try:
-        refuse_locked_run_dir(sys.argv[1:])
-        main()
+        # Held from before Hydra writes its .hydra/ files until the run ends: a second run
+        # into the dir is refused before it touches anything.
+        with locked(run_dir) if run_dir is not None else nullcontext():
+            main()
     except Exception as e:  # noqa: BLE001 - Hydra's errors, ours before the job, bugs
         exit_with_one_line(e)
     finally:

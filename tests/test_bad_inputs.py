@@ -227,7 +227,7 @@ def _interrupted(tmp, default_dir):
 
 def _run_dir_is_a_file(tmp, default_dir):
     (tmp / "afile").write_text("")
-    return [f"hydra.run.dir={tmp / 'afile'}"], ["afile", "cannot create or write"]
+    return [f"hydra.run.dir={tmp / 'afile'}"], ["afile", "cannot use run dir"]
 
 
 ARTEFACT_CASES = {

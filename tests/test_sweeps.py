@@ -8,6 +8,7 @@ import sys
 
 import pandas as pd
 import pytest
+import yaml
 
 from tests.conftest import ROOT, run_app
 
@@ -120,3 +121,30 @@ def test_slurm_launcher_preset_composes():
     assert launcher._target_.endswith("SlurmLauncher")
     assert launcher.partition == "cpu" and launcher.cpus_per_task == 2
     assert "scene" in cfg.hydra.sweeper.params
+
+
+@pytest.mark.slow
+def test_optuna_preset_tunes_against_the_metric(tmp_path):
+    result = run_app("-m", "experiment=tune", "hydra.sweeper.n_trials=3",
+                     "hydra.sweeper.n_jobs=1", "birl.n_iterations=3",
+                     f"hydra.sweep.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-2000:]
+    best = yaml.safe_load((tmp_path / "optimization_results.yaml").read_text())
+    assert set(best["best_params"]) == {"birl.beta", "graph.max_nodes"}
+    trials = [json.loads((tmp_path / str(k) / "metrics.json").read_text())["policy_loss_norm"]
+              for k in range(3)]
+    assert best["best_value"] == pytest.approx(min(trials))  # the trial metric went back
+
+
+@pytest.mark.slow
+def test_a_submitit_local_sweep_runs_as_on_a_cluster(tmp_path):
+    # The same launcher plugin as Slurm, with local processes: jobs are pickled, run in
+    # other processes and their results collected, as on a cluster.
+    result = run_app("-m", "hydra/launcher=submitit_local", "seed=0,1", "graph=small",
+                     "birl.n_iterations=3", "hydra.launcher.timeout_min=10",
+                     f"hydra.sweep.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-2000:]
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 0, agg.stderr
+    table = pd.read_csv(tmp_path / "summary.csv")
+    assert sorted(table.seed) == [0, 1] and (table.status == "ok").all()

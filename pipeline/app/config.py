@@ -163,6 +163,7 @@ class Config:
     seed: int = 0
     stages: list[str] = field(default_factory=lambda: list(STAGES))
     from_run: Optional[str] = None  # run dir whose artefacts feed stages not run now
+    objective: str = "policy_loss_norm"  # metric a sweep job returns to a sweeper (Optuna)
     # FileSceneConfig | RandomSceneConfig, each checked by its own schema (typed Any: the
     # file scene's sizes are optional, which a BodyParams-typed node would not accept)
     scene: Any = MISSING

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import subprocess
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from functools import partial
 from importlib import metadata as importlib_metadata
 from pathlib import Path
 
@@ -60,6 +61,8 @@ class RunContext:
     metadata: dict[str, str]
     timings: dict[str, float] = field(default_factory=dict)  # extra wall-clock measurements
     inputs: dict[str, Artefact] = field(default_factory=dict)  # read by the current stage
+    # (stage, new content digest) -> None, run just before an artefact replaces the old one
+    before_replace: Callable[[str, str], None] | None = None
 
     def rng(self, stage: str, seed: int | None = None, *stream: int) -> np.random.Generator:
         """An independent generator per stage (and optional sub-stream), derived from the run
@@ -85,5 +88,7 @@ class RunContext:
 
     def writer(self, stage: str) -> ArtefactWriter:
         meta = {**self.metadata, **provenance_metadata(stage, self.config, self.inputs)}
+        hook = self.before_replace
         return ArtefactWriter(self.run_dir / ARTEFACT_FILE[stage],
-                              config_yaml=self.config_yaml, metadata=meta)
+                              config_yaml=self.config_yaml, metadata=meta,
+                              before_replace=None if hook is None else partial(hook, stage))

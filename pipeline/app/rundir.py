@@ -6,7 +6,7 @@
   `complete` or `failed` (with the failing stage and the error). A run killed with -9 leaves
   `running` behind; readers see that the lock is free and report it as `interrupted`.
 - Stale `*.tmp` files of a dead writer are removed when the next run takes the lock.
-- When a stage replaces its artefact with a different one, the artefacts derived from the
+- Just before a stage's artefact replaces a different one, the artefacts derived from the
   old one (later stages, `metrics.json`) are removed, so a dir never holds new inputs beside
   old outputs; a failed or killed stage leaves the earlier files untouched.
 """
@@ -17,6 +17,7 @@ import fcntl
 import json
 import logging
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -78,30 +79,54 @@ def read_status(run_dir: Path) -> RunStatus:
     return RunStatus(state, stage, error)
 
 
+_HANDED_OVER: set[Path] = set()  # run dirs whose lock the CLI holds for this process's run
+
+
+def acquire_lock(run_dir: Path) -> int:
+    """Take the run dir's exclusive lock (creating the dir) and return its fd, or refuse in
+    one line when another run holds it."""
+    try:
+        Path(run_dir).mkdir(parents=True, exist_ok=True)
+        fd = os.open(Path(run_dir) / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise PipelineError(f"cannot use run dir {run_dir}: {os_error_reason(e)}") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise PipelineError(f"run dir {run_dir} is in use by another run; wait for it to "
+                            "finish or choose another hydra.run.dir") from None
+    return fd
+
+
+@contextmanager
+def locked(run_dir: Path):
+    """Hold the run dir's lock for the block and hand it to the RunDir of the run inside
+    (the CLI wraps Hydra in it, so a second run is refused before Hydra writes its files)."""
+    fd = acquire_lock(run_dir)
+    key = Path(run_dir).resolve()
+    _HANDED_OVER.add(key)
+    try:
+        yield
+    finally:
+        _HANDED_OVER.discard(key)
+        os.close(fd)  # releases the lock
+
+
 class RunDir:
     """`with RunDir(path, stages) as rd:` holds the lock; `rd.start(stage)` before each
-    stage, `rd.done(stage)` after; leaving the block marks the dir complete or failed."""
+    stage, `rd.done(stage)` after, `rd.before_replace` as the artefact writer's hook;
+    leaving the block marks the dir complete or failed."""
 
     def __init__(self, path: Path, stages: list[str]):
         self.path, self.stages = Path(path), list(stages)
         self.done_stages: list[str] = []
         self.stage: str | None = None
-        self._fd: int | None = None
-        self._before: str | None = None  # digest of the artefact the running stage replaces
+        self._fd: int | None = None  # our own lock, unless the CLI handed its lock over
 
     def __enter__(self) -> RunDir:
-        try:
-            self.path.mkdir(parents=True, exist_ok=True)
-            self._fd = os.open(self.path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as e:
-            raise PipelineError(f"cannot use run dir {self.path}: {os_error_reason(e)}") from None
-        try:
-            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(self._fd)
-            self._fd = None
-            raise PipelineError(f"run dir {self.path} is in use by another run; wait for it "
-                                "to finish or choose another hydra.run.dir") from None
+        if Path(self.path).resolve() not in _HANDED_OVER:
+            self._fd = acquire_lock(self.path)
         self._remove_stale_temp_files()
         self._write(RUNNING)
         return self
@@ -124,25 +149,24 @@ class RunDir:
     def start(self, stage: str) -> None:
         self.stage = stage
         self._write(RUNNING)
-        self._before = content_digest(self.path / ARTEFACT_FILE[stage])
 
-    def done(self, stage: str) -> None:
-        """`stage` wrote its artefact. If that changed it, what was derived from the old one
-        (later stages' artefacts, metrics.json) no longer belongs to it and is removed.
-        Until then a failed or killed stage leaves the earlier, consistent files alone."""
-        self.done_stages.append(stage)
-        after = content_digest(self.path / ARTEFACT_FILE[stage])
-        if self._before is not None and after == self._before:
+    def before_replace(self, stage: str, new_digest: str) -> None:
+        """Called just before `stage`'s new artefact (content digest `new_digest`) replaces
+        the old one. If the content changes, what was derived from the old one (later
+        stages' artefacts, metrics.json) is removed first, so no moment leaves new inputs
+        beside old outputs; a failed or killed stage leaves the earlier files untouched."""
+        if content_digest(self.path / ARTEFACT_FILE[stage]) == new_digest:
             return
         later = [self.path / ARTEFACT_FILE[s] for s in STAGES[STAGES.index(stage) + 1:]]
-        if later:  # metrics.json comes with the last stage's artefact
-            later.append(self.path / METRICS_FILE)
-        removed = [p for p in later if p.exists()]
+        removed = [p for p in later + [self.path / METRICS_FILE] if p.exists()]
         for p in removed:
             p.unlink()
         if removed:
-            log.info("removed %s: derived from the %s artefact this run replaced",
+            log.info("removed %s: derived from the %s artefact this run replaces",
                      ", ".join(p.name for p in removed), stage)
+
+    def done(self, stage: str) -> None:
+        self.done_stages.append(stage)
 
     def _remove_stale_temp_files(self) -> None:
         # We hold the lock, so no live writer owns a temp file in this dir.

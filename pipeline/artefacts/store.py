@@ -17,7 +17,7 @@ import uuid
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 from mcap.exceptions import EndOfFile
@@ -136,8 +136,11 @@ class Artefact:
 class ArtefactWriter:
     """Context manager: with ArtefactWriter(path, config_yaml=..., metadata=...) as w: w.add(...)"""
 
-    def __init__(self, path: str | os.PathLike, *, config_yaml: str, metadata: dict[str, str]):
+    def __init__(self, path: str | os.PathLike, *, config_yaml: str, metadata: dict[str, str],
+                 before_replace: Callable[[str], None] | None = None):
         self.path = Path(path)
+        # Called with the content digest just before the new file replaces the old one.
+        self._before_replace = before_replace
         self.tmp_path = unique_tmp(self.path)
         if not all(isinstance(k, str) and isinstance(v, str) for k, v in metadata.items()):
             raise ValueError("artefact metadata must be a str -> str dict")
@@ -221,6 +224,8 @@ class ArtefactWriter:
                     self._file.flush()
                     os.fsync(self._file.fileno())  # durable before it gets the final name
                     self._file.close()
+                    if self._before_replace is not None:
+                        self._before_replace(self._content.hexdigest())
                     os.replace(self.tmp_path, self.path)
                 except OSError as e:
                     raise self._os_error(e) from None

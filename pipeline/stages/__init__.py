@@ -39,6 +39,7 @@ def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
                      OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed))
     with RunDir(run_dir, stages) as rundir:
+        ctx.before_replace = rundir.before_replace
         timings = ctx.timings  # stages add their own measurements
         timings.update(read_timings(run_dir / "timings.json"))
         for stage in STAGES[STAGES.index(stages[0]):]:  # derived: re-measured or removed
