@@ -47,8 +47,10 @@ def test_schemas_are_valid_draft_2020_12_and_documented(name):
 
 
 def test_schemas_ship_as_package_data():
-    text = (ROOT / "pyproject.toml").read_text()
-    assert '[tool.setuptools.package-data]\npipeline = ["schemas/*.json"]' in text
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert "schemas/*.json" in project["tool"]["setuptools"]["package-data"]["pipeline"]
 
 
 @pytest.mark.parametrize("path", SCENES, ids=lambda p: p.name)

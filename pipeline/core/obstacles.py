@@ -19,7 +19,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from matplotlib.path import Path as _PolyPath
 from scipy import ndimage
 
 from pipeline.errors import PipelineError
@@ -105,6 +104,8 @@ def rasterise(polygons: list[np.ndarray], grid: OccupancyGrid | None = None,
         if w < 1 or h < 1:
             raise PipelineError(f"rasterise bounds {bounds} are empty")
         grid = OccupancyGrid(np.zeros((h, w), dtype=bool), (x_min, y_min), float(resolution))
+    from matplotlib.path import Path as PolygonPath  # matplotlib only when there are polygons
+
     occupied = grid.occupied.copy()
     for i, polygon in enumerate(polygons):
         poly = np.asarray(polygon, dtype=float)
@@ -113,7 +114,7 @@ def rasterise(polygons: list[np.ndarray], grid: OccupancyGrid | None = None,
             raise PipelineError(f"obstacle polygon {i} must be k >= 2 finite x, y points")
         # centres inside: test only the cells of the polygon's bounding box
         window, box = grid.window(poly.min(axis=0), poly.max(axis=0))
-        inside = _PolyPath(poly).contains_points(box.reshape(-1, 2)).reshape(box.shape[:2])
+        inside = PolygonPath(poly).contains_points(box.reshape(-1, 2)).reshape(box.shape[:2])
         occupied[window] |= inside
         # edges: dense samples mark every cell an edge passes through; between consecutive
         # samples in diagonal cells also both shared neighbours, where the edge cut a corner

@@ -10,7 +10,6 @@ from typing import Optional
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.stats import truncnorm
 
 from pipeline.core.params import require, require_positive
 
@@ -135,6 +134,8 @@ class Prior:
             return rng.uniform(self.lower, self.upper, size=shape)
         if self.kind == "gaussian":
             a, c = (self.lower - self.mean) / self.scale, (self.upper - self.mean) / self.scale
+            from scipy.stats import truncnorm  # 0.25 s to import: only when it is used
+
             return truncnorm.rvs(a, c, loc=self.mean, scale=self.scale, size=shape,
                                  random_state=rng)
         # Laplace: pick a side by its mass, then invert the truncated exponential's CDF.
@@ -150,6 +151,8 @@ class Prior:
             return (self.lower + self.upper) / 2
         if self.kind == "gaussian":
             a, c = (self.lower - self.mean) / self.scale, (self.upper - self.mean) / self.scale
+            from scipy.stats import truncnorm
+
             return np.atleast_1d(truncnorm.mean(a, c, loc=self.mean, scale=self.scale))
         (p_up, len_up), (p_dn, len_dn), prob_up = self._laplace_sides()
         mean_up = p_up + _truncated_exponential_mean(len_up, self.scale)
