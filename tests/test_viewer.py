@@ -47,7 +47,9 @@ def chunks_by_entity(path, store=None):
 
 
 def column(chunks, name):
-    return [v for _, rb in chunks for v in rb.column(name).to_pylist()]
+    """Values of a column over the chunks that have it (a curve's static style chunk has
+    no timeline column)."""
+    return [v for _, rb in chunks if name in rb.schema.names for v in rb.column(name).to_pylist()]
 
 
 def test_rrd_has_the_entities_timelines_and_no_temp_file(run_dir, rrd):
@@ -113,10 +115,39 @@ def test_blueprint_has_a_2d_view_beside_time_series(rrd):
         if "ViewContents:query" in names:
             queries[path.removesuffix("/ViewContents")] = column(chunks, "ViewContents:query")[0]
     kinds = sorted(views.values())
-    assert kinds == [("2D", "/"), ("TimeSeries", "/curves/log_posterior"),
+    assert kinds == [("2D", "/"), ("2D", "/"), ("TimeSeries", "/curves/log_posterior"),
                      ("TimeSeries", "/curves/policy_loss"), ("TimeSeries", "/curves/weights")]
-    (spatial,) = [p for p, v in views.items() if v[0] == "2D"]
-    assert "- /curves/**" in queries[spatial]
+    learning, growth = sorted((p for p, v in views.items() if v[0] == "2D"),
+                              key=lambda p: "- /curves/**" not in queries[p])
+    # One view shows scene, final graph, BIRL paths and (beside it) curves on one timeline;
+    # the growth replay has its own view.
+    assert "- /curves/**" in queries[learning] and "- /graph/nodes" in queries[learning]
+    assert "+ /graph/nodes" in queries[growth] and "+ /scene/**" in queries[growth]
+    timelines = [v for chunks in chunks_by_entity(rrd, store=bp).values()
+                 for _, rb in chunks for name in rb.schema.names if name.endswith(":timeline")
+                 for v in rb.column(name).to_pylist()]
+    assert timelines == [["birl_iteration"]]  # the time panel opens on the BIRL timeline
+
+
+def test_scene_is_drawn_y_up_and_the_final_graph_is_static(run_dir, rrd):
+    chunks = chunks_by_entity(rrd)
+    persons = read_artefact(run_dir / "scene.mcap").one("/scene")["persons"]
+    logged = np.array(column(chunks["/scene/persons"], "Points2D:positions")[0])
+    # rerun's 2-D views draw y down: y is logged negated so the goal is at the top
+    np.testing.assert_allclose(logged, [(p["x"], -p["y"]) for p in persons], rtol=1e-6)
+    graph = read_artefact(run_dir / "graph.mcap")
+    assert all(static for static, _ in chunks["/graph/final/nodes"])
+    final = column(chunks["/graph/final/nodes"], "Points2D:positions")[0]
+    assert len(final) == len(graph.all("/graph/node"))
+
+
+def test_curves_have_distinct_colours(rrd):
+    chunks = chunks_by_entity(rrd)
+    colours = {p: column(c, "SeriesLines:colors")[0][0] for p, c in chunks.items()
+               if p.startswith("/curves/")}
+    losses = [colours[f"/curves/policy_loss/{k}"] for k in ("graph", "ref", "norm")]
+    weights = [c for p, c in colours.items() if p.startswith("/curves/weights/")]
+    assert len(set(losses)) == 3 and len(set(weights)) == len(weights) == 4
 
 
 def test_only_the_scene_is_required(run_dir, tmp_path):
@@ -176,7 +207,7 @@ def test_a_map_scene_draws_the_obstacle_outlines(tmp_path):
     (strips,) = column(outlines, "LineStrips2D:strips")  # one row holding every strip
     assert len(strips) > 10  # outer walls, room walls, furniture
     # every outline point lies on the map (20 x 14 m, outlines half a cell outside at most)
-    points = np.array([p for strip in strips for p in strip])
+    points = np.array([p for strip in strips for p in strip]) * [1, -1]  # logged y-up
     assert points.min() >= -0.05 and points[:, 0].max() <= 20.05 and points[:, 1].max() <= 14.05
 
 

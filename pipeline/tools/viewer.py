@@ -2,9 +2,12 @@
 
     python -m pipeline.tools.viewer RUN_DIR [--out FILE] [--no-open]
 
-Static: the scene, demonstrations and final learned paths. Graph growth replays on the
-`iteration` timeline, BIRL on `birl_iteration` (learned paths and curves). Written against
-rerun-sdk 0.41 (pinned): its API changes between releases.
+Static: the scene, demonstrations, the final graph and the final learned paths. BIRL replays
+on the `birl_iteration` timeline (learned paths and curves), which the layout selects, so
+scene, final graph, learned paths and curves show together; graph growth replays on the
+`iteration` timeline in its own view. rerun 0.41's 2-D views draw y downwards, so y is
+logged negated and the scene appears y-up as in the figures (hover shows -y). Written
+against rerun-sdk 0.41 (pinned): its API changes between releases.
 """
 
 from __future__ import annotations
@@ -31,10 +34,19 @@ APP_ID = "birlg"
 HEADING_LEN = 0.4  # m, length of the person heading arrows
 KIND_COLORS = {"start": (40, 180, 60), "goal": (220, 40, 40), "voronoi": (60, 110, 230),
                "demo": (240, 150, 30), "sampled": (150, 150, 150)}
+PERSON, LINK = (235, 130, 40), (210, 40, 40)  # as in the figures: orange persons, red links
+# Distinct series colours (matplotlib's tab10): curves that share a view never look alike.
+TAB10 = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+         (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+Y_UP = np.array([1.0, -1.0])  # rerun 2-D views draw y down: negate y to show the scene y-up
+
+
+def _xy(points) -> np.ndarray:
+    return np.asarray(points, dtype=float).reshape(-1, 2) * Y_UP
 
 
 def _strips(polylines) -> list[np.ndarray]:
-    return [np.asarray(p, dtype=float).reshape(-1, 2) for p in polylines]
+    return [_xy(p) for p in polylines]
 
 
 def obstacle_outlines(scene: Scene) -> list[np.ndarray]:
@@ -55,7 +67,8 @@ def obstacle_outlines(scene: Scene) -> list[np.ndarray]:
 def _log_obstacles(rec: rr.RecordingStream, outlines: list[np.ndarray]) -> None:
     """The obstacle raster's outlines (map walls, polygons), under everything else."""
     if outlines:
-        rec.log("scene/obstacles", rr.LineStrips2D(outlines, radii=0.02, colors=(40, 40, 40),
+        rec.log("scene/obstacles", rr.LineStrips2D(_strips(outlines), radii=0.02,
+                                                   colors=(40, 40, 40),
                                                    draw_order=-10.0), static=True, strict=True)
 
 
@@ -67,26 +80,36 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
     pos = {p["id"]: (p["x"], p["y"]) for p in persons}
     xy = np.array([pos[p["id"]] for p in persons], dtype=float).reshape(-1, 2)
     theta = np.array([p["theta"] for p in persons], dtype=float)
-    rec.log("scene/room", rr.LineStrips2D([room], colors=(80, 80, 80)), static=True, strict=True)
-    rec.log("scene/persons", rr.Points2D(xy, radii=scene["body_radius"], colors=(200, 60, 160),
+    rec.log("scene/room", rr.LineStrips2D(_strips([room]), colors=(80, 80, 80)), static=True,
+            strict=True)
+    rec.log("scene/persons", rr.Points2D(_xy(xy), radii=scene["body_radius"], colors=PERSON,
                                          labels=[str(p["id"]) for p in persons]),
             static=True, strict=True)
     heading = HEADING_LEN * np.stack([np.cos(theta), np.sin(theta)], axis=-1)
-    rec.log("scene/person_heading", rr.Arrows2D(origins=xy, vectors=heading), static=True,
-            strict=True)
+    rec.log("scene/person_heading", rr.Arrows2D(origins=_xy(xy), vectors=_xy(heading),
+                                                colors=(40, 40, 40)), static=True, strict=True)
     links = [[pos[a], pos[b]] for a, b in scene["relations"]]
-    rec.log("scene/links", rr.LineStrips2D(_strips(links), colors=(200, 60, 160)), static=True,
-            strict=True)
-    rec.log("scene/starts", rr.Points2D(scene["starts"], radii=0.12, colors=KIND_COLORS["start"]),
+    rec.log("scene/links", rr.LineStrips2D(_strips(links), colors=LINK, radii=0.03),
             static=True, strict=True)
-    rec.log("scene/goal", rr.Points2D([scene["goal"]], radii=scene.get("goal_tolerance", 0.2),
-                                      colors=KIND_COLORS["goal"]), static=True, strict=True)
+    rec.log("scene/starts", rr.Points2D(_xy(scene["starts"]), radii=0.12,
+                                        colors=KIND_COLORS["start"],
+                                        labels=[f"s{k}" for k in range(len(scene["starts"]))]),
+            static=True, strict=True)
+    rec.log("scene/goal", rr.Points2D(_xy([scene["goal"]]), radii=scene.get("goal_tolerance", 0.2),
+                                      colors=KIND_COLORS["goal"], labels=["goal"]),
+            static=True, strict=True)
 
 
 def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
     nodes, edges = graph.all(topics.GRAPH_NODE), graph.all(topics.GRAPH_EDGE)
     best = graph.all(topics.GRAPH_BEST_PATHS)
     pos = {n["id"]: (n["x"], n["y"]) for n in nodes}
+    # The final graph, static: shown beside the BIRL timeline without switching timelines.
+    rec.log("graph/final/nodes", rr.Points2D(_xy([pos[n["id"]] for n in nodes]), radii=0.03,
+                                             colors=(150, 150, 150)), static=True, strict=True)
+    rec.log("graph/final/edges", rr.LineStrips2D(_strips([e["waypoints"] for e in edges]),
+                                                 radii=0.005, colors=(190, 200, 225),
+                                                 draw_order=-5.0), static=True, strict=True)
     iterations = sorted({n["iteration"] for n in nodes} | {e["iteration"] for e in edges}
                         | {b["iteration"] for b in best})
     best_at = {b["iteration"]: b for b in best}
@@ -96,7 +119,7 @@ def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
         # visible-time-range override: cumulative edges would grow quadratically in the file.
         grown = [n for n in nodes if n["iteration"] <= k]
         rec.log("graph/nodes", rr.Points2D(
-            [(n["x"], n["y"]) for n in grown], radii=0.05,
+            _xy([(n["x"], n["y"]) for n in grown]), radii=0.05,
             colors=[KIND_COLORS.get(n["kind"], (0, 0, 0)) for n in grown]), strict=True)
         new = [e["waypoints"] for e in edges if e["iteration"] == k]
         if new:
@@ -109,8 +132,21 @@ def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
     rec.reset_time()
 
 
+def _log_series_styles(rec: rr.RecordingStream, names: list[str]) -> None:
+    """Names and distinct colours of the curves (static, so every view shows them)."""
+    styles = {f"curves/policy_loss/{k}": (TAB10[i], label) for i, (k, label) in enumerate(
+        [("graph", "adaptive graph"), ("ref", "reference roadmap"), ("norm", "normalised")])}
+    styles.update({f"curves/weights/{n}": (TAB10[i % len(TAB10)], n)
+                   for i, n in enumerate(names)})
+    styles["curves/log_posterior"] = (TAB10[4], "log posterior")
+    for path, (color, label) in styles.items():
+        rec.log(path, rr.SeriesLines(colors=[color], names=[label], widths=[2.0]), static=True,
+                strict=True)
+
+
 def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | None,
               names: list[str]) -> None:
+    _log_series_styles(rec, names)
     for it in birl.all(topics.BIRL_ITERATION) if birl else []:
         rec.set_time("birl_iteration", sequence=it["index"])
         paths = [g["points"] for g in it["generated"] if g.get("points")]
@@ -129,30 +165,42 @@ def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | Non
     rec.reset_time()
     if birl is not None and birl.messages.get(topics.BIRL_GRAPH_NODE):  # birl.grow_nodes > 0
         grown = birl.all(topics.BIRL_GRAPH_NODE)
-        rec.log("birl/grown_nodes", rr.Points2D([(n["x"], n["y"]) for n in grown], radii=0.05,
+        rec.log("birl/grown_nodes", rr.Points2D(_xy([(n["x"], n["y"]) for n in grown]), radii=0.05,
                                                 colors=(0, 190, 190)), static=True, strict=True)
     if ev is not None and topics.EVAL_PATHS in ev.messages:
         final = [p for p in ev.all(topics.EVAL_PATHS) if p.get("graph") == "graph" and p["points"]]
+        # No labels: the starts carry them (s0, s1, ...), path labels would overlap them.
         rec.log("eval/paths", rr.LineStrips2D(
-            _strips([p["points"] for p in final]), radii=0.05, colors=(30, 200, 30),
-            labels=[f"start {p['start']}" for p in final]), static=True, strict=True)
+            _strips([p["points"] for p in final]), radii=0.05, colors=(30, 200, 30)),
+            static=True, strict=True)
+
+
+GROWTH = ["/graph/nodes", "/graph/edges", "/graph/best_paths"]  # on the `iteration` timeline
 
 
 def _blueprint(room: dict) -> rrb.Blueprint:
+    margin = 0.5
+    bounds = rrb.VisualBounds2D(  # y negated (Y_UP)
+        x_range=[room["x_min"] - margin, room["x_max"] + margin],
+        y_range=[-room["y_max"] - margin, -room["y_min"] + margin])
+    # Scene, final graph, learned paths of the selected BIRL iteration and final paths.
+    learning = rrb.Spatial2DView(
+        name="scene and learning (BIRL timeline)", origin="/",
+        contents=["+ /**", "- /curves/**", *[f"- {p}" for p in GROWTH]],
+        visual_bounds=bounds)
     # Edges are logged once, at the iteration that added them: show all up to the cursor.
     grown = rrb.VisibleTimeRanges(timeline="iteration", start=rrb.TimeRangeBoundary.infinite(),
                                   end=rrb.TimeRangeBoundary.cursor_relative())
-    margin = 0.5
-    space = rrb.Spatial2DView(
-        name="scene", origin="/", contents=["+ /**", "- /curves/**"],
-        overrides={"graph/edges": grown},
-        visual_bounds=rrb.VisualBounds2D(x_range=[room["x_min"] - margin, room["x_max"] + margin],
-                                         y_range=[room["y_min"] - margin, room["y_max"] + margin]))
+    growth = rrb.Spatial2DView(
+        name="graph growth (iteration timeline)", origin="/",
+        contents=["+ /scene/**", *[f"+ {p}" for p in GROWTH]],
+        overrides={"graph/edges": grown}, visual_bounds=bounds)
     curves = rrb.Vertical(rrb.TimeSeriesView(name="policy loss", origin="/curves/policy_loss"),
                           rrb.TimeSeriesView(name="weights", origin="/curves/weights"),
                           rrb.TimeSeriesView(name="log posterior", origin="/curves/log_posterior"))
-    return rrb.Blueprint(rrb.Horizontal(space, curves, column_shares=[3, 2]),
-                         rrb.TimePanel(timeline="iteration"), collapse_panels=False)
+    return rrb.Blueprint(
+        rrb.Horizontal(rrb.Tabs(learning, growth), curves, column_shares=[3, 2]),
+        rrb.TimePanel(timeline="birl_iteration"), collapse_panels=False)
 
 
 def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
