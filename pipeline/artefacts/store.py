@@ -108,8 +108,25 @@ def to_jsonable(obj):
     return obj
 
 
+def _numpy_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"Object of type {type(obj).__name__} is not JSON serializable")
+
+
+# Canonical JSON: sorted keys, no spaces, no NaN. numpy values are converted as the C
+# encoder meets them (no recursive copy of every payload first: graph.mcap has 10^5 messages).
+_ENCODER = json.JSONEncoder(sort_keys=True, separators=(",", ":"), allow_nan=False,
+                            default=_numpy_default)
+
+
 def _canonical(obj) -> bytes:
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()
+    try:
+        return _ENCODER.encode(obj).encode()
+    except TypeError:  # e.g. numpy integer dict keys: convert the whole payload first
+        return _ENCODER.encode(to_jsonable(obj)).encode()
 
 
 @dataclass(frozen=True)
@@ -181,7 +198,6 @@ class ArtefactWriter:
         if topic_type != type_name:
             raise ValueError(f"topic '{topic}' already has type '{topic_type}', "
                              f"cannot add '{type_name}'")
-        payload = to_jsonable(payload)
         if not isinstance(payload, dict):
             raise TypeError(f"payload for topic '{topic}' must be a dict, "
                             f"got {type(payload).__name__}")
