@@ -1,0 +1,154 @@
+"""The paper's efficiency claim at scale (`make bench`, issue 14): learning time against
+state-space size for BIRL-G and the baselines, in rooms of 10, 20 and 40 m.
+
+    python -m pipeline.tools.bench_scaling              # the full grid (~20 min on 2 cores)
+    python -m pipeline.tools.bench_scaling --quick      # the 10 m room only
+
+Per (room, graph size) the first three stages run once (random scene, persons scaled with
+the area, polite optimal demos, adaptive graph of N nodes), then every method learns from
+that run: BIRL-G MAP and MCMC and PolicyWalk on the graph, MaxEnt on the reference roadmap.
+Writes results/bench/scaling.csv (one row per run), scaling_exponents.csv (the fitted
+exponent of learning time against state-space size per method) and scaling.png/.pdf.
+One BLAS thread everywhere (the stages set it), runs one at a time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.tools.bench import RESULTS, _app, read_artefact_iterations
+
+METHODS = ["map", "mcmc", "policywalk", "maxent"]
+NAMES = {"map": "BIRL-G (MAP)", "mcmc": "BIRL-G (MCMC)", "policywalk": "PolicyWalk",
+         "maxent": "MaxEnt (roadmap)"}
+# room side (m) -> graph sizes; persons scale with the area (metropolis: ~12 per 100 m²)
+GRID = {10: [460, 2000, 5000], 20: [2000, 5000, 20000], 40: [5000, 20000]}
+QUICK = {10: [460, 2000]}
+
+
+def scene_overrides(side: int) -> list[str]:
+    area_factor = (side / 10) ** 2
+    groups = singles = max(3, round(3 * area_factor))
+    return ["scene=random", f"scene.width={side}", f"scene.height={side}",
+            f"scene.n_groups={groups}", f"scene.n_singles={singles}"]
+
+
+def time_to_loss(curve: list[float], learn_s: float, target: float) -> float:
+    """Seconds until the per-iteration roadmap loss first reaches `target` (iterations
+    taken as equally long); NaN if it never does."""
+    n = len(curve) - 1
+    for k, loss in enumerate(curve):
+        if loss <= target:
+            return learn_s * k / max(n, 1)
+    return float("nan")
+
+
+def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str]) -> pd.DataFrame:
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for side, sizes in grid.items():
+            for nodes in sizes:
+                base = Path(tmp) / f"{side}m-{nodes}"
+                _app(base, *scene_overrides(side), f"seed={seed}", f"graph.max_nodes={nodes}",
+                     "stages=[scene,demos,graph]")
+                for method in methods:
+                    run = Path(tmp) / f"{side}m-{nodes}-{method}"
+                    m = _app(run, *scene_overrides(side), f"seed={seed}",
+                             f"graph.max_nodes={nodes}", f"birl={method}",
+                             "stages=[birl,evaluate]", f"from_run={base}")
+                    its = read_artefact_iterations(run)
+                    curve = [m[f"policy_loss_ref_iter_{k:02d}"] for k in range(len(its))]
+                    rows.append({
+                        "room_m": side, "graph_nodes": nodes, "method": method,
+                        "states": _states(run, method), "learn_s": m["time_birl_learn_s"],
+                        "mdp_solves": its[-1]["mdp_solves"], "iterations": len(its) - 1,
+                        "policy_loss_norm": m["policy_loss_norm"],
+                        "policy_loss_ref": m["policy_loss_ref"], "curve": curve})
+                    print(f"  {side} m, {nodes} nodes, {method}: {rows[-1]['learn_s']:.3f} s, "
+                          f"{rows[-1]['mdp_solves']} solves, loss "
+                          f"{rows[-1]['policy_loss_norm']:.4f}", flush=True)
+    table = pd.DataFrame(rows)
+    # Time each method needs to reach PolicyWalk's final loss on the same case.
+    pw = table[table.method == "policywalk"].set_index(["room_m", "graph_nodes"])
+    table["time_to_policywalk_loss_s"] = [
+        time_to_loss(r.curve, r.learn_s, pw.loc[(r.room_m, r.graph_nodes), "policy_loss_ref"])
+        if (r.room_m, r.graph_nodes) in pw.index else float("nan")
+        for r in table.itertuples()]
+    return table.drop(columns="curve")
+
+
+def _states(run: Path, method: str) -> int:
+    """State-space size the method works on: the adaptive graph's nodes, or the reference
+    roadmap's for MaxEnt."""
+    from pipeline.artefacts import read_artefact, topics
+
+    if method == "maxent":
+        return len(read_artefact(run / "demos.mcap").one(topics.DEMOS_ROADMAP)["positions"])
+    return int(read_artefact(run / "graph.mcap").one(topics.GRAPH_SOLUTION)["n_nodes"])
+
+
+def exponents(table: pd.DataFrame) -> pd.DataFrame:
+    """Least-squares slope of log(learning time) against log(state-space size)."""
+    rows = []
+    for method, part in table.groupby("method"):
+        if part.states.nunique() < 2:
+            continue
+        slope, _ = np.polyfit(np.log(part.states), np.log(part.learn_s), 1)
+        rows.append({"method": method, "name": NAMES.get(method, method),
+                     "exponent": round(float(slope), 3), "cases": len(part),
+                     "states_min": int(part.states.min()), "states_max": int(part.states.max())})
+    return pd.DataFrame(rows)
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    for method, part in table.sort_values("states").groupby("method"):
+        line, = ax.plot(part.states, part.learn_s, "-", label=NAMES.get(method, method))
+        # marker area grows with the final loss: small markers = good rewards
+        ax.scatter(part.states, part.learn_s, s=20 + 2000 * part.policy_loss_norm.clip(0, 0.3),
+                   color=line.get_color(), alpha=0.6, edgecolors="k", linewidths=0.5)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("state-space size (graph nodes; roadmap nodes for MaxEnt)")
+    ax.set_ylabel("learning time [s], one thread")
+    ax.set_title("learning time against state-space size\n(marker area: final normalised "
+                 "policy loss)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    fig.savefig(path.with_suffix(".pdf"))
+    plt.close(fig)
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.tools.bench_scaling",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="only the 10 m room")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--methods", nargs="+", default=METHODS)
+    args = parser.parse_args(argv)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    grid = QUICK if args.quick else GRID
+    print(f"scaling: rooms and graph sizes {grid}, methods {args.methods}", flush=True)
+    table = run_grid(grid, args.seed, args.methods)
+    table.to_csv(RESULTS / "scaling.csv", index=False)
+    fits = exponents(table)
+    fits.to_csv(RESULTS / "scaling_exponents.csv", index=False)
+    plot(table, RESULTS / "scaling.png")
+    print(table.to_string(index=False))
+    print(fits.to_string(index=False))
+    print(f"wrote {RESULTS / 'scaling.csv'}, scaling_exponents.csv and scaling.png")
+
+
+if __name__ == "__main__":
+    main()
