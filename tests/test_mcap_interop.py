@@ -6,6 +6,7 @@ log_time is index × 1 s; `python -m pipeline.tools.mcapinfo` describes and chec
 import ast
 import copy
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -217,3 +218,32 @@ def test_mcapinfo_lists_topics_counts_and_metadata_and_checks_schemas(runs, caps
     err = capsys.readouterr().err
     assert err.startswith(f"error: {tmp_path / 'x.mcap'} cannot be read as MCAP") \
         and err.count("\n") == 1
+
+
+DOC = ROOT / "docs" / "artefacts.md"
+
+
+def test_the_format_doc_names_every_topic_type_and_field():
+    doc = DOC.read_text()
+    names = [v for k, v in vars(topics).items() if k.isupper() and isinstance(v, str)
+             and v.startswith("/")]
+    assert len(names) >= 20 and [t for t in names if f"`{t}`" not in doc] == []
+    missing = [f"{name}.{key}" for name, schema in SCHEMAS.items() if "." not in name
+               for key, _ in _properties(schema) if f"`{_doc_key(schema, key)}`" not in doc]
+    assert [n for n in SCHEMAS if f"`{n if '.' in n else 'birlg.' + n}`" not in doc] == []
+    assert missing == []
+
+
+def _doc_key(schema: dict, key: str) -> str:
+    """`a.b` as the doc writes it: `a[].b` when a is an array of objects."""
+    head, _, rest = key.partition(".")
+    prop = schema["properties"][head]
+    return f"{head}[].{rest}" if rest and prop.get("type") == "array" else key
+
+
+def test_the_python_snippets_of_the_format_doc_run(runs, capsys):
+    code = "\n".join(re.findall(r"```python\n(.*?)```", DOC.read_text(), re.S))
+    exec(code.replace("outputs/.../graph.mcap", str(runs["default"] / "graph.mcap")), {})
+    out = capsys.readouterr().out
+    assert "run {'config_digest.graph'" in out and "content {'sha256'" in out
+    assert "0 0 " in out and " sampled\n" in out

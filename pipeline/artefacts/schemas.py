@@ -75,7 +75,11 @@ def _message(title: str, desc: str, props: dict[str, Schema],
     return {"$schema": DRAFT, "title": f"birlg.{title}", **_obj(desc, props, optional)}
 
 
-NODE_ID = _int("Node id (index into the graph's node list).", minimum=0)
+
+
+def _node(desc: str) -> Schema:
+    return _int(f"{desc} (node id: index into the graph's node list).", minimum=0)
+
 FEATURE_NAMES = _array({"type": "string"}, "Names of the reward features, in the order of "
                        "every feature vector and weight vector of the run.", min_items=1)
 GAMMA_T = _num("Discount at the end of the path, γ^T with T its duration in seconds "
@@ -163,7 +167,7 @@ ROADMAP = _message("Roadmap", "The reference roadmap (DESIGN §6) with its exact
                        "Features of every edge (n_edges × n_features)."),
     "terminal": _array({"type": "boolean"}, "Whether each node is terminal (n_nodes)."),
     "start_nodes": _ids("Node of every start, in the order of Scene.starts."),
-    "goal_node": NODE_ID,
+    "goal_node": _node("The goal's node"),
     "true_values": _nullable(_array({"type": "number"}, "Optimal values V* under w* (n_nodes)."),
                              "for file demonstrations"),
     "true_policy": _nullable(_array({"type": "integer", "minimum": -1}, "Optimal policy under "
@@ -173,7 +177,7 @@ ROADMAP = _message("Roadmap", "The reference roadmap (DESIGN §6) with its exact
 
 GRAPH_NODE = _message("GraphNode", "One node of the adaptive state graph (DESIGN §7); log_time "
                       "= the growth iteration it was added.", {
-    "id": NODE_ID,
+    "id": _node("This node"),
     "x": _num("Position x, metres."), "y": _num("Position y, metres."),
     "theta": _num("Heading of the robot state, radians."),
     "kind": _str("How it was made: start, goal, voronoi, demo or sampled."),
@@ -190,7 +194,7 @@ GRAPH_NODE = _message("GraphNode", "One node of the adaptive state graph (DESIGN
 GRAPH_EDGE = _message("GraphEdge", "One directed edge (a local-controller run) of the adaptive "
                       "graph; log_time = the growth iteration it was added.", {
     "id": _int("Edge id (index into the graph's edge list).", minimum=0),
-    "src": NODE_ID, "dst": NODE_ID,
+    "src": _node("Source node"), "dst": _node("Destination node"),
     "duration": _num("Duration τ(e) of the controller run, seconds.", exclusiveMinimum=0),
     "features": _features("Feature integrals φ(e) of the edge"),
     "waypoints": _array(_point("A waypoint"), "The controller's path from src to dst.",
@@ -217,7 +221,7 @@ GRAPH_SOLUTION = _message("GraphSolution", "The final graph's MDP solution under
                          "the greedy policy, −1 for none."),
     "terminal": _array({"type": "boolean"}, "Whether each node is terminal."),
     "start_nodes": _ids("Node of every start, in the order of Scene.starts."),
-    "goal_node": NODE_ID,
+    "goal_node": _node("The goal's node"),
     "n_nodes": _int("Number of nodes.", minimum=0),
     "n_edges": _int("Number of edges.", minimum=0),
     "iterations": _int("Number of growth iterations.", minimum=0),
@@ -298,8 +302,12 @@ METRICS = {
     **_message("Metrics", "The run's metrics (metrics.json without wall-clock timings): flat "
                "keys, numbers only; a metric that cannot be computed is left out. Besides "
                "the keys below: policy_loss_iter_NN / policy_loss_ref_iter_NN per "
-               "iteration, weight_<feature> (weight_std_<feature> for mcmc), ref_<metric> "
-               "for the roadmap's paths, transfer_<scene>_<metric>.", {
+               "iteration, policy_loss_initial / policy_loss_ref_initial (iteration 0), "
+               "policy_loss_ref_<preset> (the contrasting preset's loss), weight_<feature> "
+               "(weight_std_<feature> and mcmc_acceptance_rate for mcmc), ref_<metric> for "
+               "the roadmap's paths, obstacle_collisions / min_distance_to_obstacle (scenes "
+               "with obstacles), frechet_to_demos(_max) (file demos, metres), "
+               "transfer_<scene>_<metric>.", {
         "policy_loss": _num("Final policy loss on the adaptive graph."),
         "policy_loss_ref": _num("Final policy loss on the reference roadmap."),
         "policy_loss_norm": _num("policy_loss_ref normalised by the contrasting preset's."),
