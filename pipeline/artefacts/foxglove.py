@@ -1,8 +1,9 @@
 """Foxglove-native copies of the scene, the demonstrations, the graph and the learned paths.
 
 Each stage that makes one of them also writes it on a `/foxglove/...` topic as a
-`foxglove.SceneUpdate` (schema encoding jsonschema, message encoding json; the schema is
-pipeline.artefacts.schemas.SCENE_UPDATE), which Foxglove's 3D panel draws without plugins.
+`foxglove.SceneUpdate` (and the occupancy map as a `foxglove.Grid`; schema encoding
+jsonschema, message encoding json; the schemas are in pipeline.artefacts.schemas), which
+Foxglove's 3D panel draws without plugins.
 These topics are a view for other tools only: nothing in the pipeline reads them back. All
 are one message at log_time 0, so they show over the whole timeline; coordinates are metres
 in frame `world` (the scene's frame, z up, persons and paths on the floor z = 0).
@@ -10,18 +11,20 @@ in frame `world` (the scene's frame, z up, persons and paths on the floor z = 0)
 
 from __future__ import annotations
 
+import base64
 import math
 from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pipeline.artefacts import topics
+from pipeline.artefacts import codec, topics
 
 if TYPE_CHECKING:
     from pipeline.artefacts.store import ArtefactWriter
 
-SCENE_UPDATE = "foxglove.SceneUpdate"
+SCENE_UPDATE, GRID = "foxglove.SceneUpdate", "foxglove.Grid"
+UINT8 = 1  # foxglove.NumericType
 FRAME = "world"
 LINE_STRIP, LINE_LOOP, LINE_LIST = 0, 1, 2  # foxglove.LineType
 PERSON_HEIGHT = 1.0  # metres: persons are cylinders of body_radius and this height
@@ -141,6 +144,24 @@ def paths_update(paths: Iterable[Msg], kind: str | None = None) -> Msg:
         entities.append(_entity(p.get("name", f"{k}/{p['start']}"), meta,
                                 lines=[_line(p["points"], PATH.get(k, DARK), 0.05)]))
     return _update(entities)
+
+
+def map_grid(grid: Msg) -> Msg:
+    """The occupancy map (a birlg.OccupancyGrid message) as a foxglove.Grid: one uint8 field
+    `occupied`, 100 for obstacle cells and 0 for free ones (as in ROS maps), row 0 at the
+    bottom (lowest y), like the map itself."""
+    occupied = codec.decode_grid(grid).occupied
+    return {"timestamp": {"sec": 0, "nsec": 0}, "frame_id": FRAME,
+            "pose": _pose(grid["origin"][0], grid["origin"][1]),
+            "column_count": int(grid["width"]),
+            "cell_size": {"x": float(grid["resolution"]), "y": float(grid["resolution"])},
+            "row_stride": int(grid["width"]), "cell_stride": 1,
+            "fields": [{"name": "occupied", "offset": 0, "type": UINT8}],
+            "data": base64.b64encode((occupied.astype(np.uint8) * 100).tobytes()).decode()}
+
+
+def add_map(w: ArtefactWriter, grid: Msg) -> None:
+    w.add(topics.FOXGLOVE_MAP, GRID, map_grid(grid), log_time=0)
 
 
 def add_scene(w: ArtefactWriter, scene: Msg) -> None:

@@ -329,9 +329,10 @@ SCHEMAS: dict[str, Schema] = {s["title"].removeprefix("birlg."): s for s in (
     METRICS)}
 
 
-# --- foxglove.SceneUpdate: Foxglove's own schema (https://docs.foxglove.dev/docs/visualization/
-# message-schemas/scene-update), written out from its field definitions, so that Foxglove's 3D
-# panel draws the /foxglove/* topics without plugins. Field names must match Foxglove's.
+# --- foxglove.SceneUpdate and foxglove.Grid: Foxglove's own schemas (https://docs.foxglove.dev/
+# docs/visualization/message-schemas/scene-update, .../grid), written out from their field
+# definitions, so that Foxglove's 3D panel draws the /foxglove/* topics without plugins. Field
+# names must match Foxglove's.
 
 def _fg(title: str, desc: str, props: dict[str, Schema]) -> Schema:
     return {"title": f"foxglove.{title}", "description": desc, "type": "object",
@@ -440,4 +441,27 @@ SCENE_UPDATE: Schema = _fg("SceneUpdate", "An update to the entities displayed i
     }), "Scene entities to add or replace"),
 })
 
+_NUMERIC_TYPES = ("UNKNOWN", "UINT8", "INT8", "UINT16", "INT16", "UINT32", "INT32", "FLOAT32",
+                  "FLOAT64")
+GRID: Schema = _fg("Grid", "A 2D grid of data", {
+    "timestamp": _time("Timestamp of grid"),
+    "frame_id": _str("Frame of reference"),
+    "pose": {**_POSE, "description": "Origin of the grid's corner relative to the frame of "
+             "reference; the grid lies in the x-y plane of this pose"},
+    "column_count": _int("Number of grid columns", minimum=0),
+    "cell_size": _xyz("Vector2", "Size of a single grid cell along x and y, relative to `pose`",
+                      "xy"),
+    "row_stride": _int("Number of bytes between rows in `data`", minimum=0),
+    "cell_stride": _int("Number of bytes between cells within a row in `data`", minimum=0),
+    "fields": _array(_fg("PackedElementField", "A field present within each element in a byte "
+                         "array of packed elements", {
+        "name": _str("Name of the field"),
+        "offset": _int("Byte offset from start of data buffer", minimum=0),
+        "type": _enum("NumericType", "Type of data in the field (integers little-endian)",
+                      tuple((name, name) for name in _NUMERIC_TYPES))}), "Fields in `data`"),
+    "data": _str("Grid cell data, interpreted using `fields`, in row-major (y-major) order",
+                 contentEncoding="base64"),
+})
+
 SCHEMAS["foxglove.SceneUpdate"] = SCENE_UPDATE
+SCHEMAS["foxglove.Grid"] = GRID

@@ -25,3 +25,4 @@ def run(ctx: RunContext) -> None:
         if scene.map_grid is not None:
             w.add(topics.SCENE_MAP, "OccupancyGrid", codec.grid_record(scene.map_grid),
                   log_time=0)
+            foxglove.add_map(w, codec.grid_record(scene.map_grid))
