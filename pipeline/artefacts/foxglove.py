@@ -4,6 +4,7 @@ Each stage that makes one of them also writes it on a `/foxglove/...` topic as a
 `foxglove.SceneUpdate` (and the occupancy map as a `foxglove.Grid`; schema encoding
 jsonschema, message encoding json; the schemas are in pipeline.artefacts.schemas), which
 Foxglove's 3D panel draws without plugins.
+
 These topics are a view for other tools only: nothing in the pipeline reads them back. All
 are one message at log_time 0, so they show over the whole timeline; coordinates are metres
 in frame `world` (the scene's frame, z up, persons and paths on the floor z = 0).
@@ -40,10 +41,10 @@ GREY, DARK = _color(0.5, 0.5, 0.5), _color(0.2, 0.2, 0.2)
 PERSON, LINK = _color(0.95, 0.55, 0.1), _color(0.85, 0.1, 0.1)
 START, GOAL = _color(0.1, 0.7, 0.2), _color(0.15, 0.35, 0.9)
 EDGE = _color(0.6, 0.6, 0.6, 0.5)
-NODE = {"start": START, "goal": GOAL, "voronoi": _color(0.6, 0.2, 0.7),
-        "demo": _color(0.95, 0.55, 0.1), "sampled": _color(0.3, 0.3, 0.3)}
-PATH = {"graph": _color(0.1, 0.45, 0.95), "ref": _color(0.6, 0.2, 0.8),
-        "demo": _color(0.95, 0.55, 0.1)}
+DEMO = _color(0.85, 0.7, 0.1)
+NODE = {"start": START, "goal": GOAL, "voronoi": _color(0.6, 0.2, 0.7), "demo": DEMO,
+        "sampled": _color(0.3, 0.3, 0.3)}
+PATH = {"graph": _color(0.1, 0.45, 0.95), "ref": _color(0.6, 0.2, 0.8), "demo": DEMO}
 
 
 def _pose(x: float = 0.0, y: float = 0.0, z: float = 0.0, yaw: float = 0.0) -> Msg:
