@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from pipeline.artefacts.schemas import SCHEMAS
 from pipeline.artefacts.store import (
+    LOG_TIME_NS,
     SCHEMA_PREFIX,
     ArtefactError,
     ArtefactWriter,
@@ -65,20 +67,28 @@ def test_file_layout_with_plain_mcap_reader(tmp_path):
     with ArtefactWriter(path, config_yaml=CONFIG, metadata=META) as w:
         w.add("/scene", "Scene", {"size": [1, 2]}, 0, schema=SCENE_SCHEMA)
         w.add("/demos", "Demo", {"b": 1, "a": 2}, 5)
+        w.add("/graph/best_paths", "BestPaths", {"iteration": 0}, 0)  # a registered type
+        w.add("/foxglove/x", "foxglove.SceneUpdate", {"entities": []}, 0)  # another tool's
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True)
         summary = reader.get_summary()
         schemas = {s.name: s for s in summary.schemas.values()}
-        assert set(schemas) == {f"{SCHEMA_PREFIX}Scene", f"{SCHEMA_PREFIX}Demo"}
+        assert set(schemas) == {f"{SCHEMA_PREFIX}Scene", f"{SCHEMA_PREFIX}Demo",
+                                "birlg.BestPaths", "foxglove.SceneUpdate"}
         assert all(s.encoding == "jsonschema" for s in schemas.values())
         assert json.loads(schemas["birlg.Scene"].data) == SCENE_SCHEMA
         assert json.loads(schemas["birlg.Demo"].data) == {
             "type": "object", "title": "birlg.Demo", "properties": {"a": {}, "b": {}},
             "required": ["a", "b"]}
+        # no schema given: the registered one (pipeline.artefacts.schemas) is stored
+        assert json.loads(schemas["birlg.BestPaths"].data) == SCHEMAS["BestPaths"]
+        assert json.loads(schemas["foxglove.SceneUpdate"].data) == SCHEMAS["foxglove.SceneUpdate"]
         assert {c.message_encoding for c in summary.channels.values()} == {"json"}
         assert summary.chunk_indexes and {c.compression for c in summary.chunk_indexes} == {"zstd"}
-        msgs = [(c.topic, m.log_time, m.publish_time, m.data) for _, c, m in reader.iter_messages()]
-        assert msgs[1] == ("/demos", 5, 5, b'{"a":2,"b":1}')  # canonical JSON, publish = log time
+        msgs = [(c.topic, m.log_time, m.publish_time, m.data)
+                for _, c, m in reader.iter_messages(log_time_order=False)]  # in write order
+        # canonical JSON; log_time = index × 1 s (Foxglove shows index 5 at 5 s); publish = log
+        assert msgs[1] == ("/demos", 5 * LOG_TIME_NS, 5 * LOG_TIME_NS, b'{"a":2,"b":1}')
         (att,) = list(reader.iter_attachments())
         assert (att.name, att.media_type, att.data, att.create_time, att.log_time) == (
             "config.yaml", "application/yaml", CONFIG.encode(), 0, 0)
@@ -207,7 +217,7 @@ def test_writer_rejects_misuse(tmp_path):
         with ArtefactWriter(tmp_path / "a.mcap", config_yaml="", metadata={}) as w:
             w.add("/t", "A", {}, 0)
             w.add("/t", "B", {}, 1)
-    for bad_time in (-1, 1.5, True):
+    for bad_time in (-1, 1.5, True, 2**64 // LOG_TIME_NS + 1):
         with pytest.raises(ValueError, match="non-negative int"):
             with ArtefactWriter(tmp_path / "a.mcap", config_yaml="", metadata={}) as w:
                 w.add("/t", "A", {}, bad_time)

@@ -1,7 +1,10 @@
 """Stage artefacts: one MCAP file of JSON messages (JSON-schema typed) per pipeline stage.
 
 Writes are atomic (temp file + os.replace) and deterministic (log_time is supplied by the
-caller, JSON is canonical), so the same inputs give the same bytes. Reads validate the whole
+caller, JSON is canonical), so the same inputs give the same bytes. Each message type gets its
+JSON Schema from pipeline.artefacts.schemas. The caller's log_time is an index (iteration,
+start, ...); the file stores index × LOG_TIME_NS, i.e. one index step is one second on the
+timeline of MCAP tools such as Foxglove. Reads validate the whole
 file (magic, every CRC, footer) before returning anything, so a truncated or corrupt artefact
 raises ArtefactError instead of silently yielding fewer messages.
 """
@@ -26,9 +29,12 @@ from mcap.records import Attachment, Channel, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from pipeline.artefacts.schemas import SCHEMAS
 from pipeline.errors import PipelineError, os_error_reason
 
 SCHEMA_PREFIX = "birlg."
+LOG_TIME_NS = 1_000_000_000  # stored log_time = caller's index × this: index k at k seconds
+_MAX_INDEX = (2**64 - 1) // LOG_TIME_NS  # MCAP times are uint64 nanoseconds
 CONTENT_METADATA = "content"  # MCAP metadata record holding the content digest
 _MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_PREFIX_LEN = 1 + 8 + 8 + 8  # opcode, length, summary_start, summary_offset_start
@@ -191,9 +197,9 @@ class ArtefactWriter:
         if self._writer is None:
             raise RuntimeError("ArtefactWriter.add() called outside its 'with' block")
         if isinstance(log_time, bool) or not isinstance(log_time, (int, np.integer)) \
-                or log_time < 0:
-            raise ValueError(f"log_time for topic '{topic}' must be a non-negative int, "
-                             f"got {log_time!r}")
+                or not 0 <= log_time <= _MAX_INDEX:
+            raise ValueError(f"log_time for topic '{topic}' must be a non-negative int "
+                             f"(an index up to {_MAX_INDEX}), got {log_time!r}")
         topic_type = self._channels.get(topic, (0, type_name))[1]
         if topic_type != type_name:
             raise ValueError(f"topic '{topic}' already has type '{topic_type}', "
@@ -208,9 +214,11 @@ class ArtefactWriter:
                                 f"contains NaN or infinity ({e})") from None
         except TypeError as e:
             raise TypeError(f"payload for topic '{topic}' is not JSON-serialisable: {e}") from None
-        name = SCHEMA_PREFIX + type_name
+        # "Scene" -> birlg.Scene; a dotted name is another tool's type (foxglove.SceneUpdate).
+        name = type_name if "." in type_name else SCHEMA_PREFIX + type_name
         if type_name not in self._schemas:
-            if schema is None:  # permissive: only pins the set of top-level keys
+            schema = schema or SCHEMAS.get(type_name)
+            if schema is None:  # an unregistered type: only pins the set of top-level keys
                 schema = {"type": "object", "title": name, "properties": {k: {} for k in payload},
                           "required": sorted(payload)}
             self._schemas[type_name] = self._writer.register_schema(
@@ -218,10 +226,11 @@ class ArtefactWriter:
         if topic not in self._channels:
             self._channels[topic] = (
                 self._writer.register_channel(topic, "json", self._schemas[type_name]), type_name)
-        self._content.update(b"%s\0%d\0%s\0" % (topic.encode(), log_time, data))
+        stamp = int(log_time) * LOG_TIME_NS
+        self._content.update(b"%s\0%d\0%s\0" % (topic.encode(), stamp, data))
         try:
-            self._writer.add_message(self._channels[topic][0], log_time=int(log_time),
-                                     data=data, publish_time=int(log_time))
+            self._writer.add_message(self._channels[topic][0], log_time=stamp, data=data,
+                                     publish_time=stamp)
         except OSError as e:
             raise self._os_error(e) from None
 
@@ -321,6 +330,8 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
                 from None
         if not isinstance(payload, dict):
             raise fail(f"has a message on topic '{ch.topic}' that is not a JSON object")
+        # Only the order of log_time matters here (index × LOG_TIME_NS; in artefacts written
+        # before that scale, the index itself), so no unscaling is needed.
         timed[ch.topic].append((m.log_time, payload))
     # sorted() is stable, so messages with equal log_time keep their file order.
     messages = {t: [p for _, p in sorted(v, key=lambda x: x[0])] for t, v in timed.items()}

@@ -29,3 +29,11 @@ BIRL_GRAPH_EDGE = "/birl/graph_edge"
 EVAL_POLICY_LOSS = "/eval/policy_loss"
 EVAL_PATHS = "/eval/paths"
 EVAL_METRICS = "/eval/metrics"
+
+# Foxglove-native views (foxglove.SceneUpdate, pipeline/artefacts/foxglove.py): for other tools,
+# never read back by the pipeline.
+FOXGLOVE_SCENE = "/foxglove/scene"  # in scene.mcap
+FOXGLOVE_MAP = "/foxglove/map"  # in scene.mcap, scenes with a map only (foxglove.Grid)
+FOXGLOVE_DEMOS = "/foxglove/demos"  # in demos.mcap
+FOXGLOVE_GRAPH = "/foxglove/graph"  # in graph.mcap
+FOXGLOVE_PATHS = "/foxglove/paths"  # in eval.mcap

@@ -16,7 +16,7 @@ import numpy as np
 from pipeline.app import build
 from pipeline.app.config import BoltzmannExpertConfig, FileExpertConfig
 from pipeline.app.context import RunContext, resolve_path
-from pipeline.artefacts import codec, topics
+from pipeline.artefacts import codec, foxglove, topics
 from pipeline.core.experts import Demonstration, boltzmann_demos, optimal_demos
 from pipeline.core.graph_mdp import path_quality
 from pipeline.errors import PipelineError
@@ -94,3 +94,4 @@ def run(ctx: RunContext) -> None:
             "terminal": roadmap.terminal, "start_nodes": roadmap.start_nodes,
             "goal_node": roadmap.goal_node, "true_values": solution.values if synthetic else None,
             "true_policy": mdp.caller_edges(solution.policy) if synthetic else None}, log_time=0)
+        foxglove.add_demos(w, [(d.start_index, d.points) for d in demos])

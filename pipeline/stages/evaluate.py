@@ -17,7 +17,7 @@ from omegaconf import OmegaConf
 
 from pipeline.app import build
 from pipeline.app.context import PACKAGE_ROOT, RunContext, resolve_path
-from pipeline.artefacts import codec, topics
+from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import PolicyLoss, discrete_frechet, follow_all, policy_loss
@@ -191,10 +191,12 @@ def run(ctx: RunContext) -> None:
                    for name, c in (("graph", curves.get("graph")), ("ref", curves.get("ref")),
                                    ("norm", curves.get("norm"))) if c is not None}},
                 log_time=k)
-        for where, paths in (("graph", graph_paths), ("ref", ref_paths)):
-            for s, (pts, m) in enumerate(paths):
-                w.add(topics.EVAL_PATHS, "LearnedPath", {"graph": where, "start": s, "points": pts,
-                                                     **m}, log_time=s)
+        learned = [{"graph": where, "start": s, "points": pts, **m}
+                   for where, paths in (("graph", graph_paths), ("ref", ref_paths))
+                   for s, (pts, m) in enumerate(paths)]
+        for p in learned:
+            w.add(topics.EVAL_PATHS, "LearnedPath", p, log_time=p["start"])
+        foxglove.add_paths(w, learned)
         # Wall-clock timings are metrics, not artefact content (same seed, same bytes).
         w.add(topics.EVAL_METRICS, "Metrics", {k: v for k, v in metrics.items()
                                            if not (k.startswith("time_") and k.endswith("_s"))},

@@ -14,7 +14,7 @@ import numpy as np
 
 from pipeline.app import build, limits
 from pipeline.app.context import RunContext
-from pipeline.artefacts import codec, topics
+from pipeline.artefacts import codec, foxglove, topics
 from pipeline.core.adaptive_graph import AdaptiveGraph, Demo
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
@@ -100,3 +100,4 @@ def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights: np.ndarray,
             "n_nodes": graph.n_nodes, "n_edges": len(graph.src), "iterations": graph.iteration,
             "min_separation": graph.p.min_separation},
             log_time=graph.iteration)
+        foxglove.add_graph(w, graph.positions, graph.node_kind, graph.src, graph.dst)

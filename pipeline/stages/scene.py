@@ -6,7 +6,7 @@ import logging
 
 from pipeline.app import build
 from pipeline.app.context import RunContext
-from pipeline.artefacts import codec, topics
+from pipeline.artefacts import codec, foxglove, topics
 
 log = logging.getLogger(__name__)
 
@@ -21,6 +21,8 @@ def run(ctx: RunContext) -> None:
                  scene.robot_radius)
     with ctx.writer("scene") as w:
         w.add(topics.SCENE, "Scene", scene.to_dict(), log_time=0)
+        foxglove.add_scene(w, scene.to_dict())
         if scene.map_grid is not None:
             w.add(topics.SCENE_MAP, "OccupancyGrid", codec.grid_record(scene.map_grid),
                   log_time=0)
+            foxglove.add_map(w, codec.grid_record(scene.map_grid))
