@@ -70,3 +70,4 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench experiment
 	$(PY) -m pipeline.tools.bench irl
 	$(PY) -m pipeline.tools.bench obstacles
+	$(PY) -m pipeline.tools.bench_scaling
