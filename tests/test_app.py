@@ -1,6 +1,8 @@
 """The real Hydra app: config composition, artefacts, errors, determinism, stage subsets."""
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -211,3 +213,15 @@ def test_python_api_runs_and_reads_tables(tmp_path):
     with pytest.raises(ValueError, match="unknown stage"):
         api.artefact(tmp_path, "nope")
     assert api.run(["stages=[scene]"], run_dir=tmp_path / "only_scene") == {}
+
+
+def test_the_birlg_console_script_completes_keys_and_options():
+    import os
+
+    birlg = Path(sys.executable).parent / "birlg"
+    assert birlg.exists(), "pip install -e . creates the console script"
+    env = {**os.environ, "COMP_LINE": "birlg scene=ra", "COMP_POINT": "14"}
+    done = subprocess.run([str(birlg), "-sc", "query=bash"], env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "scene=random" in done.stdout.split()
