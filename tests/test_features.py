@@ -82,3 +82,18 @@ def test_features_add_over_concatenation(metropolis):
 def test_invalid_parameters():
     with pytest.raises(ValueError, match="resolution"):
         model([(0, 0)], resolution=0.0)
+
+
+def test_tiled_densities_equal_the_sums_over_every_link_and_person():
+    # The roadmap of a large room evaluates densities tile by tile with only the links and
+    # persons near each tile; they vanish beyond ρ_r and ρ_p, so the bits must not change.
+    from pipeline.core.scenegen import RandomSceneSpec, random_scene
+
+    scene = random_scene(RandomSceneSpec(width=20, height=20, n_groups=12, n_singles=12),
+                         np.random.default_rng(0))
+    fm = FeatureModel.from_scene(scene)
+    points = np.random.default_rng(1).random((20000, 2)) * 20
+    relation, social = fm._densities(points)
+    assert len(scene.relations) > 8 and (relation > 0).sum() > 100 and (social > 0).sum() > 100
+    np.testing.assert_array_equal(relation, fm.relation_density(points))
+    np.testing.assert_array_equal(social, fm.social_density(points))
