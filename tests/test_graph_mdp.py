@@ -131,3 +131,28 @@ def test_discounted_counts_of_an_empty_path():
     phi, end = discounted_counts(np.zeros((0, 4)), np.zeros(0), 0.9)
     np.testing.assert_array_equal(phi, np.zeros(4))
     assert end == 1.0
+
+
+def _line_graph(positions, edges, tolerance, goal):
+    from pipeline.core.graph_mdp import SpatialGraph
+
+    src, dst = np.array(edges).T
+    terminal = np.zeros(len(positions), bool)
+    terminal[goal] = True
+    mdp = GraphMDP(src, dst, np.ones(len(src)), np.zeros((len(src), 1)), terminal)
+    ways = [np.array([positions[a], positions[b]]) for a, b in edges]
+    return SpatialGraph(np.array(positions, float), mdp, np.array([0]), ways, tolerance)
+
+
+def test_snap_path_follows_edges_when_a_later_node_is_nearer_to_a_waypoint():
+    # Waypoint (1, 0) was merged into node 1 at (1.05, 0); node 3 at (0.98, 0.01), added
+    # later, is nearer but not on the demonstration's edges 0 -> 1 -> 2.
+    g = _line_graph([(0, 0), (1.05, 0), (2, 0), (0.98, 0.01)],
+                    [(0, 1), (1, 2), (0, 3)], tolerance=0.1, goal=2)
+    path = g.snap_path(np.array([(0, 0), (1, 0), (2, 0)]))
+    assert path.nodes.tolist() == [0, 1, 2] and path.reached
+    assert [(int(g.mdp.src[e]), int(g.mdp.dst[e])) for e in path.edges] == [(0, 1), (1, 2)]
+    with pytest.raises(ValueError, match="no edge"):
+        g.snap_path(np.array([(2, 0), (0, 0)]))  # no edge leads back
+    with pytest.raises(ValueError, match="from the nearest node"):
+        g.snap_path(np.array([(0, 0), (0.5, 0.5)]))

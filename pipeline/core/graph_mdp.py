@@ -247,18 +247,44 @@ class SpatialGraph:
 
     def snap_path(self, points: np.ndarray) -> Path:
         """A polyline (K, 2) whose waypoints the graph merged into its nodes, as a path of
-        the graph (internal edge indices); ValueError if it is not one."""
-        dist, nodes = cKDTree(self.positions).query(np.asarray(points, float))
+        the graph (internal edge indices); ValueError if it is not one.
+
+        A waypoint was merged into a node within snap_tolerance, but a node added later
+        may lie nearer to it; so every node within the tolerance is a candidate, and the
+        path is the one whose consecutive candidates are joined by edges (nearest first).
+        """
+        points = np.asarray(points, float).reshape(-1, 2)
+        tree = cKDTree(self.positions)
+        dist, _ = tree.query(points)
         if dist.max() > self.snap_tolerance + 1e-9:
             raise ValueError(f"not a path of the graph: a waypoint lies {dist.max():.3f} m "
                              f"from the nearest node")
-        nodes = [int(n) for i, n in enumerate(nodes) if i == 0 or n != nodes[i - 1]]
         edge_of = {(int(a), int(b)): e
                    for e, (a, b) in enumerate(zip(self.mdp.src, self.mdp.dst, strict=True))}
-        missing = [(a, b) for a, b in zip(nodes[:-1], nodes[1:], strict=True)
-                   if (a, b) not in edge_of]
-        if missing:
-            raise ValueError(f"not a path of the graph: no edge {missing[0]}")
+
+        def candidates(point: np.ndarray) -> list[int]:
+            near = tree.query_ball_point(point, self.snap_tolerance + 1e-9)
+            return sorted((int(n) for n in near),
+                          key=lambda n: float(np.linalg.norm(self.positions[n] - point)))
+
+        layers = [{n: -1 for n in candidates(points[0])}]  # node -> its predecessor node
+        for i in range(1, len(points)):
+            layer = {}
+            for b in candidates(points[i]):
+                a = next((a for a in layers[-1] if a == b or (a, b) in edge_of), None)
+                if a is not None:
+                    layer[b] = a
+            if not layer:
+                a, b = min(layers[-1]), candidates(points[i])[0]
+                raise ValueError(f"not a path of the graph: no edge {(a, b)}")
+            layers.append(layer)
+        node = next(iter(layers[-1]))
+        chain = [node]
+        for layer in reversed(layers[1:]):
+            node = layer[node]
+            chain.append(node)
+        chain.reverse()
+        nodes = [n for i, n in enumerate(chain) if i == 0 or n != chain[i - 1]]
         edges = [edge_of[(a, b)] for a, b in zip(nodes[:-1], nodes[1:], strict=True)]
         return Path(np.array(nodes), np.array(edges, dtype=np.int64),
                     bool(self.mdp.terminal[nodes[-1]]))

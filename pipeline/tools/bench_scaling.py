@@ -15,6 +15,7 @@ One BLAS thread everywhere (the stages set it), runs one at a time.
 from __future__ import annotations
 
 import argparse
+import subprocess
 import tempfile
 from pathlib import Path
 
@@ -58,9 +59,16 @@ def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str]) -> pd.Da
                      "stages=[scene,demos,graph]")
                 for method in methods:
                     run = Path(tmp) / f"{side}m-{nodes}-{method}"
-                    m = _app(run, *scene_overrides(side), f"seed={seed}",
-                             f"graph.max_nodes={nodes}", f"birl={method}",
-                             "stages=[birl,evaluate]", f"from_run={base}")
+                    try:
+                        m = _app(run, *scene_overrides(side), f"seed={seed}",
+                                 f"graph.max_nodes={nodes}", f"birl={method}",
+                                 "stages=[birl,evaluate]", f"from_run={base}")
+                    except subprocess.CalledProcessError as e:  # reported, not hidden
+                        error = (e.stderr or b"").decode().strip().splitlines()[-1:]
+                        print(f"  {side} m, {nodes} nodes, {method}: FAILED {error}", flush=True)
+                        rows.append({"room_m": side, "graph_nodes": nodes, "method": method,
+                                     "error": error[0] if error else "failed", "curve": []})
+                        continue
                     its = read_artefact_iterations(run)
                     curve = [m[f"policy_loss_ref_iter_{k:02d}"] for k in range(len(its))]
                     rows.append({
@@ -73,11 +81,14 @@ def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str]) -> pd.Da
                           f"{rows[-1]['mdp_solves']} solves, loss "
                           f"{rows[-1]['policy_loss_norm']:.4f}", flush=True)
     table = pd.DataFrame(rows)
+    if "error" not in table:
+        table["error"] = ""
+    table["error"] = table["error"].fillna("")
     # Time each method needs to reach PolicyWalk's final loss on the same case.
     pw = table[table.method == "policywalk"].set_index(["room_m", "graph_nodes"])
     table["time_to_policywalk_loss_s"] = [
         time_to_loss(r.curve, r.learn_s, pw.loc[(r.room_m, r.graph_nodes), "policy_loss_ref"])
-        if (r.room_m, r.graph_nodes) in pw.index else float("nan")
+        if (r.room_m, r.graph_nodes) in pw.index and not r.error else float("nan")
         for r in table.itertuples()]
     return table.drop(columns="curve")
 
@@ -95,7 +106,7 @@ def _states(run: Path, method: str) -> int:
 def exponents(table: pd.DataFrame) -> pd.DataFrame:
     """Least-squares slope of log(learning time) against log(state-space size)."""
     rows = []
-    for method, part in table.groupby("method"):
+    for method, part in table[table.error == ""].groupby("method"):
         if part.states.nunique() < 2:
             continue
         slope, _ = np.polyfit(np.log(part.states), np.log(part.learn_s), 1)
@@ -111,7 +122,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 5))
-    for method, part in table.sort_values("states").groupby("method"):
+    for method, part in table[table.error == ""].sort_values("states").groupby("method"):
         line, = ax.plot(part.states, part.learn_s, "-", label=NAMES.get(method, method))
         # marker area grows with the final loss: small markers = good rewards
         ax.scatter(part.states, part.learn_s, s=20 + 2000 * part.policy_loss_norm.clip(0, 0.3),
