@@ -123,7 +123,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(7.5, 5))
     for method, part in table[table.error == ""].sort_values("states").groupby("method"):
-        line, = ax.plot(part.states, part.learn_s, "-", label=NAMES.get(method, method))
+        median = part.groupby("states").learn_s.median()  # one point per size, over rooms
+        line, = ax.plot(median.index, median.values, "-", label=NAMES.get(method, method))
         # marker area grows with the final loss: small markers = good rewards
         ax.scatter(part.states, part.learn_s, s=20 + 2000 * part.policy_loss_norm.clip(0, 0.3),
                    color=line.get_color(), alpha=0.6, edgecolors="k", linewidths=0.5)
