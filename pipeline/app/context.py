@@ -63,6 +63,10 @@ class RunContext:
     inputs: dict[str, Artefact] = field(default_factory=dict)  # read by the current stage
     # (stage, new content digest) -> None, run just before an artefact replaces the old one
     before_replace: Callable[[str, str], None] | None = None
+    # Artefacts already read in this process, by path and file identity: later stages read
+    # the same files again (graph.mcap by birl and evaluate). Files are replaced, never
+    # modified, so a changed file has a new identity. Callers treat artefacts as read-only.
+    _cache: dict[Path, tuple[tuple[int, int, int], Artefact]] = field(default_factory=dict)
 
     def rng(self, stage: str, seed: int | None = None, *stream: int) -> np.random.Generator:
         """An independent generator per stage (and optional sub-stream), derived from the run
@@ -78,13 +82,28 @@ class RunContext:
         path = self.run_dir / ARTEFACT_FILE[stage]
         linked = self.from_run is not None and stage not in self.cfg.stages
         source = self.from_run / path.name if self.from_run is not None and linked else path
-        artefact = read_artefact(source, required_topics=required_topics, producer_stage=stage)
+        artefact = self._read_cached(source, required_topics, stage)
         if linked:
             link_or_copy(source, path)
         check_config(stage, artefact, self.config)
         self.inputs[stage] = artefact
         check_inputs(self.inputs)
         return artefact
+
+    def _read_cached(self, path: Path, required_topics: Iterable[str], stage: str) -> Artefact:
+        try:
+            st = path.stat()
+            identity = (st.st_ino, st.st_size, st.st_mtime_ns)
+        except OSError:  # missing: read_artefact says so in one line
+            return read_artefact(path, required_topics=required_topics, producer_stage=stage)
+        cached = self._cache.get(path)
+        if cached is None or cached[0] != identity:
+            cached = (identity, read_artefact(path, producer_stage=stage))
+            self._cache[path] = cached
+        missing = [t for t in required_topics if t not in cached[1].messages]
+        if missing:  # the same one-line error read_artefact gives
+            read_artefact(path, required_topics=required_topics, producer_stage=stage)
+        return cached[1]
 
     def writer(self, stage: str) -> ArtefactWriter:
         meta = {**self.metadata, **provenance_metadata(stage, self.config, self.inputs)}
