@@ -25,6 +25,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize
+from scipy.stats import chi2
 
 from pipeline.core.graph_mdp import TrajectoryStats
 from pipeline.core.params import require, require_count, require_positive
@@ -61,9 +62,10 @@ class BirlMapConfig(IRLConfig):
     # paper: eq. (2) against the greedy generated trajectories; robust: against every
     # trajectory of the graph under the Boltzmann policy, β learned (pipeline.irl.robust;
     # README "Imperfect demonstrations")
-    likelihood: str = "paper"
+    likelihood: str = "robust"
     beta_min: float = 0.1  # robust: β is learned, log-uniform on [beta_min, beta_max];
     beta_max: float = 1000.0  # `beta` is its starting value
+    lr_level: float = 0.01  # robust: level of the test that keeps a paper iterate
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -71,6 +73,7 @@ class BirlMapConfig(IRLConfig):
         require_count(self, "grow_nodes", minimum=0)
         require(self.likelihood in LIKELIHOODS, "likelihood", self.likelihood,
                 " or ".join(repr(k) for k in LIKELIHOODS))
+        require(0 < self.lr_level < 1, "lr_level", self.lr_level, "a number in (0, 1)")
         require(self.beta_min < self.beta_max, "beta_min", self.beta_min,
                 f"below beta_max ({self.beta_max})")
 
@@ -126,9 +129,28 @@ def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:
 
 
 def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
-    """The robust form (pipeline.irl.robust): each iteration the MAP (w, β) of the Boltzmann
-    posterior on the current graph, warm-started from the last."""
-    records, _, _ = _robust_loop(problem, config)
+    """The robust form. Candidates: the MAP (w, β) of the Boltzmann posterior
+    (pipeline.irl.robust), and every iterate of the paper's loop. The Boltzmann model
+    chooses: the paper iterate it finds most likely (β profiled out) is kept when a
+    likelihood-ratio test at level `birl.lr_level` does not reject it against the MAP, i.e.
+    2·(log p(MAP) − log p(iterate)) ≤ χ²_{d+1}; otherwise the MAP. Near-optimal
+    demonstrations keep eq. (2)'s sharper estimate; noisy ones, which eq. (2) collapses,
+    get the Boltzmann MAP. Iteration n records the choice among the MAP and iterates 1..n."""
+    graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
+    boltzmann = BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
+                                   (config.beta_min, config.beta_max))
+    w_map, beta_map = boltzmann.map(problem.w0, config.beta)
+    best = -boltzmann.neg_log_posterior(np.append(w_map, beta_map))[0]
+    paper = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
+                     r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0)
+    threshold = chi2.ppf(1 - config.lr_level, problem.prior.dim + 1) / 2
+    records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
+    chosen, chosen_lp = w_map, -np.inf
+    for n in range(1, config.n_iterations + 1):
+        lp = boltzmann.profile_log_posterior(paper[n].weights)
+        if lp > chosen_lp and best - lp <= threshold:
+            chosen, chosen_lp = paper[n].weights, lp
+        records.append(problem.record(n, chosen, boltzmann.log_likelihood(chosen, beta_map)))
     return IRLResult(records, list(range(1, len(records) + 1)))
 
 

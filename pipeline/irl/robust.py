@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.optimize import minimize
+from scipy.optimize import minimize, minimize_scalar
 from scipy.sparse.linalg import spsolve
 
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
@@ -92,6 +92,15 @@ class BoltzmannPosterior:
         grad_w = beta * (self.empirical - counts) + self.prior.grad_log_pdf(w)
         grad_beta = w @ (self.empirical - counts) + self.goal_term - end - 1 / beta
         return -(ll + self.prior.log_pdf(w) - np.log(beta)), -np.append(grad_w, grad_beta)
+
+    def profile_log_posterior(self, w: ArrayLike) -> float:
+        """max over β of the log posterior at w (d,): how well w explains the
+        demonstrations at its best noise level."""
+        w = np.asarray(w, dtype=float)
+        res = minimize_scalar(lambda u: self.neg_log_posterior(np.append(w, np.exp(u)))[0],
+                              bounds=tuple(np.log(self.beta_range)), method="bounded",
+                              options={"xatol": 1e-4})
+        return -float(res.fun)
 
     def map(self, w0: ArrayLike, beta0: float) -> tuple[np.ndarray, float]:
         """MAP (w (d,), β) by L-BFGS-B within the prior box and the β range."""
