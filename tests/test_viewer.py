@@ -178,3 +178,12 @@ def test_a_map_scene_draws_the_obstacle_outlines(tmp_path):
     # every outline point lies on the map (20 x 14 m, outlines half a cell outside at most)
     points = np.array([p for strip in strips for p in strip])
     assert points.min() >= -0.05 and points[:, 0].max() <= 20.05 and points[:, 1].max() <= 14.05
+
+
+def test_mcmc_run_shows_paths_under_posterior_samples(tmp_path):
+    run_in_process(tmp_path, "graph=small", "birl=mcmc", "birl.n_iterations=2",
+                   "birl.n_samples=40", "birl.burn_in=20", "birl.n_chains=2")
+    chunks = chunks_by_entity(build_recording(tmp_path))
+    assert "/birl/posterior_paths" in chunks
+    strips = column(chunks["/birl/posterior_paths"], "LineStrips2D:strips")
+    assert len(strips) == 1 and len(strips[0]) == 6 * 7  # 6 posterior samples x 7 starts
