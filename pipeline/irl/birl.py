@@ -146,8 +146,12 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     threshold = chi2.ppf(1 - config.lr_level, problem.prior.dim + 1) / 2
     records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
     chosen, chosen_lp = w_map, -np.inf
+    profiles: dict[tuple[float, ...], float] = {}  # iterates often repeat
     for n in range(1, config.n_iterations + 1):
-        lp = boltzmann.profile_log_posterior(paper[n].weights)
+        key = tuple(paper[n].weights)
+        if key not in profiles:
+            profiles[key] = boltzmann.profile_log_posterior(paper[n].weights)
+        lp = profiles[key]
         if lp > chosen_lp and best - lp <= threshold:
             chosen, chosen_lp = paper[n].weights, lp
         records.append(problem.record(n, chosen, boltzmann.log_likelihood(chosen, beta_map)))
