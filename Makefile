@@ -67,3 +67,5 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench experiment
 	$(PY) -m pipeline.tools.bench irl
 	$(PY) -m pipeline.tools.bench obstacles
+	$(PY) -m pipeline.tools.bench imperfect
+	$(PY) -m pipeline.tools.bench posterior
