@@ -155,7 +155,9 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
         if lp > chosen_lp and best - lp <= threshold:
             chosen, chosen_lp = paper[n].weights, lp
         records.append(problem.record(n, chosen, boltzmann.log_likelihood(chosen, beta_map)))
-    return IRLResult(records, list(range(1, len(records) + 1)))
+    # Graph solves: eq. (2)'s whole loop, then one per recorded iteration (the soft policy
+    # iterations of the Boltzmann model are not counted).
+    return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))])
 
 
 def _robust_loop(problem: IRLProblem,
