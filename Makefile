@@ -70,4 +70,6 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench experiment
 	$(PY) -m pipeline.tools.bench irl
 	$(PY) -m pipeline.tools.bench obstacles
+	$(PY) -m pipeline.tools.bench imperfect
+	$(PY) -m pipeline.tools.bench posterior
 	$(PY) -m pipeline.tools.bench_scaling

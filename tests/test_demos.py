@@ -105,3 +105,14 @@ def test_demo_file_loading(tmp_path, metropolis):
     path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [15.0, 9.0]]]}))
     with pytest.raises(PipelineError, match="trajectory 0 leaves the room"):
         load_demo_file(path, metropolis, fm, speed=1.0)
+
+
+def test_demos_stage_writes_k_noisy_demos_per_start(tmp_path):
+    from pipeline.artefacts import read_artefact
+    from tests.conftest import run_in_process
+
+    run_in_process(tmp_path, "stages=[scene,demos]", "expert=boltzmann", "expert.beta=20",
+                   "expert.demos_per_start=3", "expert.n_demos=2")
+    demos = read_artefact(tmp_path / "demos.mcap").all("/demos")
+    assert [d["start_index"] for d in demos] == [0, 0, 0, 1, 1, 1]
+    assert len({len(d["points"]) for d in demos[:3]}) > 1  # three different walks

@@ -58,9 +58,15 @@ def test_rude_expert_learns_to_cross_links(tmp_path_factory):
 @pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow),
                                   pytest.param(3, marks=pytest.mark.slow)])
 def test_random_scenes(tmp_path_factory, seed):
-    _, m, _ = run_experiment(tmp_path_factory, "scene=random", f"seed={seed}")
-    print(seed, {k: m[k] for k in ("policy_loss", "policy_loss_ref", "policy_loss_norm")})
-    assert m["policy_loss_norm"] <= 0.02 and m["ref_relation_crossings"] == 0
+    # The paper's eq. (2) learns optimal demonstrations best; the robust default trades a
+    # little of that for noisy ones (README "Imperfect demonstrations": seed 1 ends at
+    # 0.042, where the test against the Boltzmann model rejects the paper's iterates).
+    for likelihood, bound in (("paper", 0.02), ("robust", 0.05)):
+        _, m, _ = run_experiment(tmp_path_factory, "scene=random", f"seed={seed}",
+                                 f"birl.likelihood={likelihood}")
+        print(seed, likelihood,
+              {k: m[k] for k in ("policy_loss", "policy_loss_ref", "policy_loss_norm")})
+        assert m["policy_loss_norm"] <= bound and m["ref_relation_crossings"] == 0
 
 
 def test_boltzmann_expert_beats_initial_weights(tmp_path_factory):
@@ -68,14 +74,22 @@ def test_boltzmann_expert_beats_initial_weights(tmp_path_factory):
     assert m["policy_loss_ref"] < 0.5 * m["policy_loss_ref_initial"]
 
 
-def test_mcmc_reports_posterior_spread(tmp_path_factory):
-    run_dir, m, _ = run_experiment(tmp_path_factory, "birl=mcmc", "birl.n_iterations=5")
-    post = read_artefact(run_dir / "birl.mcap").all("/birl/posterior")
-    assert len(post) == 5
-    assert post[-1]["mean"] == [m[f"weight_{n}"] for n in
-                                ("relation", "social", "goal_deviation", "length")]
-    assert all(m[f"weight_std_{n}"] > 0 for n in ("relation", "social", "goal_deviation", "length"))
-    assert 0 < m["mcmc_acceptance_rate"] < 1
+@pytest.mark.parametrize("likelihood, n_posteriors", [("paper", 5), ("robust", 1)])
+def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posteriors):
+    """paper: a posterior sample every iteration; robust: one sample of the Boltzmann
+    posterior at the end, its mean one more iteration."""
+    run_dir, m, _ = run_experiment(tmp_path_factory, "birl=mcmc", "birl.n_iterations=5",
+                                   f"birl.likelihood={likelihood}", "graph=small",
+                                   "birl.n_samples=300", "birl.burn_in=200")
+    birl = read_artefact(run_dir / "birl.mcap")
+    post = birl.all("/birl/posterior")
+    names = ("relation", "social", "goal_deviation", "length")
+    assert len(post) == n_posteriors and post[-1]["n_chains"] == 4
+    assert post[-1]["mean"] == [m[f"weight_{n}"] for n in names] or likelihood == "robust"
+    assert all(m[f"weight_std_{n}"] > 0 for n in names)
+    assert 0.2 <= m["mcmc_acceptance_rate"] <= 0.5  # the adapted step
+    assert m["mcmc_rhat_max"] == max(post[-1]["rhat"]) and m["mcmc_ess_min"] > 0
+    assert len(post[-1]["samples"]) == 4 * 300
 
 
 def test_file_demos_report_similarity(tmp_path_factory):
@@ -103,8 +117,10 @@ def test_baselines_write_the_same_topics(tmp_path_factory, method, overrides):
 
 
 def test_graph_grows_under_the_learned_weights(tmp_path_factory):
+    # The paper's loop: one solve (and growth) per iteration. The robust form also runs
+    # that loop and then records its choice with one more solve, so it grows twice as much.
     run_dir, m, _ = run_experiment(tmp_path_factory, "graph=small", "birl.n_iterations=3",
-                                   "birl.grow_nodes=5")
+                                   "birl.grow_nodes=5", "birl.likelihood=paper")
     birl = read_artefact(run_dir / "birl.mcap", required_topics=["/birl/graph_node",
                                                                  "/birl/graph_edge"])
     base = read_artefact(run_dir / "graph.mcap").one("/graph/solution")

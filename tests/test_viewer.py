@@ -236,3 +236,12 @@ def test_a_viewer_that_dies_is_reported(tmp_path):
     assert "no display server found" in (tmp_path / "x.viewer.log").read_text()
     stays = [sys.executable, "-c", "import time; time.sleep(3)"]
     assert open_viewer(stays, rrd, grace_s=0.5) == 0
+
+
+def test_mcmc_run_shows_paths_under_posterior_samples(tmp_path):
+    run_in_process(tmp_path, "graph=small", "birl=mcmc", "birl.n_iterations=2",
+                   "birl.n_samples=40", "birl.burn_in=20", "birl.n_chains=2")
+    chunks = chunks_by_entity(build_recording(tmp_path))
+    assert "/birl/posterior_paths" in chunks
+    strips = column(chunks["/birl/posterior_paths"], "LineStrips2D:strips")
+    assert len(strips) == 1 and len(strips[0]) == 6 * 7  # 6 posterior samples x 7 starts

@@ -21,10 +21,11 @@ class BoltzmannParams:
     beta: float = 50.0  # β_E: each step samples an out-edge with probability ∝ exp(β_E Q*(s, e))
     max_steps: int = 2000  # walks longer than this are resampled
     max_tries: int = 100  # resamples per start before giving up
+    demos_per_start: int = 1  # independent walks from every start (noisy experts: more data)
 
     def __post_init__(self) -> None:
         require_positive(self, "beta")
-        require_count(self, "max_steps", "max_tries")
+        require_count(self, "max_steps", "max_tries", "demos_per_start")
 
 
 @dataclass(frozen=True)
@@ -67,33 +68,39 @@ def optimal_demos(mdp: GraphMDP, positions: np.ndarray, start_nodes: np.ndarray,
 def boltzmann_demos(mdp: GraphMDP, positions: np.ndarray, start_nodes: np.ndarray,
                     w: np.ndarray, solution: Solution, params: BoltzmannParams,
                     rng: np.random.Generator) -> list[Demonstration]:
-    """Walks that pick each out-edge with probability ∝ exp(β Q*(s, e)); walks that have not
-    reached the goal after `max_steps` edges are resampled (up to `max_tries` times).
+    """Walks that pick each out-edge with probability ∝ exp(β Q*(s, e)), `demos_per_start`
+    from every start (in start order); walks that have not reached the goal after
+    `max_steps` edges are resampled (up to `max_tries` times).
 
     positions: (n, 2) node positions; start_nodes: (n_starts,) node ids; w: (d,) weights.
     """
-    beta, max_steps, max_tries = params.beta, params.max_steps, params.max_tries
     q = mdp.q_values(w, solution.values)
     demos = []
     for k, s in enumerate(start_nodes):
-        for _ in range(max_tries):
-            nodes: list[int] = [int(s)]
-            edges: list[int] = []
-            while not mdp.terminal[nodes[-1]] and len(edges) < max_steps:
-                lo, hi = mdp.indptr[nodes[-1]], mdp.indptr[nodes[-1] + 1]
-                if lo == hi:  # dead end
-                    break
-                logits = beta * (q[lo:hi] - q[lo:hi].max())
-                p = np.exp(logits) / np.exp(logits).sum()
-                e = lo + int(rng.choice(hi - lo, p=p))
-                edges.append(e)
-                nodes.append(int(mdp.dst[e]))
-            if mdp.terminal[nodes[-1]]:
-                demos.append(_from_edges(mdp, positions, k, nodes, edges, True))
-                break
-        else:
-            raise PipelineError(
-                f"boltzmann expert: no walk from start {k} reached the goal within "
-                f"expert.max_steps={max_steps} in expert.max_tries={max_tries} tries; "
-                f"raise expert.beta (now {beta:g}) or expert.max_steps")
+        for _ in range(params.demos_per_start):
+            demos.append(_boltzmann_walk(mdp, positions, k, int(s), q, params, rng))
     return demos
+
+
+def _boltzmann_walk(mdp: GraphMDP, positions: np.ndarray, k: int, s: int, q: np.ndarray,
+                    params: BoltzmannParams, rng: np.random.Generator) -> Demonstration:
+    """One walk from start k (node s) that reaches the goal; q: (n_edges,) Q*(s, e)."""
+    beta, max_steps, max_tries = params.beta, params.max_steps, params.max_tries
+    for _ in range(max_tries):
+        nodes: list[int] = [s]
+        edges: list[int] = []
+        while not mdp.terminal[nodes[-1]] and len(edges) < max_steps:
+            lo, hi = mdp.indptr[nodes[-1]], mdp.indptr[nodes[-1] + 1]
+            if lo == hi:  # dead end
+                break
+            logits = beta * (q[lo:hi] - q[lo:hi].max())
+            p = np.exp(logits) / np.exp(logits).sum()
+            e = lo + int(rng.choice(hi - lo, p=p))
+            edges.append(e)
+            nodes.append(int(mdp.dst[e]))
+        if mdp.terminal[nodes[-1]]:
+            return _from_edges(mdp, positions, k, nodes, edges, True)
+    raise PipelineError(
+        f"boltzmann expert: no walk from start {k} reached the goal within "
+        f"expert.max_steps={max_steps} in expert.max_tries={max_tries} tries; "
+        f"raise expert.beta (now {beta:g}) or expert.max_steps")

@@ -46,7 +46,19 @@ class PosteriorSamples:
     samples: np.ndarray  # (n_kept, d)
     mean: np.ndarray  # (d,)
     std: np.ndarray  # (d,)
-    acceptance_rate: float  # over all steps, burn-in included
+    acceptance_rate: float  # over the sampling steps (adaptive burn-in excluded)
+    n_chains: int = 1  # samples holds the chains one after the other
+    step: float = 0.0  # the proposal std used for the kept samples
+    rhat: np.ndarray | None = None  # (d,) split R-hat over the chains (ArviZ)
+    ess: np.ndarray | None = None  # (d,) bulk effective sample size (ArviZ)
+
+    def marginal(self, d: int) -> PosteriorSamples:
+        """The same samples restricted to the first d parameters."""
+        s = self.samples[:, :d]
+        return PosteriorSamples(s, s.mean(axis=0), s.std(axis=0), self.acceptance_rate,
+                                self.n_chains, self.step,
+                                None if self.rhat is None else self.rhat[:d],
+                                None if self.ess is None else self.ess[:d])
 
 
 @dataclass(eq=False)

@@ -20,13 +20,15 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize
+from scipy.stats import chi2
 
 from pipeline.core.graph_mdp import TrajectoryStats
-from pipeline.core.params import require_count, require_positive
+from pipeline.core.params import require, require_count, require_positive
 from pipeline.irl.base import (
     IRLConfig,
     IRLProblem,
@@ -35,7 +37,21 @@ from pipeline.irl.base import (
     PosteriorSamples,
     register,
 )
+from pipeline.irl.diagnostics import convergence
 from pipeline.irl.prior import Prior
+from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
+
+
+class LogDensity(Protocol):
+    """What the samplers need: a log posterior (−inf outside the support) and over-dispersed
+    starting points for extra chains."""
+
+    def log_posterior(self, w: ArrayLike) -> float: ...
+
+    def dispersed_start(self, rng: np.random.Generator) -> np.ndarray: ...
+
+
+LIKELIHOODS = ("paper", "robust")
 
 
 @dataclass
@@ -43,11 +59,23 @@ class BirlMapConfig(IRLConfig):
     kind: str = "map"
     beta: float = 10.0  # expert optimality β of eq. (2)
     grow_nodes: int = 0  # nodes the graph grows per iteration under the current weights
+    # paper: eq. (2) against the greedy generated trajectories; robust: against every
+    # trajectory of the graph under the Boltzmann policy, β learned (pipeline.irl.robust;
+    # README "Imperfect demonstrations")
+    likelihood: str = "robust"
+    beta_min: float = 0.1  # robust: β is learned, log-uniform on [beta_min, beta_max];
+    beta_max: float = 1000.0  # `beta` is its starting value
+    lr_level: float = 0.01  # robust: level of the test that keeps a paper iterate
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        require_positive(self, "beta")
+        require_positive(self, "beta", "beta_min", "beta_max")
         require_count(self, "grow_nodes", minimum=0)
+        require(self.likelihood in LIKELIHOODS, "likelihood", self.likelihood,
+                " or ".join(repr(k) for k in LIKELIHOODS))
+        require(0 < self.lr_level < 1, "lr_level", self.lr_level, "a number in (0, 1)")
+        require(self.beta_min < self.beta_max, "beta_min", self.beta_min,
+                f"below beta_max ({self.beta_max})")
 
 
 @dataclass
@@ -65,22 +93,91 @@ class ChainParams:
 
 
 @dataclass
-class BirlMcmcConfig(BirlMapConfig, ChainParams):
+class AdaptiveChainParams(ChainParams):
+    """Several random-walk chains whose step adapts during burn-in towards a target
+    acceptance rate (then stays fixed, so the kept samples come from a valid MH chain)."""
+    n_chains: int = 4  # chain 0 starts at the current estimate, the others at prior draws
+    target_acceptance: float = 0.3  # 0.234 is optimal for high-dimensional Gaussians
+    adapt: bool = True  # false: `step` throughout
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        require_count(self, "n_chains")
+        require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
+                "a number in (0, 1)")
+
+
+@dataclass
+class BirlMcmcConfig(BirlMapConfig, AdaptiveChainParams):
     kind: str = "mcmc"
 
     def __post_init__(self) -> None:
         BirlMapConfig.__post_init__(self)
-        ChainParams.__post_init__(self)
+        AdaptiveChainParams.__post_init__(self)
 
 
 @register("map", BirlMapConfig)
 def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     """BIRL-G: one MAP step and one graph solve per iteration."""
     assert isinstance(config, BirlMapConfig)
+    if config.likelihood == "robust":
+        return fit_robust(problem, config)
     records = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
                        r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0,
                        progress=problem.progress)
     return IRLResult(records, list(range(1, len(records) + 1)))
+
+
+def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
+    """The robust form. Candidates: the MAP (w, β) of the Boltzmann posterior
+    (pipeline.irl.robust), and every iterate of the paper's loop. The Boltzmann model
+    chooses: the paper iterate it finds most likely (β profiled out) is kept when a
+    likelihood-ratio test at level `birl.lr_level` does not reject it against the MAP, i.e.
+    2·(log p(MAP) − log p(iterate)) ≤ χ²_{d+1}; otherwise the MAP. Near-optimal
+    demonstrations keep eq. (2)'s sharper estimate; noisy ones, which eq. (2) collapses,
+    get the Boltzmann MAP. Iteration n records the choice among the MAP and iterates 1..n."""
+    graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
+    boltzmann = BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
+                                   (config.beta_min, config.beta_max))
+    w_map, beta_map = boltzmann.map(problem.w0, config.beta)
+    best = -boltzmann.neg_log_posterior(np.append(w_map, beta_map))[0]
+    paper = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
+                     r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0)
+    threshold = chi2.ppf(1 - config.lr_level, problem.prior.dim + 1) / 2
+    records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
+    chosen, chosen_lp = w_map, -np.inf
+    profiles: dict[tuple[float, ...], float] = {}  # iterates often repeat
+    for n in range(1, config.n_iterations + 1):
+        key = tuple(paper[n].weights)
+        if key not in profiles:
+            profiles[key] = boltzmann.profile_log_posterior(paper[n].weights)
+        lp = profiles[key]
+        if lp > chosen_lp and best - lp <= threshold:
+            chosen, chosen_lp = paper[n].weights, lp
+        records.append(problem.record(n, chosen, boltzmann.log_likelihood(chosen, beta_map)))
+    # Graph solves: eq. (2)'s whole loop, then one per recorded iteration (the soft policy
+    # iterations of the Boltzmann model are not counted).
+    return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))])
+
+
+def _robust_loop(problem: IRLProblem,
+                 config: BirlMapConfig) -> tuple[list[Iteration], BoltzmannPosterior, float]:
+    """The iterations, the last posterior and the last β. The posterior is concave in
+    (βw, β), so its MAP is found in iteration 1; later iterations change it only when the
+    graph grows (birl.grow_nodes)."""
+    def posterior() -> BoltzmannPosterior:
+        graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
+        return BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
+                                  (config.beta_min, config.beta_max))
+
+    w, beta = problem.w0, config.beta  # β starts at birl.beta
+    post = posterior()
+    records = [problem.record(0, w, post.log_likelihood(w, beta))]
+    for n in range(1, config.n_iterations + 1):
+        post = posterior()
+        w, beta = post.map(w, beta)
+        records.append(problem.record(n, w, post.log_likelihood(w, beta)))
+    return records, post, beta
 
 
 @register("mcmc", BirlMcmcConfig)
@@ -88,6 +185,18 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     """BIRL-G with the MAP step replaced by the mean of a posterior sample."""
     assert isinstance(config, BirlMcmcConfig)
     posteriors: list[PosteriorSamples] = []
+    if config.likelihood == "robust":
+        # The robust posterior changes only when the graph grows: sample it once, at the
+        # end, around the MAP; its mean over w is one more iteration.
+        records, post, beta = _robust_loop(problem, config)
+        w = records[-1].weights
+        joint = mcmc(LogBetaDensity(post, beta), np.append(w, np.log(beta)), problem.rng,
+                     config)
+        posteriors.append(joint.marginal(problem.prior.dim))
+        w = np.clip(posteriors[-1].mean, problem.prior.lower, problem.prior.upper)
+        beta = float(np.exp(joint.mean[-1]))
+        records.append(problem.record(len(records), w, post.log_likelihood(w, beta)))
+        return IRLResult(records, list(range(1, len(records) + 1)), posteriors)
 
     def posterior_mean(posterior: Posterior, w_prev: np.ndarray) -> np.ndarray:
         posteriors.append(mcmc(posterior, w_prev, problem.rng, config))
@@ -149,6 +258,9 @@ class Posterior:
         lp = self.prior.log_pdf(w)
         return lp if lp == -np.inf else lp + self.log_likelihood(w)
 
+    def dispersed_start(self, rng: np.random.Generator) -> np.ndarray:
+        return self.prior.sample(rng)
+
     def grad_log_posterior(self, w: ArrayLike) -> np.ndarray:
         return self.grad_log_likelihood(w) + self.prior.grad_log_pdf(w)
 
@@ -201,26 +313,82 @@ def birl_map(expert: list[TrajectoryStats],
     return records
 
 
-def mcmc(posterior: Posterior, w0: np.ndarray, rng: np.random.Generator,
+def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
          chain: ChainParams) -> PosteriorSamples:
-    """Random-walk Metropolis–Hastings on the log posterior (Ξ_G fixed). Runs
-    burn_in + n_samples·thin steps and keeps every thin-th state after burn-in; w0 (d,)."""
-    n_samples, burn_in, thin, step = chain.n_samples, chain.burn_in, chain.thin, chain.step
+    """Random-walk Metropolis–Hastings on a log posterior: `n_chains` chains (an
+    AdaptiveChainParams; one otherwise), each burn_in + n_samples·thin steps keeping every
+    thin-th state after burn-in. During burn-in the step size adapts (Robbins–Monro on its
+    logarithm) towards the target acceptance rate; all chains share the adapted step's
+    schedule but adapt independently, and the kept step is their median, frozen for the
+    sampling phase. Chain 0 starts at w0 (d,), the others at prior draws. R-hat and ESS by
+    ArviZ (pipeline.irl.diagnostics)."""
+    n_chains = getattr(chain, "n_chains", 1)
+    adapt = getattr(chain, "adapt", False)
+    target = getattr(chain, "target_acceptance", 0.3)
     w = np.asarray(w0, dtype=float).copy()
-    lp = posterior.log_posterior(w)
-    if not np.isfinite(lp):
+    if not np.isfinite(posterior.log_posterior(w)):
         raise ValueError(f"mcmc must start inside the box (posterior > 0), got {w}")
-    n_steps = burn_in + n_samples * thin
+    starts = [w] + [posterior.dispersed_start(rng) for _ in range(n_chains - 1)]
+    steps = np.full(n_chains, chain.step)
+    chol: np.ndarray = np.eye(len(w))
+    if adapt and chain.burn_in > 0:
+        # Burn-in in two halves: adapt the step with isotropic proposals, then shape the
+        # proposals by the covariance of the first half's states (pooled over chains;
+        # adaptive Metropolis, Haario et al. 2001) and adapt the step again.
+        half = [chain.burn_in // 2, chain.burn_in - chain.burn_in // 2]
+        for phase in range(2):
+            states = []
+            for c in range(n_chains):
+                burnt, steps[c], _ = _chain(posterior, starts[c], rng, half[phase], 1,
+                                            steps[c], target, chol=chol)
+                starts[c] = burnt[-1] if len(burnt) else starts[c]
+                states.append(burnt[len(burnt) // 2:])
+            cov = np.cov(np.concatenate(states).T).reshape(len(w), len(w))
+            if phase == 0 and np.all(np.isfinite(cov)) and np.linalg.matrix_rank(cov) == len(w):
+                chol = np.linalg.cholesky(cov + 1e-10 * np.eye(len(w)))
+                steps[:] = 2.38 / np.sqrt(len(w))  # the optimal scale for a Gaussian target
+        steps[:] = np.median(steps)
+        burn_in = 0
+    else:
+        burn_in = chain.burn_in
+    kept, accepted = [], 0
+    for c in range(n_chains):
+        samples, _, acc = _chain(posterior, starts[c], rng, burn_in + chain.n_samples * chain.thin,
+                                 chain.thin, steps[c], None, skip=burn_in, chol=chol)
+        kept.append(samples)
+        accepted += acc
+    draws = np.stack(kept)  # (chains, n_samples, d)
+    flat = draws.reshape(-1, draws.shape[-1])
+    n_steps = n_chains * (burn_in + chain.n_samples * chain.thin)
+    rhat, ess = convergence(draws)
+    return PosteriorSamples(flat, flat.mean(axis=0), flat.std(axis=0), accepted / n_steps,
+                            n_chains=n_chains, step=float(steps[0]), rhat=rhat, ess=ess)
+
+
+def _chain(posterior: LogDensity, w: np.ndarray, rng: np.random.Generator, n_steps: int,
+           thin: int, step: float, target: float | None, skip: int = 0,
+           chol: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
+    """One chain of n_steps from w: the states after `skip` steps, every thin-th; the step
+    (adapted towards `target` acceptance when given); the number of accepted proposals.
+    Proposals are w + step·chol·z, z standard normal (chol: (d, d), identity if None)."""
+    w = np.asarray(w, dtype=float).copy()
+    lp = posterior.log_posterior(w)
     # Draw all randomness up front: fast, and the chain depends only on the generator's state.
-    noise = step * rng.standard_normal((n_steps, len(w)))
+    noise = rng.standard_normal((n_steps, len(w)))
+    if chol is not None:
+        noise = noise @ chol.T
     log_u = np.log(rng.uniform(size=n_steps))
-    samples, accepted = np.empty((n_samples, len(w))), 0
+    samples = np.empty(((n_steps - skip) // thin, len(w)))
+    accepted, log_step = 0, np.log(step)
     for i in range(n_steps):
-        proposal = w + noise[i]
+        proposal = w + np.exp(log_step) * noise[i]
         lp_new = posterior.log_posterior(proposal)  # −inf outside the box: always rejected
-        if log_u[i] < lp_new - lp:  # min(1, exp(Δ log p)) in log space
+        ok = bool(log_u[i] < lp_new - lp)  # min(1, exp(Δ log p)) in log space
+        if ok:
             w, lp, accepted = proposal, lp_new, accepted + 1
-        kept = i - burn_in
+        if target is not None:  # diminishing adaptation: steps of size 1/sqrt(i + 1)
+            log_step += (float(ok) - target) / np.sqrt(i + 1)
+        kept = i - skip
         if kept >= 0 and kept % thin == thin - 1:
             samples[kept // thin] = w
-    return PosteriorSamples(samples, samples.mean(axis=0), samples.std(axis=0), accepted / n_steps)
+    return samples, float(np.exp(log_step)), accepted

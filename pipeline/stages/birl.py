@@ -160,7 +160,15 @@ def write_birl(ctx: RunContext, expert: list[TrajectoryStats], result: IRLResult
         for n, post in enumerate(result.posteriors, start=1):
             w.add(topics.BIRL_POSTERIOR, "BirlPosterior", {
                 "iteration": n, "mean": post.mean, "std": post.std,
-                "acceptance_rate": post.acceptance_rate, "samples": post.samples}, log_time=n)
+                "acceptance_rate": post.acceptance_rate, "samples": post.samples,
+                "n_chains": post.n_chains, "step": post.step,
+                "rhat": None if post.rhat is None else _finite_or_none(post.rhat),
+                "ess": None if post.ess is None else _finite_or_none(post.ess)}, log_time=n)
+
+
+def _finite_or_none(values: np.ndarray) -> list[float | None]:
+    """JSON has no NaN: R-hat of a single or constant chain is written as null."""
+    return [float(v) if np.isfinite(v) else None for v in values]
 
 
 def write_growth(w: ArtefactWriter, env: GrowingGraphEnvironment) -> None:

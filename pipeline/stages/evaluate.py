@@ -143,6 +143,14 @@ def run(ctx: RunContext) -> None:
         metrics.update({f"weight_std_{n}": float(v)
                         for n, v in zip(names, post["std"], strict=True)})
         metrics["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
+        for key in ("rhat", "ess"):  # convergence diagnostics (ArviZ); null: one chain
+            values = [v for v in post.get(key) or [] if v is not None]
+            metrics.update({f"weight_{key}_{n}": float(v)
+                            for n, v in zip(names, post.get(key) or [], strict=False)
+                            if v is not None})
+            if values:
+                metrics[f"mcmc_{key}_{'max' if key == 'rhat' else 'min'}"] = float(
+                    max(values) if key == "rhat" else min(values))
     curves = {}
     if expert["true_weights"] is not None:
         w_true = np.asarray(expert["true_weights"], float)

@@ -4,6 +4,7 @@
     python -m pipeline.tools.bench graph --sizes 250 500
     python -m pipeline.tools.bench experiment       # the default experiment's time per stage
     python -m pipeline.tools.bench irl              # BIRL-G against PolicyWalk and MaxEnt IRL
+    python -m pipeline.tools.bench imperfect        # noisy and hand-drawn demonstrations
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
 """
@@ -216,6 +217,161 @@ def plot_loss_vs_time(curves: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
+# Imperfect demonstrations (README "Imperfect demonstrations"): condition -> overrides.
+IMPERFECT = {
+    "optimal": ["expert=optimal"],
+    "optimal_random": ["scene=random", "expert=optimal"],
+    **{f"beta{b}": ["expert=boltzmann", f"expert.beta={b}"] for b in (5, 10, 20, 50)},
+    **{f"beta20_k{k}": ["expert=boltzmann", "expert.beta=20", f"expert.demos_per_start={k}"]
+       for k in (2, 3, 5)},
+    "handdrawn": ["expert=file", "expert.path=data/demos/metropolis_handdrawn.json"],
+}
+IMPERFECT_METHODS = {"birlg_paper": ["birl.likelihood=paper"],
+                     "birlg_robust": ["birl.likelihood=robust"],
+                     "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
+
+
+def _in_process(run_dir: Path, *overrides: str) -> dict:
+    """One pipeline run in this process (Hydra's compose API, as the tests do)."""
+    import contextlib
+    import io
+
+    from hydra import compose, initialize_config_dir
+
+    from pipeline.app.config import register_configs
+    from pipeline.stages import run_pipeline
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=list(overrides))
+    with contextlib.redirect_stdout(io.StringIO()):
+        run_pipeline(cfg, run_dir)
+    path = run_dir / "metrics.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def _median_distance_to_people(paths: list, scene) -> float:
+    """Median over paths of each path's median distance (points every 5 cm) to the nearest
+    person."""
+    out = []
+    for p in paths:
+        p = np.asarray(p, float).reshape(-1, 2)
+        seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        t = np.linspace(0, s[-1], max(int(s[-1] / 0.05), 1) + 1)
+        q = np.column_stack([np.interp(t, s, p[:, 0]), np.interp(t, s, p[:, 1])])
+        out.append(np.median(np.linalg.norm(q[:, None] - scene.person_xy[None], axis=2).min(1)))
+    return float(np.median(out))
+
+
+def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]):
+    """BIRL-G (paper and robust form) on seeds, PolicyWalk and MaxEnt on baseline_seeds, for
+    every condition; the first three stages run once per (condition, seed)."""
+    import tempfile
+
+    from pipeline.artefacts import codec, read_artefact, topics
+    from pipeline.errors import PipelineError
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for cond in conditions:
+            for seed in seeds:
+                base = Path(tmp) / f"{cond}-{seed}"
+                _in_process(base, *IMPERFECT[cond], f"seed={seed}", "stages=[scene,demos,graph]")
+                for method, overrides in IMPERFECT_METHODS.items():
+                    if method in ("policywalk", "maxent") and seed not in baseline_seeds:
+                        continue
+                    run = Path(tmp) / f"{cond}-{seed}-{method}"
+                    try:
+                        m = _in_process(run, *IMPERFECT[cond], *overrides, f"seed={seed}",
+                                        "stages=[birl,evaluate]", f"from_run={base}")
+                    except PipelineError as e:  # MaxEnt: file demos off its roadmap
+                        print(f"  {cond} {method} seed {seed}: {e}", flush=True)
+                        continue
+                    row = {"condition": cond, "method": method, "seed": seed,
+                           "policy_loss_norm": m.get("policy_loss_norm", np.nan),
+                           "relation_crossings": m["ref_relation_crossings"]
+                           if "ref_relation_crossings" in m else m.get("relation_crossings")}
+                    curve = np.array([m[k] for k in sorted(m)
+                                      if k.startswith("policy_loss_ref_iter_")])
+                    if len(curve):
+                        # monotone: final within 2x of the run's lowest, no rise after it. 3
+                        row["final_over_best"] = float(curve[-1] / max(curve.min(), 1e-9))
+                        row["rises_after_iter3"] = int(np.sum(np.diff(curve[3:]) > 1e-9))
+                    if cond == "handdrawn":
+                        scene = codec.decode_scene(read_artefact(base / "scene.mcap"))
+                        demos = read_artefact(base / "demos.mcap").all(topics.DEMOS)
+                        paths = read_artefact(run / "eval.mcap").all(topics.EVAL_PATHS)
+                        row["demo_median_dist_to_people"] = _median_distance_to_people(
+                            [d["points"] for d in demos], scene)
+                        row["learned_median_dist_to_people"] = _median_distance_to_people(
+                            [p["points"] for p in paths if p.get("graph", "graph") == "graph"
+                             and "points" in p], scene)
+                        row["relation_crossings"] = m.get("relation_crossings")
+                    rows.append(row)
+                    print(f"  {row}", flush=True)
+    return pd.DataFrame(rows)
+
+
+POSTERIOR = {**{f"optimal_n{n}": ["expert=optimal", f"expert.n_demos={n}"] for n in (2, 7)},
+             **{f"beta20_k{k}": ["expert=boltzmann", "expert.beta=20",
+                                 f"expert.demos_per_start={k}"] for k in (1, 3)}}
+
+
+def posterior(seeds: list[int], likelihoods: list[str]) -> pd.DataFrame:
+    """`birl=mcmc` on metropolis: acceptance, R-hat, ESS and posterior std as demonstrations
+    are added."""
+    import tempfile
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for cond, overrides in POSTERIOR.items():
+            for seed in seeds:
+                for lik in likelihoods:
+                    run = Path(tmp) / f"{cond}-{seed}-{lik}"
+                    m = _in_process(run, *overrides, "birl=mcmc", f"birl.likelihood={lik}",
+                                    f"seed={seed}")
+                    stds = [v for k, v in m.items() if k.startswith("weight_std_")]
+                    rows.append({"condition": cond, "likelihood": lik, "seed": seed,
+                                 "policy_loss_norm": m["policy_loss_norm"],
+                                 "acceptance": m["mcmc_acceptance_rate"],
+                                 "rhat_max": m.get("mcmc_rhat_max"),
+                                 "ess_min": m.get("mcmc_ess_min"),
+                                 "std_mean": float(np.mean(stds)),
+                                 "seconds": m["time_birl_learn_s"]})
+                    print(f"  {rows[-1]}", flush=True)
+    return pd.DataFrame(rows)
+
+
+def plot_imperfect(summary: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    betas = {f"beta{b}": b for b in (5, 10, 20, 50)}
+    ks = {"beta20": 1, "beta20_k2": 2, "beta20_k3": 3, "beta20_k5": 5}
+    for ax, xs, label in [(axes[0], betas, "expert β_E (1 demo per start)"),
+                          (axes[1], ks, "demos per start (β_E = 20)")]:
+        for method, part in summary.groupby("method"):
+            part = part[part.condition.isin(list(xs))]
+            if part.empty:
+                continue
+            x = part.condition.map(xs)
+            order = np.argsort(x.to_numpy())
+            ax.plot(x.to_numpy()[order], part["median"].to_numpy()[order], marker="o",
+                    label=method)
+        ax.set_xlabel(label)
+        ax.set_ylabel("median normalised policy loss")
+        ax.set_yscale("symlog", linthresh=0.01)
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    fig.suptitle("Imperfect demonstrations on metropolis")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.tools.bench")
     sub = parser.add_subparsers(dest="suite", required=True)
@@ -230,6 +386,14 @@ def main(argv=None) -> None:
     irl.add_argument("--scenes", nargs="+", default=list(IRL_SCENES))
     o = sub.add_parser("obstacles", help="office map vs metropolis -> results/bench/obstacles.csv")
     o.add_argument("--repeats", type=int, default=3)
+    imp = sub.add_parser("imperfect", help="noisy and hand-drawn demonstrations -> "
+                         "results/bench/imperfect.csv, imperfect_summary.csv and .png")
+    imp.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
+    imp.add_argument("--baseline-seeds", type=int, nargs="+", default=[0, 1, 2])
+    imp.add_argument("--conditions", nargs="+", default=list(IMPERFECT))
+    post = sub.add_parser("posterior", help="birl=mcmc diagnostics -> results/bench/posterior.csv")
+    post.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    post.add_argument("--likelihoods", nargs="+", default=["robust", "paper"])
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
@@ -239,7 +403,29 @@ def main(argv=None) -> None:
         print(json.dumps(_graph_once(args.nodes, args.seed)))
         return
     RESULTS.mkdir(parents=True, exist_ok=True)
-    if args.suite == "irl":
+    if args.suite == "imperfect":
+        print(f"imperfect demonstrations {args.conditions}, seeds {args.seeds}:", flush=True)
+        table = imperfect(args.seeds, args.baseline_seeds, args.conditions)
+        summary = (table.groupby(["condition", "method"]).policy_loss_norm
+                   .agg(["median", "mean", "count"]).reset_index())
+        if "final_over_best" in table:
+            summary = summary.merge(
+                table.assign(monotone=(table.final_over_best <= 2)
+                             & (table.rises_after_iter3 == 0))
+                .groupby(["condition", "method"]).monotone.sum().reset_index(),
+                on=["condition", "method"])
+        summary.to_csv(RESULTS / "imperfect_summary.csv", index=False)
+        plot_imperfect(summary, RESULTS / "imperfect.png")
+        print(summary.to_string(index=False))
+        path = RESULTS / "imperfect.csv"
+    elif args.suite == "posterior":
+        print(f"birl=mcmc diagnostics, seeds {args.seeds}:", flush=True)
+        table = posterior(args.seeds, args.likelihoods)
+        print(table.groupby(["condition", "likelihood"])[
+            ["policy_loss_norm", "acceptance", "rhat_max", "ess_min", "std_mean"]].median()
+            .to_string())
+        path = RESULTS / "posterior.csv"
+    elif args.suite == "irl":
         print(f"IRL methods {args.methods} on {args.scenes}, seeds {args.seeds}:", flush=True)
         table, curves = irl_methods(args.seeds, args.methods, args.scenes)
         plot_loss_vs_time(curves, RESULTS / "irl_methods.png")

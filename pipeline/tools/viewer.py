@@ -2,7 +2,8 @@
 
     python -m pipeline.tools.viewer RUN_DIR [--out FILE] [--no-open]
 
-Static: the scene, demonstrations, the final graph and the final learned paths. BIRL replays
+Static: the scene, demonstrations, the final graph and the final learned paths (with
+`birl=mcmc`, also the paths under a few posterior samples: its uncertainty). BIRL replays
 on the `birl_iteration` timeline (learned paths and curves), which the layout selects, so
 scene, final graph, learned paths and curves show together; graph growth replays on the
 `iteration` timeline in its own view. rerun 0.41's 2-D views draw y downwards, so y is
@@ -178,6 +179,32 @@ def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | Non
 GROWTH = ["/graph/nodes", "/graph/edges", "/graph/best_paths"]  # on the `iteration` timeline
 
 
+POSTERIOR_PATH_SAMPLES = 6
+
+
+def _log_posterior_paths(rec: rr.RecordingStream, arts: dict[str, Artefact]) -> None:
+    """Posterior uncertainty (`birl=mcmc`): the greedy paths on the graph under a few
+    samples of the last posterior, evenly spread over the kept samples."""
+    birl, graph_art, demos = arts.get("birl"), arts.get("graph"), arts.get("demos")
+    if birl is None or graph_art is None or demos is None \
+            or not birl.messages.get(topics.BIRL_POSTERIOR):
+        return
+    from pipeline.core.graph_mdp import MDPParams
+
+    expert = demos.one(topics.DEMOS_EXPERT)
+    graph = codec.decode_graph(graph_art, MDPParams(gamma=expert["gamma"],
+                                                    r_goal=expert["r_goal"]), grown=birl)
+    samples = np.asarray(birl.all(topics.BIRL_POSTERIOR)[-1]["samples"], float)
+    picks = np.linspace(0, len(samples) - 1, min(POSTERIOR_PATH_SAMPLES, len(samples)))
+    paths = []
+    for w in samples[picks.astype(int)]:
+        policy = graph.mdp.solve(w).policy
+        paths += [graph.polyline(graph.mdp.follow(policy, int(s))) for s in graph.start_nodes]
+    rec.log("birl/posterior_paths", rr.LineStrips2D(_strips(paths), radii=0.02,
+                                                    colors=(170, 90, 200)),
+            static=True, strict=True)
+
+
 def _blueprint(room: dict) -> rrb.Blueprint:
     margin = 0.5
     bounds = rrb.VisualBounds2D(  # y negated (Y_UP)
@@ -240,6 +267,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
                        (arts.get("demos"), topics.DEMOS_EXPERT))
                       if a is not None and a.messages.get(t)), [])
         _log_birl(rec, arts.get("birl"), arts.get("eval"), names)
+        _log_posterior_paths(rec, arts)
         rec.flush()
         rec.disconnect()  # closes the file sink, writing the footer
         os.replace(tmp, rrd_path)
