@@ -130,12 +130,13 @@ def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:
 
 def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     """The robust form. Candidates: the MAP (w, β) of the Boltzmann posterior
-    (pipeline.irl.robust), and every iterate of the paper's loop. The Boltzmann model
-    chooses: the paper iterate it finds most likely (β profiled out) is kept when a
-    likelihood-ratio test at level `birl.lr_level` does not reject it against the MAP, i.e.
-    2·(log p(MAP) − log p(iterate)) ≤ χ²_{d+1}; otherwise the MAP. Near-optimal
-    demonstrations keep eq. (2)'s sharper estimate; noisy ones, which eq. (2) collapses,
-    get the Boltzmann MAP. Iteration n records the choice among the MAP and iterates 1..n."""
+    (pipeline.irl.robust), and every iterate of the paper's loop. An iterate is admissible
+    when a likelihood-ratio test at level `birl.lr_level` does not reject it against the
+    MAP under the Boltzmann model (β profiled out): 2·(log p(MAP) − log p(iterate)) ≤
+    χ²_{d+1}. The estimate is the admissible iterate of highest eq. (2) posterior given all
+    generated trajectories, or the MAP if none is. Near-optimal demonstrations keep eq. (2)'s
+    sharper estimate; noisy ones, which eq. (2) collapses, get the Boltzmann MAP. Iteration
+    n records the choice among the MAP and iterates 1..n."""
     graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
     boltzmann = BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
                                    (config.beta_min, config.beta_max))
@@ -145,15 +146,20 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
                      r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0)
     threshold = chi2.ppf(1 - config.lr_level, problem.prior.dim + 1) / 2
     records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
-    chosen, chosen_lp = w_map, -np.inf
+    # Among the iterates the test keeps, eq. (2)'s posterior given every generated
+    # trajectory decides (the last iterate is not the best: eq. (2)'s iterates oscillate).
+    pool = [t for it in paper for t in it.generated]
+    eq2 = Posterior(problem.expert, pool, problem.prior, config.beta, problem.r_goal)
+    chosen, chosen_score = w_map, -np.inf
     profiles: dict[tuple[float, ...], float] = {}  # iterates often repeat
     for n in range(1, config.n_iterations + 1):
         key = tuple(paper[n].weights)
         if key not in profiles:
             profiles[key] = boltzmann.profile_log_posterior(paper[n].weights)
         lp = profiles[key]
-        if lp > chosen_lp and best - lp <= threshold:
-            chosen, chosen_lp = paper[n].weights, lp
+        score = eq2.log_posterior(paper[n].weights)
+        if best - lp <= threshold and score > chosen_score:
+            chosen, chosen_score = paper[n].weights, score
         records.append(problem.record(n, chosen, boltzmann.log_likelihood(chosen, beta_map)))
     # Graph solves: eq. (2)'s whole loop, then one per recorded iteration (the soft policy
     # iterations of the Boltzmann model are not counted).
