@@ -24,9 +24,15 @@ import pandas as pd
 
 from pipeline.tools.bench import RESULTS, _app, read_artefact_iterations
 
-METHODS = ["map", "mcmc", "policywalk", "maxent"]
-NAMES = {"map": "BIRL-G (MAP)", "mcmc": "BIRL-G (MCMC)", "policywalk": "PolicyWalk",
+METHODS = ["map", "robust", "mcmc", "policywalk", "maxent"]
+NAMES = {"map": "BIRL-G (MAP, paper eq. 2)", "robust": "BIRL-G (MAP, robust)",
+         "mcmc": "BIRL-G (MCMC, paper eq. 2)", "policywalk": "PolicyWalk",
          "maxent": "MaxEnt (roadmap)"}
+# method -> overrides; BIRL-G's paper form and robust form (issue 11) side by side
+METHOD_OVERRIDES = {"map": ["birl=map", "birl.likelihood=paper"],
+                    "robust": ["birl=map", "birl.likelihood=robust"],
+                    "mcmc": ["birl=mcmc", "birl.likelihood=paper"],
+                    "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
 # room side (m) -> graph sizes; persons scale with the area (metropolis: ~12 per 100 m²)
 GRID = {10: [460, 2000, 5000], 20: [2000, 5000, 20000], 40: [5000, 20000]}
 QUICK = {10: [460, 2000]}
@@ -49,7 +55,10 @@ def time_to_loss(curve: list[float], learn_s: float, target: float) -> float:
     return float("nan")
 
 
-def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str]) -> pd.DataFrame:
+def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str],
+             policywalk_loss: dict[tuple[int, int], float] | None = None) -> pd.DataFrame:
+    """One row per (room, graph size, method). `policywalk_loss` (room, nodes) -> PolicyWalk's
+    final roadmap loss, from an earlier run when PolicyWalk is not among `methods`."""
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for side, sizes in grid.items():
@@ -61,7 +70,7 @@ def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str]) -> pd.Da
                     run = Path(tmp) / f"{side}m-{nodes}-{method}"
                     try:
                         m = _app(run, *scene_overrides(side), f"seed={seed}",
-                                 f"graph.max_nodes={nodes}", f"birl={method}",
+                                 f"graph.max_nodes={nodes}", *METHOD_OVERRIDES[method],
                                  "stages=[birl,evaluate]", f"from_run={base}")
                     except subprocess.CalledProcessError as e:  # reported, not hidden
                         error = (e.stderr or b"").decode().strip().splitlines()[-1:]
@@ -85,10 +94,12 @@ def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str]) -> pd.Da
         table["error"] = ""
     table["error"] = table["error"].fillna("")
     # Time each method needs to reach PolicyWalk's final loss on the same case.
-    pw = table[table.method == "policywalk"].set_index(["room_m", "graph_nodes"])
+    pw = dict(policywalk_loss or {})
+    pw.update({(r.room_m, r.graph_nodes): r.policy_loss_ref for r in table.itertuples()
+               if r.method == "policywalk" and not r.error})
     table["time_to_policywalk_loss_s"] = [
-        time_to_loss(r.curve, r.learn_s, pw.loc[(r.room_m, r.graph_nodes), "policy_loss_ref"])
-        if (r.room_m, r.graph_nodes) in pw.index and not r.error else float("nan")
+        time_to_loss(r.curve, r.learn_s, pw[(r.room_m, r.graph_nodes)])
+        if (r.room_m, r.graph_nodes) in pw and not r.error else float("nan")
         for r in table.itertuples()]
     return table.drop(columns="curve")
 
@@ -147,12 +158,24 @@ def main(argv=None) -> None:
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="only the 10 m room")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--methods", nargs="+", default=METHODS)
+    parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
+    parser.add_argument("--merge", action="store_true",
+                        help="replace only these methods' rows in the existing scaling.csv")
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
     grid = QUICK if args.quick else GRID
     print(f"scaling: rooms and graph sizes {grid}, methods {args.methods}", flush=True)
-    table = run_grid(grid, args.seed, args.methods)
+    old = pd.read_csv(RESULTS / "scaling.csv", keep_default_na=False) \
+        if args.merge and (RESULTS / "scaling.csv").exists() else None
+    if old is not None:
+        old["time_to_policywalk_loss_s"] = pd.to_numeric(old["time_to_policywalk_loss_s"],
+                                                         errors="coerce")
+    earlier = {} if old is None else {
+        (r.room_m, r.graph_nodes): float(r.policy_loss_ref)
+        for r in old[old.method == "policywalk"].itertuples()}
+    table = run_grid(grid, args.seed, args.methods, earlier)
+    if old is not None:
+        table = pd.concat([old[~old.method.isin(args.methods)], table], ignore_index=True)
     table.to_csv(RESULTS / "scaling.csv", index=False)
     fits = exponents(table)
     fits.to_csv(RESULTS / "scaling_exponents.csv", index=False)
