@@ -159,11 +159,15 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true", help="only the 10 m room")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
+    parser.add_argument("--max-nodes", type=int, default=None,
+                        help="only graph sizes up to this (a slow method on a short budget)")
     parser.add_argument("--merge", action="store_true",
                         help="replace only these methods' rows in the existing scaling.csv")
     args = parser.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
     grid = QUICK if args.quick else GRID
+    if args.max_nodes is not None:
+        grid = {side: [n for n in sizes if n <= args.max_nodes] for side, sizes in grid.items()}
     print(f"scaling: rooms and graph sizes {grid}, methods {args.methods}", flush=True)
     old = pd.read_csv(RESULTS / "scaling.csv", keep_default_na=False) \
         if args.merge and (RESULTS / "scaling.csv").exists() else None
