@@ -282,13 +282,19 @@ def one_weight_posterior(sigma=0.5, beta=3.0):
     return Posterior([traj(0, [1.0])], [traj(0, [2.0])], prior, beta=beta, r_goal=1.0)
 
 
-def test_mcmc_matches_numerical_posterior():
-    post = one_weight_posterior()
+def numerical_moments(post) -> tuple[float, float]:
+    """Mean and std of a 1-D posterior on [-1, 0] by quadrature on a fine grid."""
     grid = np.linspace(-1, 0, 20_001)
     density = np.exp([post.log_posterior([x]) for x in grid])
     mass = np.trapezoid(density, grid)
     mean = np.trapezoid(grid * density, grid) / mass
     std = np.sqrt(np.trapezoid((grid - mean) ** 2 * density, grid) / mass)
+    return mean, std
+
+
+def test_mcmc_matches_numerical_posterior():
+    post = one_weight_posterior()
+    mean, std = numerical_moments(post)
 
     result = mcmc(post, [-0.5], np.random.default_rng(0),
                   ChainParams(n_samples=20_000, burn_in=1000, thin=2, step=0.4))

@@ -12,7 +12,7 @@ from pipeline.core.graph_mdp import GraphMDP, Path
 from pipeline.irl.birl import AdaptiveChainParams, BirlMapConfig, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
-from tests.test_birl import one_weight_posterior
+from tests.test_birl import numerical_moments, one_weight_posterior
 
 GAMMA = 0.9
 
@@ -85,11 +85,7 @@ def test_noisy_demos_do_not_collapse_the_weights():
 
 def test_adaptive_chains_match_a_1d_posterior():
     post = one_weight_posterior()
-    grid = np.linspace(-1, 0, 20_001)
-    density = np.exp([post.log_posterior([x]) for x in grid])
-    mass = np.trapezoid(density, grid)
-    mean = np.trapezoid(grid * density, grid) / mass
-    std = np.sqrt(np.trapezoid((grid - mean) ** 2 * density, grid) / mass)
+    mean, std = numerical_moments(post)
     chain = AdaptiveChainParams(n_samples=5000, burn_in=1000, thin=1, step=0.01, n_chains=4)
     result = mcmc(post, [-0.5], np.random.default_rng(0), chain)
     assert result.samples.shape == (20_000, 1) and result.n_chains == 4
