@@ -100,10 +100,7 @@ class RunContext:
         if cached is None or cached[0] != identity:
             cached = (identity, read_artefact(path, producer_stage=stage))
             self._cache[path] = cached
-        missing = [t for t in required_topics if t not in cached[1].messages]
-        if missing:  # the same one-line error read_artefact gives
-            read_artefact(path, required_topics=required_topics, producer_stage=stage)
-        return cached[1]
+        return cached[1].require(required_topics)
 
     def writer(self, stage: str) -> ArtefactWriter:
         meta = {**self.metadata, **provenance_metadata(stage, self.config, self.inputs)}

@@ -143,6 +143,14 @@ class Artefact:
     metadata: dict[str, str]
     digest: str = ""  # content digest (see content_digest): what later artefacts record
 
+    def require(self, topics: Iterable[str]) -> Artefact:
+        """This artefact, if it has every topic in `topics`; else one line naming them."""
+        missing = [t for t in topics if t not in self.messages]
+        if missing:
+            raise ArtefactError(f"artefact {self.path} has no topic "
+                                + ", ".join(f"'{t}'" for t in missing))
+        return self
+
     def all(self, topic: str) -> list[dict]:
         if topic not in self.messages:
             raise ArtefactError(f"artefact {self.path} has no topic '{topic}'")
@@ -335,7 +343,5 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
         timed[ch.topic].append((m.log_time, payload))
     # sorted() is stable, so messages with equal log_time keep their file order.
     messages = {t: [p for _, p in sorted(v, key=lambda x: x[0])] for t, v in timed.items()}
-    missing = [t for t in required_topics if t not in messages]
-    if missing:
-        raise fail("has no topic " + ", ".join(f"'{t}'" for t in missing))
-    return Artefact(path, messages, config.decode("utf-8", errors="replace"), dict(meta), digest)
+    return Artefact(path, messages, config.decode("utf-8", errors="replace"), dict(meta),
+                    digest).require(required_topics)
