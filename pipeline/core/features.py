@@ -108,13 +108,14 @@ class FeatureModel:
         cell = np.floor((p - p.min(axis=0)) / _TILE).astype(np.int64)
         key = cell[:, 0] * (cell[:, 1].max() + 1) + cell[:, 1]
         order = np.argsort(key, kind="stable")
+        link_lo = np.minimum(self.link_a, self.link_b)  # the links' bounding boxes
+        link_hi = np.maximum(self.link_a, self.link_b)
         for tile in np.split(order, np.flatnonzero(np.diff(key[order])) + 1):
             q = p[tile]
             lo, hi = q.min(axis=0), q.max(axis=0)
             r = self.rho_relation
-            links = np.flatnonzero(
-                (np.minimum(self.link_a, self.link_b) <= hi + r).all(axis=1)
-                & (np.maximum(self.link_a, self.link_b) >= lo - r).all(axis=1))
+            links = np.flatnonzero((link_lo <= hi + r).all(axis=1)
+                                   & (link_hi >= lo - r).all(axis=1))
             r = self.rho_personal
             persons = np.flatnonzero(((self.persons >= lo - r) & (self.persons <= hi + r))
                                      .all(axis=1))
