@@ -138,7 +138,7 @@ class RunDir:
             else:
                 error = str(exc) if isinstance(exc, PipelineError) else \
                     f"{exc_type.__name__}: {exc}"
-                self._write(FAILED, error=" ".join(error.split()))
+                self._write(FAILED, error=error)
         except OSError as e:  # e.g. disk full: the stage's own error matters more
             log.error("cannot write %s: %s", self.path / STATUS_FILE, os_error_reason(e))
         finally:
@@ -178,18 +178,23 @@ class RunDir:
                      self.path)
 
     def _write(self, state: str, error: str | None = None) -> None:
-        write_json_atomic(self.path / STATUS_FILE, {
-            "state": state, "stage": self.stage if state != COMPLETE else None, "error": error,
-            "stages": self.stages, "done": self.done_stages})
+        write_status(self.path, state, self.stage if state != COMPLETE else None, error,
+                     self.stages, self.done_stages)
+
+
+def write_status(run_dir: Path, state: str, stage: str | None, error: str | None,
+                 stages: list[str], done: list[str]) -> None:
+    """status.json (atomically); the error on one line."""
+    write_json_atomic(Path(run_dir) / STATUS_FILE, {
+        "state": state, "stage": stage, "error": None if error is None else " ".join(error.split()),
+        "stages": stages, "done": done})
 
 
 def write_status_if_missing(run_dir: Path, error: str) -> None:
     """A job that failed before its run dir had a status (e.g. a config error in a sweep)."""
     if not (Path(run_dir) / STATUS_FILE).exists():
         Path(run_dir).mkdir(parents=True, exist_ok=True)
-        write_json_atomic(Path(run_dir) / STATUS_FILE, {
-            "state": FAILED, "stage": None, "error": " ".join(error.split()), "stages": [],
-            "done": []})
+        write_status(run_dir, FAILED, None, error, [], [])
 
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
