@@ -29,7 +29,7 @@ import rerun.blueprint as rrb
 from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.core.world import Scene
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, os_error_reason
 
 APP_ID = "birlg"
 HEADING_LEN = 0.4  # m, length of the person heading arrows
@@ -308,7 +308,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # e.g. a read-only run dir at the final rename
-        print(f"error: {e.filename or args.run_dir}: {e.strerror or e}", file=sys.stderr)
+        print(f"error: cannot write the recording of {args.run_dir}: {os_error_reason(e)}",
+              file=sys.stderr)
         return 2
     cmd = _viewer_command(rrd)
     if args.no_open or not _has_display():
