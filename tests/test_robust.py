@@ -70,6 +70,21 @@ def test_robust_map_matches_route_frequencies():
     assert math.exp(q_a - values[0]) == pytest.approx(0.25, abs=0.01)
 
 
+@pytest.mark.parametrize("w", [-0.05, -0.3, -0.8])
+def test_admissibility_test_agrees_with_the_profile_by_hand(w):
+    """The cutting-plane test against the profile log posterior max_β (log p by hand −
+    log β) on a fine β grid: levels just below the profile pass, just above fail."""
+    mdp, a, b = two_routes()
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    post = BoltzmannPosterior(mdp, [a, b, b, b], prior, (0.1, 100))
+    betas = np.exp(np.linspace(np.log(0.1), np.log(100), 20001))
+    profile = max(by_hand(w, beta, 1, 3) - np.log(beta) for beta in betas) + prior.log_pdf([w])
+    for guess in (0.1, 3.0, 100):  # from either end of the range and from inside
+        assert post.admissible([w], profile - 1e-3, guess)
+        assert not post.admissible([w], profile + 1e-3, guess)
+    assert not post.admissible([0.5], -1e9, 3.0)  # outside the prior box
+
+
 def test_noisy_demos_do_not_collapse_the_weights():
     """The paper's failure: demonstrations worse than the greedy paths. Here they take the
     costlier route A half the time; eq. (2) against the greedy route B alone would push w

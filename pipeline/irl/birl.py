@@ -25,7 +25,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from pipeline.core.graph_mdp import TrajectoryStats
 from pipeline.core.params import require, require_count, require_positive
@@ -144,23 +144,26 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     best = -boltzmann.neg_log_posterior(np.append(w_map, beta_map))[0]
     paper = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
                      r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0)
-    threshold = chi2.ppf(1 - config.lr_level, problem.prior.dim + 1) / 2
+    threshold = chdtri(problem.prior.dim + 1, config.lr_level) / 2  # χ² quantile
     records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
     # Among the iterates the test keeps, eq. (2)'s posterior given every generated
     # trajectory decides (the last iterate is not the best: eq. (2)'s iterates oscillate).
     pool = [t for it in paper for t in it.generated]
     eq2 = Posterior(problem.expert, pool, problem.prior, config.beta, problem.r_goal)
     chosen, chosen_score = w_map, -np.inf
-    profiles: dict[tuple[float, ...], float] = {}  # iterates often repeat
+    admissible: dict[tuple[float, ...], bool] = {}  # iterates often repeat
+    chosen_ll = boltzmann.log_likelihood(chosen, beta_map)
     for n in range(1, config.n_iterations + 1):
-        key = tuple(paper[n].weights)
-        if key not in profiles:
-            profiles[key] = boltzmann.profile_log_posterior(paper[n].weights)
-        lp = profiles[key]
         score = eq2.log_posterior(paper[n].weights)
-        if best - lp <= threshold and score > chosen_score:
+        key = tuple(paper[n].weights)
+        # Only an iterate that would be chosen is tested (the test is the costly part).
+        if score > chosen_score and key not in admissible:
+            admissible[key] = boltzmann.admissible(paper[n].weights, best - threshold,
+                                                   beta_map)
+        if score > chosen_score and admissible[key]:
             chosen, chosen_score = paper[n].weights, score
-        records.append(problem.record(n, chosen, boltzmann.log_likelihood(chosen, beta_map)))
+            chosen_ll = boltzmann.log_likelihood(chosen, beta_map)
+        records.append(problem.record(n, chosen, chosen_ll))
     # Graph solves: eq. (2)'s whole loop, then one per recorded iteration (the soft policy
     # iterations of the Boltzmann model are not counted).
     return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))])

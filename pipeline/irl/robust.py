@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.optimize import minimize, minimize_scalar
+from scipy.optimize import minimize
 from scipy.sparse.linalg import spsolve
 
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
@@ -116,20 +116,42 @@ class BoltzmannPosterior:
         grad_beta = w @ (self.empirical - counts) + self.goal_term - end - 1 / beta
         return -(ll + self.prior.log_pdf(w) - np.log(beta)), -np.append(grad_w, grad_beta)
 
-    def profile_log_posterior(self, w: ArrayLike) -> float:
-        """max over β of the log posterior at w (d,): how well w explains the
-        demonstrations at its best noise level. Values only (no gradient solve)."""
+    def admissible(self, w: ArrayLike, level: float, beta_guess: float,
+                   max_cuts: int = 50) -> bool:
+        """Whether the profile log posterior at w (d,), max over β of log p(w, β | Ξ_E),
+        reaches `level`. The log likelihood is concave along β (the ray (βw, β) through a
+        concave function), so its tangents bound it from above (Kelley's cutting planes):
+        evaluate it and its slope at a few β, accept when a value reaches the level, reject
+        when the tangents' envelope minus log β stays below it on the whole β range. Exact,
+        and 1–4 evaluations where a bounded line search took about 11."""
         w = np.asarray(w, dtype=float)
         lp = self.prior.log_pdf(w)
         if lp == -np.inf:
-            return lp
+            return False
+        lo, hi = self.beta_range
+        slack = 1e-6 * max(1.0, abs(level))  # the tangents are as exact as the solves
+        cuts: list[tuple[float, float, float]] = []  # (β, log likelihood, slope)
+        beta = float(np.clip(beta_guess, lo, hi))
+        for _ in range(max_cuts):
+            values = self.soft_values(w, beta)
+            ll = float(beta * (w @ self.empirical + self.goal_term) - values[self.starts].sum())
+            if lp + ll - np.log(beta) >= level:
+                return True
+            counts, end = self.expected_counts(w, beta, values)
+            cuts.append((beta, ll, float(w @ (self.empirical - counts) + self.goal_term - end)))
 
-        def neg(u: float) -> float:  # values to 1e-7: far below the test's threshold
-            return -(self.log_likelihood(w, float(np.exp(u)), tol=1e-7) - u)
-
-        res = minimize_scalar(neg, bounds=tuple(np.log(self.beta_range)), method="bounded",
-                              options={"xatol": 1e-2})
-        return lp - float(res.fun)
+            def bound(b: float) -> float:
+                return min(v + g * (b - c) for c, v, g in cuts) - np.log(b)
+            # Each piece of the envelope minus log β is convex: its maximum lies at an end
+            # of the range or where two tangents cross.
+            candidates = [lo, hi] + [
+                (v2 - v1 + g1 * c1 - g2 * c2) / (g1 - g2)
+                for i, (c1, v1, g1) in enumerate(cuts) for c2, v2, g2 in cuts[i + 1:]
+                if g1 != g2]
+            beta = max((b for b in candidates if lo <= b <= hi), key=bound)
+            if lp + bound(beta) < level - slack or any(beta == c for c, _, _ in cuts):
+                return False  # at an evaluated β the bound is the (rejected) value itself
+        raise RuntimeError("the admissibility test did not settle")  # not seen in practice
 
     def map(self, w0: ArrayLike, beta0: float) -> tuple[np.ndarray, float]:
         """MAP (w (d,), β) by L-BFGS-B within the prior box and the β range."""
