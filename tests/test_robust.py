@@ -70,6 +70,25 @@ def test_robust_map_matches_route_frequencies():
     assert math.exp(q_a - values[0]) == pytest.approx(0.25, abs=0.01)
 
 
+def test_soft_values_satisfy_the_soft_bellman_equation_with_a_self_loop():
+    """A waiting edge 1→1 (a self-loop) next to the two routes: V(s) = log Σ_e exp(βw·φ(e)
+    + γ^τ V(dst)) at every node with out-edges, and the gradient still matches."""
+    src, dst = [0, 0, 1, 1, 1], [3, 1, 3, 2, 1]
+    mdp = GraphMDP(src, dst, np.ones(5), [[1.0], [0.2], [0.3], [0.0], [0.5]],
+                   [False, False, False, True], gamma=GAMMA)
+    edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
+    demo = Path([0, 1, 1, 3], [edge[0, 1], edge[1, 1], edge[1, 3]], True)
+    post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    values = post.soft_values([-0.7], 2.0)
+    q = mdp.rewards([-1.4]) + mdp.discount * values[mdp.dst]
+    np.testing.assert_allclose(values[mdp.has_out], mdp.log_sum_exp(q)[mdp.has_out],
+                               atol=1e-9)
+    x, h = np.array([-0.7, 2.0]), 1e-6
+    numeric = [(post.neg_log_posterior(x + h * e)[0] - post.neg_log_posterior(x - h * e)[0])
+               / (2 * h) for e in np.eye(2)]
+    np.testing.assert_allclose(post.neg_log_posterior(x)[1], numeric, rtol=1e-5, atol=1e-7)
+
+
 @pytest.mark.parametrize("w", [-0.05, -0.3, -0.8])
 def test_admissibility_test_agrees_with_the_profile_by_hand(w):
     """The cutting-plane test against the profile log posterior max_β (log p by hand −

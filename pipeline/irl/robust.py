@@ -49,6 +49,25 @@ class BoltzmannPosterior:
             self.goal_term += end * mdp.r_goal if p.reached else 0.0
         self._values: np.ndarray | None = None  # warm start of the next soft VI
         self._beta = 1.0  # the β of _values
+        # I − γ^τ P_π in CSR, row s = [diagonal, out-edges of s in edge order]: the pattern
+        # is fixed, so each solve only fills in the policy's values.
+        n, rows = mdp.n_nodes, np.arange(mdp.n_nodes + 1)
+        self._indptr = mdp.indptr + rows
+        self._diagonal = mdp.indptr[:-1] + rows[:-1]
+        self._edge_slots = np.arange(len(mdp.src)) + mdp.src + 1
+        self._indices = np.empty(len(mdp.src) + n, dtype=np.int64)
+        self._indices[self._diagonal], self._indices[self._edge_slots] = rows[:-1], mdp.dst
+
+    def _solve(self, pi: np.ndarray, rhs: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """x (n,) with (I − γ^τ P_π) x = rhs, or its transpose, for edge probabilities pi.
+        A self-loop's entry repeats the diagonal's column; spsolve sums duplicates."""
+        mdp, n = self.mdp, self.mdp.n_nodes
+        data = np.empty(len(self._indices))
+        data[self._diagonal], data[self._edge_slots] = 1.0, -pi * mdp.discount
+        # The same arrays read as CSC are the transpose: no conversion either way.
+        form = sp.csc_matrix if transpose else sp.csr_matrix
+        mat = form((data, self._indices, self._indptr), shape=(n, n))
+        return np.asarray(spsolve(mat, rhs)).reshape(n)
 
     def soft_values(self, w: ArrayLike, beta: float, tol: float = 1e-10,
                     max_iter: int = 50) -> np.ndarray:
@@ -61,7 +80,6 @@ class BoltzmannPosterior:
         r, fixed = mdp.rewards(beta * np.asarray(w, dtype=float)), beta * mdp.fixed_values
         warm = 0.0 if self._values is None else self._values * (beta / self._beta)
         values = np.where(mdp.has_out, warm, fixed)
-        eye = sp.identity(n, format="csr")
         scale = max(1.0, float(np.abs(fixed).max()))  # tolerance relative to the values' size
         for _ in range(max_iter):
             q = r + mdp.discount * values[mdp.dst]
@@ -74,8 +92,7 @@ class BoltzmannPosterior:
             pi = np.exp(log_pi)
             rhs = np.where(mdp.has_out, np.bincount(mdp.src, pi * (r - log_pi), minlength=n),
                            fixed)
-            trans = sp.csr_matrix((pi * mdp.discount, (mdp.src, mdp.dst)), shape=(n, n))
-            new = np.asarray(spsolve((eye - trans).tocsc(), rhs)).reshape(n)
+            new = self._solve(pi, rhs)
             values = new if np.all(np.isfinite(new)) else lse
         # Round-off can keep Newton from the last digits: finish by value iteration, a
         # γ-contraction from any start.
@@ -96,8 +113,7 @@ class BoltzmannPosterior:
         q = mdp.rewards(beta * w) + mdp.discount * values[mdp.dst]
         pi = np.exp(q - mdp.log_sum_exp(q)[mdp.src])
         x0 = np.bincount(self.starts, minlength=n).astype(float)
-        trans = sp.csr_matrix((pi * mdp.discount, (mdp.src, mdp.dst)), shape=(n, n))
-        visits = np.asarray(spsolve((sp.identity(n, format="csc") - trans.T).tocsc(), x0))
+        visits = self._solve(pi, x0, transpose=True)
         end = float(visits[~mdp.has_out] @ mdp.fixed_values[~mdp.has_out])
         return (visits[mdp.src] * pi) @ mdp.features, end
 
