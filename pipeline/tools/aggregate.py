@@ -112,7 +112,7 @@ def setting_label(key: str, value) -> str:
     return f"{SETTING_NAMES.get(key, key)} {value}"
 
 
-def _save(fig, path: Path) -> None:
+def save_figure(fig, path: Path) -> None:
     """PNG for the README and slides, PDF (vector) for papers."""
     fig.savefig(path, dpi=150)
     fig.savefig(path.with_suffix(".pdf"))
@@ -153,7 +153,7 @@ def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
     if plotted:
         axes[1].legend(fontsize=7, loc="upper right")
         fig.tight_layout()
-        _save(fig, path)
+        save_figure(fig, path)
     plt.close(fig)
     return plotted
 
@@ -211,7 +211,7 @@ def plot_scene(job: Path, path: Path) -> None:
     ax.set_title(f"scene '{scene['name']}': demonstrations and learned paths")
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     plt.close(fig)
 
 

@@ -196,24 +196,33 @@ def read_artefact_iterations(run: Path) -> list[dict]:
 
 
 def plot_loss_vs_time(curves: pd.DataFrame, path: Path) -> None:
+    """Policy loss against learning time, log–log, one line per method (paper names).
+    Artefacts carry no wall clock, so iteration k of n is placed at k/n of the run's
+    learning time; the initial weights' loss (time 0, off a log axis) is a dotted line."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from pipeline.tools.aggregate import METHOD_NAMES, save_figure
+
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for method, part in curves.groupby("method"):
+    curves = curves.assign(k=curves.groupby(["method", "scene", "seed"]).cumcount())
+    initial = curves[curves.k == 0].policy_loss_ref.mean()
+    ax.axhline(initial, color="0.5", linestyle=":", label="initial weights (iteration 0)")
+    for method, part in curves[curves.k > 0].groupby("method"):
         # Iteration k of every run at its mean elapsed time, loss averaged over runs.
-        part = part.assign(k=part.groupby(["scene", "seed"]).cumcount())
         mean = part.groupby("k")[["wall_s", "policy_loss_ref"]].mean()
-        ax.plot(mean.wall_s.clip(lower=1e-4), mean.policy_loss_ref, marker=".", label=method)
+        ax.plot(mean.wall_s, mean.policy_loss_ref, marker=".",
+                label=METHOD_NAMES.get(str(method), str(method)))
     ax.set_xscale("log")
-    ax.set_xlabel("learning wall time (s, log scale)")
-    ax.set_ylabel("policy loss on the reference roadmap (mean over runs)")
+    ax.set_yscale("log")
+    ax.set_xlabel("learning time (s)")
+    ax.set_ylabel("policy loss on the reference roadmap\n(mean over scenes and seeds)")
     ax.set_title("IRL methods on metropolis and three random scenes")
-    ax.grid(alpha=0.3)
-    ax.legend()
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize="small")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -229,6 +238,8 @@ IMPERFECT = {
 IMPERFECT_METHODS = {"birlg_paper": ["birl.likelihood=paper"],
                      "birlg_robust": ["birl.likelihood=robust"],
                      "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
+IMPERFECT_NAMES = {"birlg_paper": "BIRL-G (paper, eq. 2)", "birlg_robust": "BIRL-G (robust)",
+                   "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
 
 
 def _in_process(run_dir: Path, *overrides: str) -> dict:
@@ -348,6 +359,8 @@ def plot_imperfect(summary: pd.DataFrame, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from pipeline.tools.aggregate import save_figure
+
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     betas = {f"beta{b}": b for b in (5, 10, 20, 50)}
     ks = {"beta20": 1, "beta20_k2": 2, "beta20_k3": 3, "beta20_k5": 5}
@@ -360,7 +373,7 @@ def plot_imperfect(summary: pd.DataFrame, path: Path) -> None:
             x = part.condition.map(xs)
             order = np.argsort(x.to_numpy())
             ax.plot(x.to_numpy()[order], part["median"].to_numpy()[order], marker="o",
-                    label=method)
+                    label=IMPERFECT_NAMES.get(str(method), str(method)))
         ax.set_xlabel(label)
         ax.set_ylabel("median normalised policy loss")
         ax.set_yscale("symlog", linthresh=0.01)
@@ -368,7 +381,7 @@ def plot_imperfect(summary: pd.DataFrame, path: Path) -> None:
     axes[0].legend()
     fig.suptitle("Imperfect demonstrations on metropolis")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -428,6 +441,7 @@ def main(argv=None) -> None:
     elif args.suite == "irl":
         print(f"IRL methods {args.methods} on {args.scenes}, seeds {args.seeds}:", flush=True)
         table, curves = irl_methods(args.seeds, args.methods, args.scenes)
+        curves.to_csv(RESULTS / "irl_methods_curves.csv", index=False)  # the figure's data
         plot_loss_vs_time(curves, RESULTS / "irl_methods.png")
         path = RESULTS / "irl_methods.csv"
         summary = table.groupby("method")[["wall_s", "mdp_solves", "policy_loss_ref",

@@ -132,6 +132,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from pipeline.tools.aggregate import save_figure
+
     fig, ax = plt.subplots(figsize=(7.5, 5))
     for method, part in table[table.error == ""].sort_values("states").groupby("method"):
         median = part.groupby("states").learn_s.median()  # one point per size, over rooms
@@ -148,8 +150,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     ax.grid(alpha=0.3, which="both")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    fig.savefig(path.with_suffix(".pdf"))
+    save_figure(fig, path)
     plt.close(fig)
 
 
