@@ -130,9 +130,10 @@ def wait_until_still(display: str, width: int, height: int, viewer: subprocess.P
         elif now - since >= settle_s and colour_count(image) >= MIN_COLOURS:
             return image
         if now - start > timeout_s:
-            raise PipelineError(f"the viewer's window did not settle within {timeout_s:g} s "
-                                f"({colour_count(image)} colours on screen); viewer output in "
-                                f"{log_path}")
+            what = "the screen stayed blank" if colour_count(image) < MIN_COLOURS \
+                else "the window kept changing"
+            raise PipelineError(f"the viewer did not settle within {timeout_s:g} s ({what}); "
+                                f"viewer output in {log_path}")
 
 
 def screenshot(run_dir: Path, out: Path, width: int = 1600, height: int = 1000,
