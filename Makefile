@@ -43,11 +43,12 @@ view: $(STAMP)
 	@test -n "$(RUN)" || { echo "usage: make view RUN=<run dir>"; exit 2; }
 	$(PY) -m pipeline.tools.viewer $(RUN)
 
-## The viewer showing a run, rendered headless under Xvfb, as a PNG (default docs/viewer.png):
-## make screenshot RUN=outputs/... [SHOT=file.png]  (apt-get install xvfb imagemagick mesa-vulkan-drivers)
+## The viewer showing a run, rendered headless under Xvfb, as a 256-colour PNG (default
+## docs/viewer.png, the README's): make screenshot RUN=outputs/... [SHOT=file.png]
+## (apt-get install xvfb imagemagick mesa-vulkan-drivers)
 screenshot: $(STAMP)
 	@test -n "$(RUN)" || { echo "usage: make screenshot RUN=<run dir> [SHOT=<png>]"; exit 2; }
-	$(PY) -m pipeline.tools.screenshot $(RUN) --out $(SHOT)
+	$(PY) -m pipeline.tools.screenshot $(RUN) --out $(SHOT) --colors 256
 
 ## Re-run the reference experiments and compare with results/baseline/.
 regress: $(STAMP)
