@@ -23,6 +23,7 @@ import argparse
 import glob
 import io
 import os
+import select
 import shutil
 import signal
 import subprocess
@@ -54,24 +55,29 @@ def require_tools() -> None:
                             "a GPU Mesa's lavapipe): apt-get install mesa-vulkan-drivers")
 
 
-def start_xvfb(width: int, height: int, env: dict[str, str],
+def start_xvfb(width: int, height: int, env: dict[str, str], log_path: Path,
                timeout_s: float = 20.0) -> tuple[subprocess.Popen, str]:
     """An X server on a free display number (Xvfb -displayfd), ready when this returns."""
     read_fd, write_fd = os.pipe()
     try:
-        proc = subprocess.Popen(
-            ["Xvfb", "-displayfd", str(write_fd), "-screen", "0", f"{width}x{height}x24",
-             "-nolisten", "tcp", "-extension", "Composite"],
-            pass_fds=(write_fd,), env=env, start_new_session=True, stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE)
+        with open(log_path, "w") as log_file:
+            proc = subprocess.Popen(
+                ["Xvfb", "-displayfd", str(write_fd), "-screen", "0", f"{width}x{height}x24",
+                 "-nolisten", "tcp", "-extension", "Composite"],
+                pass_fds=(write_fd,), env=env, start_new_session=True,
+                stdout=subprocess.DEVNULL, stderr=log_file)
     finally:
         os.close(write_fd)
-    with os.fdopen(read_fd) as ready:  # Xvfb writes the display number once it accepts clients
-        number = ready.readline().strip()
-    if not number:  # it exited (the pipe closed) before it was ready
-        stop(proc, timeout_s)
-        err = proc.stderr.read().decode(errors="replace").strip() if proc.stderr else ""
-        raise PipelineError(f"Xvfb did not start: {(err.splitlines() or ['no output'])[-1]}")
+    # Xvfb writes the display number once it accepts clients; the pipe closes if it exits.
+    with os.fdopen(read_fd) as ready:
+        in_time = bool(select.select([ready], [], [], timeout_s)[0])
+        number = ready.readline().strip() if in_time else ""
+    if not number:
+        what = "exited" if in_time else f"did not start within {timeout_s:g} s"
+        stop(proc)
+        lines = [line.removeprefix("(EE)").strip()
+                 for line in log_path.read_text(errors="replace").splitlines()]
+        raise PipelineError(f"Xvfb {what}: {([ln for ln in lines if ln] or ['no output'])[-1]}")
     return proc, f":{number}"
 
 
@@ -91,8 +97,6 @@ def stop(proc: subprocess.Popen, timeout_s: float = 10.0) -> None:
             os.killpg(proc.pid, signal.SIGKILL)
         except (ProcessLookupError, PermissionError):
             pass
-    if proc.stderr:
-        proc.stderr.close()
 
 
 def capture(display: str, width: int, height: int) -> Image.Image:
@@ -115,8 +119,8 @@ def colour_count(image: Image.Image) -> int:
 
 def wait_until_still(display: str, width: int, height: int, viewer: subprocess.Popen,
                      log_path: Path, settle_s: float, timeout_s: float) -> Image.Image:
-    """Capture every second until the screen has not changed for settle_s and shows more
-    than a blank or start screen; the viewer dying or timeout_s passing is an error."""
+    """Capture every second until the screen is not blank and has not changed for settle_s;
+    the viewer dying or timeout_s passing is an error."""
     start = time.monotonic()
     last, since = None, start
     while True:
@@ -156,7 +160,8 @@ def screenshot(run_dir: Path, out: Path, width: int = 1600, height: int = 1000,
         if res.returncode != 0:
             last = (res.stderr.strip().splitlines() or ["no output"])[-1]
             raise PipelineError(f"{' '.join(cmd[:-1])} analytics disable failed: {last}")
-        xvfb, display = start_xvfb(width, 2 * height, env)  # the pointer (centred) below it
+        # twice the window's height: the pointer (centred) below it
+        xvfb, display = start_xvfb(width, 2 * height, env, Path(tmp) / "xvfb.log")
         try:
             with open(log_path, "w") as log_file:
                 viewer = subprocess.Popen(
