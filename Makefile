@@ -10,8 +10,9 @@ JOBS ?= 2
 SWEEP ?=
 SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S-%N))
 RUN ?=
+SHOT ?= docs/viewer.png
 
-.PHONY: experiment test test-all lint clean bench sweep aggregate view regress
+.PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "make: creating $(VENV) with the pinned dependencies (first time: 1-3 min) ..."; \
@@ -41,6 +42,13 @@ aggregate: $(STAMP)
 view: $(STAMP)
 	@test -n "$(RUN)" || { echo "usage: make view RUN=<run dir>"; exit 2; }
 	$(PY) -m pipeline.tools.viewer $(RUN)
+
+## The viewer showing a run, rendered headless under Xvfb, as a 256-colour PNG (default
+## docs/viewer.png, the README's): make screenshot RUN=outputs/... [SHOT=file.png]
+## (apt-get install xvfb imagemagick mesa-vulkan-drivers)
+screenshot: $(STAMP)
+	@test -n "$(RUN)" || { echo "usage: make screenshot RUN=<run dir> [SHOT=<png>]"; exit 2; }
+	$(PY) -m pipeline.tools.screenshot $(RUN) --out $(SHOT) --colors 256
 
 ## Re-run the reference experiments and compare with results/baseline/.
 regress: $(STAMP)

@@ -87,8 +87,9 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
                                          labels=[str(p["id"]) for p in persons]),
             static=True, strict=True)
     heading = HEADING_LEN * np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+    # Light grey: the dark grey of the (white) figures is invisible on the viewer's black.
     rec.log("scene/person_heading", rr.Arrows2D(origins=_xy(xy), vectors=_xy(heading),
-                                                colors=(40, 40, 40)), static=True, strict=True)
+                                                colors=(170, 170, 170)), static=True, strict=True)
     links = [[pos[a], pos[b]] for a, b in scene["relations"]]
     rec.log("scene/links", rr.LineStrips2D(_strips(links), colors=LINK, radii=0.03),
             static=True, strict=True)
@@ -151,8 +152,11 @@ def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | Non
     for it in birl.all(topics.BIRL_ITERATION) if birl else []:
         rec.set_time("birl_iteration", sequence=it["index"])
         paths = [g["points"] for g in it["generated"] if g.get("points")]
-        rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.04,
-                                                      colors=(0, 190, 190)), strict=True)
+        # Thin and above the other lines (default draw order 20): at the last iteration they
+        # are the final paths (eval/paths), which would hide them entirely.
+        rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.025,
+                                                      colors=(0, 190, 190), draw_order=21.0),
+                strict=True)
         for i, w in enumerate(it["weights"]):
             name = names[i] if i < len(names) else f"w{i}"
             rec.log(f"curves/weights/{name}", rr.Scalars(w), strict=True)
