@@ -226,12 +226,16 @@ def _blueprint(room: dict) -> rrb.Blueprint:
         name="graph growth (iteration timeline)", origin="/",
         contents=["+ /scene/**", *[f"+ {p}" for p in GROWTH]],
         overrides={"graph/edges": grown}, visual_bounds=bounds)
-    curves = rrb.Vertical(rrb.TimeSeriesView(name="policy loss", origin="/curves/policy_loss"),
+    # The loss drops from the top left: its legend goes where the curve is not.
+    curves = rrb.Vertical(rrb.TimeSeriesView(name="policy loss", origin="/curves/policy_loss",
+                                             plot_legend=rrb.Corner2D.RightTop),
                           rrb.TimeSeriesView(name="weights", origin="/curves/weights"),
                           rrb.TimeSeriesView(name="log posterior", origin="/curves/log_posterior"))
     return rrb.Blueprint(
         rrb.Horizontal(rrb.Tabs(learning, growth), curves, column_shares=[3, 2]),
-        rrb.TimePanel(timeline="birl_iteration"), collapse_panels=False)
+        rrb.TimePanel(timeline="birl_iteration"),
+        rrb.SelectionPanel(state="collapsed"),  # recording metadata: room for the plots
+        collapse_panels=False)
 
 
 def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
