@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import SuperLU, splu
 
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
 from pipeline.irl.prior import Prior
@@ -47,8 +47,11 @@ class BoltzmannPosterior:
             phi, end = discounted_counts(mdp.features[p.edges], mdp.duration[p.edges], mdp.gamma)
             self.empirical += phi
             self.goal_term += end * mdp.r_goal if p.reached else 0.0
-        self._values: np.ndarray | None = None  # warm start of the next soft VI
-        self._beta = 1.0  # the β of _values
+        # Warm start of the next soft policy iteration: the last values, the parameters
+        # θ = (βw, β) they belong to, and their derivative dV/dθ (n, d + 1) or None.
+        self._values: np.ndarray | None = None
+        self._theta = np.zeros(prior.dim + 1)
+        self._jacobian: np.ndarray | None = None
         # I − γ^τ P_π in CSR, row s = [diagonal, out-edges of s in edge order]: the pattern
         # is fixed, so each solve only fills in the policy's values.
         n, rows = mdp.n_nodes, np.arange(mdp.n_nodes + 1)
@@ -58,52 +61,80 @@ class BoltzmannPosterior:
         self._indices = np.empty(len(mdp.src) + n, dtype=np.int64)
         self._indices[self._diagonal], self._indices[self._edge_slots] = rows[:-1], mdp.dst
 
-    def _solve(self, pi: np.ndarray, rhs: np.ndarray, transpose: bool = False) -> np.ndarray:
-        """x (n,) with (I − γ^τ P_π) x = rhs, or its transpose, for edge probabilities pi.
-        A self-loop's entry repeats the diagonal's column; spsolve sums duplicates."""
-        mdp, n = self.mdp, self.mdp.n_nodes
+    def _factor(self, pi: np.ndarray) -> SuperLU:
+        """LU of (I − γ^τ P_π)^T for edge probabilities pi: the CSR arrays of I − γ^τ P_π read
+        as CSC, so no conversion. A self-loop's entry repeats the diagonal's column; splu
+        sums duplicates."""
+        n = self.mdp.n_nodes
         data = np.empty(len(self._indices))
-        data[self._diagonal], data[self._edge_slots] = 1.0, -pi * mdp.discount
-        # The same arrays read as CSC are the transpose: no conversion either way.
-        form = sp.csc_matrix if transpose else sp.csr_matrix
-        mat = form((data, self._indices, self._indptr), shape=(n, n))
-        return np.asarray(spsolve(mat, rhs)).reshape(n)
+        data[self._diagonal], data[self._edge_slots] = 1.0, -pi * self.mdp.discount
+        return splu(sp.csc_matrix((data, self._indices, self._indptr), shape=(n, n)))
 
     def soft_values(self, w: ArrayLike, beta: float, tol: float = 1e-10,
                     max_iter: int = 50) -> np.ndarray:
         """V(s) (n,) = log Σ_e exp(βw·φ(e) + γ^τ(e) V(dst(e))); β·(R_goal or −V_max) at
         terminals and dead ends. Soft policy iteration (Newton's method on the soft Bellman
         equation: evaluate the current soft policy exactly by one sparse solve, improve),
-        warm-started from the last call's values rescaled to this β; a few solves instead
-        of hundreds of value-iteration sweeps."""
-        mdp, n = self.mdp, self.mdp.n_nodes
-        r, fixed = mdp.rewards(beta * np.asarray(w, dtype=float)), beta * mdp.fixed_values
-        warm = 0.0 if self._values is None else self._values * (beta / self._beta)
-        values = np.where(mdp.has_out, warm, fixed)
+        warm-started from the last call's values moved to this (βw, β) to first order (or
+        rescaled to this β, whichever is nearer the fixed point); a few solves instead of
+        hundreds of value-iteration sweeps."""
+        mdp = self.mdp
+        w = np.asarray(w, dtype=float)
+        theta = np.append(beta * w, beta)
+        r, fixed = mdp.rewards(theta[:-1]), beta * mdp.fixed_values
         scale = max(1.0, float(np.abs(fixed).max()))  # tolerance relative to the values' size
-        for _ in range(max_iter):
+
+        def residual(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
             q = r + mdp.discount * values[mdp.dst]
             lse = np.where(mdp.has_out, mdp.log_sum_exp(q), fixed)
-            if np.max(np.abs(lse - values), initial=0.0) < tol * scale:
-                self._values, self._beta = lse, beta
-                return lse
+            return q, lse, float(np.max(np.abs(lse - values), initial=0.0))
+
+        candidates = [np.where(mdp.has_out, 0.0, fixed)]
+        if self._values is not None:
+            candidates = [self._values * (beta / self._theta[-1])]
+            if self._jacobian is not None:
+                candidates.append(self._values + self._jacobian @ (theta - self._theta))
+        values = min((np.where(mdp.has_out, c, fixed) for c in candidates),
+                     key=lambda c: residual(c)[2])
+        step: tuple[SuperLU, np.ndarray] | None = None  # the last Newton step's LU and π
+        for _ in range(max_iter):
+            q, lse, gap = residual(values)
+            if gap < tol * scale:
+                return self._keep(lse, theta, step)
             # V = Σ_e π(e)(r(e) − log π(e) + γ^τ V(dst)) for the soft policy π of `lse`.
             log_pi = q - lse[mdp.src]
             pi = np.exp(log_pi)
-            rhs = np.where(mdp.has_out, np.bincount(mdp.src, pi * (r - log_pi), minlength=n),
-                           fixed)
-            new = self._solve(pi, rhs)
+            rhs = np.where(mdp.has_out,
+                           np.bincount(mdp.src, pi * (r - log_pi), minlength=mdp.n_nodes), fixed)
+            step = (self._factor(pi), pi)
+            new = step[0].solve(rhs, trans="T")
             values = new if np.all(np.isfinite(new)) else lse
         # Round-off can keep Newton from the last digits: finish by value iteration, a
         # γ-contraction from any start.
         for _ in range(100_000):
-            new = np.where(mdp.has_out, mdp.log_sum_exp(r + mdp.discount * values[mdp.dst]),
-                           fixed)
-            if np.max(np.abs(new - values), initial=0.0) < tol * scale:
-                self._values, self._beta = new, beta
-                return new
+            _, new, gap = residual(values)
+            if gap < tol * scale:
+                return self._keep(new, theta, None)
             values = new
         raise RuntimeError("soft value iteration did not converge")
+
+    def _keep(self, values: np.ndarray, theta: np.ndarray,
+              step: tuple[SuperLU, np.ndarray] | None) -> np.ndarray:
+        """Remember values at θ for the next warm start, with dV/dθ when the last Newton
+        step's LU is at hand: by the envelope theorem dV/dθ = (I − γ^τ P_π)^{-1} ∂r̄/∂θ,
+        where r̄ is the policy's expected reward per node (the entropy term drops out) and
+        the terminals' values β·fixed depend on β alone."""
+        if step is not None:
+            (lu, pi), mdp, d = step, self.mdp, len(theta) - 1
+            rhs = np.zeros((mdp.n_nodes, d + 1))
+            for j in range(d):
+                rhs[:, j] = np.bincount(mdp.src, pi * mdp.features[:, j], minlength=mdp.n_nodes)
+            rhs[~mdp.has_out, d] = mdp.fixed_values[~mdp.has_out]
+            self._jacobian = lu.solve(rhs, trans="T")
+        elif not np.array_equal(theta, self._theta):
+            self._jacobian = None  # belongs to other parameters
+        self._values, self._theta = values, theta
+        return values
 
     def expected_counts(self, w: np.ndarray, beta: float,
                         values: np.ndarray) -> tuple[np.ndarray, float]:
@@ -113,7 +144,7 @@ class BoltzmannPosterior:
         q = mdp.rewards(beta * w) + mdp.discount * values[mdp.dst]
         pi = np.exp(q - mdp.log_sum_exp(q)[mdp.src])
         x0 = np.bincount(self.starts, minlength=n).astype(float)
-        visits = self._solve(pi, x0, transpose=True)
+        visits = self._factor(pi).solve(x0)  # the transpose system
         end = float(visits[~mdp.has_out] @ mdp.fixed_values[~mdp.has_out])
         return (visits[mdp.src] * pi) @ mdp.features, end
 
