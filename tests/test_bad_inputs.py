@@ -80,6 +80,8 @@ CONFIG_CASES = {
     "wrong type": (["seed=abc"], ["seed=abc"]),
     "override syntax": (["seed=["], ["seed=["]),
     "negative seed": (["seed=-1"], ["seed=-1"]),
+    "objective that is no metric": (["objective=policy_loss_nrom"],
+                                    ["objective=policy_loss_nrom", "e.g. policy_loss_norm"]),
     "unknown config group option": (["scene=nope"], ["scene/nope"]),
     "unknown key added with +": (["+birl.foo=1"], ["birl.foo"]),
     "unknown top-level key added with +": (["+foo=1"], ["foo is not a setting"]),

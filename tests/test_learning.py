@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from pipeline.app.config import is_metric_key
 from pipeline.artefacts import read_artefact
 from tests.conftest import ROOT, run_in_process
 
@@ -89,6 +90,7 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
     assert 0.2 <= m["mcmc_acceptance_rate"] <= 0.5  # the adapted step
     assert m["mcmc_rhat_max"] == max(post[-1]["rhat"]) and m["mcmc_ess_min"] > 0
     assert len(post[-1]["samples"]) == 4 * 300
+    assert all(is_metric_key(k) for k in m)  # every key can be a sweep's objective
 
 
 def test_file_demos_report_similarity(tmp_path_factory):

@@ -3,6 +3,7 @@ whose answer is known exactly."""
 
 import pytest
 
+from pipeline.app.config import is_metric_key
 from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
 from pipeline.tools.viewer import build_recording
@@ -38,6 +39,7 @@ def test_transfer_to_the_same_scene_repeats_the_run_metrics(tmp_path):
     m, _ = run_in_process(tmp_path, *SMALL, "birl.n_iterations=3",
                           f"evaluate.transfer_scenes=[{METROPOLIS}]")
     assert m["transfer_metropolis_policy_loss"] == m["policy_loss_ref"]
+    assert all(is_metric_key(k) for k in m)  # every key can be a sweep's objective
     assert m["transfer_metropolis_policy_loss_norm"] == pytest.approx(m["policy_loss_norm"])
     for key in ("relation_crossings", "intimate_intrusion_m", "min_distance_to_person",
                 "success"):

@@ -12,6 +12,8 @@ line naming the full key.
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
@@ -158,6 +160,26 @@ class EvaluateConfig:
 # -- the whole run -------------------------------------------------------------------------
 
 
+# The metrics.json keys (written by the evaluate stage), as patterns: `objective` must name
+# one. tests/test_config.py checks real runs' metrics.json against them, so the two stay
+# in step.
+_PATH = (r"(intimate_intrusion_m|personal_intrusion_m|min_distance_to_person|path_length"
+         r"|relation_crossings|success|time_to_goal|obstacle_collisions"
+         r"|min_distance_to_obstacle)")
+METRIC_KEYS = (
+    rf"(ref_)?{_PATH}", rf"transfer_.+_(policy_loss(_norm)?|{_PATH})",
+    r"policy_loss(_ref)?(_initial|_rude|_iter_\d+)?", r"policy_loss_norm",
+    r"weight_((std|rhat|ess)_)?\w+", r"mcmc_(acceptance_rate|ess_min|rhat_max)",
+    r"frechet_to_demos(_max)?", r"time_\w+_s",
+)
+OBJECTIVE_EXAMPLES = ("policy_loss_norm", "policy_loss", "policy_loss_ref", "success",
+                      "relation_crossings", "path_length", "min_distance_to_person")
+
+
+def is_metric_key(key: str) -> bool:
+    return any(re.fullmatch(pattern, key) for pattern in METRIC_KEYS)
+
+
 @dataclass
 class Config:
     seed: int = 0
@@ -257,7 +279,8 @@ def load_settings(cfg: DictConfig) -> Config:
     sections = {}
     for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl", "evaluate"):
         sections[key] = _instantiate(cfg[key], key)
-    top = OmegaConf.to_object(OmegaConf.masked_copy(cfg, ["seed", "stages", "from_run"]))
+    top = OmegaConf.to_object(OmegaConf.masked_copy(
+        cfg, [k for k in ("seed", "stages", "from_run", "objective") if k in cfg]))
     settings = Config(**top, **sections)  # type: ignore[arg-type]
 
     unknown = [s for s in settings.stages if s not in STAGES]
@@ -265,6 +288,10 @@ def load_settings(cfg: DictConfig) -> Config:
         raise config_error("stages", list(settings.stages), f"a non-empty subset of {list(STAGES)}")
     if settings.seed < 0:
         raise config_error("seed", settings.seed, "an integer >= 0")
+    if not is_metric_key(settings.objective):  # else every sweep trial would return NaN
+        close = difflib.get_close_matches(settings.objective, OBJECTIVE_EXAMPLES, n=1)
+        raise config_error("objective", settings.objective,
+                           f"a metrics.json key, e.g. {close[0] if close else 'policy_loss_norm'}")
     _require_matching_kind("scene", settings.scene, SCENES)
     _require_matching_kind("expert", settings.expert, EXPERTS)
     _require_matching_kind("birl", settings.birl, {n: m.config for n, m in methods().items()})
