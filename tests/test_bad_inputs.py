@@ -80,6 +80,7 @@ CONFIG_CASES = {
     "wrong type": (["seed=abc"], ["seed=abc"]),
     "override syntax": (["seed=["], ["seed=["]),
     "negative seed": (["seed=-1"], ["seed=-1"]),
+    "unknown sampler": (["birl=mcmc", "birl.sampler=hmc"], ["birl.sampler=hmc", "mala"]),
     "objective that is no metric": (["objective=policy_loss_nrom"],
                                     ["objective=policy_loss_nrom", "e.g. policy_loss_norm"]),
     "unknown config group option": (["scene=nope"], ["scene/nope"]),

@@ -24,6 +24,7 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 from scipy.special import chdtri
 
@@ -48,10 +49,13 @@ class LogDensity(Protocol):
 
     def log_posterior(self, w: ArrayLike) -> float: ...
 
+    def log_posterior_and_grad(self, w: ArrayLike) -> tuple[float, np.ndarray]: ...
+
     def dispersed_start(self, rng: np.random.Generator) -> np.ndarray: ...
 
 
 LIKELIHOODS = ("paper", "robust")
+SAMPLERS = ("rw", "mala")
 
 
 @dataclass
@@ -99,10 +103,14 @@ class AdaptiveChainParams(ChainParams):
     n_chains: int = 4  # chain 0 starts at the current estimate, the others at prior draws
     target_acceptance: float = 0.3  # 0.234 is optimal for high-dimensional Gaussians
     adapt: bool = True  # false: `step` throughout
+    # rw: random-walk Metropolis; mala: Langevin proposals along the analytic gradient
+    # (target_acceptance 0.57 is optimal for it)
+    sampler: str = "rw"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         require_count(self, "n_chains")
+        require(self.sampler in SAMPLERS, "sampler", self.sampler, f"one of {SAMPLERS}")
         require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
                 "a number in (0, 1)")
 
@@ -273,6 +281,10 @@ class Posterior:
     def grad_log_posterior(self, w: ArrayLike) -> np.ndarray:
         return self.grad_log_likelihood(w) + self.prior.grad_log_pdf(w)
 
+    def log_posterior_and_grad(self, w: ArrayLike) -> tuple[float, np.ndarray]:
+        lp = self.log_posterior(w)
+        return lp, (self.grad_log_posterior(w) if np.isfinite(lp) else np.zeros(self.prior.dim))
+
     def map(self, w0: ArrayLike) -> np.ndarray:
         """Maximum a posteriori weights (d,) by L-BFGS-B within the prior box, starting at
         w0 (d,)."""
@@ -336,6 +348,7 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
     ArviZ (pipeline.irl.diagnostics)."""
     n_chains = getattr(chain, "n_chains", 1)
     adapt = getattr(chain, "adapt", False)
+    mala = getattr(chain, "sampler", "rw") == "mala"
     target = getattr(chain, "target_acceptance", 0.3)
     w = np.asarray(w0, dtype=float).copy()
     if not np.isfinite(posterior.log_posterior(w)):
@@ -355,14 +368,15 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
             states = []
             for c in range(n_chains):
                 burnt, steps[c], _ = _chain(posterior, starts[c], rng, int(length), 1,
-                                            steps[c], target, chol=chol)
+                                            steps[c], target, chol=chol, mala=mala)
                 starts[c] = burnt[-1] if len(burnt) else starts[c]
                 states.append(burnt[len(burnt) // 2:])
             cov = np.cov(np.concatenate(states).T).reshape(len(w), len(w))
             shape = phase < len(phases) - 1  # the last phase only adapts the step
             if shape and np.all(np.isfinite(cov)) and np.linalg.matrix_rank(cov) == len(w):
                 chol = np.linalg.cholesky(cov + 1e-10 * np.eye(len(w)))
-                steps[:] = 2.38 / np.sqrt(len(w))  # the optimal scale for a Gaussian target
+                # the optimal scales for a Gaussian target (Roberts & Rosenthal 2001)
+                steps[:] = 1.65 * len(w) ** (-1 / 6) if mala else 2.38 / np.sqrt(len(w))
         steps[:] = np.median(steps)
         burn_in = 0
     else:
@@ -370,7 +384,8 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
     kept, accepted = [], 0
     for c in range(n_chains):
         samples, _, acc = _chain(posterior, starts[c], rng, burn_in + chain.n_samples * chain.thin,
-                                 chain.thin, steps[c], None, skip=burn_in, chol=chol)
+                                 chain.thin, steps[c], None, skip=burn_in, chol=chol,
+                                 mala=mala)
         kept.append(samples)
         accepted += acc
     draws = np.stack(kept)  # (chains, n_samples, d)
@@ -383,25 +398,41 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
 
 def _chain(posterior: LogDensity, w: np.ndarray, rng: np.random.Generator, n_steps: int,
            thin: int, step: float, target: float | None, skip: int = 0,
-           chol: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
+           chol: np.ndarray | None = None, mala: bool = False) -> tuple[np.ndarray, float, int]:
     """One chain of n_steps from w: the states after `skip` steps, every thin-th; the step
     (adapted towards `target` acceptance when given); the number of accepted proposals.
-    Proposals are w + step·chol·z, z standard normal (chol: (d, d), identity if None)."""
+    Random walk: proposals w + step·L·z, z standard normal (L = chol (d, d), identity if
+    None). MALA: w + (step²/2)·LLᵀ·∇log p(w) + step·L·z, accepted with the proposal
+    densities' ratio (the posterior's `log_posterior_and_grad`)."""
     w = np.asarray(w, dtype=float).copy()
-    lp = posterior.log_posterior(w)
+    lp, grad = posterior.log_posterior_and_grad(w) if mala else \
+        (posterior.log_posterior(w), np.zeros(len(w)))  # random walk: no gradient used
     # Draw all randomness up front: fast, and the chain depends only on the generator's state.
     noise = rng.standard_normal((n_steps, len(w)))
-    if chol is not None:
-        noise = noise @ chol.T
+    moves = noise @ chol.T if chol is not None else noise
+    lower = chol if chol is not None else np.eye(len(w))
+    cov = lower @ lower.T
     log_u = np.log(rng.uniform(size=n_steps))
     samples = np.empty(((n_steps - skip) // thin, len(w)))
     accepted, log_step = 0, np.log(step)
     for i in range(n_steps):
-        proposal = w + np.exp(log_step) * noise[i]
-        lp_new = posterior.log_posterior(proposal)  # −inf outside the box: always rejected
-        ok = bool(log_u[i] < lp_new - lp)  # min(1, exp(Δ log p)) in log space
+        eps = np.exp(log_step)
+        grad_new = grad
+        if not mala:
+            proposal = w + eps * moves[i]
+            lp_new = posterior.log_posterior(proposal)  # −inf outside the box: rejected
+            log_ratio = lp_new - lp
+        else:
+            proposal = w + 0.5 * eps**2 * (cov @ grad) + eps * moves[i]
+            lp_new, grad_new = posterior.log_posterior_and_grad(proposal)
+            log_ratio = -np.inf
+            if np.isfinite(lp_new):  # log q(w | proposal) − log q(proposal | w)
+                back = solve_triangular(lower, w - proposal - 0.5 * eps**2 * (cov @ grad_new),
+                                        lower=True) / eps
+                log_ratio = lp_new - lp - 0.5 * back @ back + 0.5 * noise[i] @ noise[i]
+        ok = bool(log_u[i] < log_ratio)  # min(1, exp(log ratio)) in log space
         if ok:
-            w, lp, accepted = proposal, lp_new, accepted + 1
+            w, lp, grad, accepted = proposal, lp_new, grad_new, accepted + 1
         if target is not None:  # diminishing adaptation: steps of size 1/sqrt(i + 1)
             log_step += (float(ok) - target) / np.sqrt(i + 1)
         kept = i - skip

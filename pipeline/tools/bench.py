@@ -12,6 +12,7 @@ Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is i
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import resource
 import subprocess
@@ -329,28 +330,33 @@ POSTERIOR = {**{f"optimal_n{n}": ["expert=optimal", f"expert.n_demos={n}"] for n
                                  f"expert.demos_per_start={k}"] for k in (1, 3)}}
 
 
-def posterior(seeds: list[int], likelihoods: list[str]) -> pd.DataFrame:
+# sampler -> overrides: random walk (default) and MALA at its optimal acceptance
+SAMPLER_OVERRIDES = {"rw": ["birl.sampler=rw"],
+                     "mala": ["birl.sampler=mala", "birl.target_acceptance=0.57"]}
+
+
+def posterior(seeds: list[int], likelihoods: list[str], samplers: list[str]) -> pd.DataFrame:
     """`birl=mcmc` on metropolis: acceptance, R-hat, ESS and posterior std as demonstrations
-    are added."""
+    are added, per sampler."""
     import tempfile
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for cond, overrides in POSTERIOR.items():
-            for seed in seeds:
-                for lik in likelihoods:
-                    run = Path(tmp) / f"{cond}-{seed}-{lik}"
-                    m = _in_process(run, *overrides, "birl=mcmc", f"birl.likelihood={lik}",
-                                    f"seed={seed}")
-                    stds = [v for k, v in m.items() if k.startswith("weight_std_")]
-                    rows.append({"condition": cond, "likelihood": lik, "seed": seed,
-                                 "policy_loss_norm": m["policy_loss_norm"],
-                                 "acceptance": m["mcmc_acceptance_rate"],
-                                 "rhat_max": m.get("mcmc_rhat_max"),
-                                 "ess_min": m.get("mcmc_ess_min"),
-                                 "std_mean": float(np.mean(stds)),
-                                 "seconds": m["time_birl_learn_s"]})
-                    print(f"  {rows[-1]}", flush=True)
+            for seed, lik, sampler in itertools.product(seeds, likelihoods, samplers):
+                run = Path(tmp) / f"{cond}-{seed}-{lik}-{sampler}"
+                m = _in_process(run, *overrides, "birl=mcmc", f"birl.likelihood={lik}",
+                                f"seed={seed}", *SAMPLER_OVERRIDES[sampler])
+                stds = [v for k, v in m.items() if k.startswith("weight_std_")]
+                rows.append({"condition": cond, "likelihood": lik, "sampler": sampler,
+                             "seed": seed,
+                             "policy_loss_norm": m["policy_loss_norm"],
+                             "acceptance": m["mcmc_acceptance_rate"],
+                             "rhat_max": m.get("mcmc_rhat_max"),
+                             "ess_min": m.get("mcmc_ess_min"),
+                             "std_mean": float(np.mean(stds)),
+                             "seconds": m["time_birl_learn_s"]})
+                print(f"  {rows[-1]}", flush=True)
     return pd.DataFrame(rows)
 
 
@@ -407,6 +413,8 @@ def main(argv=None) -> None:
     post = sub.add_parser("posterior", help="birl=mcmc diagnostics -> results/bench/posterior.csv")
     post.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     post.add_argument("--likelihoods", nargs="+", default=["robust", "paper"])
+    post.add_argument("--samplers", nargs="+", default=list(SAMPLER_OVERRIDES),
+                      choices=list(SAMPLER_OVERRIDES))
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
@@ -433,8 +441,8 @@ def main(argv=None) -> None:
         path = RESULTS / "imperfect.csv"
     elif args.suite == "posterior":
         print(f"birl=mcmc diagnostics, seeds {args.seeds}:", flush=True)
-        table = posterior(args.seeds, args.likelihoods)
-        print(table.groupby(["condition", "likelihood"])[
+        table = posterior(args.seeds, args.likelihoods, args.samplers)
+        print(table.groupby(["condition", "likelihood", "sampler"])[
             ["policy_loss_norm", "acceptance", "rhat_max", "ess_min", "std_mean"]].median()
             .to_string())
         path = RESULTS / "posterior.csv"
