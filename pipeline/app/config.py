@@ -161,8 +161,8 @@ class EvaluateConfig:
 
 
 # The metrics.json keys (written by the evaluate stage), as patterns: `objective` must name
-# one. tests/test_config.py checks real runs' metrics.json against them, so the two stay
-# in step.
+# one. Tests check real runs' metrics.json against them (test_transfer, test_learning), so
+# the two stay in step.
 _PATH = (r"(intimate_intrusion_m|personal_intrusion_m|min_distance_to_person|path_length"
          r"|relation_crossings|success|time_to_goal|obstacle_collisions"
          r"|min_distance_to_obstacle)")

@@ -339,13 +339,13 @@ BURN_IN_PHASES = 4  # adaptive burn-in: the proposal shape is re-estimated after
 
 def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
          chain: ChainParams) -> PosteriorSamples:
-    """Random-walk Metropolis–Hastings on a log posterior: `n_chains` chains (an
-    AdaptiveChainParams; one otherwise), each burn_in + n_samples·thin steps keeping every
-    thin-th state after burn-in. During burn-in the step size adapts (Robbins–Monro on its
-    logarithm) towards the target acceptance rate; all chains share the adapted step's
-    schedule but adapt independently, and the kept step is their median, frozen for the
-    sampling phase. Chain 0 starts at w0 (d,), the others at prior draws. R-hat and ESS by
-    ArviZ (pipeline.irl.diagnostics)."""
+    """Metropolis–Hastings on a log posterior with random-walk or MALA proposals
+    (`sampler`): `n_chains` chains (an AdaptiveChainParams; one otherwise), each burn_in +
+    n_samples·thin steps keeping every thin-th state after burn-in. During burn-in the step
+    size adapts (Robbins–Monro on its logarithm) towards the target acceptance rate and the
+    proposals are reshaped by the states' covariance (below); the kept step is the chains'
+    median, frozen for the sampling phase. Chain 0 starts at w0 (d,), the others at prior
+    draws. R-hat and ESS by ArviZ (pipeline.irl.diagnostics)."""
     n_chains = getattr(chain, "n_chains", 1)
     adapt = getattr(chain, "adapt", False)
     mala = getattr(chain, "sampler", "rw") == "mala"
