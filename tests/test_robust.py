@@ -12,7 +12,7 @@ from pipeline.core.graph_mdp import GraphMDP, Path
 from pipeline.irl.birl import AdaptiveChainParams, BirlMapConfig, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
-from tests.test_birl import numerical_moments, one_weight_posterior
+from tests.test_birl import central_difference, numerical_moments, one_weight_posterior
 
 GAMMA = 0.9
 
@@ -52,9 +52,7 @@ def test_robust_gradient_matches_finite_differences():
     post = BoltzmannPosterior(mdp, [a, b, b], Prior("gaussian", 0.5, [-1.0], [0.0]), (0.1, 100))
     x = np.array([-0.4, 3.0])
     f, grad = post.neg_log_posterior(x)
-    h = 1e-6
-    numeric = [(post.neg_log_posterior(x + h * e)[0] - post.neg_log_posterior(x - h * e)[0])
-               / (2 * h) for e in np.eye(2)]
+    numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
     np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-7)
 
 
@@ -83,9 +81,8 @@ def test_soft_values_satisfy_the_soft_bellman_equation_with_a_self_loop():
     q = mdp.rewards([-1.4]) + mdp.discount * values[mdp.dst]
     np.testing.assert_allclose(values[mdp.has_out], mdp.log_sum_exp(q)[mdp.has_out],
                                atol=1e-9)
-    x, h = np.array([-0.7, 2.0]), 1e-4  # the values are exact to ~1e-10 of their size
-    numeric = [(post.neg_log_posterior(x + h * e)[0] - post.neg_log_posterior(x - h * e)[0])
-               / (2 * h) for e in np.eye(2)]
+    x = np.array([-0.7, 2.0])  # h: the values are exact to ~1e-10 of their size
+    numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-4)
     np.testing.assert_allclose(post.neg_log_posterior(x)[1], numeric, rtol=1e-5, atol=1e-7)
 
 
@@ -94,11 +91,10 @@ def test_joint_density_gradient_matches_finite_differences():
     mdp, a, b = two_routes()
     post = BoltzmannPosterior(mdp, [a, b, b], Prior("gaussian", 0.5, [-1.0], [0.0]), (0.1, 100))
     density = LogBetaDensity(post, 3.0)
-    x, h = np.array([-0.4, np.log(3.0)]), 1e-5
+    x = np.array([-0.4, np.log(3.0)])
     lp, grad = density.log_posterior_and_grad(x)
     assert lp == pytest.approx(density.log_posterior(x), abs=1e-9)
-    numeric = [(density.log_posterior(x + h * e) - density.log_posterior(x - h * e)) / (2 * h)
-               for e in np.eye(2)]
+    numeric = central_difference(density.log_posterior, x, h=1e-5)
     np.testing.assert_allclose(grad, numeric, rtol=1e-4, atol=1e-6)
     assert density.log_posterior_and_grad([0.5, 1.0])[0] == -np.inf  # outside the box
 
