@@ -96,11 +96,10 @@ class BoltzmannPosterior:
             candidates = [self._values * (beta / self._theta[-1])]
             if self._jacobian is not None:
                 candidates.append(self._values + self._jacobian @ (theta - self._theta))
-        values = min((np.where(mdp.has_out, c, fixed) for c in candidates),
-                     key=lambda c: residual(c)[2])
+        scored = [(residual(v), v) for v in (np.where(mdp.has_out, c, fixed) for c in candidates)]
+        (q, lse, gap), values = min(scored, key=lambda s: s[0][2])
         step: tuple[SuperLU, np.ndarray] | None = None  # the last Newton step's LU and π
         for _ in range(max_iter):
-            q, lse, gap = residual(values)
             if gap < tol * scale:
                 return self._keep(lse, theta, step)
             # V = Σ_e π(e)(r(e) − log π(e) + γ^τ V(dst)) for the soft policy π of `lse`.
@@ -111,6 +110,7 @@ class BoltzmannPosterior:
             step = (self._factor(pi), pi)
             new = step[0].solve(rhs, trans="T")
             values = new if np.all(np.isfinite(new)) else lse
+            q, lse, gap = residual(values)
         # Round-off can keep Newton from the last digits: finish by value iteration, a
         # γ-contraction from any start.
         for _ in range(100_000):
@@ -152,14 +152,24 @@ class BoltzmannPosterior:
 
     def log_likelihood(self, w: ArrayLike, beta: float, tol: float = 1e-10) -> float:
         w = np.asarray(w, dtype=float)
-        values = self.soft_values(w, beta, tol)
+        return self.likelihood_given_values(w, beta, self.soft_values(w, beta, tol))
+
+    def likelihood_given_values(self, w: np.ndarray, beta: float, values: np.ndarray) -> float:
+        """log p(Ξ_E | w, β) given the soft values at (w, β)."""
         return float(beta * (w @ self.empirical + self.goal_term) - values[self.starts].sum())
+
+    def gradient(self, w: np.ndarray, beta: float,
+                 values: np.ndarray) -> tuple[np.ndarray, float]:
+        """The log likelihood's gradient in the natural parameters v = βw (d,) and b = β,
+        given the soft values at (w, β): empirical minus expected counts (one sparse solve)."""
+        counts, end = self.expected_counts(w, beta, values)
+        return self.empirical - counts, self.goal_term - end
 
     def neg_log_posterior(self, x: np.ndarray) -> tuple[float, np.ndarray]:
         """−log posterior and its gradient at x = (w, β), (d + 1,)."""
         w, beta = x[:-1], float(x[-1])
         values = self.soft_values(w, beta)
-        ll = float(beta * (w @ self.empirical + self.goal_term) - values[self.starts].sum())
+        ll = self.likelihood_given_values(w, beta, values)
         grad_v, grad_b = self._tangent(w, beta, values, ll)
         grad_w = beta * grad_v + self.prior.grad_log_pdf(w)
         grad_beta = w @ grad_v + grad_b - 1 / beta
@@ -167,12 +177,10 @@ class BoltzmannPosterior:
 
     def _tangent(self, w: np.ndarray, beta: float, values: np.ndarray,
                  ll: float) -> tuple[np.ndarray, float]:
-        """The gradient of the log likelihood L(v, b) in the natural parameters v = βw,
-        b = β (expected counts: one sparse solve), kept as a tangent plane. L is concave in
-        (v, b), so every tangent plane bounds it from above everywhere: the admissibility
-        test reuses the planes of the MAP search and of earlier tests."""
-        counts, end = self.expected_counts(w, beta, values)
-        grad_v, grad_b = self.empirical - counts, self.goal_term - end
+        """`gradient`, also kept as a tangent plane of the log likelihood L(v, b). L is
+        concave in (v, b), so every tangent plane bounds it from above everywhere: the
+        admissibility test reuses the planes of the MAP search and of earlier tests."""
+        grad_v, grad_b = self.gradient(w, beta, values)
         self._planes.append((ll - beta * (grad_v @ w) - grad_b * beta, grad_v, grad_b))
         return grad_v, grad_b
 
@@ -218,7 +226,7 @@ class BoltzmannPosterior:
                 return False  # the bound there is the (rejected) value itself, within slack
             tried.append(beta)
             values = self.soft_values(w, beta)
-            ll = float(beta * (w @ self.empirical + self.goal_term) - values[self.starts].sum())
+            ll = self.likelihood_given_values(w, beta, values)
             if lp + ll - np.log(beta) >= level:
                 return True
             self._tangent(w, beta, values, ll)
@@ -262,11 +270,10 @@ class LogBetaDensity:
         if lp == -np.inf or not self.log_range[0] <= u <= self.log_range[1]:
             return -np.inf, np.zeros(len(x))
         values = post.soft_values(w, beta)
-        ll = float(beta * (w @ post.empirical + post.goal_term) - values[post.starts].sum())
-        counts, end = post.expected_counts(w, beta, values)
-        grad_w = beta * (post.empirical - counts) + post.prior.grad_log_pdf(w)
-        grad_u = beta * (w @ (post.empirical - counts) + post.goal_term - end)
-        return lp + ll, np.append(grad_w, grad_u)
+        grad_v, grad_b = post.gradient(w, beta, values)
+        grad_w = beta * grad_v + post.prior.grad_log_pdf(w)
+        grad_u = beta * (w @ grad_v + grad_b)  # d/d log β = β d/dβ
+        return lp + post.likelihood_given_values(w, beta, values), np.append(grad_w, grad_u)
 
     def dispersed_start(self, rng: np.random.Generator) -> np.ndarray:
         u = np.clip(np.log(self.beta0) + 0.5 * rng.standard_normal(), *self.log_range)
