@@ -279,8 +279,8 @@ def load_settings(cfg: DictConfig) -> Config:
     sections = {}
     for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl", "evaluate"):
         sections[key] = _instantiate(cfg[key], key)
-    top = OmegaConf.to_object(OmegaConf.masked_copy(
-        cfg, [k for k in ("seed", "stages", "from_run", "objective") if k in cfg]))
+    top = OmegaConf.to_object(OmegaConf.masked_copy(cfg, ["seed", "stages", "from_run",
+                                                          "objective"]))
     settings = Config(**top, **sections)  # type: ignore[arg-type]
 
     unknown = [s for s in settings.stages if s not in STAGES]
