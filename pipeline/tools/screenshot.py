@@ -34,9 +34,8 @@ from pathlib import Path
 
 from PIL import Image
 
-from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.errors import PipelineError, os_error_reason
-from pipeline.tools.viewer import _viewer_command, build_recording
+from pipeline.tools.viewer import build_recording, viewer_command, warn_if_incomplete
 
 DEFAULT_OUT = Path("docs/viewer.png")
 MIN_COLOURS = 64  # fewer: a blank screen (a black one has 1), not the viewer
@@ -148,7 +147,7 @@ def screenshot(run_dir: Path, out: Path, width: int = 1600, height: int = 1000,
     require_tools()
     rrd = build_recording(run_dir)
     log_path = rrd.with_suffix(".screenshot.log")
-    cmd = _viewer_command(rrd)
+    cmd = viewer_command(rrd)
     with tempfile.TemporaryDirectory(prefix="birlg-shot-") as tmp:
         env = {**os.environ, "XDG_CONFIG_HOME": f"{tmp}/config", "XDG_DATA_HOME": f"{tmp}/data",
                "XDG_CACHE_HOME": f"{tmp}/cache", "XDG_RUNTIME_DIR": tmp,
@@ -213,10 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     if not sys.platform.startswith("linux"):
         print("error: the screenshot runs the viewer under Xvfb, on Linux only", file=sys.stderr)
         return 2
-    status = read_status(args.run_dir)
-    if status.state not in (COMPLETE, "unknown"):
-        print(f"warning: run dir {args.run_dir} is {status.describe()}; showing the artefacts "
-              "it has", file=sys.stderr)
+    warn_if_incomplete(args.run_dir)
     try:
         out = screenshot(args.run_dir, args.out, *args.size, settle_s=args.settle,
                          timeout_s=args.timeout, colours=args.colors)

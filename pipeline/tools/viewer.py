@@ -285,7 +285,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     return rrd_path
 
 
-def _viewer_command(rrd: Path) -> list[str]:
+def viewer_command(rrd: Path) -> list[str]:
     exe = Path(sys.executable).parent / "rerun"
     if exe.exists():
         return [str(exe), str(rrd)]
@@ -298,6 +298,14 @@ def _has_display() -> bool:
         or sys.platform == "darwin"
 
 
+def warn_if_incomplete(run_dir: Path) -> None:
+    """A warning line when the run failed or was interrupted (its artefacts are shown)."""
+    status = read_status(run_dir)
+    if status.state not in (COMPLETE, "unknown"):  # unknown: made before status.json existed
+        print(f"warning: run dir {run_dir} is {status.describe()}; showing the artefacts "
+              "it has", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m pipeline.tools.viewer",
                                  description=__doc__.split("\n")[0])
@@ -306,10 +314,7 @@ def main(argv: list[str] | None = None) -> int:
                     "(default RUN_DIR/run.rrd)")
     ap.add_argument("--no-open", action="store_true", help="only write the .rrd")
     args = ap.parse_args(argv)
-    status = read_status(args.run_dir)
-    if status.state not in (COMPLETE, "unknown"):  # unknown: made before status.json existed
-        print(f"warning: run dir {args.run_dir} is {status.describe()}; showing the artefacts "
-              "it has", file=sys.stderr)
+    warn_if_incomplete(args.run_dir)
     try:
         rrd = build_recording(args.run_dir, args.out)
     except PipelineError as e:
@@ -319,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: cannot write the recording of {args.run_dir}: {os_error_reason(e)}",
               file=sys.stderr)
         return 2
-    cmd = _viewer_command(rrd)
+    cmd = viewer_command(rrd)
     if args.no_open or not _has_display():
         print(f"wrote {rrd}; open it with: {' '.join(cmd)}")
         return 0
