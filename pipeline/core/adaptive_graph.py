@@ -18,7 +18,9 @@ numpy/scipy/scikit-learn; no Hydra, no I/O.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -389,11 +391,8 @@ def gp_value_estimate(train_xy: np.ndarray, train_values: np.ndarray, query_xy: 
                       p: GraphParams) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian-process regression (fixed RBF kernel, normalised targets) of node values
     (n,) at (n, 2); returns mean and standard deviation (m,) at the (m, 2) query points."""
-    # Imported here: scikit-learn costs ~0.7 s to import, and only graph growth needs it.
-    import sklearn
-    from sklearn.gaussian_process import GaussianProcessRegressor
-    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
-
+    sklearn, GaussianProcessRegressor, kernels = _import_sklearn_gp()
+    RBF, ConstantKernel, WhiteKernel = kernels.RBF, kernels.ConstantKernel, kernels.WhiteKernel
     kernel = ConstantKernel(p.gp_signal_std ** 2, "fixed") * RBF(p.gp_length_scale, "fixed") \
         + WhiteKernel(p.gp_noise, "fixed")
     # Our inputs are finite arrays we built: skipping the input checks (a fifth of the time
@@ -403,6 +402,27 @@ def gp_value_estimate(train_xy: np.ndarray, train_values: np.ndarray, query_xy: 
                                       normalize_y=len(train_values) > 1)
         gp.fit(train_xy, train_values)
         return gp.predict(query_xy, return_std=True)
+
+
+@functools.cache
+def _import_sklearn_gp() -> tuple[Any, Any, Any]:
+    """scikit-learn and its GP, imported here because only graph growth needs them (0.5 s).
+    sklearn.utils.fixes imports pandas when it is installed (0.25 s more, a tenth of the
+    default run) and never uses the module it binds; scikit-learn recognises DataFrames via
+    sys.modules and imports pandas itself where one is involved. So when pandas is not
+    loaded yet it is hidden during this import: the path scikit-learn takes when pandas is
+    not installed, which it supports. Later imports of pandas work as usual."""
+    hide = "pandas" not in sys.modules
+    if hide:
+        sys.modules["pandas"] = None  # type: ignore[assignment]  # import raises ImportError
+    try:
+        import sklearn
+        import sklearn.gaussian_process.kernels as kernels
+        from sklearn.gaussian_process import GaussianProcessRegressor
+    finally:
+        if hide and sys.modules.get("pandas", False) is None:
+            del sys.modules["pandas"]
+    return sklearn, GaussianProcessRegressor, kernels
 
 
 def _probabilities(scores: np.ndarray) -> np.ndarray:

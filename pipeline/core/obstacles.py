@@ -104,10 +104,11 @@ def rasterise(polygons: list[np.ndarray], grid: OccupancyGrid | None = None,
         if w < 1 or h < 1:
             raise PipelineError(f"rasterise bounds {bounds} are empty")
         grid = OccupancyGrid(np.zeros((h, w), dtype=bool), (x_min, y_min), float(resolution))
-    from matplotlib.path import Path as PolygonPath  # matplotlib only when there are polygons
-
     occupied = grid.occupied.copy()
     for i, polygon in enumerate(polygons):
+        # matplotlib (0.08 s to import) only when there are polygons
+        from matplotlib.path import Path as PolygonPath
+
         poly = np.asarray(polygon, dtype=float)
         if poly.ndim != 2 or poly.shape[0] < 2 or poly.shape[1] != 2 \
                 or not np.isfinite(poly).all():
