@@ -40,7 +40,7 @@ from pipeline.irl.base import (
 )
 from pipeline.irl.diagnostics import convergence
 from pipeline.irl.prior import Prior
-from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
+from pipeline.irl.robust import BASE_MEASURES, BoltzmannPosterior, LogBetaDensity
 
 
 class LogDensity(Protocol):
@@ -70,6 +70,9 @@ class BirlMapConfig(IRLConfig):
     beta_min: float = 0.1  # robust: β is learned, log-uniform on [beta_min, beta_max];
     beta_max: float = 1000.0  # `beta` is its starting value
     lr_level: float = 0.01  # robust: level of the test that keeps a paper iterate
+    # robust: the paths' base measure, what the demonstrator does at β = 0 (walk: the
+    # uniform random walk; uniform: each path once, as MaxEnt); pipeline.irl.robust
+    base_measure: str = "walk"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -78,6 +81,8 @@ class BirlMapConfig(IRLConfig):
         require(self.likelihood in LIKELIHOODS, "likelihood", self.likelihood,
                 " or ".join(repr(k) for k in LIKELIHOODS))
         require(0 < self.lr_level < 1, "lr_level", self.lr_level, "a number in (0, 1)")
+        require(self.base_measure in BASE_MEASURES, "base_measure", self.base_measure,
+                " or ".join(repr(k) for k in BASE_MEASURES))
         require(self.beta_min < self.beta_max, "beta_min", self.beta_min,
                 f"below beta_max ({self.beta_max})")
 
@@ -145,9 +150,7 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     generated trajectories, or the MAP if none is. Near-optimal demonstrations keep eq. (2)'s
     sharper estimate; noisy ones, which eq. (2) collapses, get the Boltzmann MAP. Iteration
     n records the choice among the MAP and iterates 1..n."""
-    graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
-    boltzmann = BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
-                                   (config.beta_min, config.beta_max))
+    boltzmann = _boltzmann_posterior(problem, config)
     w_map, beta_map = boltzmann.map(problem.w0, config.beta)
     best = -boltzmann.neg_log_posterior(np.append(w_map, beta_map))[0]
     paper = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
@@ -177,21 +180,22 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))])
 
 
+def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> BoltzmannPosterior:
+    graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
+    return BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
+                              (config.beta_min, config.beta_max), config.base_measure)
+
+
 def _robust_loop(problem: IRLProblem,
                  config: BirlMapConfig) -> tuple[list[Iteration], BoltzmannPosterior, float]:
     """The iterations, the last posterior and the last β. The posterior is concave in
     (βw, β), so its MAP is found in iteration 1; later iterations change it only when the
     graph grows (birl.grow_nodes)."""
-    def posterior() -> BoltzmannPosterior:
-        graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
-        return BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
-                                  (config.beta_min, config.beta_max))
-
     w, beta = problem.w0, config.beta  # β starts at birl.beta
-    post = posterior()
+    post = _boltzmann_posterior(problem, config)
     records = [problem.record(0, w, post.log_likelihood(w, beta))]
     for n in range(1, config.n_iterations + 1):
-        post = posterior()
+        post = _boltzmann_posterior(problem, config)
         w, beta = post.map(w, beta)
         records.append(problem.record(n, w, post.log_likelihood(w, beta)))
     return records, post, beta

@@ -9,11 +9,19 @@ generated set is taken to its limit: every trajectory of the adaptive graph from
 demonstration's start, weighted by the Boltzmann (soft) policy. The normaliser of eq. (2)
 is then exp(V_soft(s)), computed exactly by soft value iteration on the small graph:
 
-    log p(ξ_k | w, β) = β(w·Φ(ξ_k) + γ^T R_goal) − V_soft(s_k; βw, β R_goal)
+    log p(ξ_k | w, β) = β(w·Φ(ξ_k) + γ^T R_goal) + log μ(ξ_k) − V_soft(s_k; βw, β R_goal)
 
 with β learned, so noise lowers β instead of the weights. The log likelihood is concave in
-(βw, β) (log-sum-exp of linear functions), so its MAP is unique and the iterates cannot
+(βw, β) (log-sum-exp of affine functions), so its MAP is unique and the iterates cannot
 oscillate.
+
+μ is the base measure of paths: what the demonstrator does at β = 0. `walk` (the default):
+the uniform random walk, μ(ξ) = Π_t 1/outdeg(s_t), the β → 0 limit of a demonstrator who
+picks each step by exp(βQ). `uniform`: every path counts once, as in MaxEnt IRL. On an
+adaptive graph, whose nodes crowd where the search looked hardest, the uniform measure
+counts many more paths through crowded regions; the model then explains noisy
+demonstrations by path counts instead of the reward (README "Imperfect demonstrations":
+with β_E = 20 the median loss falls from 0.053 to 0.012 with `walk`).
 """
 
 from __future__ import annotations
@@ -27,6 +35,8 @@ from scipy.sparse.linalg import SuperLU, splu
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
 from pipeline.irl.prior import Prior
 
+BASE_MEASURES = ("walk", "uniform")
+
 
 class BoltzmannPosterior:
     """log p(w, β | Ξ_E) up to a constant: the demonstrations' log likelihood under the
@@ -36,16 +46,26 @@ class BoltzmannPosterior:
     L-BFGS-B over (w, β) finds the global MAP."""
 
     def __init__(self, mdp: GraphMDP, expert_paths: list[Path], prior: Prior,
-                 beta_range: tuple[float, float]) -> None:
+                 beta_range: tuple[float, float], base_measure: str = "walk") -> None:
         if not expert_paths:
             raise ValueError("the robust likelihood needs at least one demonstration")
+        if base_measure not in BASE_MEASURES:
+            raise ValueError(f"base_measure must be one of {BASE_MEASURES}, got {base_measure!r}")
         self.mdp, self.prior, self.beta_range = mdp, prior, beta_range
+        # log μ per edge, a step's share of the base measure (0 for `uniform`)
+        self.log_base = np.zeros(len(mdp.src))
+        if base_measure == "walk":
+            self.log_base = -np.log(np.diff(mdp.indptr)[mdp.src].astype(float))
         self.starts = np.array([p.nodes[0] for p in expert_paths], dtype=np.int64)
         self.empirical = np.zeros(prior.dim)  # Σ_k Φ(ξ_k) on this graph
         self.goal_term = 0.0  # Σ_k γ^{T_k} R_goal [reached]
+        self.base_term = 0.0  # Σ_k log μ(ξ_k), discounted like Φ: constant in (w, β)
         for p in expert_paths:
-            phi, end = discounted_counts(mdp.features[p.edges], mdp.duration[p.edges], mdp.gamma)
-            self.empirical += phi
+            phi, end = discounted_counts(np.column_stack([mdp.features[p.edges],
+                                                          self.log_base[p.edges]]),
+                                         mdp.duration[p.edges], mdp.gamma)
+            self.empirical += phi[:-1]
+            self.base_term += phi[-1]
             self.goal_term += end * mdp.r_goal if p.reached else 0.0
         # Warm start of the next soft policy iteration: the last values, the parameters
         # θ = (βw, β) they belong to, and their derivative dV/dθ (n, d + 1) or None.
@@ -74,7 +94,8 @@ class BoltzmannPosterior:
 
     def soft_values(self, w: ArrayLike, beta: float, tol: float = 1e-10,
                     max_iter: int = 50) -> np.ndarray:
-        """V(s) (n,) = log Σ_e exp(βw·φ(e) + γ^τ(e) V(dst(e))); β·(R_goal or −V_max) at
+        """V(s) (n,) = log Σ_e μ(e) exp(βw·φ(e) + γ^τ(e) V(dst(e))), μ(e) the base measure's
+        step (1/outdeg(s) or 1); β·(R_goal or −V_max) at
         terminals and dead ends. Soft policy iteration (Newton's method on the soft Bellman
         equation: evaluate the current soft policy exactly by one sparse solve, improve),
         warm-started from the last call's values moved to this (βw, β) to first order (or
@@ -83,7 +104,7 @@ class BoltzmannPosterior:
         mdp = self.mdp
         w = np.asarray(w, dtype=float)
         theta = np.append(beta * w, beta)
-        r, fixed = mdp.rewards(theta[:-1]), beta * mdp.fixed_values
+        r, fixed = mdp.rewards(theta[:-1]) + self.log_base, beta * mdp.fixed_values
         scale = max(1.0, float(np.abs(fixed).max()))  # tolerance relative to the values' size
 
         def residual(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -143,7 +164,7 @@ class BoltzmannPosterior:
         """E[Φ] (d,) and E[γ^T · fixed value] summed over the starts, under the soft policy:
         one sparse solve for the discounted visits x = x_0 + P^T x (maxent.py)."""
         mdp, n = self.mdp, self.mdp.n_nodes
-        q = mdp.rewards(beta * w) + mdp.discount * values[mdp.dst]
+        q = mdp.rewards(beta * w) + self.log_base + mdp.discount * values[mdp.dst]
         pi = np.exp(q - mdp.log_sum_exp(q)[mdp.src])
         x0 = np.bincount(self.starts, minlength=n).astype(float)
         visits = self._factor(pi).solve(x0)  # the transpose system
@@ -156,7 +177,8 @@ class BoltzmannPosterior:
 
     def likelihood_given_values(self, w: np.ndarray, beta: float, values: np.ndarray) -> float:
         """log p(Ξ_E | w, β) given the soft values at (w, β)."""
-        return float(beta * (w @ self.empirical + self.goal_term) - values[self.starts].sum())
+        return float(beta * (w @ self.empirical + self.goal_term) + self.base_term
+                     - values[self.starts].sum())
 
     def gradient(self, w: np.ndarray, beta: float,
                  values: np.ndarray) -> tuple[np.ndarray, float]:

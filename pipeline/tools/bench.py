@@ -238,8 +238,12 @@ IMPERFECT = {
 }
 IMPERFECT_METHODS = {"birlg_paper": ["birl.likelihood=paper"],
                      "birlg_robust": ["birl.likelihood=robust"],
+                     # the robust form with each path counted once (MaxEnt's measure)
+                     "birlg_robust_uniform": ["birl.likelihood=robust",
+                                              "birl.base_measure=uniform"],
                      "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
 IMPERFECT_NAMES = {"birlg_paper": "BIRL-G (paper, eq. 2)", "birlg_robust": "BIRL-G (robust)",
+                   "birlg_robust_uniform": "BIRL-G (robust, uniform path measure)",
                    "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
 
 
