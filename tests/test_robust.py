@@ -75,6 +75,12 @@ def fan(k):
                     gamma=GAMMA)
 
 
+def along(mdp, nodes):
+    """The path through `nodes` (the MDP sorts its edges by source)."""
+    edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
+    return Path(nodes, [edge[s, d] for s, d in zip(nodes[:-1], nodes[1:], strict=True)], True)
+
+
 @pytest.mark.parametrize("k", [1, 5])
 def test_random_walk_base_measure_does_not_count_paths(k):
     """Rewards equal, the walk measure's soft policy splits ½/½ at the start however many
@@ -82,7 +88,7 @@ def test_random_walk_base_measure_does_not_count_paths(k):
     k^γ : 1 (V(2) = log k + γ²βR, one step before node 0's choice). That is the bias on
     adaptive graphs, whose nodes crowd where the search looked."""
     mdp = fan(k)
-    demo = Path([0, 1, 3, 4 + k], [0, 2, 3], True)
+    demo = along(mdp, [0, 1, 3, 4 + k])
     to_2 = int(np.flatnonzero((mdp.src == 0) & (mdp.dst == 2))[0])
     for base, share in (("walk", 0.5), ("uniform", k**GAMMA / (k**GAMMA + 1))):
         post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]),
