@@ -218,6 +218,8 @@ def test_config_checks():
         BirlMapConfig(likelihood="bogus")
     with pytest.raises(ValueError, match="beta_min"):
         BirlMapConfig(likelihood="robust", beta_min=5.0, beta_max=1.0)
+    with pytest.raises(ValueError, match="base_measure=walks is not allowed.*'walk'"):
+        BirlMapConfig(base_measure="walks")
     with pytest.raises(ValueError, match="target_acceptance"):
         AdaptiveChainParams(target_acceptance=1.5)
     with pytest.raises(ValueError, match="demos_per_start"):
