@@ -148,6 +148,29 @@ def test_joint_density_gradient_matches_finite_differences():
     assert density.log_posterior_and_grad([0.5, 1.0])[0] == -np.inf  # outside the box
 
 
+def test_solves_on_the_last_lu_match_direct_solves():
+    """The policy evaluation and visits systems solved by refinement on the LU of another
+    policy (near: refined; far: refactored) agree with dense solves of I − γ^τ P_π."""
+    mdp = fan(5)
+    post = BoltzmannPosterior(mdp, [along(mdp, [0, 1, 3, 9])],
+                              Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    n, rng = mdp.n_nodes, np.random.default_rng(0)
+    rhs = rng.normal(size=n)
+
+    def policy(logits):
+        return np.exp(logits - mdp.log_sum_exp(logits)[mdp.src])
+
+    logits = rng.normal(size=len(mdp.src))
+    for pi in (policy(logits), policy(logits + 1e-3 * rng.normal(size=len(mdp.src))),
+               policy(5 * rng.normal(size=len(mdp.src)))):
+        dense = np.eye(n)
+        np.add.at(dense, (mdp.src, mdp.dst), -mdp.discount * pi)
+        np.testing.assert_allclose(post._solve(pi, rhs, "T"), np.linalg.solve(dense, rhs),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(post._solve(pi, rhs, "N"), np.linalg.solve(dense.T, rhs),
+                                   rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("w", [-0.05, -0.3, -0.8])
 def test_admissibility_test_agrees_with_the_profile_by_hand(w):
     """The cutting-plane test against the profile log posterior max_β (log p by hand −
@@ -294,13 +317,13 @@ def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones()
     boltzmann = BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
                                    (config.beta_min, config.beta_max))
     w = result.weights
-    betas = np.geomspace(0.1, 1000, 20001)
+    betas = np.geomspace(0.1, 1000, 4001)  # profiles within ~1e-4 of the maximum
 
     def profile(w):
         return max(boltzmann.log_likelihood(w, b) - np.log(b) for b in betas)
 
     w_map, _ = boltzmann.map(problem.w0, config.beta)
-    assert profile(w_map) - profile(w) <= chdtri(2, config.lr_level) / 2 + 1e-6
+    assert profile(w_map) - profile(w) <= chdtri(2, config.lr_level) / 2 + 1e-3
     beta = betas[np.argmax([boltzmann.log_likelihood(w, b) - np.log(b) for b in betas])]
     assert 0.3 < route_a_share(boltzmann, w, beta) < 0.7
     assert len(result.iterations) == 4
