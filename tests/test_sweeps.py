@@ -148,3 +148,23 @@ def test_a_submitit_local_sweep_runs_as_on_a_cluster(tmp_path):
     assert agg.returncode == 0, agg.stderr
     table = pd.read_csv(tmp_path / "summary.csv")
     assert sorted(table.seed) == [0, 1] and (table.status == "ok").all()
+
+
+def test_figures_are_the_same_bytes_when_saved_again(tmp_path):
+    """No wall clock in figures: a PDF carries its creation date unless told not to."""
+    import time
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.tools.aggregate import save_figure
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    save_figure(fig, tmp_path / "a.png")
+    time.sleep(1.1)  # PDF dates have seconds
+    save_figure(fig, tmp_path / "b.png")
+    plt.close(fig)
+    for suffix in (".png", ".pdf"):
+        assert (tmp_path / f"a{suffix}").read_bytes() == (tmp_path / f"b{suffix}").read_bytes()

@@ -113,9 +113,10 @@ def setting_label(key: str, value) -> str:
 
 
 def save_figure(fig, path: Path) -> None:
-    """PNG for the README and slides, PDF (vector) for papers."""
+    """PNG for the README and slides, PDF (vector) for papers; no creation date in the PDF,
+    so the same figure gives the same bytes."""
     fig.savefig(path, dpi=150)
-    fig.savefig(path.with_suffix(".pdf"))
+    fig.savefig(path.with_suffix(".pdf"), metadata={"CreationDate": None})
 
 
 def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
