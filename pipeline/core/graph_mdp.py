@@ -11,6 +11,7 @@ the policy's successor function (a sparse solve of (I − P_π) V = r_π is the 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -245,6 +246,17 @@ class SpatialGraph:
         ways = [self.waypoints[e] for e in self.mdp.edge_ids[path.edges]]
         return np.vstack([ways[0]] + [w[1:] for w in ways[1:]])
 
+    # Built once per graph: every demonstration is snapped to it (0.04 s each at 5000 nodes).
+    @functools.cached_property
+    def _node_tree(self) -> cKDTree:
+        return cKDTree(self.positions)
+
+    @functools.cached_property
+    def _edge_of(self) -> dict[tuple[int, int], int]:
+        """(src, dst) -> internal edge index."""
+        return {(a, b): e for e, (a, b) in enumerate(zip(self.mdp.src.tolist(),
+                                                         self.mdp.dst.tolist(), strict=True))}
+
     def snap_path(self, points: np.ndarray) -> Path:
         """A polyline (K, 2) whose waypoints the graph merged into its nodes, as a path of
         the graph (internal edge indices); ValueError if it is not one.
@@ -254,14 +266,11 @@ class SpatialGraph:
         path is the one whose consecutive candidates are joined by edges (nearest first).
         """
         points = np.asarray(points, float).reshape(-1, 2)
-        tree = cKDTree(self.positions)
+        tree, edge_of = self._node_tree, self._edge_of
         dist, _ = tree.query(points)
         if dist.max() > self.snap_tolerance + 1e-9:
             raise ValueError(f"not a path of the graph: a waypoint lies {dist.max():.3f} m "
                              f"from the nearest node")
-        edge_of = {(int(a), int(b)): e
-                   for e, (a, b) in enumerate(zip(self.mdp.src, self.mdp.dst, strict=True))}
-
         def candidates(point: np.ndarray) -> list[int]:
             near = tree.query_ball_point(point, self.snap_tolerance + 1e-9)
             return sorted((int(n) for n in near),
