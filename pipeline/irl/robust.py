@@ -95,9 +95,8 @@ class BoltzmannPosterior:
         policies met in a row (Newton steps, nearby parameters of a line search) differ
         little: iterative refinement on the last LU, x += LU⁻¹(rhs − A x), converges in a
         few steps of a triangular solve and a product each. Where it converges slowly, π
-        is refactored. The CSR arrays of I − γ^τ P_π
-        read as CSC are (I − γ^τ P_π)^T, so no conversion; a self-loop's entry repeats the
-        diagonal's column, which splu sums."""
+        is refactored. The CSR arrays of I − γ^τ P_π read as CSC are (I − γ^τ P_π)^T, so
+        no conversion; a self-loop's entry repeats the diagonal's column, which splu sums."""
         n = self.mdp.n_nodes
         data = np.empty(len(self._indices))
         data[self._diagonal], data[self._edge_slots] = 1.0, -pi * self.mdp.discount
@@ -123,9 +122,9 @@ class BoltzmannPosterior:
     def soft_values(self, w: ArrayLike, beta: float, tol: float = 1e-10,
                     max_iter: int = 50) -> np.ndarray:
         """V(s) (n,) = log Σ_e μ(e) exp(βw·φ(e) + γ^τ(e) V(dst(e))), μ(e) the base measure's
-        step (1/outdeg(s) or 1); β·(R_goal or −V_max) at
-        terminals and dead ends. Soft policy iteration (Newton's method on the soft Bellman
-        equation: evaluate the current soft policy exactly by one sparse solve, improve),
+        step (1/outdeg(s) or 1); β·(R_goal or −V_max) at terminals and dead ends. Soft
+        policy iteration (Newton's method on the soft Bellman equation: evaluate the
+        current soft policy by one sparse solve, `_solve`, improve),
         warm-started from the last call's values moved to this (βw, β) to first order (or
         rescaled to this β, whichever is nearer the fixed point); a few solves instead of
         hundreds of value-iteration sweeps."""
