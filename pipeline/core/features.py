@@ -123,6 +123,20 @@ class FeatureModel:
             social[tile] = self.social_density(q, persons)
         return relation, social
 
+    def densities(self, points: np.ndarray) -> np.ndarray:
+        """Per-metre density (n, d) of each selected feature at the points (n, 2): the
+        integrand f(p) of a feature that is ∫ f(p) ds along the path (`length`: 1), NaN for
+        a feature that is not a density of position alone (`goal_deviation` depends on the
+        direction of travel). A costmap of the reward holds the finite columns."""
+        p = np.asarray(points, float).reshape(-1, 2)
+        out = np.full((len(p), len(FEATURE_NAMES)), np.nan)
+        if len(p):
+            out[:, 0], out[:, 1] = self._densities(p)
+        out[:, 3] = 1.0
+        if self.names == FEATURE_NAMES:
+            return out
+        return out[:, [_COLUMN[n] for n in self.names]]
+
     # -- features of straight segments ---------------------------------------------------
     def segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Features (n, d) of the straight segments a[i] → b[i], each (n, 2)."""
