@@ -150,6 +150,8 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
     "end_discount": GAMMA_T,
     "duration": _num("Duration of the path at the robot speed, seconds.", minimum=0),
     "reached": REACHED,
+    "subject": _nullable(_str("Who demonstrated it (a demonstration file's `subjects`, or a "
+                              "synthetic subject)."), "when unknown"),
     "value_true": _nullable(_num("Quality of the path under w*: w*·Φ + γ^T R_goal "
                                  "(R_goal only if reached)."), "for file demonstrations"),
 })

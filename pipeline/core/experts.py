@@ -35,6 +35,7 @@ class Demonstration:
     edge_features: np.ndarray  # (K, d) features of each polyline segment / graph edge
     durations: np.ndarray  # (K,) seconds
     reached: bool  # ends at the goal
+    subject: str | None = None  # who demonstrated it (a demonstration file's `subjects`)
 
     @property
     def features(self) -> np.ndarray:

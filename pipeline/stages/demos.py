@@ -85,6 +85,7 @@ def run(ctx: RunContext) -> None:
                 "start_index": d.start_index, "points": d.points, "features": d.features,
                 "discounted_features": phi, "end_discount": end_discount,
                 "duration": float(d.durations.sum()), "reached": d.reached,
+                "subject": d.subject,
                 "value_true": path_quality(phi, end_discount, w_true, md.r_goal, d.reached)
                 if synthetic else None}, log_time=i)
         w.add(topics.DEMOS_ROADMAP, "Roadmap", {
