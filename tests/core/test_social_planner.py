@@ -1,0 +1,365 @@
+"""The people-aware planner expert (pipeline.core.social_planner): properties its paths must
+have on the metropolis scene and on small hand-made scenes, its cost against hand
+computations, and its optimality against an independent Dijkstra."""
+
+import dataclasses
+import heapq
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from pipeline.core.evaluation import discrete_frechet
+from pipeline.core.experts import optimal_demos
+from pipeline.core.features import FeatureModel
+from pipeline.core.graph_mdp import path_quality
+from pipeline.core.params import ParameterError
+from pipeline.core.roadmap import build_roadmap, segments_feasible
+from pipeline.core.social import min_distance_to_person, relation_crossings
+from pipeline.core.social_planner import (
+    SUBJECT_FIELDS,
+    SocialCost,
+    SocialPlannerParams,
+    edge_costs,
+    groups,
+    lattice_spacing,
+    plan,
+    planner_demos,
+    planner_graph,
+    subjects,
+)
+from pipeline.core.world import Person, Room, Scene, scene_from_dict
+from pipeline.errors import PipelineError
+from tests.conftest import POLITE
+
+INTIMATE = 0.45  # m
+
+
+@pytest.fixture(scope="module")
+def metropolis_paths(metropolis):
+    return plan(metropolis, SocialPlannerParams())
+
+
+@pytest.fixture(scope="module")
+def metropolis_subjects(metropolis):
+    """Five subjects from every start (seed 0)."""
+    return planner_demos(metropolis, FeatureModel.from_scene(metropolis),
+                         SocialPlannerParams(n_subjects=5), np.random.default_rng(0), 1.0)
+
+
+def corridor(theta: float) -> Scene:
+    """A 10 m × 4 m corridor with one person in the middle facing across it (theta), the
+    goal straight along it: the person can be passed in front or behind."""
+    return scene_from_dict({
+        "name": "corridor", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 4},
+        "persons": [{"id": 1, "x": 5.0, "y": 2.0, "theta": theta}], "relations": [],
+        "starts": [[0.5, 2.0]], "goal": [9.5, 2.0]})
+
+
+GROUP_CENTRE = np.array([5.0, 3.0])
+
+
+def group_scene() -> Scene:
+    """Three persons 0.9 m around GROUP_CENTRE facing it (an F-formation), 1.56 m apart:
+    wide enough gaps to walk through; start and goal on a line through the centre."""
+    persons = []
+    for k, angle in enumerate(np.radians([90.0, 210.0, 330.0])):
+        persons.append({"id": k + 1, "x": GROUP_CENTRE[0] + 0.9 * math.cos(angle),
+                        "y": GROUP_CENTRE[1] + 0.9 * math.sin(angle), "theta": angle + math.pi})
+    return scene_from_dict({
+        "name": "group", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 6},
+        "persons": persons, "relations": [[1, 2], [2, 3], [1, 3]],
+        "starts": [[0.5, 3.0]], "goal": [9.5, 3.0]})
+
+
+def y_at(points: np.ndarray, x: float) -> float:
+    """y of a polyline that runs left to right where it passes x."""
+    assert np.all(np.diff(points[:, 0]) > 0)
+    return float(np.interp(x, points[:, 0], points[:, 1]))
+
+
+# -- the paths -----------------------------------------------------------------------------
+
+
+def test_every_path_runs_from_its_start_exactly_to_the_goal(metropolis, metropolis_paths):
+    assert [p.start_index for p in metropolis_paths] == list(range(len(metropolis.starts)))
+    for p in metropolis_paths:
+        assert np.array_equal(p.points[0], metropolis.starts[p.start_index])
+        assert np.array_equal(p.points[-1], metropolis.goal)
+        # DESIGN §3's goal-disk rule: no point within goal_tolerance before the end
+        before_end = np.linalg.norm(p.points[:-1] - metropolis.goal, axis=1)
+        assert before_end.min() > metropolis.goal_tolerance
+
+
+def test_paths_are_collision_free_polite_and_out_of_the_intimate_zone(metropolis,
+                                                                      metropolis_paths,
+                                                                      metropolis_subjects):
+    link_a, link_b = metropolis.links
+    paths = [p.points for p in metropolis_paths] + [d.points for d in metropolis_subjects]
+    for points in paths:
+        assert segments_feasible(metropolis, points[:-1], points[1:]).all()
+        assert relation_crossings(points, link_a, link_b) == 0
+        assert min_distance_to_person(points, metropolis.person_xy) > INTIMATE
+
+
+def test_smoothing_leaves_few_vertices_and_no_collinear_ones(metropolis_paths):
+    for p in metropolis_paths:
+        assert len(p.points) < len(p.lattice_nodes) / 3
+        d_in, d_out = np.diff(p.points, axis=0)[:-1], np.diff(p.points, axis=0)[1:]
+        cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
+        assert np.all(np.abs(cross) > 1e-9)
+
+
+def test_paths_keep_clear_of_obstacles_and_go_through_the_door():
+    # A wall across the room at y = 5 with a 1.2 m door at x in [6, 7.2].
+    wall = [[[0, 4.9], [6, 4.9], [6, 5.1], [0, 5.1]], [[7.2, 4.9], [10, 4.9], [10, 5.1],
+                                                       [7.2, 5.1]]]
+    scene = scene_from_dict({
+        "name": "door", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 10},
+        "obstacles": wall, "persons": [{"id": 1, "x": 3.0, "y": 7.0, "theta": 0.0}],
+        "relations": [], "starts": [[2.0, 2.0], [8.0, 1.0]], "goal": [2.0, 8.5]})
+    for p in plan(scene, SocialPlannerParams()):
+        assert segments_feasible(scene, p.points[:-1], p.points[1:]).all()
+        assert scene.obstacles.min_clearance_along(p.points) >= scene.robot_radius
+        crossing = np.flatnonzero(np.diff(np.sign(p.points[:, 1] - 5.0)))[0]
+        a, b = p.points[crossing], p.points[crossing + 1]
+        x_at_wall = a[0] + (5.0 - a[1]) / (b[1] - a[1]) * (b[0] - a[0])
+        assert 6.0 < x_at_wall < 7.2
+
+
+@pytest.mark.parametrize("theta", [math.pi / 2, -math.pi / 2])
+def test_passes_behind_a_person_rather_than_in_front(theta):
+    scene = corridor(theta)
+    (path,) = plan(scene, SocialPlannerParams())
+    facing = math.sin(theta)  # +1: the person faces +y, so behind is y < 2
+    offset = y_at(path.points, 5.0) - 2.0
+    assert offset * facing < -0.5  # passed behind, well clear
+    assert min_distance_to_person(path.points, scene.person_xy) > INTIMATE
+    # the side follows the asymmetry: with the larger space behind, it passes in front
+    (reversed_,) = plan(scene, SocialPlannerParams(sigma_front=0.5, sigma_back=1.2))
+    assert (y_at(reversed_.points, 5.0) - 2.0) * facing > 0.5
+
+
+def test_takes_a_detour_around_a_group_rather_than_through_its_o_space():
+    scene = group_scene()
+    centre, radius = groups(scene)
+    assert np.allclose(centre, [GROUP_CENTRE]) and np.allclose(radius, [0.9])
+    link_a, link_b = scene.links
+    (path,) = plan(scene, SocialPlannerParams())
+    assert relation_crossings(path.points, link_a, link_b) == 0
+    assert min_distance_to_person(path.points, GROUP_CENTRE[None]) > 0.9
+    # The scene lets a path through: with little regard for persons and none for the group
+    # the planner walks through the o-space; the group term alone keeps it out.
+    careless = SocialPlannerParams(amplitude_person=0.2, sigma_front=0.4)
+    (through,) = plan(scene, dataclasses.replace(careless, amplitude_group=0.0))
+    assert relation_crossings(through.points, link_a, link_b) > 0
+    (around,) = plan(scene, careless)
+    assert relation_crossings(around.points, link_a, link_b) == 0
+    assert min_distance_to_person(around.points, GROUP_CENTRE[None]) > 0.9
+
+
+def test_unreachable_start_is_refused_naming_it():
+    ring = tuple(Person(k, 2 + 0.45 * math.cos(a), 2 + 0.45 * math.sin(a))
+                 for k, a in enumerate(np.linspace(0, 2 * math.pi, 9)[:-1]))
+    scene = Scene("ring", Room(0, 0, 6, 6), ring, (), np.array([[5.0, 5.0], [2.0, 2.0]]),
+                  np.array([5.0, 1.0]))
+    with pytest.raises(PipelineError, match=r"no path from start 1 \(2, 2\)"):
+        plan(scene, SocialPlannerParams())
+
+
+# -- the cost ------------------------------------------------------------------------------
+
+
+def test_density_matches_the_formula_at_hand_computed_points():
+    q = SocialPlannerParams(room_walls=False)
+    scene = scene_from_dict({
+        "name": "one", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 10},
+        "persons": [{"id": 1, "x": 5, "y": 5, "theta": math.pi / 2}], "relations": [],
+        "starts": [[1, 1]], "goal": [9, 9]})
+    cost = SocialCost(scene, q)
+    front, behind, side = [5.0, 6.0], [5.0, 4.0], [4.0, 5.0]  # 1 m in front, behind, right
+    intimate = q.amplitude_intimate * math.exp(-1 / (2 * q.sigma_intimate ** 2))
+    expected = [1 + q.amplitude_person * math.exp(-1 / (2 * q.sigma_front ** 2)) + intimate,
+                1 + q.amplitude_person * math.exp(-1 / (2 * q.sigma_back ** 2)) + intimate,
+                1 + q.amplitude_person * math.exp(-1 / (2 * q.sigma_side ** 2)) + intimate]
+    assert np.allclose(cost.density(np.array([front, behind, side])), expected, rtol=1e-12)
+    # far away only the 1 is left; the room border is a wall when room_walls is on
+    assert cost.density(np.array([[0.0, 9.0]]))[0] == 1.0
+    walled = SocialCost(scene, SocialPlannerParams())
+    assert walled.density(np.array([[0.0, 9.0]]))[0] == pytest.approx(1 + q.amplitude_wall)
+
+
+def test_group_o_spaces_of_metropolis(metropolis):
+    centres, radii = groups(metropolis)
+    xy = {p.id: np.array([p.x, p.y]) for p in metropolis.persons}
+    expected = [[1, 2, 3, 4], [5, 6], [7, 8], [9, 10], [11, 12]]  # its relation components
+    assert len(centres) == len(expected)
+    for members in expected:
+        pts = np.array([xy[i] for i in members])
+        c = pts.mean(axis=0)
+        k = int(np.argmin(np.linalg.norm(centres - c, axis=1)))
+        assert np.allclose(centres[k], c)
+        assert radii[k] == pytest.approx(np.linalg.norm(pts - c, axis=1).mean())
+
+
+def test_segment_cost_is_the_integral_of_the_density(metropolis):
+    cost = SocialCost(metropolis, SocialPlannerParams())
+    a, b = np.array([0.5, 0.5]), np.array([5.5, 9.0])  # passes close to several persons
+    length = float(np.linalg.norm(b - a))
+    exact = quad(lambda t: cost.density((a + t * (b - a))[None])[0] * length, 0, 1,
+                 limit=500, epsabs=1e-10)[0]
+    assert cost.segments(a[None], b[None])[0] == pytest.approx(exact, rel=1e-3)
+
+
+def test_cheapest_lattice_paths_match_an_independent_dijkstra(metropolis):
+    params = SocialPlannerParams(spacing=0.2)
+    graph = planner_graph(metropolis, params)
+    costs = edge_costs(graph, SocialCost(metropolis, params))
+    lengths = np.linalg.norm(graph.positions[graph.dst] - graph.positions[graph.src], axis=1)
+    out: list[list[tuple[int, int]]] = [[] for _ in graph.positions]
+    for e, (u, v) in enumerate(zip(graph.src, graph.dst, strict=True)):
+        out[u].append((int(v), e))
+
+    def dijkstra(source: int, weight: np.ndarray) -> tuple[float, list[int]]:
+        """Forward Dijkstra from source to the goal (heapq): cost and edges."""
+        best, via = {source: 0.0}, {}
+        heap = [(0.0, source)]
+        while heap:
+            d, u = heapq.heappop(heap)
+            if u == graph.goal_node:
+                break
+            if d > best[u]:
+                continue
+            for v, e in out[u]:
+                if d + weight[e] < best.get(v, math.inf):
+                    best[v], via[v] = d + weight[e], e
+                    heapq.heappush(heap, (best[v], v))
+        edges, node = [], graph.goal_node
+        while node != source:
+            edges.append(via[node])
+            node = int(graph.src[via[node]])
+        return best[graph.goal_node], edges[::-1]
+
+    cost = SocialCost(metropolis, params)
+    edge_of = {(int(u), int(v)): e for e, (u, v) in enumerate(zip(graph.src, graph.dst,
+                                                                   strict=True))}
+    for path in plan(metropolis, params, graph):
+        s = int(graph.start_nodes[path.start_index])
+        optimum, _ = dijkstra(s, costs)
+        assert path.lattice_cost == pytest.approx(optimum, rel=1e-12)
+        # its edges add up to that cost
+        nodes = path.lattice_nodes
+        steps = zip(nodes[:-1], nodes[1:], strict=True)
+        assert sum(costs[edge_of[u, v]] for u, v in steps) == pytest.approx(optimum, rel=1e-12)
+        # smoothing never raises the cost (up to the quadrature of merged collinear runs)
+        assert path.cost <= path.lattice_cost * (1 + 1e-5)
+        # no cheaper than the shortest lattice path, nor the straight line, under its cost
+        _, shortest = dijkstra(s, lengths)
+        assert path.cost <= costs[shortest].sum() * (1 + 1e-5)
+        start, goal = metropolis.starts[path.start_index], metropolis.goal
+        if segments_feasible(metropolis, start[None], goal[None])[0]:
+            assert path.cost <= cost.polyline(np.array([start, goal])) * (1 + 1e-5)
+
+
+def test_lattice_is_capped_for_large_rooms(metropolis):
+    assert lattice_spacing(metropolis, SocialPlannerParams()) == 0.1
+    big = dataclasses.replace(metropolis, room=Room(0, 0, 40, 40))
+    assert lattice_spacing(big, SocialPlannerParams()) == pytest.approx(0.2)
+
+
+# -- subjects ------------------------------------------------------------------------------
+
+
+def test_same_seed_gives_identical_demonstrations(metropolis):
+    features = FeatureModel.from_scene(metropolis)
+    params = SocialPlannerParams(n_subjects=2)
+    a = planner_demos(metropolis, features, params, np.random.default_rng(7), 1.0)
+    b = planner_demos(metropolis, features, params, np.random.default_rng(7), 1.0)
+    assert len(a) == len(b) == 2 * len(metropolis.starts)
+    for x, y in zip(a, b, strict=True):
+        assert (x.subject, x.start_index) == (y.subject, y.start_index)
+        assert np.array_equal(x.points, y.points)
+        assert np.array_equal(x.edge_features, y.edge_features)
+        assert np.array_equal(x.durations, y.durations)
+
+
+def test_subjects_differ_unless_the_spread_is_zero(metropolis, metropolis_paths,
+                                                   metropolis_subjects):
+    n = len(metropolis.starts)
+    assert [d.subject for d in metropolis_subjects] == [f"s{k}" for k in range(5) for _ in
+                                                        range(n)]
+    by_subject = [metropolis_subjects[k * n:(k + 1) * n] for k in range(5)]
+    for k in range(1, 5):
+        differs = [not np.array_equal(a.points, b.points)
+                   for a, b in zip(by_subject[0], by_subject[k], strict=True)]
+        assert any(differs)
+    # spread 0: every subject walks like the configured one
+    features = FeatureModel.from_scene(metropolis)
+    same = planner_demos(metropolis, features, SocialPlannerParams(n_subjects=3,
+                                                                   subject_spread=0.0),
+                         np.random.default_rng(0), 1.0)
+    for d in same:
+        assert np.array_equal(d.points, metropolis_paths[d.start_index].points)
+
+
+def test_one_subject_draws_nothing_and_subjects_keep_their_draws_as_n_grows():
+    rng = np.random.default_rng(3)
+    state = rng.bit_generator.state
+    assert subjects(SocialPlannerParams(), rng) == [SocialPlannerParams()]
+    assert rng.bit_generator.state == state
+    three = subjects(SocialPlannerParams(n_subjects=3), np.random.default_rng(3))
+    five = subjects(SocialPlannerParams(n_subjects=5), np.random.default_rng(3))
+    assert [[getattr(s, f) for f in SUBJECT_FIELDS] for s in five[:3]] == \
+        [[getattr(s, f) for f in SUBJECT_FIELDS] for s in three]
+    for s in five:  # only the personal-space parameters vary, log-normally around the base
+        base = SocialPlannerParams(n_subjects=5)
+        for f in dataclasses.fields(SocialPlannerParams):
+            ratio = getattr(s, f.name) / getattr(base, f.name) if f.name in SUBJECT_FIELDS \
+                else None
+            if ratio is None:  # all else as configured
+                assert getattr(s, f.name) == getattr(base, f.name)
+            else:
+                assert ratio != 1.0 and abs(math.log(ratio)) < 5 * base.subject_spread
+
+
+def test_demonstrations_carry_the_learners_features_and_durations(metropolis):
+    features = FeatureModel.from_scene(metropolis)
+    for d in planner_demos(metropolis, features, SocialPlannerParams(), None, speed=0.5):
+        assert d.subject == "s0" and d.reached
+        assert np.allclose(d.features, features.polyline(d.points))
+        length = np.linalg.norm(np.diff(d.points, axis=0), axis=1)
+        assert np.allclose(d.durations, length / 0.5)
+
+
+def test_paths_are_not_the_optimum_of_the_learners_default_reward(metropolis,
+                                                                  metropolis_paths):
+    """The planner is a demonstrator the learner cannot express exactly: under the polite
+    preset on the learner's own features it is worse than the optimal expert from every
+    start, and it passes people closer (no hinge at 1.2 m) where the polite expert keeps
+    out of the personal zone."""
+    features = FeatureModel.from_scene(metropolis)
+    roadmap = build_roadmap(metropolis, features)
+    mdp = roadmap.mdp()
+    solution = mdp.solve(POLITE)
+    optimal = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
+    demos = planner_demos(metropolis, features, SocialPlannerParams(), None, 1.0)
+    gap, closer, far = [], [], []
+    for o, d in zip(optimal, demos, strict=True):
+        phi, end = d.discounted(mdp.gamma)
+        gap.append(solution.values[roadmap.start_nodes[d.start_index]]
+                   - path_quality(phi, end, POLITE, mdp.r_goal, True))
+        closer.append(min_distance_to_person(o.points, metropolis.person_xy)
+                      - min_distance_to_person(d.points, metropolis.person_xy))
+        far.append(discrete_frechet(o.points, d.points))
+    assert min(gap) > 0.05
+    assert np.mean(closer) > 0.15
+    assert np.median(far) > 0.5
+
+
+def test_parameters_are_range_checked():
+    for bad in [{"sigma_front": 0.0}, {"amplitude_person": -1.0}, {"connectivity": 12},
+                {"n_subjects": 0}, {"subject_spread": -0.1}, {"smooth": "yes"},
+                {"spacing": float("nan")}]:
+        with pytest.raises(ParameterError, match=next(iter(bad))):
+            SocialPlannerParams(**bad)
