@@ -116,6 +116,6 @@ def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.nd
     if w is True or w == "true":
         if true_weights is None:
             raise PipelineError("config error: graph.weights=true needs true weights, but the "
-                                "demonstrations come from a file (expert=file)")
+                                "demonstrations have none (expert=file or expert=planner)")
         return np.asarray(true_weights, float), "true"
     return np.asarray(list(w), float), "given"

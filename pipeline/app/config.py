@@ -37,6 +37,7 @@ from pipeline.core.params import (
 )
 from pipeline.core.roadmap import RoadmapParams
 from pipeline.core.scenegen import RandomSceneSpec
+from pipeline.core.social_planner import SocialPlannerParams
 from pipeline.core.world import BodyParams
 from pipeline.errors import PipelineError
 from pipeline.irl import methods
@@ -87,7 +88,7 @@ class RewardConfig(FeatureParams):
 
 @dataclass
 class ExpertConfig:
-    kind: str = MISSING  # optimal | boltzmann | file
+    kind: str = MISSING  # optimal | boltzmann | file | planner
     n_demos: Optional[int] = None  # learn from the demonstrations of the first n starts (null: all)
 
     def __post_init__(self) -> None:
@@ -122,8 +123,19 @@ class FileExpertConfig(ExpertConfig):
         require_positive(self, "start_radius")
 
 
+@dataclass
+class PlannerExpertConfig(ExpertConfig, SocialPlannerParams):
+    """A people-aware planner with a cost of its own (no true weights): a stand-in for
+    human demonstrators."""
+    kind: str = "planner"
+
+    def __post_init__(self) -> None:
+        ExpertConfig.__post_init__(self)
+        SocialPlannerParams.__post_init__(self)
+
+
 EXPERTS: dict[str, type] = {"optimal": OptimalExpertConfig, "boltzmann": BoltzmannExpertConfig,
-                            "file": FileExpertConfig}
+                            "file": FileExpertConfig, "planner": PlannerExpertConfig}
 
 
 # -- graph ---------------------------------------------------------------------------------

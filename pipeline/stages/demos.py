@@ -14,11 +14,12 @@ import time
 import numpy as np
 
 from pipeline.app import build
-from pipeline.app.config import BoltzmannExpertConfig, FileExpertConfig
+from pipeline.app.config import BoltzmannExpertConfig, FileExpertConfig, PlannerExpertConfig
 from pipeline.app.context import RunContext, resolve_path
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.core.experts import Demonstration, boltzmann_demos, optimal_demos
 from pipeline.core.graph_mdp import path_quality
+from pipeline.core.social_planner import planner_demos
 from pipeline.errors import PipelineError
 from pipeline.inputs.demo_file import load_demo_file
 
@@ -60,6 +61,8 @@ def run(ctx: RunContext) -> None:
                                 expert, ctx.rng("demos"))
     elif isinstance(expert, FileExpertConfig):
         demos = recorded
+    elif isinstance(expert, PlannerExpertConfig):
+        demos = planner_demos(scene, features, expert, ctx.rng("demos"), md.speed)
     else:
         demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
     if expert.n_demos is not None:
@@ -71,7 +74,8 @@ def run(ctx: RunContext) -> None:
         log.warning("demonstrations from starts %s do not reach the goal", unreached)
     log.info("%s expert: %d demonstrations", expert.kind, len(demos))
 
-    synthetic = not isinstance(expert, FileExpertConfig)  # file demos have no true weights
+    # file and planner demonstrations have no true weights
+    synthetic = not isinstance(expert, (FileExpertConfig, PlannerExpertConfig))
     with ctx.writer("demos") as w:
         w.add(topics.DEMOS_EXPERT, "Expert", {
             "kind": expert.kind, "reward": cfg.reward.name if synthetic else None,

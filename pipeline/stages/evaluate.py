@@ -179,7 +179,7 @@ def run(ctx: RunContext) -> None:
     metrics.update(social_ref)
     for path in ctx.cfg.evaluate.transfer_scenes:
         metrics.update(transfer_metrics(ctx, path, w_final, expert["true_weights"]))
-    if expert["kind"] == "file":
+    if expert["true_weights"] is None:  # file or planner demonstrations
         demos = demos_art.all(topics.DEMOS)
         dists = [discrete_frechet(graph_paths[d["start_index"]][0], d["points"]) for d in demos]
         metrics["frechet_to_demos"] = float(np.mean(dists))
