@@ -129,11 +129,11 @@ OCCUPANCY_GRID = _message("OccupancyGrid", "The scene's occupancy map (only for 
 })
 
 EXPERT = _message("Expert", "Who demonstrated, under which true reward (DESIGN §6).", {
-    "kind": _str("Expert kind: optimal, boltzmann or file."),
+    "kind": _str("Expert kind: optimal, boltzmann, file or planner."),
     "reward": _nullable(_str("Name of the true reward preset (polite, rude, ...)."),
-                        "for file demonstrations"),
+                        "for file and planner demonstrations"),
     "true_weights": _nullable(_features("The true reward weights w*"),
-                              "for file demonstrations (no w* known)"),
+                              "for file and planner demonstrations (no w* known)"),
     "feature_names": FEATURE_NAMES,
     "beta": _nullable(_num("Boltzmann rationality β_E of the expert."),
                       "unless kind is boltzmann"),
@@ -153,7 +153,8 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
     "subject": _nullable(_str("Who demonstrated it (a demonstration file's `subjects`, or a "
                               "synthetic subject)."), "when unknown"),
     "value_true": _nullable(_num("Quality of the path under w*: w*·Φ + γ^T R_goal "
-                                 "(R_goal only if reached)."), "for file demonstrations"),
+                                 "(R_goal only if reached)."),
+                            "for file and planner demonstrations"),
 })
 
 ROADMAP = _message("Roadmap", "The reference roadmap (DESIGN §6) with its exact solution under "
@@ -171,10 +172,10 @@ ROADMAP = _message("Roadmap", "The reference roadmap (DESIGN §6) with its exact
     "start_nodes": _ids("Node of every start, in the order of Scene.starts."),
     "goal_node": _node("The goal's node"),
     "true_values": _nullable(_array({"type": "number"}, "Optimal values V* under w* (n_nodes)."),
-                             "for file demonstrations"),
+                             "for file and planner demonstrations"),
     "true_policy": _nullable(_array({"type": "integer", "minimum": -1}, "Optimal policy under "
                                     "w*: the edge index taken at each node, −1 for none "
-                                    "(n_nodes)."), "for file demonstrations"),
+                                    "(n_nodes)."), "for file and planner demonstrations"),
 })
 
 GRAPH_NODE = _message("GraphNode", "One node of the adaptive state graph (DESIGN §7); log_time "
