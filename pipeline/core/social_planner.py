@@ -306,17 +306,18 @@ def cheapest_paths(graph: PlannerGraph, costs: np.ndarray) -> tuple[np.ndarray, 
     return to_go, nxt
 
 
-def _drop_collinear(points: np.ndarray, keep_cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _drop_collinear(points: np.ndarray,
+                    cumulative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Vertices where the polyline turns (ends kept), with their cumulative costs."""
     if len(points) < 3:
-        return points, keep_cost
+        return points, cumulative
     d_in, d_out = points[1:-1] - points[:-2], points[2:] - points[1:-1]
     cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
     dot = np.einsum("nk,nk->n", d_in, d_out)
     scale = np.linalg.norm(d_in, axis=1) * np.linalg.norm(d_out, axis=1)
     turn = (np.abs(cross) > 1e-9 * scale) | (dot <= 0)
     keep = np.concatenate([[True], turn, [True]])
-    return points[keep], keep_cost[keep]
+    return points[keep], cumulative[keep]
 
 
 def _string_pull(scene: Scene, cost: SocialCost, points: np.ndarray,
