@@ -12,7 +12,7 @@ from pipeline.core.graph_mdp import GraphMDP, Path
 from pipeline.irl.birl import AdaptiveChainParams, BirlMapConfig, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
-from tests.test_birl import central_difference, numerical_moments, one_weight_posterior
+from tests.irl.test_birl import central_difference, numerical_moments, one_weight_posterior
 
 GAMMA = 0.9
 

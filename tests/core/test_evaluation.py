@@ -7,7 +7,7 @@ from pipeline.core.evaluation import discrete_frechet, policy_loss
 from pipeline.core.features import FeatureModel
 from pipeline.core.roadmap import build_roadmap
 from tests.conftest import POLITE, RUDE
-from tests.test_graph_mdp import random_graph
+from tests.core.test_graph_mdp import random_graph
 
 
 @pytest.fixture(scope="module")

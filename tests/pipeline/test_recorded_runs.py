@@ -12,8 +12,8 @@ from PIL import Image
 from pipeline.core.roadmap import segments_feasible
 from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import run_in_process
-from tests.test_environments import DRIVE_0, DRIVE_2
-from tests.test_recorded import write_bag
+from tests.inputs.test_recorded import write_bag
+from tests.pipeline.test_obstacle_scenes import DRIVE_0, DRIVE_2
 
 FAST = ("graph=small", "birl.n_iterations=3")
 ROOM = {"x_min": 0.0, "y_min": 0.0, "x_max": 4.0, "y_max": 2.0}
