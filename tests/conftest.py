@@ -1,9 +1,18 @@
-"""Shared fixtures: the real Hydra config composed in-process, one default run per session.
+"""Where a new test goes: into the folder of the layer of the module it tests (tests/core,
+tests/irl, tests/inputs, tests/artefacts, tests/app, tests/tools), in a file named after that
+module (pipeline/core/features.py: tests/core/test_features.py); end-to-end runs through the
+stages go to tests/pipeline, the command line (subprocesses or `cli()`, exit codes) to
+tests/cli. Mark a slow test `@pytest.mark.slow`: `make test` leaves it out, `make test-all`
+runs it. A helper that several test files use lives here, or in its folder's conftest.py when
+only that folder uses it, never in a test file that others import.
+
+Shared fixtures: the real Hydra config composed in-process, one default run per session.
 
 Most end-to-end tests run the pipeline in this process (`run_in_process`: Hydra's compose
 API and the same `run_pipeline` the CLI calls), which saves the ~2 s of imports a
 subprocess pays. A few tests keep the subprocess (`run_app`) because what they check is the
-command line itself: exit codes, one-line errors, multiruns.
+command line itself: exit codes, one-line errors, multiruns. Also here, for tests in several
+folders: the walled metropolis scene, a writer of real ROS bags, and a graph of two routes.
 """
 
 import contextlib

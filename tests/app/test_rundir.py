@@ -1,6 +1,6 @@
-"""Run dirs under faults (issue 12): SIGKILL at random moments, a second run into a dir in
-use, two plain runs started together, stale temp files, status.json telling the truth, and
-damaged side files.
+"""Run dirs (pipeline/app/rundir.py) under faults: SIGKILL at random moments, a second run
+into a dir in use, two plain runs started together, stale temp files, status.json telling the
+truth, and damaged side files.
 
 After every fault a run dir must (a) hold only artefacts that read fully, (b) say in
 status.json how far it got (`read_status` reports a dead run as `interrupted`), (c) hold

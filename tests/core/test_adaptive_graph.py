@@ -29,9 +29,11 @@ from pipeline.core.social import relation_crossings
 from pipeline.core.state_graph import GOAL, SAMPLED, START, StateGraph
 from pipeline.core.world import Room
 from pipeline.inputs.scene_file import load_scene_file
+from pipeline.irl.prior import BoxConfig
 from tests.conftest import OFFICE_SCENE, POLITE, compose_config
 
-PRIOR_MEAN = np.full(4, -0.361)  # the default Gaussian prior's mean within [−1, 0]^4
+# The default prior's mean, the weights the graph stage grows the graph under before learning
+PRIOR_MEAN = BoxConfig().make_prior(4).box_mean()
 
 
 @pytest.fixture(scope="module")
