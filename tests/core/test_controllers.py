@@ -1,3 +1,7 @@
+"""Steering controllers (pipeline/core/controllers.py): the linear controller and POSQ on a
+grid of starts and targets, smooth paths within the wheel limits, headings, determinism, and
+bad parameters."""
+
 import functools
 import math
 

@@ -1,5 +1,5 @@
-"""Artefacts as other tools see them (issue 13): every message matches the JSON Schema stored
-in its own file, checked with the plain `mcap` reader and `jsonschema` only; the Foxglove
+"""Artefacts as other tools see them: every message matches the JSON Schema stored in its
+own file, checked with the plain `mcap` reader and `jsonschema` only; the Foxglove
 topics are `foxglove.SceneUpdate` messages that draw the scene, demos, graph and paths;
 log_time is index × 1 s; `python -m pipeline.tools.mcapinfo` describes and checks a file."""
 

@@ -8,6 +8,7 @@ from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
 from pipeline.tools.viewer import build_recording
 from tests.conftest import METROPOLIS, POLITE, run_in_process
+from tests.pipeline.conftest import FAST
 
 SMALL = ("graph=small",)
 
@@ -76,3 +77,14 @@ def test_a_missing_map_for_a_random_scene_is_one_line(tmp_path):
         run_in_process(tmp_path, "scene=random", f"scene.map={tmp_path}/nowhere.yaml",
                        "stages=[scene]")
     assert "nowhere.yaml" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_fixed_deployment_equals_the_transfer_score(tmp_path):
+    office = "data/scenes/office.json"
+    # learned on metropolis (the default scene), scored on the office map
+    learned, _ = run_in_process(tmp_path / "learn", *FAST, f"evaluate.transfer_scenes=[{office}]")
+    deployed, _ = run_in_process(tmp_path / "deploy", "scene=office", "graph=small",
+                                 "birl=fixed", f"birl.from_run={tmp_path / 'learn'}")
+    assert deployed["policy_loss_ref"] == learned["transfer_office_policy_loss"]
+    assert deployed["policy_loss_norm"] == learned["transfer_office_policy_loss_norm"]
+    assert deployed["ref_success"] == learned["transfer_office_success"]

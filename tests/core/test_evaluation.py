@@ -4,15 +4,8 @@ import numpy as np
 import pytest
 
 from pipeline.core.evaluation import discrete_frechet, policy_loss
-from pipeline.core.features import FeatureModel
-from pipeline.core.roadmap import build_roadmap
 from tests.conftest import POLITE, RUDE
-from tests.test_graph_mdp import random_graph
-
-
-@pytest.fixture(scope="module")
-def roadmap(metropolis):
-    return build_roadmap(metropolis, FeatureModel.from_scene(metropolis))
+from tests.core.conftest import random_graph
 
 
 def test_policy_loss_is_zero_for_true_weights_and_never_negative(roadmap):

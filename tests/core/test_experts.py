@@ -1,23 +1,17 @@
-"""Reference roadmap and experts on the metropolis scene (DESIGN §4, §6)."""
+"""Experts (pipeline/core/experts.py, DESIGN §6): optimal and Boltzmann demonstrations on the
+metropolis reference roadmap, and several Boltzmann walks per start on a two-route graph."""
 
-import json
+import math
 
 import numpy as np
 import pytest
+from scipy.special import expit
 
 from pipeline.core.experts import BoltzmannParams, boltzmann_demos, optimal_demos
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import discounted_counts
-from pipeline.core.roadmap import build_roadmap, segments_feasible
 from pipeline.core.social import INTIMATE_ZONE, min_distance_to_person, path_metrics
-from pipeline.errors import PipelineError
-from pipeline.inputs.demo_file import load_demo_file
-from tests.conftest import POLITE, RUDE
-
-
-@pytest.fixture(scope="module")
-def roadmap(metropolis):
-    return build_roadmap(metropolis, FeatureModel.from_scene(metropolis))
+from tests.conftest import POLITE, RUDE, two_routes
 
 
 @pytest.fixture(scope="module")
@@ -27,19 +21,6 @@ def mdp(roadmap):
 
 def demos_under(mdp, roadmap, w):
     return optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, mdp.solve(w))
-
-
-def test_roadmap_is_feasible_and_16_connected(metropolis, roadmap):
-    assert segments_feasible(metropolis, roadmap.positions[roadmap.src],
-                             roadmap.positions[roadmap.dst]).all()
-    assert not metropolis.in_body(roadmap.positions).any()
-    # An interior lattice node far from people has all 16 neighbours.
-    node = int(np.argmin(np.linalg.norm(roadmap.positions - [9.0, 4.0], axis=1)))
-    assert (roadmap.src == node).sum() == 16
-    # No two nodes at (almost) the same place.
-    d = np.linalg.norm(roadmap.positions[:, None] - roadmap.positions[None], axis=2)
-    assert (d + np.eye(len(d)) * 9).min() > 0.1
-    np.testing.assert_allclose(roadmap.positions[roadmap.start_nodes], metropolis.starts)
 
 
 def test_polite_demos_avoid_links_and_intimate_zones(metropolis, roadmap, mdp):
@@ -92,27 +73,26 @@ def test_boltzmann_demos_are_seeded_noisy_and_worse(roadmap, mdp):
         assert POLITE @ phi + end <= sol.values[roadmap.start_nodes[k]] + 1e-9
 
 
-def test_demo_file_loading(tmp_path, metropolis):
-    fm = FeatureModel.from_scene(metropolis)
-    path = tmp_path / "demos.json"
-    path.write_text(json.dumps({"scene": "metropolis", "trajectories": [
-        [[0.5, 0.5], [0.5, 0.5], [3.0, 8.8], [5.5, 9.0]]]}))
-    [d] = load_demo_file(path, metropolis, fm, speed=1.0)
-    assert d.start_index == 0 and len(d.points) == 3  # repeated point dropped
-    path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [3.0, 3.0]]]}))
-    with pytest.raises(PipelineError, match="trajectory 0 ends .* from the goal"):
-        load_demo_file(path, metropolis, fm, speed=1.0)
-    path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [15.0, 9.0]]]}))
-    with pytest.raises(PipelineError, match="trajectory 0 leaves the room"):
-        load_demo_file(path, metropolis, fm, speed=1.0)
-
-
-def test_demos_stage_writes_k_noisy_demos_per_start(tmp_path):
-    from pipeline.artefacts import read_artefact
-    from tests.conftest import run_in_process
-
-    run_in_process(tmp_path, "stages=[scene,demos]", "expert=boltzmann", "expert.beta=20",
-                   "expert.demos_per_start=3", "expert.n_demos=2")
-    demos = read_artefact(tmp_path / "demos.mcap").all("/demos")
-    assert [d["start_index"] for d in demos] == [0, 0, 0, 1, 1, 1]
-    assert len({len(d["points"]) for d in demos[:3]}) > 1  # three different walks
+def test_several_boltzmann_demos_per_start():
+    """k walks per start, in start order; the first walk is the one k = 1 draws."""
+    mdp, _, _ = two_routes()
+    positions = np.array([[0, 0], [1, 1], [2, 2], [3, 0]], float)
+    w = np.array([-0.5])
+    sol = mdp.solve(w)
+    one = boltzmann_demos(mdp, positions, np.array([0, 1]), w, sol,
+                          BoltzmannParams(beta=1.0), np.random.default_rng(5))
+    three = boltzmann_demos(mdp, positions, np.array([0, 1]), w, sol,
+                            BoltzmannParams(beta=1.0, demos_per_start=3),
+                            np.random.default_rng(5))
+    assert [d.start_index for d in three] == [0, 0, 0, 1, 1, 1]
+    np.testing.assert_array_equal(three[0].points, one[0].points)
+    assert all(d.reached for d in three)
+    # β = 1 on a 2-route choice with ΔQ small: both routes appear among many walks
+    many = boltzmann_demos(mdp, positions, np.array([0]), w, sol,
+                           BoltzmannParams(beta=1.0, demos_per_start=200),
+                           np.random.default_rng(0))
+    share_a = np.mean([len(d.points) == 2 for d in many])
+    q = mdp.q_values(w, sol.values)[mdp.indptr[0]:mdp.indptr[1]]
+    direct = int(np.flatnonzero(mdp.dst[mdp.indptr[0]:mdp.indptr[1]] == 3)[0])
+    p_direct = expit(q[direct] - q[1 - direct])
+    assert abs(share_a - p_direct) < 4 * math.sqrt(p_direct * (1 - p_direct) / 200)

@@ -1,6 +1,6 @@
-"""Run dirs under faults (issue 12): SIGKILL at random moments, a second run into a dir in
-use, two plain runs started together, stale temp files, status.json telling the truth, and
-damaged side files.
+"""Run dirs (pipeline/app/rundir.py) under faults: SIGKILL at random moments, a second run
+into a dir in use, two plain runs started together, stale temp files, status.json telling the
+truth, and damaged side files.
 
 After every fault a run dir must (a) hold only artefacts that read fully, (b) say in
 status.json how far it got (`read_status` reports a dead run as `interrupted`), (c) hold
@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from pipeline.app.provenance import INPUT_KEY
-from pipeline.app.rundir import RunDir, is_locked, read_status
+from pipeline.app.rundir import RunDir, is_locked, read_status, write_status_if_missing
 from pipeline.artefacts import topics
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
@@ -466,6 +466,11 @@ def test_from_run_of_a_dir_in_use_is_refused(tmp_path):
     with RunDir(d, ["scene"]):
         with pytest.raises(PipelineError, match="running"):
             run_in_process(tmp_path / "new", "stages=[demos]", f"from_run={d}")
+
+
+def test_status_of_a_job_that_failed_before_running(tmp_path):
+    write_status_if_missing(tmp_path, "config error: x")
+    assert json.loads((tmp_path / "status.json").read_text())["state"] == "failed"
 
 
 # -- 6. damaged side files -------------------------------------------------------------------

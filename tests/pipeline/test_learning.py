@@ -1,4 +1,4 @@
-"""End to end through the real app: BIRL-G learns socially compliant rewards (issue 4)."""
+"""End to end through the real app: BIRL-G learns socially compliant rewards."""
 
 import numpy as np
 import pytest

@@ -6,15 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.core.graph_mdp import NO_EDGE, GraphMDP, discounted_counts, path_quality
-
-
-def random_graph(rng, n=40, p=0.12, d=3, n_terminal=2):
-    pairs = [(i, j) for i in range(n) for j in range(n) if i != j and rng.random() < p]
-    src, dst = np.array(pairs).T
-    terminal = np.zeros(n, bool)
-    terminal[rng.choice(n, n_terminal, replace=False)] = True
-    return GraphMDP(src, dst, rng.uniform(0.2, 2.0, len(src)), rng.uniform(0, 1, (len(src), d)),
-                    terminal, gamma=0.9, r_goal=1.0, v_max=5.0)
+from tests.core.conftest import random_graph
 
 
 @pytest.mark.parametrize("seed", range(5))

@@ -1,17 +1,14 @@
-"""Recorded demonstrations (DESIGN §3): CSV files and ROS bags written with rosbags' own writers."""
+"""Recorded demonstrations (pipeline/inputs/recorded.py, DESIGN §3): CSV files and ROS bags
+written with rosbags' own writers, cut into trajectories from the scene's starts to its goal."""
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
-from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
 
 from pipeline.core.features import FeatureModel
-from pipeline.errors import PipelineError
 from pipeline.inputs.demo_file import load_demo_file
 from pipeline.inputs.recorded import (
     clean_track,
@@ -20,9 +17,9 @@ from pipeline.inputs.recorded import (
     match_to_starts,
     read_tracks,
 )
+from tests.conftest import ROS2, write_bag
+from tests.inputs.conftest import refused
 
-ROS2 = get_typestore(Stores.ROS2_HUMBLE)
-ROS1 = get_typestore(Stores.ROS1_NOETIC)
 STARTS = np.array([[0.5, 0.5], [4.0, 0.1], [2.0, 3.0], [8.5, 5.2]])
 GOAL = np.array([5.5, 9.0])
 TOL = 0.3  # goal tolerance
@@ -31,63 +28,7 @@ PATH_B = np.array([[2.0, 3.0], [2.0, 3.0], [5.0, 6.0], [5.4, 8.9]])  # one repea
 
 
 # ---------------------------------------------------------------------------------------------
-# Writing real bags
-
-
-def header(ts, stamp_ns: int, frame: str):
-    t = ts.types
-    stamp = t["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
-    if ts is ROS1:
-        return t["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
-    return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
-
-
-def pose(ts, x: float, y: float):
-    t = ts.types
-    return t["geometry_msgs/msg/Pose"](
-        position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0),
-        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-
-
-def make_msg(ts, msgtype: str, stamp: int, frame: str, data: np.ndarray):
-    """A message of `msgtype`: a Path through the points `data` (K, 2) or a pose at `data`."""
-    t = ts.types
-    h = header(ts, stamp, frame)
-    if msgtype == "nav_msgs/msg/Path":
-        poses = [t["geometry_msgs/msg/PoseStamped"](header=h, pose=pose(ts, x, y)) for x, y in data]
-        return t[msgtype](header=h, poses=poses)
-    if msgtype == "geometry_msgs/msg/PoseStamped":
-        return t[msgtype](header=h, pose=pose(ts, *data))
-    cov = t["geometry_msgs/msg/PoseWithCovariance"](pose=pose(ts, *data),
-                                                    covariance=np.zeros(36))
-    if msgtype == "geometry_msgs/msg/PoseWithCovarianceStamped":
-        return t[msgtype](header=h, pose=cov)
-    assert msgtype == "nav_msgs/msg/Odometry"
-    zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    twist = t["geometry_msgs/msg/TwistWithCovariance"](
-        twist=t["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36))
-    return t[msgtype](header=h, child_frame_id="base_link", pose=cov, twist=twist)
-
-
-def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]], frame: str = "map",
-              storage: str = "mcap") -> Path:
-    """Write `topics` {name: (msgtype, [data per message])}; storage mcap|sqlite3|ros1."""
-    ts = ROS1 if storage == "ros1" else ROS2
-    if storage == "ros1":
-        writer = Writer1(path)
-    else:
-        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-        writer = Writer2(path, version=9, storage_plugin=plugin)
-    with writer:
-        for name, (msgtype, items) in topics.items():
-            conn = writer.add_connection(name, msgtype, typestore=ts)
-            for k, data in enumerate(items):
-                stamp = 10**9 + k * 10**8
-                msg = make_msg(ts, msgtype, stamp, frame, np.asarray(data, dtype=float))
-                raw = ts.serialize_ros1(msg, msgtype) if storage == "ros1" else \
-                    ts.serialize_cdr(msg, msgtype)
-                writer.write(conn, stamp, raw)
-    return path
+# Tracks to write into bags and files
 
 
 def line(a: np.ndarray, b: np.ndarray, step: float = 0.05) -> np.ndarray:
@@ -122,14 +63,6 @@ def on_polyline(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
 
 def length(p: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-
-
-def refused(match: str, fn, *args, **kwargs) -> str:
-    with pytest.raises(PipelineError, match=match) as info:
-        fn(*args, **kwargs)
-    text = str(info.value)
-    assert "\n" not in text and "Traceback" not in text
-    return text
 
 
 def load(path: Path, **kwargs) -> list[tuple[int, np.ndarray]]:
@@ -315,7 +248,7 @@ def test_unreadable_paths_are_one_line(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# CSV and JSON files
+# CSV files, and a bag through load_demo_file
 
 
 def test_csv_with_trajectory_ids_and_shuffled_times(tmp_path):
@@ -371,21 +304,6 @@ def test_demonstration_far_from_every_start_is_refused(tmp_path):
                     + "".join(f"2,{x},{y}\n" for x, y in far))
     refused(rf"demonstration file {path}: trajectory 1 starts 3\.13 m from the nearest start "
             r"\(4, 0\.1\)", load, path)
-
-
-def test_json_demonstration_far_from_every_start_is_refused(tmp_path, metropolis):
-    fm = FeatureModel.from_scene(metropolis)
-    path = tmp_path / "far.json"
-    path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [5.5, 9.0]],
-                                                 [[9.5, 9.5], [6.0, 9.0], [5.5, 9.0]]]}))
-    refused(rf"demonstration file {path}: trajectory 1 starts 4\.41 m from the nearest start "
-            r"\(8\.5, 5\.2\); at most 1 m \(expert\.start_radius\)",
-            load_demo_file, path, metropolis, fm, 1.0)
-    [d0, d1] = load_demo_file(path, metropolis, fm, 1.0, start_radius=5.0)
-    assert d1.start_index == 3 and np.array_equal(d1.points, [[9.5, 9.5], [6.0, 9.0], [5.5, 9.0]])
-    path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [float("nan"), 9.0]]]}))
-    refused(r"trajectories\[0\]\[1\]\[0\]: NaN is not a finite number", load_demo_file, path,
-            metropolis, fm, 1.0)
 
 
 def test_bag_through_load_demo_file(tmp_path, metropolis):

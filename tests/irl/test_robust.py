@@ -1,32 +1,21 @@
-"""Issue 11: the robust likelihood, the adaptive multi-chain sampler with ArviZ diagnostics,
-and several noisy demonstrations per start — on cases with known answers."""
+"""The robust likelihood (pipeline/irl/robust.py): the Boltzmann posterior over w and β by
+hand on tiny graphs, its gradients, MAP, admissibility test and joint sampler, and the robust
+form of the learning loop on consistent and noisy demonstrations — cases with known answers."""
 
 import math
 
 import numpy as np
 import pytest
-from scipy.special import chdtri, expit, logsumexp
+from scipy.special import chdtri, logsumexp
 
-from pipeline.core.experts import BoltzmannParams, boltzmann_demos
+from pipeline.core.experts import BoltzmannParams
 from pipeline.core.graph_mdp import GraphMDP, Path
 from pipeline.irl.birl import AdaptiveChainParams, BirlMapConfig, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
-from tests.test_birl import central_difference, numerical_moments, one_weight_posterior
-
-GAMMA = 0.9
-
-
-def two_routes():
-    """Start 0, goal 3 (terminal). Route A: 0→3 directly (1 s, feature 1.0); route B:
-    0→1→3 (1 s + 1 s, features 0.2 and 0.3); node 2 is a dead end reached from 1."""
-    src, dst = [0, 0, 1, 1], [3, 1, 3, 2]
-    feats = [[1.0], [0.2], [0.3], [0.0]]
-    mdp = GraphMDP(src, dst, np.ones(4), feats, [False, False, False, True], gamma=GAMMA)
-    edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
-    route_a = Path([0, 3], [edge[0, 3]], True)
-    route_b = Path([0, 1, 3], [edge[0, 1], edge[1, 3]], True)
-    return mdp, route_a, route_b
+from tests.conftest import TWO_ROUTES_GAMMA as GAMMA
+from tests.conftest import two_routes
+from tests.irl.conftest import central_difference
 
 
 def by_hand(w, beta, n_a, n_b, walk=False):
@@ -199,32 +188,6 @@ def test_noisy_demos_do_not_collapse_the_weights():
     assert route_a_share(post, w, beta) == pytest.approx(0.5, abs=0.02)
 
 
-@pytest.mark.parametrize("sampler, target", [("rw", 0.3), ("mala", 0.57)])
-def test_adaptive_chains_match_a_1d_posterior(sampler, target):
-    post = one_weight_posterior()
-    mean, std = numerical_moments(post)
-    chain = AdaptiveChainParams(n_samples=5000, burn_in=1000, thin=1, step=0.01, n_chains=4,
-                                sampler=sampler, target_acceptance=target)
-    result = mcmc(post, [-0.5], np.random.default_rng(0), chain)
-    assert result.samples.shape == (20_000, 1) and result.n_chains == 4
-    assert abs(result.acceptance_rate - target) < 0.1  # adapted from a far too small step
-    assert result.rhat[0] < 1.01
-    ess = result.ess[0]
-    assert ess > 2000
-    assert abs(result.mean[0] - mean) < 4 * std / np.sqrt(ess)
-    assert abs(result.std[0] - std) < 4 * std * np.sqrt(2 / (4 * ess))
-
-
-def test_rhat_flags_chains_that_have_not_mixed():
-    """Without adaptation and with no burn-in, a tiny step leaves the chains where they
-    started (one at −0.9, the others at prior draws): R-hat is far above 1."""
-    post = one_weight_posterior()
-    chain = AdaptiveChainParams(n_samples=300, burn_in=0, thin=1, step=1e-4, n_chains=4,
-                                adapt=False)
-    result = mcmc(post, [-0.95], np.random.default_rng(1), chain)
-    assert result.rhat[0] > 1.5
-
-
 def test_joint_sampler_over_w_and_log_beta_is_reproducible():
     mdp, a, b = two_routes()
     post = BoltzmannPosterior(mdp, [a, b, b], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
@@ -247,31 +210,6 @@ def test_config_checks():
         AdaptiveChainParams(target_acceptance=1.5)
     with pytest.raises(ValueError, match="demos_per_start"):
         BoltzmannParams(demos_per_start=0)
-
-
-def test_several_boltzmann_demos_per_start():
-    """k walks per start, in start order; the first walk is the one k = 1 draws."""
-    mdp, _, _ = two_routes()
-    positions = np.array([[0, 0], [1, 1], [2, 2], [3, 0]], float)
-    w = np.array([-0.5])
-    sol = mdp.solve(w)
-    one = boltzmann_demos(mdp, positions, np.array([0, 1]), w, sol,
-                          BoltzmannParams(beta=1.0), np.random.default_rng(5))
-    three = boltzmann_demos(mdp, positions, np.array([0, 1]), w, sol,
-                            BoltzmannParams(beta=1.0, demos_per_start=3),
-                            np.random.default_rng(5))
-    assert [d.start_index for d in three] == [0, 0, 0, 1, 1, 1]
-    np.testing.assert_array_equal(three[0].points, one[0].points)
-    assert all(d.reached for d in three)
-    # β = 1 on a 2-route choice with ΔQ small: both routes appear among many walks
-    many = boltzmann_demos(mdp, positions, np.array([0]), w, sol,
-                           BoltzmannParams(beta=1.0, demos_per_start=200),
-                           np.random.default_rng(0))
-    share_a = np.mean([len(d.points) == 2 for d in many])
-    q = mdp.q_values(w, sol.values)[mdp.indptr[0]:mdp.indptr[1]]
-    direct = int(np.flatnonzero(mdp.dst[mdp.indptr[0]:mdp.indptr[1]] == 3)[0])
-    p_direct = expit(q[direct] - q[1 - direct])
-    assert abs(share_a - p_direct) < 4 * math.sqrt(p_direct * (1 - p_direct) / 200)
 
 
 def two_route_problem(routes):
