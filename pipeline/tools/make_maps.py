@@ -1,24 +1,28 @@
-"""Generate the shipped office example: data/maps/office.{pgm,yaml} and data/scenes/office.json.
+"""Generate the shipped maps and their scenes: data/maps/NAME.{pgm,yaml}, data/scenes/NAME.json.
 
-    .venv/bin/python data/maps/make_office.py
+    python -m pipeline.tools.make_maps office             # or: all
+    python -m pipeline.tools.make_maps office --out DIR   # DIR/maps, DIR/scenes
 
-Deterministic (no randomness). A 20 m × 14 m ROS map_server map at 0.05 m/cell (400 × 280
-pixels): a building with 0.15 m walls (outer wall centred 0.5 m inside the map edge, unknown
-grey outside it), a 2.4 m corridor along the middle (y 5.8..8.2), three rooms on each side,
-1 m doors into the corridor, one door between the two south-east rooms, and desks/tables.
-The scene puts social groups (F-formations) in the corridor and rooms, starts in five rooms
-and the goal in the sixth; the script checks every start and the goal are free with
-clearance >= 0.3 m and connected to each other around the persons.
+office: deterministic (no randomness). A 20 m × 14 m ROS map_server map at 0.05 m/cell
+(400 × 280 pixels): a building with 0.15 m walls (outer wall centred 0.5 m inside the map
+edge, unknown grey outside it), a 2.4 m corridor along the middle (y 5.8..8.2), three rooms
+on each side, 1 m doors into the corridor, one door between the two south-east rooms, and
+desks/tables. The scene puts social groups (F-formations) in the corridor and rooms, starts
+in five rooms and the goal in the sixth; the script checks every start and the goal are free
+with clearance >= 0.3 m and connected to each other around the persons.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
+
+from pipeline.app.context import PACKAGE_ROOT
 
 RES = 0.05
 WIDTH, HEIGHT = 20.0, 14.0
@@ -127,9 +131,9 @@ def check(root: Path, data: dict[str, object]) -> None:
     assert obstacles.reachable(points[-1], points, 0.2, blocked).all()
 
 
-def main() -> None:
-    root = Path(__file__).resolve().parent.parent
-    (root / "maps").mkdir(exist_ok=True)
+def write_office(root: Path) -> None:
+    (root / "maps").mkdir(parents=True, exist_ok=True)
+    (root / "scenes").mkdir(parents=True, exist_ok=True)
     Image.fromarray(draw_map()[::-1]).save(root / "maps" / "office.pgm")  # top row first
     (root / "maps" / "office.yaml").write_text(
         "image: office.pgm\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
@@ -137,7 +141,18 @@ def main() -> None:
     data = scene()
     (root / "scenes" / "office.json").write_text(json.dumps(data, indent=1) + "\n")
     check(root, data)
-    print("wrote data/maps/office.pgm, data/maps/office.yaml, data/scenes/office.json")
+    print(f"wrote {root}/maps/office.pgm, maps/office.yaml, scenes/office.json")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.tools.make_maps",
+                                     description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("name", choices=["office", "all"])
+    parser.add_argument("--out", type=Path, default=PACKAGE_ROOT / "data",
+                        help="data directory to write into (default: the package's data/)")
+    args = parser.parse_args(argv)
+    write_office(args.out)
 
 
 if __name__ == "__main__":
