@@ -18,15 +18,15 @@ three rooms on each side, 1 m doors into the corridor, one door between the two 
 rooms, desks and tables. Four groups in the corridor and rooms, three singles; starts in five
 rooms, the goal in the sixth.
 
-warehouse: 30 m × 50 m (600 × 1000 pixels), about 900 m² of free floor. An office block
-along the south wall (four rooms off a 2.35 m office corridor, 1 m doors) opens through two
-1.2 m doors onto the warehouse floor: a 4 m main corridor running north, racks 2.4 m deep
-(west: rows running east-west, aisles 2.6 m ending at the west wall; east: three columns
-running north-south with aisles between them and along the east wall), a cross aisle
-halfway, a packing area along the north wall and a supervisor's room in the north-west
-corner. Seven groups and six singles (pickers in the aisles, one walking in the main
-corridor); five starts in the north half and the east, the goal in the meeting room; raster
-paths of 30-60 m (checked here).
+warehouse: 30 m × 50 m (600 × 1000 pixels), about 1000 m² of free cells (810 m² where the
+robot fits). An office block along the south wall (four rooms off a 2.35 m office corridor,
+1 m doors) opens through two 1.2 m doors onto the warehouse floor: a 4 m main corridor
+running north, racks up to 2.6 m deep (west: rows running east-west, aisles 2.4 m ending at
+the west wall; east: three columns running north-south, aisles 2.6 and 2.4 m between them
+and 1.5 m along the east wall), a cross aisle halfway, a packing area along the north wall
+and a supervisor's room in the north-west corner. Seven groups and six singles (pickers in
+the aisles, one walking in the main corridor); five starts in the north half, the goal in
+the meeting room; raster paths of 30-60 m (checked here).
 """
 
 from __future__ import annotations
@@ -245,11 +245,11 @@ OFFICE = FloorPlan(
 
 
 # The warehouse, south to north (y): office block 0.5..9.0 (rooms 0.5..6.5, office corridor
-# 6.5..9.0), front aisle 9.0..12.0, south rack bank 12.0..24.4, cross aisle 24.4..28.0, north
-# rack bank 28.0..40.4, packing area 40.4..49.5 (the supervisor's room in its west corner).
-# West to east (x): west racks 0.5..12.5, main corridor 12.5..16.5, east racks 16.5..27.7,
-# east aisle 27.7..29.5.
-_BANKS = [(12.0, 24.4), (28.0, 40.4)]  # (y0, y1) of the two rack banks
+# 6.5..9.0), front aisle 9.0..12.0, south rack bank 12.0..24.6, cross aisle ..28.0, north rack
+# bank 28.0..40.6, packing area ..49.5 (the supervisor's room in its west corner). West to
+# east (x): west racks 0.5..12.5, main corridor 12.5..16.5, east racks 16.5..27.9, east aisle
+# 27.9..29.5. The east columns end 0.2 m short of the west rows' banks.
+_EAST_BANKS = [(12.0, 24.4), (28.0, 40.4)]  # (y0, y1) of the east columns
 _WEST_ROWS = [(y, y + 2.6) for y in (12.0, 17.0, 22.0, 28.0, 33.0, 38.0)]  # aisles 2.4 m
 _EAST_COLUMNS = [(16.5, 17.7), (20.3, 22.9), (25.3, 27.9)]  # aisles 2.6, 2.4, 1.5 m
 
@@ -276,7 +276,7 @@ WAREHOUSE = FloorPlan(
         (23.0, 1.2, 25.0, 2.0), (26.5, 1.2, 28.5, 2.0), (26.5, 4.0, 28.5, 4.8),  # east office:
         (28.9, 2.6, 29.5, 5.4),  # desks, shelf
         *[(0.5, y0, 12.5, y1) for y0, y1 in _WEST_ROWS],  # west racks
-        *[(x0, y0, x1, y1) for x0, x1 in _EAST_COLUMNS for y0, y1 in _BANKS],  # east racks
+        *[(x0, y0, x1, y1) for x0, x1 in _EAST_COLUMNS for y0, y1 in _EAST_BANKS],  # east racks
         (9.0, 48.0, 10.2, 49.2), (10.6, 48.0, 11.8, 49.2),  # packing area: pallets
         (13.0, 47.0, 15.5, 48.0), (22.0, 48.2, 24.5, 49.0),  # packing tables
         (27.5, 47.5, 28.9, 48.9), (20.6, 42.0, 25.7, 44.5),  # pallets
