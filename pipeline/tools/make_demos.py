@@ -1,6 +1,9 @@
-"""Generate data/demos/metropolis_handdrawn.json: hand-drawn-like demonstrations on metropolis.
+"""Generate the shipped demonstration files: data/demos/metropolis_handdrawn.json.
 
-    .venv/bin/python data/demos/make_handdrawn.py
+    python -m pipeline.tools.make_demos handdrawn             # into the package's data/demos
+    python -m pipeline.tools.make_demos handdrawn --out DIR   # DIR/demos
+
+handdrawn: hand-drawn-like demonstrations on metropolis.
 
 Not recorded human data: a stand-in with the defects of paths drawn by hand. For every start,
 three drawings of the polite expert's route (the optimal path on the reference roadmap
@@ -13,17 +16,19 @@ drawers' median distance to people (README "Imperfect demonstrations").
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
 import numpy as np
 
+from pipeline.app.context import PACKAGE_ROOT
 from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FeatureModel
 from pipeline.core.roadmap import build_roadmap
 from pipeline.inputs.scene_file import load_scene_file
 
-HERE = Path(__file__).resolve().parent
+DATA = PACKAGE_ROOT / "data"
 DRAWINGS_PER_START = 3
 
 
@@ -52,8 +57,8 @@ def drawing(route: np.ndarray, rng: np.random.Generator, wobble: float) -> np.nd
     return p
 
 
-def main() -> None:
-    scene = load_scene_file(HERE.parent / "scenes" / "metropolis.json")
+def write_handdrawn(root: Path) -> None:
+    scene = load_scene_file(DATA / "scenes" / "metropolis.json")
     fm = FeatureModel.from_scene(scene)
     roadmap = build_roadmap(scene, fm)
     mdp = roadmap.mdp()
@@ -71,9 +76,21 @@ def main() -> None:
                     break
                 wobble *= 0.7
             trajectories.append(np.round(p, 3).tolist())
-    out = HERE / "metropolis_handdrawn.json"
+    (root / "demos").mkdir(parents=True, exist_ok=True)
+    out = root / "demos" / "metropolis_handdrawn.json"
     out.write_text(json.dumps({"scene": "metropolis", "trajectories": trajectories}) + "\n")
     print(f"wrote {out}: {len(trajectories)} drawings")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m pipeline.tools.make_demos",
+                                     description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("name", choices=["handdrawn"])
+    parser.add_argument("--out", type=Path, default=DATA,
+                        help="data directory to write into (default: the package's data/)")
+    args = parser.parse_args(argv)
+    write_handdrawn(args.out)
 
 
 if __name__ == "__main__":
