@@ -398,7 +398,10 @@ def read_run(run_dir: Path) -> RunReward:
     meta = birl.metadata
     about = [f"run: {run_dir.resolve()}",
              f"scene: {scene.name}, seed {meta.get('seed', '?')}, git revision "
-             f"{meta.get('git_revision', '?')}"]
+             f"{meta.get('git_revision', '?')}",
+             # what the export was made from: a later run into the dir changes these
+             f"from: birl.mcap content {birl.digest[:16] or '?'}, eval.mcap content "
+             f"{evaluation.digest[:16] or '?'}"]
     return RunReward(scene, params, weights, learned, demos, about)
 
 
@@ -448,7 +451,8 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int]]:
         (partial / COSTMAP_YAML).write_text(costmap_yaml(
             costmap, tuple(run.params.features), run.weights, run.about))
         counts = write_bag(partial / BAG_DIR, run.scene, run.learned, run.demos,
-                           {"birlg.run": str(run_dir.resolve()), "birlg.scene": run.scene.name})
+                           {f"birlg.{k}": v for k, v in (line.split(": ", 1)
+                                                         for line in run.about)})
         _sync_tree(partial)
         if final.exists():
             os.replace(final, old)
