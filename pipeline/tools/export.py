@@ -366,6 +366,19 @@ def feature_params(birl: Artefact, names: list[str]) -> FeatureParams:
     return params
 
 
+def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
+    """A message's `points` as (K, 2) floats, or one line naming the artefact and topic."""
+    try:
+        points = np.asarray(msg["points"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        raise PipelineError(f"artefact {art.path}: a message on '{topic}' has no list of "
+                            "points [x, y]") from None
+    if points.ndim != 2 or points.shape[1] != 2 or not np.isfinite(points).all():
+        raise PipelineError(f"artefact {art.path}: a message on '{topic}' has points of shape "
+                            f"{points.shape}, not finite [x, y] pairs")
+    return points
+
+
 def read_run(run_dir: Path) -> RunReward:
     """The scene, learned reward, learned paths and demonstrations of a finished run."""
     missing = [ARTEFACT_FILE[s] for s in ("scene", "demos", "birl", "evaluate")
@@ -378,23 +391,28 @@ def read_run(run_dir: Path) -> RunReward:
     birl = read_artefact(run_dir / ARTEFACT_FILE["birl"],
                          required_topics=[topics.BIRL_EXPERT, topics.BIRL_ITERATION])
     iterations = birl.all(topics.BIRL_ITERATION)
-    if not iterations:
-        raise PipelineError(f"artefact {birl.path} has no message on '{topics.BIRL_ITERATION}'")
-    names = list(birl.one(topics.BIRL_EXPERT)["feature_names"])
-    weights = np.asarray(iterations[-1]["weights"], dtype=float)
-    if weights.shape != (len(names),) or not np.isfinite(weights).all():
+    names = birl.one(topics.BIRL_EXPERT).get("feature_names")
+    last = iterations[-1].get("weights") if iterations else None
+    try:
+        weights = np.asarray(last, dtype=float)
+    except (TypeError, ValueError):
+        weights = np.zeros(0)
+    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)
+            and weights.shape == (len(names),) and np.isfinite(weights).all()):
         raise PipelineError(f"artefact {birl.path}: the last '{topics.BIRL_ITERATION}' weights "
-                            f"{iterations[-1]['weights']} do not match the features {names}")
+                            f"{last} do not match the feature names {names} of "
+                            f"'{topics.BIRL_EXPERT}'")
     params = feature_params(birl, names)
     evaluation = read_artefact(run_dir / ARTEFACT_FILE["evaluate"],
                                required_topics=[topics.EVAL_PATHS])
-    learned: dict[str, list[np.ndarray]] = {"graph": [], "ref": []}
-    for msg in sorted(evaluation.all(topics.EVAL_PATHS), key=lambda m: m["start"]):
-        if msg["graph"] in learned:
-            learned[msg["graph"]].append(np.asarray(msg["points"], dtype=float).reshape(-1, 2))
+    learned: dict[str, list[tuple[int, np.ndarray]]] = {"graph": [], "ref": []}
+    for msg in evaluation.all(topics.EVAL_PATHS):
+        where, start = msg.get("graph"), msg.get("start")
+        if where in learned and isinstance(start, int):
+            learned[where].append((start, _points(evaluation, topics.EVAL_PATHS, msg)))
+    paths = {k: [p for _, p in sorted(v, key=lambda sp: sp[0])] for k, v in learned.items()}
     demos_art = read_artefact(run_dir / ARTEFACT_FILE["demos"])
-    demos = [np.asarray(m["points"], dtype=float).reshape(-1, 2)
-             for m in demos_art.messages.get(topics.DEMOS, [])]
+    demos = [_points(demos_art, topics.DEMOS, m) for m in demos_art.messages.get(topics.DEMOS, [])]
     meta = birl.metadata
     about = [f"run: {run_dir.resolve()}",
              f"scene: {scene.name}, seed {meta.get('seed', '?')}, git revision "
@@ -402,7 +420,7 @@ def read_run(run_dir: Path) -> RunReward:
              # what the export was made from: a later run into the dir changes these
              f"from: birl.mcap content {birl.digest[:16] or '?'}, eval.mcap content "
              f"{evaluation.digest[:16] or '?'}"]
-    return RunReward(scene, params, weights, learned, demos, about)
+    return RunReward(scene, params, weights, paths, demos, about)
 
 
 # -- writing the export ------------------------------------------------------------------------
@@ -464,7 +482,10 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int]]:
             raise
     finally:
         shutil.rmtree(partial, ignore_errors=True)
-        shutil.rmtree(old, ignore_errors=True)
+        if old.is_dir():
+            shutil.rmtree(old, ignore_errors=True)
+        else:  # `export` was a file
+            old.unlink(missing_ok=True)
     return final, costmap, counts
 
 

@@ -24,7 +24,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from pipeline.app.rundir import FAILED, RUNNING, write_status
-from pipeline.artefacts import codec, read_artefact, topics
+from pipeline.artefacts import codec, read_artefact, topics, write_artefact
 from pipeline.core.features import FeatureParams
 from pipeline.core.world import Scene, scene_from_dict
 from pipeline.inputs.map_file import load_map
@@ -43,7 +43,8 @@ TOPIC_TYPES = {"/birlg/learned_paths": "nav_msgs/msg/Path",
 # -- independent readers -----------------------------------------------------------------------
 
 
-def nav2_scale_occupancy(grey: np.ndarray, free_thresh: float, occupied_thresh: float) -> np.ndarray:
+def nav2_scale_occupancy(grey: np.ndarray, free_thresh: float,
+                         occupied_thresh: float) -> np.ndarray:
     """OccupancyGrid values of an opaque 8-bit grey image as nav2_map_server's loadMapFromFile
     computes them in `mode: scale` with negate 0 (map_io.cpp): occ = 1 - shade; occ >
     occupied_thresh -> 100, occ < free_thresh -> 0, else rint((occ - free) / (occupied - free)
@@ -295,7 +296,7 @@ def test_bag_holds_one_path_per_start_and_demo_and_the_people(exported, scene):
     counts = {t: len(m) for t, m in msgs.items()}
     assert counts == {"/birlg/learned_paths": n_starts, "/birlg/learned_paths_ref": n_starts,
                       "/birlg/demos": len(demos), "/birlg/people": 1}
-    for topic, items in msgs.items():
+    for items in msgs.values():
         for k, (stamp, msg) in enumerate(items):
             assert stamp == k * 10**9  # message index seconds, never the wall clock
             for part in [msg] + list(getattr(msg, "poses", [])) + list(getattr(msg, "markers",
@@ -332,6 +333,16 @@ def test_bag_demos_are_the_demonstrations_and_the_pipeline_reads_them_back(expor
     assert not is_stream and len(tracks) == len(demos)
     for track, demo in zip(tracks, demos, strict=True):
         np.testing.assert_array_equal(track, demo)
+
+
+def test_path_headings_skip_repeated_points():
+    pts = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 2.0]])
+    # each point heads along the segment leaving it; a zero-length one takes the one before
+    np.testing.assert_allclose(export.path_yaws(pts), [0, 0, 0, math.pi / 2, math.pi / 2])
+    pts = np.array([[1.0, 1.0], [1.0, 1.0], [0.0, 1.0]])  # leading repeat: the first heading
+    np.testing.assert_allclose(export.path_yaws(pts), [math.pi, math.pi, math.pi])
+    np.testing.assert_array_equal(export.path_yaws(np.ones((3, 2))), np.zeros(3))
+    np.testing.assert_array_equal(export.path_yaws(np.ones((1, 2))), np.zeros(1))
 
 
 def test_people_markers_have_stable_ids_bodies_and_headings(exported, scene):
@@ -458,6 +469,22 @@ def test_bad_run_dirs_are_refused_in_one_line(exported, tmp_path, capsys):
     line = _one_error_line(capsys)
     assert str(eval_mcap) in line and "truncated" in line
     assert not (truncated / "export").exists()
+
+    foreign = copy_run(exported, tmp_path / "foreign")  # a readable eval.mcap, odd content
+    write_artefact(foreign / "eval.mcap", [(topics.EVAL_PATHS, "LearnedPath",
+                                            {"graph": "graph", "start": 0}, 0)],
+                   config_yaml="", metadata={})
+    assert export.main([str(foreign)]) == 2
+    line = _one_error_line(capsys)
+    assert str(foreign / "eval.mcap") in line and "points" in line
+
+
+def test_a_run_dir_without_status_json_is_exported(exported, tmp_path):
+    run_dir = copy_run(exported, tmp_path)  # made before runs wrote status.json
+    (run_dir / "status.json").unlink()
+    assert export.main([str(run_dir)]) == 0
+    assert (run_dir / "export" / "costmap.pgm").read_bytes() == \
+        (exported[1] / "costmap.pgm").read_bytes()
 
 
 def test_the_command_line_prints_one_line_and_exits_2(tmp_path):
