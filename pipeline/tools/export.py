@@ -51,6 +51,7 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
 
 from pipeline.app.rundir import COMPLETE, acquire_lock, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics
@@ -224,7 +225,7 @@ def path_yaws(points: np.ndarray) -> np.ndarray:
 class BagMessages:
     """ROS 2 messages built with a rosbags typestore."""
 
-    def __init__(self, typestore) -> None:
+    def __init__(self, typestore: Typestore) -> None:
         self.store = typestore
         self.t = typestore.types
 
