@@ -18,8 +18,9 @@ the path is sampled and the features of a concatenated path are the sums of its 
 `front` takes, like `social`, the largest hinge over the persons (social's
 max(0, ρ − min_i d_i) is max_i max(0, ρ − d_i)), each person's hinge weighted by how much p
 lies in front of them: with every person facing p it equals `social`, behind everyone it is
-0, and a group does not count a point several times. It stays continuous in p, unlike the
-hinge of the nearest person alone, which jumps where the nearest person changes.
+0, and a group does not count a point several times. It is continuous in p (but at the
+persons' own positions, inside their body disks), unlike the weighted hinge of the nearest
+person alone, which jumps where the nearest person changes.
 
 A selected name may carry its parameter as `name@value` (`social@0.8`: the social hinge at
 0.8 m); without it the parameter comes from FeatureParams. The density integrals of the
@@ -68,7 +69,8 @@ GAUSSIAN_CUTOFF = 1e-12
 _GAUSSIAN_REACH = math.sqrt(2.0 * math.log(1.0 / GAUSSIAN_CUTOFF))
 
 _PERSON_KINDS = frozenset({"social", "gaussian", "front"})
-_TILED_KINDS = _PERSON_KINDS | {"relation", "group_space"}  # local densities, sub-stepped
+# Densities evaluated tile by tile; on segments all but relation are integrated by sub-steps.
+_TILED_KINDS = _PERSON_KINDS | {"relation", "group_space"}
 
 # Keeps the (points x persons) distance matrices of a batch to a few tens of MB.
 _CHUNK_POINTS = 200_000
@@ -170,20 +172,21 @@ def social_groups(n_persons: int, pairs: np.ndarray) -> tuple[tuple[int, ...], .
 
 @dataclass(frozen=True)
 class FeatureModel:
+    """The selected features of a scene: what they need of it, and their integrals."""
     link_a: np.ndarray  # (L, 2) social link end points
     link_b: np.ndarray  # (L, 2)
     persons: np.ndarray  # (P, 2)
     goal: np.ndarray  # (2,)
-    rho_relation: float = 0.6
-    rho_personal: float = 1.2
-    resolution: float = 0.05
+    rho_relation: float = FeatureParams.rho_relation
+    rho_personal: float = FeatureParams.rho_personal
+    resolution: float = FeatureParams.resolution
     names: tuple[str, ...] = FEATURE_NAMES  # the selected features, in column order
     headings: np.ndarray | None = None  # (P,) θ_i in rad (front); None: every θ_i = 0
     groups: tuple[tuple[int, ...], ...] = ()  # person indices of each group (group_space)
     obstacles: ObstacleMap | None = None  # clearance map (obstacle); None: no obstacles
-    sigma: float = 0.8
-    rho_group: float = 0.3
-    rho_obstacle: float = 0.5
+    sigma: float = FeatureParams.sigma
+    rho_group: float = FeatureParams.rho_group
+    rho_obstacle: float = FeatureParams.rho_obstacle
 
     def __post_init__(self) -> None:
         require_positive(self, "rho_relation", "rho_personal", "resolution", "sigma",
