@@ -12,7 +12,7 @@ SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S-%N))
 RUN ?=
 SHOT ?= docs/viewer.png
 
-.PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress
+.PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress export
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "make: creating $(VENV) with the pinned dependencies (first time: 1-3 min) ..."; \
@@ -42,6 +42,12 @@ aggregate: $(STAMP)
 view: $(STAMP)
 	@test -n "$(RUN)" || { echo "usage: make view RUN=<run dir>"; exit 2; }
 	$(PY) -m pipeline.tools.viewer $(RUN)
+
+## A run's learned reward for ROS (docs/deploy.md): a Nav2 costmap mask and a ROS 2 bag of
+## learned paths and people in RUN/export/: make export RUN=outputs/...
+export: $(STAMP)
+	@test -n "$(RUN)" || { echo "usage: make export RUN=<run dir>"; exit 2; }
+	$(PY) -m pipeline.tools.export $(RUN)
 
 ## The viewer showing a run, rendered headless under Xvfb, as a 256-colour PNG (default
 ## docs/viewer.png, the README's): make screenshot RUN=outputs/... [SHOT=file.png]

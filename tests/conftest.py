@@ -1,9 +1,18 @@
-"""Shared fixtures: the real Hydra config composed in-process, one default run per session.
+"""Where a new test goes: into the folder of the layer of the module it tests (tests/core,
+tests/irl, tests/inputs, tests/artefacts, tests/app, tests/tools), in a file named after that
+module (pipeline/core/features.py: tests/core/test_features.py); end-to-end runs through the
+stages go to tests/pipeline, the command line (subprocesses or `cli()`, exit codes) to
+tests/cli. Mark a slow test `@pytest.mark.slow`: `make test` leaves it out, `make test-all`
+runs it. A helper that several test files use lives here, or in its folder's conftest.py when
+only that folder uses it, never in a test file that others import.
+
+Shared fixtures: the real Hydra config composed in-process, one default run per session.
 
 Most end-to-end tests run the pipeline in this process (`run_in_process`: Hydra's compose
 API and the same `run_pipeline` the CLI calls), which saves the ~2 s of imports a
 subprocess pays. A few tests keep the subprocess (`run_app`) because what they check is the
-command line itself: exit codes, one-line errors, multiruns.
+command line itself: exit codes, one-line errors, multiruns. Also here, for tests in several
+folders: the walled metropolis scene, a writer of real ROS bags, and a graph of two routes.
 """
 
 import contextlib
@@ -17,13 +26,21 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
 
 from pipeline.app.config import register_configs
+from pipeline.core.graph_mdp import GraphMDP
+from pipeline.core.graph_mdp import Path as GraphPath
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.stages import run_pipeline
 
 ROOT = Path(__file__).resolve().parent.parent
 METROPOLIS = ROOT / "data" / "scenes" / "metropolis.json"
+OFFICE_SCENE = ROOT / "data" / "scenes" / "office.json"
+OFFICE_MAP = ROOT / "data" / "maps" / "office.yaml"
 POLITE = np.array([-1.0, -0.7, -0.85, -0.1])
 RUDE = np.array([0.0, 0.0, -0.85, -0.1])
 
@@ -63,3 +80,122 @@ def default_run(tmp_path_factory) -> tuple[Path, dict, str]:
     run_dir = tmp_path_factory.mktemp("default_run")
     metrics, stdout = run_in_process(run_dir)
     return run_dir, metrics, stdout
+
+
+@pytest.fixture(scope="module")
+def default_dir(default_run):
+    """The default run's dir (the first item of `default_run`)."""
+    return default_run[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Metropolis with a wall across the room at y = 8 (0.1 m thick) and a 1 m gap at x 4.3..5.3,
+# plus a table. The starts on the room's border (closer than robot_radius to it) are dropped;
+# every remaining start lies south of the wall, the goal (5.5, 9) north of it.
+ROBOT_RADIUS = 0.2
+GAP = (4.3, 5.3)
+WALL_Y = 8.0
+WALL = [[[0.0, 7.95], [GAP[0], 7.95], [GAP[0], 8.05], [0.0, 8.05]],
+        [[GAP[1], 7.95], [10.0, 7.95], [10.0, 8.05], [GAP[1], 8.05]]]
+TABLE = [[8.0, 3.3], [9.0, 3.3], [9.0, 4.0], [8.0, 4.0]]
+INNER_STARTS = [[0.5, 0.5], [2.0, 3.0], [8.5, 5.2], [4.0, 3.0]]
+
+
+def walled_metropolis() -> dict:
+    data = json.loads(METROPOLIS.read_text())
+    data.update(name="walled", starts=INNER_STARTS, robot_radius=ROBOT_RADIUS,
+                obstacles=WALL + [TABLE])
+    return data
+
+
+def write_json(path: Path, data: dict) -> Path:
+    path.write_text(json.dumps(data))
+    return path
+
+
+def one_line(err: pytest.ExceptionInfo) -> str:
+    text = str(err.value)
+    assert text and "\n" not in text and "Traceback" not in text
+    return text
+
+
+# ---------------------------------------------------------------------------------------------
+# Writing real ROS bags
+
+ROS2 = get_typestore(Stores.ROS2_HUMBLE)
+ROS1 = get_typestore(Stores.ROS1_NOETIC)
+
+
+def header(ts, stamp_ns: int, frame: str):
+    t = ts.types
+    stamp = t["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+    if ts is ROS1:
+        return t["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
+    return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+
+def pose(ts, x: float, y: float):
+    t = ts.types
+    return t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0),
+        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+
+
+def make_msg(ts, msgtype: str, stamp: int, frame: str, data: np.ndarray):
+    """A message of `msgtype`: a Path through the points `data` (K, 2) or a pose at `data`."""
+    t = ts.types
+    h = header(ts, stamp, frame)
+    if msgtype == "nav_msgs/msg/Path":
+        poses = [t["geometry_msgs/msg/PoseStamped"](header=h, pose=pose(ts, x, y)) for x, y in data]
+        return t[msgtype](header=h, poses=poses)
+    if msgtype == "geometry_msgs/msg/PoseStamped":
+        return t[msgtype](header=h, pose=pose(ts, *data))
+    cov = t["geometry_msgs/msg/PoseWithCovariance"](pose=pose(ts, *data),
+                                                    covariance=np.zeros(36))
+    if msgtype == "geometry_msgs/msg/PoseWithCovarianceStamped":
+        return t[msgtype](header=h, pose=cov)
+    assert msgtype == "nav_msgs/msg/Odometry"
+    zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    twist = t["geometry_msgs/msg/TwistWithCovariance"](
+        twist=t["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36))
+    return t[msgtype](header=h, child_frame_id="base_link", pose=cov, twist=twist)
+
+
+def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]], frame: str = "map",
+              storage: str = "mcap") -> Path:
+    """Write `topics` {name: (msgtype, [data per message])}; storage mcap|sqlite3|ros1."""
+    ts = ROS1 if storage == "ros1" else ROS2
+    if storage == "ros1":
+        writer = Writer1(path)
+    else:
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        writer = Writer2(path, version=9, storage_plugin=plugin)
+    with writer:
+        for name, (msgtype, items) in topics.items():
+            conn = writer.add_connection(name, msgtype, typestore=ts)
+            for k, data in enumerate(items):
+                stamp = 10**9 + k * 10**8
+                msg = make_msg(ts, msgtype, stamp, frame, np.asarray(data, dtype=float))
+                raw = ts.serialize_ros1(msg, msgtype) if storage == "ros1" else \
+                    ts.serialize_cdr(msg, msgtype)
+                writer.write(conn, stamp, raw)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------
+# Two routes to the goal, a graph small enough for hand computations
+
+TWO_ROUTES_GAMMA = 0.9
+
+
+def two_routes():
+    """Start 0, goal 3 (terminal). Route A: 0→3 directly (1 s, feature 1.0); route B:
+    0→1→3 (1 s + 1 s, features 0.2 and 0.3); node 2 is a dead end reached from 1."""
+    src, dst = [0, 0, 1, 1], [3, 1, 3, 2]
+    feats = [[1.0], [0.2], [0.3], [0.0]]
+    mdp = GraphMDP(src, dst, np.ones(4), feats, [False, False, False, True],
+                   gamma=TWO_ROUTES_GAMMA)
+    edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
+    route_a = GraphPath([0, 3], [edge[0, 3]], True)
+    route_b = GraphPath([0, 1, 3], [edge[0, 1], edge[1, 3]], True)
+    return mdp, route_a, route_b

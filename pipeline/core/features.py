@@ -1,34 +1,93 @@
 """Reward features of robot paths (DESIGN §4), vectorised over many segments.
 
 Every feature is an integral along the path, so its value does not depend on how finely
-the path is sampled and the features of a concatenated path are the sums of its parts:
+the path is sampled and the features of a concatenated path are the sums of its parts
+(d_i = |p − x_i| the distance to person i, θ_i its heading, c(p) the obstacle clearance):
 
 - relation       = ∫ Σ_links max(0, ρ_r − d(p, link)) · [p projects inside the link] ds
-- social         = ∫ max(0, ρ_p − min_i |p − x_i|) ds
+- social         = ∫ max(0, ρ_p − min_i d_i) ds
+- intimate       = ∫ max(0, 0.45 − min_i d_i) ds                 (social at Hall's 0.45 m)
+- gaussian       = ∫ Σ_i exp(−d_i² / 2σ²) ds
+- front          = ∫ max_i [max(0, ρ_p − d_i) · max(0, cos φ_i)] ds, φ_i the angle between
+                   θ_i and p − x_i
+- group_space    = ∫ Σ_groups max(0, r_g − |p − c_g|) ds
+- obstacle       = ∫ max(0, ρ_o − c(p)) ds
 - goal_deviation = total increase of |p − g| along the path
 - length         = ∫ ds
 
-The two density integrals use DESIGN's Riemann sum Σ_k ds_k f(p_k) with every segment
-split into equal sub-steps of at most `resolution`, f evaluated at the sub-step midpoints
-(second-order accurate, so 0.1 m and 0.01 m sampling agree closely). `goal_deviation`
-and `length` are computed exactly per straight segment.
+`front` takes, like `social`, the largest hinge over the persons (social's
+max(0, ρ − min_i d_i) is max_i max(0, ρ − d_i)), each person's hinge weighted by how much p
+lies in front of them: with every person facing p it equals `social`, behind everyone it is
+0, and a group does not count a point several times. It is continuous in p (but at the
+persons' own positions, inside their body disks), unlike the weighted hinge of the nearest
+person alone, which jumps where the nearest person changes.
+
+A selected name may carry its parameter as `name@value` (`social@0.8`: the social hinge at
+0.8 m); without it the parameter comes from FeatureParams. The density integrals of the
+persons and groups use DESIGN's Riemann sum Σ_k ds_k f(p_k) with every segment split into
+equal sub-steps of at most `resolution`, f evaluated at the sub-step midpoints (second order
+accurate for these continuous integrands, so 0.1 m and 0.01 m sampling agree closely). The
+others are exact per straight segment: `relation` (its projection indicator jumps at the
+link ends, where a Riemann sum is only first order; per link the integrand along a segment
+is a hinge of a linear function on one interval, integrated in closed form), `obstacle` (the
+clearance map is constant per raster cell, so the segment is cut where it crosses a cell
+border and each piece counts its cell's value), `goal_deviation` and `length`. Only the
+selected features are computed.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
-from pipeline.core.params import require, require_positive
+from pipeline.core.obstacles import ObstacleMap
+from pipeline.core.params import ParameterError, is_number, require_positive
+from pipeline.core.social import INTIMATE_ZONE  # `intimate` is `social` at this radius
 from pipeline.core.world import Scene
 
-FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "length")
-_COLUMN = {name: k for k, name in enumerate(FEATURE_NAMES)}
+FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "length")  # default
 
-# Keeps the (points x links) distance matrices of a batch to a few tens of MB.
+# Every feature kind, and the FeatureParams field that holds its parameter when the name
+# carries no `@value` (None: the kind takes no parameter).
+_PARAMETER_FIELD: dict[str, str | None] = {
+    "relation": "rho_relation", "social": "rho_personal", "intimate": None,
+    "gaussian": "sigma", "front": "rho_personal", "group_space": "rho_group",
+    "obstacle": "rho_obstacle", "goal_deviation": None, "length": None,
+}
+FEATURE_KINDS: tuple[str, ...] = tuple(_PARAMETER_FIELD)
+
+# Gaussian terms below this fraction of their peak are dropped, which gives the sum a finite
+# reach, σ·√(2 ln 10¹²) ≈ 7.43 σ, so that a tile only looks at the persons within it.
+GAUSSIAN_CUTOFF = 1e-12
+_GAUSSIAN_REACH = math.sqrt(2.0 * math.log(1.0 / GAUSSIAN_CUTOFF))
+
+_PERSON_KINDS = frozenset({"social", "gaussian", "front"})
+# Densities evaluated tile by tile; on segments all but relation are integrated by sub-steps.
+_TILED_KINDS = _PERSON_KINDS | {"relation", "group_space"}
+
+# Keeps the (points x persons) distance matrices of a batch to a few tens of MB.
 _CHUNK_POINTS = 200_000
 _TILE = 2.0  # m, side of the tiles whose nearby links and persons are looked up
+
+
+class Feature(NamedTuple):
+    """One selected feature: its name as selected, what it computes, and its parameter."""
+    name: str  # e.g. "social@0.8"
+    kind: str  # one of FEATURE_KINDS except "intimate", which is kind "social" at 0.45 m
+    value: float  # radius ρ or width σ in m; NaN for goal_deviation and length
+
+
+def _allowed_names() -> str:
+    with_value = [k for k, f in _PARAMETER_FIELD.items() if f is not None]
+    return (f"distinct names from {list(FEATURE_KINDS)}, each of {with_value} optionally "
+            "as NAME@VALUE with VALUE a finite number > 0 (m)")
 
 
 @dataclass
@@ -36,48 +95,162 @@ class FeatureParams:
     """Which features make up the reward, in which order, and their constants."""
     features: list[str] = field(default_factory=lambda: list(FEATURE_NAMES))
     rho_relation: float = 0.6  # m, ρ_r
-    rho_personal: float = 1.2  # m, ρ_p
+    rho_personal: float = 1.2  # m, ρ_p (social, front)
     resolution: float = 0.05  # m, integration step of the density features
+    sigma: float = 0.8  # m, σ of gaussian: a third of the peak at ρ_p, ~0 beyond 3σ = 2.4 m
+    rho_group: float = 0.3  # m, o-space radius beyond the members' mean distance to the centre
+    rho_obstacle: float = 0.5  # m, ρ_o
 
     def __post_init__(self) -> None:
-        require_positive(self, "rho_relation", "rho_personal", "resolution")
-        names = list(self.features)
-        require(len(names) > 0 and len(set(names)) == len(names)
-                and all(n in _COLUMN for n in names), "features", names,
-                f"distinct names from {list(FEATURE_NAMES)}")
+        require_positive(self, "rho_relation", "rho_personal", "resolution", "sigma",
+                         "rho_group", "rho_obstacle")
+        self.selected()
+
+    def selected(self) -> tuple[Feature, ...]:
+        """The selected features, parsed; ParameterError on `features` for an unknown name, a
+        malformed `@value`, or two names that compute the same feature."""
+        names = list(self.features) if isinstance(self.features, (list, tuple)) else None
+
+        def refuse(why: str) -> ParameterError:
+            return ParameterError("features", names if names is not None else self.features,
+                                  f"{_allowed_names()}; {why}")
+
+        if not names:
+            raise refuse("at least one is needed")
+        out: list[Feature] = []
+        seen: dict[tuple[str, float], str] = {}
+        for name in names:
+            feature = self._parse(name, refuse)
+            has_value = not math.isnan(feature.value)
+            key = (feature.kind, feature.value if has_value else 0.0)
+            if key in seen:
+                at = f" ({feature.kind} at {feature.value:g} m)" if has_value else ""
+                raise refuse(f"{name!r} is the same feature as {seen[key]!r}{at}")
+            seen[key] = name
+            out.append(feature)
+        return tuple(out)
+
+    def _parse(self, name: object, refuse: Callable[[str], ParameterError]) -> Feature:
+        if not isinstance(name, str):
+            raise refuse(f"{name!r} is not a name")
+        kind, sep, text = name.partition("@")
+        if kind not in _PARAMETER_FIELD:
+            raise refuse(f"{kind!r} is not a feature")
+        parameter = _PARAMETER_FIELD[kind]
+        if sep and parameter is None:
+            raise refuse(f"{kind} takes no @VALUE ({name!r})")
+        if kind == "intimate":
+            return Feature(name, "social", INTIMATE_ZONE)
+        if parameter is None:
+            return Feature(name, kind, math.nan)
+        if not sep:
+            return Feature(name, kind, float(getattr(self, parameter)))
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (is_number(value) and value > 0):
+            raise refuse(f"the value of {name!r} must be a finite number > 0")
+        return Feature(name, kind, value)
+
+
+def social_groups(n_persons: int, pairs: np.ndarray) -> tuple[tuple[int, ...], ...]:
+    """Groups: the connected components with at least two members of the graph whose
+    edges are the relations `pairs` (m, 2) of person indices; members ascending, groups in
+    the order of their first member."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if n_persons == 0 or len(pairs) == 0:
+        return ()
+    adjacency = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                           shape=(n_persons, n_persons))
+    _, label = connected_components(adjacency, directed=False)
+    members: dict[int, list[int]] = {}
+    for person, component in enumerate(label):
+        members.setdefault(int(component), []).append(person)
+    return tuple(sorted(tuple(m) for m in members.values() if len(m) >= 2))
 
 
 @dataclass(frozen=True)
 class FeatureModel:
+    """The selected features of a scene: what they need of it, and their integrals."""
     link_a: np.ndarray  # (L, 2) social link end points
     link_b: np.ndarray  # (L, 2)
     persons: np.ndarray  # (P, 2)
     goal: np.ndarray  # (2,)
-    rho_relation: float = 0.6
-    rho_personal: float = 1.2
-    resolution: float = 0.05
+    rho_relation: float = FeatureParams.rho_relation
+    rho_personal: float = FeatureParams.rho_personal
+    resolution: float = FeatureParams.resolution
     names: tuple[str, ...] = FEATURE_NAMES  # the selected features, in column order
+    headings: np.ndarray | None = None  # (P,) θ_i in rad (front); None: every θ_i = 0
+    groups: tuple[tuple[int, ...], ...] = ()  # person indices of each group (group_space)
+    obstacles: ObstacleMap | None = None  # clearance map (obstacle); None: no obstacles
+    sigma: float = FeatureParams.sigma
+    rho_group: float = FeatureParams.rho_group
+    rho_obstacle: float = FeatureParams.rho_obstacle
 
     def __post_init__(self) -> None:
-        FeatureParams(list(self.names), self.rho_relation, self.rho_personal, self.resolution)
+        require_positive(self, "rho_relation", "rho_personal", "resolution", "sigma",
+                         "rho_group", "rho_obstacle")
+        _ = self.selected  # parse (and check) the names now
 
     @classmethod
     def from_scene(cls, scene: Scene, params: FeatureParams | None = None) -> FeatureModel:
         params = params or FeatureParams()
         a, b = scene.links
+        index = {p.id: k for k, p in enumerate(scene.persons)}
+        pairs = np.array([(index[i], index[j]) for i, j in scene.relations], np.int64)
         return cls(a, b, scene.person_xy, np.asarray(scene.goal, float), params.rho_relation,
-                   params.rho_personal, params.resolution, tuple(params.features))
+                   params.rho_personal, params.resolution, tuple(params.features),
+                   headings=np.array([p.theta for p in scene.persons], float),
+                   groups=social_groups(len(scene.persons), pairs),
+                   obstacles=scene.obstacles, sigma=params.sigma, rho_group=params.rho_group,
+                   rho_obstacle=params.rho_obstacle)
+
+    @cached_property
+    def selected(self) -> tuple[Feature, ...]:
+        """The selected features, parsed, in column order."""
+        return FeatureParams(list(self.names), self.rho_relation, self.rho_personal,
+                             self.resolution, self.sigma, self.rho_group,
+                             self.rho_obstacle).selected()
 
     @property
     def dim(self) -> int:
         return len(self.names)
 
+    @cached_property
+    def _heading_vectors(self) -> np.ndarray:
+        """(P, 2) unit vectors of the persons' headings."""
+        theta = np.zeros(len(self.persons)) if self.headings is None else \
+            np.asarray(self.headings, float).reshape(len(self.persons))
+        return np.column_stack([np.cos(theta), np.sin(theta)])
+
+    @cached_property
+    def _group_shape(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres c_g (G, 2) and spreads (G,) of the groups: the spread is the members' mean
+        distance to c_g, the o-space radius r_g the spread plus ρ_group."""
+        centres = np.zeros((len(self.groups), 2))
+        spreads = np.zeros(len(self.groups))
+        for g, members in enumerate(self.groups):
+            xy = self.persons[list(members)]
+            centres[g] = xy.mean(axis=0)
+            spreads[g] = np.linalg.norm(xy - centres[g], axis=1).mean()
+        return centres, spreads
+
     # -- densities at points -------------------------------------------------------------
     def relation_density(self, p: np.ndarray, links: np.ndarray | None = None) -> np.ndarray:
         """Σ_links max(0, ρ_r − d(p, link)) over links whose segment p projects onto; p (n, 2),
-        result (n,). `links` (indices) restricts the sum to the links that can reach p; the
-        sum runs link by link in index order, so leaving out links that add exactly 0 gives
-        the same bits."""
+        result (n,). `links` (indices) restricts the sum to the links that can reach p."""
+        return self._relation(p, self.rho_relation, links)
+
+    def social_density(self, p: np.ndarray, persons: np.ndarray | None = None) -> np.ndarray:
+        """max(0, ρ_p − distance to the nearest person) (n,) at the points p (n, 2);
+        `persons` (indices) restricts it to the persons that can reach p."""
+        return self._evaluate(p, (Feature("social", "social", self.rho_personal),),
+                              persons=persons)[:, 0]
+
+    def _relation(self, p: np.ndarray, rho: float, links: np.ndarray | None) -> np.ndarray:
+        # The sum runs link by link in index order, so leaving out links that add exactly 0
+        # gives the same bits.
         total = np.zeros(len(p))
         for link in range(len(self.link_a)) if links is None else links:
             a = self.link_a[link]
@@ -87,41 +260,108 @@ class FeatureModel:
             # With the projection inside the link, the distance to the segment is the
             # perpendicular distance |cross(ab, ap)| / |ab|.
             d = np.abs(ab[0] * ap[:, 1] - ab[1] * ap[:, 0]) / np.sqrt(ab @ ab)
-            total += np.where((t >= 0.0) & (t <= 1.0), np.maximum(0.0, self.rho_relation - d),
-                              0.0)
+            total += np.where((t >= 0.0) & (t <= 1.0), np.maximum(0.0, rho - d), 0.0)
         return total
 
-    def social_density(self, p: np.ndarray, persons: np.ndarray | None = None) -> np.ndarray:
-        """max(0, ρ_p − distance to the nearest person) (n,) at the points p (n, 2);
-        `persons` (indices) restricts it to the persons that can reach p."""
-        xy = self.persons if persons is None else self.persons[persons]
-        if len(xy) == 0:
-            return np.zeros(len(p))
-        d = np.linalg.norm(p[:, None, :] - xy[None, :, :], axis=2).min(axis=1)
-        return np.maximum(0.0, self.rho_personal - d)
+    def _evaluate(self, p: np.ndarray, features: tuple[Feature, ...],
+                  links: np.ndarray | None = None, persons: np.ndarray | None = None,
+                  groups: np.ndarray | None = None) -> np.ndarray:
+        """Densities (n, k) of the tiled `features` at the points p (n, 2). `links`,
+        `persons`, `groups` (indices, ascending) restrict the sums to those that can reach p
+        (None: all); what they leave out adds exactly 0, and sums run in index order, so the
+        bits do not change."""
+        out = np.empty((len(p), len(features)))
+        who = np.arange(len(self.persons)) if persons is None else np.asarray(persons)
+        dx = dy = dist2 = nearest = None
+        for col, f in enumerate(features):
+            if f.kind == "relation":
+                out[:, col] = self._relation(p, f.value, links)
+                continue
+            if f.kind == "group_space":
+                out[:, col] = self._group_space(p, f.value, groups)
+                continue
+            if dist2 is None:  # the person kinds share the distances
+                xy = self.persons[who]
+                dx = p[:, 0, None] - xy[None, :, 0]  # (n, P) components of p − x_i
+                dy = p[:, 1, None] - xy[None, :, 1]
+                dist2 = dx * dx + dy * dy
+            assert dx is not None and dy is not None
+            if len(who) == 0:
+                out[:, col] = 0.0
+            elif f.kind == "social":  # social, intimate and social@ρ share the nearest
+                if nearest is None:
+                    nearest = np.sqrt(dist2.min(axis=1))
+                out[:, col] = np.maximum(0.0, f.value - nearest)
+            elif f.kind == "front":
+                dist = np.sqrt(dist2)
+                heading = self._heading_vectors[who]
+                along = dx * heading[None, :, 0] + dy * heading[None, :, 1]  # d_i cos φ_i
+                cos = np.where(dist > 0, along / np.where(dist > 0, dist, 1.0), 0.0)
+                out[:, col] = (np.maximum(0.0, f.value - dist) * np.maximum(0.0, cos)).max(1)
+            else:  # gaussian, person by person in index order
+                reach2 = (_GAUSSIAN_REACH * f.value) ** 2
+                total = np.zeros(len(p))
+                for i in range(len(who)):
+                    d2 = dist2[:, i]
+                    total += np.where(d2 < reach2, np.exp(-d2 / (2.0 * f.value**2)), 0.0)
+                out[:, col] = total
+        return out
 
-    def _densities(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Relation and social density (n,) at the points p (n, 2), tile by tile: both vanish
-        beyond ρ_r (ρ_p), so a tile needs only the links and persons near it. A large room
-        has hundreds of persons, a 2 m tile a few: the same values, far fewer distances."""
-        relation, social = np.empty(len(p)), np.empty(len(p))
+    def _group_space(self, p: np.ndarray, rho: float, groups: np.ndarray | None) -> np.ndarray:
+        centres, spreads = self._group_shape
+        total = np.zeros(len(p))
+        for g in range(len(centres)) if groups is None else groups:
+            total += np.maximum(0.0, spreads[g] + rho - np.linalg.norm(p - centres[g], axis=1))
+        return total
+
+    def _tiled(self, p: np.ndarray, features: tuple[Feature, ...]) -> np.ndarray:
+        """`_evaluate` (n, k) tile by tile: the densities vanish beyond their reach, so a tile
+        needs only the links, persons and groups near it. A large room has hundreds of
+        persons, a 2 m tile a few: the same values, far fewer distances."""
+        out = np.empty((len(p), len(features)))
+        if len(p) == 0 or not features:
+            return out
+        link_reach = max((f.value for f in features if f.kind == "relation"), default=None)
+        person_reach = max((_GAUSSIAN_REACH * f.value if f.kind == "gaussian" else f.value
+                            for f in features if f.kind in _PERSON_KINDS), default=None)
+        group_rho = max((f.value for f in features if f.kind == "group_space"), default=None)
+        link_lo = np.minimum(self.link_a, self.link_b)  # the links' bounding boxes
+        link_hi = np.maximum(self.link_a, self.link_b)
+        centres, spreads = self._group_shape
         cell = np.floor((p - p.min(axis=0)) / _TILE).astype(np.int64)
         key = cell[:, 0] * (cell[:, 1].max() + 1) + cell[:, 1]
         order = np.argsort(key, kind="stable")
-        link_lo = np.minimum(self.link_a, self.link_b)  # the links' bounding boxes
-        link_hi = np.maximum(self.link_a, self.link_b)
         for tile in np.split(order, np.flatnonzero(np.diff(key[order])) + 1):
             q = p[tile]
             lo, hi = q.min(axis=0), q.max(axis=0)
-            r = self.rho_relation
-            links = np.flatnonzero((link_lo <= hi + r).all(axis=1)
-                                   & (link_hi >= lo - r).all(axis=1))
-            r = self.rho_personal
-            persons = np.flatnonzero(((self.persons >= lo - r) & (self.persons <= hi + r))
-                                     .all(axis=1))
-            relation[tile] = self.relation_density(q, links)
-            social[tile] = self.social_density(q, persons)
-        return relation, social
+            links = persons = groups = None
+            if link_reach is not None:
+                r = link_reach
+                links = np.flatnonzero((link_lo <= hi + r).all(axis=1)
+                                       & (link_hi >= lo - r).all(axis=1))
+            if person_reach is not None:
+                r = person_reach
+                persons = np.flatnonzero(((self.persons >= lo - r) & (self.persons <= hi + r))
+                                         .all(axis=1))
+            if group_rho is not None:
+                r_g = (spreads + group_rho)[:, None]
+                groups = np.flatnonzero(((centres >= lo - r_g) & (centres <= hi + r_g))
+                                        .all(axis=1))
+            out[tile] = self._evaluate(q, features, links, persons, groups)
+        return out
+
+    def _densities(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Relation and social density (n,) at the points p (n, 2), tiled."""
+        both = self._tiled(p, (Feature("relation", "relation", self.rho_relation),
+                               Feature("social", "social", self.rho_personal)))
+        return both[:, 0], both[:, 1]
+
+    def obstacle_density(self, p: np.ndarray, rho: float | None = None) -> np.ndarray:
+        """max(0, ρ_o − clearance) (n,) at the points p (n, 2); 0 without obstacles."""
+        rho = self.rho_obstacle if rho is None else rho
+        if self.obstacles is None:
+            return np.zeros(len(p))
+        return np.maximum(0.0, rho - self.obstacles.clearance_at(p))
 
     def densities(self, points: np.ndarray) -> np.ndarray:
         """Per-metre density (n, d) of each selected feature at the points (n, 2): the
@@ -129,35 +369,42 @@ class FeatureModel:
         a feature that is not a density of position alone (`goal_deviation` depends on the
         direction of travel). A costmap of the reward holds the finite columns."""
         p = np.asarray(points, float).reshape(-1, 2)
-        out = np.full((len(p), len(FEATURE_NAMES)), np.nan)
-        if len(p):
-            out[:, 0], out[:, 1] = self._densities(p)
-        out[:, 3] = 1.0
-        if self.names == FEATURE_NAMES:
-            return out
-        return out[:, [_COLUMN[n] for n in self.names]]
+        out = np.full((len(p), self.dim), np.nan)
+        tiled = [col for col, f in enumerate(self.selected) if f.kind in _TILED_KINDS]
+        out[:, tiled] = self._tiled(p, tuple(self.selected[c] for c in tiled))
+        for col, f in enumerate(self.selected):
+            if f.kind == "length":
+                out[:, col] = 1.0
+            elif f.kind == "obstacle":
+                out[:, col] = self.obstacle_density(p, f.value)
+        return out
 
     # -- features of straight segments ---------------------------------------------------
     def segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Features (n, d) of the straight segments a[i] → b[i], each (n, 2)."""
-        out = self._all_segments(a, b)
-        if self.names == FEATURE_NAMES:
-            return out
-        return out[:, [_COLUMN[n] for n in self.names]]
-
-    def _all_segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """All four features (n, 4) of the segments a[i] → b[i] (each (n, 2)), in
-        FEATURE_NAMES order."""
         a = np.asarray(a, float).reshape(-1, 2)
         b = np.asarray(b, float).reshape(-1, 2)
         n = len(a)
-        out = np.zeros((n, len(FEATURE_NAMES)))
+        out = np.zeros((n, self.dim))
         if n == 0:
             return out
         seg = b - a
         length = np.linalg.norm(seg, axis=1)
-        out[:, 3] = length
-        out[:, 2] = _distance_increase(a, b, self.goal)
+        tiled = []
+        for col, f in enumerate(self.selected):
+            if f.kind == "length":
+                out[:, col] = length
+            elif f.kind == "goal_deviation":
+                out[:, col] = _distance_increase(a, b, self.goal)
+            elif f.kind == "obstacle":
+                out[:, col] = self._obstacle_segments(a, b, f.value)
+            elif f.kind == "relation":
+                out[:, col] = self._relation_segments(a, b, f.value)
+            else:
+                tiled.append(col)
+        if not tiled:
+            return out
+        features = tuple(self.selected[c] for c in tiled)
 
         # Split every segment into equal sub-steps of at most `resolution`.
         n_sub = np.maximum(1, np.ceil(length / self.resolution - 1e-9).astype(np.int64))
@@ -169,9 +416,97 @@ class FeatureModel:
         for lo in range(0, len(owner), _CHUNK_POINTS):
             sl = slice(lo, lo + _CHUNK_POINTS)
             p = a[owner[sl]] + frac[sl, None] * seg[owner[sl]]
-            relation, social = self._densities(p)
-            out[:, 0] += np.bincount(owner[sl], ds[sl] * relation, minlength=n)
-            out[:, 1] += np.bincount(owner[sl], ds[sl] * social, minlength=n)
+            dens = self._tiled(p, features)
+            for j, col in enumerate(tiled):
+                out[:, col] += np.bincount(owner[sl], ds[sl] * dens[:, j], minlength=n)
+        return out
+
+    def _relation_segments(self, a: np.ndarray, b: np.ndarray, rho: float) -> np.ndarray:
+        """∫ Σ_links max(0, ρ − d(p, link)) · [p projects inside the link] ds (n,) along
+        a[i] → b[i], exact: along a straight segment the projection onto a link moves
+        linearly, so it lies inside the link on one interval of the segment, where the
+        distance to the link's line is |y0 + s·dy| and the hinge has the antiderivative
+        H(y) = ρ y_c − y_c |y_c| / 2 (y_c = y clipped to ±ρ)."""
+        n, n_links = len(a), len(self.link_a)
+        out = np.zeros(n)
+        if n == 0 or n_links == 0:
+            return out
+        ab = self.link_b - self.link_a
+        span = np.linalg.norm(ab, axis=1)  # (L,)
+        along = ab / span[:, None]
+        normal = np.column_stack([-along[:, 1], along[:, 0]])
+        along0 = np.einsum("lk,lk->l", self.link_a, along)
+        normal0 = np.einsum("lk,lk->l", self.link_a, normal)
+        seg = b - a
+        length = np.linalg.norm(seg, axis=1)
+        chunk = max(1, _CHUNK_POINTS // n_links)
+        for lo in range(0, n, chunk):
+            sl = slice(lo, lo + chunk)
+            # (m, L) link coordinates of the segments: tau along the link, y across it
+            tau0, dtau = a[sl] @ along.T - along0, seg[sl] @ along.T
+            y0, dy = a[sl] @ normal.T - normal0, seg[sl] @ normal.T
+            tau1, y1 = tau0 + dtau, y0 + dy
+            reach = ((np.minimum(tau0, tau1) <= span) & (np.maximum(tau0, tau1) >= 0)
+                     & (np.minimum(y0, y1) < rho) & (np.maximum(y0, y1) > -rho))
+            owner, link = np.nonzero(reach)  # row-major: each segment's links in order
+            t0, dt, w0, dw = tau0[owner, link], dtau[owner, link], y0[owner, link], \
+                dy[owner, link]
+            width = span[link]
+            # the s-interval (s in [0, 1] along the segment) where 0 <= tau <= span
+            moving = dt != 0
+            safe = np.where(moving, dt, 1.0)
+            cross_start, cross_end = -t0 / safe, (width - t0) / safe
+            s0 = np.clip(np.where(moving, np.minimum(cross_start, cross_end), 0.0), 0.0, 1.0)
+            s1 = np.clip(np.where(moving, np.maximum(cross_start, cross_end), 1.0), s0, 1.0)
+            tilted = np.abs(dw) > 1e-6  # else y moves < 1 µm: its middle value is exact
+            exact = (_hinge_antiderivative(w0 + s1 * dw, rho)
+                     - _hinge_antiderivative(w0 + s0 * dw, rho)) / np.where(tilted, dw, 1.0)
+            flat = (s1 - s0) * np.maximum(0.0, rho - np.abs(w0 + 0.5 * (s0 + s1) * dw))
+            out[sl] += np.bincount(owner, length[sl][owner] * np.where(tilted, exact, flat),
+                                   minlength=len(length[sl]))
+        return out
+
+    def _obstacle_segments(self, a: np.ndarray, b: np.ndarray, rho: float) -> np.ndarray:
+        """∫ max(0, ρ − c(p)) ds (n,) along a[i] → b[i], exact for the clearance map c, which
+        is constant per cell: the segment is cut at every cell border it crosses and each
+        piece counts the value at its middle."""
+        n = len(a)
+        out = np.zeros(n)
+        if self.obstacles is None:
+            return out
+        grid = self.obstacles.grid
+        ua = (a - np.asarray(grid.origin)) / grid.resolution  # in cells
+        ub = (b - np.asarray(grid.origin)) / grid.resolution
+        lo, hi = np.minimum(ua, ub), np.maximum(ua, ub)
+        first = np.floor(lo) + 1.0  # the borders k with lo < k < hi, per axis
+        count = np.maximum(0.0, np.ceil(hi) - first).astype(np.int64)  # (n, 2)
+        pieces = count.sum(axis=1) + 1
+        length = np.linalg.norm(b - a, axis=1)
+        # chunks of whole segments with at most _CHUNK_POINTS pieces each
+        ends = np.cumsum(pieces)
+        bounds = [0]
+        while bounds[-1] < n:
+            limit = (ends[bounds[-1] - 1] if bounds[-1] else 0) + _CHUNK_POINTS
+            bounds.append(max(bounds[-1] + 1, int(np.searchsorted(ends, limit, "right"))))
+        for s, e in zip(bounds[:-1], bounds[1:], strict=True):
+            idx = np.arange(s, e)
+            owners, cuts = [idx, idx], [np.zeros(len(idx)), np.ones(len(idx))]
+            for axis in (0, 1):
+                c = count[s:e, axis]
+                owner = np.repeat(idx, c)
+                k = np.repeat(first[s:e, axis], c) + (np.arange(c.sum())
+                                                      - np.repeat(np.cumsum(c) - c, c))
+                owners.append(owner)
+                cuts.append((k - ua[owner, axis]) / (ub[owner, axis] - ua[owner, axis]))
+            owner, t = np.concatenate(owners), np.concatenate(cuts)
+            order = np.lexsort((t, owner))
+            owner, t = owner[order], t[order]
+            same = owner[1:] == owner[:-1]  # consecutive cuts of one segment bound a piece
+            piece_owner = owner[1:][same]
+            t0, t1 = t[:-1][same], t[1:][same]
+            mid = a[piece_owner] + (0.5 * (t0 + t1))[:, None] * (b - a)[piece_owner]
+            out += np.bincount(piece_owner, (t1 - t0) * length[piece_owner]
+                               * self.obstacle_density(mid, rho), minlength=n)
         return out
 
     def polyline(self, points: np.ndarray) -> np.ndarray:
@@ -191,6 +526,13 @@ class FeatureModel:
         out = np.zeros((len(pts), self.dim))
         np.add.at(out, owner, per_segment)
         return out
+
+
+def _hinge_antiderivative(y: np.ndarray, rho: float) -> np.ndarray:
+    """H with H' = max(0, ρ − |y|): ρ y_c − y_c |y_c| / 2, y_c = y clipped to [−ρ, ρ]."""
+    yc = np.clip(y, -rho, rho)
+    out: np.ndarray = rho * yc - 0.5 * yc * np.abs(yc)
+    return out
 
 
 def _distance_increase(a: np.ndarray, b: np.ndarray, g: np.ndarray) -> np.ndarray:

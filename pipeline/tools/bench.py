@@ -38,7 +38,7 @@ def _graph_once(max_nodes: int, seed: int) -> dict:
     from pipeline.core.features import FeatureModel
     from pipeline.core.roadmap import build_roadmap
     from pipeline.inputs.scene_file import load_scene_file
-    from pipeline.irl.prior import Prior
+    from pipeline.irl.prior import BoxConfig
 
     scene = load_scene_file(PROJECT_ROOT / "data" / "scenes" / "metropolis.json")
     fm = FeatureModel.from_scene(scene)
@@ -46,7 +46,7 @@ def _graph_once(max_nodes: int, seed: int) -> dict:
     mdp = roadmap.mdp()
     demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes,
                           mdp.solve([-1.0, -0.7, -0.85, -0.1]))
-    weights = Prior("gaussian", 0.5, -np.ones(4), np.zeros(4)).box_mean()
+    weights = BoxConfig().make_prior(4).box_mean()  # the default prior's mean
     rss_before = _reset_peak_rss()
     t0 = time.perf_counter()
     graph = AdaptiveGraph(scene, fm, LinearController(), weights,

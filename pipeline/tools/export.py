@@ -1,0 +1,536 @@
+"""Hand a learned reward back to ROS: a Nav2 costmap mask and a ROS 2 bag of paths and people.
+
+    birlg-export RUN_DIR          (or: python -m pipeline.tools.export RUN_DIR)
+
+Writes RUN_DIR/export/ (replaced as a whole, never left half-written):
+
+- `costmap.yaml` + `costmap.pgm`: a map_server map in `mode: scale` holding the learned
+  reward's cost per metre of path at every cell, for the features that depend on position
+  only: cost = −Σ_j w_j · density_j(cell centre). Occupancy 0 is free, 1..99 the learned cost
+  scaled to the map's largest cost, 100 (black) obstacles and person body disks. Nav2's
+  map_server loads it unchanged, as a costmap-filter mask (KeepoutFilter, SpeedFilter) or
+  for a static layer; the YAML's comment lines give the run, the weights and the scale.
+- `paths/`: a ROS 2 bag (mcap storage, written with rosbags) with the learned paths
+  (nav_msgs/msg/Path, one per start: adaptive graph on /birlg/learned_paths, reference
+  roadmap on /birlg/learned_paths_ref), the demonstrations on /birlg/demos and the people as
+  visualization_msgs/msg/MarkerArray on /birlg/people, all in frame `map`; message k of a
+  topic is stamped k seconds, so the same run gives the same bag.
+
+How map_server turns the image into occupancy (nav2_map_server map_io.cpp, `mode: scale`):
+occ = 1 − v/255 for a grey value v (negate 0); occ > occupied_thresh gives 100, occ <
+free_thresh 0, anything between rint(100 (occ − free_thresh) / (occupied_thresh −
+free_thresh)). With the thresholds below a white cell is free, black is 100 and the grey
+levels written for occupancy 1..99 decode to exactly that occupancy, so no learned cost
+becomes lethal. Costmap2D and the KeepoutFilter then read occupancy k as cost
+round(254 k / 100): 99 is 251, below the inscribed cost 253.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import io
+import math
+import os
+import shutil
+import sys
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+from PIL import Image
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+from pipeline.app.rundir import COMPLETE, acquire_lock, read_status
+from pipeline.artefacts import Artefact, codec, read_artefact, topics
+from pipeline.artefacts.topics import ARTEFACT_FILE
+from pipeline.core.features import FeatureModel, FeatureParams
+from pipeline.core.obstacles import OccupancyGrid, rasterise
+from pipeline.core.params import ParameterError
+from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
+from pipeline.errors import PipelineError, os_error_reason
+
+EXPORT_DIR = "export"
+COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
+BAG_DIR = "paths"
+FRAME = "map"
+
+TOPIC_LEARNED = "/birlg/learned_paths"  # on the adaptive graph, one Path per start
+TOPIC_LEARNED_REF = "/birlg/learned_paths_ref"  # on the reference roadmap
+TOPIC_DEMOS = "/birlg/demos"
+TOPIC_PEOPLE = "/birlg/people"
+
+# map_server thresholds: a white cell (occ 0) is below free_thresh, black (occ 1) above
+# occupied_thresh, every grey between maps linearly onto occupancy 0..100.
+FREE_THRESH, OCCUPIED_THRESH = 0.001, 0.999
+LETHAL, MAX_LEARNED = 100, 99  # occupancy of obstacles and bodies; of the costliest learned cell
+
+PERSON_HEIGHT = 1.7  # m, drawn height of the body cylinders
+ARROW_LENGTH, ARROW_SHAFT, ARROW_HEAD = 0.6, 0.06, 0.12  # m, person heading arrows
+BODY_RGBA = (0.92, 0.51, 0.16, 0.9)  # orange persons and red links, as in the viewer/figures
+ARROW_RGBA = (0.55, 0.27, 0.05, 1.0)
+LINK_RGBA = (0.82, 0.16, 0.16, 1.0)
+LINK_WIDTH = 0.05  # m
+
+
+# -- the costmap -------------------------------------------------------------------------------
+
+
+def grey_of_occupancy(occupancy: np.ndarray) -> np.ndarray:
+    """The PGM grey value (uint8) that map_server (`mode: scale`, negate 0, the thresholds
+    above) reads as each occupancy 0..100: 0 white, 100 black, k in between at the centre of
+    k's interval, so rounding the grey to an integer never changes the occupancy."""
+    k = np.asarray(occupancy, dtype=float)
+    occ = FREE_THRESH + k / 100.0 * (OCCUPIED_THRESH - FREE_THRESH)
+    grey = np.rint(255.0 * (1.0 - occ))
+    grey = np.where(k <= 0, 255, np.where(k >= LETHAL, 0, grey))
+    return grey.astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class Costmap:
+    """The learned reward on a grid: per-cell cost, occupancy 0..100 and what made them."""
+    grid: OccupancyGrid  # origin, resolution, shape; `occupied` = the scene's obstacles
+    cost: np.ndarray  # (H, W) −Σ_j w_j density_j at the cell centres (row 0 = lowest y)
+    occupancy: np.ndarray  # (H, W) uint8: 0 free, 1..99 learned cost, 100 lethal
+    lethal: np.ndarray  # (H, W) bool: obstacle or person body disk
+    scale: float  # cost of occupancy 99 (0: the learned cost is 0 everywhere)
+    in_mask: tuple[str, ...]  # features whose densities make up the cost
+    left_out: dict[str, str]  # feature -> why it is not in the mask
+    n_negative: int  # free cells whose cost was negative (a rewarding feature), shown as 0
+
+
+def export_grid(scene: Scene) -> OccupancyGrid:
+    """The scene's obstacle raster: its map's grid (polygons burnt in) when it has a map, else
+    a grid over the room at the obstacle resolution."""
+    if scene.obstacles is not None:
+        return scene.obstacles.grid
+    return rasterise([], None, scene.room.bounds, OBSTACLE_RESOLUTION)
+
+
+def build_costmap(scene: Scene, params: FeatureParams, weights: np.ndarray) -> Costmap:
+    """The cost per metre of the learned reward's position-only features at every cell."""
+    weights = np.asarray(weights, dtype=float)
+    names = tuple(params.features)
+    if weights.shape != (len(names),):
+        raise PipelineError(f"{len(weights)} learned weights for {len(names)} features "
+                            f"{list(names)}")
+    grid = export_grid(scene)
+    centres = grid.cell_centres().reshape(-1, 2)
+    density = FeatureModel.from_scene(scene, params).densities(centres)
+    in_mask, left_out = [], {}
+    for j, name in enumerate(names):
+        column = density[:, j]
+        if not np.isfinite(column).all():
+            left_out[name] = "not a density of position (depends on the direction of travel)"
+        elif len(column) and column.min() == column.max() and column[0] != 0:
+            left_out[name] = "uniform (the same cost per metre everywhere)"
+        else:
+            in_mask.append(j)
+    cost = np.zeros(len(centres))
+    for j in in_mask:  # in feature order: the same sum, the same bits, every time
+        cost -= weights[j] * density[:, j]
+    cost = cost.reshape(grid.shape)
+    lethal = grid.occupied | scene.in_body(centres).reshape(grid.shape)
+    positive = np.maximum(cost, 0.0)
+    free = ~lethal
+    scale = float(positive[free].max()) if free.any() else 0.0
+    occupancy = np.zeros(grid.shape, dtype=np.uint8)
+    if scale > 0:
+        occupancy = np.rint(MAX_LEARNED * positive / scale).astype(np.uint8)
+    occupancy[lethal] = LETHAL
+    return Costmap(grid, cost, occupancy, lethal, scale, tuple(names[j] for j in in_mask),
+                   left_out, int((cost[free] < 0).sum()))
+
+
+def _num(x: float) -> str:
+    """A float as YAML reads it back exactly (shortest round-trip repr)."""
+    return repr(float(x))
+
+
+def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
+                 about: list[str]) -> str:
+    """The map_server YAML, its comment lines saying what the map holds."""
+    g = costmap.grid
+    w = ", ".join(f"{n}={_num(v)}" for n, v in zip(names, weights, strict=True))
+    terms = " + ".join(f"w_{n} * {n}_density" for n in costmap.in_mask) or "0"
+    lines = ["# BIRL-G learned-reward costmap, written by birlg-export (ROS map_server format)"]
+    lines += [f"# {line}" for line in about]
+    lines.append(f"# learned weights: {w}")
+    lines.append(f"# features in the mask: {', '.join(costmap.in_mask) or 'none'}")
+    for name, why in costmap.left_out.items():
+        lines.append(f"# left out: {name}: {why}")
+    lines.append(f"# cost per metre of path at a cell centre = -({terms}), reward units per m")
+    if costmap.scale > 0:
+        lines.append(f"# scale: occupancy k in 1..{MAX_LEARNED} = cost k/{MAX_LEARNED} * "
+                     f"{_num(costmap.scale)}; occupancy {MAX_LEARNED} = cost "
+                     f"{_num(costmap.scale)} per m (the largest outside obstacles and bodies)")
+    else:
+        lines.append("# scale: the learned cost is 0 everywhere (occupancy 0 outside obstacles "
+                     "and bodies)")
+    lines.append(f"# occupancy 0 = free (white); {LETHAL} = obstacle or person body disk (black)")
+    if costmap.n_negative:
+        lines.append(f"# {costmap.n_negative} cells with a negative cost (a rewarding feature) "
+                     "are shown as free")
+    lines.append(f"# grey value of occupancy k: round(255 * (1 - ({_num(FREE_THRESH)} + k/100 * "
+                 f"{_num(OCCUPIED_THRESH - FREE_THRESH)})))")
+    lines += [f"image: {COSTMAP_IMAGE}", "mode: scale", f"resolution: {_num(g.resolution)}",
+              f"origin: [{_num(g.origin[0])}, {_num(g.origin[1])}, 0.0]", "negate: 0",
+              f"occupied_thresh: {_num(OCCUPIED_THRESH)}", f"free_thresh: {_num(FREE_THRESH)}"]
+    return "\n".join(lines) + "\n"
+
+
+def costmap_pgm(costmap: Costmap) -> bytes:
+    """The binary PGM (P5): image row 0 is the map's top (largest y), as map_server reads."""
+    grey = grey_of_occupancy(costmap.occupancy)[::-1]
+    out = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(grey)).save(out, format="PPM")
+    return out.getvalue()
+
+
+# -- the bag -----------------------------------------------------------------------------------
+
+
+def path_yaws(points: np.ndarray) -> np.ndarray:
+    """Heading (n,) at each point of a polyline: along the segment that leaves it (the last
+    point: the one that reaches it); repeated points take the heading of the nearest segment
+    of non-zero length before them (after them at the start); 0 without any."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(p) < 2:
+        return np.zeros(len(p))
+    d = np.diff(p, axis=0)
+    moving = np.hypot(d[:, 0], d[:, 1]) > 0
+    if not moving.any():
+        return np.zeros(len(p))
+    seg = np.arctan2(d[:, 1], d[:, 0])
+    # forward fill the headings of zero-length segments, then back fill the leading ones
+    last = np.maximum.accumulate(np.where(moving, np.arange(len(seg)), -1))
+    last[last < 0] = np.flatnonzero(moving)[0]
+    seg = seg[last]
+    return np.append(seg, seg[-1])
+
+
+class BagMessages:
+    """ROS 2 messages built with a rosbags typestore."""
+
+    def __init__(self, typestore: Typestore) -> None:
+        self.store = typestore
+        self.t = typestore.types
+
+    def header(self, stamp_s: int):
+        t = self.t
+        return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=stamp_s,
+                                                                               nanosec=0),
+                                        frame_id=FRAME)
+
+    def pose(self, x: float, y: float, z: float = 0.0, yaw: float = 0.0):
+        t = self.t
+        return t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=float(z)),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw / 2),
+                                                         w=math.cos(yaw / 2)))
+
+    def path(self, points: np.ndarray, stamp_s: int):
+        """nav_msgs/msg/Path through the points, each pose heading along the path."""
+        t = self.t
+        p = np.asarray(points, dtype=float).reshape(-1, 2)
+        poses = [t["geometry_msgs/msg/PoseStamped"](header=self.header(stamp_s),
+                                                    pose=self.pose(x, y, yaw=yaw))
+                 for (x, y), yaw in zip(p, path_yaws(p), strict=True)]
+        return t["nav_msgs/msg/Path"](header=self.header(stamp_s), poses=poses)
+
+    def marker(self, ns: str, ident: int, kind: str, pose, scale: tuple[float, float, float],
+               rgba: tuple[float, ...], points: list | None = None):
+        t = self.t
+        marker = t["visualization_msgs/msg/Marker"]
+        return marker(
+            header=self.header(0), ns=ns, id=int(ident), type=getattr(marker, kind),
+            action=marker.ADD, pose=pose,
+            scale=t["geometry_msgs/msg/Vector3"](x=scale[0], y=scale[1], z=scale[2]),
+            color=t["std_msgs/msg/ColorRGBA"](r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
+            lifetime=t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
+            points=points or [], colors=[], texture_resource="",
+            texture=t["sensor_msgs/msg/CompressedImage"](header=self.header(0), format="",
+                                                         data=np.zeros(0, dtype=np.uint8)),
+            uv_coordinates=[], text="", mesh_resource="",
+            mesh_file=t["visualization_msgs/msg/MeshFile"](filename="",
+                                                           data=np.zeros(0, dtype=np.uint8)),
+            mesh_use_embedded_materials=False)
+
+    def people(self, scene: Scene):
+        """visualization_msgs/msg/MarkerArray: per person (ids = person ids) a body cylinder
+        (ns `body`) and a heading arrow above it (ns `heading`); the social links as one
+        LINE_LIST (ns `relations`, id 0) when the scene has relations."""
+        t = self.t
+        r = scene.body_radius
+        markers = []
+        for p in scene.persons:
+            markers.append(self.marker("body", p.id, "CYLINDER",
+                                       self.pose(p.x, p.y, PERSON_HEIGHT / 2),
+                                       (2 * r, 2 * r, PERSON_HEIGHT), BODY_RGBA))
+            markers.append(self.marker("heading", p.id, "ARROW",
+                                       self.pose(p.x, p.y, PERSON_HEIGHT + ARROW_HEAD, p.theta),
+                                       (ARROW_LENGTH, ARROW_SHAFT, ARROW_HEAD), ARROW_RGBA))
+        a, b = scene.links
+        if len(a):
+            ends = [t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0)
+                    for pair in zip(a, b, strict=True) for x, y in pair]
+            markers.append(self.marker("relations", 0, "LINE_LIST", self.pose(0.0, 0.0),
+                                       (LINK_WIDTH, 0.0, 0.0), LINK_RGBA, ends))
+        return t["visualization_msgs/msg/MarkerArray"](markers=markers)
+
+
+def write_bag(path: Path, scene: Scene, learned: dict[str, list[np.ndarray]],
+              demos: list[np.ndarray], about: dict[str, str]) -> dict[str, int]:
+    """The ROS 2 bag (mcap storage) at `path` (a new directory), `about` in its metadata's
+    custom_data; returns the message count per topic."""
+    # Humble's message definitions; Jazzy's Path and MarkerArray are the same (same RIHS01).
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    build = BagMessages(store)
+    per_topic = {
+        TOPIC_LEARNED: ("nav_msgs/msg/Path",
+                        [build.path(p, k) for k, p in enumerate(learned["graph"])]),
+        TOPIC_LEARNED_REF: ("nav_msgs/msg/Path",
+                            [build.path(p, k) for k, p in enumerate(learned["ref"])]),
+        TOPIC_DEMOS: ("nav_msgs/msg/Path", [build.path(p, k) for k, p in enumerate(demos)]),
+        TOPIC_PEOPLE: ("visualization_msgs/msg/MarkerArray", [build.people(scene)]),
+    }
+    never = QosTime(sec=0, nsec=0)
+    # Metadata version 8: Humble cannot parse version 9's QoS lists (ros2/rosbag2#2013);
+    # Iron, Jazzy and later read version 8.
+    with Writer(path, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
+        for key, value in about.items():
+            writer.set_custom_data(key, value)
+        for topic, (msgtype, messages) in per_topic.items():
+            # Latched (reliable, transient local, all messages kept): `ros2 bag play`
+            # republishes it so, and a display opened later still gets the static scene.
+            qos = Qos(QosHistory.KEEP_LAST, max(1, len(messages)), QosReliability.RELIABLE,
+                      QosDurability.TRANSIENT_LOCAL, never, never, QosLiveliness.AUTOMATIC,
+                      never, False)
+            conn = writer.add_connection(topic, msgtype, typestore=store,
+                                         offered_qos_profiles=[qos])
+            for k, msg in enumerate(messages):
+                writer.write(conn, k * 10**9, store.serialize_cdr(msg, msgtype))
+    return {topic: len(messages) for topic, (_, messages) in per_topic.items()}
+
+
+# -- reading a run -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunReward:
+    """What the export needs from a run dir."""
+    scene: Scene
+    params: FeatureParams
+    weights: np.ndarray
+    learned: dict[str, list[np.ndarray]]  # "graph" / "ref" -> path per start, in start order
+    demos: list[np.ndarray]
+    about: list[str]  # lines naming the run
+
+
+def feature_params(birl: Artefact, names: list[str]) -> FeatureParams:
+    """The learner's FeatureParams from birl.mcap's resolved config: the `reward` section's
+    constants, the features of `birl.features` when the config has one, else
+    `reward.features`; they must be the features the weights belong to."""
+    where = f"artefact {birl.path} (attachment config.yaml)"
+    try:
+        config = yaml.safe_load(birl.config_yaml) or {}
+    except yaml.YAMLError as e:
+        raise PipelineError(f"{where} is not valid YAML ({' '.join(str(e).split())})") from None
+    reward = config.get("reward") if isinstance(config, dict) else None
+    if not isinstance(reward, dict):
+        raise PipelineError(f"{where} has no 'reward' section")
+    section = config.get("birl") if isinstance(config.get("birl"), dict) else {}
+    known = {f.name for f in dataclasses.fields(FeatureParams)}
+    values = {k: v for k, v in reward.items() if k in known}
+    if "features" in section:
+        values["features"] = section["features"]
+    try:
+        params = FeatureParams(**values)
+    except (ParameterError, TypeError) as e:
+        raise PipelineError(f"{where}: reward features: {e}") from None
+    if list(params.features) != list(names):
+        raise PipelineError(f"{where} names the features {list(params.features)}, but the "
+                            f"learned weights are for {list(names)} (/birl/expert)")
+    return params
+
+
+def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
+    """A message's `points` as (K, 2) floats, or one line naming the artefact and topic."""
+    try:
+        points = np.asarray(msg["points"], dtype=float)
+    except (KeyError, TypeError, ValueError):
+        raise PipelineError(f"artefact {art.path}: a message on '{topic}' has no list of "
+                            "points [x, y]") from None
+    if points.ndim != 2 or points.shape[1] != 2 or not np.isfinite(points).all():
+        raise PipelineError(f"artefact {art.path}: a message on '{topic}' has points of shape "
+                            f"{points.shape}, not finite [x, y] pairs")
+    return points
+
+
+def read_run(run_dir: Path) -> RunReward:
+    """The scene, learned reward, learned paths and demonstrations of a finished run."""
+    missing = [ARTEFACT_FILE[s] for s in ("scene", "demos", "birl", "evaluate")
+               if not (run_dir / ARTEFACT_FILE[s]).is_file()]
+    if missing:
+        raise PipelineError(f"run dir {run_dir} has no {', '.join(missing)}: the export needs a "
+                            "run through the birl and evaluate stages")
+    scene = codec.decode_scene(read_artefact(run_dir / ARTEFACT_FILE["scene"],
+                                             required_topics=[topics.SCENE]))
+    birl = read_artefact(run_dir / ARTEFACT_FILE["birl"],
+                         required_topics=[topics.BIRL_EXPERT, topics.BIRL_ITERATION])
+    iterations = birl.all(topics.BIRL_ITERATION)
+    names = birl.one(topics.BIRL_EXPERT).get("feature_names")
+    last = iterations[-1].get("weights") if iterations else None
+    try:
+        weights = np.asarray(last, dtype=float)
+    except (TypeError, ValueError):
+        weights = np.zeros(0)
+    if not (isinstance(names, list) and all(isinstance(n, str) for n in names)
+            and weights.shape == (len(names),) and np.isfinite(weights).all()):
+        raise PipelineError(f"artefact {birl.path}: the last '{topics.BIRL_ITERATION}' weights "
+                            f"{last} do not match the feature names {names} of "
+                            f"'{topics.BIRL_EXPERT}'")
+    params = feature_params(birl, names)
+    evaluation = read_artefact(run_dir / ARTEFACT_FILE["evaluate"],
+                               required_topics=[topics.EVAL_PATHS])
+    learned: dict[str, list[tuple[int, np.ndarray]]] = {"graph": [], "ref": []}
+    for msg in evaluation.all(topics.EVAL_PATHS):
+        where, start = msg.get("graph"), msg.get("start")
+        if where in learned and isinstance(start, int):
+            learned[where].append((start, _points(evaluation, topics.EVAL_PATHS, msg)))
+    paths = {k: [p for _, p in sorted(v, key=lambda sp: sp[0])] for k, v in learned.items()}
+    demos_art = read_artefact(run_dir / ARTEFACT_FILE["demos"])
+    demos = [_points(demos_art, topics.DEMOS, m) for m in demos_art.messages.get(topics.DEMOS, [])]
+    meta = birl.metadata
+    about = [f"run: {run_dir.resolve()}",
+             f"scene: {scene.name}, seed {meta.get('seed', '?')}, git revision "
+             f"{meta.get('git_revision', '?')}",
+             # what the export was made from: a later run into the dir changes these
+             f"from: birl.mcap content {birl.digest[:16] or '?'}, eval.mcap content "
+             f"{evaluation.digest[:16] or '?'}"]
+    return RunReward(scene, params, weights, paths, demos, about)
+
+
+# -- writing the export ------------------------------------------------------------------------
+
+
+def _sync_tree(root: Path) -> None:
+    """fsync every file and directory under root: durable before it gets the final name."""
+    for path in sorted(root.rglob("*")) + [root]:
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _partial_name(run_dir: Path, kind: str) -> Path:
+    # Not `*.tmp`: the run dir's next pipeline run deletes stale `*.tmp` *files* with unlink.
+    return run_dir / f".{EXPORT_DIR}.{os.getpid()}-{uuid.uuid4().hex[:8]}.{kind}"
+
+
+def _remove_stale_partials(run_dir: Path) -> None:
+    """Temporary export dirs of an export that was killed (its process is gone)."""
+    for p in run_dir.glob(f".{EXPORT_DIR}.*-*.*"):
+        pid = p.name.split(".")[2].split("-")[0]
+        if not (p.is_dir() and pid.isdigit()):
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(p, ignore_errors=True)
+        except OSError:  # alive, owned by someone else
+            pass
+
+
+def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int]]:
+    """Write RUN_DIR/export/ (see the module docstring); returns it, the costmap and the
+    bag's message counts. The new export is built beside the old one and swapped in."""
+    run = read_run(run_dir)
+    costmap = build_costmap(run.scene, run.params, run.weights)
+    final = run_dir / EXPORT_DIR
+    partial = _partial_name(run_dir, "partial")
+    old = _partial_name(run_dir, "old")
+    try:
+        partial.mkdir()
+        (partial / COSTMAP_IMAGE).write_bytes(costmap_pgm(costmap))
+        (partial / COSTMAP_YAML).write_text(costmap_yaml(
+            costmap, tuple(run.params.features), run.weights, run.about))
+        counts = write_bag(partial / BAG_DIR, run.scene, run.learned, run.demos,
+                           {f"birlg.{k}": v for k, v in (line.split(": ", 1)
+                                                         for line in run.about)})
+        _sync_tree(partial)
+        if final.exists():
+            os.replace(final, old)
+        try:
+            os.replace(partial, final)
+        except OSError:
+            if old.exists():
+                os.replace(old, final)  # put the previous export back
+            raise
+    finally:
+        shutil.rmtree(partial, ignore_errors=True)
+        if old.is_dir():
+            shutil.rmtree(old, ignore_errors=True)
+        else:  # `export` was a file
+            old.unlink(missing_ok=True)
+    return final, costmap, counts
+
+
+def check_run_dir(run_dir: Path) -> None:
+    """One line, as a PipelineError, when the run dir cannot be exported."""
+    if not run_dir.exists():
+        raise PipelineError(f"run dir {run_dir} not found")
+    if not run_dir.is_dir():
+        raise PipelineError(f"run dir {run_dir} is not a directory")
+    status = read_status(run_dir)
+    if status.state not in (COMPLETE, "unknown"):  # unknown: made before status.json existed
+        raise PipelineError(f"run dir {run_dir} is {status.describe()}; export a complete run "
+                            "(rerun it into this dir or choose another)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="birlg-export", description=__doc__.split("\n")[0])
+    ap.add_argument("run_dir", type=Path, help="a run directory of `python -m pipeline` that "
+                    "went through the birl and evaluate stages")
+    args = ap.parse_args(argv)
+    run_dir: Path = args.run_dir
+    try:
+        check_run_dir(run_dir)
+        lock = acquire_lock(run_dir)  # no pipeline run starts into the dir meanwhile
+        try:
+            _remove_stale_partials(run_dir)
+            final, costmap, counts = export_run(run_dir)
+        finally:
+            os.close(lock)
+    except PipelineError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # e.g. a read-only run dir or a full disk
+        print(f"error: cannot write the export of {run_dir}: {os_error_reason(e)}",
+              file=sys.stderr)
+        return 2
+    h, w = costmap.grid.shape
+    scale = f"occupancy {MAX_LEARNED} = cost {costmap.scale:.4g} per m" if costmap.scale > 0 \
+        else "the learned cost is 0 everywhere"
+    print(f"wrote {final / COSTMAP_YAML} ({w} x {h} cells at {costmap.grid.resolution:g} m; "
+          f"features {', '.join(costmap.in_mask) or 'none'}; {scale})")
+    print(f"wrote {final / BAG_DIR} (" + ", ".join(f"{t} {n}" for t, n in counts.items()) + ")")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

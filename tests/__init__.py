@@ -1,0 +1,1 @@
+"""The test suite; where a new test goes is said in conftest.py."""

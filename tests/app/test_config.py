@@ -1,0 +1,57 @@
+"""The app's config (pipeline/app/config.py): every config group option composes and
+validates, an out-of-range value names its key, a key of another method is refused."""
+
+import pytest
+from hydra.errors import ConfigCompositionException
+
+from pipeline.app.config import load_settings as validate
+from pipeline.errors import PipelineError
+from tests.conftest import compose_config
+
+
+@pytest.mark.parametrize("overrides", [
+    [], ["scene=random"], ["scene=file", "scene.path=data/scenes/metropolis.json"],
+    ["reward=rude"], ["expert=boltzmann"], ["expert=file", "expert.path=x.json"],
+    ["graph=small"], ["graph.controller.kind=posq"], ["graph.weights=true"],
+    ["graph.weights=[-1,-1,-1,-1]"], ["birl=mcmc"],
+])
+def test_every_config_group_option_composes_and_validates(overrides):
+    validate(compose_config(*overrides))
+
+
+@pytest.mark.parametrize("override, key", [
+    ("scene.body_radius=-0.1", "scene.body_radius"),
+    ("reward.weights=[-1,-1]", "reward.weights"),
+    ("stages=[scene,dance]", "stages"),
+    ("mdp.gamma=1.5", "mdp.gamma"),
+    ("scene=file", "scene.path"),
+    ("graph.p_best=1.5", "graph.p_best"),
+    ("graph.weights=[1,2]", "graph.weights"),
+    ("graph.controller.kind=spline", "graph.controller.kind"),
+    ("birl.prior.kind=cauchy", "birl.prior.kind"),
+    ("birl.lower=[0,0,0,0]", "birl.lower"),
+    ("birl.beta=-1", "birl.beta"),
+    ("scene.robot_radius=-0.1", "scene.robot_radius"),
+    ("scene=random scene.robot_radius=0", "scene.robot_radius"),
+    ("expert=file expert.path=x.json expert.start_radius=0", "expert.start_radius"),
+    ("graph.controller.max_speed=-1", "graph.controller.max_speed"),
+    ("graph.controller.k_rho=0", "graph.controller.k_rho"),
+    ("reward.features=[social,dance]", "reward.features"),
+    ("reward.features=[social,length]", "reward.weights"),  # 4 weights for 2 features
+])
+def test_out_of_range_values_name_the_key(override, key):
+    with pytest.raises(PipelineError) as err:
+        validate(compose_config(*override.split()))
+    message = str(err.value)
+    assert message.startswith((f"config error: {key}=", f"config error: {key} is missing"))
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize("overrides, key", [
+    (["birl=maxent", "birl.alpha=3"], "birl.alpha"),  # a PolicyWalk key on MaxEnt
+    (["birl=map", "birl.n_samples=10"], "birl.n_samples"),  # an MCMC key on the MAP method
+    (["expert=optimal", "expert.beta=5"], "expert.beta"),  # a Boltzmann key on the optimal one
+])
+def test_a_key_of_another_method_is_refused(overrides, key):
+    with pytest.raises(ConfigCompositionException, match=f"override '{key}'"):
+        compose_config(*overrides)

@@ -1,0 +1,508 @@
+"""Run dirs (pipeline/app/rundir.py) under faults: SIGKILL at random moments, a second run
+into a dir in use, two plain runs started together, stale temp files, status.json telling the
+truth, and damaged side files.
+
+After every fault a run dir must (a) hold only artefacts that read fully, (b) say in
+status.json how far it got (`read_status` reports a dead run as `interrupted`), (c) hold
+artefacts that belong together (each artefact's recorded `input_digest.<stage>` is the
+content digest of the artefact of that stage beside it, and metrics.json is the one that
+came with eval.mcap), and (d) be usable by the next run.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.app.provenance import INPUT_KEY
+from pipeline.app.rundir import RunDir, is_locked, read_status, write_status_if_missing
+from pipeline.artefacts import topics
+from pipeline.artefacts.store import read_artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
+from pipeline.errors import PipelineError
+from tests.conftest import ROOT, run_app, run_in_process
+
+QUICK = ("graph=small", "birl.n_iterations=3")  # a whole run in ~1 s plus imports
+FILE_STAGE = {name: stage for stage, name in ARTEFACT_FILE.items()}
+
+
+# -- helpers ---------------------------------------------------------------------------------
+
+
+def snapshot(d: Path) -> dict[str, tuple[int, int]]:
+    """Every file and dir under d (relative name -> (size, mtime_ns)), to prove it untouched."""
+    return {str(p.relative_to(d)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(d.rglob("*"))}
+
+
+def is_timing(key: str) -> bool:
+    return key.startswith("time_") and key.endswith("_s")
+
+
+def check_run_dir(d: Path) -> list[str]:
+    """The consistency checks any run dir must pass, killed or not; returns the problems
+    (empty when the dir is sound), so a failing kill can be reported with its context."""
+    problems: list[str] = []
+    arts = {}
+    for path in sorted(d.glob("*.mcap")):
+        try:
+            arts[FILE_STAGE[path.name]] = read_artefact(path)
+        except Exception as e:  # noqa: BLE001 - any failure to read is the finding
+            problems.append(f"{path.name} does not read: {type(e).__name__}: {e}")
+    for later, art in arts.items():
+        for earlier, other in arts.items():
+            recorded = art.metadata.get(INPUT_KEY + earlier)
+            if recorded is not None and recorded != other.digest:
+                problems.append(f"{ARTEFACT_FILE[later]} was made from another "
+                                f"{ARTEFACT_FILE[earlier]} (recorded {recorded[:12]}, "
+                                f"present {other.digest[:12]})")
+    metrics_path = d / "metrics.json"
+    if metrics_path.exists():
+        if "evaluate" not in arts:
+            problems.append("metrics.json without eval.mcap")
+        else:
+            try:
+                metrics = json.loads(metrics_path.read_text())
+            except ValueError as e:
+                problems.append(f"metrics.json does not parse: {e}")
+            else:
+                in_eval = arts["evaluate"].one(topics.EVAL_METRICS)
+                if {k: v for k, v in metrics.items() if not is_timing(k)} != in_eval:
+                    problems.append("metrics.json is not the one that came with eval.mcap")
+    return problems
+
+
+def pipeline_cmd(run_dir: Path, *overrides: str) -> list[str]:
+    return [sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}", *overrides]
+
+
+def lines(text: str) -> list[str]:
+    return [ln for ln in text.splitlines() if ln.strip()]
+
+
+# -- 1. SIGKILL at random moments ------------------------------------------------------------
+
+# Three kinds of killed runs: a fresh dir; a re-run with another seed into a complete dir
+# (every stage may replace its artefact); a re-run of the last three stages with a larger
+# graph into a complete dir (graph, birl and eval are replaced, scene and demos kept).
+KILL_MODES = {
+    "fresh": QUICK,
+    "reseed": (*QUICK, "seed=1"),
+    "regrow": (*QUICK, "stages=[graph,birl,evaluate]", "graph.max_nodes=180"),
+}
+N_KILLS = 20
+
+
+def timed_run(run_dir: Path, overrides: tuple[str, ...]) -> tuple[float, float, float]:
+    """One unkilled run: seconds until it took the run dir (wrote status.json), until its
+    status said complete, and until it exited. Polls; the times only spread the kills."""
+    status = run_dir / "status.json"
+    before = status.stat().st_mtime_ns if status.exists() else None
+    t0 = time.monotonic()
+    proc = subprocess.Popen(pipeline_cmd(run_dir, *overrides), cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    started = completed = None
+    while proc.poll() is None:
+        if status.exists() and status.stat().st_mtime_ns != before:
+            if started is None:
+                started = time.monotonic() - t0
+            if completed is None and read_status(run_dir).complete:
+                completed = time.monotonic() - t0
+        time.sleep(0.005)
+    exited = time.monotonic() - t0
+    assert proc.returncode == 0, proc.stderr.read()
+    proc.stderr.close()
+    assert read_status(run_dir).complete and check_run_dir(run_dir) == []
+    completed = exited if completed is None else completed
+    return (completed if started is None else started), completed, exited
+
+
+@pytest.mark.slow
+def test_sigkill_at_random_moments_leaves_sound_truthful_dirs(tmp_path):
+    # One unkilled run of each kind: its times spread the kills, the first seeds the re-runs.
+    base = tmp_path / "base"
+    times = {"fresh": timed_run(base, KILL_MODES["fresh"])}
+    for mode in ("reseed", "regrow"):
+        shutil.copytree(base, tmp_path / f"measure-{mode}")
+        times[mode] = timed_run(tmp_path / f"measure-{mode}", KILL_MODES[mode])
+
+    # Every 4th kill anywhere in the run (imports, Hydra, stages, shutdown): a delay from the
+    # start. The others while the stages run, where damage can happen: a delay from the moment
+    # the killed run took its dir (status.json written), so a slow start on a busy machine
+    # does not shift them, spread over the stages' time in the unkilled run.
+    rng = np.random.default_rng(0)
+    landed: Counter[str] = Counter()
+    per_mode: dict[str, Counter[str]] = {m: Counter() for m in KILL_MODES}
+    failures: list[str] = []
+    i = 0
+    # At least N_KILLS runs, and on until N_KILLS of them were killed (a run on a quiet
+    # machine may finish before its kill), at most twice as many.
+    while (i < N_KILLS or i - landed["finished"] < N_KILLS) and i < 2 * N_KILLS:
+        mode = list(KILL_MODES)[i % len(KILL_MODES)]
+        took, completed, exited = times[mode]
+        delay = rng.uniform(0.0, 0.95 * exited) if i % 4 == 0 \
+            else rng.uniform(0.0, 0.9 * (completed - took))
+        d = tmp_path / f"kill{i:02d}-{mode}"
+        if mode != "fresh":
+            shutil.copytree(base, d)  # copy2: mtimes kept, so an untouched status shows
+        status_before = (d / "status.json").stat().st_mtime_ns if mode != "fresh" else None
+        log = open(tmp_path / f"kill{i:02d}.log", "w")
+        proc = subprocess.Popen(pipeline_cmd(d, *KILL_MODES[mode]), cwd=ROOT, stdout=log,
+                                stderr=subprocess.STDOUT)
+        if i % 4:  # wait until the run takes its dir (or ends), then the delay
+            status_file = d / "status.json"
+            while proc.poll() is None and not (
+                    status_file.exists() and status_file.stat().st_mtime_ns != status_before):
+                time.sleep(0.002)
+        try:
+            rc = proc.wait(timeout=delay)
+            killed = False
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGKILL)
+            rc = proc.wait()
+            killed = True
+        log.close()
+        status = read_status(d)
+        after = "the start" if i % 4 == 0 else "taking the dir"
+        context = f"kill {i} ({mode}, {delay:.2f} s after {after}, {status.describe()})"
+
+        # Where did it land, and does status.json say so?
+        if not killed:
+            where = "finished"
+            if rc != 0 or not status.complete:
+                failures.append(f"{context}: unkilled run ended with {rc}")
+        elif status.state == "interrupted":
+            recorded = json.loads((d / "status.json").read_text())
+            if status.stage is None:  # took the dir, killed before its first stage began
+                where = "before first stage"
+                if recorded["done"]:
+                    failures.append(f"{context}: interrupted at no stage after {recorded}")
+            else:
+                where = status.stage
+                if status.stage not in recorded["stages"]:
+                    failures.append(f"{context}: interrupted at a stage not of the run")
+        elif status.state == "unknown":  # killed before the run took the dir
+            where = "startup"
+            if mode != "fresh" or list(d.glob("*.mcap")):
+                failures.append(f"{context}: no status.json beside artefacts")
+        elif status.state == "complete":
+            unchanged = status_before == (d / "status.json").stat().st_mtime_ns
+            where = "startup" if unchanged else "after complete"
+            if not (d / "metrics.json").exists():
+                failures.append(f"{context}: complete without metrics.json")
+        else:
+            where = status.state
+            failures.append(f"{context}: a killed run reads as {status.state}")
+        landed[where] += 1
+        per_mode[mode][where] += 1
+
+        failures += [f"{context}: {p}" for p in check_run_dir(d)] if d.exists() else []
+
+        # The next run into the dir takes it over: stale temp files gone, status complete.
+        try:
+            run_in_process(d, "stages=[scene]")
+        except Exception as e:  # noqa: BLE001 - reported below with the kill's context
+            failures.append(f"{context}: next run failed: {type(e).__name__}: {e}")
+        else:
+            if list(d.glob("*.tmp")) or not read_status(d).complete:
+                failures.append(f"{context}: after the next run: {read_status(d).describe()}, "
+                                f"temp files {[p.name for p in d.glob('*.tmp')]}")
+            failures += [f"{context}, after the next run: {p}" for p in check_run_dir(d)]
+        i += 1
+
+    print("\nunkilled runs (took the dir, complete, exited): " + ", ".join(
+        f"{m} ({a:.2f} s, {b:.2f} s, {c:.2f} s)" for m, (a, b, c) in times.items()))
+    print(f"{i} runs, {i - landed['finished']} killed; landed: {dict(sorted(landed.items()))}")
+    for mode, counts in per_mode.items():
+        print(f"  {mode}: {dict(sorted(counts.items()))}")
+    print(f"  problems: {len(failures)}")
+    assert not failures, "\n".join(failures)
+    assert i - landed["finished"] >= N_KILLS
+    assert sum(landed[s] for s in STAGES) >= 5  # the kills did reach the stages
+
+
+# A kill at the worst moment: right after a stage renamed its new artefact into place, before
+# anything else happened. The pipeline runs under a wrapper that SIGKILLs itself there.
+_KILL_AFTER_RENAME = """
+import os, runpy, signal, sys
+target = sys.argv.pop(1)
+_replace = os.replace
+def replace(src, dst, *args, **kwargs):
+    _replace(src, dst, *args, **kwargs)
+    if os.path.basename(str(dst)) == target:
+        os.kill(os.getpid(), signal.SIGKILL)
+os.replace = replace
+runpy.run_module("pipeline", run_name="__main__", alter_sys=True)
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("target", "overrides"), [
+    # a new graph.mcap beside the old birl.mcap, eval.mcap and metrics.json
+    pytest.param("graph.mcap", ("stages=[graph,birl,evaluate]", "graph.max_nodes=180")),
+    # a new eval.mcap beside the old metrics.json
+    pytest.param("eval.mcap", ("stages=[evaluate]",
+                               "evaluate.transfer_scenes=[data/scenes/office.json]")),
+])
+def test_kill_right_after_an_artefact_is_replaced(tmp_path, target, overrides):
+    d = tmp_path / "run"
+    run_in_process(d, *QUICK)
+    proc = subprocess.run([sys.executable, "-c", _KILL_AFTER_RENAME, target,
+                           f"hydra.run.dir={d}", *QUICK, *overrides], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    assert read_status(d).state == "interrupted"
+    run_in_process(d, "stages=[scene]")  # the next run says complete: the dir must be sound
+    assert read_status(d).complete
+    assert check_run_dir(d) == []
+
+
+# -- 2. a second run into a dir in use -------------------------------------------------------
+
+
+@pytest.mark.parametrize("key", [
+    "hydra.run.dir",
+    "++hydra.run.dir",
+])
+def test_cli_refuses_a_locked_run_dir_in_one_line_and_touches_nothing(tmp_path, key):
+    d = tmp_path / "run"
+    run_in_process(d, "stages=[scene]")
+    with RunDir(d, ["scene"]):
+        assert is_locked(d)
+        before = snapshot(d)
+        proc = run_app(f"{key}={d}", "stages=[scene]")
+        after = snapshot(d)
+        assert read_status(d).state == "running"  # the holder's status, not overwritten
+    assert proc.returncode != 0
+    assert len(lines(proc.stderr)) == 1 and "in use" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    assert after == before
+    assert not (d / ".hydra").exists()  # refused before Hydra wrote its files
+    assert read_status(d).complete  # the holder's exit, not the refused run's
+
+
+@pytest.mark.slow
+def test_cli_refuses_a_locked_relative_run_dir(tmp_path):
+    # hydra.run.dir relative to the cwd, as `make experiment ARGS=hydra.run.dir=...` gives it
+    d = tmp_path / "run"
+    d.mkdir()
+    with RunDir(d, ["scene"]):
+        before = snapshot(d)
+        proc = run_app("hydra.run.dir=run", "stages=[scene]", cwd=tmp_path)
+        assert snapshot(d) == before
+    assert proc.returncode != 0 and "in use" in proc.stderr, proc.stderr
+    assert len(lines(proc.stderr)) == 1 and "Traceback" not in proc.stderr
+
+
+@pytest.mark.slow
+def test_two_runs_started_together_into_one_dir(tmp_path):
+    # One takes the dir, the other refuses in one line (or, when the first was already done,
+    # runs after it); either way the dir ends complete and its artefacts belong together.
+    d = tmp_path / "run"
+    procs = [subprocess.Popen(pipeline_cmd(d, *QUICK, "stages=[scene,demos]", f"seed={seed}"),
+                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                              text=True) for seed in (0, 1)]
+    results = [(p.wait(timeout=600), p.communicate()[1]) for p in procs]
+    assert 0 in [rc for rc, _ in results], results
+    for rc, err in results:
+        assert rc == 0 or (len(lines(err)) == 1 and "in use" in err), err
+        assert "Traceback" not in err
+    assert read_status(d).complete
+    assert not list(d.glob("*.tmp"))
+    assert check_run_dir(d) == []
+
+
+# The CLI takes the run dir's lock before Hydra writes .hydra/ and its log, and holds it to
+# the end, so a run that comes second is refused before it touches anything (two runs
+# started together). Made deterministic: the CLI pauses right after taking the lock while
+# the test tries to take the dir.
+_PAUSE_AFTER_LOCK = """
+import runpy, sys, time
+from pathlib import Path
+import pipeline.app.rundir as rundir
+taken, go = Path(sys.argv.pop(1)), Path(sys.argv.pop(1))
+_acquire = rundir.acquire_lock
+def acquire_lock(run_dir):
+    fd = _acquire(run_dir)
+    taken.touch()
+    while not go.exists():
+        time.sleep(0.01)
+    return fd
+rundir.acquire_lock = acquire_lock
+runpy.run_module("pipeline", run_name="__main__", alter_sys=True)
+"""
+
+
+def test_the_cli_holds_the_dir_from_before_hydra_writes_into_it(tmp_path):
+    d = tmp_path / "run"
+    taken, go = tmp_path / "taken", tmp_path / "go"
+    proc = subprocess.Popen([sys.executable, "-c", _PAUSE_AFTER_LOCK, str(taken), str(go),
+                             f"hydra.run.dir={d}", "stages=[scene]", "seed=1"], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        while not taken.exists() and proc.poll() is None:
+            time.sleep(0.01)
+        assert not (d / ".hydra").exists()  # Hydra has not started yet
+        with pytest.raises(PipelineError, match="in use"):  # a second run comes now
+            with RunDir(d, ["scene"]):
+                pass
+    finally:
+        go.touch()
+        err = proc.communicate(timeout=600)[1]
+    assert proc.returncode == 0, err
+    assert read_status(d).complete
+    hydra_cfg = (d / ".hydra" / "config.yaml").read_text()
+    assert "seed: 1" in hydra_cfg  # the Hydra files describe the run that made the artefacts
+    assert "seed: 1" in read_artefact(d / "scene.mcap").config_yaml
+
+
+def test_in_process_run_into_a_locked_dir_raises(tmp_path):
+    d = tmp_path / "run"
+    run_in_process(d, "stages=[scene]")
+    scene_before = (d / "scene.mcap").stat().st_mtime_ns
+    with RunDir(d, ["scene"]):
+        with pytest.raises(PipelineError, match="in use"):
+            run_in_process(d, "stages=[scene]")
+        assert read_status(d).state == "running"
+    assert (d / "scene.mcap").stat().st_mtime_ns == scene_before
+    assert read_status(d).complete
+
+
+# -- 3. two plain runs started together ------------------------------------------------------
+
+
+def test_two_plain_runs_started_together_get_their_own_dirs(tmp_path):
+    cmd = [sys.executable, "-m", "pipeline", "stages=[scene]"]
+    procs = [subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True) for _ in range(2)]
+    results = [(p.wait(timeout=600), *p.communicate()) for p in procs]
+    for rc, _, err in results:
+        assert rc == 0, err
+    dirs = sorted(p.parent for p in (tmp_path / "outputs").rglob("status.json"))
+    assert len(dirs) == 2 and dirs[0] != dirs[1], dirs
+    for d in dirs:
+        assert read_status(d).complete
+        assert (d / "scene.mcap").exists() and not list(d.glob("*.tmp"))
+        assert check_run_dir(d) == []
+
+
+# -- 4. stale temp files ---------------------------------------------------------------------
+
+
+def test_stale_temp_files_of_a_dead_run_are_removed(tmp_path):
+    d = tmp_path / "run"
+    d.mkdir()
+    stale = [d / "scene.mcap.123-abcd.tmp", d / "timings.json.456-ef01.tmp",
+             d / "graph.mcap.tmp"]  # the fixed name older versions used
+    for p in stale:
+        p.write_bytes(b"\x89MCAP0\r\n half a file")
+    run_in_process(d, "stages=[scene]")
+    assert not [p.name for p in stale if p.exists()]
+    assert not list(d.glob("*.tmp"))
+    assert read_status(d).complete
+    read_artefact(d / "scene.mcap")
+
+
+# -- 5. status.json tells the truth ----------------------------------------------------------
+
+
+def test_failed_stage_is_recorded_in_status(tmp_path):
+    d = tmp_path / "run"
+    missing = tmp_path / "nonexistent.json"
+    with pytest.raises(PipelineError, match="nonexistent.json"):
+        run_in_process(d, *QUICK, "expert=file", f"expert.path={missing}")
+    status = read_status(d)
+    assert (status.state, status.stage) == ("failed", "demos"), status
+    assert "nonexistent.json" in status.error
+    assert (d / "scene.mcap").exists() and not (d / "demos.mcap").exists()
+    assert check_run_dir(d) == []
+
+
+def _status_running(d: Path, stage: str) -> None:
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "status.json").write_text(json.dumps({
+        "state": "running", "stage": stage, "error": None, "stages": list(STAGES),
+        "done": list(STAGES[:STAGES.index(stage)])}))
+
+
+def test_running_status_without_a_lock_holder_reads_as_interrupted(tmp_path):
+    d = tmp_path / "run"
+    _status_running(d, "graph")
+    status = read_status(d)
+    assert (status.state, status.stage) == ("interrupted", "graph")
+    (d / ".lock").touch()  # a lock file nobody holds is no lock
+    assert read_status(d).state == "interrupted"
+    with RunDir(d, ["scene"]):  # held: running, and the writer's stage
+        assert read_status(d).state == "running"
+    assert read_status(d).complete
+
+
+def test_from_run_of_an_interrupted_dir_is_refused(tmp_path):
+    d = tmp_path / "old"
+    run_in_process(d, "stages=[scene]")
+    _status_running(d, "demos")  # as a run killed in stage demos leaves it
+    with pytest.raises(PipelineError, match="interrupted"):
+        run_in_process(tmp_path / "new", "stages=[demos]", f"from_run={d}")
+    assert not (tmp_path / "new").exists()
+    proc = run_app(f"hydra.run.dir={tmp_path / 'cli'}", "stages=[demos]", f"from_run={d}")
+    assert proc.returncode != 0
+    assert len(lines(proc.stderr)) == 1 and "interrupted" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+
+
+def test_from_run_of_a_dir_in_use_is_refused(tmp_path):
+    d = tmp_path / "old"
+    run_in_process(d, "stages=[scene]")
+    with RunDir(d, ["scene"]):
+        with pytest.raises(PipelineError, match="running"):
+            run_in_process(tmp_path / "new", "stages=[demos]", f"from_run={d}")
+
+
+def test_status_of_a_job_that_failed_before_running(tmp_path):
+    write_status_if_missing(tmp_path, "config error: x")
+    assert json.loads((tmp_path / "status.json").read_text())["state"] == "failed"
+
+
+# -- 6. damaged side files -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("content", ["", "{not json", "[1, 2]", "null"])
+def test_damaged_timings_json_does_not_break_the_next_run(tmp_path, caplog, content):
+    d = tmp_path / "run"
+    d.mkdir()
+    (d / "timings.json").write_text(content)
+    with caplog.at_level(logging.WARNING, logger="pipeline"):
+        run_in_process(d, "stages=[scene]")
+    assert any(r.levelno == logging.WARNING and "timings.json" in r.getMessage()
+               for r in caplog.records), caplog.text
+    assert read_status(d).complete
+    timings = json.loads((d / "timings.json").read_text())
+    assert isinstance(timings, dict) and "time_scene_s" in timings
+
+
+def test_damaged_status_json_does_not_break_the_next_run(tmp_path):
+    d = tmp_path / "run"
+    d.mkdir()
+    (d / "status.json").write_text("")
+    assert read_status(d).state == "unknown"
+    run_in_process(d, "stages=[scene]")
+    assert read_status(d).complete
+
+
+def test_no_side_file_is_left_half_written_by_a_run(tmp_path):
+    d = tmp_path / "run"
+    run_in_process(d, *QUICK)
+    for name in ("status.json", "timings.json", "metrics.json"):
+        assert isinstance(json.loads((d / name).read_text()), dict), name
+    assert not list(d.glob("*.tmp"))
+    assert check_run_dir(d) == []

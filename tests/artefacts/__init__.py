@@ -1,0 +1,1 @@
+"""Tests of pipeline/artefacts: the MCAP artefacts."""

@@ -1,0 +1,1 @@
+"""The command line: subprocesses or cli(), exit codes, sweeps, packaging."""

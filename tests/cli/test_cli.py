@@ -1,0 +1,52 @@
+"""The command line itself, in subprocesses: --help, the `birlg` console script's completion,
+and errors at start-up (a typo, a wrong type, an out-of-range value): one line, non-zero exit."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.conftest import run_app
+
+
+def _fails_with_one_line(result, *fragments):
+    assert result.returncode != 0
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    for f in fragments:
+        assert f in lines[0]
+    assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_typo_and_wrong_type_fail_at_start_up(tmp_path):
+    typo = run_app(f"hydra.run.dir={tmp_path}", "scene.n_persns=3")
+    assert typo.returncode != 0 and "n_persns" in typo.stderr
+    wrong_type = run_app(f"hydra.run.dir={tmp_path}", "seed=abc")
+    assert wrong_type.returncode != 0 and "seed" in wrong_type.stderr
+    assert not (tmp_path / "scene.mcap").exists()
+
+
+def test_out_of_range_value_exits_with_one_line(tmp_path):
+    _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path}", "scene.body_radius=-1"),
+                         "scene.body_radius=-1")
+
+
+def test_help_lists_groups_and_options_without_schemas():
+    result = run_app("--help")
+    assert result.returncode == 0, result.stderr
+    text = result.stdout
+    assert text.startswith("birlg: BIRL-G")
+    assert "scene: file, metropolis, office, random" in text
+    assert "base_" not in text and "__main__" not in text and "powered by Hydra" not in text
+    assert len(text.splitlines()) < 40  # groups and options, not the whole config
+
+
+def test_the_birlg_console_script_completes_keys_and_options():
+    import os
+
+    birlg = Path(sys.executable).parent / "birlg"
+    assert birlg.exists(), "pip install -e . creates the console script"
+    env = {**os.environ, "COMP_LINE": "birlg scene=ra", "COMP_POINT": "14"}
+    done = subprocess.run([str(birlg), "-sc", "query=bash"], env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "scene=random" in done.stdout.split()

@@ -1,0 +1,286 @@
+"""Adaptive state graph (DESIGN §7): selection statistics, GP, feasibility, Bellman,
+demonstrations as graph paths, adaptivity and social compliance on metropolis, and (slow)
+how many starts it connects through the office map's doors against a uniform roadmap."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order
+
+from pipeline.app import build
+from pipeline.app.config import load_settings
+from pipeline.artefacts.topics import STAGES
+from pipeline.core.adaptive_graph import (
+    AdaptiveGraph,
+    Demo,
+    GraphParams,
+    _probabilities,
+    choose_expansion_set,
+    gp_value_estimate,
+    voronoi_centroids,
+)
+from pipeline.core.controllers import LinearController, PosqController
+from pipeline.core.experts import optimal_demos
+from pipeline.core.features import FeatureModel
+from pipeline.core.roadmap import build_roadmap, segments_feasible
+from pipeline.core.social import relation_crossings
+from pipeline.core.state_graph import GOAL, SAMPLED, START, StateGraph
+from pipeline.core.world import Room
+from pipeline.inputs.scene_file import load_scene_file
+from pipeline.irl.prior import BoxConfig
+from tests.conftest import OFFICE_SCENE, POLITE, compose_config
+
+# The default prior's mean, the weights the graph stage grows the graph under before learning
+PRIOR_MEAN = BoxConfig().make_prior(4).box_mean()
+
+
+@pytest.fixture(scope="module")
+def demos(metropolis):
+    fm = FeatureModel.from_scene(metropolis)
+    rm = build_roadmap(metropolis, fm)
+    mdp = rm.mdp()
+    return [Demo(d.points, d.edge_features, d.durations)
+            for d in optimal_demos(mdp, rm.positions, rm.start_nodes, mdp.solve(POLITE))]
+
+
+def grow(scene, demos, weights, controller=None, seed=0, **params):
+    g = AdaptiveGraph(scene, FeatureModel.from_scene(scene), controller or LinearController(),
+                      weights, GraphParams(**params), np.random.default_rng(seed))
+    g.initialise(demos)
+    g.grow()
+    return g
+
+
+@pytest.fixture(scope="module")
+def graph(metropolis, demos):
+    return grow(metropolis, demos, PRIOR_MEAN, max_nodes=460)
+
+
+@pytest.fixture(scope="module")
+def polite_graph(metropolis, demos):
+    return grow(metropolis, demos, POLITE, max_nodes=250, seed=1)
+
+
+def test_expansion_set_is_best_set_with_frequency_p_best():
+    rng = np.random.default_rng(0)
+    best, other = np.arange(3), np.arange(3, 10)
+    n = 20000
+    hits = sum(choose_expansion_set(rng, best, other, 0.7) is best for _ in range(n))
+    # Binomial(n, 0.7): 5 standard deviations is ~0.016.
+    assert abs(hits / n - 0.7) < 5 * np.sqrt(0.7 * 0.3 / n)
+    assert choose_expansion_set(rng, np.arange(0), other, 1.0) is other  # empty N_b
+
+
+def test_nodes_are_picked_in_proportion_to_their_scores():
+    rng = np.random.default_rng(1)
+    scores = np.array([0.1, 0.2, 0.3, 0.4, 0.0])
+    n = 40000
+    counts = np.bincount(rng.choice(5, n, p=_probabilities(scores)), minlength=5)
+    expected = scores / scores.sum()
+    assert np.all(np.abs(counts / n - expected) < 5 * np.sqrt(expected * (1 - expected) / n) + 1e-4)
+    assert counts[4] <= 1  # zero score: (almost) never picked
+
+
+def test_gp_interpolates_a_smooth_value_field():
+    rng = np.random.default_rng(2)
+    def field(p):
+        return np.sin(p[:, 0]) + 0.5 * p[:, 1]
+    train = rng.uniform(0, 2, (60, 2))
+    query = rng.uniform(0.3, 1.7, (20, 2))
+    mean, std = gp_value_estimate(train, field(train), query, GraphParams())
+    assert np.max(np.abs(mean - field(query))) < 0.02
+    assert np.all(std < 0.1)
+    # Far from the data the GP is uncertain.
+    _, far_std = gp_value_estimate(train, field(train), np.array([[8.0, 8.0]]), GraphParams())
+    assert far_std[0] > 5 * std.max()
+
+
+def test_voronoi_centroids_clipped_to_room():
+    room = Room(0, 0, 4, 2)
+    c = voronoi_centroids(np.array([[1.0, 1.0], [3.0, 1.0]]), room)
+    np.testing.assert_allclose(c, [[1.0, 1.0], [3.0, 1.0]])  # two 2x2 halves
+    c = voronoi_centroids(np.array([[0.5, 0.5], [3.0, 1.5], [2.0, 0.4]]), room)
+    assert room.contains(c).all()
+
+
+def test_graph_reaches_max_nodes_and_records_growth(graph):
+    assert graph.n_nodes == 460
+    assert graph.added_at.max() == graph.iteration
+    sampled = np.array([k == "sampled" for k in graph.node_kind])
+    assert np.all(graph.parent[sampled] >= 0) and np.all(graph.parent[~sampled] == -1)
+    assert np.all(np.isfinite(graph.gp_mean[sampled])) and np.all(graph.gp_std[sampled] >= 0)
+    assert len(graph.history) == graph.iteration + 1
+
+
+@pytest.mark.parametrize("name", ["graph", "polite_graph"])
+def test_every_edge_is_feasible(metropolis, request, name):
+    g = request.getfixturevalue(name)
+    for way in g.waypoints:
+        assert segments_feasible(metropolis, way[:-1], way[1:]).all()
+    assert g.duration.min() > 0
+    d = np.linalg.norm(g.positions[:, None] - g.positions[None], axis=2) + np.eye(g.n_nodes) * 9
+    assert d.min() >= g.p.min_separation - 1e-12
+
+
+def test_values_satisfy_bellman_on_final_graph(graph):
+    assert graph.mdp().bellman_residual(graph.w, graph.values) < 1e-8
+
+
+def test_every_demonstration_is_a_path_of_the_graph(graph, demos):
+    edges = set(zip(graph.src.tolist(), graph.dst.tolist(), strict=True))
+    for d in demos:
+        nodes = [int(graph.neighbours(p, graph.p.min_separation)[0]) for p in d.points]
+        np.testing.assert_allclose(graph.positions[nodes], d.points, atol=1e-12)
+        assert all((a, b) in edges for a, b in zip(nodes[:-1], nodes[1:], strict=True))
+
+
+def _distance_to_paths(points, paths):
+    d = np.full(len(points), np.inf)
+    for path in paths:
+        a, seg = path[:-1], np.diff(path, axis=0)
+        t = np.clip(((points[:, None] - a[None]) * seg[None]).sum(-1) / (seg ** 2).sum(1), 0, 1)
+        closest = a[None] + t[..., None] * seg[None]
+        d = np.minimum(d, np.linalg.norm(points[:, None] - closest, axis=2).min(1))
+    return d
+
+
+def test_nodes_concentrate_near_best_trajectories(graph):
+    paths = [graph.positions[p] for p in graph.best_paths]
+    xs = np.linspace(0.025, 9.975, 200)
+    room_grid = np.array(np.meshgrid(xs, xs)).reshape(2, -1).T
+    area_share = (_distance_to_paths(room_grid, paths) <= 1.0).mean()
+    node_share = (_distance_to_paths(graph.positions, paths) <= 1.0).mean()
+    print(f"band within 1 m of best trajectories: {area_share:.1%} of the room, "
+          f"{node_share:.1%} of the nodes")
+    assert node_share > area_share + 0.15
+
+
+@pytest.mark.parametrize("name", ["graph", "polite_graph"])
+def test_best_trajectories_reach_goal_from_every_start(request, name):
+    g = request.getfixturevalue(name)
+    assert len(g.best_paths) == 7 and g.best_reached.all()
+    assert all(g.terminal[p[-1]] for p in g.best_paths)
+
+
+def test_polite_best_trajectories_cross_no_link(metropolis, polite_graph):
+    a, b = metropolis.links
+    for p in polite_graph.best_paths:
+        way = np.vstack([polite_graph.positions[p]])
+        assert relation_crossings(way, a, b) == 0
+
+
+def test_same_seed_same_graph(metropolis, demos):
+    g1 = grow(metropolis, demos, PRIOR_MEAN, max_nodes=150, seed=5)
+    g2 = grow(metropolis, demos, PRIOR_MEAN, max_nodes=150, seed=5)
+    np.testing.assert_array_equal(g1.pose, g2.pose)
+    np.testing.assert_array_equal(g1.src, g2.src)
+
+
+def test_posq_graph_is_feasible_and_reaches_goal(metropolis, demos):
+    # Under the polite weights (cheap length): with strongly negative length weights, slow
+    # POSQ turns between close nodes can make circling cheaper than reaching the goal.
+    g = grow(metropolis, demos, POLITE, controller=PosqController(max_time=10.0),
+             max_nodes=160)
+    assert g.n_nodes == 160 and g.best_reached.all()
+    for way in g.waypoints:
+        assert segments_feasible(metropolis, way[:-1], way[1:]).all()
+    assert g.mdp().bellman_residual(g.w, g.values) < 1e-8
+
+
+def test_restored_graph_equals_original_and_keeps_growing(metropolis, demos):
+    from pipeline.artefacts.codec import edge_record, node_record
+
+    g = grow(metropolis, demos, PRIOR_MEAN, max_nodes=150, seed=3)
+    nodes = [node_record(g, i) for i in range(g.n_nodes)]
+    edges = [edge_record(g, e) for e in range(len(g.src))]
+    r = AdaptiveGraph(metropolis, FeatureModel.from_scene(metropolis), LinearController(),
+                      PRIOR_MEAN, g.p, np.random.default_rng(0))
+    r.restore(nodes, edges, g.start_nodes)
+    np.testing.assert_array_equal(r.pose, g.pose)
+    np.testing.assert_array_equal(r.src, g.src)
+    np.testing.assert_allclose(r.values, g.values, atol=1e-12)
+    assert [list(p) for p in r.best_paths] == [list(p) for p in g.best_paths]
+    r.set_weights(POLITE)
+    assert r.grow_by(10) >= 10
+    assert r.mdp().bellman_residual(POLITE, r.values) < 1e-8
+
+
+# ---------------------------------------------------------------------------------------------
+# Through the doors: adaptive graph vs a uniform roadmap of as many nodes (office map)
+#
+# Both graphs have N nodes (starts and goal included), connect neighbours within the same
+# radius (at most max_edges each way) with the same controller and collision checks, and are
+# scored by how many starts have a directed path to the goal. The adaptive graph is grown as
+# the graph stage grows it, but without demonstrations, under the polite weights.
+
+DOOR_N = 400
+DOOR_SEEDS = (0, 1, 2)
+
+
+def starts_connected(graph: StateGraph, start_nodes: np.ndarray) -> np.ndarray:
+    """(n_starts,) bool: a directed path leads from the start node to a terminal node."""
+    n = graph.n_nodes
+    reverse = coo_matrix((np.ones(len(graph.src)), (graph.dst, graph.src)), shape=(n, n)).tocsr()
+    reached = np.zeros(n, dtype=bool)
+    for t in np.flatnonzero(graph.terminal):
+        reached[breadth_first_order(reverse, int(t), directed=True,
+                                    return_predecessors=False)] = True
+    return reached[start_nodes]
+
+
+def adaptive_graph(cfg, scene, seed: int) -> AdaptiveGraph:
+    graph = AdaptiveGraph(scene, build.feature_model(cfg, scene), build.controller(cfg), POLITE,
+                          cfg.graph, np.random.default_rng([seed, STAGES.index("graph")]),
+                          cfg.mdp)
+    graph.initialise(())
+    graph.grow()
+    return graph
+
+
+def uniform_roadmap(cfg, scene, seed: int) -> tuple[StateGraph, np.ndarray]:
+    p = cfg.graph
+    graph = StateGraph(scene, build.feature_model(cfg, scene), build.controller(cfg), POLITE,
+                       radius=p.radius, max_edges=p.max_edges,
+                       min_separation=p.separation(scene.room.area), mdp=cfg.mdp)
+    start_nodes = np.array([graph.add_node([*s, 0.0], START) for s in scene.starts])
+    graph.add_node([*scene.goal, 0.0], GOAL)
+    rng = np.random.default_rng(seed)
+    r = scene.room
+    while graph.n_nodes < p.max_nodes:
+        pt = rng.uniform([r.x_min, r.y_min], [r.x_max, r.y_max])
+        if scene.free(pt)[0] and not graph.too_close(pt):
+            graph.add_node([*pt, rng.uniform(-math.pi, math.pi)], SAMPLED)
+    graph.connect(range(graph.n_nodes))
+    return graph, start_nodes
+
+
+@pytest.fixture(scope="module")
+def door_successes() -> dict[str, list[int]]:
+    cfg = load_settings(compose_config("scene=file", "scene.path=data/scenes/office.json",
+                                       "graph=small", f"graph.max_nodes={DOOR_N}"))
+    scene = load_scene_file(OFFICE_SCENE)
+    out: dict[str, list[int]] = {"adaptive": [], "uniform": []}
+    for seed in DOOR_SEEDS:
+        grown = adaptive_graph(cfg, scene, seed)
+        assert grown.n_nodes == DOOR_N
+        out["adaptive"].append(int(starts_connected(grown, grown.start_nodes).sum()))
+        uniform, start_nodes = uniform_roadmap(cfg, scene, seed)
+        assert uniform.n_nodes == DOOR_N
+        out["uniform"].append(int(starts_connected(uniform, start_nodes).sum()))
+    return out
+
+
+@pytest.mark.slow  # a measurement (4-5 s): make test-all
+def test_uniform_roadmap_finds_the_doors(door_successes):
+    """The measurement itself works: N uniform nodes link some rooms through 1 m doors."""
+    assert sum(door_successes["uniform"]) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured: without demonstrations the adaptive graph "
+                   "stays in the start rooms (0 of 5 starts connected at N = 150..1200), a "
+                   "uniform roadmap connects 9 of 15 at N = 400 (seeds 0-2)")
+def test_adaptive_graph_connects_more_starts_through_doors_than_uniform(door_successes):
+    assert sum(door_successes["adaptive"]) > sum(door_successes["uniform"]), door_successes

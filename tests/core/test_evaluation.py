@@ -1,0 +1,48 @@
+"""Policy loss (DESIGN §9) properties and path similarity."""
+
+import numpy as np
+import pytest
+
+from pipeline.core.evaluation import discrete_frechet, policy_loss
+from tests.conftest import POLITE, RUDE
+from tests.core.conftest import random_graph
+
+
+def test_policy_loss_is_zero_for_true_weights_and_never_negative(roadmap):
+    mdp = roadmap.mdp()
+    optimal = mdp.solve(POLITE).values
+    assert policy_loss(mdp, POLITE, POLITE, roadmap.start_nodes, optimal).loss == 0.0
+    # Positive rescaling of w* leaves the greedy policy, hence the loss, unchanged... only
+    # without the goal reward; with R_goal it may change, but the loss stays >= 0.
+    rng = np.random.default_rng(0)
+    losses = [policy_loss(mdp, POLITE, -rng.uniform(0, 1, 4), roadmap.start_nodes, optimal)
+              for _ in range(10)]
+    assert all(pl.loss >= 0 and np.all(pl.per_start >= 0) for pl in losses)
+    assert max(pl.loss for pl in losses) > 0.01  # wrong weights do lose value
+    rude = policy_loss(mdp, POLITE, RUDE, roadmap.start_nodes, optimal)
+    assert rude.loss > 0.05
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_policy_loss_on_random_graphs(seed):
+    rng = np.random.default_rng(seed)
+    mdp = random_graph(rng, n=50)
+    w_true = -rng.uniform(0, 1, 3)
+    starts = np.flatnonzero(~mdp.terminal)[:5]
+    optimal = mdp.solve(w_true).values
+    assert policy_loss(mdp, w_true, w_true, starts, optimal).loss == 0.0
+    for _ in range(5):
+        assert policy_loss(mdp, w_true, -rng.uniform(0, 1, 3), starts, optimal).loss >= 0.0
+
+
+def test_discrete_frechet_known_values():
+    p = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    assert discrete_frechet(p, p) == 0.0
+    assert discrete_frechet(p, p + [0.0, 1.0]) == pytest.approx(1.0)
+    # A detour point 3 m off the line dominates, whatever the sampling elsewhere.
+    q = np.array([[0.0, 0.0], [1.0, 3.0], [2.0, 0.0]])
+    assert discrete_frechet(p, q) == pytest.approx(3.0)
+    # Symmetric, and sampling the same line more finely changes little.
+    fine = np.column_stack([np.linspace(0, 2, 9), np.zeros(9)])
+    assert discrete_frechet(p, fine) == pytest.approx(discrete_frechet(fine, p))
+    assert discrete_frechet(p, fine) <= 0.5

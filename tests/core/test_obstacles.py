@@ -1,0 +1,223 @@
+"""Obstacles (pipeline/core/obstacles.py): rasterised polygons, clearance, collision and
+reachability queries, and every obstacle source (polygons, PNG and negated PGM maps) blocking a
+wall at its resolution."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
+from pipeline.core.roadmap import segments_feasible
+from pipeline.errors import PipelineError
+from pipeline.inputs.scene_file import load_scene_file
+
+
+def _rect(x0, y0, x1, y1):
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+
+
+def _box_distance(points, x0, y0, x1, y1):
+    """Euclidean distance from (n, 2) points outside the box to it."""
+    dx = np.maximum.reduce([x0 - points[:, 0], np.zeros(len(points)), points[:, 0] - x1])
+    dy = np.maximum.reduce([y0 - points[:, 1], np.zeros(len(points)), points[:, 1] - y1])
+    return np.hypot(dx, dy)
+
+
+# ---------------------------------------------------------------------------- grid, clearance
+
+def test_grid_geometry_and_cells():
+    grid = OccupancyGrid(np.zeros((3, 4), dtype=bool), (-1.0, 2.0), 0.5)
+    assert grid.extent() == (-1.0, 2.0, 1.0, 3.5)
+    rows, cols, inside = grid.cell_of(np.array([[-0.9, 2.1], [0.99, 3.49], [1.01, 3.0],
+                                                [-1.01, 2.5], [np.nan, 2.5]]))
+    assert rows.tolist()[:2] == [0, 2] and cols.tolist()[:2] == [0, 3]
+    assert inside.tolist() == [True, True, False, False, False]
+    centres = grid.cell_centres()
+    assert centres.shape == (3, 4, 2)
+    np.testing.assert_allclose(centres[0, 0], [-0.75, 2.25])
+    np.testing.assert_allclose(centres[2, 3], [0.75, 3.25])
+
+
+def test_clearance_of_a_square_is_the_analytic_distance_within_half_a_cell():
+    res = 0.05
+    # edges through cell centres: the occupied cells are exactly the square [4, 5]²
+    grid = rasterise([_rect(4.025, 4.025, 4.975, 4.975)], None, (0, 0, 10, 10), res)
+    assert grid.occupied.sum() == 20 * 20
+    obstacles = ObstacleMap(grid)
+    centres = grid.cell_centres().reshape(-1, 2)
+    free = ~grid.occupied.ravel()
+    # outside the map counts as an obstacle too: the nearest of the square and the border
+    border = np.min(np.hstack([centres, 10 - centres]), axis=1)
+    expected = np.minimum(_box_distance(centres, 4, 4, 5, 5), border)
+    error = obstacles.clearance.ravel()[free] - expected[free]
+    assert np.abs(error).max() <= res / 2
+    assert (obstacles.clearance.ravel()[~free] == 0).all()
+    # a point takes its cell's clearance; points outside the map have none
+    # (cell centres (7.025, 4.525) and (5.525, 4.525))
+    np.testing.assert_allclose(obstacles.clearance_at(np.array([[7.01, 4.51], [5.5, 4.5]])),
+                               [2.025, 0.525], atol=1e-9)
+    assert obstacles.clearance_at(np.array([[-0.1, 5.0], [5.0, 10.2]])).tolist() == [0, 0]
+
+
+def test_clearance_does_not_depend_on_the_resolution():
+    polygons = [_rect(2.3, 1.7, 3.9, 2.2), np.array([[6.1, 6.2], [8.4, 7.1], [6.6, 8.8]])]
+    fine, coarse = (ObstacleMap(rasterise(polygons, None, (0, 0, 10, 10), res))
+                    for res in (0.05, 0.1))
+    points = np.random.default_rng(0).uniform(0, 10, (2000, 2))
+    points = points[fine.points_free(points, 0.2)]
+    assert len(points) > 1500
+    difference = np.abs(fine.clearance_at(points) - coarse.clearance_at(points))
+    # within one coarse cell (its diagonal: each grid answers for its cell, not the point)
+    assert difference.max() <= 0.1 * np.sqrt(2) and difference.mean() <= 0.05
+
+
+def test_rasterise_adds_to_a_given_grid_and_keeps_thin_walls():
+    base = rasterise([_rect(1.05, 1.05, 1.95, 1.95)], None, (0, 0, 5, 5), 0.1)  # [1, 2]²
+    wall = np.array([[0.52, 3.0], [4.47, 4.03]])  # a zero-thickness wall: a 2-point polygon
+    both = rasterise([wall, _rect(3.0, 0.5, 3.004, 2.5)], base)  # and a 4 mm one
+    assert both.shape == base.shape and both.origin == base.origin
+    assert (both.occupied >= base.occupied).all() and base.occupied.sum() == 100
+    obstacles = ObstacleMap(both)
+    # no gap anywhere along either thin wall: crossing them always hits an occupied cell
+    t = np.linspace(0, 1, 500)[:, None]
+    on_wall = wall[0] + t * (wall[1] - wall[0])
+    assert (obstacles.clearance_at(on_wall) == 0).all()
+    assert (obstacles.clearance_at(np.c_[np.full(50, 3.002), np.linspace(0.5, 2.5, 50)])
+            == 0).all()
+    with pytest.raises(PipelineError, match="polygon 1"):
+        rasterise([wall, np.array([[1.0, np.nan], [2.0, 2.0]])], base)
+
+
+# ---------------------------------------------------------------------------- collision checks
+
+def _thin_wall_map(res=0.05):
+    """10 m × 10 m, a one-cell wall at x 5.0..5.05 over y 1..9."""
+    occupied = np.zeros((round(10 / res), round(10 / res)), dtype=bool)
+    occupied[round(1 / res):round(9 / res), round(5 / res)] = True
+    return ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), res))
+
+
+def test_segments_across_a_thin_wall_collide_and_parallel_ones_do_not():
+    obstacles = _thin_wall_map()
+    a = np.array([[4.0, 5.0], [4.5, 2.0], [4.5, 2.0], [5.3, 2.0], [4.0, 5.0]])
+    b = np.array([[6.0, 5.2], [4.5, 8.0], [4.85, 8.0], [5.3, 8.0], [4.0, 5.0]])
+    free = obstacles.segments_free(a, b, 0.2)
+    # across; parallel 0.5 m away; parallel 0.15 m away (< radius); east side; a point
+    assert free.tolist() == [False, True, False, True, True]
+    assert obstacles.segments_free(a[:0], b[:0], 0.2).shape == (0,)
+    # one call over many segments agrees with one call per segment
+    rng = np.random.default_rng(1)
+    a, b = rng.uniform(0, 10, (300, 2)), rng.uniform(0, 10, (300, 2))
+    together = obstacles.segments_min_clearance(a, b)
+    one_by_one = [obstacles.segments_min_clearance(a[i:i + 1], b[i:i + 1])[0] for i in range(300)]
+    np.testing.assert_array_equal(together, one_by_one)
+    polyline = rng.uniform(0, 10, (7, 2))
+    assert obstacles.min_clearance_along(polyline) == \
+        obstacles.segments_min_clearance(polyline[:-1], polyline[1:]).min()
+
+
+def test_half_cell_sampling_catches_a_wall_that_coarse_sampling_misses():
+    obstacles = _thin_wall_map()
+    rng = np.random.default_rng(2)
+    a = np.c_[rng.uniform(0.5, 4.9, 200), rng.uniform(2, 8, 200)]
+    b = np.c_[rng.uniform(5.1, 9.5, 200), rng.uniform(2, 8, 200)]
+    # every segment crosses the wall; samples 0.1 m apart (two cells) miss it often
+    coarse = [obstacles.clearance_at(p + np.linspace(0, 1, int(np.linalg.norm(q - p) / 0.1) + 2)
+                                     [:, None] * (q - p)).min()
+              for p, q in zip(a, b, strict=True)]
+    assert np.mean(np.array(coarse) > 0) > 0.3  # i.e. the test has teeth
+    assert not obstacles.segments_free(a, b, 0.0).any()
+    assert all(obstacles.min_clearance_along(np.array([p, q])) == 0
+               for p, q in zip(a, b, strict=True))
+
+
+def test_points_free_needs_the_radius_and_a_free_cell():
+    obstacles = _thin_wall_map()
+    points = np.array([[4.0, 5.0], [4.8, 5.0], [5.02, 5.0], [-1.0, 5.0]])
+    assert obstacles.points_free(points, 0.5).tolist() == [True, False, False, False]
+    assert obstacles.points_free(points, 0.0).tolist() == [True, True, False, False]
+
+
+# ---------------------------------------------------------------------------- reachability
+
+def _two_rooms(door=1.0, res=0.05):
+    """8 m × 4 m, a wall at x 3.95..4.05 with a door of width `door` centred at y = 2."""
+    wall = [_rect(3.95, 0.0, 4.05, 2 - door / 2), _rect(3.95, 2 + door / 2, 4.05, 4.0)]
+    return ObstacleMap(rasterise(wall, None, (0, 0, 8, 4), res))
+
+
+def test_a_door_connects_two_rooms_only_for_a_robot_that_fits():
+    obstacles = _two_rooms(door=1.0)
+    a, targets = np.array([1.0, 2.0]), np.array([[7.0, 1.0], [2.0, 3.0], [4.0, 0.5], [9.0, 2.0]])
+    assert obstacles.reachable(a, targets, 0.3).tolist() == [True, True, False, False]
+    assert obstacles.reachable(a, targets, 0.55).tolist() == [False, True, False, False]
+    # the start itself in an obstacle, or off the map: nothing is reachable
+    assert not obstacles.reachable(np.array([4.0, 0.5]), targets, 0.3).any()
+    assert not obstacles.reachable(np.array([-1.0, 2.0]), targets, 0.3).any()
+
+
+def test_cells_touching_at_a_corner_are_connected():
+    occupied = np.ones((5, 5), dtype=bool)
+    occupied[[1, 2, 3], [1, 2, 3]] = False  # a diagonal chain of free cells
+    obstacles = ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), 1.0))
+    targets = np.array([[3.5, 3.5], [2.5, 2.5], [1.5, 3.5]])
+    assert obstacles.reachable(np.array([1.5, 1.5]), targets, 0.0).tolist() == \
+        [True, True, False]
+
+
+def test_blocked_disks_cut_a_corridor():
+    obstacles = _two_rooms(door=1.0)
+    a, b = np.array([1.0, 2.0]), np.array([[7.0, 2.0]])
+    small = obstacles.blocked_disks(np.array([[4.0, 2.0]]), 0.1)
+    large = obstacles.blocked_disks(np.array([[4.0, 2.0]]), 0.45)
+    assert obstacles.reachable(a, b, 0.2, small).tolist() == [True]
+    assert obstacles.reachable(a, b, 0.2, large).tolist() == [False]
+    # exactly the cells whose centre is within the radius
+    centres = obstacles.grid.cell_centres()
+    expected = np.hypot(*(centres - [4.0, 2.0]).transpose(2, 0, 1)) <= 0.45
+    np.testing.assert_array_equal(large, expected)
+    assert not obstacles.blocked_disks(np.array([[20.0, 20.0]]), 0.5).any()
+
+
+# ---------------------------------------------------------------- every obstacle source
+
+ROOM = {"x_min": 0.0, "y_min": 0.0, "x_max": 4.0, "y_max": 2.0}
+# A wall 0.1 m thick at x = 2 (cells [1.95, 2.05) at 5 cm), floor to ceiling.
+
+
+def _scene(tmp_path, **extra) -> dict:
+    data = {"name": "wall", "persons": [], "relations": [], "starts": [[0.5, 1.0]],
+            "goal": [1.5, 1.0], "robot_radius": 0.1, **extra}
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(data))
+    return load_scene_file(path)
+
+
+def _map(tmp_path, suffix: str, negate: int):
+    """A 4 x 2 m map at 5 cm with the wall at x = 2; free pixels white (black when negated)."""
+    free, wall = (0, 255) if negate else (255, 0)
+    pixels = np.full((40, 80), free, np.uint8)
+    pixels[:, 39:41] = wall  # columns 39, 40: x in [1.95, 2.05)
+    Image.fromarray(pixels).save(tmp_path / f"map{suffix}")
+    (tmp_path / "map.yaml").write_text(
+        f"image: map{suffix}\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: {negate}\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    return _scene(tmp_path, map="map.yaml")
+
+
+@pytest.mark.parametrize("source", ["polygon", "png", "pgm_negate"])
+def test_each_obstacle_source_blocks_the_wall_at_its_resolution(tmp_path, source):
+    if source == "polygon":
+        scene = _scene(tmp_path, room=ROOM, obstacles=[[[1.95, 0.0], [2.05, 0.0], [2.05, 2.0],
+                                                        [1.95, 2.0]]])
+    else:
+        scene = _map(tmp_path, ".png" if source == "png" else ".pgm", int(source != "png"))
+    a = np.array([[1.0, 1.0], [1.0, 0.5], [1.0, 1.0], [2.6, 0.3]])
+    b = np.array([[3.0, 1.0], [1.8, 0.5], [1.84, 1.5], [3.5, 1.7]])
+    # through the wall; beside it (0.15 m > r away); 0.11 m from it (just clear); other side
+    expected = [False, True, True, True]
+    assert segments_feasible(scene, a, b).tolist() == expected
+    # one cell (5 cm) closer than robot_radius to the wall is a collision
+    assert not segments_feasible(scene, np.array([[1.0, 1.0]]), np.array([[1.88, 1.0]]))[0]

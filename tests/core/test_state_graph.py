@@ -1,0 +1,27 @@
+"""The state graph's spatial index (pipeline/core/state_graph.py) against brute force."""
+
+import numpy as np
+
+from pipeline.core.state_graph import SpatialIndex
+
+
+def test_spatial_index_matches_brute_force_across_rebuilds():
+    """Inserted one by one (the k-d tree is rebuilt now and then, the points since its last
+    build scanned directly): every query equals a brute-force scan of all points."""
+    rng = np.random.default_rng(3)
+    index = SpatialIndex()
+    points = rng.uniform(0, 20, (3000, 2))
+    for n, p in enumerate(points, start=1):
+        index.add(p)
+        if n % 250 == 0 or n in (1, 33, 700):
+            recent = points[max(0, n - 3):n] + rng.normal(0, 0.2, (min(n, 3), 2))
+            for q in np.vstack([rng.uniform(-1, 21, (5, 2)), recent]):
+                dist = np.linalg.norm(points[:n] - q, axis=1)
+                for r in (0.3, 1.5):
+                    inside = np.flatnonzero(dist <= r)
+                    assert set(index.within(q, r).tolist()) == set(inside.tolist())
+                    assert index.count_within(q, r) == len(inside)
+                    near = index.nearest(q, 4, r)
+                    assert np.allclose(np.sort(dist[near]), np.sort(dist[inside])[:4])
+                assert list(index.within(q, 1.5)) == sorted(
+                    index.within(q, 1.5), key=lambda i: (round(dist[i], 12), i))

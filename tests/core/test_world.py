@@ -1,0 +1,58 @@
+"""The world model (pipeline/core/world.py): the shipped metropolis scene, validation messages
+naming the culprit, headings from velocities, and the scene's dict round trip."""
+
+import json
+
+import numpy as np
+import pytest
+
+from pipeline.core.world import SceneError, scene_from_dict
+from tests.conftest import METROPOLIS
+
+
+def test_metropolis_matches_the_authors_scene(metropolis):
+    assert metropolis.name == "metropolis"
+    assert len(metropolis.persons) == 12
+    assert len(metropolis.relations) == 10
+    assert len(metropolis.starts) == 7
+    np.testing.assert_allclose(metropolis.goal, [5.5, 9.0])
+    assert (METROPOLIS.parent / "metropolis.LICENSE").is_file()
+
+
+def _metropolis_dict():
+    return json.loads(METROPOLIS.read_text())
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d["persons"][2].update(x=12.0), "person 3 at (12, 5) is outside the room"),
+    (lambda d: d["relations"].append([1, 99]), "unknown person id 99"),
+    (lambda d: d["starts"].append([2.0, 5.0]), "start 7 (2, 5) is inside a person's body disk"),
+    (lambda d: d.update(goal=[11.0, 9.0]), "goal (11, 9) is outside the room"),
+    (lambda d: d.update(starts=[]), "'starts' is empty"),
+    (lambda d: d["persons"][0].pop("x"), "person #0 needs numbers"),
+    (lambda d: d.pop("room"), "missing key 'room'"),
+    (lambda d: d["persons"][1].update(x=2.0, y=5.0),
+     "relation [1, 2] links two persons at the same place"),
+])
+def test_malformed_scene_names_the_culprit(mutate, message):
+    data = _metropolis_dict()
+    mutate(data)
+    with pytest.raises(SceneError) as err:
+        scene_from_dict(data, source="scene file x.json")
+    text = str(err.value)
+    assert message in text and text.startswith("scene file x.json")
+    assert "\n" not in text
+
+
+def test_theta_defaults_to_velocity_heading():
+    data = _metropolis_dict()
+    for p in data["persons"]:
+        p.pop("theta")
+    scene = scene_from_dict(data)
+    assert scene.persons[1].theta == pytest.approx(np.arctan2(1.5, -0.5))
+
+
+def test_scene_dict_round_trip(metropolis):
+    again = scene_from_dict(metropolis.to_dict())
+    assert again.persons == metropolis.persons and again.relations == metropolis.relations
+    np.testing.assert_array_equal(again.starts, metropolis.starts)

@@ -1,0 +1,1 @@
+"""Tests of pipeline/inputs: scene, map and demonstration files."""

@@ -1,0 +1,157 @@
+"""ROS map_server map files (pipeline/inputs/map_file.py): trinary, scale and raw modes,
+negate, the image's orientation and origin, one line naming the file and key of a bad map,
+and the shipped office map."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pipeline.core.obstacles import ObstacleMap
+from pipeline.errors import PipelineError
+from pipeline.inputs.map_file import load_map
+from tests.conftest import OFFICE_SCENE
+
+# ---------------------------------------------------------------------------- map_server files
+
+def _write_map(directory, pixels, fmt="pgm", **fields):
+    """map.yaml + map.{fmt} in `directory`; `fields` override the YAML's values (None: drop)."""
+    Image.fromarray(np.asarray(pixels, dtype=np.uint8)).save(directory / f"map.{fmt}")
+    values = {"image": f"map.{fmt}", "resolution": 0.1, "origin": [0.0, 0.0, 0.0], "negate": 0,
+              "occupied_thresh": 0.65, "free_thresh": 0.196, **fields}
+    lines = [f"{key}: {json.dumps(value)}" for key, value in values.items() if value is not None]
+    path = directory / "map.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _free_in_image_order(grid):
+    return ~grid.occupied[::-1]
+
+
+GREYS = [[0, 50, 100, 150], [205, 206, 254, 255]]
+
+
+@pytest.mark.parametrize("fmt", ["pgm", "png"])
+def test_trinary_classification_follows_map_server(tmp_path, fmt):
+    # p = (255 - v)/255: map_saver's unknown 205 -> 0.19608 is just above free_thresh 0.196,
+    # 206 -> 0.19216 just below; 0 -> 1.0 occupied; 50, 100 (p 0.80, 0.61) occupied/unknown
+    grid = load_map(_write_map(tmp_path, GREYS, fmt))
+    assert _free_in_image_order(grid).tolist() == [[False] * 4, [False, True, True, True]]
+    grid = load_map(_write_map(tmp_path, GREYS, fmt, free_thresh=0.5))  # 150 -> 0.41
+    assert _free_in_image_order(grid).tolist() == [[False, False, False, True], [True] * 4]
+
+
+def test_negate_inverts_the_grey_values(tmp_path):
+    grid = load_map(_write_map(tmp_path, GREYS, negate=1))  # p = v/255: 50 -> 0.19608
+    assert _free_in_image_order(grid).tolist() == [[True, False, False, False], [False] * 4]
+
+
+def test_raw_mode_reads_percentages_and_ignores_negate(tmp_path):
+    pixels = [[0, 10, 19, 20], [50, 100, 101, 255]]
+    for negate in (0, 1):
+        grid = load_map(_write_map(tmp_path, pixels, mode="raw", negate=negate))
+        assert _free_in_image_order(grid).tolist() == [[True, True, True, False], [False] * 4]
+    # free means strictly below free_thresh, as in map_server: 20 -> p = 0.2
+    grid = load_map(_write_map(tmp_path, pixels, mode="raw", free_thresh=0.2))
+    assert _free_in_image_order(grid).tolist() == [[True, True, True, False], [False] * 4]
+    grid = load_map(_write_map(tmp_path, pixels, mode="raw", free_thresh=0.21))
+    assert _free_in_image_order(grid).tolist() == [[True] * 4, [False] * 4]
+
+
+def test_scale_mode_treats_translucent_pixels_as_unknown(tmp_path):
+    grey = np.array([[254, 254, 0]], dtype=np.uint8)
+    alpha = np.array([[255, 128, 255]], dtype=np.uint8)
+    path = _write_map(tmp_path, grey, "png", mode="scale")
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, True, False]]
+    Image.fromarray(np.stack([grey, alpha], axis=-1), "LA").save(tmp_path / "map.png")
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, False, False]]
+    path.write_text(path.read_text().replace("scale", "trinary"))
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, True, False]]
+
+
+def test_image_row_zero_is_the_top_and_the_origin_shifts_the_map(tmp_path, monkeypatch):
+    pixels = np.full((3, 4), 254)
+    pixels[0, 0] = 0  # image row 0, column 0: the map's top-left cell
+    (tmp_path / "maps").mkdir()
+    path = _write_map(tmp_path / "maps", pixels, "png", origin=[-1.0, 2.0, 0.0])
+    monkeypatch.chdir(tmp_path)  # the image is found next to the YAML, not in the cwd
+    grid = load_map("maps/map.yaml")
+    assert grid.extent() == pytest.approx((-1.0, 2.0, -0.6, 2.3))
+    assert grid.occupied.sum() == 1 and grid.occupied[2, 0]
+    obstacles = ObstacleMap(grid)
+    assert obstacles.points_free(np.array([[-0.95, 2.25], [-0.95, 2.05], [-0.65, 2.25]]),
+                                 0.0).tolist() == [False, True, True]
+    # an absolute image path works too
+    path.write_text(path.read_text().replace("image: \"map.png\"",
+                                             f"image: \"{tmp_path / 'maps' / 'map.png'}\""))
+    assert (load_map(path).occupied == grid.occupied).all()
+
+
+@pytest.mark.parametrize("fields, needle", [
+    ({"resolution": None}, "missing key 'resolution'"),
+    ({"image": None}, "missing key 'image'"),
+    ({"origin": None}, "missing key 'origin'"),
+    ({"negate": None}, "missing key 'negate'"),
+    ({"occupied_thresh": None}, "missing key 'occupied_thresh'"),
+    ({"free_thresh": None}, "missing key 'free_thresh'"),
+    ({"resolution": 0}, "key 'resolution'=0"),
+    ({"resolution": -0.05}, "key 'resolution'=-0.05"),
+    ({"resolution": "fine"}, "key 'resolution'='fine'"),
+    ({"origin": [0.0, 0.0]}, "key 'origin'"),
+    ({"origin": [0.0, "a", 0.0]}, "key 'origin'"),
+    ({"origin": [0.0, 0.0, 0.3]}, "origin yaw 0.3 is not supported; rotate the image instead"),
+    ({"negate": 2}, "key 'negate'=2"),
+    ({"occupied_thresh": 1.5}, "key 'occupied_thresh'=1.5"),
+    ({"free_thresh": -0.1}, "key 'free_thresh'=-0.1"),
+    ({"free_thresh": 0.7}, "key 'free_thresh'=0.7 must be below occupied_thresh=0.65"),
+    ({"mode": "fancy"}, "key 'mode'='fancy' is not one of trinary, scale, raw"),
+    ({"image": "missing.pgm"}, "missing.pgm (key 'image') not found"),
+    ({"image": "."}, "(key 'image') cannot be read"),
+    ({"image": "broken.pgm"}, "broken.pgm (key 'image') cannot be read"),
+    ({"image": 3}, "key 'image'=3"),
+])
+def test_a_malformed_map_is_one_line_naming_file_and_key(tmp_path, fields, needle):
+    path = _write_map(tmp_path, GREYS, **fields)
+    (tmp_path / "broken.pgm").write_bytes(b"P5\n4 2\n255\nshort\n")
+    with pytest.raises(PipelineError) as caught:
+        load_map(path)
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith(f"map {path}: ")
+    assert needle in message
+
+
+@pytest.mark.parametrize("text, needle", [
+    (None, "file not found"),
+    ("- just\n- a list\n", "must be a YAML mapping"),
+    ("image: [unclosed\n", "is not valid YAML at line"),
+])
+def test_an_unreadable_yaml_is_one_line_naming_the_file(tmp_path, text, needle):
+    path = tmp_path / "map.yaml"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(PipelineError) as caught:
+        load_map(path)
+    message = str(caught.value)
+    assert "\n" not in message and str(path) in message and needle in message
+
+
+# ---------------------------------------------------------------------------- shipped office
+
+def test_the_office_scene_has_free_connected_starts_and_goal():
+    scene = json.loads(OFFICE_SCENE.read_text())
+    assert "room" not in scene and scene["robot_radius"] == 0.2
+    grid = load_map(OFFICE_SCENE.parent / scene["map"])
+    assert grid.extent() == pytest.approx((0.0, 0.0, 20.0, 14.0)) and grid.shape == (280, 400)
+    obstacles = ObstacleMap(grid)
+    points = np.array(scene["starts"] + [scene["goal"]], dtype=float)
+    persons = np.array([[p["x"], p["y"]] for p in scene["persons"]])
+    assert obstacles.points_free(points, 0.3).all()
+    assert obstacles.points_free(persons, 0.25).all()
+    blocked = obstacles.blocked_disks(persons, 0.25)
+    assert obstacles.reachable(points[-1], points, 0.2, blocked).all()
+    # the doors are 1 m wide: a robot wider than a door stays in its room
+    assert not obstacles.reachable(points[-1], points[:-1], 0.55).any()
+    ids = {p["id"] for p in scene["persons"]}
+    assert all(a in ids and b in ids for a, b in scene["relations"])

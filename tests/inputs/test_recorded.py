@@ -1,0 +1,318 @@
+"""Recorded demonstrations (pipeline/inputs/recorded.py, DESIGN §3): CSV files and ROS bags
+written with rosbags' own writers, cut into trajectories from the scene's starts to its goal."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+
+from pipeline.core.features import FeatureModel
+from pipeline.inputs.demo_file import load_demo_file
+from pipeline.inputs.recorded import (
+    clean_track,
+    cut_stream,
+    load_recorded,
+    match_to_starts,
+    read_tracks,
+)
+from tests.conftest import ROS2, write_bag
+from tests.inputs.conftest import refused
+
+STARTS = np.array([[0.5, 0.5], [4.0, 0.1], [2.0, 3.0], [8.5, 5.2]])
+GOAL = np.array([5.5, 9.0])
+TOL = 0.3  # goal tolerance
+PATH_A = np.array([[0.5, 0.5], [0.5, 4.0], [3.0, 8.5], [5.5, 9.0]])
+PATH_B = np.array([[2.0, 3.0], [2.0, 3.0], [5.0, 6.0], [5.4, 8.9]])  # one repeated pose
+
+
+# ---------------------------------------------------------------------------------------------
+# Tracks to write into bags and files
+
+
+def line(a: np.ndarray, b: np.ndarray, step: float = 0.05) -> np.ndarray:
+    n = int(np.ceil(np.linalg.norm(b - a) / step))
+    return a + np.linspace(0.0, 1.0, n + 1)[:, None] * (b - a)
+
+
+def odometry_run() -> np.ndarray:
+    """Waits at start 0, drives to the goal, drives to start 2, waits, drives to the goal, then
+    wanders off towards start 3 without reaching the goal again."""
+    s0, s2, s3 = STARTS[0], STARTS[2], STARTS[3]
+    wait = s0 + np.array([[0.0, 0.0], [0.01, 0.0], [0.01, 0.0], [0.0, 0.01]])
+    return np.concatenate([
+        wait, line(s0, GOAL), line(GOAL, s2), np.repeat(s2[None], 3, axis=0), line(s2, GOAL),
+        line(GOAL, np.array([7.0, 7.0])), line(np.array([7.0, 7.0]), s3),
+        line(s3, np.array([8.0, 8.0]))])
+
+
+# ---------------------------------------------------------------------------------------------
+# Helpers for checks
+
+
+def on_polyline(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance of each point to the polyline."""
+    keep = np.linalg.norm(np.diff(poly, axis=0), axis=1) > 0  # skip repeated points
+    a, b = poly[:-1][keep], poly[1:][keep]
+    ab = b - a
+    t = ((points[:, None] - a[None]) * ab[None]).sum(2) / (ab * ab).sum(1)[None]
+    foot = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+    return np.linalg.norm(points[:, None] - foot, axis=2).min(axis=1)
+
+
+def length(p: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+def load(path: Path, **kwargs) -> list[tuple[int, np.ndarray]]:
+    return load_recorded(path, STARTS, GOAL, goal_tolerance=TOL, **kwargs)
+
+
+# ---------------------------------------------------------------------------------------------
+# clean_track, cut_stream, match_to_starts
+
+
+def test_clean_track_straight_line_keeps_length_and_ends():
+    p = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 1.0], [1.0 + 1e-8, 1.0], [3.0, 3.0]])
+    out = clean_track(p, 0.1)
+    assert np.array_equal(out[0], p[0]) and np.array_equal(out[-1], p[-1])
+    assert length(out) == pytest.approx(np.hypot(3.0, 3.0), rel=1e-12)
+    steps = np.linalg.norm(np.diff(out, axis=0), axis=1)
+    assert steps.max() <= 0.1 + 1e-12 and steps.min() > 0.1 * 0.95
+    assert len(out) == int(np.ceil(np.hypot(3.0, 3.0) / 0.1)) + 1
+
+
+def test_clean_track_stays_on_polyline_and_never_lengthens():
+    rng = np.random.default_rng(3)
+    p = np.cumsum(rng.normal(size=(40, 2)), axis=0)
+    p = np.repeat(p, rng.integers(1, 3, size=40), axis=0)  # repeated points
+    for spacing in (0.05, 0.3, 2.0, 100.0):
+        out = clean_track(p, spacing)
+        assert np.array_equal(out[0], p[0]) and np.array_equal(out[-1], p[-1])
+        assert on_polyline(out, p).max() < 1e-9
+        assert length(out) <= length(p) + 1e-9
+        assert (np.linalg.norm(np.diff(out, axis=0), axis=1) > 1e-6).all()
+
+
+def test_clean_track_drops_repeats_keeps_last_point_exactly():
+    p = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0 + 5e-7, 0.0]])
+    out = clean_track(p, 10.0)  # coarser than the track: only the end points remain
+    assert np.array_equal(out, [[0.0, 0.0], [2.0 + 5e-7, 0.0]])
+    assert len(clean_track(np.array([[1.0, 1.0], [1.0, 1.0 + 1e-7]]), 0.1)) == 1
+
+
+def test_cut_stream_restarts_when_the_robot_returns_to_a_start():
+    s0 = STARTS[0]
+    out = np.array([0.5, 2.0])  # left start 0's vicinity ...
+    track = np.concatenate([[s0], [out], [s0 + 0.1], line(s0 + 0.1, GOAL, 0.5)])
+    assert np.linalg.norm(track[5:] - STARTS[2], axis=1).min() < 0.5  # passes near start 2
+    [piece] = cut_stream(track, STARTS, GOAL, 1.0, TOL)
+    leave = np.flatnonzero(np.linalg.norm(track - s0, axis=1) <= 1.0)[-1]
+    assert leave > 2 and np.array_equal(piece[0], track[leave])  # ... came back: starts again
+    assert np.array_equal(piece, track[leave:len(piece) + leave])
+    assert np.linalg.norm(piece[-1] - GOAL) <= TOL
+    assert np.linalg.norm(piece[-2] - GOAL) > TOL  # ends at the first point at the goal
+    assert cut_stream(line(np.array([9.0, 1.0]), GOAL), STARTS, GOAL, 1.0, TOL) == []
+
+
+def test_match_to_starts_names_source_trajectory_and_distance():
+    good = line(STARTS[2], GOAL)
+    far = line(np.array([7.0, 1.0]), GOAL)
+    assert match_to_starts([good], STARTS, GOAL, 1.0, TOL, "demo X") == [2]
+    gap = np.linalg.norm(STARTS - far[0], axis=1).min()  # 3.13 m from start (4, 0.1)
+    refused(rf"demo X: trajectory 1 starts {gap:.2f} m from the nearest start \(4, 0\.1\); "
+            r"at most 1 m \(expert\.start_radius\)",
+            match_to_starts, [good, far], STARTS, GOAL, 1.0, TOL, "demo X")
+    refused(r"trajectory 0 ends 2\.50 m from the goal", match_to_starts,
+            [line(STARTS[0], GOAL - [0.0, 2.5])], STARTS, GOAL, 1.0, TOL, "demo X")
+
+
+# ---------------------------------------------------------------------------------------------
+# ROS bags
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3", "ros1", "bare_mcap"])
+def test_path_messages_are_trajectories(tmp_path, storage):
+    if storage == "ros1":
+        bag = write_bag(tmp_path / "demo.bag", {"/plan": ("nav_msgs/msg/Path", [PATH_A, PATH_B])},
+                        storage="ros1")
+    else:
+        kind = "mcap" if storage == "bare_mcap" else storage
+        bag = write_bag(tmp_path / "demo", {"/plan": ("nav_msgs/msg/Path", [PATH_A, PATH_B])},
+                        storage=kind)
+        if storage == "bare_mcap":
+            [bag] = bag.glob("*.mcap")
+    tracks, is_stream = read_tracks(bag)
+    assert not is_stream and len(tracks) == 2
+    assert np.array_equal(tracks[0], PATH_A) and np.array_equal(tracks[1], PATH_B)
+    demos = load(bag, frame="map")
+    assert [k for k, _ in demos] == [0, 2]
+    for (_, p), raw in zip(demos, (PATH_A, PATH_B), strict=True):
+        # a polyline is kept as given, like a JSON file's; only repeated poses are dropped
+        assert np.array_equal(p, raw[np.r_[True, np.any(np.diff(raw, axis=0) != 0, axis=1)]])
+
+
+def test_odometry_stream_is_cut_into_two_trajectories(tmp_path):
+    run = odometry_run()
+    bag = write_bag(tmp_path / "odom", {"/odom": ("nav_msgs/msg/Odometry", list(run))},
+                    frame="odom")
+    [track], is_stream = read_tracks(bag, frame="odom")
+    assert is_stream and np.array_equal(track, run)
+    demos = load(bag)
+    assert [k for k, _ in demos] == [0, 2]
+    # each begins where the robot leaves its start's vicinity, at the last pose within 1 m
+    pieces = cut_stream(run, STARTS, GOAL, 1.0, TOL)
+    for (_, p), piece, k in zip(demos, pieces, (0, 2), strict=True):
+        assert np.array_equal(p[0], piece[0]) and np.array_equal(p[-1], piece[-1])
+        assert np.linalg.norm(piece[0] - STARTS[k]) <= 1.0
+        assert np.linalg.norm(piece[1] - STARTS[k]) > 1.0
+        assert np.linalg.norm(p[-1] - GOAL) <= TOL
+    # the stretch towards start 3 never reaches the goal and is dropped
+    assert len(pieces) == 2
+
+
+def test_pose_streams_from_sqlite3_and_ros1(tmp_path):
+    run = np.concatenate([line(STARTS[1], np.array([5.5, 5.0])), line(np.array([5.5, 5.0]), GOAL)])
+    bag = write_bag(tmp_path / "pose", {"/pose": ("geometry_msgs/msg/PoseStamped", list(run))},
+                    storage="sqlite3")
+    [(k, p)] = load(bag, topic="/pose")
+    assert k == 1 and np.linalg.norm(p[-1] - GOAL) <= TOL
+    assert on_polyline(p, run).max() < 1e-9
+    bag1 = write_bag(tmp_path / "amcl.bag",
+                     {"/amcl_pose": ("geometry_msgs/msg/PoseWithCovarianceStamped", list(run))},
+                     storage="ros1")
+    [(k1, p1)] = load(bag1)
+    assert k1 == 1 and np.array_equal(p1, p)
+
+
+def test_stream_that_never_goes_from_start_to_goal_is_refused(tmp_path):
+    run = line(np.array([9.0, 1.0]), GOAL)
+    bag = write_bag(tmp_path / "b", {"/odom": ("nav_msgs/msg/Odometry", list(run))})
+    refused(rf"demonstration bag .*b: found no trajectory .* in the {len(run)} poses read",
+            load, bag)
+
+
+def test_non_finite_bag_positions_are_refused(tmp_path):
+    run = line(STARTS[0], GOAL)
+    run[5, 1] = np.nan
+    bag = write_bag(tmp_path / "b", {"/pose": ("geometry_msgs/msg/PoseStamped", list(run))})
+    refused(r"topic /pose message 5 has a non-finite position", load, bag)
+    bad = PATH_A.copy()
+    bad[2, 0] = np.inf
+    bag1 = write_bag(tmp_path / "p.bag", {"/plan": ("nav_msgs/msg/Path", [PATH_A, bad])},
+                     storage="ros1")
+    refused(r"topic /plan path message 1 has a non-finite position", load, bag1)
+
+
+def test_wrong_frame_is_refused(tmp_path):
+    bag = write_bag(tmp_path / "b", {"/plan": ("nav_msgs/msg/Path", [PATH_A])}, frame="odom")
+    text = refused(r"topic /plan .*frame_id 'odom'.*expert\.frame='map'", load, bag, frame="map")
+    assert str(bag) in text
+    bag1 = write_bag(tmp_path / "b.bag", {"/odom": ("nav_msgs/msg/Odometry", [[0.5, 0.5]] * 3)},
+                     frame="odom", storage="ros1")
+    refused(r"frame_id 'odom', not expert\.frame='map'", read_tracks, bag1, frame="map")
+
+
+def test_topic_choice(tmp_path):
+    bag = write_bag(tmp_path / "b", {
+        "/plan": ("nav_msgs/msg/Path", [PATH_A]),
+        "/odom": ("nav_msgs/msg/Odometry", list(line(STARTS[0], GOAL)))})
+    refused(r"several usable topics: /odom, /plan; choose one with expert\.topic=", load, bag)
+    refused(r"no topic '/nope' \(expert\.topic\); its topics: /odom \(nav_msgs/msg/Odometry\), "
+            r"/plan \(nav_msgs/msg/Path\)", load, bag, topic="/nope")
+    assert read_tracks(bag, topic="/odom")[1] and not read_tracks(bag, topic="/plan")[1]
+    other = tmp_path / "other"
+    with Writer2(other, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c = w.add_connection("/chatter", "std_msgs/msg/String", typestore=ROS2)
+        w.write(c, 1, ROS2.serialize_cdr(ROS2.types["std_msgs/msg/String"](data="hi"),
+                                         "std_msgs/msg/String"))
+    refused(r"no topic of a supported type .*; its topics: /chatter \(std_msgs/msg/String\)",
+            load, other)
+    refused(r"topic /chatter has type std_msgs/msg/String; supported", load, other,
+            topic="/chatter")
+
+
+def test_unreadable_paths_are_one_line(tmp_path):
+    junk = tmp_path / "junk.bag"
+    junk.write_bytes(b"not a bag at all")
+    refused(r"demonstration bag .*junk\.bag cannot be read as a ROS bag", load, junk)
+    junk2 = tmp_path / "junk.mcap"
+    junk2.write_bytes(b"\x00" * 64)
+    refused(r"junk\.mcap cannot be read as a ROS bag", load, junk2)
+    (tmp_path / "dir").mkdir()
+    refused(r"directory without metadata\.yaml", load, tmp_path / "dir")
+    refused(r"demonstration file .*missing\.csv not found", load, tmp_path / "missing.csv")
+    (tmp_path / "x.txt").write_text("1,2\n")
+    refused(r"x\.txt: unknown format '\.txt'", load, tmp_path / "x.txt")
+
+
+# ---------------------------------------------------------------------------------------------
+# CSV files, and a bag through load_demo_file
+
+
+def test_csv_with_trajectory_ids_and_shuffled_times(tmp_path):
+    rng = np.random.default_rng(0)
+    rows = []
+    for ident, poly in (("walk-b", PATH_B), ("walk-a", PATH_A)):
+        times = np.arange(len(poly)) * 0.5
+        for k in rng.permutation(len(poly)):
+            rows.append(f"{times[k]},{poly[k, 0]},{ident},{poly[k, 1]}")
+    path = tmp_path / "demos.csv"
+    path.write_text("t, x ,trajectory,y\n" + "\n".join(rows) + "\n\n")
+    tracks, is_stream = read_tracks(path)
+    assert not is_stream
+    assert np.array_equal(tracks[0], PATH_B) and np.array_equal(tracks[1], PATH_A)  # first seen
+    assert [k for k, _ in load(path)] == [2, 0]
+
+
+def test_csv_without_trajectory_is_a_stream(tmp_path):
+    run = odometry_run()
+    order = np.random.default_rng(1).permutation(len(run))
+    path = tmp_path / "stream.csv"
+    rows = run.tolist()
+    path.write_text("x,y,t\n" + "".join(f"{rows[k][0]!r},{rows[k][1]!r},{int(k) * 0.1!r}\n"
+                                        for k in order))
+    [track], is_stream = read_tracks(path)
+    assert is_stream and np.array_equal(track, run)
+    assert [k for k, _ in load(path)] == [0, 2]
+    ordered = tmp_path / "ordered.csv"  # no t: rows in file order
+    ordered.write_text("x,y\n" + "".join(f"{x!r},{y!r}\n" for x, y in run.tolist()))
+    assert np.array_equal(read_tracks(ordered)[0][0], run)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("x,z\n1,2\n", r"has no column y \(columns: x,z\)"),
+    ("x,y\n0.5,0.5\nabc,3\n", r"line 3: x='abc' is not a number"),
+    ("x,y\n0.5,0.5\n1,nan\n", r"line 3: y='nan' is not finite"),
+    ("x,y,t\n0.5,0.5,0\n1,1,inf\n", r"line 3: t='inf' is not finite"),
+    ("x,y\n0.5,0.5\n1\n", r"line 3: 1 fields, the header has 2"),
+    ("", r"is empty"),
+    ("x,y\n", r"has no rows"),
+    ("trajectory,x,y\na,0.5,0.5\na,5.5,9\nb,1,1\n", r"trajectory 1 \(id 'b'\) has 1 row"),
+])
+def test_malformed_csv_is_one_line(tmp_path, text, match):
+    path = tmp_path / "bad.csv"
+    path.write_text(text)
+    assert str(path) in refused(match, load, path)
+
+
+def test_demonstration_far_from_every_start_is_refused(tmp_path):
+    path = tmp_path / "far.csv"
+    far = line(np.array([7.0, 1.0]), GOAL, 0.5)
+    path.write_text("trajectory,x,y\n" + "".join(f"1,{x},{y}\n" for x, y in line(STARTS[0], GOAL))
+                    + "".join(f"2,{x},{y}\n" for x, y in far))
+    refused(rf"demonstration file {path}: trajectory 1 starts 3\.13 m from the nearest start "
+            r"\(4, 0\.1\)", load, path)
+
+
+def test_bag_through_load_demo_file(tmp_path, metropolis):
+    fm = FeatureModel.from_scene(metropolis)
+    bag = write_bag(tmp_path / "b", {"/plan": ("nav_msgs/msg/Path", [PATH_A])})
+    [d] = load_demo_file(bag, metropolis, fm, 2.0, topic="/plan", frame="map")
+    assert d.start_index == 0 and d.reached
+    assert d.durations.sum() == pytest.approx(length(d.points) / 2.0)
+    np.testing.assert_allclose(d.features, fm.polyline(d.points), rtol=1e-9, atol=1e-12)
+    out = write_bag(tmp_path / "out", {"/plan": ("nav_msgs/msg/Path", [PATH_A + [0.0, 1.2]])})
+    refused(r"demonstration bag .*out: trajectory 0 leaves the room", load_demo_file, out,
+            metropolis, fm, 1.0)

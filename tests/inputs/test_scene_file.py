@@ -1,0 +1,109 @@
+"""Scene files (pipeline/inputs/scene_file.py): a file that is no JSON or is missing, bad
+obstacles, persons, starts and maps, each one line naming the file and the culprit."""
+
+from pathlib import Path
+
+import pytest
+
+from pipeline.core.world import SceneError
+from pipeline.errors import PipelineError
+from pipeline.inputs.scene_file import load_scene_file
+from tests.conftest import (
+    OFFICE_MAP,
+    WALL_Y,
+    one_line,
+    run_in_process,
+    walled_metropolis,
+    write_json,
+)
+
+
+def test_not_json_and_missing_file(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    with pytest.raises(SceneError, match="not valid JSON"):
+        load_scene_file(bad)
+    with pytest.raises(SceneError, match="not found"):
+        load_scene_file(tmp_path / "none.json")
+
+
+# ---------------------------------------------------------------------------------------------
+# The walled metropolis (conftest.py) made wrong: one line naming the culprit
+
+
+def _yaw_map(tmp: Path) -> None:
+    text = OFFICE_MAP.read_text().replace("image: office.pgm",
+                                          f"image: {OFFICE_MAP.with_suffix('.pgm')}")
+    (tmp / "yaw.yaml").write_text(text.replace("origin: [0.0, 0.0, 0.0]",
+                                               "origin: [0.0, 0.0, 0.5]"))
+
+
+SPLIT_WALL = [[7.45, 0.0], [7.55, 0.0], [7.55, 10.0], [7.45, 10.0]]  # start 2 east of it
+
+
+@pytest.mark.parametrize("mutate, needle", [
+    (lambda d: d["obstacles"].append([[1.5, 2.5], [2.5, 2.5], [2.5, 3.5], [1.5, 3.5]]),
+     "start 1 (2, 3) is 0.00 m from an obstacle; the robot needs robot_radius=0.2 m"),
+    (lambda d: d["obstacles"].append(SPLIT_WALL),
+     "the goal cannot be reached from start(s) [2] without entering an obstacle"),
+    (lambda d: d["obstacles"].append([[0.0, WALL_Y], [10.0, WALL_Y]]),  # a segment: a wall
+     "the goal cannot be reached from start(s) [0, 1, 2, 3] without entering an obstacle"),
+    # types and shapes (scene.schema.json, more in test_schemas.py)
+    (lambda d: d["obstacles"].append([[0, 0]]),
+     "obstacles[3]: expected at least 2 points, got 1 item"),
+    (lambda d: d["obstacles"].append("wall"),
+     'obstacles[3]: expected an array (polygon), got "wall"'),
+    (lambda d: d["obstacles"].append([[0.0, 0.0], [1.0, float("nan")], [1.0, 1.0]]),
+     "obstacles[3][1][1]: NaN is not a finite number"),
+    (lambda d: d.update(obstacles="wall"), 'obstacles: expected an array, got "wall"'),
+    (lambda d: d["persons"][3].update(x=float("nan")), "persons[3].x: NaN is not a finite number"),
+    (lambda d: d.update(persons=5), "persons: expected an array, got 5"),
+    (lambda d: d["relations"].append(["a", 2]),
+     'relations[10][0]: expected an integer (person id), got "a"'),
+    (lambda d: d.update(goal=[5.5, 8.0]), "goal (5.5, 8) is 0.00 m from an obstacle"),
+    (lambda d: d["persons"][0].update(y=8.0), "person 1 at (2, 8) stands inside an obstacle"),
+])
+def test_bad_scene_is_one_line_naming_the_culprit(tmp_path, mutate, needle):
+    data = walled_metropolis()
+    mutate(data)
+    path = write_json(tmp_path / "bad.json", data)
+    with pytest.raises(PipelineError) as err:
+        load_scene_file(path)
+    text = one_line(err)
+    assert text.startswith(f"scene file {path}: ") and needle in text
+
+
+@pytest.mark.parametrize("map_key, needle", [
+    ("maps/missing.yaml", "maps/missing.yaml: file not found"),
+    ("maps/yaw.yaml", "maps/yaw.yaml: origin yaw 0.5 is not supported"),
+])
+def test_bad_map_is_one_line_naming_the_map(tmp_path, map_key, needle):
+    (tmp_path / "maps").mkdir()
+    _yaw_map(tmp_path / "maps")
+    data = walled_metropolis()
+    data["map"] = map_key
+    path = write_json(tmp_path / "scene.json", data)
+    with pytest.raises(PipelineError) as err:
+        load_scene_file(path)
+    text = one_line(err)
+    assert text.startswith(f"map {tmp_path}/") and needle in text
+    with pytest.raises(PipelineError) as err_app:  # the app says the same
+        run_in_process(tmp_path / "run", "scene=file", f"scene.path={path}", "stages=[scene]")
+    assert one_line(err_app) == text
+
+
+@pytest.mark.parametrize("mutate, needle", [
+    (lambda d: d["obstacles"].append([[8.0, 0.5, 0.0], [9.0, 0.5, 0.0], [9.0, 1.0, 0.0],
+                                      [8.0, 1.0, 0.0]]),
+     "obstacles[3][0]: expected 2 coordinates, got 3 items"),
+    # on the open metropolis room these become 3 valid starts (0.5, 0.5), (0, 2), (3, 0)
+    (lambda d: d.update(starts=[[0.5, 0.5, 0.0], [2.0, 3.0, 0.0]], obstacles=[]),
+     "starts[0]: expected 2 coordinates, got 3 items"),
+])
+def test_points_with_three_coordinates_are_refused(tmp_path, mutate, needle):
+    data = walled_metropolis()
+    data.pop("robot_radius")
+    mutate(data)
+    with pytest.raises(PipelineError) as err:
+        load_scene_file(write_json(tmp_path / "bad.json", data))
+    assert needle in one_line(err)

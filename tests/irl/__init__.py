@@ -1,0 +1,1 @@
+"""Tests of pipeline/irl: BIRL-G and the IRL baselines."""

@@ -1,0 +1,271 @@
+"""BIRL-G (pipeline/irl/birl.py, DESIGN §8): the likelihood and its gradient, MAP, the
+learning loop, and MCMC, one chain and adaptive chains with ArviZ diagnostics."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.core.graph_mdp import TrajectoryStats
+from pipeline.irl.birl import AdaptiveChainParams, ChainParams, Posterior, birl_map, mcmc
+from pipeline.irl.prior import Prior
+from tests.irl.conftest import BOX, D, central_difference
+
+
+def traj(start, phi, end_discount=0.5, reached=True):
+    return TrajectoryStats(start, np.asarray(phi, float), end_discount, reached)
+
+
+def random_data(rng, n_starts=3, n_gen=4, d=D):
+    """Several starts (one with two demos), several generated trajectories per start, and
+    generated trajectories from a start without a demo."""
+    def rand(s):
+        return traj(s, rng.uniform(0, 3, d), rng.uniform(0.2, 0.9), rng.random() < 0.7)
+    expert = [rand(s) for s in range(n_starts)] + [rand(0)]
+    generated = [rand(s) for s in range(n_starts + 1) for _ in range(n_gen)]
+    return expert, generated
+
+
+# ---------------------------------------------------------------- likelihood and gradient
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("kind", ["gaussian", "laplace", "uniform"])
+def test_gradients_match_finite_differences(seed, kind):
+    rng = np.random.default_rng(seed)
+    expert, generated = random_data(rng)
+    prior = Prior(kind, 0.7, *BOX, mean=np.full(D, -0.5))
+    post = Posterior(expert, generated, prior, beta=1.5, r_goal=1.0)
+    w = rng.uniform(-0.9, -0.1, D)
+    w[np.abs(w + 0.5) < 1e-3] = -0.3  # keep the Laplace prior away from its kink
+    for f, grad in [(post.log_likelihood, post.grad_log_likelihood),
+                    (post.log_posterior, post.grad_log_posterior)]:
+        np.testing.assert_allclose(grad(w), central_difference(f, w), rtol=1e-6, atol=1e-8)
+
+
+def test_log_likelihood_is_equation_2_by_hand():
+    beta, r_goal = 2.0, 1.0
+    expert = [traj(0, [1, 2], 0.5), traj(1, [3, 0], 0.8)]
+    generated = [traj(0, [2, 1], 0.4), traj(0, [0.5, 3], 0.6, reached=False),
+                 traj(1, [1, 1], 0.9), traj(2, [5, 5], 0.1)]  # start 2 has no demo
+    prior = Prior("uniform", 1.0, -np.ones(2), np.zeros(2))
+    w = np.array([-0.5, -0.25])
+    # Q = w·Φ + γ^T R_goal [reached]
+    q_e0 = -0.5 * 1 - 0.25 * 2 + 0.5  # -0.5
+    q_g0 = [-0.5 * 2 - 0.25 * 1 + 0.4, -0.5 * 0.5 - 0.25 * 3]  # -0.85, -1.0 (no goal term)
+    q_e1 = -0.5 * 3 + 0.8  # -0.7
+    q_g1 = [-0.5 - 0.25 + 0.9]  # 0.15
+    expected = (beta * q_e0 - math.log(math.exp(beta * q_e0) + math.exp(beta * q_g0[0])
+                                       + math.exp(beta * q_g0[1]))
+                + beta * q_e1 - math.log(math.exp(beta * q_e1) + math.exp(beta * q_g1[0])))
+    post = Posterior(expert, generated, prior, beta=beta, r_goal=r_goal)
+    assert post.log_likelihood(w) == pytest.approx(expected, rel=1e-12)
+    assert post.log_posterior(w) == pytest.approx(expected, rel=1e-12)  # uniform prior: + 0
+    assert expert[0].quality(w, r_goal) == pytest.approx(q_e0)
+
+
+def test_trajectory_stats_from_edges():
+    feats, durations, gamma = np.array([[1.0, 0.0], [0.5, 2.0]]), np.array([2.0, 1.0]), 0.9
+    t = TrajectoryStats.from_edges(3, feats, durations, gamma, reached=True)
+    np.testing.assert_allclose(t.phi, [1.0 + 0.9**2 * 0.5, 0.9**2 * 2.0])
+    assert t.end_discount == pytest.approx(0.9**3) and t.start == 3 and t.reached
+    assert t.quality([-1.0, -0.5], 2.0) == pytest.approx(-t.phi[0] - 0.5 * t.phi[1] + 2 * 0.9**3)
+
+
+def test_posterior_rejects_mismatched_dimensions():
+    with pytest.raises(ValueError, match="phi"):
+        Posterior([traj(0, [1.0, 2.0])], [], Prior("uniform", 1.0, *BOX), beta=1.0, r_goal=1.0)
+
+
+def test_likelihood_is_stable_for_large_beta():
+    expert, generated = random_data(np.random.default_rng(0))
+    post = Posterior(expert, generated, Prior("uniform", 1.0, *BOX), beta=1e4, r_goal=1.0)
+    assert np.isfinite(post.log_likelihood(-0.5 * np.ones(D)))
+    assert np.all(np.isfinite(post.grad_log_likelihood(-0.5 * np.ones(D))))
+
+
+# ---------------------------------------------------------------- MAP
+
+def test_map_at_upper_bound_when_likelihood_increases():
+    # Q_E − Q_G = w (2 − 1): log likelihood −log(1 + exp(−βw)) increases in w.
+    post = Posterior([traj(0, [2.0])], [traj(0, [1.0])], Prior("uniform", 1.0, [-1.0], [0.0]),
+                     beta=3.0, r_goal=1.0)
+    for w0 in (-1.0, -0.5, 0.0, 5.0):
+        np.testing.assert_allclose(post.map([w0]), [0.0], atol=1e-8)
+
+
+def test_map_without_data_is_prior_mean_clipped_into_box():
+    prior = Prior("gaussian", 0.5, *BOX, mean=np.array([0.5, -0.3, -2.0, -0.7]))
+    post = Posterior([], [], prior, beta=1.0, r_goal=1.0)
+    np.testing.assert_allclose(post.map(np.full(D, -0.5)), [0.0, -0.3, -1.0, -0.7], atol=1e-6)
+
+
+def test_map_interior_optimum_matches_grid_search():
+    prior = Prior("gaussian", 0.4, [-1.0], [0.0])
+    post = Posterior([traj(0, [1.0])], [traj(0, [2.0])], prior, beta=4.0, r_goal=1.0)
+    grid = np.linspace(-1, 0, 200_001)
+    best = grid[np.argmax([post.log_posterior([x]) for x in grid[::100]]) * 100]
+    assert -1 < post.map([0.0])[0] < 0
+    assert post.map([0.0])[0] == pytest.approx(best, abs=1e-3)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_map_stays_in_box(seed):
+    rng = np.random.default_rng(seed)
+    expert, generated = random_data(rng)
+    for kind in ("gaussian", "laplace", "uniform"):
+        prior = Prior(kind, 0.5, *BOX, mean=rng.uniform(-2, 1, D))
+        w = Posterior(expert, generated, prior, beta=5.0, r_goal=1.0).map(rng.uniform(-3, 2, D))
+        assert prior.in_box(w)
+
+
+# ---------------------------------------------------------------- the BIRL-G loop
+
+def tiny_environment(seed, n_starts=3, n_candidates=6, d=3):
+    """Per start, a fixed set of candidate trajectories; 'solving' = argmax of Q(ξ; w)."""
+    rng = np.random.default_rng(seed)
+    candidates = [[traj(s, rng.uniform(0, 3, d), rng.uniform(0.3, 0.9))
+                   for _ in range(n_candidates)] for s in range(n_starts)]
+
+    def generate(w):
+        return [max(c, key=lambda t: t.quality(w, 1.0)) for c in candidates]
+    return generate
+
+
+def same_trajectories(a, b):
+    return all(x is y for x, y in zip(a, b, strict=True))
+
+
+def test_birl_map_recovers_expert_behaviour():
+    w_star, w0 = np.array([-0.9, -0.2, -0.5]), np.full(3, -0.5)
+    prior = Prior("uniform", 1.0, -np.ones(3), np.zeros(3))  # MAP = max likelihood in the box
+    started_apart = 0
+    for seed in range(10):
+        generate = tiny_environment(seed)
+        expert = generate(w_star)
+        records = birl_map(expert, generate, prior, beta=10.0, r_goal=1.0, n_iterations=5, w0=w0)
+        started_apart += not same_trajectories(records[0].generated, expert)
+        assert same_trajectories(records[-1].generated, expert), f"seed {seed}"
+        # Scored against the same Ξ_G (the one the final MAP step used), w_N beats w0.
+        pool = [t for r in records[:-1] for t in r.generated]
+        post = Posterior(expert, pool, prior, beta=10.0, r_goal=1.0)
+        assert records[-1].log_likelihood == pytest.approx(post.log_likelihood(records[-1].weights))
+        assert records[-1].log_likelihood >= post.log_likelihood(w0)
+    assert started_apart >= 5  # most cases need learning, not just the initial weights
+
+
+def test_birl_map_records():
+    generate = tiny_environment(0)
+    expert = generate(np.array([-0.9, -0.2, -0.5]))
+    prior = Prior("gaussian", 0.5, -np.ones(3), np.zeros(3))
+    w0, seen = prior.box_mean(), []
+    records = birl_map(expert, generate, prior, beta=10.0, r_goal=1.0, n_iterations=4, w0=w0,
+                       progress=seen.append)
+    assert [r.index for r in records] == list(range(5)) and seen == records
+    np.testing.assert_array_equal(records[0].weights, w0)
+    # Iteration 0 is scored against its own greedy trajectories.
+    assert records[0].log_likelihood == pytest.approx(
+        Posterior(expert, records[0].generated, prior, 10.0, 1.0).log_likelihood(w0))
+    for r in records:
+        assert prior.in_box(r.weights) and r.log_prior == prior.log_pdf(r.weights)
+        assert [t.start for t in r.generated] == [0, 1, 2]
+
+
+def test_birl_map_is_deterministic():
+    generate = tiny_environment(0)
+    expert = generate(np.array([-0.9, -0.2, -0.5]))
+    prior = Prior("laplace", 0.5, -np.ones(3), np.zeros(3))
+    runs = [birl_map(expert, generate, prior, beta=5.0, r_goal=1.0, n_iterations=4,
+                     w0=np.full(3, -0.5)) for _ in range(2)]
+    for a, b in zip(*runs, strict=True):
+        np.testing.assert_array_equal(a.weights, b.weights)
+        assert a.log_likelihood == b.log_likelihood
+
+
+def test_birl_map_rejects_w0_outside_box():
+    prior = Prior("uniform", 1.0, -np.ones(3), np.zeros(3))
+    with pytest.raises(ValueError, match="w0"):
+        birl_map([], tiny_environment(0), prior, beta=1.0, r_goal=1.0, n_iterations=1,
+                 w0=np.full(3, 0.5))
+
+
+# ---------------------------------------------------------------- MCMC
+
+def effective_sample_size(x):
+    """ESS from the autocorrelation, summed until it first turns negative (Geyer's rule)."""
+    n = len(x)
+    f = np.fft.rfft(x - x.mean(), 2 * n)
+    acf = np.fft.irfft(f * np.conj(f))[:n]
+    acf /= acf[0]
+    cut = np.argmax(acf[1:] < 0) + 1
+    return len(x) / (1 + 2 * acf[1:cut].sum())
+
+
+def one_weight_posterior(sigma=0.5, beta=3.0):
+    # log p = −log(1 + exp(βw)) − w²/2σ² on [−1, 0]: likelihood pulls w down, prior up.
+    prior = Prior("gaussian", sigma, [-1.0], [0.0])
+    return Posterior([traj(0, [1.0])], [traj(0, [2.0])], prior, beta=beta, r_goal=1.0)
+
+
+def numerical_moments(post) -> tuple[float, float]:
+    """Mean and std of a 1-D posterior on [-1, 0] by quadrature on a fine grid."""
+    grid = np.linspace(-1, 0, 20_001)
+    density = np.exp([post.log_posterior([x]) for x in grid])
+    mass = np.trapezoid(density, grid)
+    mean = np.trapezoid(grid * density, grid) / mass
+    std = np.sqrt(np.trapezoid((grid - mean) ** 2 * density, grid) / mass)
+    return mean, std
+
+
+def test_mcmc_matches_numerical_posterior():
+    post = one_weight_posterior()
+    mean, std = numerical_moments(post)
+
+    result = mcmc(post, [-0.5], np.random.default_rng(0),
+                  ChainParams(n_samples=20_000, burn_in=1000, thin=2, step=0.4))
+    assert result.samples.shape == (20_000, 1)
+    assert 0 < result.acceptance_rate < 1
+    assert np.all((result.samples >= -1) & (result.samples <= 0))
+    ess = effective_sample_size(result.samples[:, 0])
+    assert ess > 2000  # the chain mixes; the tolerances below rest on it
+    assert abs(result.mean[0] - mean) < 4 * std / np.sqrt(ess)
+    # sd of a sample standard deviation ≈ std·sqrt((κ − 1) / 4n), κ ≤ 3 here (light tails)
+    assert abs(result.std[0] - std) < 4 * std * np.sqrt(2 / (4 * ess))
+
+
+def test_mcmc_is_reproducible_and_validates():
+    post = one_weight_posterior()
+    chain = ChainParams(n_samples=500, burn_in=100, thin=3, step=0.3)
+    a = mcmc(post, [-0.5], np.random.default_rng(7), chain)
+    b = mcmc(post, [-0.5], np.random.default_rng(7), chain)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    assert a.acceptance_rate == b.acceptance_rate
+    with pytest.raises(ValueError, match="inside the box"):
+        mcmc(post, [0.5], np.random.default_rng(0), chain)
+    with pytest.raises(ValueError, match="thin=0 is not allowed"):
+        ChainParams(thin=0)
+
+
+@pytest.mark.parametrize("sampler, target", [("rw", 0.3), ("mala", 0.57)])
+def test_adaptive_chains_match_a_1d_posterior(sampler, target):
+    post = one_weight_posterior()
+    mean, std = numerical_moments(post)
+    chain = AdaptiveChainParams(n_samples=5000, burn_in=1000, thin=1, step=0.01, n_chains=4,
+                                sampler=sampler, target_acceptance=target)
+    result = mcmc(post, [-0.5], np.random.default_rng(0), chain)
+    assert result.samples.shape == (20_000, 1) and result.n_chains == 4
+    assert abs(result.acceptance_rate - target) < 0.1  # adapted from a far too small step
+    assert result.rhat[0] < 1.01
+    ess = result.ess[0]
+    assert ess > 2000
+    assert abs(result.mean[0] - mean) < 4 * std / np.sqrt(ess)
+    assert abs(result.std[0] - std) < 4 * std * np.sqrt(2 / (4 * ess))
+
+
+def test_rhat_flags_chains_that_have_not_mixed():
+    """Without adaptation and with no burn-in, a tiny step leaves the chains where they
+    started (one at −0.9, the others at prior draws): R-hat is far above 1."""
+    post = one_weight_posterior()
+    chain = AdaptiveChainParams(n_samples=300, burn_in=0, thin=1, step=1e-4, n_chains=4,
+                                adapt=False)
+    result = mcmc(post, [-0.95], np.random.default_rng(1), chain)
+    assert result.rhat[0] > 1.5

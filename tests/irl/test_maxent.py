@@ -1,0 +1,144 @@
+"""MaxEnt IRL (pipeline/irl/maxent.py) against brute force and cases with a known answer:
+soft values, expected feature counts, and feature matching on the three-route graph."""
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+from pipeline.core.graph_mdp import GraphMDP, discounted_counts
+from pipeline.irl.maxent import expected_discounted_counts, maxent_irl, soft_policy, soft_values
+from tests.irl.conftest import ROUTES_BOX, greedy_route, three_routes
+
+
+def tiny_dag(seed, gamma=0.9, n=6, d=2):
+    rng = np.random.default_rng(seed)
+    pairs = [(i, j) for i, j in itertools.combinations(range(n), 2) if rng.random() < 0.7]
+    src, dst = map(np.array, zip(*pairs, strict=True))
+    terminal = np.zeros(n, bool)
+    terminal[n - 1] = True  # any other sink is a dead end
+    return GraphMDP(src, dst, rng.uniform(0.3, 1.5, len(src)), rng.uniform(0, 1, (len(src), d)),
+                    terminal, gamma=gamma, r_goal=1.0, v_max=3.0)
+
+
+def random_cyclic(seed, n=25, d=3):
+    rng = np.random.default_rng(seed)
+    pairs = [(i, j) for i in range(n) for j in range(n) if i != j and rng.random() < 0.15]
+    src, dst = np.array(pairs).T
+    terminal = np.zeros(n, bool)
+    terminal[:2] = True
+    return GraphMDP(src, dst, rng.uniform(0.5, 2.0, len(src)), rng.uniform(0, 1, (len(src), d)),
+                    terminal, gamma=0.9, v_max=5.0)
+
+
+def paths_from(mdp, s):
+    """Every path from s to an absorbing node (terminal or dead end), as edge lists (DAG)."""
+    if not mdp.has_out[s]:
+        return [[]]
+    return [[e] + rest for e in range(mdp.n_edges) if mdp.src[e] == s
+            for rest in paths_from(mdp, mdp.dst[e])]
+
+
+def nested_soft_value(mdp, w, s):
+    """The soft Bellman recursion written out, independent of the vectorised solver."""
+    if not mdp.has_out[s]:
+        return mdp.fixed_values[s]
+    return logsumexp([mdp.features[e] @ w + mdp.discount[e] * nested_soft_value(mdp, w, mdp.dst[e])
+                      for e in range(mdp.n_edges) if mdp.src[e] == s])
+
+
+# ---------------------------------------------------------------- soft value iteration
+
+@pytest.mark.parametrize("seed", range(3))
+def test_soft_values_are_log_sum_exp_over_paths_without_discount(seed):
+    # With γ^τ → 1 the soft value is log Σ_paths exp(return); with discounting it is the
+    # nested recursion instead (the next test), since log Σ exp(r + γ·lse) ≠ lse of sums.
+    mdp, w = tiny_dag(seed, gamma=1 - 1e-12), np.array([-0.7, -0.2])
+    values = soft_values(mdp, w)
+    for s in range(mdp.n_nodes):
+        returns = [mdp.features[p].sum(axis=0) @ w + mdp.fixed_values[mdp.dst[p[-1]] if p else s]
+                   for p in paths_from(mdp, s)]
+        assert values[s] == pytest.approx(logsumexp(returns), abs=1e-8)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_discounted_soft_values_follow_the_recursion_and_bound_hard_values(seed):
+    mdp, w = tiny_dag(seed), np.array([-0.4, -0.9])
+    values = soft_values(mdp, w)
+    expected = [nested_soft_value(mdp, w, s) for s in range(mdp.n_nodes)]
+    assert np.allclose(values, expected, atol=1e-10)
+    assert np.all(values >= mdp.solve(w).values - 1e-12)
+    cyclic = random_cyclic(seed)
+    w3 = np.array([-0.3, -0.6, -0.1])
+    assert np.all(soft_values(cyclic, w3) >= cyclic.solve(w3).values - 1e-12)
+
+
+def test_soft_value_iteration_reports_non_convergence():
+    with pytest.raises(RuntimeError, match="did not converge"):
+        soft_values(random_cyclic(0), np.array([-0.3, -0.6, -0.1]), max_iter=3)
+
+
+# ---------------------------------------------------------------- expected feature counts
+
+@pytest.mark.parametrize("seed", range(3))
+def test_expected_counts_equal_path_enumeration(seed):
+    mdp, w = tiny_dag(seed), np.array([-0.5, -0.3])
+    values = np.array([nested_soft_value(mdp, w, s) for s in range(mdp.n_nodes)])
+    starts = [0, 0, 1]  # repeated starts count twice
+    exact = np.zeros(2)
+    for s in starts:
+        for p in paths_from(mdp, s):
+            q = mdp.features[p] @ w + mdp.discount[p] * values[mdp.dst[p]]
+            prob = np.exp(np.sum(q - values[mdp.src[p]]))  # Π π(e|s) along the path
+            exact += prob * discounted_counts(mdp.features[p], mdp.duration[p], mdp.gamma)[0]
+    assert np.allclose(expected_discounted_counts(mdp, w, starts), exact, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_expected_counts_are_the_gradient_of_soft_values_on_cyclic_graphs(seed):
+    mdp = random_cyclic(seed)
+    w, starts, h = np.array([-0.3, -0.6, -0.1]), [5, 7, 7], 1e-5
+    numeric = [(soft_values(mdp, w + h * u)[starts].sum()
+                - soft_values(mdp, w - h * u)[starts].sum()) / (2 * h) for u in np.eye(3)]
+    assert np.allclose(expected_discounted_counts(mdp, w, starts), numeric, atol=1e-6)
+    pi = soft_policy(mdp, w, soft_values(mdp, w))
+    assert np.allclose(np.add.reduceat(pi, mdp.indptr[:-1][mdp.has_out]), 1.0)
+
+
+# ---------------------------------------------------------------- known answers
+
+def test_test_graph_has_the_claimed_optimal_regions():
+    mdp, routes = three_routes()
+    for w in itertools.product(np.linspace(-1, 0, 9), repeat=2):
+        if w[0] != w[1]:
+            winner = "A" if w[1] < w[0] else "B"
+            assert greedy_route(mdp, np.array(w)) == list(routes[winner].edges)
+
+
+def test_maxent_matches_feature_counts_and_prefers_the_expert_route():
+    # Demos A, A, B, C: the feature-matching weights lie inside the box, so the gradient
+    # (empirical − expected counts) can vanish, and A is the most likely route.
+    mdp, routes = three_routes()
+    demos = [routes[k] for k in "AABC"]
+    res = maxent_irl(mdp, demos, ROUTES_BOX, n_iterations=200, learning_rate=0.1,
+                     w0=np.array([-0.5, -0.5]))
+    grad = res.extra["grad_norm"]
+    assert grad[-1] < 1e-4 * grad[0]
+    assert np.allclose(res.extra["expected_counts"], res.extra["empirical_counts"], atol=1e-4)
+    assert res.log_likelihood[-1] > res.log_likelihood[0]
+    assert res.mdp_solves == 201 and len(res.history) == len(res.log_likelihood) == 201
+    pi = soft_policy(mdp, res.weights, soft_values(mdp, res.weights))
+    assert np.argmax(pi[:4]) == 0 and pi[0] == pytest.approx(0.5, abs=1e-3)
+    assert greedy_route(mdp, res.weights) == list(routes["A"].edges)
+
+
+def test_maxent_with_one_expert_route_heads_for_its_region():
+    mdp, routes = three_routes()
+    res = maxent_irl(mdp, [routes["A"]] * 2, ROUTES_BOX, n_iterations=100, learning_rate=0.1,
+                     w0=np.array([-0.5, -0.5]))
+    assert res.weights[1] < res.weights[0]
+    assert greedy_route(mdp, res.weights) == list(routes["A"].edges)
+    assert res.extra["grad_norm"][-1] < res.extra["grad_norm"][0]
+    pi = soft_policy(mdp, res.weights, soft_values(mdp, res.weights))
+    assert np.argmax(pi[:4]) == 0

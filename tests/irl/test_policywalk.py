@@ -1,0 +1,90 @@
+"""PolicyWalk (pipeline/irl/policywalk.py) on cases with a known answer: it recovers the
+expert's region, and as an MCMC it samples the uniform box and the exact grid posterior."""
+
+import itertools
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+from pipeline.irl.birl import ChainParams
+from pipeline.irl.maxent import maxent_irl
+from pipeline.irl.policywalk import expert_state_actions, policywalk
+from pipeline.irl.prior import Prior
+from tests.irl.conftest import ROUTES_BOX, greedy_route, three_routes
+
+UNIFORM = Prior("uniform", 1.0, *ROUTES_BOX)
+
+
+def test_policywalk_recovers_the_expert_region():
+    mdp, routes = three_routes()
+    expert = expert_state_actions(mdp, [routes["A"]] * 3)
+    assert expert == [(0, 0), (1, 4)] * 3
+    res = policywalk(mdp, expert, UNIFORM, np.random.default_rng(0), alpha=5.0,
+                     chain=ChainParams(n_samples=1500, burn_in=200, thin=1, step=0.1),
+                     w0=np.array([-0.5, -0.5]), n_records=10)
+    w = res.weights
+    assert w[1] < w[0] - 0.2  # clearly inside the region where A is optimal
+    assert greedy_route(mdp, w) == list(routes["A"].edges)
+    assert len(res.history) == len(res.log_likelihood) == 11
+    assert np.array_equal(res.history[0], [-0.5, -0.5]) and np.array_equal(res.history[-1], w)
+    assert res.log_likelihood[-1] > res.log_likelihood[0]
+    assert res.extra["solves_at_record"][-1] == res.mdp_solves
+    assert np.all(np.diff(res.extra["solves_at_record"]) >= 0)
+
+
+# ---------------------------------------------------------------- PolicyWalk as an MCMC
+
+
+def run_walk(mdp, expert, prior, seed, **kw):
+    chain = {"n_samples": 6000, "burn_in": 100, "thin": 1, "step": 0.25}
+    chain |= {k: kw.pop(k) for k in list(kw) if k in chain}
+    args = {"alpha": 2.0, "w0": np.array([-0.5, -0.5])}
+    return policywalk(mdp, expert, prior, np.random.default_rng(seed),
+                      chain=ChainParams(**chain), **(args | kw))
+
+
+def test_policywalk_with_flat_likelihood_samples_the_uniform_box():
+    mdp, _ = three_routes()
+    res = run_walk(mdp, [], UNIFORM, 1)
+    assert np.allclose(res.weights, [-0.5, -0.5], atol=0.05)
+    grid = np.round((res.extra["samples"] + 1) / 0.25).astype(int)  # 5 x 5 grid points
+    freq = np.bincount(grid[:, 0] * 5 + grid[:, 1], minlength=25) / len(grid)
+    assert np.abs(freq - 1 / 25).max() < 0.02
+    # Every in-box proposal is a solve; out-of-box ones are rejected unsolved.
+    assert res.mdp_solves == 1 + res.extra["n_proposals"] - res.extra["out_of_box"]
+    assert res.extra["n_proposals"] == 100 + 6000
+    again = run_walk(mdp, [], UNIFORM, 1)
+    assert np.array_equal(again.extra["samples"], res.extra["samples"])
+
+
+def test_policywalk_samples_the_exact_grid_posterior():
+    # The grid walk's stationary law is the posterior restricted to the grid: enumerate it.
+    mdp, routes = three_routes()
+    expert = expert_state_actions(mdp, [routes["A"]])
+    prior = Prior("gaussian", 0.5, *ROUTES_BOX, mean=np.array([-0.5, -0.5]))
+    res = run_walk(mdp, expert, prior, 2, thin=2, n_samples=8000)
+    grid = np.linspace(-1, 0, 5)
+    log_post = np.empty((5, 5))
+    for i, j in itertools.product(range(5), repeat=2):
+        w = np.array([grid[i], grid[j]])
+        q = 2.0 * mdp.q_values(w, mdp.solve(w).values)
+        log_post[i, j] = (q[0] - logsumexp(q[:4]) + q[4] - logsumexp(q[4:5])
+                          + prior.log_pdf(w))
+    exact = np.exp(log_post - logsumexp(log_post)).ravel()
+    idx = np.round((res.extra["samples"] + 1) / 0.25).astype(int)
+    freq = np.bincount(idx[:, 0] * 5 + idx[:, 1], minlength=25) / len(idx)
+    assert 0.5 * np.abs(freq - exact).sum() < 0.06  # total variation distance
+    assert np.allclose(res.weights, exact @ np.array(list(itertools.product(grid, grid))),
+                       atol=0.05)
+
+
+def test_baselines_reject_bad_input():
+    mdp, routes = three_routes()
+    with pytest.raises(ValueError, match="internal edge"):
+        run_walk(mdp, [(1, 0)], UNIFORM, 0)
+    with pytest.raises(ValueError, match="prior box"):
+        run_walk(mdp, [], UNIFORM, 0, w0=np.array([0.5, -0.5]))
+    with pytest.raises(ValueError, match="box"):
+        maxent_irl(mdp, [routes["A"]], ROUTES_BOX, n_iterations=5, learning_rate=0.1,
+                   w0=np.array([0.5, -0.5]))

@@ -1,0 +1,267 @@
+"""The robust likelihood (pipeline/irl/robust.py): the Boltzmann posterior over w and β by
+hand on tiny graphs, its gradients, MAP, admissibility test and joint sampler, and the robust
+form of the learning loop on consistent and noisy demonstrations — cases with known answers."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.special import chdtri, logsumexp
+
+from pipeline.core.experts import BoltzmannParams
+from pipeline.core.graph_mdp import GraphMDP, Path
+from pipeline.irl.birl import AdaptiveChainParams, BirlMapConfig, mcmc
+from pipeline.irl.prior import Prior
+from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
+from tests.conftest import TWO_ROUTES_GAMMA as GAMMA
+from tests.conftest import two_routes
+from tests.irl.conftest import central_difference
+
+
+def by_hand(w, beta, n_a, n_b, walk=False):
+    """Soft values by hand: V(3) = βR, V(2) = −βV_max, V(1) = lse(β·0.3w + γV(3), 0 + γV(2)),
+    V(0) = lse(βw + γV(3), β·0.2w + γV(1)); log p of n_a demos on A and n_b on B. With the
+    random-walk base measure every step from nodes 0 and 1 (two out-edges each) adds
+    log ½, in the values and (discounted like the features) in the demos' paths."""
+    log_mu = -math.log(2) if walk else 0.0
+    v3, v2 = beta * 1.0, -beta * 10.0
+    v1 = logsumexp([log_mu + beta * 0.3 * w + GAMMA * v3, log_mu + GAMMA * v2])
+    v0 = logsumexp([log_mu + beta * w + GAMMA * v3, log_mu + beta * 0.2 * w + GAMMA * v1])
+    q_a = log_mu + beta * (w * 1.0 + GAMMA * 1.0)
+    q_b = log_mu * (1 + GAMMA) + beta * (w * (0.2 + GAMMA * 0.3) + GAMMA**2 * 1.0)
+    return n_a * (q_a - v0) + n_b * (q_b - v0)
+
+
+def soft_policy(post, w, beta):
+    """π(e) (E,) of the soft values at (w, β): μ(e) exp(βw·φ(e) + γ^τ V(dst) − V(src))."""
+    mdp, values = post.mdp, post.soft_values(w, beta)
+    return np.exp(post.log_base + mdp.rewards(beta * np.asarray(w, float))
+                  + mdp.discount * values[mdp.dst] - values[mdp.src])
+
+
+def route_a_share(post, w, beta):
+    return soft_policy(post, w, beta)[0]  # edge 0→3 is the first of node 0's
+
+
+@pytest.mark.parametrize("base", ["walk", "uniform"])
+@pytest.mark.parametrize("w, beta", [(-0.5, 2.0), (-0.1, 10.0), (-0.9, 0.5)])
+def test_robust_likelihood_on_a_tiny_graph_by_hand(w, beta, base):
+    mdp, a, b = two_routes()
+    post = BoltzmannPosterior(mdp, [a, a, b], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100),
+                              base)
+    assert post.log_likelihood([w], beta) == \
+        pytest.approx(by_hand(w, beta, 2, 1, walk=base == "walk"), abs=1e-8)
+
+
+def fan(k):
+    """Start 0 with two ways to the goal G, each three steps of feature 0: via 1 and 3, or
+    via 2 and one of k parallel middle nodes."""
+    goal, middles = 4 + k, list(range(4, 4 + k))
+    src = [0, 0, 1, 3] + [2] * k + middles
+    dst = [1, 2, 3, goal] + middles + [goal] * k
+    terminal = [False] * goal + [True]
+    return GraphMDP(src, dst, np.ones(len(src)), np.zeros((len(src), 1)), terminal,
+                    gamma=GAMMA)
+
+
+def along(mdp, nodes):
+    """The path through `nodes` (the MDP sorts its edges by source)."""
+    edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
+    return Path(nodes, [edge[s, d] for s, d in zip(nodes[:-1], nodes[1:], strict=True)], True)
+
+
+@pytest.mark.parametrize("k", [1, 5])
+def test_random_walk_base_measure_does_not_count_paths(k):
+    """Rewards equal, the walk measure's soft policy splits ½/½ at the start however many
+    paths lie behind each choice; the uniform measure prefers the side with k paths, by
+    k^γ : 1 (V(2) = log k + γ²βR, one step before node 0's choice). That is the bias on
+    adaptive graphs, whose nodes crowd where the search looked."""
+    mdp = fan(k)
+    demo = along(mdp, [0, 1, 3, 4 + k])
+    to_2 = int(np.flatnonzero((mdp.src == 0) & (mdp.dst == 2))[0])
+    for base, share in (("walk", 0.5), ("uniform", k**GAMMA / (k**GAMMA + 1))):
+        post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]),
+                                  (0.1, 100), base)
+        assert soft_policy(post, [-0.5], 3.0)[to_2] == pytest.approx(share, abs=1e-9)
+
+
+def test_robust_gradient_matches_finite_differences():
+    mdp, a, b = two_routes()
+    post = BoltzmannPosterior(mdp, [a, b, b], Prior("gaussian", 0.5, [-1.0], [0.0]), (0.1, 100))
+    x = np.array([-0.4, 3.0])
+    f, grad = post.neg_log_posterior(x)
+    numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
+    np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-7)
+
+
+def test_robust_map_matches_route_frequencies():
+    """Many demonstrations: the MAP's soft policy takes route A as often as the demos did
+    (the maximum-likelihood condition of a log-linear model; the prior is negligible)."""
+    mdp, a, b = two_routes()
+    post = BoltzmannPosterior(mdp, [a] * 100 + [b] * 300, Prior("uniform", 1.0, [-1.0], [0.0]),
+                              (0.1, 1000))
+    w, beta = post.map([-0.5], 1.0)
+    assert route_a_share(post, w, beta) == pytest.approx(0.25, abs=0.01)
+
+
+def test_soft_values_satisfy_the_soft_bellman_equation_with_a_self_loop():
+    """A waiting edge 1→1 (a self-loop) next to the two routes: V(s) = log Σ_e exp(βw·φ(e)
+    + γ^τ V(dst)) at every node with out-edges, and the gradient still matches."""
+    src, dst = [0, 0, 1, 1, 1], [3, 1, 3, 2, 1]
+    mdp = GraphMDP(src, dst, np.ones(5), [[1.0], [0.2], [0.3], [0.0], [0.5]],
+                   [False, False, False, True], gamma=GAMMA)
+    edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
+    demo = Path([0, 1, 1, 3], [edge[0, 1], edge[1, 1], edge[1, 3]], True)
+    post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    values = post.soft_values([-0.7], 2.0)
+    q = post.log_base + mdp.rewards([-1.4]) + mdp.discount * values[mdp.dst]
+    np.testing.assert_allclose(values[mdp.has_out], mdp.log_sum_exp(q)[mdp.has_out],
+                               atol=1e-9)
+    # h: the values are exact to ~1e-10 of their size, which over h = 1e-4 is already
+    # ~1e-5 of noise; at 1e-3 the difference's own error is ~1e-8
+    x = np.array([-0.7, 2.0])
+    numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-3)
+    np.testing.assert_allclose(post.neg_log_posterior(x)[1], numeric, rtol=1e-5, atol=1e-7)
+
+
+def test_joint_density_gradient_matches_finite_differences():
+    """MALA's gradient of log p(w, log β) on the two routes."""
+    mdp, a, b = two_routes()
+    post = BoltzmannPosterior(mdp, [a, b, b], Prior("gaussian", 0.5, [-1.0], [0.0]), (0.1, 100))
+    density = LogBetaDensity(post, 3.0)
+    x = np.array([-0.4, np.log(3.0)])
+    lp, grad = density.log_posterior_and_grad(x)
+    assert lp == pytest.approx(density.log_posterior(x), abs=1e-9)
+    numeric = central_difference(density.log_posterior, x, h=1e-5)
+    np.testing.assert_allclose(grad, numeric, rtol=1e-4, atol=1e-6)
+    assert density.log_posterior_and_grad([0.5, 1.0])[0] == -np.inf  # outside the box
+
+
+def test_solves_on_the_last_lu_match_direct_solves():
+    """The policy evaluation and visits systems solved by refinement on the LU of another
+    policy (near: refined; far: refactored) agree with dense solves of I − γ^τ P_π."""
+    mdp = fan(5)
+    post = BoltzmannPosterior(mdp, [along(mdp, [0, 1, 3, 9])],
+                              Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    n, rng = mdp.n_nodes, np.random.default_rng(0)
+    rhs = rng.normal(size=n)
+
+    def policy(logits):
+        return np.exp(logits - mdp.log_sum_exp(logits)[mdp.src])
+
+    logits = rng.normal(size=len(mdp.src))
+    for pi in (policy(logits), policy(logits + 1e-3 * rng.normal(size=len(mdp.src))),
+               policy(5 * rng.normal(size=len(mdp.src)))):
+        dense = np.eye(n)
+        np.add.at(dense, (mdp.src, mdp.dst), -mdp.discount * pi)
+        np.testing.assert_allclose(post._solve(pi, rhs, "T"), np.linalg.solve(dense, rhs),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(post._solve(pi, rhs, "N"), np.linalg.solve(dense.T, rhs),
+                                   rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("w", [-0.05, -0.3, -0.8])
+def test_admissibility_test_agrees_with_the_profile_by_hand(w):
+    """The cutting-plane test against the profile log posterior max_β (log p by hand −
+    log β) on a fine β grid: levels just below the profile pass, just above fail."""
+    mdp, a, b = two_routes()
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    post = BoltzmannPosterior(mdp, [a, b, b, b], prior, (0.1, 100))
+    betas = np.exp(np.linspace(np.log(0.1), np.log(100), 20001))
+    profile = max(by_hand(w, beta, 1, 3, walk=True) - np.log(beta) for beta in betas) \
+        + prior.log_pdf([w])
+    for guess in (0.1, 3.0, 100):  # from either end of the range and from inside
+        assert post.admissible([w], profile - 1e-3, guess)
+        assert not post.admissible([w], profile + 1e-3, guess)
+    assert not post.admissible([0.5], -1e9, 3.0)  # outside the prior box
+
+
+def test_noisy_demos_do_not_collapse_the_weights():
+    """The paper's failure: demonstrations worse than the greedy paths. Here they take the
+    costlier route A half the time; eq. (2) against the greedy route B alone would push w
+    to 0, the robust MAP keeps a finite β·w that explains the 50/50 split."""
+    mdp, a, b = two_routes()
+    post = BoltzmannPosterior(mdp, [a, b] * 50, Prior("uniform", 1.0, [-1.0], [0.0]),
+                              (0.1, 1000))
+    w, beta = post.map([-0.5], 1.0)
+    assert w[0] < -0.05  # not collapsed
+    assert route_a_share(post, w, beta) == pytest.approx(0.5, abs=0.02)
+
+
+def test_joint_sampler_over_w_and_log_beta_is_reproducible():
+    mdp, a, b = two_routes()
+    post = BoltzmannPosterior(mdp, [a, b, b], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    chain = AdaptiveChainParams(n_samples=200, burn_in=100, n_chains=2)
+    x0 = np.array([-0.5, 0.0])
+    r1 = mcmc(LogBetaDensity(post, 1.0), x0, np.random.default_rng(3), chain)
+    r2 = mcmc(LogBetaDensity(post, 1.0), x0, np.random.default_rng(3), chain)
+    np.testing.assert_array_equal(r1.samples, r2.samples)
+    assert r1.samples.shape == (400, 2) and np.all(r1.samples[:, 0] <= 0)
+
+
+def test_config_checks():
+    with pytest.raises(ValueError, match="likelihood=bogus is not allowed"):
+        BirlMapConfig(likelihood="bogus")
+    with pytest.raises(ValueError, match="beta_min"):
+        BirlMapConfig(likelihood="robust", beta_min=5.0, beta_max=1.0)
+    with pytest.raises(ValueError, match="base_measure=walks is not allowed.*'walk'"):
+        BirlMapConfig(base_measure="walks")
+    with pytest.raises(ValueError, match="target_acceptance"):
+        AdaptiveChainParams(target_acceptance=1.5)
+    with pytest.raises(ValueError, match="demos_per_start"):
+        BoltzmannParams(demos_per_start=0)
+
+
+def two_route_problem(routes):
+    """The two-route graph as an IRL problem; `routes` names the demonstrated routes."""
+    from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
+    from pipeline.irl.base import IRLProblem
+    from pipeline.stages.birl import GraphEnvironment
+
+    mdp, a, b = two_routes()
+    positions = np.array([[0, 0], [1, 1], [1, 2], [2, 0]], float)
+    src, dst = [0, 0, 1, 1], [3, 1, 3, 2]
+    ways = [positions[[s, d]] for s, d in zip(src, dst, strict=True)]
+    graph = SpatialGraph(positions, mdp, np.array([0]), ways)
+    paths = [a if r == "a" else b for r in routes]
+    expert = [TrajectoryStats.from_edges(0, mdp.features[p.edges], mdp.duration[p.edges],
+                                         GAMMA, True) for p in paths]
+    return IRLProblem(expert, [positions[p.nodes] for p in paths], graph,
+                      GraphEnvironment(graph, GAMMA), Prior("uniform", 1.0, [-1.0], [0.0]),
+                      np.array([-0.5]), 1.0, np.random.default_rng(0), lambda: graph)
+
+
+def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones():
+    from pipeline.irl.birl import fit_robust
+
+    config = BirlMapConfig(n_iterations=3)
+    # Always route B: eq. (2)'s iterates reproduce it, the Boltzmann model accepts one.
+    problem = two_route_problem(["b"] * 5)
+    result = fit_robust(problem, config)
+    graph = problem.graph
+    boltzmann = BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
+                                   (config.beta_min, config.beta_max))
+    w_map, _ = boltzmann.map(problem.w0, config.beta)
+    assert not np.allclose(result.weights, w_map)
+    policy = graph.mdp.solve(result.weights).policy
+    assert list(graph.mdp.follow(policy, 0).nodes) == [0, 1, 3]
+    # Route A and B alike: the estimate is the Boltzmann MAP or an eq. (2) iterate the test
+    # cannot tell from it (its profile log posterior within χ²_{d+1}(level)/2 of the MAP's),
+    # and at its best β the soft policy takes both routes. (Not exactly half: with the
+    # random-walk measure route B's extra branching costs it log 2, and the box w ≥ −1
+    # keeps even the MAP at 0.57 for A.)
+    problem = two_route_problem(["a", "b"] * 20)
+    result = fit_robust(problem, config)
+    boltzmann = BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
+                                   (config.beta_min, config.beta_max))
+    w = result.weights
+    betas = np.geomspace(0.1, 1000, 4001)  # profiles within ~1e-4 of the maximum
+
+    def profile(w):
+        return max(boltzmann.log_likelihood(w, b) - np.log(b) for b in betas)
+
+    w_map, _ = boltzmann.map(problem.w0, config.beta)
+    assert profile(w_map) - profile(w) <= chdtri(2, config.lr_level) / 2 + 1e-3
+    beta = betas[np.argmax([boltzmann.log_likelihood(w, b) - np.log(b) for b in betas])]
+    assert 0.3 < route_a_share(boltzmann, w, beta) < 0.7
+    assert len(result.iterations) == 4

@@ -1,0 +1,184 @@
+"""Scenes with obstacles (DESIGN §3 "Obstacles and maps") end to end: polygon obstacles
+through every stage, the shipped office map, and random scenes on a map; no path, edge or
+demonstration comes closer to an obstacle than the robot's radius."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.artefacts import codec, read_artefact
+from pipeline.core.graph_mdp import MDPParams
+from pipeline.core.obstacles import ObstacleMap
+from pipeline.core.roadmap import segments_feasible
+from pipeline.core.world import scene_from_dict
+from pipeline.inputs.map_file import load_map
+from pipeline.inputs.scene_file import load_scene_file
+from tests.conftest import (
+    GAP,
+    INNER_STARTS,
+    OFFICE_MAP,
+    OFFICE_SCENE,
+    ROBOT_RADIUS,
+    WALL_Y,
+    run_in_process,
+    walled_metropolis,
+    write_json,
+)
+from tests.pipeline.conftest import FAST, min_clearance
+
+# ---------------------------------------------------------------------------------------------
+# 1. Polygon obstacles through every stage
+
+
+@pytest.fixture(scope="module")
+def walled_run(tmp_path_factory) -> Path:
+    run = tmp_path_factory.mktemp("walled")
+    scene_path = write_json(run / "walled.json", walled_metropolis())
+    run_in_process(run, "scene=file", f"scene.path={scene_path}", *FAST)
+    return run
+
+
+def test_the_wall_lies_between_the_starts_and_the_goal():
+    """Precondition of the walled tests: every start is south of the wall, the goal north of
+    it, the straight line from start 2 hits it, and the gap lets every start through."""
+    walled = scene_from_dict(walled_metropolis(), source="walled")
+    assert (walled.starts[:, 1] < WALL_Y - 0.05).all() and walled.goal[1] > WALL_Y + 0.05
+    assert not segments_feasible(walled, walled.starts[2:3], walled.goal[None])[0]  # hits it
+    assert walled.unreachable_starts() == []
+
+
+def test_walled_scene_runs_end_to_end_without_collisions(walled_run):
+    metrics = json.loads((walled_run / "metrics.json").read_text())
+    assert metrics["obstacle_collisions"] == 0 and metrics["ref_obstacle_collisions"] == 0
+    assert metrics["min_distance_to_obstacle"] >= ROBOT_RADIUS
+    assert metrics["ref_min_distance_to_obstacle"] >= ROBOT_RADIUS
+    assert metrics["success"] == 1.0 and metrics["ref_success"] == 1.0
+    # every learned path goes through the gap, with the robot's radius to spare at its posts
+    paths = read_artefact(walled_run / "eval.mcap").all("/eval/paths")
+    assert len(paths) == 2 * len(INNER_STARTS)
+    for path in paths:
+        p = np.asarray(path["points"], float)
+        k = np.flatnonzero((p[:-1, 1] < WALL_Y) & (p[1:, 1] >= WALL_Y))
+        assert len(k) >= 1, f"{path['graph']} path from start {path['start']} never crosses"
+        for i in k:
+            t = (WALL_Y - p[i, 1]) / (p[i + 1, 1] - p[i, 1])
+            x = p[i, 0] + t * (p[i + 1, 0] - p[i, 0])
+            assert GAP[0] + ROBOT_RADIUS <= x <= GAP[1] - ROBOT_RADIUS
+
+
+def test_every_adaptive_graph_edge_keeps_the_robot_radius(walled_run):
+    scene = codec.decode_scene(read_artefact(walled_run / "scene.mcap"))
+    assert scene.obstacles is not None and len(scene.polygons) == 3
+    art = read_artefact(walled_run / "graph.mcap")
+    nodes = {n["id"]: np.array([n["x"], n["y"]]) for n in art.all("/graph/node")}
+    edges = art.all("/graph/edge")
+    assert len(nodes) == 200 and len(edges) > len(nodes)
+    positions = np.array(list(nodes.values()))
+    assert scene.free(positions).all()
+    worst = min(min_clearance(scene.obstacles, np.vstack([nodes[e["src"]], e["waypoints"],
+                                                          nodes[e["dst"]]])) for e in edges)
+    assert worst >= ROBOT_RADIUS
+    # some edges do pass the gap: the graph is not merely split in two halves
+    ys = np.array([[nodes[e["src"]][1], nodes[e["dst"]][1]] for e in edges])
+    assert ((ys[:, 0] < WALL_Y) & (ys[:, 1] > WALL_Y)).any()
+
+
+def test_every_reference_roadmap_edge_keeps_the_robot_radius(walled_run):
+    scene = codec.decode_scene(read_artefact(walled_run / "scene.mcap"))
+    roadmap = codec.decode_roadmap(read_artefact(walled_run / "demos.mcap"), MDPParams())
+    assert len(roadmap.waypoints) > 1000
+    assert scene.free(roadmap.positions).all()
+    a = np.array([w[0] for w in roadmap.waypoints])
+    b = np.array([w[-1] for w in roadmap.waypoints])
+    assert scene.obstacles.segments_min_clearance(a, b).min() >= ROBOT_RADIUS
+    assert min_clearance(scene.obstacles, *roadmap.waypoints[::50]) >= ROBOT_RADIUS
+    crossing = (a[:, 1] < WALL_Y) & (b[:, 1] > WALL_Y)
+    assert crossing.any()
+    x = a[crossing, 0] + (WALL_Y - a[crossing, 1]) / (b[crossing, 1] - a[crossing, 1]) * \
+        (b[crossing, 0] - a[crossing, 0])
+    assert ((x >= GAP[0] + ROBOT_RADIUS) & (x <= GAP[1] - ROBOT_RADIUS)).all()
+
+
+# ---------------------------------------------------------------------------------------------
+# 2. The shipped office map end to end
+
+
+@pytest.fixture(scope="module")
+def office_run(tmp_path_factory) -> Path:
+    run = tmp_path_factory.mktemp("office")
+    run_in_process(run, "scene=file", "scene.path=data/scenes/office.json", *FAST)
+    return run
+
+
+def test_office_scene_artefact_holds_the_map(office_run):
+    art = read_artefact(office_run / "scene.mcap", required_topics=["/scene", "/scene/map"])
+    assert len(art.all("/scene/map")) == 1
+    decoded = codec.decode_scene(art)
+    loaded = load_scene_file(OFFICE_SCENE)
+    assert decoded.map_source == "../maps/office.yaml" and decoded.robot_radius == 0.2
+    assert decoded.room == loaded.room
+    for a, b in ((decoded.map_grid, load_map(OFFICE_MAP)), (decoded.obstacles.grid,
+                                                            loaded.obstacles.grid)):
+        assert a.shape == b.shape == (280, 400)
+        assert a.origin == b.origin and a.resolution == b.resolution
+        assert np.array_equal(a.occupied, b.occupied)
+    assert 0.2 < decoded.obstacles.grid.occupied.mean() < 0.5  # walls, furniture, outside
+    np.testing.assert_array_equal(decoded.starts, loaded.starts)
+
+
+def test_office_runs_end_to_end_without_collisions(office_run):
+    metrics = json.loads((office_run / "metrics.json").read_text())
+    assert metrics["obstacle_collisions"] == 0 and metrics["ref_obstacle_collisions"] == 0
+    assert metrics["min_distance_to_obstacle"] >= 0.2
+    assert metrics["ref_min_distance_to_obstacle"] >= 0.2
+    assert metrics["ref_success"] == 1.0
+    scene = codec.decode_scene(read_artefact(office_run / "scene.mcap"))
+    for demo in read_artefact(office_run / "demos.mcap").all("/demos"):
+        assert min_clearance(scene.obstacles, demo["points"]) >= 0.2
+
+
+# ---------------------------------------------------------------------------------------------
+# 3. Random scenes on a map
+
+
+@pytest.fixture(scope="module")
+def random_office_runs(tmp_path_factory) -> dict[str, Path]:
+    runs = {}
+    for name, seed in (("a", 0), ("b", 0), ("other", 1)):
+        runs[name] = tmp_path_factory.mktemp(f"random_office_{name}")
+        run_in_process(runs[name], "scene=random", "scene.map=data/maps/office.yaml",
+                       "stages=[scene,demos]", f"seed={seed}")
+    return runs
+
+
+def test_random_scene_on_the_office_map_is_valid(random_office_runs):
+    run = random_office_runs["a"]
+    assert not (run / "graph.mcap").exists()
+    scene = codec.decode_scene(read_artefact(run / "scene.mcap"))
+    grid = load_map(OFFICE_MAP)
+    assert np.array_equal(scene.map_grid.occupied, grid.occupied) and not scene.polygons
+    assert (scene.room.x_min, scene.room.y_min, scene.room.x_max, scene.room.y_max) == \
+        pytest.approx(grid.extent())
+    # checked on the map itself, not on the scene's own cached raster
+    walls = ObstacleMap(grid)
+    points = np.vstack([scene.starts, scene.goal])
+    assert len(scene.starts) == 5 and len(scene.persons) >= 3
+    assert walls.points_free(points, scene.robot_radius).all()
+    assert (walls.clearance_at(scene.person_xy) >= scene.body_radius).all()
+    assert not scene.in_body(points).any()
+    blocked = walls.blocked_disks(scene.person_xy, scene.body_radius)
+    assert walls.reachable(scene.goal, scene.starts, scene.robot_radius, blocked).all()
+    demos = read_artefact(run / "demos.mcap").all("/demos")
+    assert [d["start_index"] for d in demos] == list(range(5))
+    for d in demos:
+        assert d["reached"]
+        assert min_clearance(walls, d["points"]) >= scene.robot_radius
+
+
+def test_random_scene_on_a_map_is_seeded(random_office_runs):
+    a, b, other = ((random_office_runs[k] / "scene.mcap").read_bytes()
+                   for k in ("a", "b", "other"))
+    assert a == b
+    assert a != other

@@ -1,0 +1,121 @@
+"""Runs through the stages of the real Hydra app, in this process: the default experiment's
+artefacts, the same bytes from the same seed, stage subsets from an earlier run, a subset of
+the features, and bad inputs refused in one line without touching earlier artefacts."""
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from pipeline.artefacts import read_artefact
+from pipeline.errors import PipelineError
+from tests.conftest import ROOT, run_app, run_in_process
+
+
+def test_a_subset_of_the_features_runs_end_to_end(tmp_path):
+    metrics, _ = run_in_process(tmp_path, "reward.features=[social,length]",
+                                "reward.weights=[-0.7,-0.1]", "graph=small", "birl.n_iterations=3")
+    assert {k for k in metrics if k.startswith("weight_")} == {"weight_social", "weight_length"}
+    assert metrics["policy_loss"] >= 0
+    assert read_artefact(tmp_path / "graph.mcap").one("/graph/solution")["n_nodes"] > 0
+
+
+def test_default_experiment_writes_artefacts(default_dir):
+    scene = read_artefact(default_dir / "scene.mcap", required_topics=["/scene"])
+    assert scene.one("/scene")["name"] == "metropolis"
+    assert "reward:" in scene.config_yaml and "seed: 0" in scene.config_yaml
+    assert scene.metadata["seed"] == "0" and "version.numpy" in scene.metadata
+    demos = read_artefact(default_dir / "demos.mcap",
+                          required_topics=["/demos", "/demos/expert", "/demos/roadmap"])
+    assert len(demos.all("/demos")) == 7
+    assert demos.one("/demos/expert")["true_weights"] == [-1.0, -0.7, -0.85, -0.1]
+    assert all(d["reached"] for d in demos.all("/demos"))
+    graph = read_artefact(default_dir / "graph.mcap", required_topics=[
+        "/graph/node", "/graph/edge", "/graph/best_paths", "/graph/solution"])
+    nodes, edges = graph.all("/graph/node"), graph.all("/graph/edge")
+    solution = graph.one("/graph/solution")
+    assert len(nodes) == 460 and solution["n_nodes"] == 460 and len(edges) == solution["n_edges"]
+    assert solution["weights_source"] == "prior_mean"
+    # Growth replays in order: nodes and edges appear no earlier than their iteration.
+    assert [n["iteration"] for n in nodes] == sorted(n["iteration"] for n in nodes)
+    added = {n["id"]: n["iteration"] for n in nodes}
+    assert all(e["iteration"] == max(added[e["src"]], added[e["dst"]]) for e in edges)
+    assert all(n["parent"] >= 0 for n in nodes if n["kind"] == "sampled")
+    assert len(graph.all("/graph/best_paths")) == solution["iterations"] + 1
+
+
+def _payloads(run_dir):
+    return {name: read_artefact(run_dir / name).messages
+            for name in ("scene.mcap", "demos.mcap", "graph.mcap")}
+
+
+def test_same_seed_same_payloads_and_other_seed_differs(tmp_path):
+    # One run in a fresh process, two in this one: equal artefacts across processes too.
+    args = ["scene=random", "expert=boltzmann", "graph=small", "stages=[scene,demos,graph]"]
+    result = run_app(f"hydra.run.dir={tmp_path / 'a'}", "seed=3", *args)
+    assert result.returncode == 0, result.stderr
+    run_in_process(tmp_path / "b", "seed=3", *args)
+    run_in_process(tmp_path / "c", "seed=4", *args)
+    a, b, c = (_payloads(tmp_path / n) for n in "abc")
+    assert a == b
+    for name in ("demos.mcap", "graph.mcap"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+    assert a["scene.mcap"] != c["scene.mcap"]
+
+
+def test_stage_subset_from_earlier_run(tmp_path, default_dir):
+    run_in_process(tmp_path, "stages=[demos,graph]", f"from_run={default_dir}")
+    # The scene the run used is linked in (same file), so the dir is complete on its own.
+    assert (tmp_path / "scene.mcap").samefile(default_dir / "scene.mcap")
+    assert not (tmp_path / "birl.mcap").exists()
+    for name in ("demos.mcap", "graph.mcap"):
+        assert read_artefact(tmp_path / name).messages == \
+            read_artefact(default_dir / name).messages
+
+
+def _refused_with_one_line(run_dir, overrides, *fragments):
+    """In-process twin of tests/cli/test_cli.py's _fails_with_one_line: the PipelineError
+    the CLI prints as one line."""
+    with pytest.raises(PipelineError) as err:
+        run_in_process(run_dir, *overrides)
+    message = str(err.value)
+    assert "\n" not in message
+    for f in fragments:
+        assert f in message
+
+
+def test_malformed_scene_file_is_refused_with_one_line(tmp_path):
+    bad = tmp_path / "bad.json"
+    text = (ROOT / "data/scenes/metropolis.json").read_text()
+    bad.write_text(text.replace('"x": 9.2', '"x": 19.2'))
+    _refused_with_one_line(tmp_path / "run", ["scene=file", f"scene.path={bad}"],
+                           str(bad), "person 5", "outside the room")
+
+
+def test_truncated_input_artefact_is_refused_with_one_line(tmp_path, default_dir):
+    src = tmp_path / "src"
+    src.mkdir()
+    data = (default_dir / "scene.mcap").read_bytes()
+    (src / "scene.mcap").write_bytes(data[: len(data) // 2])
+    overrides = ["stages=[demos]", f"from_run={src}"]
+    _refused_with_one_line(tmp_path / "run", overrides, str(src / "scene.mcap"), "truncated")
+    (src / "scene.mcap").write_text("{}")
+    _refused_with_one_line(tmp_path / "run", overrides, "not an MCAP file")
+
+
+def test_failing_run_keeps_earlier_artefacts(tmp_path, default_dir):
+    run_dir = tmp_path / "run"
+    shutil.copytree(default_dir, run_dir)
+    before = (run_dir / "demos.mcap").read_bytes()
+    _refused_with_one_line(run_dir, ["expert=file", f"expert.path={tmp_path}/none.json"],
+                           "none.json", "not found")
+    assert (run_dir / "demos.mcap").read_bytes() == before
+    assert not list(Path(run_dir).glob("*.tmp"))
+
+
+def test_demos_stage_writes_k_noisy_demos_per_start(tmp_path):
+    run_in_process(tmp_path, "stages=[scene,demos]", "expert=boltzmann", "expert.beta=20",
+                   "expert.demos_per_start=3", "expert.n_demos=2")
+    demos = read_artefact(tmp_path / "demos.mcap").all("/demos")
+    assert [d["start_index"] for d in demos] == [0, 0, 0, 1, 1, 1]
+    assert len({len(d["points"]) for d in demos[:3]}) > 1  # three different walks

@@ -1,0 +1,1 @@
+"""Tests of pipeline/tools: viewer, screenshot and the other tools."""

@@ -1,0 +1,495 @@
+"""birlg-export (pipeline.tools.export): a real run exported, then read back with independent
+readers: the PGM with Pillow and decoded with Nav2 map_server's own `mode: scale` formula,
+the YAML with the project's map reader, the bag with rosbags' AnyReader and with the
+pipeline's recorded-demonstration reader; the costs checked against a hand computation of
+the reward features at every cell."""
+
+from __future__ import annotations
+
+import errno
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from pipeline.app.rundir import FAILED, RUNNING, write_status
+from pipeline.artefacts import codec, read_artefact, topics, write_artefact
+from pipeline.core.features import FeatureParams
+from pipeline.core.world import Scene, scene_from_dict
+from pipeline.inputs.map_file import load_map
+from pipeline.inputs.recorded import read_tracks
+from pipeline.inputs.scene_file import load_scene_file
+from pipeline.tools import export
+from tests.conftest import METROPOLIS, POLITE, ROOT, run_in_process
+
+QUICK = ("graph=small", "birl.n_iterations=3")
+TOPIC_TYPES = {"/birlg/learned_paths": "nav_msgs/msg/Path",
+               "/birlg/learned_paths_ref": "nav_msgs/msg/Path",
+               "/birlg/demos": "nav_msgs/msg/Path",
+               "/birlg/people": "visualization_msgs/msg/MarkerArray"}
+
+
+# -- independent readers -----------------------------------------------------------------------
+
+
+def nav2_scale_occupancy(grey: np.ndarray, free_thresh: float,
+                         occupied_thresh: float) -> np.ndarray:
+    """OccupancyGrid values of an opaque 8-bit grey image as nav2_map_server's loadMapFromFile
+    computes them in `mode: scale` with negate 0 (map_io.cpp): occ = 1 - shade; occ >
+    occupied_thresh -> 100, occ < free_thresh -> 0, else rint((occ - free) / (occupied - free)
+    * 100)."""
+    occ = 1.0 - np.asarray(grey, dtype=float) / 255.0
+    between = np.rint((occ - free_thresh) / (occupied_thresh - free_thresh) * 100.0)
+    return np.where(occupied_thresh < occ, 100, np.where(occ < free_thresh, 0, between)) \
+        .astype(int)
+
+
+def read_pgm(path: Path) -> np.ndarray:
+    """The image as a (H, W) grid whose row 0 is the lowest y (the PGM's last row)."""
+    with Image.open(path) as img:
+        assert img.format == "PPM" and img.mode == "L"  # Pillow's name for PGM/PPM files
+        return np.asarray(img)[::-1]
+
+
+def read_yaml_and_comments(path: Path) -> tuple[dict, list[str]]:
+    text = path.read_text()
+    return yaml.safe_load(text), [line[2:] for line in text.splitlines() if line.startswith("# ")]
+
+
+def hand_cost(scene: Scene, weights: dict[str, float], centres: np.ndarray,
+              rho_p: float = 1.2, rho_r: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+    """−(w_relation · relation + w_social · social) per metre at the points, straight from the
+    feature definitions, and the mask of points inside a body disk."""
+    xy = scene.person_xy
+    d = np.linalg.norm(centres[:, None, :] - xy[None, :, :], axis=2).min(axis=1)
+    social = np.maximum(0.0, rho_p - d)
+    relation = np.zeros(len(centres))
+    pos = {p.id: np.array([p.x, p.y]) for p in scene.persons}
+    for i, j in scene.relations:
+        a, b = pos[i], pos[j]
+        u = (b - a) / np.linalg.norm(b - a)
+        along = (centres - a) @ u
+        across = np.abs((centres - a) @ np.array([-u[1], u[0]]))
+        inside = (along >= 0) & (along <= np.linalg.norm(b - a))
+        relation += np.where(inside, np.maximum(0.0, rho_r - across), 0.0)
+    cost = -(weights["relation"] * relation + weights["social"] * social)
+    return cost, d < scene.body_radius
+
+
+def centres_of(shape: tuple[int, int], origin: tuple[float, float], res: float) -> np.ndarray:
+    rows, cols = np.indices(shape)
+    return np.stack([origin[0] + (cols + 0.5) * res, origin[1] + (rows + 0.5) * res],
+                    axis=-1).reshape(-1, 2)
+
+
+def bag_messages(bag: Path) -> dict[str, list[tuple[int, object]]]:
+    """topic -> [(bag timestamp ns, message)] read with rosbags' AnyReader."""
+    out: dict[str, list[tuple[int, object]]] = {}
+    with AnyReader([bag], default_typestore=get_typestore(Stores.LATEST)) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == TOPIC_TYPES
+        for conn, stamp, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((stamp, reader.deserialize(raw, conn.msgtype)))
+    return out
+
+
+def yaw_of(q) -> float:
+    assert q.x == 0.0 and q.y == 0.0
+    return 2.0 * math.atan2(q.z, q.w)
+
+
+def angle_diff(a: float, b: float) -> float:
+    return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+
+
+# -- fixtures ----------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory) -> tuple[Path, Path]:
+    """A quick default run (metropolis, polite expert), exported once: (run dir, export dir)."""
+    run_dir = tmp_path_factory.mktemp("export_run")
+    run_in_process(run_dir, *QUICK)
+    assert export.main([str(run_dir)]) == 0
+    return run_dir, run_dir / "export"
+
+
+@pytest.fixture(scope="module")
+def learned(exported) -> dict:
+    run_dir, _ = exported
+    birl = read_artefact(run_dir / "birl.mcap")
+    names = birl.one(topics.BIRL_EXPERT)["feature_names"]
+    weights = birl.all(topics.BIRL_ITERATION)[-1]["weights"]
+    return dict(zip(names, weights, strict=True))
+
+
+@pytest.fixture(scope="module")
+def scene(exported) -> Scene:
+    return codec.decode_scene(read_artefact(exported[0] / "scene.mcap"))
+
+
+def copy_run(exported, tmp_path: Path) -> Path:
+    run_dir = tmp_path / "run"
+    shutil.copytree(exported[0], run_dir, ignore=shutil.ignore_patterns("export", ".lock"))
+    return run_dir
+
+
+# -- the costmap -------------------------------------------------------------------------------
+
+
+def test_every_occupancy_level_survives_map_server_and_no_learned_cost_is_lethal():
+    k = np.arange(101)
+    grey = export.grey_of_occupancy(k)
+    decoded = nav2_scale_occupancy(grey, export.FREE_THRESH, export.OCCUPIED_THRESH)
+    np.testing.assert_array_equal(decoded, k)
+    assert grey[0] == 255 and grey[100] == 0  # free white, lethal black
+    # Costmap2D(OccupancyGrid) and the KeepoutFilter: cost = round(254 * occupancy / 100);
+    # the costliest learned cell stays below the inscribed cost 253 (a collision for planners).
+    assert round(254 * 99 / 100) == 251 < 253
+    # nothing a learned cost becomes is above occupied_thresh (map_server's own "occupied")
+    occ = 1.0 - grey[:100].astype(float) / 255.0
+    assert (occ <= export.OCCUPIED_THRESH).all()
+
+
+def test_costmap_yaml_is_a_scale_mode_map_server_map_with_its_comments(exported, learned, scene):
+    run_dir, out = exported
+    data, comments = read_yaml_and_comments(out / "costmap.yaml")
+    assert data["image"] == "costmap.pgm" and data["mode"] == "scale" and data["negate"] == 0
+    assert data["resolution"] == 0.05 and data["origin"] == [0.0, 0.0, 0.0]
+    assert 0.0 < data["free_thresh"] < data["occupied_thresh"] < 1.0
+    assert (data["free_thresh"], data["occupied_thresh"]) == (export.FREE_THRESH,
+                                                              export.OCCUPIED_THRESH)
+    text = "\n".join(comments)
+    assert f"run: {run_dir.resolve()}" in comments
+    weights = re.search(r"^learned weights: (.*)$", text, re.M).group(1)
+    assert dict((k, float(v)) for k, v in (kv.split("=") for kv in weights.split(", "))) \
+        == learned  # every weight, named, exactly
+    assert "features in the mask: relation, social" in comments
+    assert any(c.startswith("left out: goal_deviation: not a density of position")
+               for c in comments)
+    assert any(c.startswith("left out: length: uniform") for c in comments)
+    assert re.search(r"occupancy 99 = cost [0-9.e-]+ per m", text)
+    assert scene.name in text
+    digests = [read_artefact(run_dir / f).digest[:16] for f in ("birl.mcap", "eval.mcap")]
+    assert f"from: birl.mcap content {digests[0]}, eval.mcap content {digests[1]}" in comments
+
+
+def test_costmap_values_match_a_hand_computation_at_every_cell(exported, learned, scene):
+    _, out = exported
+    data, comments = read_yaml_and_comments(out / "costmap.yaml")
+    grey = read_pgm(out / "costmap.pgm")
+    assert grey.shape == (200, 200)  # the 10 m room at 0.05 m
+    occupancy = nav2_scale_occupancy(grey, data["free_thresh"], data["occupied_thresh"])
+    scale = float(re.search(r"occupancy 99 = cost ([0-9.e-]+) per m", "\n".join(comments))
+                  .group(1))
+    centres = centres_of(grey.shape, (0.0, 0.0), 0.05)
+    cost, body = hand_cost(scene, learned, centres)
+    assert learned["relation"] < 0 and learned["social"] < 0  # polite: both cost something
+    assert scale == pytest.approx(cost[~body].max(), rel=1e-12)
+    expected = np.where(body, 100, np.rint(99 * np.maximum(cost, 0) / scale))
+    ratio = 99 * cost / scale
+    tie = np.abs(ratio - np.floor(ratio) - 0.5) < 1e-6  # rounding may go either way there
+    flat = occupancy.reshape(-1)
+    np.testing.assert_array_equal(flat[~tie], expected[~tie])
+    assert np.abs(flat - expected).max() <= 1
+
+    def cell(x: float, y: float) -> int:
+        return int(y // 0.05) * 200 + int(x // 0.05)
+
+    # next to person 1 at (2, 5), on the side away from its links: social only
+    c = cell(1.51, 5.01)
+    x, y = centres[c]
+    d = math.hypot(x - 2.0, y - 5.0)
+    assert 0.25 < d < 1.2
+    assert cost[c] == pytest.approx(-learned["social"] * (1.2 - d))
+    assert flat[c] == round(99 * -learned["social"] * (1.2 - d) / scale)
+    # on the link between persons 1 (2, 5) and 3 (6, 5), halfway, 0.025 m off it: over 1.2 m
+    # from everyone and 0.6 m from every other link, so the link's hinge alone
+    c = cell(4.01, 5.01)
+    assert tuple(centres[c]) == (4.025, 5.025)
+    assert cost[c] == pytest.approx(-learned["relation"] * (0.6 - 0.025))
+    assert flat[c] == round(99 * -learned["relation"] * (0.6 - 0.025) / scale)
+    # far from everyone: free and white
+    c = cell(9.9, 0.1)
+    assert cost[c] == 0 and flat[c] == 0 and grey.reshape(-1)[c] == 255
+    # a person's centre: lethal and black
+    c = cell(2.0, 5.0)
+    assert flat[c] == 100 and grey.reshape(-1)[c] == 0
+
+
+def test_costmap_loads_with_the_project_map_reader(exported):
+    _, out = exported
+    grid = load_map(out / "costmap.yaml")
+    assert grid.origin == (0.0, 0.0) and grid.resolution == 0.05 and grid.shape == (200, 200)
+    data, _ = read_yaml_and_comments(out / "costmap.yaml")
+    occupancy = nav2_scale_occupancy(read_pgm(out / "costmap.pgm"), data["free_thresh"],
+                                     data["occupied_thresh"])
+    # map_file treats everything that is not free as an obstacle: bodies and costly cells
+    np.testing.assert_array_equal(grid.occupied, occupancy > 0)
+    assert (occupancy == 100).sum() > 0 and (occupancy == 0).sum() > 0
+
+
+def test_a_map_scene_keeps_its_grid_and_its_obstacles_are_lethal(tmp_path):
+    office = load_scene_file(ROOT / "data" / "scenes" / "office.json")
+    assert office.map_grid is not None
+    params = FeatureParams()
+    costmap = export.build_costmap(office, params, POLITE)
+    (tmp_path / "costmap.pgm").write_bytes(export.costmap_pgm(costmap))
+    (tmp_path / "costmap.yaml").write_text(export.costmap_yaml(
+        costmap, tuple(params.features), POLITE, ["run: (a unit test)"]))
+    grid = load_map(tmp_path / "costmap.yaml")
+    source = office.map_grid
+    assert (grid.origin, grid.resolution, grid.shape) == (source.origin, source.resolution,
+                                                          source.shape)
+    data, _ = read_yaml_and_comments(tmp_path / "costmap.yaml")
+    occupancy = nav2_scale_occupancy(read_pgm(tmp_path / "costmap.pgm"), data["free_thresh"],
+                                     data["occupied_thresh"])
+    assert (occupancy[source.occupied] == 100).all()  # every wall cell
+    assert grid.occupied[source.occupied].all()
+    assert ((occupancy > 0) & (occupancy < 100)).any() and (occupancy == 0).any()
+
+
+def test_polygon_obstacles_and_bodies_are_lethal_and_only_they(tmp_path):
+    data = json.loads(METROPOLIS.read_text())
+    data["obstacles"] = [[[7.5, 9.0], [8.5, 9.0], [8.5, 9.8], [7.5, 9.8]]]  # a box in a corner
+    # a small robot: with obstacles, the room's edge is a wall, and starts lie 0.1 m from it
+    scene = scene_from_dict(data, source="metropolis with a box", robot_radius=0.05)
+    costmap = export.build_costmap(scene, FeatureParams(), POLITE)
+    centres = costmap.grid.cell_centres().reshape(-1, 2)
+    inside = ((centres >= [7.55, 9.05]) & (centres <= [8.45, 9.75])).all(axis=1)
+    lethal = costmap.occupancy.reshape(-1) == 100
+    assert lethal[inside].all()
+    _, body = hand_cost(scene, dict(zip(FeatureParams().features, POLITE, strict=True)),
+                        centres)
+    assert lethal[body].all()
+    ring = ((centres >= [7.4, 8.9]) & (centres <= [8.6, 9.9])).all(axis=1)
+    assert not lethal[~ring & ~body].any()  # nothing else: the learned cost stays below 100
+
+
+def test_zero_weights_give_an_all_free_mask_with_the_bodies_lethal(scene):
+    costmap = export.build_costmap(scene, FeatureParams(), np.zeros(4))
+    assert costmap.scale == 0
+    assert set(np.unique(costmap.occupancy)) == {0, 100}
+    text = export.costmap_yaml(costmap, tuple(FeatureParams().features), np.zeros(4), [])
+    assert "the learned cost is 0 everywhere" in text
+    assert yaml.safe_load(text)["mode"] == "scale"
+
+
+# -- the bag -----------------------------------------------------------------------------------
+
+
+def test_bag_holds_one_path_per_start_and_demo_and_the_people(exported, scene):
+    run_dir, out = exported
+    msgs = bag_messages(out / "paths")
+    n_starts = len(scene.starts)
+    demos = read_artefact(run_dir / "demos.mcap").all(topics.DEMOS)
+    counts = {t: len(m) for t, m in msgs.items()}
+    assert counts == {"/birlg/learned_paths": n_starts, "/birlg/learned_paths_ref": n_starts,
+                      "/birlg/demos": len(demos), "/birlg/people": 1}
+    for items in msgs.values():
+        for k, (stamp, msg) in enumerate(items):
+            assert stamp == k * 10**9  # message index seconds, never the wall clock
+            for part in [msg] + list(getattr(msg, "poses", [])) + list(getattr(msg, "markers",
+                                                                                 [])):
+                if hasattr(part, "header"):  # a MarkerArray has none, its markers do
+                    assert part.header.frame_id == "map"
+                    assert (part.header.stamp.sec, part.header.stamp.nanosec) == (k, 0)
+
+
+def test_bag_paths_are_the_learned_paths_with_headings_along_them(exported):
+    run_dir, out = exported
+    msgs = bag_messages(out / "paths")
+    evaluated = read_artefact(run_dir / "eval.mcap").all(topics.EVAL_PATHS)
+    for graph, topic in (("graph", "/birlg/learned_paths"), ("ref", "/birlg/learned_paths_ref")):
+        paths = sorted((m for m in evaluated if m["graph"] == graph), key=lambda m: m["start"])
+        assert len(paths) == len(msgs[topic])
+        for want, (_, msg) in zip(paths, msgs[topic], strict=True):
+            got = np.array([[p.pose.position.x, p.pose.position.y] for p in msg.poses])
+            np.testing.assert_array_equal(got, np.asarray(want["points"]))  # bit for bit
+            pts = np.asarray(want["points"])
+            for i, pose in enumerate(msg.poses):
+                j = min(i, len(pts) - 2)
+                step = pts[j + 1] - pts[j]
+                if np.hypot(*step) > 0:
+                    assert angle_diff(yaw_of(pose.pose.orientation),
+                                      math.atan2(step[1], step[0])) < 1e-9
+
+
+def test_bag_demos_are_the_demonstrations_and_the_pipeline_reads_them_back(exported):
+    run_dir, out = exported
+    demos = [np.asarray(m["points"]) for m in read_artefact(run_dir / "demos.mcap")
+             .all(topics.DEMOS)]
+    tracks, is_stream = read_tracks(out / "paths", topic="/birlg/demos", frame="map")
+    assert not is_stream and len(tracks) == len(demos)
+    for track, demo in zip(tracks, demos, strict=True):
+        np.testing.assert_array_equal(track, demo)
+
+
+def test_path_headings_skip_repeated_points():
+    pts = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 2.0]])
+    # each point heads along the segment leaving it; a zero-length one takes the one before
+    np.testing.assert_allclose(export.path_yaws(pts), [0, 0, 0, math.pi / 2, math.pi / 2])
+    pts = np.array([[1.0, 1.0], [1.0, 1.0], [0.0, 1.0]])  # leading repeat: the first heading
+    np.testing.assert_allclose(export.path_yaws(pts), [math.pi, math.pi, math.pi])
+    np.testing.assert_array_equal(export.path_yaws(np.ones((3, 2))), np.zeros(3))
+    np.testing.assert_array_equal(export.path_yaws(np.ones((1, 2))), np.zeros(1))
+
+
+def test_people_markers_have_stable_ids_bodies_and_headings(exported, scene):
+    _, out = exported
+    (_, people), = bag_messages(out / "paths")["/birlg/people"]
+    by_ns: dict[str, dict[int, object]] = {}
+    for m in people.markers:
+        assert m.header.frame_id == "map"
+        assert m.id not in by_ns.setdefault(m.ns, {})  # (ns, id) unique
+        by_ns[m.ns][m.id] = m
+    ids = {p.id for p in scene.persons}
+    assert set(by_ns) == {"body", "heading", "relations"}
+    assert set(by_ns["body"]) == ids and set(by_ns["heading"]) == ids
+    for p in scene.persons:
+        body, arrow = by_ns["body"][p.id], by_ns["heading"][p.id]
+        assert body.type == 3 and arrow.type == 0  # CYLINDER, ARROW
+        assert (body.pose.position.x, body.pose.position.y) == (p.x, p.y)
+        assert body.scale.x == body.scale.y == 2 * scene.body_radius
+        assert (arrow.pose.position.x, arrow.pose.position.y) == (p.x, p.y)
+        assert angle_diff(yaw_of(arrow.pose.orientation), p.theta) < 1e-9
+    links = by_ns["relations"][0]
+    assert links.type == 5 and len(links.points) == 2 * len(scene.relations)  # LINE_LIST
+
+
+# -- determinism, replacement, bad input -------------------------------------------------------
+
+
+def test_exporting_twice_gives_the_same_bytes_and_replaces_the_whole_dir(exported):
+    run_dir, out = exported
+    files = ["costmap.yaml", "costmap.pgm", "paths/metadata.yaml", "paths/paths.mcap"]
+    first = {f: (out / f).read_bytes() for f in files}
+    (out / "stray.txt").write_text("from an older export")
+    assert export.main([str(run_dir)]) == 0
+    assert {f: (out / f).read_bytes() for f in files} == first
+    assert not (out / "stray.txt").exists()
+    assert sorted(p.name for p in run_dir.iterdir() if p.name.startswith(".export")) == []
+
+
+def test_a_failed_export_leaves_the_previous_export_and_no_partial_dir(exported, tmp_path,
+                                                                        monkeypatch, capsys):
+    run_dir = copy_run(exported, tmp_path)
+    assert export.main([str(run_dir)]) == 0
+    before = {p.relative_to(run_dir): p.read_bytes() for p in (run_dir / "export").rglob("*")
+              if p.is_file()}
+    capsys.readouterr()
+
+    def disk_full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", disk_full)  # the OS reports ENOSPC when flushing
+    assert export.main([str(run_dir)]) == 2
+    monkeypatch.undo()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the disk is full" in err[0] and str(run_dir) in err[0]
+    after = {p.relative_to(run_dir): p.read_bytes() for p in (run_dir / "export").rglob("*")
+             if p.is_file()}
+    assert after == before
+    assert not [p for p in run_dir.iterdir() if p.name.startswith(".export")]
+
+
+def test_stale_partial_dirs_of_a_killed_export_are_removed(exported, tmp_path):
+    run_dir = copy_run(exported, tmp_path)
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    stale = run_dir / f".export.{dead}-0123abcd.partial"
+    (stale / "paths").mkdir(parents=True)
+    (stale / "costmap.pgm").write_bytes(b"P5 half")
+    alive = run_dir / f".export.{os.getppid()}-0123abcd.partial"  # another live export's
+    alive.mkdir()
+    assert export.main([str(run_dir)]) == 0
+    assert not stale.exists() and alive.exists()
+
+
+@pytest.mark.slow  # a second pipeline run: 5-7 s measured on the shared 2-core machine
+def test_an_expert_file_run_exports_the_same_way(tmp_path):
+    run_dir = tmp_path / "file_run"
+    run_in_process(run_dir, "graph=small", "graph.max_nodes=80", "birl.n_iterations=1",
+                   "expert=file", "expert.path=data/demos/metropolis_handdrawn.json")
+    assert export.main([str(run_dir)]) == 0
+    n_demos = len(read_artefact(run_dir / "demos.mcap").all(topics.DEMOS))
+    counts = {t: len(m) for t, m in bag_messages(run_dir / "export" / "paths").items()}
+    assert counts["/birlg/demos"] == n_demos and counts["/birlg/people"] == 1
+    assert load_map(run_dir / "export" / "costmap.yaml").shape == (200, 200)
+
+
+def _one_error_line(capsys) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), captured.err
+    assert "Traceback" not in captured.err + captured.out
+    return lines[0]
+
+
+def test_bad_run_dirs_are_refused_in_one_line(exported, tmp_path, capsys):
+    missing = tmp_path / "nowhere"
+    assert export.main([str(missing)]) == 2
+    assert f"run dir {missing} not found" in _one_error_line(capsys)
+
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("not a run")
+    assert export.main([str(a_file)]) == 2
+    assert "is not a directory" in _one_error_line(capsys)
+
+    early = tmp_path / "early"  # a complete run that stopped before learning
+    run_in_process(early, *QUICK, "stages=[scene,demos]")
+    assert export.main([str(early)]) == 2
+    line = _one_error_line(capsys)
+    assert "birl.mcap" in line and "eval.mcap" in line and str(early) in line
+
+    killed = copy_run(exported, tmp_path / "killed")
+    write_status(killed, RUNNING, "birl", None, ["scene", "demos", "graph", "birl"],
+                 ["scene", "demos", "graph"])  # running, but nobody holds the lock
+    assert export.main([str(killed)]) == 2
+    assert "interrupted at stage birl" in _one_error_line(capsys)
+
+    failed = copy_run(exported, tmp_path / "failed")
+    write_status(failed, FAILED, "evaluate", "config error: boom", [], [])
+    assert export.main([str(failed)]) == 2
+    assert "failed at stage evaluate" in _one_error_line(capsys)
+
+    truncated = copy_run(exported, tmp_path / "truncated")
+    eval_mcap = truncated / "eval.mcap"
+    eval_mcap.write_bytes(eval_mcap.read_bytes()[:500])
+    assert export.main([str(truncated)]) == 2
+    line = _one_error_line(capsys)
+    assert str(eval_mcap) in line and "truncated" in line
+    assert not (truncated / "export").exists()
+
+    foreign = copy_run(exported, tmp_path / "foreign")  # a readable eval.mcap, odd content
+    write_artefact(foreign / "eval.mcap", [(topics.EVAL_PATHS, "LearnedPath",
+                                            {"graph": "graph", "start": 0}, 0)],
+                   config_yaml="", metadata={})
+    assert export.main([str(foreign)]) == 2
+    line = _one_error_line(capsys)
+    assert str(foreign / "eval.mcap") in line and "points" in line
+
+
+def test_a_run_dir_without_status_json_is_exported(exported, tmp_path):
+    run_dir = copy_run(exported, tmp_path)  # made before runs wrote status.json
+    (run_dir / "status.json").unlink()
+    assert export.main([str(run_dir)]) == 0
+    assert (run_dir / "export" / "costmap.pgm").read_bytes() == \
+        (exported[1] / "costmap.pgm").read_bytes()
+
+
+def test_the_command_line_prints_one_line_and_exits_2(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "pipeline.tools.export", str(tmp_path / "no")],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [f"error: run dir {tmp_path / 'no'} not found"]
