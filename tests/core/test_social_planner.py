@@ -15,7 +15,7 @@ from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import path_quality
 from pipeline.core.params import ParameterError
-from pipeline.core.roadmap import build_roadmap, segments_feasible
+from pipeline.core.roadmap import segments_feasible
 from pipeline.core.social import min_distance_to_person, relation_crossings
 from pipeline.core.social_planner import (
     SUBJECT_FIELDS,
@@ -332,14 +332,12 @@ def test_demonstrations_carry_the_learners_features_and_durations(metropolis):
         assert np.allclose(d.durations, length / 0.5)
 
 
-def test_paths_are_not_the_optimum_of_the_learners_default_reward(metropolis,
-                                                                  metropolis_paths):
+def test_paths_are_not_the_optimum_of_the_learners_default_reward(metropolis, roadmap):
     """The planner is a demonstrator the learner cannot express exactly: under the polite
     preset on the learner's own features it is worse than the optimal expert from every
     start, and it passes people closer (no hinge at 1.2 m) where the polite expert keeps
     out of the personal zone."""
     features = FeatureModel.from_scene(metropolis)
-    roadmap = build_roadmap(metropolis, features)
     mdp = roadmap.mdp()
     solution = mdp.solve(POLITE)
     optimal = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)

@@ -8,8 +8,7 @@ from pipeline.app.config import load_settings
 from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
 from tests.conftest import METROPOLIS, compose_config, run_in_process
-
-FAST = ("graph=small", "birl.n_iterations=3")
+from tests.pipeline.conftest import FAST
 
 
 def test_planner_expert_runs_without_true_weights(tmp_path, metropolis):
