@@ -203,7 +203,7 @@ class Config:
     scene: Any = MISSING
     reward: RewardConfig = MISSING
     expert: ExpertConfig = MISSING
-    mdp: MDPParams = field(default_factory=MDPParams)
+    mdp: MDPParams = MISSING
     roadmap: RoadmapParams = field(default_factory=RoadmapParams)
     graph: GraphConfig = MISSING
     birl: IRLConfig = MISSING
@@ -236,6 +236,7 @@ def register_configs() -> None:
     for kind, node in EXPERTS.items():
         cs.store(group="expert", name=f"base_{kind}", node=node)
     cs.store(group="graph", name="base_graph", node=GraphConfig)
+    cs.store(group="mdp", name="base_mdp", node=MDPParams)
     for name, method in methods().items():
         cs.store(group="birl", name=f"base_{name}", node=method.config)
 
@@ -322,4 +323,11 @@ def load_settings(cfg: DictConfig) -> Config:
         isinstance(w, list) and len(w) == d and all(is_number(x) for x in w))
     if not ok:
         raise config_error("graph.weights", w, f"null (prior mean), true (oracle) or {d} numbers")
+    if settings.mdp.undiscounted:  # every edge must cost, or a loop could pay
+        why = "<= 0 with mdp.gamma=1 (features are costs; a positive weight can make a loop pay)"
+        for key, values in (("birl.upper", list(prior.upper)),
+                            ("reward.weights", list(settings.reward.weights)),
+                            ("graph.weights", w if isinstance(w, list) else [])):
+            if any(v > 0 for v in values):
+                raise config_error(key, values, why)
     return settings

@@ -45,8 +45,7 @@ def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:
     msg = art.one(topics.DEMOS_ROADMAP)
     positions = np.asarray(msg["positions"], float)
     src, dst = np.asarray(msg["src"]), np.asarray(msg["dst"])
-    graph_mdp = GraphMDP(src, dst, msg["duration"], msg["features"], msg["terminal"],
-                         gamma=mdp.gamma, r_goal=mdp.r_goal, v_max=mdp.v_max)
+    graph_mdp = GraphMDP(src, dst, msg["duration"], msg["features"], msg["terminal"], mdp)
     return SpatialGraph(positions, graph_mdp, np.asarray(msg["start_nodes"]),
                         [positions[[a, b]] for a, b in zip(src, dst, strict=True)])
 
@@ -69,17 +68,24 @@ def decode_graph(art: Artefact, mdp: MDPParams, grown: Artefact | None = None) -
     terminal = list(sol["terminal"]) + [n["terminal"] for n in sorted(extra, key=lambda n: n["id"])]
     graph_mdp = GraphMDP([e["src"] for e in edges], [e["dst"] for e in edges],
                          [e["duration"] for e in edges], [e["features"] for e in edges],
-                         terminal, gamma=mdp.gamma, r_goal=mdp.r_goal, v_max=mdp.v_max)
+                         terminal, mdp)
     positions = np.array([[n["x"], n["y"]] for n in nodes])
     return SpatialGraph(positions, graph_mdp, np.asarray(sol["start_nodes"]),
                         [np.asarray(e["waypoints"], float) for e in edges],
                         snap_tolerance=sol["min_separation"])
 
 
+def decode_mdp_params(expert_msg: dict) -> MDPParams:
+    """The MDP settings the demonstrations were made with (demos.mcap's /demos/expert)."""
+    return MDPParams(gamma=expert_msg["gamma"], time_cost=expert_msg["time_cost"],
+                     r_goal=expert_msg["r_goal"], speed=expert_msg["speed"])
+
+
 def decode_expert_stats(demo_msgs: list[dict]) -> list[TrajectoryStats]:
     """The demonstrations of demos.mcap as the BIRL likelihood sees them."""
     return [TrajectoryStats(int(m["start_index"]), np.asarray(m["discounted_features"], float),
-                            float(m["end_discount"]), bool(m["reached"])) for m in demo_msgs]
+                            float(m["offset"]), float(m["end_discount"]), bool(m["reached"]))
+            for m in demo_msgs]
 
 
 def _none_if_nan(x: float) -> float | None:

@@ -86,6 +86,9 @@ GAMMA_T = _num("Discount at the end of the path, γ^T with T its duration in sec
                "(0 < γ^T ≤ 1).", minimum=0, maximum=1)
 PHI = _features("Discounted feature counts Φ(ξ) = Σ_t γ^{T_t} φ(e_t) of the path")
 REACHED = _bool("Whether the path ends within goal_tolerance of the goal.")
+OFFSET = _num("The part of the path's return no weight changes: −c·Σ_t γ^{T_t} τ_t (c the "
+              "cost per second, τ_t the edges' durations) plus γ^T R_goal if it reaches the "
+              "goal; Q(ξ; w) = w·Φ + offset.")
 
 SCENE = _message("Scene", "The scene (DESIGN §3): room, persons, relations, starts, goal, "
                  "obstacles. Written once, log_time 0.", {
@@ -137,7 +140,10 @@ EXPERT = _message("Expert", "Who demonstrated, under which true reward (DESIGN �
     "feature_names": FEATURE_NAMES,
     "beta": _nullable(_num("Boltzmann rationality β_E of the expert."),
                       "unless kind is boltzmann"),
-    "gamma": _num("Discount per second, γ.", exclusiveMinimum=0, maximum=1),
+    "gamma": _num("Discount per second, γ (1: undiscounted goal reaching).",
+                  exclusiveMinimum=0, maximum=1),
+    "time_cost": _num("Cost per second c: every edge's reward has −c·τ (mdp.time_cost).",
+                      minimum=0),
     "r_goal": _num("Terminal reward of the goal, R_goal."),
     "speed": _num("Robot speed used for edge durations, m/s.", exclusiveMinimum=0),
 })
@@ -148,12 +154,12 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
     "features": _features("Feature integrals φ of the whole path (undiscounted)"),
     "discounted_features": PHI,
     "end_discount": GAMMA_T,
+    "offset": OFFSET,
     "duration": _num("Duration of the path at the robot speed, seconds.", minimum=0),
     "reached": REACHED,
     "subject": _nullable(_str("Who demonstrated it (a demonstration file's `subjects`, or a "
                               "synthetic subject)."), "when unknown"),
-    "value_true": _nullable(_num("Quality of the path under w*: w*·Φ + γ^T R_goal "
-                                 "(R_goal only if reached)."),
+    "value_true": _nullable(_num("Quality of the path under w*: w*·Φ + offset."),
                             "for file and planner demonstrations"),
 })
 
@@ -236,8 +242,8 @@ BIRL_EXPERT = _message("BirlExpert", "The demonstrations as the likelihood sees 
     "beta": _nullable(_num("Likelihood temperature β."), "for methods without one"),
     "prior": _str("Prior kind: gaussian, laplace or uniform."),
     "trajectories": _array(_obj("One demonstration.", {
-        "start": _int("Start index.", minimum=0), "phi": PHI, "end_discount": GAMMA_T,
-        "reached": REACHED}), "One entry per demonstration."),
+        "start": _int("Start index.", minimum=0), "phi": PHI, "offset": OFFSET,
+        "end_discount": GAMMA_T, "reached": REACHED}), "One entry per demonstration."),
 })
 
 BIRL_ITERATION = _message("BirlIteration", "One learning iteration (log_time = index; 0 = the "
@@ -253,8 +259,8 @@ BIRL_ITERATION = _message("BirlIteration", "One learning iteration (log_time = i
         "start": _int("Start index.", minimum=0),
         "nodes": _ids("Graph node ids along the path."),
         "points": _polyline("The path"),
-        "phi": PHI, "end_discount": GAMMA_T, "reached": REACHED,
-        "quality": _num("Q(ξ; w_n) = w_n·Φ + γ^T R_goal.")}),
+        "phi": PHI, "offset": OFFSET, "end_discount": GAMMA_T, "reached": REACHED,
+        "quality": _num("Q(ξ; w_n) = w_n·Φ + offset.")}),
         "Greedy trajectory per start, in the order of Scene.starts."),
 })
 

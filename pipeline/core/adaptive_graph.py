@@ -102,6 +102,17 @@ class Candidates:
     score: np.ndarray | None = None  # (m,) exploration score
 
 
+def thin_indices(pts: np.ndarray, spacing: float) -> np.ndarray:
+    keep = [0]
+    acc = 0.0
+    for k in range(1, len(pts)):
+        acc += float(np.linalg.norm(pts[k] - pts[k - 1]))
+        if acc >= spacing or k == len(pts) - 1:
+            keep.append(k)
+            acc = 0.0
+    return np.array(keep)
+
+
 def voronoi_centroids(points: np.ndarray, room: Room) -> np.ndarray:
     """Centroids (n, 2) of the Voronoi cells of `points` (n, 2) clipped to the room.
 
@@ -297,7 +308,8 @@ class AdaptiveGraph(StateGraph):
         GP estimate of V, optimistic by gp_kappa·std) and the sparsity around them."""
         p, norm, v = self.p, self._normalisation(), c.parent
         mean, std = self._gp_estimate(v, c.ends)
-        through = norm["through"][v] - self.values[v] + c.features @ self.w + \
+        through = norm["through"][v] - self.values[v] + \
+            self.edge_rewards(c.features, c.runs.durations) + \
             self.gamma ** c.runs.durations * (mean + p.gp_kappa * std)
         quality = np.clip((through - norm["q_lo"]) / norm["q_span"], 0.0, 1.0)
         n_close = np.array([self.count_within(e, p.radius) for e in c.ends])
@@ -350,7 +362,9 @@ class AdaptiveGraph(StateGraph):
         and concentration; cached until the graph changes (failed expansions reuse it)."""
         if self._norm is None:
             through = self.values - self.solver.cost_to_come  # value of the best path through s
-            finite = np.isfinite(through)
+            # Dead ends (no way to the goal yet) get the lowest quality and stay out of the
+            # range, which their −V_max would stretch until every other node looks alike.
+            finite = np.isfinite(through) & (self.values > -self.v_max)
             q_lo = through[finite].min() if finite.any() else 0.0
             q_hi = through[finite].max() if finite.any() else 1.0
             self._norm = {"through": np.where(finite, through, q_lo), "q_lo": q_lo,

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.core.graph_mdp import GraphMDP, Solution, discounted_counts
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, Solution, TrajectoryStats
 from pipeline.core.params import require_count, require_positive
 from pipeline.errors import PipelineError
 
@@ -41,9 +41,11 @@ class Demonstration:
     def features(self) -> np.ndarray:
         return self.edge_features.sum(axis=0)
 
-    def discounted(self, gamma: float) -> tuple[np.ndarray, float]:
-        """Discounted feature counts Φ(ξ) and γ^T."""
-        return discounted_counts(self.edge_features, self.durations, gamma)
+    def stats(self, params: MDPParams) -> TrajectoryStats:
+        """The demonstration as IRL sees it: discounted feature counts Φ(ξ), γ^T and the
+        weight-free part of its return."""
+        return TrajectoryStats.from_edges(self.start_index, self.edge_features, self.durations,
+                                          params, self.reached)
 
 
 def _from_edges(mdp: GraphMDP, positions: np.ndarray, start_index: int,

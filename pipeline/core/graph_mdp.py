@@ -1,41 +1,84 @@
-"""Semi-MDP on a directed graph (DESIGN §5), solved by sparse policy iteration.
+"""Semi-MDP on a directed graph (DESIGN §5): goal reaching by shortest paths, or the
+paper's discounted form by sparse policy iteration.
 
-Nodes are states, edges are local-controller runs with a duration τ(e) and features φ(e):
+Nodes are states, edges are local-controller runs with a duration τ(e) and features φ(e).
+Every edge's reward is w·φ(e) plus a known part that no weight changes, −c·τ(e) (a cost
+per second c, `time_cost`):
 
-    Q(s, e) = w·φ(e) + γ^τ(e) · V(dst(e)),    V(s) = max_e Q(s, e)
+    Q(s, e) = w·φ(e) − c·τ(e) + γ^τ(e) · V(dst(e)),    V(s) = max_e Q(s, e)
 
-Terminal (goal) nodes have V = R_goal; a non-terminal node without out-edges is a dead end
-with V = −V_max. Policy evaluation solves V = r_π + P_π V exactly, by pointer doubling on
-the policy's successor function (a sparse solve of (I − P_π) V = r_π is the fallback).
+Terminal (goal) nodes have V = R_goal; a non-terminal node without usable out-edges is a
+dead end with V = −V_max.
+
+Two formulations (`MDPParams`):
+
+- goal reaching (the default: γ = 1, c > 0): undiscounted, every edge costs at least c·τ,
+  so every loop costs and the greedy policy reaches the goal from every node that can
+  reach it, for any weights ≤ 0 and at any scale (a 10 m room or a 50 m floor alike). An
+  out-edge is usable when the goal can be reached from its end; nodes that cannot reach
+  the goal are dead ends. V(s) = R_goal − (cheapest cost to the goal), found exactly by
+  Dijkstra's algorithm on the reversed graph (costs −r(e) > 0).
+- discounted (the paper's: γ < 1 per second, typically c = 0): with γ = 0.95/s and
+  R_goal = 1 a loop near the start beats a walk of more than about 20 m, so far goals are
+  not always reached. Solved by policy iteration; policy evaluation solves V = r_π + P_π V
+  exactly, by pointer doubling on the policy's successor function (a sparse solve of
+  (I − P_π) V = r_π is the fallback).
 """
 
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
+from scipy.sparse.csgraph import breadth_first_order, dijkstra
 from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
-from pipeline.core.params import require, require_positive
+from pipeline.core.params import is_number, require, require_positive
 
 NO_EDGE = -1
+# Dead ends' V = −v_max when v_max is not given: the paper's 10 with discounting; far below
+# any path's cost without discounting, where no choice ever compares against it.
+V_MAX_DISCOUNTED, V_MAX_UNDISCOUNTED = 10.0, 1e6
 
 
 @dataclass
 class MDPParams:
-    gamma: float = 0.95  # discount per second
+    """The graph MDP's formulation (module docstring). Defaults: goal reaching, undiscounted
+    with a cost per second; the paper's setting is gamma 0.95, time_cost 0."""
+    gamma: float = 1.0  # discount per second; 1: undiscounted goal reaching (time_cost > 0)
+    time_cost: float = 0.01  # c: every edge's reward has −c per second of its duration
     r_goal: float = 1.0  # terminal reward R_goal
-    v_max: float = 10.0  # dead ends have V = −v_max
+    # dead ends have V = −v_max; null: 10 with discounting (the paper's), 1e6 without
+    v_max: Optional[float] = None
     speed: float = 1.0  # m/s, robot speed: straight edge duration = length / speed
 
     def __post_init__(self) -> None:
-        require(0 < self.gamma < 1, "gamma", self.gamma, "0 < gamma < 1")
-        require_positive(self, "v_max", "speed")
-        require(bool(np.isfinite(self.r_goal)), "r_goal", self.r_goal, "a finite number")
+        require(is_number(self.gamma) and 0 < self.gamma <= 1, "gamma", self.gamma,
+                "0 < gamma <= 1")
+        require(is_number(self.time_cost) and self.time_cost >= 0, "time_cost",
+                self.time_cost, "a finite number >= 0")
+        require(self.gamma < 1 or self.time_cost > 0, "time_cost", self.time_cost,
+                "> 0 when gamma = 1 (undiscounted: without a cost per second a loop is free)")
+        require_positive(self, "speed")
+        if self.v_max is not None:
+            require_positive(self, "v_max")
+        require(is_number(self.r_goal), "r_goal", self.r_goal, "a finite number")
+
+    @property
+    def undiscounted(self) -> bool:
+        return self.gamma == 1.0
+
+    @property
+    def dead_end_value(self) -> float:
+        """V of a dead end, −v_max."""
+        if self.v_max is not None:
+            return -float(self.v_max)
+        return -(V_MAX_UNDISCOUNTED if self.undiscounted else V_MAX_DISCOUNTED)
 
 
 @dataclass(frozen=True)
@@ -56,12 +99,17 @@ class GraphMDP:
     """A graph semi-MDP. Edges are stored sorted by source node (CSR layout).
 
     src, dst: (E,) node ids; duration: (E,) seconds; features: (E, d) (or (E,) for d = 1);
-    terminal: (n,) bool.
+    terminal: (n,) bool; params: the formulation (default: goal reaching, MDPParams());
+    base_reward: (E,) the weight-free part of each edge's reward, default −c·τ(e) (a caller
+    whose features already hold whole rewards passes zeros).
+    Terminal nodes never act, so their out-edges are dropped; without discounting, so are
+    the edges of nodes that cannot reach the goal (dead ends) and the edges into them.
     """
 
     def __init__(self, src: ArrayLike, dst: ArrayLike, duration: ArrayLike,
-                 features: ArrayLike, terminal: ArrayLike, *, gamma: float = 0.95,
-                 r_goal: float = 1.0, v_max: float = 10.0) -> None:
+                 features: ArrayLike, terminal: ArrayLike, params: MDPParams | None = None,
+                 base_reward: ArrayLike | None = None) -> None:
+        params = params or MDPParams()
         src = np.asarray(src, dtype=np.int64)
         dst = np.asarray(dst, dtype=np.int64)
         duration = np.asarray(duration, dtype=float)
@@ -69,27 +117,31 @@ class GraphMDP:
         features = features[:, None] if features.ndim == 1 else features
         terminal = np.asarray(terminal, dtype=bool)
         n = len(terminal)
-        if not 0 < gamma < 1:
-            raise ValueError(f"gamma must be in (0, 1), got {gamma}")
         if len(src) and (src.min() < 0 or max(src.max(), dst.max()) >= n or dst.min() < 0):
             raise ValueError("edge end points must be node indices in [0, n_nodes)")
         if len(duration) and duration.min() <= 1e-9:
             # γ^0 = 1 would make a zero-duration edge a free loop (DESIGN §5).
             raise ValueError("every edge needs a positive duration")
-        # Terminal nodes never act, so their out-edges are dropped.
         keep = ~terminal[src]
+        if params.undiscounted:
+            keep &= reaches(src, dst, terminal)[dst]  # only edges from which the goal is near
         order = np.argsort(src[keep], kind="stable")
         self.edge_ids = np.flatnonzero(keep)[order]  # position -> caller's edge index
         self.src, self.dst = src[self.edge_ids], dst[self.edge_ids]
         self.duration = duration[self.edge_ids]
         self.features = features[self.edge_ids]
-        self.discount = gamma ** self.duration
+        self.params = params
+        self.gamma, self.r_goal = params.gamma, params.r_goal
+        self.v_max = -params.dead_end_value
+        self.discount = self.gamma ** self.duration
+        # The weight-free part of every edge's reward: the cost per second.
+        self.base_reward = -params.time_cost * self.duration if base_reward is None else \
+            np.asarray(base_reward, dtype=float)[self.edge_ids]
         self.terminal = terminal
         self.n_nodes = n
-        self.gamma, self.r_goal, self.v_max = gamma, r_goal, v_max
         self.indptr = np.searchsorted(self.src, np.arange(n + 1))
         self.has_out = np.diff(self.indptr) > 0
-        self.fixed_values = np.where(terminal, r_goal, -v_max)  # used where ~has_out
+        self.fixed_values = np.where(terminal, self.r_goal, -self.v_max)  # used where ~has_out
 
     @property
     def n_edges(self) -> int:
@@ -103,7 +155,8 @@ class GraphMDP:
         return out
 
     def rewards(self, w: ArrayLike) -> np.ndarray:
-        return self.features @ np.asarray(w, dtype=float)
+        """r(e) = w·φ(e) − c·τ(e) (E,) for weights w (d,)."""
+        return self.features @ np.asarray(w, dtype=float) + self.base_reward
 
     def q_values(self, w: ArrayLike, values: np.ndarray) -> np.ndarray:
         """Q(s, e) (E,) for every (internal, src-sorted) edge; w (d,), values V (n,)."""
@@ -185,9 +238,12 @@ class GraphMDP:
 
     def solve(self, w: ArrayLike, init_values: np.ndarray | None = None,
               max_iterations: int = 1000) -> Solution:
-        """Policy iteration under weights w (d,). `init_values` (n,) (e.g. the previous
-        solution, with a guess for new nodes) warm-starts it from their greedy policy."""
+        """The optimal values and greedy policy under weights w (d,): shortest paths without
+        discounting, else policy iteration, which `init_values` (n,) (e.g. the previous
+        solution, with a guess for new nodes) warm-starts from their greedy policy."""
         r = self.rewards(w)
+        if self.gamma == 1.0:
+            return self._shortest_paths(r)
         if init_values is None:
             init_values = np.where(self.has_out, 0.0, self.fixed_values)
         init_values = np.where(np.isfinite(init_values), init_values, -self.v_max)
@@ -199,6 +255,48 @@ class GraphMDP:
                 return Solution(values, policy, it)
             policy = new
         raise RuntimeError(f"policy iteration did not converge in {max_iterations} sweeps")
+
+    def _shortest_paths(self, rewards: np.ndarray) -> Solution:
+        """The undiscounted solution for edge rewards (E,), all < 0: V(s) = R_goal − the
+        cheapest cost −Σ r from s to a terminal (Dijkstra on the reversed graph, exact), the
+        greedy policy along it. Every kept edge leads to a node that reaches the goal, so
+        every acting node has a finite value."""
+        if len(rewards) and rewards.max() >= 0:
+            e = int(np.argmax(rewards))
+            raise ValueError(f"undiscounted goal reaching needs every edge to cost (reward "
+                             f"< 0); edge {self.edge_ids[e]} has reward {rewards[e]:.3g}: "
+                             "weights must be <= 0 and time_cost > 0")
+        values = self.fixed_values.copy()
+        values[self.has_out] = self.r_goal - self.cost_to_goal(rewards)[self.has_out]
+        return Solution(values, self.greedy(rewards + values[self.dst]), 1)
+
+    def cost_to_goal(self, rewards: np.ndarray) -> np.ndarray:
+        """The cheapest −Σ r (n,) from every node to a terminal node for edge rewards (E,),
+        all < 0 (inf where no terminal is reached): Dijkstra on the reversed graph."""
+        n = self.n_nodes
+        goals = np.flatnonzero(self.terminal)
+        if not len(goals) or not len(rewards):
+            return np.where(self.terminal, 0.0, np.inf)
+        keep = self._cheapest_of_each_pair(rewards)  # a sparse matrix sums duplicates
+        reverse = sp.csr_matrix((-rewards[keep], (self.dst[keep], self.src[keep])),
+                                shape=(n, n))
+        cost: np.ndarray = dijkstra(reverse, directed=True, indices=goals, min_only=True)
+        return cost
+
+    def _cheapest_of_each_pair(self, rewards: np.ndarray) -> np.ndarray:
+        """Edge indices: of several edges from one node to another, the one of highest
+        reward (all edges when no pair repeats)."""
+        if not self._repeated_pairs:
+            return np.arange(self.n_edges)
+        key = self.src * self.n_nodes + self.dst
+        order = np.lexsort((-rewards, key))
+        first = np.concatenate([[True], key[order][1:] != key[order][:-1]])
+        return order[first]
+
+    @functools.cached_property
+    def _repeated_pairs(self) -> bool:
+        key = self.src * self.n_nodes + self.dst
+        return len(np.unique(key)) < len(key)
 
     def bellman_residual(self, w: ArrayLike, values: np.ndarray) -> float:
         """max_s |V(s) − max_e Q(s, e)| over acting nodes, and |V − fixed| elsewhere; w (d,),
@@ -228,6 +326,22 @@ class GraphMDP:
                 break
             seen.add(node)
         return Path(np.array(nodes), np.array(edges, dtype=np.int64), bool(self.terminal[node]))
+
+
+def reaches(src: np.ndarray, dst: np.ndarray, terminal: np.ndarray) -> np.ndarray:
+    """Mask (n,) of the nodes from which some path of edges src -> dst (E,) reaches a
+    terminal node (terminal (n,) bool); terminal nodes themselves included."""
+    n = len(terminal)
+    found = terminal.copy()
+    goals = np.flatnonzero(terminal)
+    if not len(goals) or not len(src):
+        return found
+    # a virtual node n joined to every terminal: one search on the reversed graph
+    rows = np.concatenate([dst, np.full(len(goals), n)])
+    cols = np.concatenate([src, goals])
+    reverse = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1))
+    found[breadth_first_order(reverse, n, return_predecessors=False)[1:]] = True
+    return found
 
 
 @dataclass(frozen=True)
@@ -311,27 +425,30 @@ def discounted_counts(edge_features: ArrayLike, durations: ArrayLike,
     return phi, float(gamma ** durations.sum())
 
 
-def path_quality(phi: np.ndarray, end_discount: float, w: ArrayLike, r_goal: float,
-                 reached: bool = True) -> float:
-    """Q(ξ; w) = w·Φ(ξ) + γ^T R_goal (DESIGN §8); the goal term only if the goal is reached.
-    phi, w: (d,)."""
-    return float(np.dot(w, phi) + (end_discount * r_goal if reached else 0.0))
-
-
 @dataclass(frozen=True, eq=False)
 class TrajectoryStats:
     """A trajectory as IRL sees it: its quality is linear in the weights,
-    Q(ξ; w) = w·Φ(ξ) + γ^T R_goal [reached]."""
+
+        Q(ξ; w) = w·Φ(ξ) + offset,  offset = −c·Σ_t γ^{T_t} τ_t + γ^T R_goal [reached],
+
+    Φ the discounted feature counts and `offset` the part no weight changes (the cost per
+    second and the goal reward, DESIGN §8)."""
     start: int  # start index
     phi: np.ndarray  # (d,) discounted feature counts
+    offset: float
     end_discount: float  # γ^T
     reached: bool
 
     @classmethod
     def from_edges(cls, start: int, edge_features: np.ndarray, durations: np.ndarray,
-                   gamma: float, reached: bool) -> TrajectoryStats:
-        phi, end_discount = discounted_counts(edge_features, durations, gamma)
-        return cls(int(start), phi, end_discount, bool(reached))
+                   params: MDPParams, reached: bool) -> TrajectoryStats:
+        """edge_features (T, d), durations (T,) seconds of the edges taken in order."""
+        durations = np.asarray(durations, dtype=float)
+        feats = np.asarray(edge_features, float).reshape(len(durations), -1)
+        counts, end = discounted_counts(np.column_stack([feats, durations]), durations,
+                                        params.gamma)
+        offset = -params.time_cost * counts[-1] + (end * params.r_goal if reached else 0.0)
+        return cls(int(start), counts[:-1], float(offset), end, bool(reached))
 
-    def quality(self, w: np.ndarray, r_goal: float) -> float:
-        return path_quality(self.phi, self.end_discount, w, r_goal, self.reached)
+    def quality(self, w: ArrayLike) -> float:
+        return float(np.dot(w, self.phi) + self.offset)

@@ -8,7 +8,10 @@ solution and repairs it where the new edges can change it:
 - a switch at node u is evaluated exactly: u and every node whose policy path runs through
   u (its ancestors in the policy forest) change value by γ^{T(y→u)}·Δ;
 - a switch that would close a policy cycle falls back to a full warm-started policy
-  iteration (GraphMDP), as does any change of the reward weights.
+  iteration (GraphMDP), as does any change of the reward weights;
+- without discounting (goal reaching, graph_mdp) an edge is usable only when its end node
+  reaches the goal: a terminal node, or one that acts. A node becomes usable when its first
+  usable edge appears, and its in-neighbours are then re-checked.
 
 Every switch is a strict improvement followed by exact evaluation, and improvement is
 re-checked wherever a Q-value changed, so the result is the policy-iteration fixed point.
@@ -25,7 +28,7 @@ from collections.abc import Iterable
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 
-from pipeline.core.graph_mdp import NO_EDGE, GraphMDP
+from pipeline.core.graph_mdp import NO_EDGE, GraphMDP, MDPParams
 
 
 class GrowableArray:
@@ -48,9 +51,14 @@ class GrowableArray:
 
 
 class IncrementalGraphMDP:
-    def __init__(self, gamma: float = 0.95, r_goal: float = 1.0, v_max: float = 10.0,
-                 tol: float = 1e-12) -> None:
-        self.gamma, self.r_goal, self.v_max, self.tol = gamma, r_goal, v_max, tol
+    """The solution of a growing graph MDP under fixed edge rewards (given per edge, the
+    cost per second included)."""
+
+    def __init__(self, params: MDPParams | None = None, tol: float = 1e-12) -> None:
+        self.params = params = params or MDPParams()
+        self.gamma, self.r_goal, self.tol = params.gamma, params.r_goal, tol
+        self.v_max = -params.dead_end_value
+        self.undiscounted = params.undiscounted
         self._terminal = GrowableArray(dtype=bool)
         self._value = GrowableArray()
         self._policy = GrowableArray(dtype=np.int64)
@@ -110,7 +118,7 @@ class IncrementalGraphMDP:
     def add_node(self, terminal: bool, source: bool = False) -> int:
         idx = self.n_nodes
         self._terminal.extend(terminal)
-        self._value.extend(self.r_goal if terminal else -self.v_max)
+        self._value.extend(self.r_goal if terminal else -self.v_max)  # a dead end until it acts
         self._policy.extend(NO_EDGE)
         self._ctc.extend(0.0 if source else np.inf)
         self.out_edges.append([])
@@ -151,8 +159,9 @@ class IncrementalGraphMDP:
 
     # -- solving ---------------------------------------------------------------------------
     def mdp(self) -> GraphMDP:
+        # The rewards given per edge already hold the cost per second.
         return GraphMDP(self.src, self.dst, self.duration, self.rewards[:, None], self.terminal,
-                        gamma=self.gamma, r_goal=self.r_goal, v_max=self.v_max)
+                        self.params, base_reward=np.zeros(len(self.src)))
 
     def solve_full(self) -> None:
         """Warm-started policy iteration on the whole graph, and a full Dijkstra."""
@@ -210,7 +219,12 @@ class IncrementalGraphMDP:
             # Q of every out-edge at once (the hot loop of graph growth: 3x faster than
             # one edge at a time, the same floating-point operations per edge).
             q = self._reward.data[out] + discount[out] * value[dst[out]]
+            if self.undiscounted:  # only edges into nodes that reach the goal are usable
+                ends = dst[out]
+                q[~(self._terminal.data[ends] | (policy[ends] != NO_EDGE))] = -np.inf
             best = int(np.argmax(q))
+            if q[best] == -np.inf:
+                continue  # no usable edge yet
             cur = int(policy[u])
             q_cur = self._q(cur) if cur != NO_EDGE else -np.inf
             if q[best] <= q_cur + self.tol * (1.0 + abs(q_cur)):
@@ -222,6 +236,11 @@ class IncrementalGraphMDP:
                 self._policy_children[dst[cur]].discard(u)
             policy[u] = e
             self._policy_children[dst[e]].add(u)
+            if cur == NO_EDGE and self.undiscounted:
+                # u reaches the goal from now on; nothing acted through it before (no
+                # policy children), so its value is set, not shifted from the dead end's.
+                # The shift below is then 0 and queues its in-neighbours, which may now use it.
+                value[u] = q[best]
             delta = q[best] - value[u]
             # Exact evaluation of the new policy: u and its policy ancestors shift together.
             stack: list[tuple[int, float]] = [(u, 1.0)]

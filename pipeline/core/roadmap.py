@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import breadth_first_order
 from scipy.spatial import cKDTree
 
 from pipeline.core.features import FeatureModel
-from pipeline.core.graph_mdp import GraphMDP, SpatialGraph
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, SpatialGraph
 from pipeline.core.params import require, require_positive
 from pipeline.core.world import Scene
 
@@ -44,9 +44,8 @@ class Roadmap:
     start_nodes: np.ndarray  # node index of every scene start
     goal_node: int
 
-    def mdp(self, gamma: float = 0.95, r_goal: float = 1.0, v_max: float = 10.0) -> GraphMDP:
-        return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
-                        gamma=gamma, r_goal=r_goal, v_max=v_max)
+    def mdp(self, params: MDPParams | None = None) -> GraphMDP:
+        return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal, params)
 
     def starts_without_path_to_goal(self) -> list[int]:
         """Indices of the starts from which no sequence of roadmap edges reaches the goal."""

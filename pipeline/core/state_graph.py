@@ -94,7 +94,9 @@ class StateGraph:
         self.scene, self.fm, self.controller = scene, feature_model, controller
         self.w = np.asarray(weights, dtype=float)
         self.radius, self.max_edges, self.min_separation = radius, max_edges, min_separation
-        self.gamma, self.r_goal, self.v_max = mdp.gamma, mdp.r_goal, mdp.v_max
+        self.mdp_params = mdp
+        self.gamma, self.r_goal, self.v_max = mdp.gamma, mdp.r_goal, -mdp.dead_end_value
+        self.time_cost = mdp.time_cost
         self.iteration = 0  # growth iteration; new nodes are stamped with it
         self._pose = GrowableArray((3,))
         self.node_kind: list[str] = []
@@ -102,7 +104,7 @@ class StateGraph:
         self._added_at = GrowableArray(dtype=np.int64)
         self._gp = GrowableArray((3,))  # GP mean, GP std, exploration score at insertion
         self._n_close = GrowableArray(dtype=np.int64)  # nodes within radius (concentration)
-        self.solver = IncrementalGraphMDP(mdp.gamma, mdp.r_goal, mdp.v_max)
+        self.solver = IncrementalGraphMDP(mdp)
         self._features = GrowableArray((feature_model.dim,))
         self.waypoints: list[np.ndarray] = []  # per edge, the controller's (K+1, 2) path
         self.edge_is_demo: list[bool] = []
@@ -191,7 +193,12 @@ class StateGraph:
 
     def mdp(self) -> GraphMDP:
         return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,
-                        gamma=self.gamma, r_goal=self.r_goal, v_max=self.v_max)
+                        self.mdp_params)
+
+    def edge_rewards(self, features: np.ndarray, durations: np.ndarray) -> np.ndarray:
+        """Rewards (m,) under the current weights of edges with features (m, d) and
+        durations (m,): w·φ − c·τ, as GraphMDP.rewards."""
+        return features @ self.w - self.time_cost * np.asarray(durations, float)
 
     # -- building --------------------------------------------------------------------------
     def add_node(self, pose: Sequence[float] | np.ndarray, kind: str, parent: int = -1,
@@ -227,8 +234,9 @@ class StateGraph:
         if not keep:
             return
         feats = np.asarray(features).reshape(len(src), -1)[keep]
-        self.solver.add_edges(np.asarray(src)[keep], np.asarray(dst)[keep],
-                              np.asarray(durations)[keep], feats @ self.w)
+        durations = np.asarray(durations, float)[keep]
+        self.solver.add_edges(np.asarray(src)[keep], np.asarray(dst)[keep], durations,
+                              self.edge_rewards(feats, durations))
         self._features.extend(feats)
         self.waypoints += [waypoints[i] for i in keep]
         self.edge_is_demo += [is_demo] * len(keep)
@@ -267,7 +275,7 @@ class StateGraph:
     def set_weights(self, weights: np.ndarray) -> None:
         """Solve under new weights (d,) from now on (a full re-solve at the next update)."""
         self.w = np.asarray(weights, dtype=float)
-        self.solver.set_rewards(self.features @ self.w)
+        self.solver.set_rewards(self.edge_rewards(self.features, self.duration))
 
     def restore(self, nodes: list[dict], edges: list[dict]) -> None:
         """Rebuild stored nodes and edges (graph.mcap's records, ids in order)."""

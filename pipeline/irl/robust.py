@@ -9,8 +9,10 @@ generated set is taken to its limit: every trajectory of the adaptive graph from
 demonstration's start, weighted by the Boltzmann (soft) policy. The normaliser of eq. (2)
 is then exp(V_soft(s)), computed exactly by soft value iteration on the small graph:
 
-    log p(ξ_k | w, β) = β(w·Φ(ξ_k) + γ^T R_goal) + log μ(ξ_k) − V_soft(s_k; βw, β R_goal)
+    log p(ξ_k | w, β) = β(w·Φ(ξ_k) + b(ξ_k)) + log μ(ξ_k) − V_soft(s_k; βw, β)
 
+b(ξ) the weight-free part of the return (the cost per second and γ^T R_goal), which the
+soft values scale by β as well.
 with β learned, so noise lowers β instead of the weights. The log likelihood is concave in
 (βw, β) (log-sum-exp of affine functions), so its MAP is unique and the iterates cannot
 oscillate.
@@ -61,15 +63,16 @@ class BoltzmannPosterior:
             self.log_base = -np.log(np.diff(mdp.indptr)[mdp.src].astype(float))
         self.starts = np.array([p.nodes[0] for p in expert_paths], dtype=np.int64)
         self.empirical = np.zeros(prior.dim)  # Σ_k Φ(ξ_k) on this graph
-        self.goal_term = 0.0  # Σ_k γ^{T_k} R_goal [reached]
+        self.goal_term = 0.0  # Σ_k b(ξ_k): cost per second and γ^{T_k} R_goal [reached]
         self.base_term = 0.0  # Σ_k log μ(ξ_k), discounted like Φ: constant in (w, β)
         for p in expert_paths:
             phi, end = discounted_counts(np.column_stack([mdp.features[p.edges],
+                                                          mdp.base_reward[p.edges],
                                                           self.log_base[p.edges]]),
                                          mdp.duration[p.edges], mdp.gamma)
-            self.empirical += phi[:-1]
+            self.empirical += phi[:-2]
             self.base_term += phi[-1]
-            self.goal_term += end * mdp.r_goal if p.reached else 0.0
+            self.goal_term += phi[-2] + (end * mdp.r_goal if p.reached else 0.0)
         # Warm start of the next soft policy iteration: the last values, the parameters
         # θ = (βw, β) they belong to, and their derivative dV/dθ (n, d + 1) or None.
         self._values: np.ndarray | None = None
@@ -80,6 +83,8 @@ class BoltzmannPosterior:
         # I − γ^τ P_π in CSR, row s = [diagonal, out-edges of s in edge order]: the pattern
         # is fixed, so each solve only fills in the policy's values; the last LU (_solve).
         self._lu: SuperLU | None = None
+        # Without discounting: the last (θ, V, m, y) of _linear_soft_values
+        self._linear: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         n, rows = mdp.n_nodes, np.arange(mdp.n_nodes + 1)
         self._indptr = mdp.indptr + rows
         self._diagonal = mdp.indptr[:-1] + rows[:-1]
@@ -119,6 +124,12 @@ class BoltzmannPosterior:
         self._lu = splu(transposed)
         return self._lu.solve(rhs, trans=trans)
 
+    def _log_weights(self, theta: np.ndarray) -> np.ndarray:
+        """β·r(e) + log μ(e) (E,) at θ = (βw, β): the edges' terms of the soft Bellman
+        equation, linear in θ."""
+        mdp = self.mdp
+        return mdp.features @ theta[:-1] + theta[-1] * mdp.base_reward + self.log_base
+
     def soft_values(self, w: ArrayLike, beta: float, tol: float = 1e-10,
                     max_iter: int = 50) -> np.ndarray:
         """V(s) (n,) = log Σ_e μ(e) exp(βw·φ(e) + γ^τ(e) V(dst(e))), μ(e) the base measure's
@@ -131,7 +142,9 @@ class BoltzmannPosterior:
         mdp = self.mdp
         w = np.asarray(w, dtype=float)
         theta = np.append(beta * w, beta)
-        r, fixed = mdp.rewards(theta[:-1]) + self.log_base, beta * mdp.fixed_values
+        if mdp.gamma == 1.0:
+            return self._linear_soft_values(theta)[0]
+        r, fixed = self._log_weights(theta), beta * mdp.fixed_values
         scale = max(1.0, float(np.abs(fixed).max()))  # tolerance relative to the values' size
 
         def residual(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -168,6 +181,27 @@ class BoltzmannPosterior:
             values = new
         raise RuntimeError("soft value iteration did not converge")
 
+    def _linear_soft_values(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                             np.ndarray]:
+        """Soft values V (n,) at θ = (βw, β) without discounting, and the (m, y) they come
+        from. The soft Bellman equation is then linear in z = exp(V) (a linearly solvable
+        MDP, Todorov 2007): z(s) = Σ_e exp(βr(e) + log μ(e)) z(dst(e)). Written relative to
+        the hard values H of the same edge terms (Dijkstra), z = exp(H)·y, it reads
+        (I − M) y = 1 at absorbing nodes with M(e) = exp(βr + log μ + H(dst) − H(src)) ≤ 1
+        and y ≥ 1, so nothing under- or overflows: one sparse solve, exact (no iteration)."""
+        if self._linear is not None and np.array_equal(self._linear[0], theta):
+            return self._linear[1:]
+        mdp = self.mdp
+        edge_terms = self._log_weights(theta)
+        hard = theta[-1] * mdp.fixed_values
+        hard[mdp.has_out] = theta[-1] * mdp.r_goal - mdp.cost_to_goal(edge_terms)[mdp.has_out]
+        m = np.exp(np.minimum(edge_terms + hard[mdp.dst] - hard[mdp.src], 0.0))
+        y = self._solve(m, np.where(mdp.has_out, 0.0, 1.0), "T")
+        if not np.all(np.isfinite(y) & (y > 0)):
+            raise RuntimeError("the soft values' linear system has no positive solution")
+        self._linear = (theta.copy(), hard + np.log(y), m, y)
+        return self._linear[1:]
+
     def _keep(self, values: np.ndarray, theta: np.ndarray,
               step: np.ndarray | None) -> np.ndarray:
         """Remember values at θ for the next warm start, with dV/dθ when there was a Newton
@@ -180,6 +214,7 @@ class BoltzmannPosterior:
             rhs = np.zeros((mdp.n_nodes, d + 1))
             for j in range(d):
                 rhs[:, j] = np.bincount(mdp.src, pi * mdp.features[:, j], minlength=mdp.n_nodes)
+            rhs[:, d] = np.bincount(mdp.src, pi * mdp.base_reward, minlength=mdp.n_nodes)
             rhs[~mdp.has_out, d] = mdp.fixed_values[~mdp.has_out]
             self._jacobian = self._lu.solve(rhs, trans="T")
         elif not np.array_equal(theta, self._theta):
@@ -189,15 +224,25 @@ class BoltzmannPosterior:
 
     def expected_counts(self, w: np.ndarray, beta: float,
                         values: np.ndarray) -> tuple[np.ndarray, float]:
-        """E[Φ] (d,) and E[γ^T · fixed value] summed over the starts, under the soft policy:
-        one sparse solve for the discounted visits x = x_0 + P^T x (maxent.py)."""
+        """E[Φ] (d,) and E[b] (the weight-free part of the return: discounted cost per
+        second and γ^T · fixed value) summed over the starts, under the soft policy: one
+        sparse solve for the discounted visits x = x_0 + P^T x (maxent.py)."""
         mdp, n = self.mdp, self.mdp.n_nodes
-        q = mdp.rewards(beta * w) + self.log_base + mdp.discount * values[mdp.dst]
-        pi = np.exp(q - mdp.log_sum_exp(q)[mdp.src])
         x0 = np.bincount(self.starts, minlength=n).astype(float)
+        if mdp.gamma == 1.0:  # from the linear system's solution: π(e) = m(e) y(dst) / y(src)
+            _, m, y = self._linear_soft_values(np.append(beta * w, beta))
+            u = self._solve(m, x0 / y, "N")  # visits x = y·u
+            flow = u[mdp.src] * m * y[mdp.dst]
+            end = float((y * u)[~mdp.has_out] @ mdp.fixed_values[~mdp.has_out]
+                        + flow @ mdp.base_reward)
+            return flow @ mdp.features, end
+        q = self._log_weights(np.append(beta * w, beta)) + mdp.discount * values[mdp.dst]
+        pi = np.exp(q - mdp.log_sum_exp(q)[mdp.src])
         visits = self._solve(pi, x0, "N")
-        end = float(visits[~mdp.has_out] @ mdp.fixed_values[~mdp.has_out])
-        return (visits[mdp.src] * pi) @ mdp.features, end
+        flow = visits[mdp.src] * pi
+        end = float(visits[~mdp.has_out] @ mdp.fixed_values[~mdp.has_out]
+                    + flow @ mdp.base_reward)
+        return flow @ mdp.features, end
 
     def log_likelihood(self, w: ArrayLike, beta: float, tol: float = 1e-10) -> float:
         w = np.asarray(w, dtype=float)

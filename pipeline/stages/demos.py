@@ -18,7 +18,6 @@ from pipeline.app.config import BoltzmannExpertConfig, FileExpertConfig, Planner
 from pipeline.app.context import RunContext, resolve_path
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.core.experts import Demonstration, boltzmann_demos, optimal_demos
-from pipeline.core.graph_mdp import path_quality
 from pipeline.core.social_planner import planner_demos
 from pipeline.errors import PipelineError
 from pipeline.inputs.demo_file import load_demo_file
@@ -46,7 +45,7 @@ def run(ctx: RunContext) -> None:
             f"scene '{scene.name}': the goal cannot be reached from start(s) {cut_off} on the "
             f"reference roadmap (spacing {cfg.roadmap.spacing:g} m): the way is closed by "
             "persons' body disks or obstacles; move them or the start, or lower roadmap.spacing")
-    mdp = roadmap.mdp(md.gamma, md.r_goal, md.v_max)
+    mdp = roadmap.mdp(md)
     t1 = time.perf_counter()
     solution = mdp.solve(w_true)
     t2 = time.perf_counter()
@@ -82,16 +81,16 @@ def run(ctx: RunContext) -> None:
             "true_weights": w_true if synthetic else None,
             "feature_names": list(cfg.reward.features),
             "beta": expert.beta if isinstance(expert, BoltzmannExpertConfig) else None,
-            "gamma": md.gamma, "r_goal": md.r_goal, "speed": md.speed}, log_time=0)
+            "gamma": md.gamma, "time_cost": md.time_cost, "r_goal": md.r_goal,
+            "speed": md.speed}, log_time=0)
         for i, d in enumerate(demos):
-            phi, end_discount = d.discounted(md.gamma)
+            stats = d.stats(md)
             w.add(topics.DEMOS, "Demonstration", {
                 "start_index": d.start_index, "points": d.points, "features": d.features,
-                "discounted_features": phi, "end_discount": end_discount,
-                "duration": float(d.durations.sum()), "reached": d.reached,
-                "subject": d.subject,
-                "value_true": path_quality(phi, end_discount, w_true, md.r_goal, d.reached)
-                if synthetic else None}, log_time=i)
+                "discounted_features": stats.phi, "end_discount": stats.end_discount,
+                "offset": stats.offset, "duration": float(d.durations.sum()),
+                "reached": d.reached, "subject": d.subject,
+                "value_true": stats.quality(w_true) if synthetic else None}, log_time=i)
         w.add(topics.DEMOS_ROADMAP, "Roadmap", {
             "spacing": cfg.roadmap.spacing, "connectivity": cfg.roadmap.connectivity,
             "positions": roadmap.positions, "src": roadmap.src, "dst": roadmap.dst,

@@ -91,7 +91,7 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
     scene = load_scene_file(resolve_path(path))
     features = build.feature_model(cfg, scene)
     roadmap = build.reference_roadmap(cfg, scene, features)
-    graph = roadmap.spatial(roadmap.mdp(md.gamma, md.r_goal, md.v_max))
+    graph = roadmap.spatial(roadmap.mdp(md))
     out: dict[str, float] = {}
     if true_weights is not None:
         w_true = np.asarray(true_weights, float)

@@ -193,11 +193,8 @@ def _log_posterior_paths(rec: rr.RecordingStream, arts: dict[str, Artefact]) -> 
     if birl is None or graph_art is None or demos is None \
             or not birl.messages.get(topics.BIRL_POSTERIOR):
         return
-    from pipeline.core.graph_mdp import MDPParams
-
-    expert = demos.one(topics.DEMOS_EXPERT)
-    graph = codec.decode_graph(graph_art, MDPParams(gamma=expert["gamma"],
-                                                    r_goal=expert["r_goal"]), grown=birl)
+    graph = codec.decode_graph(graph_art, codec.decode_mdp_params(demos.one(topics.DEMOS_EXPERT)),
+                               grown=birl)
     samples = np.asarray(birl.all(topics.BIRL_POSTERIOR)[-1]["samples"], float)
     picks = np.linspace(0, len(samples) - 1, min(POSTERIOR_PATH_SAMPLES, len(samples)))
     paths = []
