@@ -3,7 +3,9 @@ config base class, and the registry that `birl=<name>` looks methods up in.
 
 Adding a method is one module in this package that defines a config dataclass (a subclass
 of IRLConfig) and a `fit(problem, config) -> IRLResult` function decorated with
-`@register("name", ConfigClass)`, plus `conf/birl/<name>.yaml`.
+`@register("name", ConfigClass)`, plus `conf/birl/<name>.yaml`. A method module imports
+the shared modules of this package (base, environment, prior, mcmc, robust, diagnostics),
+never another method's module.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from pipeline.core.graph_mdp import Path, SpatialGraph, TrajectoryStats
 from pipeline.core.params import require_count
 from pipeline.errors import PipelineError
+from pipeline.irl.environment import Environment, Rollout
 from pipeline.irl.prior import BoxConfig, Prior
 
 
@@ -38,7 +41,11 @@ class Iteration:
     weights: np.ndarray  # (d,)
     log_likelihood: float
     log_prior: float
-    generated: list[TrajectoryStats]  # greedy trajectories under these weights (one per start)
+    rollout: Rollout  # the greedy trajectories under these weights, one per start
+
+    @property
+    def generated(self) -> list[TrajectoryStats]:
+        return self.rollout.stats
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,8 +56,8 @@ class PosteriorSamples:
     acceptance_rate: float  # over the sampling steps (adaptive burn-in excluded)
     n_chains: int = 1  # samples holds the chains one after the other
     step: float = 0.0  # the proposal std used for the kept samples
-    rhat: np.ndarray | None = None  # (d,) split R-hat over the chains (ArviZ)
-    ess: np.ndarray | None = None  # (d,) bulk effective sample size (ArviZ)
+    rhat: np.ndarray | None = None  # (d,) split R-hat over the chains
+    ess: np.ndarray | None = None  # (d,) bulk effective sample size
 
     def marginal(self, d: int) -> PosteriorSamples:
         """The same samples restricted to the first d parameters."""
@@ -61,21 +68,41 @@ class PosteriorSamples:
                                 None if self.ess is None else self.ess[:d])
 
 
+@dataclass(frozen=True, eq=False)
+class Trace:
+    """The history of an iterative method that works on its own (PolicyWalk's chain,
+    MaxEnt's gradient ascent): its estimate after each recorded step (weights[0] = w0),
+    the log likelihood there and the full MDP solves spent up to it."""
+    weights: list[np.ndarray]
+    log_likelihood: list[float]
+    mdp_solves: list[int]
+
+    @property
+    def final(self) -> np.ndarray:
+        return self.weights[-1]
+
+
 @dataclass(eq=False)
 class IRLProblem:
-    """Everything a method may use. `generate(w)` solves the adaptive graph under weights w
-    (warm-started) and returns the greedy trajectory from every start; the stage records
-    those paths, so every recorded iteration should come from one call of it."""
+    """Everything a method may use. `environment.rollout(w)` solves the graph under
+    weights w and returns the greedy trajectory from every start; `record` turns one such
+    rollout into an Iteration (every recorded iteration comes from one rollout)."""
     expert: list[TrajectoryStats]  # the demonstrations as the likelihood sees them
     demo_points: list[np.ndarray]  # their polylines (K, 2)
-    graph: SpatialGraph  # the adaptive graph
-    generate: Callable[[np.ndarray], list[TrajectoryStats]]
+    environment: Environment  # the adaptive graph and its solver
     prior: Prior
     w0: np.ndarray  # (d,) initial weights, in the prior's box
-    r_goal: float
     rng: np.random.Generator
     roadmap: Callable[[], SpatialGraph]  # the reference roadmap, read on demand
     progress: Callable[[Iteration], None] | None = None
+
+    @property
+    def graph(self) -> SpatialGraph:
+        """The adaptive graph as it is now (it grows with birl.grow_nodes)."""
+        return self.environment.graph
+
+    def generate(self, w: np.ndarray) -> list[TrajectoryStats]:
+        return self.environment.rollout(np.asarray(w, float)).stats
 
     def demo_paths(self, graph: SpatialGraph) -> list[Path]:
         """The demonstrations as paths of `graph` (their waypoints are its nodes)."""
@@ -88,13 +115,19 @@ class IRLProblem:
         return paths
 
     def record(self, index: int, w: np.ndarray, log_likelihood: float) -> Iteration:
-        """An iteration for the weights w (d,): their greedy trajectories (one `generate`
-        call)."""
-        it = Iteration(index, np.asarray(w, float), float(log_likelihood),
-                       self.prior.log_pdf(w), self.generate(np.asarray(w, float)))
+        """An iteration for the weights w (d,): their greedy trajectories (one rollout)."""
+        w = np.asarray(w, float)
+        it = Iteration(index, w, float(log_likelihood), self.prior.log_pdf(w),
+                       self.environment.rollout(w))
         if self.progress is not None:
             self.progress(it)
         return it
+
+    def record_trace(self, trace: Trace) -> IRLResult:
+        """The result of a method that ran on its own: every entry of its trace recorded."""
+        records = [self.record(k, w, ll) for k, (w, ll) in
+                   enumerate(zip(trace.weights, trace.log_likelihood, strict=True))]
+        return IRLResult(records, list(trace.mdp_solves))
 
 
 @dataclass(frozen=True, eq=False)

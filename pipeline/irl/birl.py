@@ -3,7 +3,9 @@
 A trajectory ξ enters only through its discounted feature counts Φ(ξ), end discount γ^T and
 whether it reached the goal, so its quality is linear in the weights w:
 
-    Q(ξ; w) = w·Φ(ξ) + γ^T R_goal [reached]
+    Q(ξ; w) = w·Φ(ξ) + offset(ξ)
+
+offset(ξ) the part no weight changes: the cost per second and γ^T R_goal [reached].
 
 Likelihood (paper eq. 2), one term per expert demonstration k from start s_k, against the
 trajectories Ξ_G(s_k) generated from that start so far:
@@ -20,11 +22,9 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 from scipy.special import chdtri
 
@@ -38,24 +38,13 @@ from pipeline.irl.base import (
     PosteriorSamples,
     register,
 )
-from pipeline.irl.diagnostics import convergence
+from pipeline.irl.environment import Rollout
+from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BASE_MEASURES, BoltzmannPosterior, LogBetaDensity
 
 
-class LogDensity(Protocol):
-    """What the samplers need: a log posterior (−inf outside the support) and over-dispersed
-    starting points for extra chains."""
-
-    def log_posterior(self, w: ArrayLike) -> float: ...
-
-    def log_posterior_and_grad(self, w: ArrayLike) -> tuple[float, np.ndarray]: ...
-
-    def dispersed_start(self, rng: np.random.Generator) -> np.ndarray: ...
-
-
-LIKELIHOODS = ("paper", "robust")
-SAMPLERS = ("rw", "mala")
+LIKELIHOODS = ("paper", "robust", "boltzmann")
 
 
 @dataclass
@@ -88,39 +77,6 @@ class BirlMapConfig(IRLConfig):
 
 
 @dataclass
-class ChainParams:
-    """A Metropolis–Hastings chain: burn_in + n_samples·thin steps, every thin-th kept."""
-    n_samples: int = 2000
-    burn_in: int = 500
-    thin: int = 2
-    step: float = 0.05  # proposal size (random-walk std; PolicyWalk: grid step)
-
-    def __post_init__(self) -> None:
-        require_count(self, "n_samples", "thin")
-        require_count(self, "burn_in", minimum=0)
-        require_positive(self, "step")
-
-
-@dataclass
-class AdaptiveChainParams(ChainParams):
-    """Several random-walk chains whose step adapts during burn-in towards a target
-    acceptance rate (then stays fixed, so the kept samples come from a valid MH chain)."""
-    n_chains: int = 4  # chain 0 starts at the current estimate, the others at prior draws
-    target_acceptance: float = 0.3  # 0.234 is optimal for high-dimensional Gaussians
-    adapt: bool = True  # false: `step` throughout
-    # rw: random-walk Metropolis; mala: Langevin proposals along the analytic gradient
-    # (target_acceptance 0.57 is optimal for it)
-    sampler: str = "rw"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        require_count(self, "n_chains")
-        require(self.sampler in SAMPLERS, "sampler", self.sampler, f"one of {SAMPLERS}")
-        require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
-                "a number in (0, 1)")
-
-
-@dataclass
 class BirlMcmcConfig(BirlMapConfig, AdaptiveChainParams):
     kind: str = "mcmc"
 
@@ -135,8 +91,11 @@ def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     assert isinstance(config, BirlMapConfig)
     if config.likelihood == "robust":
         return fit_robust(problem, config)
-    records = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
-                       r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0,
+    if config.likelihood == "boltzmann":
+        records = _robust_loop(problem, config)[0]
+        return IRLResult(records, list(range(1, len(records) + 1)))
+    records = birl_map(problem.expert, problem.environment.rollout, problem.prior,
+                       beta=config.beta, n_iterations=config.n_iterations, w0=problem.w0,
                        progress=problem.progress)
     return IRLResult(records, list(range(1, len(records) + 1)))
 
@@ -153,14 +112,14 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     boltzmann = _boltzmann_posterior(problem, config)
     w_map, beta_map = boltzmann.map(problem.w0, config.beta)
     best = -boltzmann.neg_log_posterior(np.append(w_map, beta_map))[0]
-    paper = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
-                     r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0)
+    paper = birl_map(problem.expert, problem.environment.rollout, problem.prior,
+                     beta=config.beta, n_iterations=config.n_iterations, w0=problem.w0)
     threshold = chdtri(problem.prior.dim + 1, config.lr_level) / 2  # χ² quantile
     records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
     # Among the iterates the test keeps, eq. (2)'s posterior given every generated
     # trajectory decides (the last iterate is not the best: eq. (2)'s iterates oscillate).
     pool = [t for it in paper for t in it.generated]
-    eq2 = Posterior(problem.expert, pool, problem.prior, config.beta, problem.r_goal)
+    eq2 = Posterior(problem.expert, pool, problem.prior, config.beta)
     chosen, chosen_score = w_map, -np.inf
     admissible: dict[tuple[float, ...], bool] = {}  # iterates often repeat
     chosen_ll = boltzmann.log_likelihood(chosen, beta_map)
@@ -181,7 +140,7 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
 
 
 def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> BoltzmannPosterior:
-    graph = getattr(problem.generate, "graph", problem.graph)  # grows with grow_nodes
+    graph = problem.graph  # as grown so far (birl.grow_nodes)
     return BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), problem.prior,
                               (config.beta_min, config.beta_max), config.base_measure)
 
@@ -223,8 +182,8 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
         posteriors.append(mcmc(posterior, w_prev, problem.rng, config))
         return posteriors[-1].mean
 
-    records = birl_map(problem.expert, problem.generate, problem.prior, beta=config.beta,
-                       r_goal=problem.r_goal, n_iterations=config.n_iterations, w0=problem.w0,
+    records = birl_map(problem.expert, problem.environment.rollout, problem.prior,
+                       beta=config.beta, n_iterations=config.n_iterations, w0=problem.w0,
                        progress=problem.progress, fit=posterior_mean)
     return IRLResult(records, list(range(1, len(records) + 1)), posteriors)
 
@@ -233,10 +192,10 @@ class Posterior:
     """log p(w | Ξ_E, Ξ_G) up to a constant = log likelihood + log prior."""
 
     def __init__(self, expert: list[TrajectoryStats], generated: list[TrajectoryStats],
-                 prior: Prior, beta: float, r_goal: float) -> None:
+                 prior: Prior, beta: float) -> None:
         if not beta > 0:
             raise ValueError(f"beta must be > 0, got {beta!r}")
-        self.prior, self.beta, self.r_goal = prior, float(beta), float(r_goal)
+        self.prior, self.beta = prior, float(beta)
         by_start: defaultdict[int, list[TrajectoryStats]] = defaultdict(list)
         for t in generated:
             by_start[t.start].append(t)
@@ -251,7 +210,7 @@ class Posterior:
         if any(np.shape(t.phi) != (d,) for t in rows):
             raise ValueError(f"every trajectory's phi must have shape ({d},), like the prior")
         self.phi = np.array([t.phi for t in rows], dtype=float).reshape(len(rows), d)
-        self.offset = np.array([t.quality(np.zeros(d), r_goal) for t in rows])  # goal term
+        self.offset = np.array([t.offset for t in rows])
         self.group_starts = np.array(group_starts, dtype=np.int64)
         self.group = np.repeat(np.arange(len(expert)), np.diff([*self.group_starts, len(rows)]))
 
@@ -304,12 +263,11 @@ class Posterior:
         return np.clip(res.x, lower, upper)
 
 
-def birl_map(expert: list[TrajectoryStats],
-             generate: Callable[[np.ndarray], list[TrajectoryStats]], prior: Prior, *,
-             beta: float, r_goal: float, n_iterations: int, w0: np.ndarray,
+def birl_map(expert: list[TrajectoryStats], rollout: Callable[[np.ndarray], Rollout],
+             prior: Prior, *, beta: float, n_iterations: int, w0: np.ndarray,
              progress: Callable[[Iteration], None] | None = None,
              fit: Callable[[Posterior, np.ndarray], np.ndarray] | None = None) -> list[Iteration]:
-    """The BIRL-G loop. `generate(w)` sets the edge rewards w·φ, solves the MDP (warm start)
+    """The BIRL-G loop. `rollout(w)` sets the edge rewards w·φ, solves the MDP (warm start)
     and returns the greedy trajectory from every start. `fit(posterior, w_prev)` picks the
     next weights: the MAP estimate by default (a posterior mean for `birl=mcmc`).
     w0: (d,) initial weights in the prior box."""
@@ -320,126 +278,19 @@ def birl_map(expert: list[TrajectoryStats],
     if n_iterations < 0:
         raise ValueError(f"n_iterations must be >= 0, got {n_iterations}")
 
-    def record(index: int, w: np.ndarray, posterior: Posterior,
-               generated: list[TrajectoryStats]) -> Iteration:
-        it = Iteration(index, w, posterior.log_likelihood(w), prior.log_pdf(w), generated)
+    def record(index: int, w: np.ndarray, posterior: Posterior, rolled: Rollout) -> Iteration:
+        it = Iteration(index, w, posterior.log_likelihood(w), prior.log_pdf(w), rolled)
         if progress is not None:
             progress(it)
         return it
 
-    pool = list(generate(w.copy()))  # Ξ_G starts with the greedy trajectories under w0
-    records = [record(0, w, Posterior(expert, pool, prior, beta, r_goal), list(pool))]
+    rolled = rollout(w.copy())
+    pool = list(rolled.stats)  # Ξ_G starts with the greedy trajectories under w0
+    records = [record(0, w, Posterior(expert, pool, prior, beta), rolled)]
     for n in range(1, n_iterations + 1):
-        posterior = Posterior(expert, pool, prior, beta, r_goal)
+        posterior = Posterior(expert, pool, prior, beta)
         w = fit(posterior, w)  # warm start from the previous weights
-        generated = list(generate(w.copy()))
-        records.append(record(n, w, posterior, generated))  # scored with the Ξ_G it was fit on
-        pool += generated
+        rolled = rollout(w.copy())
+        records.append(record(n, w, posterior, rolled))  # scored with the Ξ_G it was fit on
+        pool += rolled.stats
     return records
-
-
-BURN_IN_PHASES = 4  # adaptive burn-in: the proposal shape is re-estimated after each
-
-
-def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
-         chain: ChainParams) -> PosteriorSamples:
-    """Metropolis–Hastings on a log posterior with random-walk or MALA proposals
-    (`sampler`): `n_chains` chains (an AdaptiveChainParams; one otherwise), each burn_in +
-    n_samples·thin steps keeping every thin-th state after burn-in. During burn-in the step
-    size adapts (Robbins–Monro on its logarithm) towards the target acceptance rate and the
-    proposals are reshaped by the states' covariance (below); the kept step is the chains'
-    median, frozen for the sampling phase. Chain 0 starts at w0 (d,), the others at prior
-    draws. R-hat and ESS by ArviZ (pipeline.irl.diagnostics)."""
-    n_chains = getattr(chain, "n_chains", 1)
-    adapt = getattr(chain, "adapt", False)
-    mala = getattr(chain, "sampler", "rw") == "mala"
-    target = getattr(chain, "target_acceptance", 0.3)
-    w = np.asarray(w0, dtype=float).copy()
-    if not np.isfinite(posterior.log_posterior(w)):
-        raise ValueError(f"mcmc must start inside the box (posterior > 0), got {w}")
-    starts = [w] + [posterior.dispersed_start(rng) for _ in range(n_chains - 1)]
-    steps = np.full(n_chains, chain.step)
-    chol: np.ndarray = np.eye(len(w))
-    if adapt and chain.burn_in > 0:
-        # Burn-in in phases: adapt the step with isotropic proposals, then shape the
-        # proposals by the covariance of the previous phase's states (pooled over chains;
-        # adaptive Metropolis, Haario et al. 2001) and adapt the step again, re-estimating
-        # the shape each phase: one estimate from a short isotropic phase is too poor when
-        # the posterior is elongated (R-hat 1.10 on metropolis with two phases, 1.03–1.05
-        # with four).
-        phases = np.diff(np.linspace(0, chain.burn_in, BURN_IN_PHASES + 1).round()).astype(int)
-        for phase, length in enumerate(phases):
-            states = []
-            for c in range(n_chains):
-                burnt, steps[c], _ = _chain(posterior, starts[c], rng, int(length), 1,
-                                            steps[c], target, chol=chol, mala=mala)
-                starts[c] = burnt[-1] if len(burnt) else starts[c]
-                states.append(burnt[len(burnt) // 2:])
-            cov = np.cov(np.concatenate(states).T).reshape(len(w), len(w))
-            shape = phase < len(phases) - 1  # the last phase only adapts the step
-            if shape and np.all(np.isfinite(cov)) and np.linalg.matrix_rank(cov) == len(w):
-                chol = np.linalg.cholesky(cov + 1e-10 * np.eye(len(w)))
-                # the optimal scales for a Gaussian target (Roberts & Rosenthal 2001)
-                steps[:] = 1.65 * len(w) ** (-1 / 6) if mala else 2.38 / np.sqrt(len(w))
-        steps[:] = np.median(steps)
-        burn_in = 0
-    else:
-        burn_in = chain.burn_in
-    kept, accepted = [], 0
-    for c in range(n_chains):
-        samples, _, acc = _chain(posterior, starts[c], rng, burn_in + chain.n_samples * chain.thin,
-                                 chain.thin, steps[c], None, skip=burn_in, chol=chol,
-                                 mala=mala)
-        kept.append(samples)
-        accepted += acc
-    draws = np.stack(kept)  # (chains, n_samples, d)
-    flat = draws.reshape(-1, draws.shape[-1])
-    n_steps = n_chains * (burn_in + chain.n_samples * chain.thin)
-    rhat, ess = convergence(draws)
-    return PosteriorSamples(flat, flat.mean(axis=0), flat.std(axis=0), accepted / n_steps,
-                            n_chains=n_chains, step=float(steps[0]), rhat=rhat, ess=ess)
-
-
-def _chain(posterior: LogDensity, w: np.ndarray, rng: np.random.Generator, n_steps: int,
-           thin: int, step: float, target: float | None, skip: int = 0,
-           chol: np.ndarray | None = None, mala: bool = False) -> tuple[np.ndarray, float, int]:
-    """One chain of n_steps from w: the states after `skip` steps, every thin-th; the step
-    (adapted towards `target` acceptance when given); the number of accepted proposals.
-    Random walk: proposals w + step·L·z, z standard normal (L = chol (d, d), identity if
-    None). MALA: w + (step²/2)·LLᵀ·∇log p(w) + step·L·z, accepted with the proposal
-    densities' ratio (the posterior's `log_posterior_and_grad`)."""
-    w = np.asarray(w, dtype=float).copy()
-    lp, grad = posterior.log_posterior_and_grad(w) if mala else \
-        (posterior.log_posterior(w), np.zeros(len(w)))  # random walk: no gradient used
-    # Draw all randomness up front: fast, and the chain depends only on the generator's state.
-    noise = rng.standard_normal((n_steps, len(w)))
-    moves = noise @ chol.T if chol is not None else noise
-    lower = chol if chol is not None else np.eye(len(w))
-    cov = lower @ lower.T
-    log_u = np.log(rng.uniform(size=n_steps))
-    samples = np.empty(((n_steps - skip) // thin, len(w)))
-    accepted, log_step = 0, np.log(step)
-    for i in range(n_steps):
-        eps = np.exp(log_step)
-        grad_new = grad
-        if not mala:
-            proposal = w + eps * moves[i]
-            lp_new = posterior.log_posterior(proposal)  # −inf outside the box: rejected
-            log_ratio = lp_new - lp
-        else:
-            proposal = w + 0.5 * eps**2 * (cov @ grad) + eps * moves[i]
-            lp_new, grad_new = posterior.log_posterior_and_grad(proposal)
-            log_ratio = -np.inf
-            if np.isfinite(lp_new):  # log q(w | proposal) − log q(proposal | w)
-                back = solve_triangular(lower, w - proposal - 0.5 * eps**2 * (cov @ grad_new),
-                                        lower=True) / eps
-                log_ratio = lp_new - lp - 0.5 * back @ back + 0.5 * noise[i] @ noise[i]
-        ok = bool(log_u[i] < log_ratio)  # min(1, exp(log ratio)) in log space
-        if ok:
-            w, lp, grad, accepted = proposal, lp_new, grad_new, accepted + 1
-        if target is not None:  # diminishing adaptation: steps of size 1/sqrt(i + 1)
-            log_step += (float(ok) - target) / np.sqrt(i + 1)
-        kept = i - skip
-        if kept >= 0 and kept % thin == thin - 1:
-            samples[kept // thin] = w
-    return samples, float(np.exp(log_step)), accepted

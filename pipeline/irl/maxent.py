@@ -7,7 +7,7 @@ gradient ascent (Adam) in the weight box. One soft value iteration counts as one
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -16,14 +16,17 @@ from scipy.sparse.linalg import spsolve
 
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
 from pipeline.core.params import require_positive
-from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, register
-from pipeline.irl.policywalk import BaselineResult
+from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, Trace, register
 
 
 @dataclass
 class MaxEntConfig(IRLConfig):
+    """Soft values reward branching (16 out-edges per lattice node), so feature matching
+    needs costs far beyond the BIRL box: the box is widened to [-100, 0]."""
     kind: str = "maxent"
-    learning_rate: float = 0.5  # projected Adam step (decays as 1/sqrt(t))
+    lower: list[float] = field(default_factory=lambda: [-100.0])
+    n_iterations: int = 60
+    learning_rate: float = 5.0  # projected Adam step (decays as 1/sqrt(t))
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -35,14 +38,20 @@ def fit_maxent(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     """MaxEnt on the roadmap; every iterate's greedy paths are recorded on the graph."""
     assert isinstance(config, MaxEntConfig)
     roadmap = problem.roadmap()
-    result = maxent_irl(roadmap.mdp, problem.demo_paths(roadmap),
-                        (problem.prior.lower, problem.prior.upper),
-                        n_iterations=config.n_iterations, learning_rate=config.learning_rate,
-                        w0=problem.w0)
-    records = [problem.record(k, w, ll)
-               for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood,
-                                               strict=True))]
-    return IRLResult(records, list(range(1, len(records) + 1)))
+    trace = maxent_irl(roadmap.mdp, problem.demo_paths(roadmap),
+                       (problem.prior.lower, problem.prior.upper),
+                       n_iterations=config.n_iterations, learning_rate=config.learning_rate,
+                       w0=problem.w0)
+    return problem.record_trace(trace)
+
+
+@dataclass(frozen=True, eq=False)
+class MaxEntTrace(Trace):
+    """MaxEnt's iterates (Trace: one soft value iteration each, counted as one MDP solve)
+    and the feature matching they reached."""
+    grad_norm: list[float]  # |empirical − expected counts| per iterate
+    empirical_counts: np.ndarray  # (d,)
+    expected_counts: np.ndarray  # (d,) at the last iterate
 
 
 def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10, max_iter: int = 10_000,
@@ -89,7 +98,7 @@ def expected_discounted_counts(mdp: GraphMDP, w: ArrayLike, start_nodes: ArrayLi
 
 
 def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndarray, np.ndarray],
-               *, n_iterations: int, learning_rate: float, w0: np.ndarray) -> BaselineResult:
+               *, n_iterations: int, learning_rate: float, w0: np.ndarray) -> MaxEntTrace:
     """Discounted MaxEnt IRL by projected Adam ascent (step learning_rate/√t) in the box.
 
     Objective (concave in w): L(w) = Σ_k [w·Φ_E(k) + γ^{T_k} R_goal [reached] − V_soft(s_k)],
@@ -111,10 +120,11 @@ def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndar
     starts = np.array([p.nodes[0] for p in expert_paths], dtype=np.int64)
     empirical, goal_term = np.zeros_like(w), 0.0
     for p in expert_paths:
-        phi, end_discount = discounted_counts(mdp.features[p.edges], mdp.duration[p.edges],
-                                              mdp.gamma)
-        empirical += phi
-        goal_term += end_discount * mdp.r_goal if p.reached else 0.0
+        phi, end_discount = discounted_counts(np.column_stack([mdp.features[p.edges],
+                                                               mdp.base_reward[p.edges]]),
+                                              mdp.duration[p.edges], mdp.gamma)
+        empirical += phi[:-1]
+        goal_term += phi[-1] + (end_discount * mdp.r_goal if p.reached else 0.0)
 
     m, v = np.zeros_like(w), np.zeros_like(w)  # Adam moments
     beta1, beta2, eps = 0.9, 0.999, 1e-8
@@ -136,6 +146,5 @@ def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndar
         m_hat, v_hat = m / (1 - beta1 ** (t + 1)), v / (1 - beta2 ** (t + 1))
         w = np.clip(w + learning_rate / np.sqrt(t + 1) * m_hat / (np.sqrt(v_hat) + eps),
                     lower, upper)  # ascent, then projection onto the box
-    extra = {"grad_norm": grad_norm, "empirical_counts": empirical,
-             "expected_counts": empirical - grad}
-    return BaselineResult(w, history, log_likelihood, n_iterations + 1, extra)
+    return MaxEntTrace(history, log_likelihood, list(range(1, n_iterations + 2)), grad_norm,
+                       empirical, empirical - grad)

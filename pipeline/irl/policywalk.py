@@ -7,15 +7,15 @@ cost BIRL-G avoids. The weights are the running posterior mean.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from pipeline.core.graph_mdp import GraphMDP, Path
 from pipeline.core.params import require_positive
-from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, register
-from pipeline.irl.birl import ChainParams
+from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, Trace, register
+from pipeline.irl.mcmc import ChainParams
 from pipeline.irl.prior import Prior
 
 
@@ -23,6 +23,8 @@ from pipeline.irl.prior import Prior
 class PolicyWalkConfig(IRLConfig, ChainParams):
     kind: str = "policywalk"
     alpha: float = 10.0  # expert confidence in its Boltzmann likelihood
+    n_samples: int = 600  # kept states (each a full MDP solve)
+    burn_in: int = 200
 
     def __post_init__(self) -> None:
         IRLConfig.__post_init__(self)
@@ -36,21 +38,17 @@ def fit_policywalk(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     assert isinstance(config, PolicyWalkConfig)
     mdp = problem.graph.mdp
     expert = expert_state_actions(mdp, problem.demo_paths(problem.graph))
-    result = policywalk(mdp, expert, problem.prior, problem.rng, alpha=config.alpha,
-                        chain=config, w0=problem.w0, n_records=config.n_iterations)
-    records = [problem.record(k, w, ll)
-               for k, (w, ll) in enumerate(zip(result.history, result.log_likelihood,
-                                               strict=True))]
-    return IRLResult(records, result.extra["solves_at_record"])
+    trace = policywalk(mdp, expert, problem.prior, problem.rng, alpha=config.alpha,
+                       chain=config, w0=problem.w0, n_records=config.n_iterations)
+    return problem.record_trace(trace)
 
 
 @dataclass(frozen=True, eq=False)
-class BaselineResult:
-    weights: np.ndarray  # final estimate: posterior mean (PolicyWalk), last iterate (MaxEnt)
-    history: list[np.ndarray]  # estimate after each recorded iteration; history[0] = w0
-    log_likelihood: list[float]  # per history entry
-    mdp_solves: int  # full MDP solves the algorithm performed (not those spent on recording)
-    extra: dict = field(default_factory=dict)
+class PolicyWalkTrace(Trace):
+    """PolicyWalk's running posterior mean (Trace), and its chain."""
+    samples: np.ndarray  # (n_samples, d) the kept states
+    acceptance_rate: float
+    out_of_box: int  # proposals outside the prior box (rejected without a solve)
 
 
 def expert_state_actions(mdp: GraphMDP, paths: list[Path]) -> list[tuple[int, int]]:
@@ -74,7 +72,7 @@ def _boltzmann_log_likelihood(mdp: GraphMDP, nodes: np.ndarray, edges: np.ndarra
 
 def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
                rng: np.random.Generator, *, alpha: float, chain: ChainParams, w0: np.ndarray,
-               n_records: int = 20) -> BaselineResult:
+               n_records: int = 20) -> PolicyWalkTrace:
     """PolicyWalk: MH on the grid w0 + step·Z^d. A proposal moves one random coordinate by
     ±step (symmetric, so the acceptance is min(1, exp(Δ log posterior))); proposals outside
     the prior box are rejected without a solve (posterior 0), every other one solves the MDP
@@ -140,10 +138,5 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
         history.append(mean)
         log_likelihood.append(log_lik(mean, mdp.solve(mean, init_values=sol.values).values))
         solves_at.append(int(solves_after[burn_in + k * thin - 1]))
-    extra = {"samples": samples, "posterior_std": samples.std(axis=0),
-             "acceptance_rate": accepted / n_steps, "n_proposals": n_steps,
-             "out_of_box": outside, "solves_at_record": solves_at,
-             "record_solves": len(ends)}
-    return BaselineResult(history[-1], history, log_likelihood, solves, extra)
-
-
+    return PolicyWalkTrace(history, log_likelihood, solves_at, samples, accepted / n_steps,
+                           outside)
