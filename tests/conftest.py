@@ -32,7 +32,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 from pipeline.app.config import register_configs
-from pipeline.core.graph_mdp import GraphMDP
+from pipeline.core.graph_mdp import GraphMDP, MDPParams
 from pipeline.core.graph_mdp import Path as GraphPath
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.stages import run_pipeline
@@ -43,6 +43,8 @@ OFFICE_SCENE = ROOT / "data" / "scenes" / "office.json"
 OFFICE_MAP = ROOT / "data" / "maps" / "office.yaml"
 POLITE = np.array([-1.0, -0.7, -0.85, -0.1])
 RUDE = np.array([0.0, 0.0, -0.85, -0.1])
+# The paper's discounted graph MDP (mdp=paper), for tests of that formulation.
+PAPER_MDP = MDPParams(gamma=0.95, time_cost=0.0)
 
 register_configs()
 
@@ -194,7 +196,7 @@ def two_routes():
     src, dst = [0, 0, 1, 1], [3, 1, 3, 2]
     feats = [[1.0], [0.2], [0.3], [0.0]]
     mdp = GraphMDP(src, dst, np.ones(4), feats, [False, False, False, True],
-                   gamma=TWO_ROUTES_GAMMA)
+                   MDPParams(gamma=TWO_ROUTES_GAMMA, time_cost=0.0))
     edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
     route_a = GraphPath([0, 3], [edge[0, 3]], True)
     route_b = GraphPath([0, 1, 3], [edge[0, 1], edge[1, 3]], True)

@@ -9,7 +9,6 @@ from scipy.special import expit
 
 from pipeline.core.experts import BoltzmannParams, boltzmann_demos, optimal_demos
 from pipeline.core.features import FeatureModel
-from pipeline.core.graph_mdp import discounted_counts
 from pipeline.core.social import INTIMATE_ZONE, min_distance_to_person, path_metrics
 from tests.conftest import POLITE, RUDE, two_routes
 
@@ -53,8 +52,8 @@ def test_demo_features_match_polyline(metropolis, roadmap, mdp):
 def test_optimal_demo_value_equals_roadmap_value(roadmap, mdp):
     sol = mdp.solve(POLITE)
     for k, d in enumerate(optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, sol)):
-        phi, end = discounted_counts(d.edge_features, d.durations, mdp.gamma)
-        assert POLITE @ phi + end * mdp.r_goal == pytest.approx(sol.values[roadmap.start_nodes[k]])
+        quality = d.stats(mdp.params).quality(POLITE)
+        assert quality == pytest.approx(sol.values[roadmap.start_nodes[k]])
 
 
 def test_boltzmann_demos_are_seeded_noisy_and_worse(roadmap, mdp):
@@ -69,8 +68,7 @@ def test_boltzmann_demos_are_seeded_noisy_and_worse(roadmap, mdp):
     assert any(not np.array_equal(x.points, y.points) for x, y in zip(a, c, strict=True))
     assert all(d.reached for d in a)
     for k, d in enumerate(a):
-        phi, end = discounted_counts(d.edge_features, d.durations, mdp.gamma)
-        assert POLITE @ phi + end <= sol.values[roadmap.start_nodes[k]] + 1e-9
+        assert d.stats(mdp.params).quality(POLITE) <= sol.values[roadmap.start_nodes[k]] + 1e-9
 
 
 def test_several_boltzmann_demos_per_start():

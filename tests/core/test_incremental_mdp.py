@@ -5,13 +5,19 @@ import pytest
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
+from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.incremental_mdp import IncrementalGraphMDP
 
+FORMULATIONS = {"discounted": MDPParams(gamma=0.9, time_cost=0.0, r_goal=1.0, v_max=5.0),
+                "goal": MDPParams(time_cost=0.05, r_goal=1.0)}
 
+
+@pytest.mark.parametrize("formulation", FORMULATIONS)
 @pytest.mark.parametrize("seed", range(4))
-def test_growing_graph_matches_full_solution_at_every_step(seed):
+def test_growing_graph_matches_full_solution_at_every_step(seed, formulation):
     rng = np.random.default_rng(seed)
-    inc = IncrementalGraphMDP(gamma=0.9, r_goal=1.0, v_max=5.0)
+    params = FORMULATIONS[formulation]
+    inc = IncrementalGraphMDP(params)
     inc.add_node(terminal=True)  # goal
     for _ in range(3):
         inc.add_node(terminal=False, source=True)  # starts
@@ -27,7 +33,10 @@ def test_growing_graph_matches_full_solution_at_every_step(seed):
             dst += list(others[:3]) + [c] * len(others[3:])
         pairs = [(a, b) for a, b in dict.fromkeys(zip(src, dst, strict=True)) if a != b]
         src, dst = map(np.array, zip(*pairs, strict=True))
-        inc.add_edges(src, dst, rng.uniform(0.2, 1.5, len(src)), -rng.uniform(0, 0.3, len(src)))
+        durations = rng.uniform(0.2, 1.5, len(src))
+        # whole rewards, the cost per second included (as StateGraph gives them)
+        inc.add_edges(src, dst, durations,
+                      -rng.uniform(0, 0.3, len(src)) - params.time_cost * durations)
         inc.update()
         mdp = inc.mdp()
         full = mdp.solve([1.0])
@@ -41,7 +50,7 @@ def test_growing_graph_matches_full_solution_at_every_step(seed):
 
 def test_new_rewards_resolve_exactly():
     rng = np.random.default_rng(9)
-    inc = IncrementalGraphMDP(gamma=0.8)
+    inc = IncrementalGraphMDP(MDPParams(gamma=0.8, time_cost=0.0))
     for k in range(20):
         inc.add_node(terminal=(k == 0), source=(k == 1))
     src = rng.integers(0, 20, 80)

@@ -4,6 +4,7 @@ graph of three routes whose optimal route is known for every weight."""
 import numpy as np
 
 from pipeline.core.graph_mdp import GraphMDP, Path
+from tests.conftest import PAPER_MDP
 
 D = 4
 BOX = (-np.ones(D), np.zeros(D))
@@ -26,7 +27,7 @@ def three_routes():
     feats = [[1, 0], [0, 1], [0.85, 0.85], [0, 0], [0, 0], [0, 0], [0, 0]]
     terminal = np.zeros(6, bool)
     terminal[4] = True
-    mdp = GraphMDP(src, dst, np.ones(7), feats, terminal, gamma=0.95)
+    mdp = GraphMDP(src, dst, np.ones(7), feats, terminal, PAPER_MDP)
     routes = {k: Path(np.array([0, via, 4]), np.array([via - 1, via + 3]), True)
               for k, via in zip("ABC", (1, 2, 3), strict=True)}
     return mdp, routes

@@ -6,14 +6,18 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.core.graph_mdp import TrajectoryStats
-from pipeline.irl.birl import AdaptiveChainParams, ChainParams, Posterior, birl_map, mcmc
+from pipeline.core.graph_mdp import MDPParams, TrajectoryStats
+from pipeline.irl.birl import Posterior, birl_map
+from pipeline.irl.environment import Rollout
+from pipeline.irl.mcmc import AdaptiveChainParams, ChainParams, mcmc
 from pipeline.irl.prior import Prior
 from tests.irl.conftest import BOX, D, central_difference
 
 
 def traj(start, phi, end_discount=0.5, reached=True):
-    return TrajectoryStats(start, np.asarray(phi, float), end_discount, reached)
+    """A trajectory with R_goal = 1 and no cost per second: offset γ^T [reached]."""
+    return TrajectoryStats(start, np.asarray(phi, float), end_discount if reached else 0.0,
+                           end_discount, reached)
 
 
 def random_data(rng, n_starts=3, n_gen=4, d=D):
@@ -34,7 +38,7 @@ def test_gradients_match_finite_differences(seed, kind):
     rng = np.random.default_rng(seed)
     expert, generated = random_data(rng)
     prior = Prior(kind, 0.7, *BOX, mean=np.full(D, -0.5))
-    post = Posterior(expert, generated, prior, beta=1.5, r_goal=1.0)
+    post = Posterior(expert, generated, prior, beta=1.5)
     w = rng.uniform(-0.9, -0.1, D)
     w[np.abs(w + 0.5) < 1e-3] = -0.3  # keep the Laplace prior away from its kink
     for f, grad in [(post.log_likelihood, post.grad_log_likelihood),
@@ -43,7 +47,7 @@ def test_gradients_match_finite_differences(seed, kind):
 
 
 def test_log_likelihood_is_equation_2_by_hand():
-    beta, r_goal = 2.0, 1.0
+    beta = 2.0
     expert = [traj(0, [1, 2], 0.5), traj(1, [3, 0], 0.8)]
     generated = [traj(0, [2, 1], 0.4), traj(0, [0.5, 3], 0.6, reached=False),
                  traj(1, [1, 1], 0.9), traj(2, [5, 5], 0.1)]  # start 2 has no demo
@@ -57,28 +61,34 @@ def test_log_likelihood_is_equation_2_by_hand():
     expected = (beta * q_e0 - math.log(math.exp(beta * q_e0) + math.exp(beta * q_g0[0])
                                        + math.exp(beta * q_g0[1]))
                 + beta * q_e1 - math.log(math.exp(beta * q_e1) + math.exp(beta * q_g1[0])))
-    post = Posterior(expert, generated, prior, beta=beta, r_goal=r_goal)
+    post = Posterior(expert, generated, prior, beta=beta)
     assert post.log_likelihood(w) == pytest.approx(expected, rel=1e-12)
     assert post.log_posterior(w) == pytest.approx(expected, rel=1e-12)  # uniform prior: + 0
-    assert expert[0].quality(w, r_goal) == pytest.approx(q_e0)
+    assert expert[0].quality(w) == pytest.approx(q_e0)
 
 
 def test_trajectory_stats_from_edges():
-    feats, durations, gamma = np.array([[1.0, 0.0], [0.5, 2.0]]), np.array([2.0, 1.0]), 0.9
-    t = TrajectoryStats.from_edges(3, feats, durations, gamma, reached=True)
+    feats, durations = np.array([[1.0, 0.0], [0.5, 2.0]]), np.array([2.0, 1.0])
+    params = MDPParams(gamma=0.9, time_cost=0.0, r_goal=2.0)
+    t = TrajectoryStats.from_edges(3, feats, durations, params, reached=True)
     np.testing.assert_allclose(t.phi, [1.0 + 0.9**2 * 0.5, 0.9**2 * 2.0])
     assert t.end_discount == pytest.approx(0.9**3) and t.start == 3 and t.reached
-    assert t.quality([-1.0, -0.5], 2.0) == pytest.approx(-t.phi[0] - 0.5 * t.phi[1] + 2 * 0.9**3)
+    assert t.quality([-1.0, -0.5]) == pytest.approx(-t.phi[0] - 0.5 * t.phi[1] + 2 * 0.9**3)
+    # Without discounting the cost per second adds −c·T: −0.1·3 s.
+    t = TrajectoryStats.from_edges(3, feats, durations, MDPParams(time_cost=0.1, r_goal=2.0),
+                                   reached=True)
+    np.testing.assert_allclose(t.phi, [1.5, 2.0])
+    assert t.offset == pytest.approx(-0.3 + 2.0)
 
 
 def test_posterior_rejects_mismatched_dimensions():
     with pytest.raises(ValueError, match="phi"):
-        Posterior([traj(0, [1.0, 2.0])], [], Prior("uniform", 1.0, *BOX), beta=1.0, r_goal=1.0)
+        Posterior([traj(0, [1.0, 2.0])], [], Prior("uniform", 1.0, *BOX), beta=1.0)
 
 
 def test_likelihood_is_stable_for_large_beta():
     expert, generated = random_data(np.random.default_rng(0))
-    post = Posterior(expert, generated, Prior("uniform", 1.0, *BOX), beta=1e4, r_goal=1.0)
+    post = Posterior(expert, generated, Prior("uniform", 1.0, *BOX), beta=1e4)
     assert np.isfinite(post.log_likelihood(-0.5 * np.ones(D)))
     assert np.all(np.isfinite(post.grad_log_likelihood(-0.5 * np.ones(D))))
 
@@ -88,20 +98,20 @@ def test_likelihood_is_stable_for_large_beta():
 def test_map_at_upper_bound_when_likelihood_increases():
     # Q_E − Q_G = w (2 − 1): log likelihood −log(1 + exp(−βw)) increases in w.
     post = Posterior([traj(0, [2.0])], [traj(0, [1.0])], Prior("uniform", 1.0, [-1.0], [0.0]),
-                     beta=3.0, r_goal=1.0)
+                     beta=3.0)
     for w0 in (-1.0, -0.5, 0.0, 5.0):
         np.testing.assert_allclose(post.map([w0]), [0.0], atol=1e-8)
 
 
 def test_map_without_data_is_prior_mean_clipped_into_box():
     prior = Prior("gaussian", 0.5, *BOX, mean=np.array([0.5, -0.3, -2.0, -0.7]))
-    post = Posterior([], [], prior, beta=1.0, r_goal=1.0)
+    post = Posterior([], [], prior, beta=1.0)
     np.testing.assert_allclose(post.map(np.full(D, -0.5)), [0.0, -0.3, -1.0, -0.7], atol=1e-6)
 
 
 def test_map_interior_optimum_matches_grid_search():
     prior = Prior("gaussian", 0.4, [-1.0], [0.0])
-    post = Posterior([traj(0, [1.0])], [traj(0, [2.0])], prior, beta=4.0, r_goal=1.0)
+    post = Posterior([traj(0, [1.0])], [traj(0, [2.0])], prior, beta=4.0)
     grid = np.linspace(-1, 0, 200_001)
     best = grid[np.argmax([post.log_posterior([x]) for x in grid[::100]]) * 100]
     assert -1 < post.map([0.0])[0] < 0
@@ -114,7 +124,7 @@ def test_map_stays_in_box(seed):
     expert, generated = random_data(rng)
     for kind in ("gaussian", "laplace", "uniform"):
         prior = Prior(kind, 0.5, *BOX, mean=rng.uniform(-2, 1, D))
-        w = Posterior(expert, generated, prior, beta=5.0, r_goal=1.0).map(rng.uniform(-3, 2, D))
+        w = Posterior(expert, generated, prior, beta=5.0).map(rng.uniform(-3, 2, D))
         assert prior.in_box(w)
 
 
@@ -126,9 +136,9 @@ def tiny_environment(seed, n_starts=3, n_candidates=6, d=3):
     candidates = [[traj(s, rng.uniform(0, 3, d), rng.uniform(0.3, 0.9))
                    for _ in range(n_candidates)] for s in range(n_starts)]
 
-    def generate(w):
-        return [max(c, key=lambda t: t.quality(w, 1.0)) for c in candidates]
-    return generate
+    def rollout(w):
+        return Rollout([max(c, key=lambda t: t.quality(w)) for c in candidates], [], None)
+    return rollout
 
 
 def same_trajectories(a, b):
@@ -140,41 +150,41 @@ def test_birl_map_recovers_expert_behaviour():
     prior = Prior("uniform", 1.0, -np.ones(3), np.zeros(3))  # MAP = max likelihood in the box
     started_apart = 0
     for seed in range(10):
-        generate = tiny_environment(seed)
-        expert = generate(w_star)
-        records = birl_map(expert, generate, prior, beta=10.0, r_goal=1.0, n_iterations=5, w0=w0)
+        rollout = tiny_environment(seed)
+        expert = rollout(w_star).stats
+        records = birl_map(expert, rollout, prior, beta=10.0, n_iterations=5, w0=w0)
         started_apart += not same_trajectories(records[0].generated, expert)
         assert same_trajectories(records[-1].generated, expert), f"seed {seed}"
         # Scored against the same Ξ_G (the one the final MAP step used), w_N beats w0.
         pool = [t for r in records[:-1] for t in r.generated]
-        post = Posterior(expert, pool, prior, beta=10.0, r_goal=1.0)
+        post = Posterior(expert, pool, prior, beta=10.0)
         assert records[-1].log_likelihood == pytest.approx(post.log_likelihood(records[-1].weights))
         assert records[-1].log_likelihood >= post.log_likelihood(w0)
     assert started_apart >= 5  # most cases need learning, not just the initial weights
 
 
 def test_birl_map_records():
-    generate = tiny_environment(0)
-    expert = generate(np.array([-0.9, -0.2, -0.5]))
+    rollout = tiny_environment(0)
+    expert = rollout(np.array([-0.9, -0.2, -0.5])).stats
     prior = Prior("gaussian", 0.5, -np.ones(3), np.zeros(3))
     w0, seen = prior.box_mean(), []
-    records = birl_map(expert, generate, prior, beta=10.0, r_goal=1.0, n_iterations=4, w0=w0,
+    records = birl_map(expert, rollout, prior, beta=10.0, n_iterations=4, w0=w0,
                        progress=seen.append)
     assert [r.index for r in records] == list(range(5)) and seen == records
     np.testing.assert_array_equal(records[0].weights, w0)
     # Iteration 0 is scored against its own greedy trajectories.
     assert records[0].log_likelihood == pytest.approx(
-        Posterior(expert, records[0].generated, prior, 10.0, 1.0).log_likelihood(w0))
+        Posterior(expert, records[0].generated, prior, 10.0).log_likelihood(w0))
     for r in records:
         assert prior.in_box(r.weights) and r.log_prior == prior.log_pdf(r.weights)
         assert [t.start for t in r.generated] == [0, 1, 2]
 
 
 def test_birl_map_is_deterministic():
-    generate = tiny_environment(0)
-    expert = generate(np.array([-0.9, -0.2, -0.5]))
+    rollout = tiny_environment(0)
+    expert = rollout(np.array([-0.9, -0.2, -0.5])).stats
     prior = Prior("laplace", 0.5, -np.ones(3), np.zeros(3))
-    runs = [birl_map(expert, generate, prior, beta=5.0, r_goal=1.0, n_iterations=4,
+    runs = [birl_map(expert, rollout, prior, beta=5.0, n_iterations=4,
                      w0=np.full(3, -0.5)) for _ in range(2)]
     for a, b in zip(*runs, strict=True):
         np.testing.assert_array_equal(a.weights, b.weights)
@@ -184,7 +194,7 @@ def test_birl_map_is_deterministic():
 def test_birl_map_rejects_w0_outside_box():
     prior = Prior("uniform", 1.0, -np.ones(3), np.zeros(3))
     with pytest.raises(ValueError, match="w0"):
-        birl_map([], tiny_environment(0), prior, beta=1.0, r_goal=1.0, n_iterations=1,
+        birl_map([], tiny_environment(0), prior, beta=1.0, n_iterations=1,
                  w0=np.full(3, 0.5))
 
 
@@ -203,7 +213,7 @@ def effective_sample_size(x):
 def one_weight_posterior(sigma=0.5, beta=3.0):
     # log p = −log(1 + exp(βw)) − w²/2σ² on [−1, 0]: likelihood pulls w down, prior up.
     prior = Prior("gaussian", sigma, [-1.0], [0.0])
-    return Posterior([traj(0, [1.0])], [traj(0, [2.0])], prior, beta=beta, r_goal=1.0)
+    return Posterior([traj(0, [1.0])], [traj(0, [2.0])], prior, beta=beta)
 
 
 def numerical_moments(post) -> tuple[float, float]:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from pipeline.core.graph_mdp import GraphMDP, discounted_counts
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, discounted_counts
 from pipeline.irl.maxent import expected_discounted_counts, maxent_irl, soft_policy, soft_values
 from tests.irl.conftest import ROUTES_BOX, greedy_route, three_routes
 
@@ -19,7 +19,7 @@ def tiny_dag(seed, gamma=0.9, n=6, d=2):
     terminal = np.zeros(n, bool)
     terminal[n - 1] = True  # any other sink is a dead end
     return GraphMDP(src, dst, rng.uniform(0.3, 1.5, len(src)), rng.uniform(0, 1, (len(src), d)),
-                    terminal, gamma=gamma, r_goal=1.0, v_max=3.0)
+                    terminal, MDPParams(gamma=gamma, time_cost=0.0, r_goal=1.0, v_max=3.0))
 
 
 def random_cyclic(seed, n=25, d=3):
@@ -29,7 +29,7 @@ def random_cyclic(seed, n=25, d=3):
     terminal = np.zeros(n, bool)
     terminal[:2] = True
     return GraphMDP(src, dst, rng.uniform(0.5, 2.0, len(src)), rng.uniform(0, 1, (len(src), d)),
-                    terminal, gamma=0.9, v_max=5.0)
+                    terminal, MDPParams(gamma=0.9, time_cost=0.0, v_max=5.0))
 
 
 def paths_from(mdp, s):
@@ -123,11 +123,11 @@ def test_maxent_matches_feature_counts_and_prefers_the_expert_route():
     demos = [routes[k] for k in "AABC"]
     res = maxent_irl(mdp, demos, ROUTES_BOX, n_iterations=200, learning_rate=0.1,
                      w0=np.array([-0.5, -0.5]))
-    grad = res.extra["grad_norm"]
+    grad = res.grad_norm
     assert grad[-1] < 1e-4 * grad[0]
-    assert np.allclose(res.extra["expected_counts"], res.extra["empirical_counts"], atol=1e-4)
+    assert np.allclose(res.expected_counts, res.empirical_counts, atol=1e-4)
     assert res.log_likelihood[-1] > res.log_likelihood[0]
-    assert res.mdp_solves == 201 and len(res.history) == len(res.log_likelihood) == 201
+    assert res.mdp_solves[-1] == 201 and len(res.history) == len(res.log_likelihood) == 201
     pi = soft_policy(mdp, res.weights, soft_values(mdp, res.weights))
     assert np.argmax(pi[:4]) == 0 and pi[0] == pytest.approx(0.5, abs=1e-3)
     assert greedy_route(mdp, res.weights) == list(routes["A"].edges)
@@ -139,6 +139,6 @@ def test_maxent_with_one_expert_route_heads_for_its_region():
                      w0=np.array([-0.5, -0.5]))
     assert res.weights[1] < res.weights[0]
     assert greedy_route(mdp, res.weights) == list(routes["A"].edges)
-    assert res.extra["grad_norm"][-1] < res.extra["grad_norm"][0]
+    assert res.grad_norm[-1] < res.grad_norm[0]
     pi = soft_policy(mdp, res.weights, soft_values(mdp, res.weights))
     assert np.argmax(pi[:4]) == 0

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from pipeline.irl.birl import ChainParams
+from pipeline.irl.mcmc import ChainParams
 from pipeline.irl.maxent import maxent_irl
 from pipeline.irl.policywalk import expert_state_actions, policywalk
 from pipeline.irl.prior import Prior
@@ -29,8 +29,8 @@ def test_policywalk_recovers_the_expert_region():
     assert len(res.history) == len(res.log_likelihood) == 11
     assert np.array_equal(res.history[0], [-0.5, -0.5]) and np.array_equal(res.history[-1], w)
     assert res.log_likelihood[-1] > res.log_likelihood[0]
-    assert res.extra["solves_at_record"][-1] == res.mdp_solves
-    assert np.all(np.diff(res.extra["solves_at_record"]) >= 0)
+    assert len(res.mdp_solves) == len(res.history) and res.mdp_solves[0] == 1
+    assert np.all(np.diff(res.mdp_solves) >= 0)
 
 
 # ---------------------------------------------------------------- PolicyWalk as an MCMC
@@ -48,14 +48,13 @@ def test_policywalk_with_flat_likelihood_samples_the_uniform_box():
     mdp, _ = three_routes()
     res = run_walk(mdp, [], UNIFORM, 1)
     assert np.allclose(res.weights, [-0.5, -0.5], atol=0.05)
-    grid = np.round((res.extra["samples"] + 1) / 0.25).astype(int)  # 5 x 5 grid points
+    grid = np.round((res.samples + 1) / 0.25).astype(int)  # 5 x 5 grid points
     freq = np.bincount(grid[:, 0] * 5 + grid[:, 1], minlength=25) / len(grid)
     assert np.abs(freq - 1 / 25).max() < 0.02
     # Every in-box proposal is a solve; out-of-box ones are rejected unsolved.
-    assert res.mdp_solves == 1 + res.extra["n_proposals"] - res.extra["out_of_box"]
-    assert res.extra["n_proposals"] == 100 + 6000
+    assert res.mdp_solves[-1] == 1 + 100 + 6000 - res.out_of_box
     again = run_walk(mdp, [], UNIFORM, 1)
-    assert np.array_equal(again.extra["samples"], res.extra["samples"])
+    assert np.array_equal(again.samples, res.samples)
 
 
 def test_policywalk_samples_the_exact_grid_posterior():
@@ -72,7 +71,7 @@ def test_policywalk_samples_the_exact_grid_posterior():
         log_post[i, j] = (q[0] - logsumexp(q[:4]) + q[4] - logsumexp(q[4:5])
                           + prior.log_pdf(w))
     exact = np.exp(log_post - logsumexp(log_post)).ravel()
-    idx = np.round((res.extra["samples"] + 1) / 0.25).astype(int)
+    idx = np.round((res.samples + 1) / 0.25).astype(int)
     freq = np.bincount(idx[:, 0] * 5 + idx[:, 1], minlength=25) / len(idx)
     assert 0.5 * np.abs(freq - exact).sum() < 0.06  # total variation distance
     assert np.allclose(res.weights, exact @ np.array(list(itertools.product(grid, grid))),

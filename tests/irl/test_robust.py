@@ -9,8 +9,9 @@ import pytest
 from scipy.special import chdtri, logsumexp
 
 from pipeline.core.experts import BoltzmannParams
-from pipeline.core.graph_mdp import GraphMDP, Path
-from pipeline.irl.birl import AdaptiveChainParams, BirlMapConfig, mcmc
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, Path
+from pipeline.irl.birl import BirlMapConfig
+from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
 from tests.conftest import TWO_ROUTES_GAMMA as GAMMA
@@ -61,7 +62,7 @@ def fan(k):
     dst = [1, 2, 3, goal] + middles + [goal] * k
     terminal = [False] * goal + [True]
     return GraphMDP(src, dst, np.ones(len(src)), np.zeros((len(src), 1)), terminal,
-                    gamma=GAMMA)
+                    MDPParams(gamma=GAMMA, time_cost=0.0))
 
 
 def along(mdp, nodes):
@@ -109,7 +110,7 @@ def test_soft_values_satisfy_the_soft_bellman_equation_with_a_self_loop():
     + γ^τ V(dst)) at every node with out-edges, and the gradient still matches."""
     src, dst = [0, 0, 1, 1, 1], [3, 1, 3, 2, 1]
     mdp = GraphMDP(src, dst, np.ones(5), [[1.0], [0.2], [0.3], [0.0], [0.5]],
-                   [False, False, False, True], gamma=GAMMA)
+                   [False, False, False, True], MDPParams(gamma=GAMMA, time_cost=0.0))
     edge = {(s, d): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
     demo = Path([0, 1, 1, 3], [edge[0, 1], edge[1, 1], edge[1, 3]], True)
     post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
@@ -216,7 +217,7 @@ def two_route_problem(routes):
     """The two-route graph as an IRL problem; `routes` names the demonstrated routes."""
     from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
     from pipeline.irl.base import IRLProblem
-    from pipeline.stages.birl import GraphEnvironment
+    from pipeline.irl.environment import GraphEnvironment
 
     mdp, a, b = two_routes()
     positions = np.array([[0, 0], [1, 1], [1, 2], [2, 0]], float)
@@ -225,10 +226,10 @@ def two_route_problem(routes):
     graph = SpatialGraph(positions, mdp, np.array([0]), ways)
     paths = [a if r == "a" else b for r in routes]
     expert = [TrajectoryStats.from_edges(0, mdp.features[p.edges], mdp.duration[p.edges],
-                                         GAMMA, True) for p in paths]
-    return IRLProblem(expert, [positions[p.nodes] for p in paths], graph,
-                      GraphEnvironment(graph, GAMMA), Prior("uniform", 1.0, [-1.0], [0.0]),
-                      np.array([-0.5]), 1.0, np.random.default_rng(0), lambda: graph)
+                                         mdp.params, True) for p in paths]
+    return IRLProblem(expert, [positions[p.nodes] for p in paths],
+                      GraphEnvironment(graph, mdp.params), Prior("uniform", 1.0, [-1.0], [0.0]),
+                      np.array([-0.5]), np.random.default_rng(0), lambda: graph)
 
 
 def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones():
@@ -265,3 +266,100 @@ def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones()
     beta = betas[np.argmax([boltzmann.log_likelihood(w, b) - np.log(b) for b in betas])]
     assert 0.3 < route_a_share(boltzmann, w, beta) < 0.7
     assert len(result.iterations) == 4
+
+
+# ---------------------------------------------------------------- goal reaching (gamma = 1)
+
+GOAL = MDPParams(time_cost=0.1)
+
+
+def test_goal_reaching_soft_values_by_hand():
+    """The two routes without discounting: the dead end 2 cannot reach the goal, so the edge
+    into it is dropped and node 1 has one out-edge (μ = 1). V(3) = β, V(1) = β(0.3w − c) +
+    V(3), V(0) = lse(log ½ + β(w − c) + V(3), log ½ + β(0.2w − c) + V(1))."""
+    mdp, a, b = two_routes()
+    goal = GraphMDP(mdp.src, mdp.dst, mdp.duration, mdp.features, mdp.terminal, GOAL)
+    edge = {(int(s), int(d)): i for i, (s, d) in enumerate(zip(goal.src, goal.dst, strict=True))}
+    path_a = Path([0, 3], [edge[0, 3]], True)
+    path_b = Path([0, 1, 3], [edge[0, 1], edge[1, 3]], True)
+    post = BoltzmannPosterior(goal, [path_a, path_b, path_b],
+                              Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    for w, beta in [(-0.5, 2.0), (-0.1, 10.0), (-0.9, 0.5), (-0.3, 900.0)]:
+        c = GOAL.time_cost
+        v3 = beta * 1.0
+        v1 = beta * (0.3 * w - c) + v3
+        v0 = logsumexp([math.log(0.5) + beta * (w - c) + v3,
+                        math.log(0.5) + beta * (0.2 * w - c) + v1])
+        values = post.soft_values([w], beta)
+        np.testing.assert_allclose(values[[0, 1, 3]], [v0, v1, v3], rtol=1e-12)
+        ll = (math.log(0.5) + beta * (w - c + 1) - v0) \
+            + 2 * (math.log(0.5) + beta * (0.2 * w + 0.3 * w - 2 * c + 1) - v0)
+        assert post.log_likelihood([w], beta) == pytest.approx(ll, abs=1e-9)
+
+
+def random_goal_graph(seed, n=25):
+    """A random cyclic graph with one goal, every node able to reach it (a ring plus random
+    chords), without discounting."""
+    rng = np.random.default_rng(seed)
+    pairs = {(i, (i + 1) % n) for i in range(n)} | {(i, j) for i in range(n) for j in range(n)
+                                                   if i != j and rng.random() < 0.15}
+    src, dst = np.array(sorted(pairs)).T
+    terminal = np.zeros(n, bool)
+    terminal[n - 1] = True
+    return GraphMDP(src, dst, rng.uniform(0.2, 1.5, len(src)),
+                    rng.uniform(0, 1, (len(src), 2)), terminal, GOAL)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_goal_reaching_soft_values_solve_the_soft_bellman_equation(seed):
+    """V(s) = log Σ_e μ(e) exp(β(w·φ(e) − cτ(e)) + V(dst)) at every acting node, also where
+    β makes exp(βr) underflow (the linear system is written relative to the hard values)."""
+    mdp = random_goal_graph(seed)
+    sol = mdp.solve([-0.5, -0.5])
+    demo = mdp.follow(sol.policy, 0)
+    post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, -np.ones(2), np.zeros(2)),
+                              (0.1, 1000))
+    for w, beta in [([-0.5, -0.2], 1.0), ([-0.9, -0.7], 1000.0), ([-0.01, 0.0], 0.1)]:
+        values = post.soft_values(np.array(w), beta)
+        q = post.log_base + mdp.features @ (beta * np.array(w)) + beta * mdp.base_reward \
+            + values[mdp.dst]
+        np.testing.assert_allclose(values[mdp.has_out], mdp.log_sum_exp(q)[mdp.has_out],
+                                   rtol=1e-10, atol=1e-9)
+        assert np.all(np.isfinite(values))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_goal_reaching_gradient_matches_finite_differences(seed):
+    mdp = random_goal_graph(seed)
+    demos = [mdp.follow(mdp.solve(w).policy, s) for w, s in
+             (([-0.5, -0.5], 0), ([-0.9, -0.1], 3), ([-0.1, -0.9], 5))]
+    post = BoltzmannPosterior(mdp, demos, Prior("gaussian", 0.5, -np.ones(2), np.zeros(2)),
+                              (0.1, 100))
+    x = np.array([-0.4, -0.6, 3.0])
+    numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
+    np.testing.assert_allclose(post.neg_log_posterior(x)[1], numeric, rtol=1e-5, atol=1e-7)
+
+
+def test_goal_reaching_soft_values_sum_over_every_path():
+    """On a DAG the soft value is log Σ over paths to the goal of μ(path)·exp(βR(path)),
+    enumerated by hand."""
+    src = [0, 0, 0, 1, 1, 2, 3]
+    dst = [1, 2, 3, 2, 4, 4, 4]
+    feats = [[0.3], [1.0], [0.2], [0.5], [0.1], [0.0], [0.7]]
+    tau = [1.0, 2.0, 0.5, 0.7, 1.2, 0.4, 0.9]
+    terminal = [False, False, False, False, True]
+    mdp = GraphMDP(src, dst, tau, feats, terminal, GOAL)
+    demo = mdp.follow(mdp.solve([-1.0]).policy, 0)
+    post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    out = {s: [e for e in range(7) if src[e] == s] for s in range(5)}
+
+    def paths(s):
+        if terminal[s]:
+            return [[]]
+        return [[e] + rest for e in out[s] for rest in paths(dst[e])]
+
+    w, beta = -0.6, 2.5
+    terms = [sum(-math.log(len(out[src[e]])) + beta * (w * feats[e][0] - GOAL.time_cost * tau[e])
+                 for e in p) + beta * 1.0 for p in paths(0)]
+    assert len(terms) == 4
+    assert post.soft_values([w], beta)[0] == pytest.approx(logsumexp(terms), rel=1e-12)
