@@ -102,17 +102,6 @@ class Candidates:
     score: np.ndarray | None = None  # (m,) exploration score
 
 
-def thin_indices(pts: np.ndarray, spacing: float) -> np.ndarray:
-    keep = [0]
-    acc = 0.0
-    for k in range(1, len(pts)):
-        acc += float(np.linalg.norm(pts[k] - pts[k - 1]))
-        if acc >= spacing or k == len(pts) - 1:
-            keep.append(k)
-            acc = 0.0
-    return np.array(keep)
-
-
 def voronoi_centroids(points: np.ndarray, room: Room) -> np.ndarray:
     """Centroids (n, 2) of the Voronoi cells of `points` (n, 2) clipped to the room.
 

@@ -268,7 +268,10 @@ class GraphMDP:
                              "weights must be <= 0 and time_cost > 0")
         values = self.fixed_values.copy()
         values[self.has_out] = self.r_goal - self.cost_to_goal(rewards)[self.has_out]
-        return Solution(values, self.greedy(rewards + values[self.dst]), 1)
+        policy = self.greedy(rewards + values[self.dst])
+        # The values as the policy's own evaluation: summed as every other policy's are,
+        # so a policy compared with itself (policy loss) differs by exactly 0.
+        return Solution(self._evaluate(policy, rewards), policy, 1)
 
     def cost_to_goal(self, rewards: np.ndarray) -> np.ndarray:
         """The cheapest −Σ r (n,) from every node to a terminal node for edge rewards (E,),

@@ -71,15 +71,16 @@ class PosteriorSamples:
 @dataclass(frozen=True, eq=False)
 class Trace:
     """The history of an iterative method that works on its own (PolicyWalk's chain,
-    MaxEnt's gradient ascent): its estimate after each recorded step (weights[0] = w0),
+    MaxEnt's gradient ascent): its estimate after each recorded step (history[0] = w0),
     the log likelihood there and the full MDP solves spent up to it."""
-    weights: list[np.ndarray]
+    history: list[np.ndarray]
     log_likelihood: list[float]
     mdp_solves: list[int]
 
     @property
-    def final(self) -> np.ndarray:
-        return self.weights[-1]
+    def weights(self) -> np.ndarray:
+        """The final estimate."""
+        return self.history[-1]
 
 
 @dataclass(eq=False)
@@ -126,7 +127,7 @@ class IRLProblem:
     def record_trace(self, trace: Trace) -> IRLResult:
         """The result of a method that ran on its own: every entry of its trace recorded."""
         records = [self.record(k, w, ll) for k, (w, ll) in
-                   enumerate(zip(trace.weights, trace.log_likelihood, strict=True))]
+                   enumerate(zip(trace.history, trace.log_likelihood, strict=True))]
         return IRLResult(records, list(trace.mdp_solves))
 
 

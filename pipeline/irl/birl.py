@@ -43,7 +43,6 @@ from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BASE_MEASURES, BoltzmannPosterior, LogBetaDensity
 
-
 LIKELIHOODS = ("paper", "robust", "boltzmann")
 
 

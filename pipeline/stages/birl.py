@@ -23,55 +23,11 @@ from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import ArtefactWriter
 from pipeline.core.adaptive_graph import AdaptiveGraph
-from pipeline.core.graph_mdp import Path, SpatialGraph, TrajectoryStats
+from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
+from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment
 
 log = logging.getLogger(__name__)
-
-
-class GraphEnvironment:
-    """`generate(w)` for the IRL methods: rewards w·φ on the graph, warm-started policy
-    iteration, the greedy trajectory from every start. Keeps the paths for the artefact."""
-
-    def __init__(self, graph: SpatialGraph, gamma: float):
-        self.graph, self.gamma = graph, gamma
-        self.values: np.ndarray | None = None
-        self.paths: list[list[Path]] = []  # per call: the greedy Path from every start
-
-    def __call__(self, w: np.ndarray) -> list[TrajectoryStats]:
-        mdp = self.graph.mdp
-        sol = mdp.solve(w, init_values=self.values)
-        self.values = sol.values
-        paths = [mdp.follow(sol.policy, int(s)) for s in self.graph.start_nodes]
-        self.paths.append(paths)
-        return [TrajectoryStats.from_edges(k, mdp.features[p.edges], mdp.duration[p.edges],
-                                           self.gamma, p.reached) for k, p in enumerate(paths)]
-
-
-class GrowingGraphEnvironment(GraphEnvironment):
-    """`birl.grow_nodes: k`: before each iteration's solve, the adaptive graph grows k more
-    nodes under the current weights, so it adapts to the reward being learned."""
-
-    def __init__(self, adaptive: AdaptiveGraph, gamma: float, grow_nodes: int):
-        super().__init__(self._spatial(adaptive), gamma)
-        self.adaptive, self.grow_nodes, self.calls = adaptive, grow_nodes, 0
-        self.base_nodes, self.base_edges = adaptive.n_nodes, len(adaptive.src)
-
-    @staticmethod
-    def _spatial(g: AdaptiveGraph) -> SpatialGraph:
-        return SpatialGraph(g.positions.copy(), g.mdp(), g.start_nodes, list(g.waypoints),
-                            snap_tolerance=g.min_separation)
-
-    def __call__(self, w: np.ndarray) -> list[TrajectoryStats]:
-        if self.calls > 0:  # iteration 0 scores the stored graph under w0
-            self.adaptive.set_weights(w)
-            added = self.adaptive.grow_by(self.grow_nodes)
-            self.graph = self._spatial(self.adaptive)
-            self.values = None  # node set changed: a cold solve (cheap next to the growth)
-            log.info("    graph grown by %d nodes under the current weights (%d nodes)", added,
-                     self.adaptive.n_nodes)
-        self.calls += 1
-        return super().__call__(w)
 
 
 def restore_adaptive_graph(ctx: RunContext) -> AdaptiveGraph:
@@ -104,11 +60,15 @@ def run(ctx: RunContext) -> None:
     grow_nodes = getattr(b, "grow_nodes", 0)  # only methods that learn on the graph have it
     env: GraphEnvironment
     if grow_nodes > 0:
-        env = GrowingGraphEnvironment(restore_adaptive_graph(ctx), cfg.mdp.gamma, grow_nodes)
+        def grown(added: int, n_nodes: int) -> None:
+            log.info("    graph grown by %d nodes under the current weights (%d nodes)",
+                     added, n_nodes)
+
+        env = GrowingGraphEnvironment(restore_adaptive_graph(ctx), cfg.mdp, grow_nodes, grown)
     else:
         graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
                                                        topics.GRAPH_SOLUTION])
-        env = GraphEnvironment(codec.decode_graph(graph_art, cfg.mdp), cfg.mdp.gamma)
+        env = GraphEnvironment(codec.decode_graph(graph_art, cfg.mdp), cfg.mdp)
 
     def roadmap() -> SpatialGraph:
         art = ctx.read("demos", required_topics=[topics.DEMOS_ROADMAP])
@@ -120,8 +80,8 @@ def run(ctx: RunContext) -> None:
                  it.index, np.round(it.weights, 3).tolist(), it.log_likelihood, it.log_prior,
                  reached, len(it.generated))
 
-    problem = IRLProblem(expert, [np.asarray(d["points"], float) for d in demos], env.graph,
-                         env, prior, w0, cfg.mdp.r_goal, rng, roadmap, progress)
+    problem = IRLProblem(expert, [np.asarray(d["points"], float) for d in demos], env, prior,
+                         w0, rng, roadmap, progress)
     log.info("IRL method %s: %d demonstrations, %d-node graph, %s prior, w0 = %s", b.kind,
              len(expert), env.graph.mdp.n_nodes, b.prior.kind, np.round(w0, 3).tolist())
     t0 = time.perf_counter()
@@ -135,25 +95,26 @@ def run(ctx: RunContext) -> None:
 
 def write_birl(ctx: RunContext, expert: list[TrajectoryStats], result: IRLResult,
                env: GraphEnvironment) -> None:
-    b, r_goal = ctx.cfg.birl, ctx.cfg.mdp.r_goal
-    graph = env.graph
+    b = ctx.cfg.birl
     with ctx.writer("birl") as w:
         w.add(topics.BIRL_EXPERT, "BirlExpert", {
             "feature_names": list(ctx.cfg.reward.features), "beta": getattr(b, "beta", None),
             "prior": b.prior.kind,
-            "trajectories": [{"start": t.start, "phi": t.phi, "end_discount": t.end_discount,
-                              "reached": t.reached} for t in expert]}, log_time=0)
-        for it, paths in zip(result.iterations, env.paths[-len(result.iterations):],
-                             strict=True):
+            "trajectories": [{"start": t.start, "phi": t.phi, "offset": t.offset,
+                              "end_discount": t.end_discount, "reached": t.reached}
+                             for t in expert]}, log_time=0)
+        for it in result.iterations:
+            rolled = it.rollout
             w.add(topics.BIRL_ITERATION, "BirlIteration", {
                 "index": it.index, "method": b.kind,
                 "mdp_solves": int(result.mdp_solves[it.index]),
                 "weights": it.weights, "log_likelihood": it.log_likelihood,
                 "log_prior": it.log_prior, "log_posterior": it.log_likelihood + it.log_prior,
-                "generated": [{"start": t.start, "nodes": p.nodes, "points": graph.polyline(p),
-                               "phi": t.phi, "end_discount": t.end_discount,
-                               "reached": t.reached, "quality": t.quality(it.weights, r_goal)}
-                              for t, p in zip(it.generated, paths, strict=True)]},
+                "generated": [{"start": t.start, "nodes": p.nodes,
+                               "points": rolled.graph.polyline(p),
+                               "phi": t.phi, "offset": t.offset, "end_discount": t.end_discount,
+                               "reached": t.reached, "quality": t.quality(it.weights)}
+                              for t, p in zip(rolled.stats, rolled.paths, strict=True)]},
                   log_time=it.index)
         if isinstance(env, GrowingGraphEnvironment):
             write_growth(w, env)
