@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from pipeline.irl.mcmc import ChainParams
 from pipeline.irl.maxent import maxent_irl
+from pipeline.irl.mcmc import ChainParams
 from pipeline.irl.policywalk import expert_state_actions, policywalk
 from pipeline.irl.prior import Prior
 from tests.irl.conftest import ROUTES_BOX, greedy_route, three_routes
