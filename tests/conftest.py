@@ -18,6 +18,7 @@ folders: the walled metropolis scene, a writer of real ROS bags, and a graph of 
 import contextlib
 import io
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -47,6 +48,17 @@ RUDE = np.array([0.0, 0.0, -0.85, -0.1])
 PAPER_MDP = MDPParams(gamma=0.95, time_cost=0.0)
 
 register_configs()
+
+
+@pytest.fixture(autouse=True)
+def _no_logging_into_closed_streams():
+    """The in-process CLI lets Hydra attach log handlers to the stderr pytest captured for
+    that test; later tests would log into the closed stream ("--- Logging error ---")."""
+    yield
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        if getattr(getattr(handler, "stream", None), "closed", False):
+            root.removeHandler(handler)
 
 
 @pytest.fixture(scope="session")

@@ -12,7 +12,7 @@ from pipeline.app.context import resolve_path
 from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.controllers import Controller, PosqController, make_controller
-from pipeline.core.features import FeatureModel
+from pipeline.core.features import FeatureModel, FeatureParams
 from pipeline.core.roadmap import Roadmap, build_roadmap
 from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
 from pipeline.core.world import Scene
@@ -45,7 +45,17 @@ def scene(cfg: Config, rng_for_seed) -> Scene:
 
 
 def feature_model(cfg: Config, scene: Scene) -> FeatureModel:
+    """The true reward's features (reward.features): the expert's and the policy loss's."""
     return FeatureModel.from_scene(scene, cfg.reward)
+
+
+def learner_feature_model(cfg: Config, scene: Scene) -> FeatureModel:
+    """The features the reward is learned on (Config.learner_features), with the reward's
+    constants (ρ_r, ρ_p, σ, ...)."""
+    params = FeatureParams(**{f.name: getattr(cfg.reward, f.name)
+                              for f in dataclasses.fields(FeatureParams)})
+    return FeatureModel.from_scene(scene, dataclasses.replace(params,
+                                                              features=cfg.learner_features))
 
 
 def reference_roadmap(cfg: Config, scene: Scene, features: FeatureModel) -> Roadmap:
@@ -90,14 +100,14 @@ def fixed_weights(cfg: Config) -> np.ndarray | None:
         art = read_artefact(run / ARTEFACT_FILE["birl"],
                             required_topics=[topics.BIRL_EXPERT, topics.BIRL_ITERATION])
         names = art.one(topics.BIRL_EXPERT)["feature_names"]
-        if list(names) != list(cfg.reward.features):
+        if list(names) != cfg.learner_features:
             raise PipelineError(f"config error: birl.from_run={b.from_run} learned weights on "
-                                f"{names}; set reward.features={list(names)}")
+                                f"{names}; set birl.features={list(names)}")
         w = np.asarray(art.all(topics.BIRL_ITERATION)[-1]["weights"], float)
         source = f"{run / ARTEFACT_FILE['birl']}"
     if len(w) != d:
         raise PipelineError(f"config error: birl.weights={w.tolist()} needs {d} numbers "
-                            f"(reward.features={list(cfg.reward.features)})")
+                            f"(the learner's features {cfg.learner_features})")
     if not prior(cfg).in_box(w):
         raise PipelineError(f"config error: the weights from {source} {w.tolist()} lie outside "
                             "[birl.lower, birl.upper]; widen them (e.g. birl.lower=[-100])")

@@ -88,17 +88,30 @@ class RewardConfig(FeatureParams):
 
 @dataclass
 class ExpertConfig:
-    kind: str = MISSING  # optimal | boltzmann | file | planner
+    kind: str = MISSING  # optimal | boltzmann | file | planner | none
     n_demos: Optional[int] = None  # learn from the demonstrations of the first n starts (null: all)
 
     def __post_init__(self) -> None:
         if self.n_demos is not None:
             require_count(self, "n_demos")
 
+    @property
+    def knows_true_reward(self) -> bool:
+        """Synthetic experts act under the true reward (reward.*); file, planner and none
+        have none, so there is no policy loss."""
+        return self.kind in ("optimal", "boltzmann")
+
 
 @dataclass
 class OptimalExpertConfig(ExpertConfig):
     kind: str = "optimal"
+
+
+@dataclass
+class NoExpertConfig(ExpertConfig):
+    """No demonstrations (DESIGN §9 deployment): the graph grows from the scene alone and a
+    given reward is planned with (birl=fixed)."""
+    kind: str = "none"
 
 
 @dataclass
@@ -135,6 +148,7 @@ class PlannerExpertConfig(ExpertConfig, SocialPlannerParams):
 
 
 EXPERTS: dict[str, type] = {"optimal": OptimalExpertConfig, "boltzmann": BoltzmannExpertConfig,
+                            "none": NoExpertConfig,
                             "file": FileExpertConfig, "planner": PlannerExpertConfig}
 
 
@@ -167,9 +181,24 @@ class EvaluateConfig:
     # DESIGN §9 Transfer: scene files on which the learned reward is also planned with and
     # scored (reference roadmap of each), as transfer_<scene>_<metric> keys
     transfer_scenes: list[str] = field(default_factory=list)
+    # DESIGN §9 held-out demonstrations, kept out of the graph and the likelihood: null
+    # (none), a fraction (e.g. 0.3, drawn with the run's seed per start that has several),
+    # or a list of subject ids of the demonstration file's `subjects`. Typed Any: a number
+    # or a list.
+    holdout: Any = None
+
+    def __post_init__(self) -> None:
+        h = self.holdout
+        require(h is None or (is_number(h) and 0 < h < 1) or (
+            isinstance(h, list) and len(h) > 0 and all(isinstance(s, str | int) for s in h)),
+            "holdout", h, "null, a fraction in (0, 1) or a list of subject ids")
 
 
 # -- the whole run -------------------------------------------------------------------------
+
+# The learner's features for demonstrations whose demonstrator shares no features with us
+# (expert=file, planner, none): chosen by measurement (docs/methods.md).
+DEMONSTRATOR_FEATURES = ("relation", "social", "goal_deviation", "length")
 
 
 # The metrics.json keys (written by the evaluate stage), as patterns: `objective` must name
@@ -182,7 +211,8 @@ METRIC_KEYS = (
     rf"(ref_)?{_PATH}", rf"transfer_.+_(policy_loss(_norm)?|{_PATH})",
     r"policy_loss(_ref)?(_initial|_rude|_iter_\d+)?", r"policy_loss_norm",
     r"weight_((std|rhat|ess)_)?\w+", r"mcmc_(acceptance_rate|ess_min|rhat_max)",
-    r"frechet_to_demos(_max)?", r"time_\w+_s",
+    r"frechet_to_demos(_max)?", r"time_\w+_s", r"graph_demo_node_share",
+    r"heldout_(count|(frechet_m|min_distance_error_m)(_shortest)?)",
 )
 OBJECTIVE_EXAMPLES = ("policy_loss_norm", "policy_loss", "policy_loss_ref", "success",
                       "relation_crossings", "path_length", "min_distance_to_person")
@@ -210,8 +240,19 @@ class Config:
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
 
     @property
+    def learner_features(self) -> list[str]:
+        """The features the reward is learned on: birl.features, else the true reward's
+        for synthetic experts and DEMONSTRATOR_FEATURES for demonstrations of people."""
+        if self.birl.features is not None:
+            return list(self.birl.features)
+        if self.expert.knows_true_reward:
+            return list(self.reward.features)
+        return list(DEMONSTRATOR_FEATURES)
+
+    @property
     def n_features(self) -> int:
-        return len(self.reward.features)
+        """How many weights are learned."""
+        return len(self.learner_features)
 
 
 def config_groups_help() -> str:
@@ -330,4 +371,19 @@ def load_settings(cfg: DictConfig) -> Config:
                             ("graph.weights", w if isinstance(w, list) else [])):
             if any(v > 0 for v in values):
                 raise config_error(key, values, why)
+    _check_demonstrator(settings)
     return settings
+
+
+def _check_demonstrator(settings: Config) -> None:
+    """What the expert kind allows: learning needs demonstrations, the oracle growth needs
+    true weights on the learner's features."""
+    if settings.expert.kind == "none" and settings.birl.kind != "fixed":
+        raise config_error("birl", settings.birl.kind,
+                           "fixed with expert=none (nothing to learn from: birl=fixed "
+                           "birl.weights=[...] or birl.from_run=RUN)")
+    w = settings.graph.weights
+    if (w is True or w == "true") and settings.learner_features != list(settings.reward.features):
+        raise config_error("graph.weights", w, "null or numbers: the true weights are on "
+                           f"reward.features={list(settings.reward.features)}, the learner's "
+                           f"features are {settings.learner_features}")

@@ -16,15 +16,26 @@ from pipeline.artefacts.store import Artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.errors import PipelineError
 
-# The config keys each stage's artefact depends on (besides its input artefacts).
+# The config keys each stage's artefact depends on (besides its input artefacts); a dotted
+# key is one entry of a section (the graph grows on the learner's features under the prior's
+# mean, so it depends on those of birl's keys, not on how many iterations learn).
 STAGE_CONFIG: dict[str, tuple[str, ...]] = {
     "scene": ("seed", "scene"),
-    "demos": ("seed", "expert", "reward", "mdp", "roadmap"),
-    "graph": ("seed", "graph", "reward", "mdp"),
+    "demos": ("seed", "expert", "reward", "mdp", "roadmap", "evaluate.holdout"),
+    "graph": ("seed", "graph", "reward", "mdp", "expert.kind", "birl.features", "birl.prior",
+              "birl.lower", "birl.upper"),
     "birl": ("seed", "birl", "graph", "reward", "mdp"),
     "evaluate": ("evaluate", "reward", "mdp", "roadmap"),
 }
 CONFIG_KEY, INPUT_KEY = "config_digest.", "input_digest."
+
+
+def _lookup(config: Mapping, key: str):
+    """config[key] for a section name, config[a][b] for a dotted key (None if absent)."""
+    value = config
+    for part in key.split("."):
+        value = value.get(part) if isinstance(value, Mapping) else None
+    return value
 
 
 def _digest(value) -> str:
@@ -35,7 +46,7 @@ def _digest(value) -> str:
 def provenance_metadata(stage: str, config: Mapping, inputs: Mapping[str, Artefact]) \
         -> dict[str, str]:
     """The metadata entries of `stage`'s artefact: its config digests and input digests."""
-    meta = {CONFIG_KEY + key: _digest(config.get(key)) for key in STAGE_CONFIG[stage]}
+    meta = {CONFIG_KEY + key: _digest(_lookup(config, key)) for key in STAGE_CONFIG[stage]}
     meta.update({INPUT_KEY + s: a.digest for s, a in inputs.items()})
     return meta
 
@@ -64,13 +75,13 @@ def check_config(stage: str, artefact: Artefact, config: Mapping) -> None:
     if not any(k.startswith(CONFIG_KEY) for k in recorded):
         return
     for key in STAGE_CONFIG[stage]:
-        if recorded.get(CONFIG_KEY + key) == _digest(config.get(key)):
+        if recorded.get(CONFIG_KEY + key) == _digest(_lookup(config, key)):
             continue
         try:
-            made_with = (yaml.safe_load(artefact.config_yaml) or {}).get(key)
+            made_with = _lookup(yaml.safe_load(artefact.config_yaml) or {}, key)
         except yaml.YAMLError:
             made_with = "<unreadable>"
-        path, old, new = _first_difference(key, made_with, config.get(key))
+        path, old, new = _first_difference(key, made_with, _lookup(config, key))
         raise PipelineError(
             f"{artefact.path} was made with {path}={_show(old)} but this run has "
             f"{path}={_show(new)}: add '{stage}' to stages to re-make it, or run with "

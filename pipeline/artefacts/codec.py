@@ -75,6 +75,17 @@ def decode_graph(art: Artefact, mdp: MDPParams, grown: Artefact | None = None) -
                         snap_tolerance=sol["min_separation"])
 
 
+def training_demos(art: Artefact) -> list[dict]:
+    """The demonstrations of demos.mcap that learning may see: the held-out ones left out
+    (DESIGN §9); none with expert=none."""
+    return [m for m in art.messages.get(topics.DEMOS, []) if not m.get("heldout", False)]
+
+
+def heldout_demos(art: Artefact) -> list[dict]:
+    """The demonstrations of demos.mcap held out of learning (evaluate.holdout)."""
+    return [m for m in art.messages.get(topics.DEMOS, []) if m.get("heldout", False)]
+
+
 def decode_mdp_params(expert_msg: dict) -> MDPParams:
     """The MDP settings the demonstrations were made with (demos.mcap's /demos/expert)."""
     return MDPParams(gamma=expert_msg["gamma"], time_cost=expert_msg["time_cost"],

@@ -159,6 +159,8 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
     "reached": REACHED,
     "subject": _nullable(_str("Who demonstrated it (a demonstration file's `subjects`, or a "
                               "synthetic subject)."), "when unknown"),
+    "heldout": _bool("Held out of learning (evaluate.holdout): never in the graph nor in the "
+                     "likelihood, only compared with the learned paths."),
     "value_true": _nullable(_num("Quality of the path under w*: w*·Φ + offset."),
                             "for file and planner demonstrations"),
 })

@@ -1,7 +1,9 @@
 """Policy loss (DESIGN §9) and path similarity; plain numpy on a GraphMDP.
 
 loss(G) = mean over starts of V^{π*}_{w*}(s) − V^{π_w}_{w*}(s): the value the greedy policy
-under the learned weights w gives up, measured under the TRUE weights w*. It is ≥ 0.
+under the learned weights w gives up, measured under the TRUE weights w*. It is ≥ 0. The
+learner's features may differ from the true reward's: π_w is then the greedy policy of the
+same graph with the learner's features, scored on the true reward's.
 """
 
 from __future__ import annotations
@@ -23,12 +25,15 @@ class PolicyLoss:
 
 
 def policy_loss(mdp: GraphMDP, w_true: ArrayLike, w: ArrayLike, start_nodes: np.ndarray,
-                optimal_values: np.ndarray, init_values: np.ndarray | None = None) -> PolicyLoss:
+                optimal_values: np.ndarray, init_values: np.ndarray | None = None,
+                learner: GraphMDP | None = None) -> PolicyLoss:
     """Policy loss of the greedy policy under w; `optimal_values` = V* under w_true.
 
-    w_true, w: (d,); start_nodes: (n_starts,) node ids; optimal_values, init_values: (n,).
+    mdp holds the true reward's features, `learner` (default: mdp) the same graph with the
+    learner's features that w weighs. w_true (d*,), w (d,); start_nodes: (n_starts,) node
+    ids; optimal_values, init_values: (n,).
     """
-    sol = mdp.solve(w, init_values=init_values)
+    sol = (learner or mdp).solve(w, init_values=init_values)
     v_pi = mdp.evaluate(sol.policy, w_true)
     gap = optimal_values[start_nodes] - v_pi[start_nodes]
     if gap.min() < -1e-8:  # V* is optimal: a larger value under π_w means a solver bug
@@ -39,6 +44,24 @@ def policy_loss(mdp: GraphMDP, w_true: ArrayLike, w: ArrayLike, start_nodes: np.
 
 def follow_all(mdp: GraphMDP, policy: np.ndarray, start_nodes: np.ndarray) -> list[Path]:
     return [mdp.follow(policy, int(s)) for s in start_nodes]
+
+
+def resample(points: np.ndarray, spacing: float) -> np.ndarray:
+    """The polyline (K, 2) resampled at equal arc-length steps of at most `spacing`, ends
+    kept: discrete Fréchet distances between resampled polylines approach the continuous
+    one, whatever the polylines' own vertex spacing."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    if len(p) < 2 or s[-1] == 0:
+        return p[:1].copy()
+    at = np.linspace(0.0, s[-1], int(np.ceil(s[-1] / spacing - 1e-9)) + 1)
+    return np.column_stack([np.interp(at, s, p[:, 0]), np.interp(at, s, p[:, 1])])
+
+
+def frechet(p: np.ndarray, q: np.ndarray, spacing: float = 0.1) -> float:
+    """The Fréchet distance of two polylines, as the discrete one of both resampled every
+    `spacing` metres (within `spacing` of the continuous distance)."""
+    return discrete_frechet(resample(p, spacing), resample(q, spacing))
 
 
 def discrete_frechet(p: np.ndarray, q: np.ndarray) -> float:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, Solution, TrajectoryStats
 from pipeline.core.params import require_count, require_positive
 from pipeline.errors import PipelineError
@@ -37,6 +38,17 @@ class Demonstration:
     reached: bool  # ends at the goal
     subject: str | None = None  # who demonstrated it (a demonstration file's `subjects`)
 
+    @classmethod
+    def from_points(cls, start_index: int, points: np.ndarray, feature_model: FeatureModel,
+                    speed: float, reached: bool = True,
+                    subject: str | None = None) -> Demonstration:
+        """A demonstrated polyline (K+1, 2) with the features of its own segments, driven at
+        `speed` m/s."""
+        points = np.asarray(points, float).reshape(-1, 2)
+        return cls(int(start_index), points, feature_model.segments(points[:-1], points[1:]),
+                   np.linalg.norm(np.diff(points, axis=0), axis=1) / speed, bool(reached),
+                   subject)
+
     @property
     def features(self) -> np.ndarray:
         return self.edge_features.sum(axis=0)
@@ -46,6 +58,34 @@ class Demonstration:
         weight-free part of its return."""
         return TrajectoryStats.from_edges(self.start_index, self.edge_features, self.durations,
                                           params, self.reached)
+
+
+def choose_heldout(start_index: Sequence[int], subjects: Sequence[str | None],
+                   holdout: float | Sequence[str] | None,
+                   rng: np.random.Generator) -> np.ndarray:
+    """Which demonstrations (n,) are held out of learning (DESIGN §9). A fraction f: from
+    every start with k ≥ 2 demonstrations max(1, round(f·k)) of them, at most k − 1, drawn
+    with rng (starts in order); a start with one demonstration keeps it. Subject ids: every
+    demonstration of those subjects (PipelineError naming an id no demonstration has)."""
+    n = len(start_index)
+    held = np.zeros(n, dtype=bool)
+    if holdout is None:
+        return held
+    if isinstance(holdout, (int, float)) and not isinstance(holdout, bool):
+        starts = np.asarray(start_index)
+        for s in np.unique(starts):
+            members = np.flatnonzero(starts == s)
+            if len(members) >= 2:
+                k = min(len(members) - 1, max(1, round(float(holdout) * len(members))))
+                held[rng.choice(members, k, replace=False)] = True
+        return held
+    known = sorted({str(s) for s in subjects if s is not None})
+    for sid in holdout:
+        if str(sid) not in known:
+            raise PipelineError(f"evaluate.holdout names subject {sid!r}, which demonstrated "
+                                f"nothing (subjects: {', '.join(known) or 'none'})")
+    wanted = {str(s) for s in holdout}
+    return np.array([s is not None and str(s) in wanted for s in subjects], dtype=bool)
 
 
 def _from_edges(mdp: GraphMDP, positions: np.ndarray, start_index: int,

@@ -356,6 +356,19 @@ class SpatialGraph:
     waypoints: list[np.ndarray]  # per edge (caller's order)
     snap_tolerance: float = 0.0  # input points this close to a node were merged into it
 
+    def with_features(self, features: np.ndarray) -> SpatialGraph:
+        """The same graph with other edge features (E, d) in the MDP's (internal) edge order,
+        e.g. another reward's: policies and paths of one are policies and paths of the
+        other (the MDP keeps the edge order, nothing more is pruned)."""
+        m = self.mdp
+        mdp = GraphMDP(m.src, m.dst, m.duration, features, m.terminal, m.params, m.base_reward)
+        ways = [self.waypoints[e] for e in m.edge_ids]
+        return SpatialGraph(self.positions, mdp, self.start_nodes, ways, self.snap_tolerance)
+
+    def internal_waypoints(self) -> list[np.ndarray]:
+        """The driven path (K+1, 2) of every edge, in the MDP's (internal) edge order."""
+        return [self.waypoints[e] for e in self.mdp.edge_ids]
+
     def polyline(self, path: Path) -> np.ndarray:
         """The driven path of a graph path: the edges' controller waypoints joined."""
         if len(path.edges) == 0:
@@ -447,7 +460,8 @@ class TrajectoryStats:
                    params: MDPParams, reached: bool) -> TrajectoryStats:
         """edge_features (T, d), durations (T,) seconds of the edges taken in order."""
         durations = np.asarray(durations, dtype=float)
-        feats = np.asarray(edge_features, float).reshape(len(durations), -1)
+        feats = np.asarray(edge_features, float)
+        feats = feats.reshape(len(durations), feats.shape[-1] if feats.ndim == 2 else -1)
         counts, end = discounted_counts(np.column_stack([feats, durations]), durations,
                                         params.gamma)
         offset = -params.time_cost * counts[-1] + (end * params.r_goal if reached else 0.0)

@@ -16,8 +16,9 @@ from typing import Optional
 
 import numpy as np
 
+from pipeline.core.features import FeatureParams
 from pipeline.core.graph_mdp import Path, SpatialGraph, TrajectoryStats
-from pipeline.core.params import require_count
+from pipeline.core.params import ParameterError, require_count
 from pipeline.errors import PipelineError
 from pipeline.irl.environment import Environment, Rollout
 from pipeline.irl.prior import BoxConfig, Prior
@@ -30,9 +31,17 @@ class IRLConfig(BoxConfig):
     kind: str = ""  # the method's registry name; each subclass fixes its default
     n_iterations: int = 20
     init_weights: Optional[list[float]] = None  # null: drawn from the prior with the seed
+    # The learner's features (names as reward.features, e.g. social@0.8); null: the true
+    # reward's for synthetic experts, the default set for demonstrations of people
+    features: Optional[list[str]] = None
 
     def __post_init__(self) -> None:
         require_count(self, "n_iterations")
+        if self.features is not None:
+            try:
+                FeatureParams(list(self.features))
+            except ParameterError as e:
+                raise ParameterError("features", e.value, e.allowed) from None
 
 
 @dataclass(frozen=True, eq=False)

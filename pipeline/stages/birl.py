@@ -23,6 +23,7 @@ from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import ArtefactWriter
 from pipeline.core.adaptive_graph import AdaptiveGraph
+from pipeline.core.experts import Demonstration
 from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment
@@ -39,16 +40,28 @@ def restore_adaptive_graph(ctx: RunContext) -> AdaptiveGraph:
     scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
     params = dataclasses.replace(cfg.graph, min_separation=sol["min_separation"])
     # Its own generator: growing must not change the stage's other random draws.
-    g = AdaptiveGraph(scene, build.feature_model(cfg, scene), build.controller(cfg),
+    g = AdaptiveGraph(scene, build.learner_feature_model(cfg, scene), build.controller(cfg),
                       sol["weights"], params, ctx.rng("birl", None, 1), cfg.mdp)
     g.restore(*codec.graph_records(art), sol["start_nodes"])
     return g
 
 
+def expert_stats(ctx: RunContext, demos: list[dict]) -> list[TrajectoryStats]:
+    """The demonstrations as the likelihood sees them, on the learner's features: as
+    demos.mcap holds them when those are the true reward's, else from their polylines."""
+    cfg = ctx.cfg
+    if cfg.learner_features == list(cfg.reward.features):
+        return codec.decode_expert_stats(demos)
+    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
+    features = build.learner_feature_model(cfg, scene)
+    return [Demonstration.from_points(m["start_index"], m["points"], features, cfg.mdp.speed,
+                                      m["reached"]).stats(cfg.mdp) for m in demos]
+
+
 def run(ctx: RunContext) -> None:
     cfg, b = ctx.cfg, ctx.cfg.birl
-    demos = ctx.read("demos", required_topics=[topics.DEMOS]).all(topics.DEMOS)
-    expert = codec.decode_expert_stats(demos)
+    demos = codec.training_demos(ctx.read("demos", required_topics=[topics.DEMOS_EXPERT]))
+    expert = expert_stats(ctx, demos)
     prior = build.prior(cfg)
     rng = ctx.rng("birl")
     fixed = build.fixed_weights(cfg)  # birl=fixed: the given or transferred weights
@@ -98,7 +111,7 @@ def write_birl(ctx: RunContext, expert: list[TrajectoryStats], result: IRLResult
     b = ctx.cfg.birl
     with ctx.writer("birl") as w:
         w.add(topics.BIRL_EXPERT, "BirlExpert", {
-            "feature_names": list(ctx.cfg.reward.features), "beta": getattr(b, "beta", None),
+            "feature_names": ctx.cfg.learner_features, "beta": getattr(b, "beta", None),
             "prior": b.prior.kind,
             "trajectories": [{"start": t.start, "phi": t.phi, "offset": t.offset,
                               "end_discount": t.end_discount, "reached": t.reached}

@@ -17,7 +17,12 @@ from pipeline.app import build
 from pipeline.app.config import BoltzmannExpertConfig, FileExpertConfig, PlannerExpertConfig
 from pipeline.app.context import RunContext, resolve_path
 from pipeline.artefacts import codec, foxglove, topics
-from pipeline.core.experts import Demonstration, boltzmann_demos, optimal_demos
+from pipeline.core.experts import (
+    Demonstration,
+    boltzmann_demos,
+    choose_heldout,
+    optimal_demos,
+)
 from pipeline.core.social_planner import planner_demos
 from pipeline.errors import PipelineError
 from pipeline.inputs.demo_file import load_demo_file
@@ -62,6 +67,8 @@ def run(ctx: RunContext) -> None:
         demos = recorded
     elif isinstance(expert, PlannerExpertConfig):
         demos = planner_demos(scene, features, expert, ctx.rng("demos"), md.speed)
+    elif expert.kind == "none":
+        demos = []
     else:
         demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
     if expert.n_demos is not None:
@@ -72,9 +79,19 @@ def run(ctx: RunContext) -> None:
     if unreached:
         log.warning("demonstrations from starts %s do not reach the goal", unreached)
     log.info("%s expert: %d demonstrations", expert.kind, len(demos))
-
-    # file and planner demonstrations have no true weights
-    synthetic = not isinstance(expert, (FileExpertConfig, PlannerExpertConfig))
+    holdout = cfg.evaluate.holdout
+    heldout = choose_heldout([d.start_index for d in demos], [d.subject for d in demos],
+                             holdout, ctx.rng("demos", None, 1))
+    if holdout is not None:
+        log.info("held out of learning: %d of %d demonstrations (evaluate.holdout=%s)",
+                 heldout.sum(), len(demos), holdout)
+        if not heldout.any():
+            log.warning("evaluate.holdout=%s holds out nothing: no start has two "
+                        "demonstrations", holdout)
+        if heldout.all():
+            raise PipelineError(f"evaluate.holdout={holdout} holds out every demonstration; "
+                                "keep some to learn from")
+    synthetic = expert.knows_true_reward
     with ctx.writer("demos") as w:
         w.add(topics.DEMOS_EXPERT, "Expert", {
             "kind": expert.kind, "reward": cfg.reward.name if synthetic else None,
@@ -89,7 +106,7 @@ def run(ctx: RunContext) -> None:
                 "start_index": d.start_index, "points": d.points, "features": d.features,
                 "discounted_features": stats.phi, "end_discount": stats.end_discount,
                 "offset": stats.offset, "duration": float(d.durations.sum()),
-                "reached": d.reached, "subject": d.subject,
+                "reached": d.reached, "subject": d.subject, "heldout": bool(heldout[i]),
                 "value_true": stats.quality(w_true) if synthetic else None}, log_time=i)
         w.add(topics.DEMOS_ROADMAP, "Roadmap", {
             "spacing": cfg.roadmap.spacing, "connectivity": cfg.roadmap.connectivity,

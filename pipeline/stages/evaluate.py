@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import re
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,12 +19,18 @@ from omegaconf import OmegaConf
 from pipeline.app import build
 from pipeline.app.context import PACKAGE_ROOT, RunContext, resolve_path
 from pipeline.artefacts import codec, foxglove, topics
-from pipeline.artefacts.store import write_json_atomic
+from pipeline.artefacts.store import Artefact, write_json_atomic
 from pipeline.artefacts.topics import STAGES
-from pipeline.core.evaluation import PolicyLoss, discrete_frechet, follow_all, policy_loss
+from pipeline.core.evaluation import (
+    PolicyLoss,
+    discrete_frechet,
+    follow_all,
+    frechet,
+    policy_loss,
+)
 from pipeline.core.features import FEATURE_NAMES
 from pipeline.core.graph_mdp import SpatialGraph
-from pipeline.core.social import path_metrics
+from pipeline.core.social import min_distance_to_person, path_metrics
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.scene_file import load_scene_file
@@ -39,17 +46,42 @@ def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
     return np.array([float(by_name.get(n, 0.0)) for n in feature_names])
 
 
-def loss_curve(graph: SpatialGraph, w_true: np.ndarray,
-               weights_per_iteration: np.ndarray) -> tuple[np.ndarray, PolicyLoss, np.ndarray]:
-    """Policy loss of every iteration's weights on one graph, and the final policy."""
+def loss_curve(graph: SpatialGraph, w_true: np.ndarray, weights_per_iteration: np.ndarray,
+               learner: SpatialGraph | None = None) -> tuple[np.ndarray, PolicyLoss, np.ndarray]:
+    """Policy loss of every iteration's weights on one graph (the true reward's features;
+    `learner`: the same graph with the learner's, default the same), and the final policy."""
     mdp = graph.mdp
     optimal = mdp.solve(w_true).values
     losses, values, last = [], None, None
     for w in weights_per_iteration:
-        last = policy_loss(mdp, w_true, w, graph.start_nodes, optimal, init_values=values)
+        last = policy_loss(mdp, w_true, w, graph.start_nodes, optimal, init_values=values,
+                           learner=None if learner is None else learner.mdp)
         values = last.values_learned
         losses.append(last.loss)
     return np.array(losses), last, optimal
+
+
+@dataclass(frozen=True, eq=False)
+class Views:
+    """One graph seen with the true reward's features (policy loss) and with the learner's
+    (the learned weights' policy): the same object when the two sets are the same."""
+    true: SpatialGraph
+    learner: SpatialGraph
+
+
+def feature_views(ctx: RunContext, scene: Scene, roadmap: SpatialGraph,
+                  graph: SpatialGraph) -> tuple[Views, Views]:
+    """The reference roadmap (stored with the true features) and the adaptive graph (stored
+    with the learner's), each with the other feature set computed from its edges' paths."""
+    cfg = ctx.cfg
+    if cfg.learner_features == list(cfg.reward.features):
+        return Views(roadmap, roadmap), Views(graph, graph)
+    learner_fm = build.learner_feature_model(cfg, scene)
+    m = roadmap.mdp
+    ref = Views(roadmap, roadmap.with_features(
+        learner_fm.segments(roadmap.positions[m.src], roadmap.positions[m.dst])))
+    true_fm = build.feature_model(cfg, scene)
+    return ref, Views(graph.with_features(true_fm.polylines(graph.internal_waypoints())), graph)
 
 
 def summed_path_metrics(graph: SpatialGraph, policy: np.ndarray, scene: Scene,
@@ -89,13 +121,13 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
     transfer_<scene name>_<metric>."""
     cfg, md = ctx.cfg, ctx.cfg.mdp
     scene = load_scene_file(resolve_path(path))
-    features = build.feature_model(cfg, scene)
-    roadmap = build.reference_roadmap(cfg, scene, features)
+    roadmap = build.reference_roadmap(cfg, scene, build.feature_model(cfg, scene))
     graph = roadmap.spatial(roadmap.mdp(md))
+    ref = feature_views(ctx, scene, graph, graph)[0]
     out: dict[str, float] = {}
     if true_weights is not None:
         w_true = np.asarray(true_weights, float)
-        _, learned, optimal = loss_curve(graph, w_true, w_learned[None, :])
+        _, learned, optimal = loss_curve(ref.true, w_true, w_learned[None, :], ref.learner)
         contrast = contrast_preset(w_true, list(cfg.reward.features))
         baseline = policy_loss(graph.mdp, w_true, preset_weights(contrast, cfg.reward.features),
                                graph.start_nodes, optimal).loss
@@ -103,12 +135,38 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
         out["policy_loss_norm"] = learned.loss / baseline if baseline > 0 else np.nan
         policy = learned.policy
     else:
-        policy = graph.mdp.solve(w_learned).policy
+        policy = ref.learner.mdp.solve(w_learned).policy
     out.update(summed_path_metrics(graph, policy, scene)[0])
     name = re.sub(r"\W+", "_", scene.name).strip("_") or Path(path).stem
     log.info("transfer to %s (%s): %s", name, path, {k: round(out[k], 4) for k in out
                                                       if k in ("policy_loss_norm", "success")})
     return {f"transfer_{name}_{k}": v for k, v in out.items() if k in TRANSFER_KEYS}
+
+
+def heldout_metrics(ref: SpatialGraph, policy: np.ndarray,
+                    demos: list[dict], scene: Scene) -> dict[str, float]:
+    """DESIGN §9: every held-out demonstration against the learned path from its start on
+    the reference roadmap (which holds no demonstration) and, as the baseline, against the
+    fastest path (no reward but the cost per second): median Fréchet distance and median
+    error of the smallest distance to a person, as heldout_* and heldout_*_shortest."""
+    if not demos:
+        return {}
+    mdp = ref.mdp
+    fastest = mdp.solve(np.zeros(mdp.features.shape[1])).policy
+    out: dict[str, float] = {"heldout_count": float(len(demos))}
+    persons = scene.person_xy
+    for suffix, pol in (("", policy), ("_shortest", fastest)):
+        frechets, errors = [], []
+        for d in demos:
+            path = ref.polyline(mdp.follow(pol, int(ref.start_nodes[d["start_index"]])))
+            shown = np.asarray(d["points"], float)
+            frechets.append(frechet(path, shown))
+            errors.append(abs(min_distance_to_person(path, persons)
+                              - min_distance_to_person(shown, persons)))
+        out[f"heldout_frechet_m{suffix}"] = float(np.median(frechets))
+        if len(persons):
+            out[f"heldout_min_distance_error_m{suffix}"] = float(np.median(errors))
+    return out
 
 
 def contrast_preset(w_true: np.ndarray, names: list[str]) -> str:
@@ -118,48 +176,36 @@ def contrast_preset(w_true: np.ndarray, names: list[str]) -> str:
 
 def run(ctx: RunContext) -> None:
     t0 = time.perf_counter()
-    md, names = ctx.cfg.mdp, list(ctx.cfg.reward.features)
+    cfg, md = ctx.cfg, ctx.cfg.mdp
+    names, true_names = cfg.learner_features, list(cfg.reward.features)
     scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
-    demos_art = ctx.read("demos", required_topics=[topics.DEMOS, topics.DEMOS_EXPERT,
-                                                   topics.DEMOS_ROADMAP])
+    demos_art = ctx.read("demos", required_topics=[topics.DEMOS_EXPERT, topics.DEMOS_ROADMAP])
     expert = demos_art.one(topics.DEMOS_EXPERT)
     birl_art = ctx.read("birl", required_topics=[topics.BIRL_ITERATION])
-    iterations = birl_art.all(topics.BIRL_ITERATION)
-    weights = np.array([it["weights"] for it in iterations], float)
+    weights = np.array([it["weights"] for it in birl_art.all(topics.BIRL_ITERATION)], float)
     w_final = weights[-1]
     if len(w_final) != len(names):
         raise PipelineError(f"{birl_art.path} holds weights on {len(w_final)} features but "
-                            f"reward.features names {len(names)}: use the features of the run "
-                            "that learned them")
+                            f"the learner's features are {names}: use the features of the run "
+                            "that learned them (birl.features)")
     graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
                                                    topics.GRAPH_SOLUTION])
-    graph = codec.decode_graph(graph_art, md, grown=birl_art)
-    roadmap = codec.decode_roadmap(demos_art, md)
+    ref, graph = feature_views(ctx, scene, codec.decode_roadmap(demos_art, md),
+                               codec.decode_graph(graph_art, md, grown=birl_art))
 
     metrics: dict[str, float] = {f"weight_{n}": float(v)
                                  for n, v in zip(names, w_final, strict=True)}
-    if birl_art.messages.get(topics.BIRL_POSTERIOR):  # sampling methods: the final spread
-        post = birl_art.all(topics.BIRL_POSTERIOR)[-1]
-        metrics.update({f"weight_std_{n}": float(v)
-                        for n, v in zip(names, post["std"], strict=True)})
-        metrics["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
-        for key in ("rhat", "ess"):  # convergence diagnostics (ArviZ); null: one chain
-            values = [v for v in post.get(key) or [] if v is not None]
-            metrics.update({f"weight_{key}_{n}": float(v)
-                            for n, v in zip(names, post.get(key) or [], strict=False)
-                            if v is not None})
-            if values:
-                metrics[f"mcmc_{key}_{'max' if key == 'rhat' else 'min'}"] = float(
-                    max(values) if key == "rhat" else min(values))
+    metrics.update(posterior_metrics(birl_art, names))
     curves = {}
     if expert["true_weights"] is not None:
         w_true = np.asarray(expert["true_weights"], float)
-        curves["graph"], final_graph, _ = loss_curve(graph, w_true, weights)
-        curves["ref"], final_ref, ref_optimal = loss_curve(roadmap, w_true, weights)
+        curves["graph"], final_graph, _ = loss_curve(graph.true, w_true, weights, graph.learner)
+        curves["ref"], final_ref, ref_optimal = loss_curve(ref.true, w_true, weights,
+                                                           ref.learner)
         # Normalise by the loss of the contrasting behaviour (rude; polite if w* is rude).
-        contrast = contrast_preset(w_true, names)
-        baseline = policy_loss(roadmap.mdp, w_true, preset_weights(contrast, names),
-                               roadmap.start_nodes, ref_optimal).loss
+        contrast = contrast_preset(w_true, true_names)
+        baseline = policy_loss(ref.true.mdp, w_true, preset_weights(contrast, true_names),
+                               ref.true.start_nodes, ref_optimal).loss
         curves["norm"] = curves["ref"] / baseline if baseline > 0 else np.full(len(weights), np.nan)
         metrics.update({
             "policy_loss": curves["graph"][-1], "policy_loss_ref": curves["ref"][-1],
@@ -170,27 +216,54 @@ def run(ctx: RunContext) -> None:
             metrics[f"policy_loss_ref_iter_{k:02d}"] = r
         graph_policy, ref_policy = final_graph.policy, final_ref.policy
     else:
-        graph_policy = graph.mdp.solve(w_final).policy
-        ref_policy = roadmap.mdp.solve(w_final).policy
+        graph_policy = graph.learner.mdp.solve(w_final).policy
+        ref_policy = ref.learner.mdp.solve(w_final).policy
 
-    social, graph_paths = summed_path_metrics(graph, graph_policy, scene)
-    social_ref, ref_paths = summed_path_metrics(roadmap, ref_policy, scene, prefix="ref_")
+    social, graph_paths = summed_path_metrics(graph.learner, graph_policy, scene)
+    social_ref, ref_paths = summed_path_metrics(ref.learner, ref_policy, scene, prefix="ref_")
     metrics.update(social)
     metrics.update(social_ref)
-    for path in ctx.cfg.evaluate.transfer_scenes:
+    metrics.update(heldout_metrics(ref.learner, ref_policy, codec.heldout_demos(demos_art),
+                                   scene))
+    for path in cfg.evaluate.transfer_scenes:
         metrics.update(transfer_metrics(ctx, path, w_final, expert["true_weights"]))
-    if expert["true_weights"] is None:  # file or planner demonstrations
-        demos = demos_art.all(topics.DEMOS)
-        dists = [discrete_frechet(graph_paths[d["start_index"]][0], d["points"]) for d in demos]
+    training = codec.training_demos(demos_art)
+    if expert["true_weights"] is None and training:  # file or planner demonstrations
+        dists = [discrete_frechet(graph_paths[d["start_index"]][0], d["points"])
+                 for d in training]
         metrics["frechet_to_demos"] = float(np.mean(dists))
         metrics["frechet_to_demos_max"] = float(np.max(dists))
+    kinds = [n["kind"] for n in graph_art.all(topics.GRAPH_NODE)]
+    metrics["graph_demo_node_share"] = kinds.count("demo") / max(len(kinds), 1)
 
     # The earlier stages' wall-clock times (timings.json, kept by run_pipeline) and this one.
     metrics.update(ctx.timings)
     metrics["time_evaluate_s"] = round(time.perf_counter() - t0, 3)
     # Flat and numeric: a metric that cannot be computed (e.g. 0/0) is left out.
     metrics = {k: float(v) for k, v in metrics.items() if np.isfinite(v)}
+    write_evaluation(ctx, weights, curves, graph_paths, ref_paths, metrics)
+    print_summary(metrics, ctx)
 
+
+def posterior_metrics(birl_art: Artefact, names: list[str]) -> dict[str, float]:
+    """Sampling methods: the final posterior's spread and convergence diagnostics."""
+    if not birl_art.messages.get(topics.BIRL_POSTERIOR):
+        return {}
+    post = birl_art.all(topics.BIRL_POSTERIOR)[-1]
+    out = {f"weight_std_{n}": float(v) for n, v in zip(names, post["std"], strict=True)}
+    out["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
+    for key in ("rhat", "ess"):  # null: one chain
+        values = [v for v in post.get(key) or [] if v is not None]
+        out.update({f"weight_{key}_{n}": float(v)
+                    for n, v in zip(names, post.get(key) or [], strict=False) if v is not None})
+        if values:
+            out[f"mcmc_{key}_{'max' if key == 'rhat' else 'min'}"] = float(
+                max(values) if key == "rhat" else min(values))
+    return out
+
+
+def write_evaluation(ctx: RunContext, weights: np.ndarray, curves: dict, graph_paths: list,
+                     ref_paths: list, metrics: dict[str, float]) -> None:
     with ctx.writer("evaluate") as w:
         for k in range(len(weights)):
             w.add(topics.EVAL_POLICY_LOSS, "PolicyLoss", {
@@ -210,7 +283,6 @@ def run(ctx: RunContext) -> None:
                                            if not (k.startswith("time_") and k.endswith("_s"))},
               log_time=0)
     write_json_atomic(ctx.run_dir / "metrics.json", metrics)
-    print_summary(metrics, ctx)
 
 
 def print_summary(m: dict, ctx: RunContext) -> None:
@@ -218,21 +290,39 @@ def print_summary(m: dict, ctx: RunContext) -> None:
         v = m.get(key)
         return "n/a" if v is None else format(v, spec)
 
+    def paths(prefix: str) -> str:
+        return (f"crossings {fmt(prefix + 'relation_crossings', '.0f')}, intimate "
+                f"{fmt(prefix + 'intimate_intrusion_m', '.2f')} m, personal "
+                f"{fmt(prefix + 'personal_intrusion_m', '.2f')} m, min distance "
+                f"{fmt(prefix + 'min_distance_to_person', '.2f')} m, success "
+                f"{fmt(prefix + 'success', '.2f')}")
+
+    share = m.get("graph_demo_node_share", 0.0)
     lines = [
         f"BIRL-G run: {ctx.run_dir}",
         "  learned weights  "
-        + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in ctx.cfg.reward.features),
-        f"  policy loss      graph {fmt('policy_loss')} (initial {fmt('policy_loss_initial')}), "
-        f"roadmap {fmt('policy_loss_ref')}, normalised {fmt('policy_loss_norm')}",
-        f"  learned paths    crossings {fmt('relation_crossings', '.0f')}, intimate "
-        f"{fmt('intimate_intrusion_m', '.2f')} m, personal {fmt('personal_intrusion_m', '.2f')} m, "
-        f"min distance {fmt('min_distance_to_person', '.2f')} m, success {fmt('success', '.2f')}",
+        + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in ctx.cfg.learner_features),
     ]
+    if "policy_loss" in m:
+        lines.append(f"  policy loss      roadmap {fmt('policy_loss_ref')}, normalised "
+                     f"{fmt('policy_loss_norm')}, graph {fmt('policy_loss')} (initial "
+                     f"{fmt('policy_loss_initial')})")
+    if "heldout_count" in m:
+        lines.append(f"  held out ({fmt('heldout_count', '.0f')})    Fréchet "
+                     f"{fmt('heldout_frechet_m', '.2f')} m (shortest path "
+                     f"{fmt('heldout_frechet_m_shortest', '.2f')} m), min-distance error "
+                     f"{fmt('heldout_min_distance_error_m', '.2f')} m (shortest "
+                     f"{fmt('heldout_min_distance_error_m_shortest', '.2f')} m)")
+    lines.append(f"  roadmap paths    {paths('ref_')}")
+    lines.append(f"  graph paths      {paths('')}"
+                 + (f" ({share:.0%} of its nodes are demonstration waypoints: these say "
+                    "little)" if share > 0.5 else ""))
     if "obstacle_collisions" in m:
         lines.append(f"  obstacles        collisions {fmt('obstacle_collisions', '.0f')}, min "
                      f"distance {fmt('min_distance_to_obstacle', '.2f')} m")
     if "frechet_to_demos" in m:
-        lines.append(f"  vs demos         discrete Fréchet mean {fmt('frechet_to_demos', '.3f')} m")
+        lines.append(f"  vs demos         discrete Fréchet mean {fmt('frechet_to_demos', '.3f')} m "
+                     "(on the graph that holds them)")
     lines.append("  stage seconds    " + ", ".join(
         f"{stage} {m[f'time_{stage}_s']:.2f}" for stage in STAGES if f"time_{stage}_s" in m))
     print("\n".join(lines), flush=True)

@@ -44,15 +44,15 @@ def check_graph_size(max_nodes: int, scene: Scene, rho_personal: float) -> None:
 def run(ctx: RunContext) -> None:
     cfg = ctx.cfg
     scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
-    demos_art = ctx.read("demos", required_topics=[topics.DEMOS, topics.DEMOS_EXPERT])
-    features = build.feature_model(cfg, scene)
+    demos_art = ctx.read("demos", required_topics=[topics.DEMOS_EXPERT])
+    features = build.learner_feature_model(cfg, scene)
     check_graph_size(cfg.graph.max_nodes, scene, cfg.reward.rho_personal)
     weights, weights_source = build.growth_weights(
         cfg, demos_art.one(topics.DEMOS_EXPERT)["true_weights"])
     graph = AdaptiveGraph(scene, features, build.controller(cfg), weights, cfg.graph,
                           ctx.rng("graph"), cfg.mdp)
     t0 = time.perf_counter()
-    graph.initialise(demos_for_graph(demos_art.all(topics.DEMOS), features, cfg.mdp.speed))
+    graph.initialise(demos_for_graph(codec.training_demos(demos_art), features, cfg.mdp.speed))
     log.info("graph initialised: %d nodes, %d edges; growing to %d nodes under %s weights %s",
              graph.n_nodes, len(graph.src), cfg.graph.max_nodes, weights_source,
              np.round(weights, 3).tolist())

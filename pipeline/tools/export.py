@@ -341,9 +341,9 @@ class RunReward:
 
 
 def feature_params(birl: Artefact, names: list[str]) -> FeatureParams:
-    """The learner's FeatureParams from birl.mcap's resolved config: the `reward` section's
-    constants, the features of `birl.features` when the config has one, else
-    `reward.features`; they must be the features the weights belong to."""
+    """The learner's FeatureParams: the features the weights belong to (`names`, from
+    /birl/expert) with the constants (ρ_r, ρ_p, σ, ...) of the `reward` section of
+    birl.mcap's resolved config."""
     where = f"artefact {birl.path} (attachment config.yaml)"
     try:
         config = yaml.safe_load(birl.config_yaml) or {}
@@ -352,19 +352,13 @@ def feature_params(birl: Artefact, names: list[str]) -> FeatureParams:
     reward = config.get("reward") if isinstance(config, dict) else None
     if not isinstance(reward, dict):
         raise PipelineError(f"{where} has no 'reward' section")
-    section = config.get("birl") if isinstance(config.get("birl"), dict) else {}
     known = {f.name for f in dataclasses.fields(FeatureParams)}
     values = {k: v for k, v in reward.items() if k in known}
-    if "features" in section:
-        values["features"] = section["features"]
+    values["features"] = list(names)
     try:
-        params = FeatureParams(**values)
+        return FeatureParams(**values)
     except (ParameterError, TypeError) as e:
         raise PipelineError(f"{where}: reward features: {e}") from None
-    if list(params.features) != list(names):
-        raise PipelineError(f"{where} names the features {list(params.features)}, but the "
-                            f"learned weights are for {list(names)} (/birl/expert)")
-    return params
 
 
 def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:

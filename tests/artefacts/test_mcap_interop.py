@@ -266,5 +266,6 @@ def test_the_python_snippets_of_the_format_doc_run(runs, capsys):
     code = "\n".join(re.findall(r"```python\n(.*?)```", DOC.read_text(), re.S))
     exec(code.replace("outputs/.../graph.mcap", str(runs["default"] / "graph.mcap")), {})
     out = capsys.readouterr().out
-    assert "run {'config_digest.graph'" in out and "content {'sha256'" in out
+    assert "run {'config_digest." in out and "'config_digest.graph'" in out \
+        and "content {'sha256'" in out
     assert "0 0 " in out and " sampled\n" in out

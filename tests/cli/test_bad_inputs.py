@@ -204,16 +204,16 @@ def _missing_artefact(tmp, default_dir):
 
 def _changed_config(tmp, default_dir):
     return [f"from_run={default_dir}", "stages=[birl,evaluate]", "mdp.gamma=0.5"], \
-        ["mdp.gamma=0.95", "mdp.gamma=0.5", "demos.mcap"]
+        ["mdp.gamma=1.0", "mdp.gamma=0.5", "demos.mcap"]
 
 
 def _mixed_runs(tmp, default_dir):
     src = _copy_run(default_dir, tmp / "src")
     other = tmp / "other"
-    code = cli_quiet(f"hydra.run.dir={other}", "expert=boltzmann", "stages=[scene,demos]")
+    code = cli_quiet(f"hydra.run.dir={other}", "expert.n_demos=3", "stages=[scene,demos]")
     assert code == 0
     shutil.copy(other / "demos.mcap", src / "demos.mcap")  # demos of another run
-    return [f"from_run={src}", "stages=[birl]", "expert=boltzmann"], \
+    return [f"from_run={src}", "stages=[birl]", "expert.n_demos=3"], \
         ["graph.mcap", "another demos.mcap", "different runs"]
 
 

@@ -13,7 +13,6 @@ from scipy.integrate import quad
 from pipeline.core.evaluation import discrete_frechet
 from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FeatureModel
-from pipeline.core.graph_mdp import path_quality
 from pipeline.core.params import ParameterError
 from pipeline.core.roadmap import segments_feasible
 from pipeline.core.social import min_distance_to_person, relation_crossings
@@ -344,9 +343,8 @@ def test_paths_are_not_the_optimum_of_the_learners_default_reward(metropolis, ro
     demos = planner_demos(metropolis, features, SocialPlannerParams(), None, 1.0)
     gap, closer, far = [], [], []
     for o, d in zip(optimal, demos, strict=True):
-        phi, end = d.discounted(mdp.gamma)
         gap.append(solution.values[roadmap.start_nodes[d.start_index]]
-                   - path_quality(phi, end, POLITE, mdp.r_goal, True))
+                   - d.stats(mdp.params).quality(POLITE))
         closer.append(min_distance_to_person(o.points, metropolis.person_xy)
                       - min_distance_to_person(d.points, metropolis.person_xy))
         far.append(discrete_frechet(o.points, d.points))
