@@ -11,7 +11,7 @@ UV := $(VENV)/bin/uv
 UV_STAMP := $(VENV)/.uv-$(UV_VERSION)
 # --locked: fail when uv.lock no longer matches pyproject.toml (`make lock` refreshes it);
 # --inexact: keep the extras installed before.
-SYNC = UV_PROJECT_ENVIRONMENT=$(VENV) $(UV) sync --locked --inexact --quiet
+SYNC = UV_PROJECT_ENVIRONMENT=$(VENV) $(UV) sync --locked --inexact --no-python-downloads --quiet
 
 EXP ?= quick
 JOBS ?= 2
