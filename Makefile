@@ -10,8 +10,10 @@ UV_VERSION := 0.13.9
 UV := $(VENV)/bin/uv
 UV_STAMP := $(VENV)/.uv-$(UV_VERSION)
 # --locked: fail when uv.lock no longer matches pyproject.toml (`make lock` refreshes it);
-# --inexact: keep the extras installed before.
-SYNC = UV_PROJECT_ENVIRONMENT=$(VENV) $(UV) sync --locked --inexact --no-python-downloads --quiet
+# --inexact: keep the extras installed before; --compile-bytecode: .pyc files at install, as
+# pip writes them, so imports stay fast where Python writes none (PYTHONDONTWRITEBYTECODE).
+SYNC = UV_PROJECT_ENVIRONMENT=$(VENV) $(UV) sync --locked --inexact --compile-bytecode \
+  --no-python-downloads --quiet
 
 EXP ?= quick
 JOBS ?= 2
