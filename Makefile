@@ -15,6 +15,7 @@ UV_STAMP := $(VENV)/.uv-$(UV_VERSION)
 # not of their own test suites (a third of their files, twice the time). A file that does not
 # compile is compiled on import instead.
 SYNC = UV_PROJECT_ENVIRONMENT=$(VENV) $(UV) sync --locked --inexact --no-python-downloads --quiet
+SYNC_FAILED = { echo "make: the install failed (uv.lock out of date with pyproject.toml? make lock)"; exit 1; }
 COMPILE = $(PY) -m compileall -qq -j0 -x '/tests?/' $(VENV)/lib/python3*/site-packages || true
 
 EXP ?= quick
@@ -27,8 +28,8 @@ SHOT ?= docs/viewer.png
 .PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress lock
 
 $(STAMP): pyproject.toml uv.lock | $(UV_STAMP)
-	@echo "make: installing the package and its locked dependencies (uv.lock) into $(VENV) ..."
-	@$(SYNC)
+	@echo "make: installing the package and uv.lock's pinned dependencies into $(VENV) (~30 s) ..."
+	@$(SYNC) || $(SYNC_FAILED)
 	@$(COMPILE)
 	@touch $@
 
@@ -41,14 +42,14 @@ $(UV_STAMP):
 # An extra of pyproject.toml, installed on first use: $(VENV)/.installed-viewer, -tune, ...
 $(VENV)/.installed-%: $(STAMP)
 	@echo "make: installing the $* extra (first use) into $(VENV) ..."
-	@$(SYNC) --extra $*
+	@$(SYNC) --extra $* || $(SYNC_FAILED)
 	@$(COMPILE)
 	@touch $@
 
 # Tests and lint: the dev tools, and the viewer for the viewer's tests.
 $(VENV)/.installed-dev: $(STAMP)
 	@echo "make: installing the test and lint tools and the viewer (dev, viewer extras) ..."
-	@$(SYNC) --extra dev --extra viewer
+	@$(SYNC) --extra dev --extra viewer || $(SYNC_FAILED)
 	@$(COMPILE)
 	@touch $@ $(VENV)/.installed-viewer
 
