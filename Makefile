@@ -28,7 +28,7 @@ SHOT ?= docs/viewer.png
 .PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress lock
 
 $(STAMP): pyproject.toml uv.lock | $(UV_STAMP)
-	@echo "make: installing the package and uv.lock's pinned dependencies into $(VENV) (~30 s) ..."
+	@echo "make: installing the package and its locked dependencies into $(VENV) (first time ~30 s) ..."
 	@$(SYNC) || $(SYNC_FAILED)
 	@$(COMPILE)
 	@touch $@
