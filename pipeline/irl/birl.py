@@ -349,7 +349,7 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
     size adapts (Robbins–Monro on its logarithm) towards the target acceptance rate and the
     proposals are reshaped by the states' covariance (below); the kept step is the chains'
     median, frozen for the sampling phase. Chain 0 starts at w0 (d,), the others at prior
-    draws. R-hat and ESS by ArviZ (pipeline.irl.diagnostics)."""
+    draws. R-hat and ESS as ArviZ computes them (pipeline.irl.diagnostics)."""
     n_chains = getattr(chain, "n_chains", 1)
     adapt = getattr(chain, "adapt", False)
     mala = getattr(chain, "sampler", "rw") == "mala"

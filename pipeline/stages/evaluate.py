@@ -143,7 +143,7 @@ def run(ctx: RunContext) -> None:
         metrics.update({f"weight_std_{n}": float(v)
                         for n, v in zip(names, post["std"], strict=True)})
         metrics["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
-        for key in ("rhat", "ess"):  # convergence diagnostics (ArviZ); null: one chain
+        for key in ("rhat", "ess"):  # convergence diagnostics (as ArviZ); null: one chain
             values = [v for v in post.get(key) or [] if v is not None]
             metrics.update({f"weight_{key}_{n}": float(v)
                             for n, v in zip(names, post.get(key) or [], strict=False)
