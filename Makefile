@@ -4,6 +4,19 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 ARGS ?=
+# Installs come from uv.lock (every package pinned, with hashes), by uv, which pip brings into
+# the venv: the core for the experiments; an extra (viewer, tune, dev) on first use.
+UV_VERSION := 0.13.9
+UV := $(VENV)/bin/uv
+UV_STAMP := $(VENV)/.uv-$(UV_VERSION)
+# --locked: fail when uv.lock no longer matches pyproject.toml (`make lock` refreshes it);
+# --inexact: keep the extras installed before. Then the .pyc files, as pip writes them, so
+# imports stay fast where Python writes none (PYTHONDONTWRITEBYTECODE): of the packages' code,
+# not of their own test suites (a third of their files, twice the time). A file that does not
+# compile is compiled on import instead.
+SYNC = UV_PROJECT_ENVIRONMENT=$(VENV) $(UV) sync --locked --inexact --no-python-downloads --quiet
+SYNC_FAILED = { echo "make: the install failed (uv.lock out of date with pyproject.toml? make lock)"; exit 1; }
+COMPILE = $(PY) -m compileall -qq -j0 -x '/tests?/' $(VENV)/lib/python3*/site-packages || true
 
 EXP ?= quick
 JOBS ?= 2
@@ -12,15 +25,38 @@ SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S-%N))
 RUN ?=
 SHOT ?= docs/viewer.png
 
-.PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress export
+.PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress export lock
 
-$(STAMP): pyproject.toml
-	@test -x $(PY) || { echo "make: creating $(VENV) with the pinned dependencies (first time: 1-3 min) ..."; \
-	  $(PYTHON) -m venv $(VENV); }
-	@echo "make: installing the package and its pinned dependencies into $(VENV) ..."
-	@$(PY) -m pip install -qq --disable-pip-version-check --upgrade pip
-	@$(PY) -m pip install -qq --disable-pip-version-check -e '.[dev]'
-	@touch $(STAMP)
+$(STAMP): pyproject.toml uv.lock | $(UV_STAMP)
+	@echo "make: installing the package and its locked dependencies into $(VENV) (first time ~30 s) ..."
+	@$(SYNC) || $(SYNC_FAILED)
+	@$(COMPILE)
+	@touch $@
+
+# uv itself, by pip.
+$(UV_STAMP):
+	@test -x $(PY) || { echo "make: creating $(VENV) ..."; $(PYTHON) -m venv $(VENV); }
+	@$(PY) -m pip install -qq --disable-pip-version-check uv==$(UV_VERSION)
+	@touch $@
+
+# An extra of pyproject.toml, installed on first use: $(VENV)/.installed-viewer, -tune, ...
+$(VENV)/.installed-%: $(STAMP)
+	@echo "make: installing the $* extra (first use) into $(VENV) ..."
+	@$(SYNC) --extra $* || $(SYNC_FAILED)
+	@$(COMPILE)
+	@touch $@
+
+# Tests and lint: the dev tools, and the viewer for the viewer's tests.
+$(VENV)/.installed-dev: $(STAMP)
+	@echo "make: installing the test and lint tools and the viewer (dev, viewer extras) ..."
+	@$(SYNC) --extra dev --extra viewer || $(SYNC_FAILED)
+	@$(COMPILE)
+	@touch $@ $(VENV)/.installed-viewer
+
+## Refresh uv.lock after editing the dependencies in pyproject.toml (ARGS=--upgrade also
+## moves the unpinned transitive dependencies to their newest versions).
+lock: | $(UV_STAMP)
+	$(UV) lock $(ARGS)
 
 ## Run the default experiment end to end (Hydra overrides via ARGS="scene=random seed=3").
 experiment: $(STAMP)
@@ -28,7 +64,7 @@ experiment: $(STAMP)
 
 ## Hydra multirun over a preset of conf/experiment/ with the joblib launcher, then aggregate.
 ## A failing job does not stop the others; the exit status says whether any failed.
-sweep: $(STAMP)
+sweep: $(STAMP) $(if $(filter tune,$(EXP)),$(VENV)/.installed-tune)
 	@# Aggregate also when jobs failed (the table lists them); exit non-zero if any did.
 	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) hydra.sweep.dir=$(SWEEP_DIR) $(ARGS); \
 	  sweep=$$?; $(PY) -m pipeline.tools.aggregate $(SWEEP_DIR) || exit $$?; exit $$sweep
@@ -39,7 +75,7 @@ aggregate: $(STAMP)
 	$(PY) -m pipeline.tools.aggregate $(SWEEP)
 
 ## Rerun recording of a run dir (opens the viewer when there is a display): make view RUN=outputs/...
-view: $(STAMP)
+view: $(VENV)/.installed-viewer
 	@test -n "$(RUN)" || { echo "usage: make view RUN=<run dir>"; exit 2; }
 	$(PY) -m pipeline.tools.viewer $(RUN)
 
@@ -52,7 +88,7 @@ export: $(STAMP)
 ## The viewer showing a run, rendered headless under Xvfb, as a 256-colour PNG (default
 ## docs/viewer.png, the README's): make screenshot RUN=outputs/... [SHOT=file.png]
 ## (apt-get install xvfb imagemagick mesa-vulkan-drivers)
-screenshot: $(STAMP)
+screenshot: $(VENV)/.installed-viewer
 	@test -n "$(RUN)" || { echo "usage: make screenshot RUN=<run dir> [SHOT=<png>]"; exit 2; }
 	$(PY) -m pipeline.tools.screenshot $(RUN) --out $(SHOT) --colors 256
 
@@ -61,15 +97,15 @@ regress: $(STAMP)
 	$(PY) -m pipeline.tools.regress
 
 ## Fast test suite (slow and benchmark tests excluded).
-test: $(STAMP)
+test: $(VENV)/.installed-dev
 	$(PY) -m pytest -q
 
 ## Everything, including slow tests.
-test-all: $(STAMP)
+test-all: $(VENV)/.installed-dev
 	$(PY) -m pytest -q -m "not bench"
 
 ## Style and types: ruff on the package and tests, mypy on the algorithm packages.
-lint: $(STAMP)
+lint: $(VENV)/.installed-dev
 	$(VENV)/bin/ruff check pipeline tests
 	$(VENV)/bin/mypy
 

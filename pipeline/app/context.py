@@ -20,7 +20,7 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent.parent
 # conf/ and data/ of the package: links to the top-level dirs in the source tree, real
 # copies in an installed wheel.
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
-_VERSIONED = ["numpy", "scipy", "scikit-learn", "mcap", "hydra-core", "pandas", "rerun-sdk"]
+_VERSIONED = ["numpy", "scipy", "scikit-learn", "mcap", "hydra-core", "pandas"]
 
 
 def resolve_path(path: str) -> Path:

@@ -35,7 +35,14 @@ from pathlib import Path
 from PIL import Image
 
 from pipeline.errors import PipelineError, os_error_reason
-from pipeline.tools.viewer import build_recording, viewer_command, warn_if_incomplete
+
+try:
+    from pipeline.tools.viewer import build_recording, viewer_command, warn_if_incomplete
+except ModuleNotFoundError as e:  # rerun-sdk, the optional viewer extra: its message
+    if e.name != "rerun" or __name__ != "__main__":
+        raise
+    print(f"error: {e}", file=sys.stderr)
+    sys.exit(2)
 
 DEFAULT_OUT = Path("docs/viewer.png")
 MIN_COLOURS = 64  # fewer: a blank screen (a black one has 1), not the viewer

@@ -23,13 +23,25 @@ from pathlib import Path
 
 import contourpy  # ships with matplotlib
 import numpy as np
-import rerun as rr
-import rerun.blueprint as rrb
 
 from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError, os_error_reason
+
+# rerun-sdk is the optional `viewer` extra (670 MB with pyarrow), out of the core install.
+RERUN_MISSING = ("the viewer needs rerun-sdk, which is not installed: "
+                 "pip install -e '.[viewer]' (make view and make screenshot install it)")
+try:
+    import rerun as rr
+    import rerun.blueprint as rrb
+except ModuleNotFoundError as e:
+    if e.name != "rerun":
+        raise
+    if __name__ == "__main__":
+        print(f"error: {RERUN_MISSING}", file=sys.stderr)
+        sys.exit(2)
+    raise ModuleNotFoundError(RERUN_MISSING, name="rerun") from None
 
 APP_ID = "birlg"
 HEADING_LEN = 0.4  # m, length of the person heading arrows
