@@ -199,3 +199,73 @@ def two_routes():
     route_a = GraphPath([0, 3], [edge[0, 3]], True)
     route_b = GraphPath([0, 1, 3], [edge[0, 1], edge[1, 3]], True)
     return mdp, route_a, route_b
+
+
+# ---------------------------------------------------------------------------------------------
+# Recordings as they really occur: metropolis drives stepping exactly 0.1 m (so resampling a
+# pose stream at 0.1 m gives them back), recorded running on into the goal disk and beyond,
+# and a robot's pose stream with pauses
+
+METROPOLIS_STARTS = np.array([[0.5, 0.5], [4.0, 0.1], [2.0, 3.0], [8.5, 5.2], [8.9, 0.1],
+                              [0.1, 8.5], [4.0, 3.0]])
+METROPOLIS_GOAL = np.array([5.5, 9.0])
+GOAL_TOLERANCE = 0.3  # the world model's default
+
+
+def stepped(corners: list[list[float]], goal: np.ndarray = METROPOLIS_GOAL,
+            step: float = 0.1) -> np.ndarray:
+    """Points exactly `step` apart along the corners (each piece a multiple of `step` long),
+    then on towards the goal up to the last point outside the goal disk, then the goal: a
+    polyline as the goal-disk cut leaves it, and a fixed point of resampling at `step`."""
+    c = np.asarray(corners, float)
+    pts = [c[0]]
+    for a, b in zip(c[:-1], c[1:], strict=True):
+        n = round(np.linalg.norm(b - a) / step)
+        assert abs(n * step - np.linalg.norm(b - a)) < 1e-9, "piece not a multiple of the step"
+        u = (b - a) / np.linalg.norm(b - a)
+        pts += [a + k * step * u for k in range(1, n + 1)]
+    last = pts[-1]
+    u = (goal - last) / np.linalg.norm(goal - last)
+    k = 1
+    while np.linalg.norm(last + k * step * u - goal) > GOAL_TOLERANCE:
+        pts.append(last + k * step * u)
+        k += 1
+    return np.vstack(pts + [goal])
+
+
+# Two drives in metropolis, from start 0 and from start 2, clear of the persons' body disks
+CLEAN_DRIVES = [stepped([[0.5, 0.5], [0.5, 4.0], [3.5, 8.0]]),
+                stepped([[2.0, 3.0], [2.9, 4.2], [2.9, 8.0]])]
+
+
+def into_the_disk(clean: np.ndarray) -> np.ndarray:
+    """A recording of the clean polyline that does not stop at the goal: it runs on into the
+    goal disk (a pose every 5 cm), past the goal and out of the room."""
+    last, goal = clean[-2], clean[-1]
+    u = (goal - last) / np.linalg.norm(goal - last)
+    first_in = last + 0.1 * u  # the next 0.1 m step lies inside the disk
+    assert np.linalg.norm(first_in - goal) <= GOAL_TOLERANCE
+    beyond = [first_in + k * 0.05 * u for k in range(40)] + [np.array([12.0, 12.0])]
+    return np.vstack([clean[:-1], beyond])
+
+
+def pause(at: np.ndarray, n: int) -> np.ndarray:
+    return np.repeat(np.asarray(at, float)[None], n, axis=0)
+
+
+def walk(a: np.ndarray, b: np.ndarray, step: float = 0.05) -> np.ndarray:
+    """Poses from a (excluded) to b (included) at most `step` apart."""
+    n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+    return a + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a)
+
+
+def odometry(drives: list[np.ndarray], goal: np.ndarray = METROPOLIS_GOAL) -> np.ndarray:
+    """A robot's pose stream: it waits at each drive's start, drives it into the goal disk and
+    past the goal, waits there, and is driven back (straight) to the next drive's start."""
+    parts: list[np.ndarray] = []
+    for k, drive in enumerate(drives):
+        if k:
+            parts.append(walk(parts[-1][-1], drive[0]))
+        parts += [pause(drive[0], 20), into_the_disk(drive)[:-1], pause(goal + [0.05, 0.0], 10)]
+    parts.append(walk(parts[-1][-1], np.array([8.0, 1.0])))  # wanders off: never back at goal
+    return np.vstack(parts)

@@ -181,7 +181,10 @@ BAD_DEMOS = [
     (_set("trajectories.2.0.1", float("-inf")), "trajectories[2][0][1]: -Infinity is not a"),
     (_drop("trajectories"), "missing key 'trajectories'"),
     (_set("trajectory", []), "unknown key 'trajectory'; expected one of $schema, scene, source, "
-                             "trajectories"),
+                             "subjects, trajectories"),
+    (_set("subjects", ["a", 3]), "subjects[1]: expected a string (subject id), got 3"),
+    (_set("subjects", [""]), "subjects[0]: expected a string of at least 1 character(s)"),
+    (_set("subjects", "ann"), "subjects: expected an array, got \"ann\""),
     (_set("scene", 3), "scene: expected a string, got 3"),
 ]
 
