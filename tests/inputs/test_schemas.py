@@ -126,7 +126,7 @@ BAD_SCENES = [
     (_set("persons.0.id", True), "persons[0].id: expected an integer (person id), got true"),
     (_set("persons.0.id", 1.5), "persons[0].id: expected an integer (person id), got 1.5"),
     (_set("persons.4", 5), "persons[4]: expected an object (person), got 5"),
-    (_set("obstacles", [[[1.0, 1.0]]]), "obstacles[0]: expected at least 2 points, got 1 item"),
+    (_set("obstacles", [[[1.0, 1.0]]]), "obstacles[0]: expected at least 3 points, got 1 item"),
     (_set("obstacles", "wall"), 'obstacles: expected an array, got "wall"'),
     (_set("map", 3), "map: expected a string, got 3"),
     (_set("map", ""), 'map: expected a string of at least 1 character(s), got ""'),
