@@ -116,6 +116,21 @@ def read_status(run_dir: Path) -> RunStatus:
     return RunStatus(state, stage, error)
 
 
+def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
+    """A run dir whose artefacts this run reads (`key`=`given`) must be a dir whose run is
+    over: not running now, not killed half-way; a failed one is used with a warning."""
+    if not from_run.is_dir():
+        what = "does not exist" if not from_run.exists() else "is not a directory"
+        raise PipelineError(f"config error: {key}={given} {what}")
+    status = read_status(from_run)
+    if status.state in (RUNNING, INTERRUPTED):
+        raise PipelineError(f"{key}={given} is {status.describe()}: its artefacts may be "
+                            "half-made; let it finish, or re-run it (hydra.run.dir=...)")
+    if status.state == FAILED:
+        log.warning("%s=%s %s; using the artefacts it completed", key, given,
+                    status.describe())
+
+
 _HANDED_OVER: set[Path] = set()  # run dirs whose lock the CLI holds for this process's run
 
 

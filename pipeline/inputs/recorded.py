@@ -104,20 +104,33 @@ def read_recording(path: Path, *, topic: str | None = None,
     """
     path = Path(path)
     where = describe(path)
-    if not path.exists():
-        raise PipelineError(f"{where} not found")
+    check_readable(path)
     suffix = path.suffix.lower()
     if path.is_dir() or suffix in BAG_SUFFIXES:
         return _read_bag(path, where, topic, frame)
-    kind = file_kind(path)
-    if kind is not None:
-        raise PipelineError(f"{where} is {kind}, not a demonstration file")
     if suffix == ".json":
         return _read_json(path, where)
     if suffix == ".csv":
         return _read_csv(path, where)
     raise PipelineError(f"{where}: unknown format {path.suffix or '(no extension)'!r}; expected "
                         f".json, .csv, a ROS 2 bag directory, .mcap, .db3 or a ROS 1 .bag")
+
+
+def check_readable(path: Path) -> None:
+    """Refuse, in the words `read_recording` would use, a demonstration path that is missing,
+    a directory that is no ROS 2 bag, a device or a pipe (cheap: for the start-up checks)."""
+    path = Path(path)
+    where = describe(path)
+    if not path.exists():
+        raise PipelineError(f"{where} not found")
+    if path.is_dir():
+        if not (path / "metadata.yaml").is_file():
+            raise PipelineError(f"{where} is a directory without metadata.yaml, not a ROS 2 bag")
+        return
+    kind = file_kind(path)
+    if kind is not None:
+        what = "a ROS bag" if path.suffix.lower() in BAG_SUFFIXES else "a demonstration file"
+        raise PipelineError(f"{where} is {kind}, not {what}")
 
 
 def read_tracks(path: Path, *, topic: str | None = None,
@@ -279,10 +292,6 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        raise PipelineError(f"{where} is a directory without metadata.yaml, not a ROS 2 bag")
-    if not path.is_dir() and file_kind(path) is not None:
-        raise PipelineError(f"{where} is {file_kind(path)}, not a ROS bag")
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
             topics = {name: info.msgtype or "(several types)"

@@ -22,7 +22,8 @@ from threadpoolctl import threadpool_limits
 
 from pipeline.app.config import load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
-from pipeline.app.rundir import FAILED, INTERRUPTED, RUNNING, Interrupted, RunDir, read_status
+from pipeline.app.preflight import preflight
+from pipeline.app.rundir import Interrupted, RunDir, check_from_run
 from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.errors import PipelineError, os_error_reason
@@ -42,8 +43,11 @@ def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     if from_run is not None:
         check_from_run(from_run, settings.from_run)
     stages = [s for s in STAGES if s in settings.stages]
+    with stopped_by_signals():
+        checked = preflight(settings, run_dir, from_run)  # before the run dir is touched
     ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
-                     OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed))
+                     OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed),
+                     source_digests=checked.source_digests)
     with stopped_by_signals(), RunDir(run_dir, stages) as rundir:
         ctx.before_replace = rundir.before_replace
         timings = ctx.timings  # stages add their own measurements
@@ -94,19 +98,6 @@ def run_stage(stage: str, ctx: RunContext, rundir: RunDir) -> None:
              ctx.run_dir / ARTEFACT_FILE[stage])
     # Wall-clock goes to a side file (later into metrics.json), never into artefacts.
     write_json_atomic(ctx.run_dir / "timings.json", ctx.timings)
-
-
-def check_from_run(from_run: Path, given: str) -> None:
-    """from_run must be a dir whose run is over: not running now, not killed half-way."""
-    if not from_run.is_dir():
-        raise PipelineError(f"config error: from_run={given} is not a directory")
-    status = read_status(from_run)
-    if status.state in (RUNNING, INTERRUPTED):
-        raise PipelineError(f"from_run={given} is {status.describe()}: its artefacts may be "
-                            "half-made; let it finish, or re-run it (hydra.run.dir=...)")
-    if status.state == FAILED:
-        log.warning("from_run=%s %s; using the artefacts it completed", given,
-                    status.describe())
 
 
 def read_timings(path: Path) -> dict[str, float]:

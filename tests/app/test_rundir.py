@@ -418,14 +418,23 @@ def test_stale_temp_files_of_a_dead_run_are_removed(tmp_path):
 
 def test_failed_stage_is_recorded_in_status(tmp_path):
     d = tmp_path / "run"
-    missing = tmp_path / "nonexistent.json"
-    with pytest.raises(PipelineError, match="nonexistent.json"):
-        run_in_process(d, *QUICK, "expert=file", f"expert.path={missing}")
+    far = tmp_path / "far.json"  # found by the demos stage: it begins far from every start
+    far.write_text(json.dumps({"trajectories": [[[6.0, 5.0], [5.5, 8.0], [5.5, 9.0]]]}))
+    with pytest.raises(PipelineError, match="far.json"):
+        run_in_process(d, *QUICK, "expert=file", f"expert.path={far}")
     status = read_status(d)
     assert (status.state, status.stage) == ("failed", "demos"), status
-    assert "nonexistent.json" in status.error
+    assert "far.json" in status.error
     assert (d / "scene.mcap").exists() and not (d / "demos.mcap").exists()
     assert check_run_dir(d) == []
+
+
+def test_a_missing_input_file_is_refused_before_the_run_dir_is_touched(tmp_path):
+    d = tmp_path / "run"
+    missing = tmp_path / "nonexistent.json"
+    with pytest.raises(PipelineError, match="nonexistent.json not found"):
+        run_in_process(d, *QUICK, "expert=file", f"expert.path={missing}")
+    assert not d.exists()
 
 
 def _status_running(d: Path, stage: str) -> None:
