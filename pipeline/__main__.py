@@ -17,7 +17,8 @@ import logging
 import os
 import re
 import sys
-from contextlib import nullcontext
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import hydra
@@ -142,10 +143,19 @@ def parse_command_line(argv: list[str]) -> tuple[list[str], list, bool]:
         parsed = OverridesParser.create().parse_overrides(overrides)
     except OverrideParseException as e:
         detail = (str(e).splitlines() or ["syntax error"])[0]
-        if detail.startswith("LexerNoViableAltException"):  # ANTLR's name for it
+        text = e.override or ""
+        if "=" not in text and not text.startswith("~"):
+            detail = f"an override is key=value (e.g. {shorten(text, 40)}=VALUE)"
+        elif text.count('"') % 2 or text.count("'") % 2:
+            detail = "a quote is not closed"
+        elif detail.startswith("LexerNoViableAltException"):  # ANTLR's name for it
             detail = "it holds a character Hydra's grammar does not take unquoted"
         raise PipelineError(f"cannot parse override {shorten(e.override, 80)!r}: "
                             f"{shorten(detail, 160)}{quoting_hint(e.override)}") from None
+    for text, override in zip(overrides, parsed, strict=True):
+        if not override.key_or_group:
+            raise PipelineError(f"override {shorten(text, 80)!r} has no key: write key=value "
+                                "(see birlg --help)")
     return flags + overrides, parsed, bool(args.multirun)
 
 
@@ -161,6 +171,27 @@ def explicit_run_dir(parsed: list, multirun: bool) -> Path | None:
             if isinstance(value, str) and value and "${" not in value:
                 return Path(value)
     return None
+
+
+@contextmanager
+def mode_from_the_command_line(parsed: list, flags: list[str]) -> Iterator[None]:
+    """Hydra composes the whole config once only to read `hydra.mode`, then again to run
+    (0.2-0.3 s each). No config of this package sets hydra.mode (tests/cli/test_cli.py
+    checks), so unless the command line can (a hydra.mode override, an experiment preset,
+    another config dir, path or name) Hydra's answer is known: None, `-m` decides."""
+    keys = {o.key_or_group for o in parsed}
+    if any(k.startswith("hydra.mode") or k == "experiment" for k in keys) \
+            or any(f.startswith(("--config", "-c")) for f in flags):
+        yield
+        return
+    from hydra._internal.hydra import Hydra  # the method hydra.main calls
+
+    real = Hydra.get_mode
+    Hydra.get_mode = lambda self, config_name, overrides: None  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        Hydra.get_mode = real  # type: ignore[method-assign]
 
 
 class LogFiles:
@@ -228,7 +259,8 @@ def cli() -> None:
         run_dir = explicit_run_dir(parsed, multirun)
         # Held from before Hydra writes its .hydra/ files until the run ends: a second run
         # into the dir is refused before it touches anything.
-        with locked(run_dir) if run_dir is not None else nullcontext():
+        with locked(run_dir) if run_dir is not None else nullcontext(), \
+                mode_from_the_command_line(parsed, argv[:len(argv) - len(parsed)]):
             main()
     except (KeyboardInterrupt, Interrupted, Exception) as e:  # noqa: BLE001 - all but exit
         interrupted = as_interrupted(e, None)

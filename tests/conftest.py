@@ -32,6 +32,10 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 from pipeline.app.config import register_configs
+from pipeline.app.provenance import INPUT_KEY
+from pipeline.artefacts import topics
+from pipeline.artefacts.store import read_artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.graph_mdp import GraphMDP
 from pipeline.core.graph_mdp import Path as GraphPath
 from pipeline.inputs.scene_file import load_scene_file
@@ -86,6 +90,49 @@ def default_run(tmp_path_factory) -> tuple[Path, dict, str]:
 def default_dir(default_run):
     """The default run's dir (the first item of `default_run`)."""
     return default_run[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# A run dir's soundness after a fault
+
+FILE_STAGE = {name: stage for stage, name in ARTEFACT_FILE.items()}
+
+
+def is_timing(key: str) -> bool:
+    return key.startswith("time_") and key.endswith("_s")
+
+
+def check_run_dir(d: Path) -> list[str]:
+    """The consistency checks any run dir must pass, killed or not; returns the problems
+    (empty when the dir is sound), so a failing kill can be reported with its context."""
+    problems: list[str] = []
+    arts = {}
+    for path in sorted(d.glob("*.mcap")):
+        try:
+            arts[FILE_STAGE[path.name]] = read_artefact(path)
+        except Exception as e:  # noqa: BLE001 - any failure to read is the finding
+            problems.append(f"{path.name} does not read: {type(e).__name__}: {e}")
+    for later, art in arts.items():
+        for earlier, other in arts.items():
+            recorded = art.metadata.get(INPUT_KEY + earlier)
+            if recorded is not None and recorded != other.digest:
+                problems.append(f"{ARTEFACT_FILE[later]} was made from another "
+                                f"{ARTEFACT_FILE[earlier]} (recorded {recorded[:12]}, "
+                                f"present {other.digest[:12]})")
+    metrics_path = d / "metrics.json"
+    if metrics_path.exists():
+        if "evaluate" not in arts:
+            problems.append("metrics.json without eval.mcap")
+        else:
+            try:
+                metrics = json.loads(metrics_path.read_text())
+            except ValueError as e:
+                problems.append(f"metrics.json does not parse: {e}")
+            else:
+                in_eval = arts["evaluate"].one(topics.EVAL_METRICS)
+                if {k: v for k, v in metrics.items() if not is_timing(k)} != in_eval:
+                    problems.append("metrics.json is not the one that came with eval.mcap")
+    return problems
 
 
 # ---------------------------------------------------------------------------------------------

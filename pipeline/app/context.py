@@ -86,11 +86,13 @@ class RunContext:
         linked = self.from_run is not None and stage not in self.cfg.stages
         source = self.from_run / path.name if self.from_run is not None and linked else path
         artefact = self._read_cached(source, required_topics, stage)
-        if linked:
-            link_or_copy(source, path)
         check_config(stage, artefact, self.config)
         self.inputs[stage] = artefact
         check_inputs(self.inputs)
+        if linked:  # checked first: a refused input never lands in this run dir
+            if self.before_replace is not None:  # what was derived from the old one goes
+                self.before_replace(stage, artefact.digest)
+            link_or_copy(source, path)
         return artefact
 
     def _read_cached(self, path: Path, required_topics: Iterable[str], stage: str) -> Artefact:
