@@ -958,6 +958,18 @@ def test_bad_sweep(tmp_path, capfd, default_dir, make, fragments, code):
     assert_one_line(capfd, make(tmp_path), fragments, code)
 
 
+def test_quoted_paths_with_spaces_unicode_and_equals_work(tmp_path, capfd):
+    # what the error lines and the README tell a user to write
+    scene = tmp_path / "mes scènes" / "hall=1.json"
+    scene.parent.mkdir()
+    shutil.copy(METROPOLIS, scene)
+    run = tmp_path / "runs" / "Zürich=1 a"
+    code, _, err = run_cli(capfd, f'hydra.run.dir="{run}"', "scene=file",
+                           f"scene.path='{scene}'", "stages=[scene]")
+    assert code == 0, err
+    assert (run / "scene.mcap").exists() and (run / ".lock").exists()
+
+
 def test_m_after_an_override_runs_the_sweep(tmp_path, capfd):
     code, _, err = run_cli(capfd, "stages=[scene]", "-m", "seed=0,1",
                            f"hydra.sweep.dir={tmp_path}")
