@@ -28,7 +28,7 @@ from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.obstacles import ObstacleMap
-from pipeline.core.world import Scene
+from pipeline.core.world import BodyParams, Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import read_map_header
 from pipeline.inputs.recorded import check_readable
@@ -77,7 +77,12 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
                             cfg.graph.max_nodes, limits.BYTES_PER_GRAPH_NODE,
                             "lower graph.max_nodes")
     if facts is not None:
-        facts.load()  # sizes are fine: the scene file is validated now, not at its stage
+        scene = facts.load()  # sizes are fine: the scene file is validated now, not at its stage
+        if scene is not None and scene.obstacles is None \
+                and scene.robot_radius != BodyParams.robot_radius:
+            log.warning("scene '%s' has no obstacles: robot_radius=%g m has no effect (it is "
+                        "the clearance kept from obstacles; the room's edge is none)",
+                        scene.name, scene.robot_radius)
     if "evaluate" in stages:
         check_transfer_scenes(cfg)
     if isinstance(cfg.birl, FixedConfig) and stages & {"graph", "birl"}:

@@ -341,7 +341,7 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
         if sizes[key] <= 0:
             raise fail(f"'{key}' must be > 0, got {sizes[key]:g}")
     width, height = room.x_max - room.x_min, room.y_max - room.y_min
-    if 2 * sizes["robot_radius"] > min(width, height):  # a unit mistake, not a robot
+    if 2 * sizes["robot_radius"] >= min(width, height):  # a unit mistake, not a robot
         raise fail(f"robot_radius={sizes['robot_radius']:g} m: a robot "
                    f"{2 * sizes['robot_radius']:g} m across does not fit in the "
                    f"{width:g} m × {height:g} m room (robot_radius is the robot's radius in "

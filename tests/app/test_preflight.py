@@ -131,3 +131,14 @@ def test_birl_from_run_is_checked_and_its_weights_recorded(tmp_path, caplog):
                for r in caplog.records)
     write_json_atomic(source / "status.json", {**status, "state": "running", "stage": "birl"})
     refused_before_any_stage(tmp_path / "d", r"birl\.from_run=.* is interrupted", *again)
+
+
+def test_a_robot_radius_without_obstacles_is_a_warning_and_one_too_wide_refused(tmp_path,
+                                                                                caplog):
+    with caplog.at_level(logging.WARNING, logger="pipeline"):
+        run_in_process(tmp_path / "a", "stages=[scene]", "scene.robot_radius=3")
+    [warning] = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert "robot_radius=3 m has no effect" in warning and "no obstacles" in warning
+    # 10 m across in a 10 m room: it could not move; a unit mistake
+    refused_before_any_stage(tmp_path / "b", r"robot_radius=5 m: a robot 10 m across does not "
+                             r"fit in the 10 m × 10 m room", "scene.robot_radius=5")

@@ -414,7 +414,7 @@ SCENE_CASES = {
     "start at the goal": (good_scene(starts=[[8.9, 9.0]]), ["start 0", "goal_tolerance"]),
     "body radius not a number": (good_scene(body_radius="big"), ["body_radius"]),
     "robot radius zero": (good_scene(robot_radius=0), ["robot_radius"]),
-    "robot radius too large": (good_scene(robot_radius=5.5), ["robot_radius=5.5 m",
+    "robot radius too large": (good_scene(robot_radius=5.0), ["robot_radius=5 m",
                                                               "does not fit"]),
     "goal closed in by persons (on the roadmap)": (ring_of_persons(0.7),
                                                    ["start(s) [0]", "reference roadmap"]),
