@@ -253,6 +253,8 @@ def cli() -> None:
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
     SweepOutcome.failed.clear()
     LogFiles.failed.clear()
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
     try:
         argv, parsed, multirun = parse_command_line(sys.argv[1:])
         sys.argv[1:] = argv  # flags first: the order Hydra's parser takes
@@ -275,6 +277,18 @@ def cli() -> None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
         else:
             os.environ["HYDRA_FULL_ERROR"] = user_setting
+        # Hydra's log handlers (console, birlg.log) go with the run: called in a process that
+        # goes on (tests, notebooks), later records must not reach a closed stream or file
+        for handler in [h for h in root.handlers if h not in handlers]:
+            root.removeHandler(handler)
+            try:
+                handler.close()
+            except OSError:
+                pass
+        for handler in handlers:
+            if handler not in root.handlers:
+                root.addHandler(handler)
+        root.setLevel(level)
     if SweepOutcome.failed:
         first = SweepOutcome.failed[0]
         why = read_status(Path(first)).error
