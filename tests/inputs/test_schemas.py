@@ -14,7 +14,7 @@ from pipeline.core.world import SceneError
 from pipeline.errors import PipelineError
 from pipeline.inputs.recorded import read_tracks
 from pipeline.inputs.scene_file import load_scene_file
-from pipeline.inputs.schemas import load_schema, validate
+from pipeline.inputs.schemas import load_schema, read_json, validate
 from tests.conftest import METROPOLIS, ROOT
 
 SCENES = sorted((ROOT / "data" / "scenes").glob("*.json"))
@@ -244,3 +244,12 @@ def test_schema_files_are_the_ones_in_the_package():
         on_disk = json.loads(Path(ROOT / "pipeline" / "schemas" / f"{name}.schema.json")
                              .read_text())
         assert load_schema(name) == on_disk
+
+
+def test_json_with_a_byte_order_mark_is_read(tmp_path):
+    # Notepad's "UTF-8 with BOM": the mark is no part of the JSON
+    for path, kind in ((SCENES[0], "scene"), (DEMO, "demos")):
+        text = path.read_text()
+        marked = tmp_path / f"bom_{path.name}"
+        marked.write_bytes(b"\xef\xbb\xbf" + text.encode())
+        assert read_json(marked, kind, "x") == json.loads(text)
