@@ -2,7 +2,12 @@
 
 Errors are one line and exit status 2: our own (PipelineError), Hydra's (a typo, a wrong
 type, a bad override: Hydra's wording, first line only) and anything unexpected.
-`HYDRA_FULL_ERROR=1` shows the full traceback instead.
+`HYDRA_FULL_ERROR=1` shows the full traceback instead. Ctrl-C is one line too
+(`interrupted by the user at stage X`) and exit status 130 (SIGTERM: 143).
+
+The command line is read before anything is created: flags after overrides (`seed=1 -m`)
+are put first, every override is parsed with Hydra's own grammar (a value that needs quoting
+says how), and an explicit run dir is locked under the name Hydra will use.
 """
 
 from __future__ import annotations
@@ -10,17 +15,28 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import sys
-from contextlib import nullcontext
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import OverrideParseException
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
-from pipeline.app.rundir import SweepOutcome, locked, write_status_if_missing
+from pipeline.app.rundir import (
+    Interrupted,
+    SweepOutcome,
+    as_interrupted,
+    locked,
+    read_status,
+    write_status_if_missing,
+)
 from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
 
@@ -32,6 +48,7 @@ CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
 def main(cfg: DictConfig) -> float | None:
+    guard_log_files()
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
     if hydra_cfg.mode != RunMode.MULTIRUN:
@@ -76,16 +93,133 @@ def one_line(e: BaseException) -> str:
     return line
 
 
-def explicit_run_dir(argv: list[str]) -> Path | None:
-    """The run dir given on the command line (hydra.run.dir=, also with + or ++), for a
-    single run; None for sweeps and default dirs (those carry microseconds)."""
-    if "-m" in argv or "--multirun" in argv:
+MAX_OVERRIDE_CHARS = 5000  # Hydra's parser needs ~4 s for 20,000 characters (a long list)
+# What Hydra's grammar takes in a value without quotes (besides letters, digits and spaces)
+_PLAIN_VALUE = re.compile(r"[A-Za-z0-9_\-+./:\\*%@$ ]*")
+
+
+def shorten(text: str, limit: int = 120) -> str:
+    """`text` cut to about `limit` characters, saying how long it was: a value can be 20,000
+    numbers long, an error line must stay readable."""
+    return text if len(text) <= limit else f"{text[:limit - 20]}... ({len(text):,} characters)"
+
+
+def quoting_hint(override: str) -> str:
+    """How to pass a value Hydra's grammar does not take unquoted (non-ASCII letters, `=`,
+    `~`, `#`, ...): quoted for Hydra, and the quotes kept from the shell."""
+    key, _, value = override.partition("=")
+    if not value or value[:1] in "'\"" or _PLAIN_VALUE.fullmatch(value) \
+            or any(c in value for c in "[]{}(),"):  # a list or a sweep: a syntax error
+        return ""
+    return (f"; quote such a value for Hydra and keep the quotes from the shell: "
+            f"'{key}=\"{shorten(value, 60)}\"'")
+
+
+def parse_command_line(argv: list[str]) -> tuple[list[str], list, bool]:
+    """(argv with Hydra's flags before the overrides, the parsed overrides, multirun?).
+
+    Hydra's argument parser takes flags only before the overrides (`seed=1 -m` was an 8-line
+    usage message); its override grammar would reject a bad override only after the run dir
+    exists. Both are applied here first, so a bad command line is one line and creates
+    nothing.
+    """
+    from hydra._internal.utils import get_args_parser  # the parser hydra.main itself uses
+
+    parser = get_args_parser()
+
+    def refuse(message: str) -> None:
+        raise PipelineError(f"{message} (see birlg --help)")
+
+    parser.error = refuse  # type: ignore[method-assign]
+    args = parser.parse_intermixed_args(argv)
+    overrides = list(args.overrides)
+    for text in overrides:
+        if len(text) > MAX_OVERRIDE_CHARS:
+            raise PipelineError(f"override {shorten(text, 60)!r} is {len(text):,} characters "
+                                f"long, more than {MAX_OVERRIDE_CHARS:,}: no setting needs "
+                                "that many; put long lists in a config file (conf/)")
+    flags = [a for a in argv if a not in overrides]
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except OverrideParseException as e:
+        detail = (str(e).splitlines() or ["syntax error"])[0]
+        text = e.override or ""
+        if "=" not in text and not text.startswith("~"):
+            detail = f"an override is key=value (e.g. {shorten(text, 40)}=VALUE)"
+        elif text.count('"') % 2 or text.count("'") % 2:
+            detail = "a quote is not closed"
+        elif detail.startswith("LexerNoViableAltException"):  # ANTLR's name for it
+            detail = "it holds a character Hydra's grammar does not take unquoted"
+        raise PipelineError(f"cannot parse override {shorten(e.override, 80)!r}: "
+                            f"{shorten(detail, 160)}{quoting_hint(e.override)}") from None
+    for text, override in zip(overrides, parsed, strict=True):
+        if not override.key_or_group:
+            raise PipelineError(f"override {shorten(text, 80)!r} has no key: write key=value "
+                                "(see birlg --help)")
+    return flags + overrides, parsed, bool(args.multirun)
+
+
+def explicit_run_dir(parsed: list, multirun: bool) -> Path | None:
+    """The run dir given on the command line (hydra.run.dir=, also with + or ++), as Hydra
+    reads it (quotes and escapes resolved), for a single run; None for sweeps, default dirs
+    (those carry microseconds) and dirs made of interpolations (`${now:...}`)."""
+    if multirun:
         return None
-    for arg in argv:
-        key, _, value = arg.lstrip("+").partition("=")
-        if key == "hydra.run.dir" and value:
-            return Path(value)
+    for override in parsed:
+        if override.key_or_group == "hydra.run.dir" and not override.is_sweep_override():
+            value = override.value()
+            if isinstance(value, str) and value and "${" not in value:
+                return Path(value)
     return None
+
+
+@contextmanager
+def mode_from_the_command_line(parsed: list, flags: list[str]) -> Iterator[None]:
+    """Hydra composes the whole config once only to read `hydra.mode`, then again to run
+    (0.2-0.3 s each). No config of this package sets hydra.mode (tests/cli/test_cli.py
+    checks), so unless the command line can (a hydra.mode override, an experiment preset,
+    another config dir, path or name) Hydra's answer is known: None, `-m` decides."""
+    keys = {o.key_or_group for o in parsed}
+    if any(k.startswith("hydra.mode") or k == "experiment" for k in keys) \
+            or any(f.startswith(("--config", "-c")) for f in flags):
+        yield
+        return
+    from hydra._internal.hydra import Hydra  # the method hydra.main calls
+
+    real = Hydra.get_mode
+    Hydra.get_mode = lambda self, config_name, overrides: None  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        Hydra.get_mode = real  # type: ignore[method-assign]
+
+
+class LogFiles:
+    """Log files that could not be written (e.g. the disk is full), for the run's last line."""
+
+    failed: list[str] = []
+
+
+def guard_log_files(root: logging.Logger | None = None) -> None:
+    """A log file (of the root logger, where Hydra puts birlg.log) that cannot be written is
+    dropped with a note instead of printing Python's `--- Logging error ---` traceback for
+    every record (68 lines on a full disk)."""
+    root = root or logging.getLogger()
+    for handler in list(root.handlers):
+        if not isinstance(handler, logging.FileHandler):
+            continue
+
+        def handle_error(record: logging.LogRecord, h: logging.FileHandler = handler) -> None:
+            error = sys.exc_info()[1]
+            reason = os_error_reason(error) if isinstance(error, OSError) else repr(error)
+            LogFiles.failed.append(f"{h.baseFilename}: {reason}")
+            root.removeHandler(h)
+            try:
+                h.close()
+            except OSError:
+                pass
+
+        handler.handleError = handle_error  # type: ignore[method-assign]
 
 
 def exit_with_one_line(e: Exception) -> None:
@@ -99,8 +233,15 @@ def exit_with_one_line(e: Exception) -> None:
         message = f"cannot create or write files: {os_error_reason(e)}"
     else:  # a bug, not bad input: still one line, with the way to the traceback
         message = f"{type(e).__name__}: {one_line(e)} (HYDRA_FULL_ERROR=1 shows the traceback)"
-    print(f"error: {message}", file=sys.stderr)
+    print(f"error: {shorten_values(message)}", file=sys.stderr)
     sys.exit(2)
+
+
+def shorten_values(message: str) -> str:
+    """The message with every very long word (a value echoed whole) cut (`shorten`)."""
+    if len(message) <= 400:
+        return message
+    return re.sub(r"\S{200,}", lambda m: shorten(m.group(0), 120), message)
 
 
 _show_tracebacks = [False]  # HYDRA_FULL_ERROR=1 as the user set it
@@ -111,24 +252,53 @@ def cli() -> None:
     _show_tracebacks[0] = user_setting == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
     SweepOutcome.failed.clear()
-    run_dir = explicit_run_dir(sys.argv[1:])
+    LogFiles.failed.clear()
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
     try:
+        argv, parsed, multirun = parse_command_line(sys.argv[1:])
+        sys.argv[1:] = argv  # flags first: the order Hydra's parser takes
+        run_dir = explicit_run_dir(parsed, multirun)
         # Held from before Hydra writes its .hydra/ files until the run ends: a second run
         # into the dir is refused before it touches anything.
-        with locked(run_dir) if run_dir is not None else nullcontext():
+        with locked(run_dir) if run_dir is not None else nullcontext(), \
+                mode_from_the_command_line(parsed, argv[:len(argv) - len(parsed)]):
             main()
-    except Exception as e:  # noqa: BLE001 - Hydra's errors, ours before the job, bugs
-        exit_with_one_line(e)
+    except (KeyboardInterrupt, Interrupted, Exception) as e:  # noqa: BLE001 - all but exit
+        interrupted = as_interrupted(e, None)
+        if interrupted is not None:
+            if _show_tracebacks[0]:
+                raise
+            print(interrupted.describe(), file=sys.stderr)
+            sys.exit(interrupted.exit_code)
+        exit_with_one_line(e)  # type: ignore[arg-type]
     finally:
         if user_setting is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
         else:
             os.environ["HYDRA_FULL_ERROR"] = user_setting
+        # Hydra's log handlers (console, birlg.log) go with the run: called in a process that
+        # goes on (tests, notebooks), later records must not reach a closed stream or file
+        for handler in [h for h in root.handlers if h not in handlers]:
+            root.removeHandler(handler)
+            try:
+                handler.close()
+            except OSError:
+                pass
+        for handler in handlers:
+            if handler not in root.handlers:
+                root.addHandler(handler)
+        root.setLevel(level)
     if SweepOutcome.failed:
-        print(f"error: {len(SweepOutcome.failed)} sweep job(s) failed, first "
-              f"{SweepOutcome.failed[0]} (its status.json says why; make aggregate lists all)",
+        first = SweepOutcome.failed[0]
+        why = read_status(Path(first)).error
+        print(f"error: {len(SweepOutcome.failed)} sweep job(s) failed, first {first}"
+              f"{f': {shorten(why, 200)}' if why else ''} (make aggregate lists all)",
               file=sys.stderr)
         sys.exit(1)
+    if LogFiles.failed:
+        print(f"warning: the log could not be written ({shorten(LogFiles.failed[0], 200)}); "
+              "the run itself completed", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,10 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 from pipeline.app.config import register_configs
+from pipeline.app.provenance import INPUT_KEY
+from pipeline.artefacts import topics
+from pipeline.artefacts.store import read_artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.graph_mdp import GraphMDP, MDPParams
 from pipeline.core.graph_mdp import Path as GraphPath
 from pipeline.inputs.scene_file import load_scene_file
@@ -100,6 +104,49 @@ def default_run(tmp_path_factory) -> tuple[Path, dict, str]:
 def default_dir(default_run):
     """The default run's dir (the first item of `default_run`)."""
     return default_run[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# A run dir's soundness after a fault
+
+FILE_STAGE = {name: stage for stage, name in ARTEFACT_FILE.items()}
+
+
+def is_timing(key: str) -> bool:
+    return key.startswith("time_") and key.endswith("_s")
+
+
+def check_run_dir(d: Path) -> list[str]:
+    """The consistency checks any run dir must pass, killed or not; returns the problems
+    (empty when the dir is sound), so a failing kill can be reported with its context."""
+    problems: list[str] = []
+    arts = {}
+    for path in sorted(d.glob("*.mcap")):
+        try:
+            arts[FILE_STAGE[path.name]] = read_artefact(path)
+        except Exception as e:  # noqa: BLE001 - any failure to read is the finding
+            problems.append(f"{path.name} does not read: {type(e).__name__}: {e}")
+    for later, art in arts.items():
+        for earlier, other in arts.items():
+            recorded = art.metadata.get(INPUT_KEY + earlier)
+            if recorded is not None and recorded != other.digest:
+                problems.append(f"{ARTEFACT_FILE[later]} was made from another "
+                                f"{ARTEFACT_FILE[earlier]} (recorded {recorded[:12]}, "
+                                f"present {other.digest[:12]})")
+    metrics_path = d / "metrics.json"
+    if metrics_path.exists():
+        if "evaluate" not in arts:
+            problems.append("metrics.json without eval.mcap")
+        else:
+            try:
+                metrics = json.loads(metrics_path.read_text())
+            except ValueError as e:
+                problems.append(f"metrics.json does not parse: {e}")
+            else:
+                in_eval = arts["evaluate"].one(topics.EVAL_METRICS)
+                if {k: v for k, v in metrics.items() if not is_timing(k)} != in_eval:
+                    problems.append("metrics.json is not the one that came with eval.mcap")
+    return problems
 
 
 # ---------------------------------------------------------------------------------------------
@@ -213,3 +260,73 @@ def two_routes():
     route_a = GraphPath([0, 3], [edge[0, 3]], True)
     route_b = GraphPath([0, 1, 3], [edge[0, 1], edge[1, 3]], True)
     return mdp, route_a, route_b
+
+
+# ---------------------------------------------------------------------------------------------
+# Recordings as they really occur: metropolis drives stepping exactly 0.1 m (so resampling a
+# pose stream at 0.1 m gives them back), recorded running on into the goal disk and beyond,
+# and a robot's pose stream with pauses
+
+METROPOLIS_STARTS = np.array([[0.5, 0.5], [4.0, 0.1], [2.0, 3.0], [8.5, 5.2], [8.9, 0.1],
+                              [0.1, 8.5], [4.0, 3.0]])
+METROPOLIS_GOAL = np.array([5.5, 9.0])
+GOAL_TOLERANCE = 0.3  # the world model's default
+
+
+def stepped(corners: list[list[float]], goal: np.ndarray = METROPOLIS_GOAL,
+            step: float = 0.1) -> np.ndarray:
+    """Points exactly `step` apart along the corners (each piece a multiple of `step` long),
+    then on towards the goal up to the last point outside the goal disk, then the goal: a
+    polyline as the goal-disk cut leaves it, and a fixed point of resampling at `step`."""
+    c = np.asarray(corners, float)
+    pts = [c[0]]
+    for a, b in zip(c[:-1], c[1:], strict=True):
+        n = round(np.linalg.norm(b - a) / step)
+        assert abs(n * step - np.linalg.norm(b - a)) < 1e-9, "piece not a multiple of the step"
+        u = (b - a) / np.linalg.norm(b - a)
+        pts += [a + k * step * u for k in range(1, n + 1)]
+    last = pts[-1]
+    u = (goal - last) / np.linalg.norm(goal - last)
+    k = 1
+    while np.linalg.norm(last + k * step * u - goal) > GOAL_TOLERANCE:
+        pts.append(last + k * step * u)
+        k += 1
+    return np.vstack(pts + [goal])
+
+
+# Two drives in metropolis, from start 0 and from start 2, clear of the persons' body disks
+CLEAN_DRIVES = [stepped([[0.5, 0.5], [0.5, 4.0], [3.5, 8.0]]),
+                stepped([[2.0, 3.0], [2.9, 4.2], [2.9, 8.0]])]
+
+
+def into_the_disk(clean: np.ndarray) -> np.ndarray:
+    """A recording of the clean polyline that does not stop at the goal: it runs on into the
+    goal disk (a pose every 5 cm), past the goal and out of the room."""
+    last, goal = clean[-2], clean[-1]
+    u = (goal - last) / np.linalg.norm(goal - last)
+    first_in = last + 0.1 * u  # the next 0.1 m step lies inside the disk
+    assert np.linalg.norm(first_in - goal) <= GOAL_TOLERANCE
+    beyond = [first_in + k * 0.05 * u for k in range(40)] + [np.array([12.0, 12.0])]
+    return np.vstack([clean[:-1], beyond])
+
+
+def pause(at: np.ndarray, n: int) -> np.ndarray:
+    return np.repeat(np.asarray(at, float)[None], n, axis=0)
+
+
+def walk(a: np.ndarray, b: np.ndarray, step: float = 0.05) -> np.ndarray:
+    """Poses from a (excluded) to b (included) at most `step` apart."""
+    n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+    return a + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a)
+
+
+def odometry(drives: list[np.ndarray], goal: np.ndarray = METROPOLIS_GOAL) -> np.ndarray:
+    """A robot's pose stream: it waits at each drive's start, drives it into the goal disk and
+    past the goal, waits there, and is driven back (straight) to the next drive's start."""
+    parts: list[np.ndarray] = []
+    for k, drive in enumerate(drives):
+        if k:
+            parts.append(walk(parts[-1][-1], drive[0]))
+        parts += [pause(drive[0], 20), into_the_disk(drive)[:-1], pause(goal + [0.05, 0.0], 10)]
+    parts.append(walk(parts[-1][-1], np.array([8.0, 1.0])))  # wanders off: never back at goal
+    return np.vstack(parts)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import re
+from pathlib import Path
 
 import numpy as np
 
@@ -13,12 +15,13 @@ from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.controllers import Controller, PosqController, make_controller
 from pipeline.core.features import FeatureModel, FeatureParams
-from pipeline.core.roadmap import Roadmap, build_roadmap
+from pipeline.core.obstacles import OccupancyGrid
+from pipeline.core.roadmap import Roadmap, RoadmapParams, build_roadmap, lattice_graph
 from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
-from pipeline.core.world import Scene
+from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
 from pipeline.errors import PipelineError
-from pipeline.inputs.map_file import load_map
-from pipeline.inputs.scene_file import load_scene_file
+from pipeline.inputs.map_file import MapHeader, load_map
+from pipeline.inputs.scene_file import SceneExtent, load_scene_file, read_scene_extent
 from pipeline.irl import methods
 from pipeline.irl.base import Method
 from pipeline.irl.fixed import FixedConfig
@@ -32,16 +35,93 @@ def scene(cfg: Config, rng_for_seed) -> Scene:
         seed = cfg.seed if sc.seed is None else sc.seed
         spec = RandomSceneSpec(**{f.name: getattr(sc, f.name)
                                   for f in dataclasses.fields(RandomSceneSpec)})
-        map_grid = load_map(resolve_path(sc.map)) if sc.map else None
+        map_grid = map_grid_of(sc.map) if sc.map else None
         if map_grid is None:  # the start-goal reachability check runs on a 0.2 m lattice
-            limits.check_memory(
-                f"the reachability lattice of a {spec.width:g} m × {spec.height:g} m room",
-                limits.lattice_edges(spec.width * spec.height, REACHABILITY_SPACING, 8),
-                limits.BYTES_PER_LATTICE_EDGE, "lower scene.width and scene.height")
+            check_reachability_lattice(spec.width * spec.height,
+                                       spec.n_singles + spec.n_groups * spec.group_size_max,
+                                       spec.width, spec.height)
         return random_scene(spec, rng_for_seed(seed), name=f"random-{seed}", map_grid=map_grid,
                             map_source=sc.map)
-    return load_scene_file(resolve_path(sc.path), body_radius=sc.body_radius,
-                           goal_tolerance=sc.goal_tolerance, robot_radius=sc.robot_radius)
+    return scene_file(sc.path, body_radius=sc.body_radius, goal_tolerance=sc.goal_tolerance,
+                      robot_radius=sc.robot_radius)
+
+
+# Scene files and maps loaded in this run, by path, file identity and size overrides: the
+# start-up checks load and validate them, the stages then use the same objects (scenes are
+# immutable). Emptied when a run starts (`forget_scene_files`).
+_SCENE_FILES: dict[tuple, Scene] = {}
+_MAPS: dict[tuple, OccupancyGrid] = {}
+
+
+def forget_scene_files() -> None:
+    _SCENE_FILES.clear()
+    _MAPS.clear()
+
+
+def _identity(path: Path) -> tuple:
+    try:
+        st = path.stat()
+    except OSError:
+        return (str(path),)
+    return str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def scene_file(path: str, *, body_radius: float | None = None,
+               goal_tolerance: float | None = None,
+               robot_radius: float | None = None) -> Scene:
+    """A scene file loaded and validated (once per run), refused up front when its obstacle
+    raster cannot fit."""
+    resolved = resolve_path(path)
+    key = (_identity(resolved), body_radius, goal_tolerance, robot_radius)
+    if key not in _SCENE_FILES:
+        _SCENE_FILES[key] = load_scene_file(resolved, body_radius=body_radius,
+                                            goal_tolerance=goal_tolerance,
+                                            robot_radius=robot_radius, check=check_scene_extent)
+    return _SCENE_FILES[key]
+
+
+def scene_file_extent(path: str) -> SceneExtent:
+    """A scene file's sizes from its JSON and its map's header (`read_scene_extent`),
+    refused when its obstacle raster cannot fit."""
+    extent = read_scene_extent(resolve_path(path))
+    check_scene_extent(extent)
+    return extent
+
+
+def map_grid_of(path: str) -> OccupancyGrid:
+    """A map_server map (once per run), refused before decoding when it cannot fit."""
+    resolved = resolve_path(path)
+    key = _identity(resolved)
+    if key not in _MAPS:
+        _MAPS[key] = load_map(resolved, check_cells=check_map_size)
+    return _MAPS[key]
+
+
+def check_scene_extent(extent: SceneExtent) -> None:
+    """The obstacle raster of a scene file must fit in memory (checked before it is made)."""
+    if extent.map_header is not None:
+        check_map_size(extent.map_header)
+        return
+    x0, y0, x1, y1 = extent.bounds
+    limits.check_memory(
+        f"{extent.source}: the obstacle raster of its {x1 - x0:g} m × {y1 - y0:g} m room at "
+        f"{OBSTACLE_RESOLUTION:g} m", extent.raster_cells, limits.BYTES_PER_RASTER_CELL,
+        "use a smaller room ('room' in the scene file)")
+
+
+def check_map_size(header: MapHeader) -> None:
+    limits.check_memory(
+        f"map {header.path}: its {header.width:,} × {header.height:,} px image at "
+        f"{header.resolution:g} m/px", header.cells, limits.BYTES_PER_RASTER_CELL,
+        "use a smaller or coarser map (crop it, or scale it down and raise 'resolution')")
+
+
+def check_reachability_lattice(area: float, n_persons: int, width: float,
+                               height: float) -> None:
+    limits.check_memory(
+        f"the reachability lattice of a {width:g} m × {height:g} m room",
+        limits.lattice_edges(area, REACHABILITY_SPACING, 8),
+        limits.bytes_per_lattice_edge(n_persons, False), "lower scene.width and scene.height")
 
 
 def feature_model(cfg: Config, scene: Scene) -> FeatureModel:
@@ -58,14 +138,44 @@ def learner_feature_model(cfg: Config, scene: Scene) -> FeatureModel:
                                                               features=cfg.learner_features))
 
 
+def unreachable_message(scene: Scene, cut_off: list[int], spacing: float) -> str:
+    return (f"scene '{scene.name}': the goal cannot be reached from start(s) {cut_off} on the "
+            f"reference roadmap (spacing {spacing:g} m): the way is closed by "
+            "persons' body disks or obstacles; move them or the start, or lower roadmap.spacing")
+
+
+def check_roadmap_reaches_goal(scene: Scene, params: RoadmapParams) -> None:
+    """Every start reaches the goal on the reference roadmap's lattice (its edges only, no
+    features: what `reference_roadmap` would refuse, found without building it)."""
+    positions, src, dst = lattice_graph(scene, params.spacing, params.connectivity)
+    n = len(positions)
+    n_starts = len(scene.starts)
+    lattice = Roadmap(positions, src, dst, np.zeros(len(src)), np.zeros((len(src), 0)),
+                      np.zeros(n, bool), np.arange(n - 1 - n_starts, n - 1), n - 1)
+    cut_off = lattice.starts_without_path_to_goal()
+    if cut_off:
+        raise PipelineError(unreachable_message(scene, cut_off, params.spacing))
+
+
 def reference_roadmap(cfg: Config, scene: Scene, features: FeatureModel) -> Roadmap:
-    """The reference roadmap (roadmap.*) of `scene`, refused up front if it cannot fit."""
+    """The reference roadmap (roadmap.*) of `scene`, refused up front if it cannot fit, and
+    when a start cannot reach the goal on it."""
     rp = cfg.roadmap
     limits.check_memory(f"the reference roadmap of scene '{scene.name}'",
                         limits.lattice_edges(scene.room.area, rp.spacing, rp.connectivity),
-                        limits.BYTES_PER_LATTICE_EDGE,
+                        limits.bytes_per_lattice_edge(len(scene.persons),
+                                                      scene.obstacles is not None),
                         f"raise roadmap.spacing (now {rp.spacing:g} m) or use a smaller scene")
-    return build_roadmap(scene, features, rp, cfg.mdp.speed)
+    roadmap = build_roadmap(scene, features, rp, cfg.mdp.speed)
+    cut_off = roadmap.starts_without_path_to_goal()
+    if cut_off:  # nothing can be learned or scored from such a start: refuse, do not run on
+        raise PipelineError(unreachable_message(scene, cut_off, rp.spacing))
+    return roadmap
+
+
+def transfer_name(scene_name: str, path: str) -> str:
+    """How a transfer scene's metrics are keyed: transfer_<name>_<metric>."""
+    return re.sub(r"\W+", "_", scene_name).strip("_") or Path(path).stem
 
 
 def controller(cfg: Config) -> Controller:
@@ -88,10 +198,24 @@ def irl_method(cfg: Config) -> Method:
 def fixed_weights(cfg: Config) -> np.ndarray | None:
     """`birl=fixed`: its weights (given, or the final iteration of birl.from_run's
     birl.mcap, checked against this run's features); None for methods that learn."""
+    found = _fixed(cfg)
+    return None if found is None else found[0]
+
+
+def fixed_weights_source(cfg: Config) -> str | None:
+    """`birl=fixed birl.from_run=RUN`: the content digest of RUN's birl.mcap (checked as
+    `fixed_weights` checks it), which the artefacts made with its weights record; None
+    otherwise."""
+    found = _fixed(cfg)
+    return None if found is None else found[1]
+
+
+def _fixed(cfg: Config) -> tuple[np.ndarray, str | None] | None:
     b = cfg.birl
     if not isinstance(b, FixedConfig):
         return None
     d = cfg.n_features
+    digest = None
     if b.weights is not None:
         w = np.asarray(b.weights, float)
         source = "birl.weights"
@@ -105,13 +229,14 @@ def fixed_weights(cfg: Config) -> np.ndarray | None:
                                 f"{names}; set birl.features={list(names)}")
         w = np.asarray(art.all(topics.BIRL_ITERATION)[-1]["weights"], float)
         source = f"{run / ARTEFACT_FILE['birl']}"
+        digest = art.digest
     if len(w) != d:
         raise PipelineError(f"config error: birl.weights={w.tolist()} needs {d} numbers "
                             f"(the learner's features {cfg.learner_features})")
     if not prior(cfg).in_box(w):
         raise PipelineError(f"config error: the weights from {source} {w.tolist()} lie outside "
                             "[birl.lower, birl.upper]; widen them (e.g. birl.lower=[-100])")
-    return w
+    return w, digest
 
 
 def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.ndarray, str]:

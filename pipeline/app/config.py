@@ -289,7 +289,10 @@ _HINTS = {"scene.path": "scene=file scene.path=PATH", "expert.path": "expert=fil
 
 
 def config_error(key: str, value: Any, allowed: str) -> PipelineError:
-    return PipelineError(f"config error: {key}={value} is not allowed (allowed: {allowed})")
+    shown = str(value)
+    if len(shown) > 100:  # a list can be thousands of numbers long: never echo it whole
+        shown = f"{shown[:80]}... ({len(shown):,} characters)"
+    return PipelineError(f"config error: {key}={shown} is not allowed (allowed: {allowed})")
 
 
 def _instantiate(node: DictConfig, key: str) -> Any:
@@ -372,6 +375,7 @@ def load_settings(cfg: DictConfig) -> Config:
             if any(v > 0 for v in values):
                 raise config_error(key, values, why)
     _check_demonstrator(settings)
+    check_magnitudes(settings)
     return settings
 
 
@@ -387,3 +391,20 @@ def _check_demonstrator(settings: Config) -> None:
         raise config_error("graph.weights", w, "null or numbers: the true weights are on "
                            f"reward.features={list(settings.reward.features)}, the learner's "
                            f"features are {settings.learner_features}")
+
+
+# A dead end's value is −v_max and the goal's R_goal; path values are sums of rewards of
+# order one, which float64 keeps to ~1e-16 of the largest term: beyond ~1e9 they drown.
+MAX_MAGNITUDE = 1e9
+
+
+def check_magnitudes(settings: Config) -> None:
+    """Refuse values that are finite but absurd, which the MDP would not survive
+    (mdp.v_max=1e308 overflowed and changed the learned weights)."""
+    md = settings.mdp
+    for key in ("v_max", "r_goal"):
+        value = getattr(md, key, None)
+        if is_number(value) and abs(value) > MAX_MAGNITUDE:
+            raise config_error(f"mdp.{key}", value,
+                               f"|{key}| <= {MAX_MAGNITUDE:g}: values of order one beside it "
+                               "would drown in float64 rounding")

@@ -59,6 +59,9 @@ class RunContext:
     config: dict  # the resolved config as plain data (provenance digests)
     config_yaml: str  # the resolved config, attached to every artefact
     metadata: dict[str, str]
+    # content digests of inputs that are no artefact of this run ("birl.from_run": the
+    # birl.mcap birl=fixed takes its weights from), recorded in the provenance
+    source_digests: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)  # extra wall-clock measurements
     inputs: dict[str, Artefact] = field(default_factory=dict)  # read by the current stage
     # (stage, new content digest) -> None, run just before an artefact replaces the old one
@@ -83,11 +86,13 @@ class RunContext:
         linked = self.from_run is not None and stage not in self.cfg.stages
         source = self.from_run / path.name if self.from_run is not None and linked else path
         artefact = self._read_cached(source, required_topics, stage)
-        if linked:
-            link_or_copy(source, path)
         check_config(stage, artefact, self.config)
         self.inputs[stage] = artefact
         check_inputs(self.inputs)
+        if linked:  # checked first: a refused input never lands in this run dir
+            if self.before_replace is not None:  # what was derived from the old one goes
+                self.before_replace(stage, artefact.digest)
+            link_or_copy(source, path)
         return artefact
 
     def _read_cached(self, path: Path, required_topics: Iterable[str], stage: str) -> Artefact:
@@ -103,7 +108,8 @@ class RunContext:
         return cached[1].require(required_topics)
 
     def writer(self, stage: str) -> ArtefactWriter:
-        meta = {**self.metadata, **provenance_metadata(stage, self.config, self.inputs)}
+        meta = {**self.metadata, **provenance_metadata(stage, self.config, self.inputs,
+                                                       self.source_digests)}
         hook = self.before_replace
         return ArtefactWriter(self.run_dir / ARTEFACT_FILE[stage],
                               config_yaml=self.config_yaml, metadata=meta,

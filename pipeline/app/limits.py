@@ -1,10 +1,23 @@
 """Size guards: refuse, before building, what cannot fit in memory or cannot resolve the
 scene, with the estimate and the key to change (instead of a MemoryError after minutes).
+`pipeline.app.preflight` runs them all before the first stage.
 
-Memory per element was measured on this pipeline (peak RSS above the ~230 MB of imports):
-the reference roadmap of 10, 20 and 30 m rooms (24k, 100k, 228k edges) took 122, 206 and
-271 MB; the adaptive graph at 20,000 nodes peaked at 523 MB. The constants below round
-these up, so the guard errs on the side of letting a run start.
+Memory was measured on this pipeline as the peak RSS (`resource.getrusage(...).ru_maxrss`)
+of a fresh process above its ~85-120 MB of imports, one case per process:
+
+- obstacle raster (a scene's room at 5 cm, or its map, with the clearance transform and the
+  reachability labels): 100 m and 200 m rooms with one box (4e6, 1.6e7 cells) took 184 and
+  572 MB; maps of 2000², 4000², 6000² px took 181, 594 and 1298 MB: 36-46 bytes per cell;
+- lattices (the reference roadmap, 16-connected at 0.25 m; a random room's reachability
+  check, 8-connected at 0.2 m), by persons P in the room (each edge is tested against every
+  body disk and scored for every person): roadmap of 40 m rooms (405k edges) 434 B/edge for
+  P = 0, 1122 for P = 12, 3598 for P = 40, +113 B with an obstacle; 20 and 60 m rooms with
+  P = 12 gave 1136 and 1120 B/edge; reachability lattices of 30 and 60 m rooms (180k, 720k
+  edges) 1439 B/edge for P = 15 (the 200 m room of 8e6 edges reached 13.4 GB: 1675 B/edge)
+  and 3632 for P = 40;
+- the adaptive graph at 20,000 nodes peaked at 523 MB.
+
+The constants below are these rounded up, so an estimate is never below what a run takes.
 """
 
 from __future__ import annotations
@@ -15,7 +28,10 @@ import os
 from pipeline.errors import PipelineError
 
 BYTES_FIXED = 150e6  # working set besides the per-element arrays
-BYTES_PER_LATTICE_EDGE = 1024.0  # edge arrays, features, sub-step integration chunks
+BYTES_PER_RASTER_CELL = 48.0  # occupancy, clearance (float64), distance transform, labels
+BYTES_PER_LATTICE_EDGE = 500.0  # edge arrays, features, sub-step integration chunks ...
+BYTES_PER_LATTICE_EDGE_PERSON = 90.0  # ... and per person in the room (disk tests, features)
+BYTES_PER_LATTICE_EDGE_OBSTACLES = 150.0  # ... and the clearance samples with obstacles
 BYTES_PER_GRAPH_NODE = 30e3  # nodes, edges, GP data, per-iteration history
 MEMORY_SHARE = 0.8  # of the memory available now
 
@@ -23,6 +39,11 @@ MEMORY_SHARE = 0.8  # of the memory available now
 def lattice_edges(area: float, spacing: float, connectivity: int) -> float:
     """Edges of a `spacing` lattice over `area` m² with `connectivity` neighbours per node."""
     return area / spacing**2 * connectivity
+
+
+def bytes_per_lattice_edge(n_persons: int, obstacles: bool) -> float:
+    return BYTES_PER_LATTICE_EDGE + BYTES_PER_LATTICE_EDGE_PERSON * n_persons \
+        + (BYTES_PER_LATTICE_EDGE_OBSTACLES if obstacles else 0.0)
 
 
 def available_memory() -> float:
@@ -37,12 +58,19 @@ def available_memory() -> float:
     return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
+def _size(n_bytes: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if n_bytes >= scale:
+            return f"{n_bytes / scale:,.1f} {unit}"
+    return f"{n_bytes / 1e6:.2f} MB"
+
+
 def check_memory(what: str, n: float, per_element: float, fix: str) -> None:
     need = BYTES_FIXED + n * per_element
     have = available_memory()
     if need > MEMORY_SHARE * have:
-        raise PipelineError(f"{what} would need about {need / 1e9:.1f} GB ({n:,.0f} elements) "
-                            f"but {have / 1e9:.1f} GB are available: {fix}")
+        raise PipelineError(f"{what} would need about {_size(need)} ({n:,.0f} elements) "
+                            f"but {_size(have)} are available: {fix}")
 
 
 def check_graph_resolution(max_nodes: int, free_area: float, rho_personal: float,

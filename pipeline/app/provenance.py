@@ -1,7 +1,10 @@
 """Provenance: every artefact records digests of the config sections it was made from and
 of the artefacts it read (their content digests, pipeline.artefacts.store.content_digest),
 so a stage can refuse inputs that belong to another config or to another run (stored as
-MCAP metadata `run`: `config_digest.<key>`, `input_digest.<stage>`).
+MCAP metadata `run`: `config_digest.<key>`, `input_digest.<stage>`). Inputs that are no
+artefact of the run are recorded by what they hold too: `input_digest.birl.from_run`, the
+content digest of the birl.mcap `birl=fixed birl.from_run=RUN` takes its weights from (a
+config digest only covers the path), in the artefacts made with those weights.
 """
 
 from __future__ import annotations
@@ -28,6 +31,8 @@ STAGE_CONFIG: dict[str, tuple[str, ...]] = {
     "evaluate": ("evaluate", "reward", "mdp", "roadmap"),
 }
 CONFIG_KEY, INPUT_KEY = "config_digest.", "input_digest."
+# Inputs from outside the run and the stages whose artefacts depend on them.
+SOURCE_STAGES: dict[str, tuple[str, ...]] = {"birl.from_run": ("graph", "birl")}
 
 
 def _lookup(config: Mapping, key: str):
@@ -43,11 +48,14 @@ def _digest(value) -> str:
                           .encode()).hexdigest()[:16]
 
 
-def provenance_metadata(stage: str, config: Mapping, inputs: Mapping[str, Artefact]) \
-        -> dict[str, str]:
-    """The metadata entries of `stage`'s artefact: its config digests and input digests."""
+def provenance_metadata(stage: str, config: Mapping, inputs: Mapping[str, Artefact],
+                        sources: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The metadata entries of `stage`'s artefact: its config digests and input digests (of
+    the artefacts it read, and of the outside `sources` it depends on, SOURCE_STAGES)."""
     meta = {CONFIG_KEY + key: _digest(_lookup(config, key)) for key in STAGE_CONFIG[stage]}
     meta.update({INPUT_KEY + s: a.digest for s, a in inputs.items()})
+    meta.update({INPUT_KEY + name: digest for name, digest in (sources or {}).items()
+                 if stage in SOURCE_STAGES.get(name, ())})
     return meta
 
 

@@ -3,8 +3,11 @@
 - An exclusive lock (`fcntl.flock` on `<run dir>/.lock`, released by the kernel even on
   SIGKILL): a second run into a dir in use refuses with one line.
 - `status.json`, written atomically: `running` while stages run (with the stage), then
-  `complete` or `failed` (with the failing stage and the error). A run killed with -9 leaves
-  `running` behind; readers see that the lock is free and report it as `interrupted`.
+  `complete`, `failed` (with the failing stage and the error) or `interrupted` (Ctrl-C or
+  SIGTERM: the stage and the signal). A run killed with -9 leaves `running` behind; readers
+  see that the lock is free and report it as `interrupted` too. When the disk is full and no
+  new file can be made, the last status is overwritten in place (it fits in the space the file
+  already holds), so a dir never says `running` after its run gave up.
 - Stale `*.tmp` files of a dead writer are removed when the next run takes the lock.
 - Just before a stage's artefact replaces a different one, the artefacts derived from the
   old one (later stages, `metrics.json`) are removed, so a dir never holds new inputs beside
@@ -13,10 +16,12 @@
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import json
 import logging
 import os
+import signal
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +37,38 @@ log = logging.getLogger("pipeline")
 
 LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
 RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "interrupted"
+STATUS_ERROR_CHARS = 500  # status.json's error, cut: it must fit where the file already is
+
+
+class Interrupted(BaseException):
+    """The run was stopped by a signal (Ctrl-C is SIGINT): not an error of the run, so a
+    BaseException like KeyboardInterrupt, which no `except Exception` swallows."""
+
+    def __init__(self, signum: int, stage: str | None = None):
+        super().__init__(signum, stage)
+        self.signum, self.stage = signum, stage
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum  # the shell's convention: 130 for SIGINT
+
+    def describe(self) -> str:
+        at = f" at stage {self.stage}" if self.stage else " before the first stage"
+        if self.signum == signal.SIGINT:
+            return f"interrupted by the user{at}"
+        return f"stopped by {signal.Signals(self.signum).name}{at}"
+
+
+def as_interrupted(exc: BaseException | None, stage: str | None) -> Interrupted | None:
+    """`exc` as an Interrupted (a KeyboardInterrupt is SIGINT), with the stage it hit; None
+    when it is no interruption."""
+    if isinstance(exc, Interrupted):
+        if exc.stage is None:
+            exc.stage = stage
+        return exc
+    if isinstance(exc, KeyboardInterrupt):
+        return Interrupted(signal.SIGINT, stage)
+    return None
 
 
 def is_locked(run_dir: Path) -> bool:
@@ -77,6 +114,21 @@ def read_status(run_dir: Path) -> RunStatus:
     if state == RUNNING and not is_locked(Path(run_dir)):
         return RunStatus(INTERRUPTED, stage, "the run was killed or crashed")
     return RunStatus(state, stage, error)
+
+
+def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
+    """A run dir whose artefacts this run reads (`key`=`given`) must be a dir whose run is
+    over: not running now, not killed half-way; a failed one is used with a warning."""
+    if not from_run.is_dir():
+        what = "does not exist" if not from_run.exists() else "is not a directory"
+        raise PipelineError(f"config error: {key}={given} {what}")
+    status = read_status(from_run)
+    if status.state in (RUNNING, INTERRUPTED):
+        raise PipelineError(f"{key}={given} is {status.describe()}: its artefacts may be "
+                            "half-made; let it finish, or re-run it (hydra.run.dir=...)")
+    if status.state == FAILED:
+        log.warning("%s=%s %s; using the artefacts it completed", key, given,
+                    status.describe())
 
 
 _HANDED_OVER: set[Path] = set()  # run dirs whose lock the CLI holds for this process's run
@@ -133,8 +185,13 @@ class RunDir:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
+            interrupted = as_interrupted(exc, self.stage)
             if exc_type is None:
                 self._write(COMPLETE)
+            elif interrupted is not None:
+                if isinstance(exc, Interrupted):
+                    exc.stage = interrupted.stage  # the CLI's one line names it
+                self._write(INTERRUPTED, error=interrupted.describe())
             else:
                 error = str(exc) if isinstance(exc, PipelineError) else \
                     f"{exc_type.__name__}: {exc}"
@@ -184,10 +241,35 @@ class RunDir:
 
 def write_status(run_dir: Path, state: str, stage: str | None, error: str | None,
                  stages: list[str], done: list[str]) -> None:
-    """status.json (atomically); the error on one line."""
-    write_json_atomic(Path(run_dir) / STATUS_FILE, {
-        "state": state, "stage": stage, "error": None if error is None else " ".join(error.split()),
-        "stages": stages, "done": done})
+    """status.json (atomically); the error on one line, cut to STATUS_ERROR_CHARS. On a full
+    disk, where no temp file can be made, the old status.json is overwritten in place."""
+    if error is not None:
+        error = " ".join(error.split())
+        if len(error) > STATUS_ERROR_CHARS:
+            error = error[:STATUS_ERROR_CHARS - 3] + "..."
+    status = {"state": state, "stage": stage, "error": error, "stages": stages, "done": done}
+    path = Path(run_dir) / STATUS_FILE
+    try:
+        write_json_atomic(path, status)
+    except OSError as e:
+        if e.errno != errno.ENOSPC or not path.is_file():
+            raise
+        _overwrite_in_place(path, json.dumps(status, sort_keys=True).encode())
+
+
+def _overwrite_in_place(path: Path, data: bytes) -> None:
+    """Write `data` over the file's old content and cut it there: no new file, and on most
+    file systems no new block for a file this small (status.json: < 1 KB in a 4 KB block).
+    Not atomic; used only when the atomic write found the disk full."""
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+        os.ftruncate(fd, len(data))
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def write_status_if_missing(run_dir: Path, error: str) -> None:

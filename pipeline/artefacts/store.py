@@ -265,9 +265,14 @@ class ArtefactWriter:
                 done = True
         finally:  # on any failure (in the block or while finishing) drop the partial temp file
             self._writer = None
-            self._file.close()
-            if not done:
-                self.tmp_path.unlink(missing_ok=True)
+            try:
+                self._file.close()  # flushes what is buffered: on a full disk it fails again
+            except OSError as e:
+                if done:
+                    raise self._os_error(e) from None
+            finally:
+                if not done:
+                    self.tmp_path.unlink(missing_ok=True)
 
 
 def write_artefact(path, records: Iterable[tuple[str, str, dict, int]], *, config_yaml: str,

@@ -6,9 +6,12 @@ y), cell (r, c) covers [x0 + c·res, x0 + (c+1)·res) × [y0 + r·res, y0 + (r+1
 
 ObstacleMap answers collision questions from a clearance grid: the distance from each
 cell centre to the boundary of the nearest occupied cell (Euclidean distance transform
-between centres minus half a cell). Everything outside the grid counts as occupied
-(unknown), so the grid's border behaves like a wall. Points take the clearance of the
-cell they fall in; segments and polylines are sampled at most half a cell apart.
+between centres minus half a cell). Outside a map everything counts as occupied (unknown,
+as map_server has it), so a map's border behaves like a wall; a grid that only rasterises
+polygons over the room (`outside_occupied=False`) has no such wall: the room's edge is not an
+obstacle (the world model keeps the robot inside the room by itself, Room.contains), and a
+point just past the grid takes the clearance of the nearest cell. Points take the clearance
+of the cell they fall in; segments and polylines are sampled at most half a cell apart.
 
 Plain numpy/scipy; no I/O.
 """
@@ -83,6 +86,102 @@ class OccupancyGrid:
         return window, np.stack(np.meshgrid(xs, ys), axis=-1)
 
 
+def distinct_vertices(polygon: np.ndarray) -> np.ndarray:
+    """The polygon's vertices without consecutive repeats (nor a last vertex repeating the
+    first: closed implicitly)."""
+    p = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    if len(p) < 2:
+        return p
+    keep = np.r_[True, np.any(p[1:] != p[:-1], axis=1)]
+    p = p[keep]
+    if len(p) > 1 and np.array_equal(p[0], p[-1]):
+        p = p[:-1]
+    return p
+
+
+def polygon_area(polygon: np.ndarray) -> float:
+    """|area| (m²) of the simple polygon (shoelace formula)."""
+    p = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def segments_intersect(a: np.ndarray, b: np.ndarray, c: np.ndarray,
+                       d: np.ndarray) -> np.ndarray:
+    """(n, m) bool: segment a[i]→b[i] ((n, 2) each) meets segment c[j]→d[j] ((m, 2) each),
+    touching and collinear overlap included (orientation tests with a tolerance scaled to the
+    coordinates)."""
+    a, b, c, d = (np.asarray(v, dtype=float).reshape(-1, 2) for v in (a, b, c, d))
+    scale = max(1.0, float(np.abs(np.vstack([a, b, c, d])).max(initial=0.0)))
+    eps = 1e-12 * scale * scale
+
+    def orient(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        o = (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) \
+            - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
+        return np.where(np.abs(o) <= eps, 0.0, np.sign(o))
+
+    def on_segment(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """r (collinear with p→q) lies within p→q's bounding box."""
+        lo, hi = np.minimum(p, q) - 1e-12 * scale, np.maximum(p, q) + 1e-12 * scale
+        return ((r >= lo) & (r <= hi)).all(axis=-1)
+
+    A, B = a[:, None, :], b[:, None, :]
+    C, D = c[None, :, :], d[None, :, :]
+    A, B, C, D = np.broadcast_arrays(A, B, C, D)
+    o1, o2, o3, o4 = orient(A, B, C), orient(A, B, D), orient(C, D, A), orient(C, D, B)
+    crossing = (o1 * o2 < 0) & (o3 * o4 < 0)
+    touching = ((o1 == 0) & on_segment(A, B, C)) | ((o2 == 0) & on_segment(A, B, D)) \
+        | ((o3 == 0) & on_segment(C, D, A)) | ((o4 == 0) & on_segment(C, D, B))
+    result: np.ndarray = crossing | touching
+    return result
+
+
+def polygon_problem(polygon: np.ndarray) -> str | None:
+    """Why `polygon` ((k, 2), closed implicitly) is no obstacle polygon, in words, or None:
+    fewer than 3 distinct vertices, zero area, or edges that cross or touch (a bow-tie)."""
+    p = distinct_vertices(polygon)
+    if len(p) < 3:
+        return (f"has {len(p)} distinct point(s); a polygon needs at least 3 (a wall is a thin "
+                "rectangle, e.g. 0.1 m thick)")
+    spread = p - p[0]
+    if np.linalg.matrix_rank(spread, tol=1e-9 * max(1.0, float(np.abs(p).max()))) < 2:
+        return "has zero area: its points lie on one line"
+    a, b = p, np.roll(p, -1, axis=0)
+    k = len(p)
+    for start in range(0, k, 512):  # k × k pairs in blocks: a map's outline has thousands
+        meets = segments_intersect(a[start:start + 512], b[start:start + 512], a, b)
+        i, j = np.nonzero(meets)
+        i = i + start
+        apart = (j > i + 1) & ~((i == 0) & (j == k - 1))  # neighbours share a vertex
+        if apart.any():
+            e, f = int(i[apart][0]), int(j[apart][0])
+            return (f"crosses itself: its edges {e} and {f} meet (a bow-tie); list the vertices "
+                    "in order around the shape")
+    if polygon_area(p) <= 1e-9:
+        return "has zero area"
+    return None
+
+
+def polygon_outside(polygon: np.ndarray, bounds: Bounds) -> bool:
+    """Whether the polygon lies wholly outside the rectangle `bounds` (no point in common)."""
+    p = distinct_vertices(polygon)
+    x0, y0, x1, y1 = bounds
+    inside = (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
+    if inside.any():
+        return False
+    corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+    if segments_intersect(p, np.roll(p, -1, axis=0), corners,
+                          np.roll(corners, -1, axis=0)).any():
+        return False
+    # the room inside the polygon: a corner inside it (even-odd rule)
+    q = corners[0]
+    a, b = p, np.roll(p, -1, axis=0)
+    straddle = (a[:, 1] > q[1]) != (b[:, 1] > q[1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at = a[:, 0] + (q[1] - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return int(np.count_nonzero(straddle & (x_at > q[0]))) % 2 == 0
+
+
 def rasterise(polygons: list[np.ndarray], grid: OccupancyGrid | None = None,
               bounds: Bounds | None = None, resolution: float = 0.05) -> OccupancyGrid:
     """Polygons (each (k, 2), closed implicitly) burnt into `grid`, or into a new free grid.
@@ -148,19 +247,39 @@ def _sample_segments(a: np.ndarray, b: np.ndarray,
 class ObstacleMap:
     """Clearance queries on an OccupancyGrid (see the module docstring)."""
 
-    def __init__(self, grid: OccupancyGrid) -> None:
+    def __init__(self, grid: OccupancyGrid, outside_occupied: bool = True) -> None:
         self.grid = grid
         self.resolution = grid.resolution
-        # a ring of occupied cells: outside the map is unknown, i.e. an obstacle
-        free = np.pad(~grid.occupied, 1, constant_values=False)
-        centre_distance = ndimage.distance_transform_edt(free)[1:-1, 1:-1]
+        self.outside_occupied = outside_occupied
+        if outside_occupied:  # a ring of occupied cells: outside the map is unknown
+            free = np.pad(~grid.occupied, 1, constant_values=False)
+            centre_distance = ndimage.distance_transform_edt(free)[1:-1, 1:-1]
+        elif grid.occupied.any():
+            centre_distance = ndimage.distance_transform_edt(~grid.occupied)
+        else:  # nothing occupied anywhere: no obstacle to keep clear of
+            centre_distance = np.full(grid.shape, np.inf)
         clearance = np.maximum(0.0, centre_distance - 0.5) * grid.resolution  # occupied: 0
         self.clearance: np.ndarray = clearance  # (H, W) m
 
     def clearance_at(self, points: np.ndarray) -> np.ndarray:
-        """(n, 2) -> (n,) clearance of the cell each point falls in; 0 outside the grid."""
+        """(n, 2) -> (n,) clearance of the cell each point falls in; outside the grid 0 (when
+        the outside is occupied) or the nearest cell's."""
         rows, cols, inside = self.grid.cell_of(points)
+        if not self.outside_occupied:
+            inside = np.isfinite(np.asarray(points, dtype=float).reshape(-1, 2)).all(axis=1)
         return np.where(inside, self.clearance[rows, cols], 0.0)
+
+    def free_area(self, radius: float, bounds: Bounds | None = None) -> float:
+        """m² of the cells that are free with clearance >= radius, within `bounds` (x_min,
+        y_min, x_max, y_max; by cell centre) when given: what a graph must cover."""
+        free = self.free_mask(radius)
+        if bounds is not None:
+            h, w = self.grid.shape
+            xs = self.grid.origin[0] + (np.arange(w) + 0.5) * self.resolution
+            ys = self.grid.origin[1] + (np.arange(h) + 0.5) * self.resolution
+            x0, y0, x1, y1 = bounds
+            free = free[np.ix_((ys >= y0) & (ys <= y1), (xs >= x0) & (xs <= x1))]
+        return float(free.sum()) * self.resolution ** 2
 
     def free_mask(self, radius: float, blocked: np.ndarray | None = None) -> np.ndarray:
         """(H, W) bool: cells not occupied, with clearance >= radius, and not `blocked`."""

@@ -15,7 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
+from pipeline.core.obstacles import (
+    ObstacleMap,
+    OccupancyGrid,
+    polygon_outside,
+    polygon_problem,
+    rasterise,
+)
 from pipeline.core.params import require_positive
 from pipeline.errors import PipelineError
 
@@ -99,7 +105,9 @@ class Scene:
             return None
         grid = rasterise(list(self.polygons), self.map_grid, self.room.bounds,
                          OBSTACLE_RESOLUTION)
-        return ObstacleMap(grid)
+        # outside a map is unknown (an obstacle); polygons are rasterised over exactly the
+        # room, whose edge is no obstacle (Room.contains keeps the robot inside)
+        return ObstacleMap(grid, outside_occupied=self.map_grid is not None)
 
     @property
     def person_xy(self) -> np.ndarray:
@@ -133,7 +141,8 @@ class Scene:
         """Starts from which no collision-free path reaches the goal, checked on the
         obstacle raster (or a raster of the room) with the body disks blocked."""
         obstacles = self.obstacles or ObstacleMap(rasterise([], None, self.room.bounds,
-                                                            OBSTACLE_RESOLUTION))
+                                                            OBSTACLE_RESOLUTION),
+                                                  outside_occupied=False)
         radius = self.robot_radius if self.obstacles is not None else 0.0
         blocked = obstacles.blocked_disks(self.person_xy, self.body_radius)
         reached = obstacles.reachable(self.goal, self.starts, radius, blocked)
@@ -248,7 +257,7 @@ def _read_relations(data: dict, persons: list[Person], fail: Any) -> list[tuple[
     return relations
 
 
-def _read_polygons(data: dict, fail: Any) -> tuple[np.ndarray, ...]:
+def _read_polygons(data: dict, room: Room, fail: Any) -> tuple[np.ndarray, ...]:
     raw = data.get("obstacles", [])
     if not isinstance(raw, list):
         raise fail("'obstacles' must be a list of polygons [[x, y], ...]")
@@ -257,10 +266,13 @@ def _read_polygons(data: dict, fail: Any) -> tuple[np.ndarray, ...]:
         try:
             polygons.append(_points(poly, (-1, 2)))
         except (TypeError, ValueError):
-            raise fail(f"obstacle {i} must be a polygon: a list of at least two finite [x, y]") \
-                from None
-        if len(polygons[-1]) < 2:
-            raise fail(f"obstacle {i} must be a polygon: a list of at least two finite [x, y]")
+            raise fail(f"obstacle {i} must be a polygon: a list of at least three finite "
+                       "[x, y]") from None
+        problem = polygon_problem(polygons[-1])
+        if problem is not None:
+            raise fail(f"obstacle {i} {problem}")
+        if polygon_outside(polygons[-1], room.bounds):
+            raise fail(f"obstacle {i} lies wholly outside the room {room.describe()}")
     return tuple(polygons)
 
 
@@ -277,6 +289,9 @@ def _check_placement(scene: Scene, fail: Any) -> None:
             raise fail(f"{where} is outside the room {room.describe()}")
         if scene.in_body(pt)[0]:
             raise fail(f"{where} is inside a person's body disk")
+        if k < len(scene.starts) and np.linalg.norm(pt - scene.goal) <= scene.goal_tolerance:
+            raise fail(f"{where} is within goal_tolerance={scene.goal_tolerance:g} m of the "
+                       "goal: a demonstration from it would end where it begins")
         if obstacles is not None and not obstacles.points_free(pt[None, :], scene.robot_radius)[0]:
             clearance = obstacles.clearance_at(pt[None, :])[0]
             raise fail(f"{where} is {clearance:.2f} m from an obstacle; the robot needs "
@@ -325,9 +340,15 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
             raise fail(f"'{key}' must be a finite number") from None
         if sizes[key] <= 0:
             raise fail(f"'{key}' must be > 0, got {sizes[key]:g}")
+    width, height = room.x_max - room.x_min, room.y_max - room.y_min
+    if 2 * sizes["robot_radius"] >= min(width, height):  # a unit mistake, not a robot
+        raise fail(f"robot_radius={sizes['robot_radius']:g} m: a robot "
+                   f"{2 * sizes['robot_radius']:g} m across does not fit in the "
+                   f"{width:g} m × {height:g} m room (robot_radius is the robot's radius in "
+                   "metres)")
     scene = Scene(name=str(data.get("name", Path(source).stem)), room=room,
                   persons=tuple(persons), relations=tuple(relations), starts=starts, goal=goal,
-                  polygons=_read_polygons(data, fail), map_grid=map_grid,
+                  polygons=_read_polygons(data, room, fail), map_grid=map_grid,
                   map_source=data.get("map"),
                   **sizes)
     _check_placement(scene, fail)

@@ -18,7 +18,9 @@ Image row 0 is the map's top (largest y); the grid is flipped so its row 0 is th
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -32,15 +34,44 @@ from pipeline.errors import PipelineError
 MODES = ("trinary", "scale", "raw")
 
 
-def load_map(path: str | Path) -> OccupancyGrid:
-    """Read a map_server YAML and its image into an OccupancyGrid (True = obstacle)."""
-    path = Path(path)
+@dataclass(frozen=True)
+class MapHeader:
+    """A map_server YAML as read, with the image's size (its pixels not decoded yet)."""
+    path: Path
+    image: Path
+    resolution: float
+    origin: tuple[float, float]
+    negate: int
+    occupied_thresh: float
+    free_thresh: float
+    mode: str
+    width: int  # pixels
+    height: int
 
+    @property
+    def cells(self) -> int:
+        return self.width * self.height
+
+    def extent(self) -> tuple[float, float, float, float]:
+        x0, y0 = self.origin
+        return x0, y0, x0 + self.width * self.resolution, y0 + self.height * self.resolution
+
+
+def _fail(path: Path) -> Callable[[str], PipelineError]:
     def fail(msg: str) -> PipelineError:
         return PipelineError(" ".join(f"map {path}: {msg}".split()))  # always one line
+    return fail
 
-    if not path.is_file():
+
+def read_map_header(path: str | Path) -> MapHeader:
+    """Read and check a map_server YAML and the size of its image, without decoding it: what
+    the size guards need before the map is loaded."""
+    path = Path(path)
+    fail = _fail(path)
+    if not path.exists():
         raise fail("file not found")
+    if not path.is_file():
+        raise fail("is not a file")
     try:
         data = yaml.safe_load(path.read_text())
     except (OSError, UnicodeDecodeError) as e:
@@ -84,20 +115,56 @@ def load_map(path: str | Path) -> OccupancyGrid:
     mode = data.get("mode", "trinary")
     if mode not in MODES:
         raise fail(f"key 'mode'={mode!r} is not one of {', '.join(MODES)}")
-
     image_path = Path(image)
     if not image_path.is_absolute():
         image_path = path.parent / image_path
-    value, opaque = _read_image(image_path, fail)
-    if mode == "raw":
+    width, height = _image_size(image_path, fail)
+    return MapHeader(path, image_path, resolution, (float(origin[0]), float(origin[1])),
+                     int(negate), occupied_thresh, free_thresh, mode, width, height)
+
+
+def load_map(path: str | Path,
+             check_cells: Callable[[MapHeader], None] | None = None) -> OccupancyGrid:
+    """Read a map_server YAML and its image into an OccupancyGrid (True = obstacle);
+    `check_cells(header)` runs before the image is decoded (the size guards)."""
+    header = read_map_header(path)
+    if check_cells is not None:
+        check_cells(header)
+    value, opaque = _read_image(header.image, _fail(header.path))
+    if header.mode == "raw":
         p = value / 100.0  # above 100 (255 = -1 = unknown): p > 1, never free
     else:
-        p = value / 255.0 if negate else (255.0 - value) / 255.0
-        if mode == "scale":
+        p = value / 255.0 if header.negate else (255.0 - value) / 255.0
+        if header.mode == "scale":
             p = np.where(opaque, p, np.nan)
-    free = p < free_thresh  # NaN (unknown) compares False
-    return OccupancyGrid(np.ascontiguousarray(~free[::-1]),
-                         (float(origin[0]), float(origin[1])), resolution)
+    free = p < header.free_thresh  # NaN (unknown) compares False
+    return OccupancyGrid(np.ascontiguousarray(~free[::-1]), header.origin, header.resolution)
+
+
+def _image_size(path: Path, fail: Callable[[str], PipelineError]) -> tuple[int, int]:
+    """(width, height) in pixels from the image's header alone."""
+    try:
+        with _no_bomb_check(), Image.open(path) as img:
+            width, height = img.size
+    except FileNotFoundError:
+        raise fail(f"image {path} (key 'image') not found") from None
+    except (OSError, UnidentifiedImageError, ValueError) as e:
+        raise fail(f"image {path} (key 'image') cannot be read ({e})") from None
+    if width * height == 0:
+        raise fail(f"image {path} (key 'image') is empty")
+    return int(width), int(height)
+
+
+@contextmanager
+def _no_bomb_check() -> Iterator[None]:
+    """Pillow's decompression-bomb guard off (its warning was two extra lines at 10,000² px):
+    the map's size is checked against the memory available by the size guards instead."""
+    limit = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = None
+    try:
+        yield
+    finally:
+        Image.MAX_IMAGE_PIXELS = limit
 
 
 def _is_number(value: Any) -> bool:
@@ -108,7 +175,7 @@ def _is_number(value: Any) -> bool:
 def _read_image(path: Path, fail: Callable[[str], PipelineError]) -> tuple[np.ndarray, np.ndarray]:
     """Grey values (H, W) uint8 (image row 0 first) and opaque (H, W) bool of an image."""
     try:
-        with Image.open(path) as img:
+        with _no_bomb_check(), Image.open(path) as img:
             img.load()
             if img.mode.startswith(("I", "F")):
                 raise fail(f"image {path} (key 'image') has {img.mode} pixels; "
@@ -120,7 +187,7 @@ def _read_image(path: Path, fail: Callable[[str], PipelineError]) -> tuple[np.nd
                 opaque = np.ones(value.shape, dtype=bool)
     except FileNotFoundError:
         raise fail(f"image {path} (key 'image') not found") from None
-    except (OSError, UnidentifiedImageError, Image.DecompressionBombError, ValueError) as e:
+    except (OSError, UnidentifiedImageError, ValueError) as e:
         raise fail(f"image {path} (key 'image') cannot be read ({e})") from None
     if value.size == 0:
         raise fail(f"image {path} (key 'image') is empty")

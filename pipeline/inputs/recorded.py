@@ -1,10 +1,13 @@
 """Recorded demonstrations (DESIGN §3): JSON, CSV and ROS bags read into start-to-goal polylines.
 
-Path forms read by `read_tracks`:
+Path forms read by `read_recording`:
 
-- `.json`: `{"trajectories": [[[x, y], ...], ...]}`, one polyline per trajectory (checked
-  against the published `pipeline/schemas/demos.schema.json`);
-- `.csv`: columns `x,y`, optional `trajectory` (an id) and `t` (a time);
+- `.json`: `{"trajectories": [[[x, y], ...], ...]}`, one polyline per trajectory, optional
+  `"subjects"` (one id string per trajectory: who demonstrated it) and `"source"` (free text),
+  checked against the published `pipeline/schemas/demos.schema.json`;
+- `.csv` (UTF-8, with or without the byte-order mark Excel writes): a header line naming the
+  columns `x,y`, optional `trajectory` (an id), `t` (a time) and `subject` (who demonstrated
+  it); any other column is refused, never silently ignored;
 - ROS bags, read with the `rosbags` library (`rosbags.highlevel.AnyReader`): a ROS 2 bag
   directory (with `metadata.yaml`; `mcap` or `sqlite3` storage, also zstd-compressed), a single
   ROS 2 storage file (`.mcap`, `.db3`) or a ROS 1 `.bag` file.
@@ -18,26 +21,33 @@ Path forms read by `read_tracks`:
   Messages: `nav_msgs/msg/Path` (each message is one trajectory) and the pose streams
   `geometry_msgs/msg/PoseStamped`, `geometry_msgs/msg/PoseWithCovarianceStamped` and
   `nav_msgs/msg/Odometry` (all messages of the topic, in the order of their bag time stamps,
-  make one track that `cut_stream` cuts into trajectories). rosbags names ROS 1 types the ROS 2
-  way (`nav_msgs/Path` is read as `nav_msgs/msg/Path`), so one set of names serves both.
+  make one track that `stream_spans` cuts into trajectories). rosbags names ROS 1 types the
+  ROS 2 way (`nav_msgs/Path` is read as `nav_msgs/msg/Path`), so one set of names serves both.
 
-Recorded tracks are noisy: `clean_track` drops repeated points and resamples by arc length.
+Then, whatever the format (`load_recorded`): a pose stream is cut into trajectories, every
+trajectory is cut at the goal disk (`cut_at_goal`: the goal becomes its last point, what follows
+is dropped), pose streams are resampled (`clean_track`), polylines only lose repeated points.
 Every problem with the input is a `PipelineError` with one line naming the file.
 """
 
 from __future__ import annotations
 
 import csv
+import logging
 import math
+import stat
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from pipeline.core.world import Room
 from pipeline.errors import PipelineError
 from pipeline.inputs.schemas import read_json
+
+log = logging.getLogger(__name__)
 
 PATH_TYPE = "nav_msgs/msg/Path"
 # Pose stream message types and how to find the position in each.
@@ -48,7 +58,14 @@ STREAM_TYPES: dict[str, Callable[[Any], Any]] = {
 }
 SUPPORTED_TYPES = (PATH_TYPE, *STREAM_TYPES)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
+# Where a pose stream's demonstration begins (`motion_begin`): a robot waiting at a start
+# jitters by centimetres, so poses within STOP_TOLERANCE of its closest approach to the start
+# count as its stop; only visits within VISIT_SLACK of the closest approach to any start in
+# the stretch are candidates (passing another start 0.5 m away on the way is no stop there).
+STOP_TOLERANCE = 0.05  # m
+VISIT_SLACK = 0.25  # m
 
 
 def describe(path: Path) -> str:
@@ -58,57 +75,149 @@ def describe(path: Path) -> str:
     return f"demonstration file {path}"
 
 
+@dataclass(frozen=True)
+class Recording:
+    """What a demonstration file holds, before cutting and cleaning."""
+    tracks: list[np.ndarray]  # (K, 2) each
+    is_stream: bool  # True: tracks[0] is one pose stream still to be cut into trajectories
+    # who demonstrated: one per track (polylines) or one per pose (a stream); None: unknown
+    subjects: list[str | None] | None = None
+    source: str | None = None  # a JSON file's "source"
+
+
+class Recorded(NamedTuple):
+    """One demonstration as read from a file: matched start, cleaned polyline, subject."""
+    start: int
+    points: np.ndarray  # (K, 2), ends at the goal when it reached the goal disk
+    subject: str | None
+
+
 # ---------------------------------------------------------------------------------------------
 # Reading
 
 
-def read_tracks(path: Path, *, topic: str | None = None,
-                frame: str | None = None) -> tuple[list[np.ndarray], bool]:
-    """Read the (K, 2) tracks of a recorded demonstration and whether they are one pose stream.
+def read_recording(path: Path, *, topic: str | None = None,
+                   frame: str | None = None) -> Recording:
+    """Read the tracks (and subjects) of a recorded demonstration.
 
-    Returns (tracks, is_stream): is_stream is True when `tracks` is one continuous pose stream
-    still to be cut into trajectories (`cut_stream`), False when every track is a trajectory.
     `topic` and `frame` apply to ROS bags only (see the module docstring).
     """
     path = Path(path)
     where = describe(path)
-    if not path.exists():
-        raise PipelineError(f"{where} not found")
+    check_readable(path)
     suffix = path.suffix.lower()
     if path.is_dir() or suffix in BAG_SUFFIXES:
         return _read_bag(path, where, topic, frame)
     if suffix == ".json":
-        return _read_json(path, where), False
+        return _read_json(path, where)
     if suffix == ".csv":
         return _read_csv(path, where)
     raise PipelineError(f"{where}: unknown format {path.suffix or '(no extension)'!r}; expected "
                         f".json, .csv, a ROS 2 bag directory, .mcap, .db3 or a ROS 1 .bag")
 
 
-def _read_json(path: Path, where: str) -> list[np.ndarray]:
-    # demos.schema.json: at least one trajectory, each at least two finite [x, y]
+def check_readable(path: Path) -> None:
+    """Refuse, in the words `read_recording` would use, a demonstration path that is missing,
+    a directory that is no ROS 2 bag, a device or a pipe (cheap: for the start-up checks)."""
+    path = Path(path)
+    where = describe(path)
+    if not path.exists():
+        raise PipelineError(f"{where} not found")
+    if path.is_dir():
+        if not (path / "metadata.yaml").is_file():
+            raise PipelineError(f"{where} is a directory without metadata.yaml, not a ROS 2 bag")
+        return
+    kind = file_kind(path)
+    if kind is not None:
+        what = "a ROS bag" if path.suffix.lower() in BAG_SUFFIXES else "a demonstration file"
+        raise PipelineError(f"{where} is {kind}, not {what}")
+
+
+def read_tracks(path: Path, *, topic: str | None = None,
+                frame: str | None = None) -> tuple[list[np.ndarray], bool]:
+    """The (K, 2) tracks of a recorded demonstration and whether they are one pose stream
+    (`read_recording` without the subjects)."""
+    recording = read_recording(path, topic=topic, frame=frame)
+    return recording.tracks, recording.is_stream
+
+
+def file_kind(path: Path) -> str | None:
+    """What an existing path is when it is not a regular file ('a directory', 'a character
+    device', ...), else None: `/dev/zero` as an input is named as what it is."""
+    mode = path.stat().st_mode
+    for test, name in ((stat.S_ISREG, None), (stat.S_ISDIR, "a directory"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _read_json(path: Path, where: str) -> Recording:
+    # demos.schema.json: at least one trajectory, each at least two finite [x, y]; subjects
+    # strings
     data = read_json(path, "demos", where)
-    return [np.asarray(t, dtype=float) for t in data["trajectories"]]
+    tracks = [np.asarray(t, dtype=float) for t in data["trajectories"]]
+    subjects = data.get("subjects")
+    if subjects is not None and len(subjects) != len(tracks):
+        raise PipelineError(f"{where}: subjects has {len(subjects)} entries but there are "
+                            f"{len(tracks)} trajectories; give one subject id per trajectory")
+    return Recording(tracks, False, subjects, data.get("source"))
 
 
-def _read_csv(path: Path, where: str) -> tuple[list[np.ndarray], bool]:
+def _csv_header(header: list[str], where: str) -> list[str]:
+    """The header's column names (trimmed, lower case), refusing what the reader does not know."""
+    names = [h.strip().lower() for h in header]
+    for i, name in enumerate(names):
+        if name in CSV_COLUMNS:
+            continue
+        shown = ",".join(h.strip() for h in header)
+        if not name:
+            problem = f"column {i + 1} of the header has no name"
+        else:
+            problem = f"unknown column {header[i].strip()!r}"
+        hint = ""
+        if any(sep in name for sep in (";", "\t")):
+            hint = "; the columns must be separated by commas"
+        elif all(_is_number(h) for h in header if h.strip()):
+            hint = "; the first line must be a header naming the columns"
+        raise PipelineError(f"{where}: {problem} (header: {shown[:80]}); expected x,y and "
+                            f"optionally trajectory,t,subject{hint}")
+    missing = [c for c in ("x", "y") if c not in names]
+    if missing:
+        raise PipelineError(f"{where} has no column {' or '.join(missing)} (columns: "
+                            f"{','.join(h.strip() for h in header)}); expected x,y and "
+                            f"optionally trajectory,t,subject")
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise PipelineError(f"{where}: column {dupes[0]} appears more than once")
+    return names
+
+
+def _is_number(text: str) -> bool:
     try:
-        with path.open(newline="") as f:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_csv(path: Path, where: str) -> Recording:
+    with path.open("rb") as f:
+        head = f.read(4)
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise PipelineError(f"{where} is UTF-16 text; save it as UTF-8 (Excel: CSV UTF-8)")
+    try:
+        # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
+        with path.open(newline="", encoding="utf-8-sig") as f:
             reader = csv.reader(f)
-            header = next(reader, None)
+            header = next((row for row in reader if any(c.strip() for c in row)), None)
             if header is None:
                 raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
-            names = [h.strip().lower() for h in header]
-            missing = [c for c in ("x", "y") if c not in names]
-            if missing:
-                raise PipelineError(f"{where} has no column {' or '.join(missing)} (columns: "
-                                    f"{','.join(h.strip() for h in header)}); expected x,y and "
-                                    f"optionally trajectory,t")
-            dupes = sorted({n for n in names if n and names.count(n) > 1})
-            if dupes:
-                raise PipelineError(f"{where}: column {dupes[0]} appears more than once")
-            col = {n: names.index(n) for n in ("x", "y", "t", "trajectory") if n in names}
+            names = _csv_header(header, where)
+            col = {n: names.index(n) for n in names}
             ids: list[str] = []
+            subjects: list[str] = []
             rows: list[tuple[float, float, float]] = []
             for row in reader:
                 if not row or all(not c.strip() for c in row):
@@ -126,20 +235,22 @@ def _read_csv(path: Path, where: str) -> tuple[list[np.ndarray], bool]:
                     try:
                         v = float(text)
                     except ValueError:
-                        raise PipelineError(f"{where}, line {line}: {name}={text!r} is not a "
-                                            f"number") from None
+                        raise PipelineError(f"{where}, line {line}: {name}={text[:40]!r} is not "
+                                            f"a number") from None
                     if not math.isfinite(v):
                         raise PipelineError(f"{where}, line {line}: {name}={text!r} is not "
                                             f"finite")
                     values.append(v)
-                if "trajectory" in col:
-                    ident = row[col["trajectory"]].strip()
-                    if not ident:
-                        raise PipelineError(f"{where}, line {line}: empty trajectory id")
-                    ids.append(ident)
+                for name, out in (("trajectory", ids), ("subject", subjects)):
+                    if name in col:
+                        ident = row[col[name]].strip()
+                        if not ident:
+                            what = "trajectory id" if name == "trajectory" else "subject"
+                            raise PipelineError(f"{where}, line {line}: empty {what}")
+                        out.append(ident)
                 rows.append((values[0], values[1], values[2]))
     except UnicodeDecodeError:
-        raise PipelineError(f"{where} is not a text file") from None
+        raise PipelineError(f"{where} is not UTF-8 text") from None
     except csv.Error as e:
         raise PipelineError(f"{where}: not valid CSV ({e})") from None
     if not rows:
@@ -149,32 +260,38 @@ def _read_csv(path: Path, where: str) -> tuple[list[np.ndarray], bool]:
     def ordered(sel: np.ndarray) -> np.ndarray:
         if "t" in col:
             sel = sel[np.argsort(table[sel, 2], kind="stable")]
-        return table[sel, :2]
+        return sel
 
     if "trajectory" not in col:
-        track = ordered(np.arange(len(table)))
-        if len(track) < 2:
+        order = ordered(np.arange(len(table)))
+        if len(order) < 2:
             raise PipelineError(f"{where} has 1 row; a pose stream needs at least two")
-        return [track], True
+        stream_subjects: list[str | None] | None = \
+            [subjects[k] for k in order] if subjects else None
+        return Recording([table[order, :2]], True, stream_subjects)
     groups: dict[str, list[int]] = {}
     for k, ident in enumerate(ids):
         groups.setdefault(ident, []).append(k)
     tracks = []
+    track_subjects: list[str | None] = []
     for i, (ident, members) in enumerate(groups.items()):
         if len(members) < 2:
             raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has 1 row; a trajectory "
                                 f"needs at least two")
-        tracks.append(ordered(np.array(members)))
-    return tracks, False
+        tracks.append(table[ordered(np.array(members)), :2])
+        if subjects:
+            names_here = sorted({subjects[k] for k in members})
+            if len(names_here) > 1:
+                raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has rows of several "
+                                    f"subjects: {', '.join(repr(n) for n in names_here[:3])}")
+            track_subjects.append(names_here[0])
+    return Recording(tracks, False, track_subjects if subjects else None)
 
 
-def _read_bag(path: Path, where: str, topic: str | None,
-              frame: str | None) -> tuple[list[np.ndarray], bool]:
+def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> Recording:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        raise PipelineError(f"{where} is a directory without metadata.yaml, not a ROS 2 bag")
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
             topics = {name: info.msgtype or "(several types)"
@@ -230,15 +347,15 @@ def _read_bag(path: Path, where: str, topic: str | None,
         raise
     except Exception as e:  # rosbags raises many kinds on malformed bags; report, never trace
         detail = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise PipelineError(f"{where} cannot be read as a ROS bag ({detail})") from None
+        raise PipelineError(f"{where} cannot be read as a ROS bag ({detail[:200]})") from None
     if count == 0:
         raise PipelineError(f"{where}: topic {topic} has no messages")
     if msgtype == PATH_TYPE:
-        return tracks, False
+        return Recording(tracks, False)
     if len(stream) < 2:
         raise PipelineError(f"{where}: topic {topic} has 1 message; a pose stream needs at "
                             f"least two")
-    return [np.array(stream, dtype=float)], True
+    return Recording([np.array(stream, dtype=float)], True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -291,23 +408,85 @@ def clean_track(points: np.ndarray, spacing: float) -> np.ndarray:
     return out
 
 
-def cut_stream(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_radius: float,
-               goal_tolerance: float) -> list[np.ndarray]:
-    """Cut a continuous pose stream (K, 2) into start-to-goal trajectories.
+def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> np.ndarray | None:
+    """DESIGN §3: the trajectory up to its first point within `goal_tolerance` of the goal, with
+    the goal itself as its last point; what follows is not part of the demonstration.
 
-    A point is *near* start s when it is within `start_radius` of s, and *at the goal* when it
+    The polyline is taken as the path it describes: the first point within the tolerance may
+    lie between two vertices (a sparse polyline passing through the goal disk). Returns
+    `points[:i + 1]` followed by the goal, where segment i → i+1 is the first to come within
+    the tolerance; `points` unchanged when it never does; None when its first point already
+    lies within the tolerance (nothing is left before the goal).
+    """
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    goal = np.asarray(goal, dtype=float)
+    if len(p) == 0 or np.linalg.norm(p[0] - goal) <= goal_tolerance:
+        return None
+    if len(p) < 2:
+        return p.copy()
+    a, b = p[:-1], p[1:]
+    ab = b - a
+    len2 = np.einsum("nk,nk->n", ab, ab)
+    t = np.clip(np.einsum("nk,nk->n", goal - a, ab) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
+    gap = np.linalg.norm(a + t[:, None] * ab - goal, axis=1)
+    within = np.flatnonzero(gap <= goal_tolerance)
+    if len(within) == 0:
+        return p.copy()
+    return np.vstack([p[:within[0] + 1], goal[None, :]])
+
+
+def _visits(near: np.ndarray) -> list[tuple[int, int]]:
+    """The runs [r0, r1) of consecutive True in the mask `near` (K,)."""
+    edges = np.diff(np.concatenate([[0], near.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(),
+                    strict=True))
+
+
+def motion_begin(gaps: np.ndarray, start_radius: float) -> int:
+    """Where the demonstration begins in a stretch of poses (their distances to every start,
+    (K, n)), the first of which is within `start_radius` of a start.
+
+    A *visit* is a run of consecutive poses within `start_radius` of one start; only each
+    start's last visit in the stretch counts (the robot came back to it). The visit's closest
+    approach is its smallest distance to that start, and the robot *stops* there at the poses
+    within STOP_TOLERANCE of it. Among the visits that come within VISIT_SLACK of the closest
+    approach of any of them, the one with the longest stop wins (then the closer one, then the
+    later one): passing near another start on the way, before or after the stop, does not
+    begin a demonstration. It begins at the winner's last stop pose, where the robot moves
+    away towards the goal.
+    """
+    candidates = []  # (stop length, -closest approach, last stop pose)
+    for s in range(gaps.shape[1]):
+        visits = _visits(gaps[:, s] <= start_radius)
+        if not visits:
+            continue
+        r0, r1 = visits[-1]
+        d = gaps[r0:r1, s]
+        closest = float(d.min())
+        stop = np.flatnonzero(d <= closest + STOP_TOLERANCE)
+        candidates.append((len(stop), -closest, r0 + int(stop[-1])))
+    best = max(c[1] for c in candidates)
+    return max(c for c in candidates if c[1] >= best - VISIT_SLACK)[2]
+
+
+def stream_spans(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_radius: float,
+                 goal_tolerance: float) -> list[tuple[int, int]]:
+    """Cut a continuous pose stream (K, 2) into start-to-goal trajectories: index pairs (b, g),
+    the trajectory being track[b : g + 1].
+
+    A pose is *near* start s when it is within `start_radius` of s, and *at the goal* when it
     is within `goal_tolerance` of `goal`. From a position p (initially 0):
 
-    1. a = the first index >= p near some start; none: stop. s = the start nearest to track[a].
+    1. a = the first index >= p near some start; none: stop.
     2. g = the first index > a at the goal; none: stop (the rest never reaches the goal).
-    3. b = the last index in [a, g) near s: the point where the robot leaves the vicinity of s
-       (for the last time, if it came back to s before reaching the goal).
-    4. track[b : g + 1] is a trajectory; continue from p = g + 1.
+    3. b = `motion_begin` of the stretch [a, g): the last pose of the robot's stop at a start,
+       where it moves away towards the goal.
+    4. (b, g) is a trajectory; continue from p = g + 1.
 
-    So every trajectory begins within `start_radius` of a start, ends at its first point within
-    `goal_tolerance` of the goal, and passing near another start on the way does not cut it.
-    Stretches before the robot first comes near a start, or after the last goal arrival that
-    never reach the goal again, are dropped. Returns [] when no trajectory is found.
+    So every trajectory begins where the robot sets off from a start and ends at its first pose
+    within `goal_tolerance` of the goal; passing near another start on the way, before or after
+    the stop, neither cuts it nor shortens it. Stretches before the robot first comes near a
+    start, or after the last goal arrival that never reach the goal again, are dropped.
     """
     track = np.asarray(track, dtype=float).reshape(-1, 2)
     starts = np.asarray(starts, dtype=float).reshape(-1, 2)
@@ -317,7 +496,7 @@ def cut_stream(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_ra
     near_any = np.flatnonzero((gaps <= start_radius).any(axis=1))
     at_goal = np.flatnonzero(np.linalg.norm(track - np.asarray(goal, dtype=float), axis=1)
                              <= goal_tolerance)
-    pieces = []
+    spans = []
     pos = 0
     while True:
         i = int(np.searchsorted(near_any, pos))
@@ -328,11 +507,17 @@ def cut_stream(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_ra
         if j == len(at_goal):
             break
         g = int(at_goal[j])
-        s = int(np.argmin(gaps[a]))
-        b = a + int(np.flatnonzero(gaps[a:g, s] <= start_radius)[-1])  # a itself qualifies
-        pieces.append(track[b:g + 1].copy())
+        spans.append((a + motion_begin(gaps[a:g], start_radius), g))
         pos = g + 1
-    return pieces
+    return spans
+
+
+def cut_stream(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_radius: float,
+               goal_tolerance: float) -> list[np.ndarray]:
+    """The trajectories of `stream_spans`, as copies of the stream's poses."""
+    track = np.asarray(track, dtype=float).reshape(-1, 2)
+    return [track[b:g + 1].copy()
+            for b, g in stream_spans(track, starts, goal, start_radius, goal_tolerance)]
 
 
 def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
@@ -363,40 +548,69 @@ def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.n
     return matched
 
 
+def _span_subject(subjects: list[str | None] | None, b: int, g: int, where: str,
+                  i: int) -> str | None:
+    """The subject of the stream poses b..g (a CSV pose stream's `subject` column)."""
+    if subjects is None:
+        return None
+    found = sorted({s for s in subjects[b:g + 1] if s is not None})
+    if len(found) > 1:
+        raise PipelineError(f"{where}: trajectory {i} (cut from the pose stream) has rows of "
+                            f"several subjects: {', '.join(repr(n) for n in found[:3])}")
+    return found[0] if found else None
+
+
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
                   topic: str | None = None, frame: str | None = None, start_radius: float = 1.0,
-                  spacing: float = 0.1, room: Room | None = None) -> list[tuple[int, np.ndarray]]:
-    """Read a recorded demonstration into (start index, cleaned (K, 2) polyline) pairs.
+                  spacing: float = 0.1, room: Room | None = None) -> list[Recorded]:
+    """Read a recorded demonstration into its demonstrations (matched start, polyline, subject).
 
-    A pose stream (Odometry, PoseStamped, a CSV without `trajectory` ids) is cut with
-    `cut_stream` and cleaned with `clean_track(track, spacing)`: dense, noisy and repeated
-    poses become an evenly spaced polyline. Trajectories given as polylines (JSON, CSV with
-    ids, nav_msgs/Path) keep their points, only repeated points dropped, so the same
-    polylines learn the same reward whatever the file format. With `room`, every trajectory
-    (before cleaning) must stay inside it. Each trajectory is then matched with `match_to_starts`.
+    Whatever the format, every trajectory is cut at the goal disk (`cut_at_goal`): recordings
+    rarely stop at the goal, and what follows the first point within `goal_tolerance` is not
+    part of the demonstration (never an error). A pose stream (Odometry, PoseStamped, a CSV
+    without `trajectory` ids) is first cut into trajectories (`stream_spans`), and each is
+    resampled up to its last pose before the goal with `clean_track(track, spacing)`: dense,
+    noisy and repeated poses become an evenly spaced polyline. Trajectories given as polylines
+    (JSON, CSV with ids, nav_msgs/Path) keep their points, only repeated points dropped, so the
+    same polylines learn the same reward whatever the file format. With `room`, every
+    trajectory must stay inside it. Each is then matched with `match_to_starts`; a start no
+    demonstration begins at is named in one warning line.
     """
     path = Path(path)
     where = describe(path)
-    tracks, is_stream = read_tracks(path, topic=topic, frame=frame)
-    if is_stream:
-        n_points = len(tracks[0])
-        tracks = cut_stream(tracks[0], starts, goal, start_radius, goal_tolerance)
-        if not tracks:
+    recording = read_recording(path, topic=topic, frame=frame)
+    goal = np.asarray(goal, dtype=float)
+    if recording.is_stream:
+        stream = recording.tracks[0]
+        spans = stream_spans(stream, starts, goal, start_radius, goal_tolerance)
+        if not spans:
             raise PipelineError(
                 f"{where}: found no trajectory from a start (within {start_radius:g} m, "
                 f"expert.start_radius) to the goal (within {goal_tolerance:g} m) in the "
-                f"{n_points} poses read")
-    if room is not None:
-        for i, t in enumerate(tracks):
-            if not room.contains(t).all():
-                raise PipelineError(f"{where}: trajectory {i} leaves the room {room.describe()}")
-    if is_stream:
-        cleaned = [clean_track(t, spacing) for t in tracks]
+                f"{len(stream)} poses read")
+        tracks = [stream[b:g + 1] for b, g in spans]
+        subjects = [_span_subject(recording.subjects, b, g, where, i)
+                    for i, (b, g) in enumerate(spans)]
     else:
-        cleaned = [drop_repeats(t) for t in tracks]
-    for i, t in enumerate(cleaned):
-        if len(t) < 2:
+        tracks = recording.tracks
+        subjects = recording.subjects or [None] * len(tracks)
+    cleaned = []
+    for i, t in enumerate(tracks):
+        cut = cut_at_goal(drop_repeats(t), goal, goal_tolerance)
+        if cut is None:
+            raise PipelineError(f"{where}: trajectory {i} begins within goal_tolerance="
+                                f"{goal_tolerance:g} m of the goal ({goal[0]:g}, {goal[1]:g})")
+        if recording.is_stream:  # it ends at the goal: resample what leads there
+            cut = np.vstack([clean_track(cut[:-1], spacing), cut[-1:]])
+        if room is not None and not room.contains(cut).all():
+            raise PipelineError(f"{where}: trajectory {i} leaves the room {room.describe()}")
+        if len(cut) < 2:
             raise PipelineError(f"{where}: trajectory {i} never moves (all its points are "
                                 f"within {REPEAT_TOLERANCE:g} m of each other)")
+        cleaned.append(cut)
     matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
-    return list(zip(matched, cleaned, strict=True))
+    without = sorted(set(range(len(np.asarray(starts).reshape(-1, 2)))) - set(matched))
+    if without:
+        log.warning("%s: no demonstration begins at start(s) %s (%d demonstrations read)",
+                    where, without, len(cleaned))
+    return [Recorded(k, p, s) for k, p, s in zip(matched, cleaned, subjects, strict=True)]

@@ -54,7 +54,8 @@ def read_json(path: Path, schema_name: str, source: str) -> Any:
     """Parse the JSON file `path` and `validate` it; errors name `source`."""
     error = ERRORS[schema_name]
     try:
-        data = json.loads(path.read_text(), parse_constant=NonFinite)
+        # utf-8-sig: editors on Windows save JSON with a byte-order mark, which is no JSON
+        data = json.loads(path.read_text(encoding="utf-8-sig"), parse_constant=NonFinite)
         validate(data, schema_name, source)
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise error(f"{source} is not valid JSON ({e})") from None

@@ -10,7 +10,11 @@ from __future__ import annotations
 import importlib
 import json
 import logging
+import signal
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -18,7 +22,8 @@ from threadpoolctl import threadpool_limits
 
 from pipeline.app.config import load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
-from pipeline.app.rundir import FAILED, INTERRUPTED, RUNNING, RunDir, read_status
+from pipeline.app.preflight import preflight
+from pipeline.app.rundir import Interrupted, RunDir, check_from_run
 from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.errors import PipelineError, os_error_reason
@@ -31,15 +36,19 @@ def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
 
     The run dir is locked for the run and says in status.json how far it got (see
     pipeline.app.rundir); a disk-full or permission error becomes one PipelineError line.
+    Ctrl-C (SIGINT) or SIGTERM stops it as `Interrupted`, with status.json saying so.
     """
     settings = load_settings(cfg)
     from_run = resolve_path(settings.from_run) if settings.from_run else None
     if from_run is not None:
         check_from_run(from_run, settings.from_run)
     stages = [s for s in STAGES if s in settings.stages]
+    with stopped_by_signals():
+        checked = preflight(settings, run_dir, from_run)  # before the run dir is touched
     ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
-                     OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed))
-    with RunDir(run_dir, stages) as rundir:
+                     OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed),
+                     source_digests=checked.source_digests)
+    with stopped_by_signals(), RunDir(run_dir, stages) as rundir:
         ctx.before_replace = rundir.before_replace
         timings = ctx.timings  # stages add their own measurements
         timings.update(read_timings(run_dir / "timings.json"))
@@ -51,6 +60,26 @@ def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
             except OSError as e:  # disk full, read-only dir, ...: one line, no traceback
                 raise PipelineError(f"stage {stage}: {os_error_reason(e)}") from None
     return timings
+
+
+@contextmanager
+def stopped_by_signals() -> Iterator[None]:
+    """SIGINT (Ctrl-C) and SIGTERM raise Interrupted for the block, so the run dir records the
+    stage that was stopped and the CLI says so in one line; the previous handlers come back
+    after. Python lets only the main thread handle signals: elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, frame: object) -> None:
+        raise Interrupted(signum)
+
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def run_stage(stage: str, ctx: RunContext, rundir: RunDir) -> None:
@@ -69,19 +98,6 @@ def run_stage(stage: str, ctx: RunContext, rundir: RunDir) -> None:
              ctx.run_dir / ARTEFACT_FILE[stage])
     # Wall-clock goes to a side file (later into metrics.json), never into artefacts.
     write_json_atomic(ctx.run_dir / "timings.json", ctx.timings)
-
-
-def check_from_run(from_run: Path, given: str) -> None:
-    """from_run must be a dir whose run is over: not running now, not killed half-way."""
-    if not from_run.is_dir():
-        raise PipelineError(f"config error: from_run={given} is not a directory")
-    status = read_status(from_run)
-    if status.state in (RUNNING, INTERRUPTED):
-        raise PipelineError(f"from_run={given} is {status.describe()}: its artefacts may be "
-                            "half-made; let it finish, or re-run it (hydra.run.dir=...)")
-    if status.state == FAILED:
-        log.warning("from_run=%s %s; using the artefacts it completed", given,
-                    status.describe())
 
 
 def read_timings(path: Path) -> dict[str, float]:

@@ -8,16 +8,14 @@ true weights) the similarity of the learned paths to the demonstrations.
 from __future__ import annotations
 
 import logging
-import re
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from omegaconf import OmegaConf
 
 from pipeline.app import build
-from pipeline.app.context import PACKAGE_ROOT, RunContext, resolve_path
+from pipeline.app.context import PACKAGE_ROOT, RunContext
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import Artefact, write_json_atomic
 from pipeline.artefacts.topics import STAGES
@@ -33,7 +31,6 @@ from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.social import min_distance_to_person, path_metrics
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
-from pipeline.inputs.scene_file import load_scene_file
 
 log = logging.getLogger(__name__)
 
@@ -120,7 +117,7 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
     its policy loss (when the expert's true weights are known) and path metrics, as
     transfer_<scene name>_<metric>."""
     cfg, md = ctx.cfg, ctx.cfg.mdp
-    scene = load_scene_file(resolve_path(path))
+    scene = build.scene_file(path)  # checked and loaded at start-up
     roadmap = build.reference_roadmap(cfg, scene, build.feature_model(cfg, scene))
     graph = roadmap.spatial(roadmap.mdp(md))
     ref = feature_views(ctx, scene, graph, graph)[0]
@@ -137,7 +134,7 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
     else:
         policy = ref.learner.mdp.solve(w_learned).policy
     out.update(summed_path_metrics(graph, policy, scene)[0])
-    name = re.sub(r"\W+", "_", scene.name).strip("_") or Path(path).stem
+    name = build.transfer_name(scene.name, path)
     log.info("transfer to %s (%s): %s", name, path, {k: round(out[k], 4) for k in out
                                                       if k in ("policy_loss_norm", "success")})
     return {f"transfer_{name}_{k}": v for k, v in out.items() if k in TRANSFER_KEYS}

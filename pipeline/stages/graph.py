@@ -12,13 +12,12 @@ import time
 
 import numpy as np
 
-from pipeline.app import build, limits
+from pipeline.app import build
 from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.core.adaptive_graph import AdaptiveGraph, Demo
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
-from pipeline.core.world import Scene
 
 log = logging.getLogger(__name__)
 
@@ -32,21 +31,11 @@ def demos_for_graph(demo_msgs: list[dict], features: FeatureModel, speed: float)
     return out
 
 
-def check_graph_size(max_nodes: int, scene: Scene, rho_personal: float) -> None:
-    free_share = 1.0 if scene.obstacles is None else \
-        float(scene.obstacles.free_mask(scene.robot_radius).mean())
-    limits.check_graph_resolution(max_nodes, scene.room.area * free_share, rho_personal,
-                                  scene.name)
-    limits.check_memory(f"an adaptive graph of {max_nodes} nodes", max_nodes,
-                        limits.BYTES_PER_GRAPH_NODE, "lower graph.max_nodes")
-
-
 def run(ctx: RunContext) -> None:
     cfg = ctx.cfg
     scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
     demos_art = ctx.read("demos", required_topics=[topics.DEMOS_EXPERT])
     features = build.learner_feature_model(cfg, scene)
-    check_graph_size(cfg.graph.max_nodes, scene, cfg.reward.rho_personal)
     weights, weights_source = build.growth_weights(
         cfg, demos_art.one(topics.DEMOS_EXPERT)["true_weights"])
     graph = AdaptiveGraph(scene, features, build.controller(cfg), weights, cfg.graph,

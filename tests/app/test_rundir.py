@@ -24,16 +24,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.app.provenance import INPUT_KEY
 from pipeline.app.rundir import RunDir, is_locked, read_status, write_status_if_missing
-from pipeline.artefacts import topics
 from pipeline.artefacts.store import read_artefact
-from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
+from pipeline.artefacts.topics import STAGES
 from pipeline.errors import PipelineError
-from tests.conftest import ROOT, run_app, run_in_process
+from tests.conftest import ROOT, check_run_dir, run_app, run_in_process
 
 QUICK = ("graph=small", "birl.n_iterations=3")  # a whole run in ~1 s plus imports
-FILE_STAGE = {name: stage for stage, name in ARTEFACT_FILE.items()}
 
 
 # -- helpers ---------------------------------------------------------------------------------
@@ -43,43 +40,6 @@ def snapshot(d: Path) -> dict[str, tuple[int, int]]:
     """Every file and dir under d (relative name -> (size, mtime_ns)), to prove it untouched."""
     return {str(p.relative_to(d)): (p.stat().st_size, p.stat().st_mtime_ns)
             for p in sorted(d.rglob("*"))}
-
-
-def is_timing(key: str) -> bool:
-    return key.startswith("time_") and key.endswith("_s")
-
-
-def check_run_dir(d: Path) -> list[str]:
-    """The consistency checks any run dir must pass, killed or not; returns the problems
-    (empty when the dir is sound), so a failing kill can be reported with its context."""
-    problems: list[str] = []
-    arts = {}
-    for path in sorted(d.glob("*.mcap")):
-        try:
-            arts[FILE_STAGE[path.name]] = read_artefact(path)
-        except Exception as e:  # noqa: BLE001 - any failure to read is the finding
-            problems.append(f"{path.name} does not read: {type(e).__name__}: {e}")
-    for later, art in arts.items():
-        for earlier, other in arts.items():
-            recorded = art.metadata.get(INPUT_KEY + earlier)
-            if recorded is not None and recorded != other.digest:
-                problems.append(f"{ARTEFACT_FILE[later]} was made from another "
-                                f"{ARTEFACT_FILE[earlier]} (recorded {recorded[:12]}, "
-                                f"present {other.digest[:12]})")
-    metrics_path = d / "metrics.json"
-    if metrics_path.exists():
-        if "evaluate" not in arts:
-            problems.append("metrics.json without eval.mcap")
-        else:
-            try:
-                metrics = json.loads(metrics_path.read_text())
-            except ValueError as e:
-                problems.append(f"metrics.json does not parse: {e}")
-            else:
-                in_eval = arts["evaluate"].one(topics.EVAL_METRICS)
-                if {k: v for k, v in metrics.items() if not is_timing(k)} != in_eval:
-                    problems.append("metrics.json is not the one that came with eval.mcap")
-    return problems
 
 
 def pipeline_cmd(run_dir: Path, *overrides: str) -> list[str]:
@@ -418,14 +378,23 @@ def test_stale_temp_files_of_a_dead_run_are_removed(tmp_path):
 
 def test_failed_stage_is_recorded_in_status(tmp_path):
     d = tmp_path / "run"
-    missing = tmp_path / "nonexistent.json"
-    with pytest.raises(PipelineError, match="nonexistent.json"):
-        run_in_process(d, *QUICK, "expert=file", f"expert.path={missing}")
+    far = tmp_path / "far.json"  # found by the demos stage: it begins far from every start
+    far.write_text(json.dumps({"trajectories": [[[6.0, 5.0], [5.5, 8.0], [5.5, 9.0]]]}))
+    with pytest.raises(PipelineError, match="far.json"):
+        run_in_process(d, *QUICK, "expert=file", f"expert.path={far}")
     status = read_status(d)
     assert (status.state, status.stage) == ("failed", "demos"), status
-    assert "nonexistent.json" in status.error
+    assert "far.json" in status.error
     assert (d / "scene.mcap").exists() and not (d / "demos.mcap").exists()
     assert check_run_dir(d) == []
+
+
+def test_a_missing_input_file_is_refused_before_the_run_dir_is_touched(tmp_path):
+    d = tmp_path / "run"
+    missing = tmp_path / "nonexistent.json"
+    with pytest.raises(PipelineError, match="nonexistent.json not found"):
+        run_in_process(d, *QUICK, "expert=file", f"expert.path={missing}")
+    assert not d.exists()
 
 
 def _status_running(d: Path, stage: str) -> None:

@@ -50,3 +50,18 @@ def test_the_birlg_console_script_completes_keys_and_options():
                           text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "scene=random" in done.stdout.split()
+
+
+def test_no_config_sets_hydra_mode():
+    """The CLI skips Hydra's extra composition that only reads hydra.mode (pipeline.__main__,
+    mode_from_the_command_line): no config of this package may set it."""
+    from hydra import compose, initialize_config_dir
+
+    from tests.conftest import ROOT
+
+    presets = [None] + sorted(p.stem for p in (ROOT / "conf" / "experiment").glob("*.yaml"))
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        for preset in presets:
+            overrides = [] if preset is None else [f"experiment={preset}"]
+            cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
+            assert cfg.hydra.mode is None, preset

@@ -53,7 +53,9 @@ def test_failing_job_does_not_stop_the_sweep(tmp_path):
                      "scene.body_radius=0.25,-1", f"hydra.sweep.dir={tmp_path}")
     # The other job ran to the end; the sweep's exit status and last line report the failure.
     assert result.returncode == 1, result.stderr[-2000:]
-    assert result.stderr.strip().splitlines()[-1].startswith("error: 1 sweep job(s) failed")
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: 1 sweep job(s) failed")
+    assert "scene.body_radius=-1" in last  # the failed job's error names the bad value
     statuses = {p.parent.name: json.loads(p.read_text())["state"]
                 for p in tmp_path.glob("*/status.json")}
     assert statuses == {"0": "complete", "1": "failed"}

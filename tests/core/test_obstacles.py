@@ -221,3 +221,53 @@ def test_each_obstacle_source_blocks_the_wall_at_its_resolution(tmp_path, source
     assert segments_feasible(scene, a, b).tolist() == expected
     # one cell (5 cm) closer than robot_radius to the wall is a collision
     assert not segments_feasible(scene, np.array([[1.0, 1.0]]), np.array([[1.88, 1.0]]))[0]
+
+
+# ------------------------------------------------------------- polygons that are none, borders
+
+
+def test_polygon_problems_by_hand():
+    from pipeline.core.obstacles import polygon_outside, polygon_problem
+
+    assert polygon_problem(_rect(0, 0, 1, 1)) is None
+    assert polygon_problem(np.vstack([_rect(0, 0, 1, 1), [[0.0, 0.0]]])) is None  # closed
+    assert "at least 3" in polygon_problem(np.array([[0.0, 0.0], [1.0, 0.0]]))
+    assert "one line" in polygon_problem(np.array([[0.0, 0.0], [1.0, 1.0], [3.0, 3.0]]))
+    bow_tie = np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+    assert "edges 0 and 2 meet" in polygon_problem(bow_tie)
+    # a vertex touching a non-adjacent edge is no simple polygon either
+    touching = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [1.0, 0.0], [0.0, 2.0]])
+    assert "crosses itself" in polygon_problem(touching)
+    room = (0.0, 0.0, 10.0, 10.0)
+    assert polygon_outside(_rect(11, 1, 12, 2), room)
+    assert not polygon_outside(_rect(9, 1, 12, 2), room)  # partly inside: fine
+    assert not polygon_outside(_rect(-1, -1, 11, 11), room)  # around the whole room
+    assert not polygon_outside(np.array([[-1.0, 5.0], [5.0, -1.0], [-1.0, -1.0]]), room)
+    assert polygon_outside(np.array([[-1.0, 0.5], [0.5, -1.0], [-1.0, -1.0]]), room)
+
+
+def test_the_room_edge_is_no_obstacle_but_a_map_edge_is():
+    grid = rasterise([_rect(4.0, 4.0, 5.0, 5.0)], None, (0.0, 0.0, 10.0, 10.0), 0.05)
+    polygons_only = ObstacleMap(grid, outside_occupied=False)
+    as_a_map = ObstacleMap(grid)
+    near_edge = np.array([[4.0, 0.1], [10.0, 10.0], [0.0, 5.0]])
+    expected = _box_distance(near_edge, 4.0, 4.0, 5.0, 5.0)
+    np.testing.assert_allclose(polygons_only.clearance_at(near_edge), expected, atol=0.1)
+    assert (as_a_map.clearance_at(near_edge) <= 0.125).all()  # 0.1 m from the edge
+    # what a graph can cover: the free cells (clearance >= 0.25 from the box) in the room
+    assert polygons_only.free_area(0.25) == pytest.approx(100 - 1.5 ** 2 + 0.25 ** 2 * (4 - np.pi),
+                                                          abs=0.2)
+    assert polygons_only.free_area(0.25, (0.0, 0.0, 4.0, 10.0)) == pytest.approx(
+        4 * 10 - 0.25 * 1.0 - 2 * np.pi * 0.25 ** 2 / 4, abs=0.05)  # a strip, two corners
+
+
+def test_metropolis_with_a_box_keeps_its_starts_by_the_room_edge(tmp_path):
+    # start 1 (4, 0.1) is 0.1 m from the room's edge: the edge is no obstacle
+    data = json.loads(open("data/scenes/metropolis.json").read())
+    data["obstacles"] = [[[8.0, 8.0], [8.5, 8.0], [8.5, 8.5], [8.0, 8.5]]]
+    path = tmp_path / "boxed.json"
+    path.write_text(json.dumps(data))
+    scene = load_scene_file(path)
+    assert scene.free(scene.starts).all()
+    assert scene.obstacles.clearance_at(scene.starts[1:2])[0] == pytest.approx(
+        _box_distance(scene.starts[1:2], 8.0, 8.0, 8.5, 8.5)[0], abs=0.05)

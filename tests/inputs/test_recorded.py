@@ -1,5 +1,6 @@
 """Recorded demonstrations (pipeline/inputs/recorded.py, DESIGN §3): CSV files and ROS bags
-written with rosbags' own writers, cut into trajectories from the scene's starts to its goal."""
+written with rosbags' own writers, cut into trajectories from the scene's starts to its goal:
+pose streams where the motion begins, every format at the goal disk."""
 
 from pathlib import Path
 
@@ -11,6 +12,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from pipeline.core.features import FeatureModel
 from pipeline.inputs.demo_file import load_demo_file
 from pipeline.inputs.recorded import (
+    STOP_TOLERANCE,
     clean_track,
     cut_stream,
     load_recorded,
@@ -108,9 +110,9 @@ def test_cut_stream_restarts_when_the_robot_returns_to_a_start():
     track = np.concatenate([[s0], [out], [s0 + 0.1], line(s0 + 0.1, GOAL, 0.5)])
     assert np.linalg.norm(track[5:] - STARTS[2], axis=1).min() < 0.5  # passes near start 2
     [piece] = cut_stream(track, STARTS, GOAL, 1.0, TOL)
-    leave = np.flatnonzero(np.linalg.norm(track - s0, axis=1) <= 1.0)[-1]
-    assert leave > 2 and np.array_equal(piece[0], track[leave])  # ... came back: starts again
-    assert np.array_equal(piece, track[leave:len(piece) + leave])
+    # ... came back: it begins at its return to start 0, not at its first visit, not where it
+    # passes start 2 on the way
+    assert np.array_equal(piece, track[3:len(piece) + 3])  # track[2] = track[3]: it stops
     assert np.linalg.norm(piece[-1] - GOAL) <= TOL
     assert np.linalg.norm(piece[-2] - GOAL) > TOL  # ends at the first point at the goal
     assert cut_stream(line(np.array([9.0, 1.0]), GOAL), STARTS, GOAL, 1.0, TOL) == []
@@ -147,10 +149,12 @@ def test_path_messages_are_trajectories(tmp_path, storage):
     assert not is_stream and len(tracks) == 2
     assert np.array_equal(tracks[0], PATH_A) and np.array_equal(tracks[1], PATH_B)
     demos = load(bag, frame="map")
-    assert [k for k, _ in demos] == [0, 2]
-    for (_, p), raw in zip(demos, (PATH_A, PATH_B), strict=True):
-        # a polyline is kept as given, like a JSON file's; only repeated poses are dropped
-        assert np.array_equal(p, raw[np.r_[True, np.any(np.diff(raw, axis=0) != 0, axis=1)]])
+    assert [d.start for d in demos] == [0, 2]
+    for d, raw in zip(demos, (PATH_A, PATH_B), strict=True):
+        # a polyline is kept as given, like a JSON file's; only repeated poses are dropped,
+        # and it ends at the goal: PATH_B's last point is 0.14 m from it, inside the goal disk
+        kept = raw[np.r_[True, np.any(np.diff(raw, axis=0) != 0, axis=1)]]
+        assert np.array_equal(d.points, np.vstack([kept[:-1], GOAL]))
 
 
 def test_odometry_stream_is_cut_into_two_trajectories(tmp_path):
@@ -160,14 +164,17 @@ def test_odometry_stream_is_cut_into_two_trajectories(tmp_path):
     [track], is_stream = read_tracks(bag, frame="odom")
     assert is_stream and np.array_equal(track, run)
     demos = load(bag)
-    assert [k for k, _ in demos] == [0, 2]
-    # each begins where the robot leaves its start's vicinity, at the last pose within 1 m
+    assert [d.start for d in demos] == [0, 2]
+    # each begins where the robot sets off: its last pose within STOP_TOLERANCE of where it
+    # came closest to its start (not 1 m away, where it leaves the start's vicinity); it ends
+    # at the goal, which replaces the first pose in the goal disk
     pieces = cut_stream(run, STARTS, GOAL, 1.0, TOL)
-    for (_, p), piece, k in zip(demos, pieces, (0, 2), strict=True):
-        assert np.array_equal(p[0], piece[0]) and np.array_equal(p[-1], piece[-1])
-        assert np.linalg.norm(piece[0] - STARTS[k]) <= 1.0
-        assert np.linalg.norm(piece[1] - STARTS[k]) > 1.0
-        assert np.linalg.norm(p[-1] - GOAL) <= TOL
+    for (_, p, _), piece, k in zip(demos, pieces, (0, 2), strict=True):
+        assert np.array_equal(p[0], piece[0]) and np.array_equal(p[-1], GOAL)
+        assert np.linalg.norm(piece[0] - STARTS[k]) <= STOP_TOLERANCE
+        assert np.linalg.norm(piece[1] - STARTS[k]) > STOP_TOLERANCE
+        assert np.linalg.norm(piece[-1] - GOAL) <= TOL < np.linalg.norm(piece[-2] - GOAL)
+        assert on_polyline(p[:-1], piece).max() < 1e-9
     # the stretch towards start 3 never reaches the goal and is dropped
     assert len(pieces) == 2
 
@@ -176,13 +183,13 @@ def test_pose_streams_from_sqlite3_and_ros1(tmp_path):
     run = np.concatenate([line(STARTS[1], np.array([5.5, 5.0])), line(np.array([5.5, 5.0]), GOAL)])
     bag = write_bag(tmp_path / "pose", {"/pose": ("geometry_msgs/msg/PoseStamped", list(run))},
                     storage="sqlite3")
-    [(k, p)] = load(bag, topic="/pose")
+    [(k, p, _)] = load(bag, topic="/pose")
     assert k == 1 and np.linalg.norm(p[-1] - GOAL) <= TOL
     assert on_polyline(p, run).max() < 1e-9
     bag1 = write_bag(tmp_path / "amcl.bag",
                      {"/amcl_pose": ("geometry_msgs/msg/PoseWithCovarianceStamped", list(run))},
                      storage="ros1")
-    [(k1, p1)] = load(bag1)
+    [(k1, p1, _)] = load(bag1)
     assert k1 == 1 and np.array_equal(p1, p)
 
 
@@ -263,7 +270,7 @@ def test_csv_with_trajectory_ids_and_shuffled_times(tmp_path):
     tracks, is_stream = read_tracks(path)
     assert not is_stream
     assert np.array_equal(tracks[0], PATH_B) and np.array_equal(tracks[1], PATH_A)  # first seen
-    assert [k for k, _ in load(path)] == [2, 0]
+    assert [d.start for d in load(path)] == [2, 0]
 
 
 def test_csv_without_trajectory_is_a_stream(tmp_path):
@@ -275,14 +282,15 @@ def test_csv_without_trajectory_is_a_stream(tmp_path):
                                         for k in order))
     [track], is_stream = read_tracks(path)
     assert is_stream and np.array_equal(track, run)
-    assert [k for k, _ in load(path)] == [0, 2]
+    assert [d.start for d in load(path)] == [0, 2]
     ordered = tmp_path / "ordered.csv"  # no t: rows in file order
     ordered.write_text("x,y\n" + "".join(f"{x!r},{y!r}\n" for x, y in run.tolist()))
     assert np.array_equal(read_tracks(ordered)[0][0], run)
 
 
 @pytest.mark.parametrize("text, match", [
-    ("x,z\n1,2\n", r"has no column y \(columns: x,z\)"),
+    ("x,z\n1,2\n", r"unknown column 'z' \(header: x,z\)"),
+    ("x,t\n1,2\n", r"has no column y \(columns: x,t\)"),
     ("x,y\n0.5,0.5\nabc,3\n", r"line 3: x='abc' is not a number"),
     ("x,y\n0.5,0.5\n1,nan\n", r"line 3: y='nan' is not finite"),
     ("x,y,t\n0.5,0.5,0\n1,1,inf\n", r"line 3: t='inf' is not finite"),

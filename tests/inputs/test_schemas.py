@@ -14,7 +14,7 @@ from pipeline.core.world import SceneError
 from pipeline.errors import PipelineError
 from pipeline.inputs.recorded import read_tracks
 from pipeline.inputs.scene_file import load_scene_file
-from pipeline.inputs.schemas import load_schema, validate
+from pipeline.inputs.schemas import load_schema, read_json, validate
 from tests.conftest import METROPOLIS, ROOT
 
 SCENES = sorted((ROOT / "data" / "scenes").glob("*.json"))
@@ -126,7 +126,7 @@ BAD_SCENES = [
     (_set("persons.0.id", True), "persons[0].id: expected an integer (person id), got true"),
     (_set("persons.0.id", 1.5), "persons[0].id: expected an integer (person id), got 1.5"),
     (_set("persons.4", 5), "persons[4]: expected an object (person), got 5"),
-    (_set("obstacles", [[[1.0, 1.0]]]), "obstacles[0]: expected at least 2 points, got 1 item"),
+    (_set("obstacles", [[[1.0, 1.0]]]), "obstacles[0]: expected at least 3 points, got 1 item"),
     (_set("obstacles", "wall"), 'obstacles: expected an array, got "wall"'),
     (_set("map", 3), "map: expected a string, got 3"),
     (_set("map", ""), 'map: expected a string of at least 1 character(s), got ""'),
@@ -181,7 +181,10 @@ BAD_DEMOS = [
     (_set("trajectories.2.0.1", float("-inf")), "trajectories[2][0][1]: -Infinity is not a"),
     (_drop("trajectories"), "missing key 'trajectories'"),
     (_set("trajectory", []), "unknown key 'trajectory'; expected one of $schema, scene, source, "
-                             "trajectories"),
+                             "subjects, trajectories"),
+    (_set("subjects", ["a", 3]), "subjects[1]: expected a string (subject id), got 3"),
+    (_set("subjects", [""]), "subjects[0]: expected a string of at least 1 character(s)"),
+    (_set("subjects", "ann"), "subjects: expected an array, got \"ann\""),
     (_set("scene", 3), "scene: expected a string, got 3"),
 ]
 
@@ -241,3 +244,12 @@ def test_schema_files_are_the_ones_in_the_package():
         on_disk = json.loads(Path(ROOT / "pipeline" / "schemas" / f"{name}.schema.json")
                              .read_text())
         assert load_schema(name) == on_disk
+
+
+def test_json_with_a_byte_order_mark_is_read(tmp_path):
+    # Notepad's "UTF-8 with BOM": the mark is no part of the JSON
+    for path, kind in ((SCENES[0], "scene"), (DEMO, "demos")):
+        text = path.read_text()
+        marked = tmp_path / f"bom_{path.name}"
+        marked.write_bytes(b"\xef\xbb\xbf" + text.encode())
+        assert read_json(marked, kind, "x") == json.loads(text)

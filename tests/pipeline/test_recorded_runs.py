@@ -1,7 +1,9 @@
 """Recorded demonstrations through the app (DESIGN §3 "Recorded demonstrations") on
 metropolis, the default scene: an odometry bag and a CSV file become the demonstrations, a bag
 in the wrong frame and a demonstration through a wall are refused or kept out of the graph, and
-the same polylines learn the same weights from JSON, CSV and a ROS bag."""
+the same polylines learn the same weights from JSON, CSV and a ROS bag; recordings as they
+really occur (dense, running into the goal disk and beyond, pose streams with pauses, Excel's
+CSV) learn what their clean polylines learn, and densely sampled paths to the goal learn."""
 
 import json
 import math
@@ -13,12 +15,20 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as BagWriter
 
 from pipeline.artefacts import codec, read_artefact
+from pipeline.core.evaluation import discrete_frechet
 from pipeline.errors import PipelineError
 from tests.conftest import (
+    CLEAN_DRIVES,
+    METROPOLIS_GOAL,
     ROBOT_RADIUS,
+    ROOT,
     ROS2,
+    into_the_disk,
+    odometry,
     one_line,
+    pause,
     run_in_process,
+    walk,
     walled_metropolis,
     write_bag,
     write_json,
@@ -103,8 +113,11 @@ def check_demos(run: Path, metropolis, expected: list[tuple[int, np.ndarray]],
         assert np.linalg.norm(p[0] - metropolis.starts[k]) <= 1.0
         assert np.linalg.norm(p[-1] - metropolis.goal) <= metropolis.goal_tolerance
         assert distance_to_polyline(p, drive).max() < 1e-6
-        if resampled:  # pose streams are resampled every 0.1 m; polylines kept as given
-            assert np.linalg.norm(np.diff(p, axis=0), axis=1).max() <= 0.1 + 1e-9
+        if resampled:  # pose streams are resampled every 0.1 m up to the goal disk, where
+            # the goal replaces the first pose inside; polylines are kept as given
+            steps = np.linalg.norm(np.diff(p, axis=0), axis=1)
+            assert steps[:-1].max() <= 0.1 + 1e-9
+            assert steps[-1] <= metropolis.goal_tolerance + 0.1
 
 
 def test_odometry_bag_through_the_app(tmp_path, metropolis):
@@ -159,17 +172,120 @@ def test_demonstration_through_a_wall_is_refused_or_kept_out_of_the_graph(tmp_pa
         assert min_clearance(scene.obstacles, edge["waypoints"]) >= ROBOT_RADIUS
 
 
-def test_the_same_polylines_learn_the_same_weights_from_json_csv_and_a_bag(tmp_path):
-    polylines = [DRIVE_0, DRIVE_2]
-    json_file = tmp_path / "demos.json"
-    json_file.write_text(json.dumps({"trajectories": [p.tolist() for p in polylines]}))
-    csv_file = tmp_path / "demos.csv"
-    csv_file.write_text("trajectory,x,y\n" + "".join(
-        f"{k},{x!r},{y!r}\n" for k, p in enumerate(polylines) for x, y in p.tolist()))
-    bag = write_bag(tmp_path / "bag", {"/plan": ("nav_msgs/msg/Path", polylines)})
+# ---------------------------------------------------------------------------------------------
+# Recordings as they really occur: dense, into the goal disk and beyond, pose streams with pauses
+
+LEARN = (*FAST, "stages=[scene,demos,graph,birl]")
+
+
+def learned_weights(run: Path) -> np.ndarray:
+    return np.asarray(read_artefact(run / "birl.mcap").all("/birl/iteration")[-1]["weights"])
+
+
+def test_every_recorded_format_learns_the_weights_of_the_clean_polylines(tmp_path):
+    """Dense polylines running into the goal disk and out of the room after it (JSON, CSV, a
+    nav_msgs/Path bag), an Odometry bag with pauses and a CSV with Excel's byte-order mark all
+    become the clean polylines, so they learn the same weights."""
+    dense = [into_the_disk(c) for c in CLEAN_DRIVES]
+    files = {"clean": write_json(tmp_path / "clean.json",
+                                 {"trajectories": [c.tolist() for c in CLEAN_DRIVES]}),
+             "json": write_json(tmp_path / "dense.json",
+                                {"trajectories": [d.tolist() for d in dense]})}
+    rows = "".join(f"{k},{x!r},{y!r}\n" for k, d in enumerate(dense) for x, y in d.tolist())
+    files["csv"] = tmp_path / "dense.csv"
+    files["csv"].write_text("trajectory,x,y\n" + rows)
+    files["bom_csv"] = tmp_path / "excel.csv"
+    files["bom_csv"].write_bytes(b"\xef\xbb\xbftrajectory,x,y\r\n" + rows.encode())
+    files["path_bag"] = write_bag(tmp_path / "path_bag", {"/plan": ("nav_msgs/msg/Path", dense)})
+    files["odometry_bag"] = write_odometry_bag(tmp_path / "odom_bag", odometry(CLEAN_DRIVES))
     weights = {}
-    for name, path in [("json", json_file), ("csv", csv_file), ("bag", bag)]:
-        m, _ = run_in_process(tmp_path / name, "expert=file", f"expert.path={path}", *FAST)
-        weights[name] = np.array([m[k] for k in sorted(m) if k.startswith("weight_")])
-    np.testing.assert_allclose(weights["csv"], weights["json"], rtol=0, atol=1e-9)
-    np.testing.assert_allclose(weights["bag"], weights["json"], rtol=0, atol=1e-9)
+    for name, path in files.items():
+        run = tmp_path / f"run_{name}"
+        run_in_process(run, "expert=file", f"expert.path={path}", *LEARN)
+        demos = read_artefact(run / "demos.mcap").all("/demos")
+        assert [d["start_index"] for d in demos] == [0, 2], name
+        for d, clean in zip(demos, CLEAN_DRIVES, strict=True):
+            np.testing.assert_allclose(d["points"], clean, rtol=0, atol=1e-12, err_msg=name)
+        weights[name] = learned_weights(run)
+    for name, w in weights.items():
+        np.testing.assert_allclose(w, weights["clean"], rtol=0, atol=1e-6, err_msg=name)
+
+
+def straight_room(tmp_path: Path) -> Path:
+    """The issue's room: empty, 10 m × 4 m, one person, one start, the goal 8 m away."""
+    return write_json(tmp_path / "room.json", {
+        "name": "corridor", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 4},
+        "persons": [{"id": 1, "x": 5.0, "y": 3.2, "theta": 0.0}], "relations": [],
+        "starts": [[1.0, 2.0]], "goal": [9.0, 2.0]})
+
+
+@pytest.mark.parametrize("copies", [1, 5, 20])
+def test_densely_sampled_paths_that_reach_the_goal_learn(tmp_path, copies):
+    """A straight path sampled every 0.07 m (several points inside the goal disk) ending at the
+    goal, alone or as noisy copies, used to crash learning ("not a path of the graph")."""
+    xs = np.linspace(1.0, 9.0, int(np.ceil(8.0 / 0.07)) + 1)
+    rng = np.random.default_rng(copies)
+    paths = []
+    for _ in range(copies):
+        y = 2.0 + (rng.normal(0.0, 0.05, len(xs)) if copies > 1 else 0.0)
+        p = np.column_stack([xs, np.broadcast_to(y, xs.shape)])
+        p[0], p[-1] = [1.0, 2.0], [9.0, 2.0]
+        paths.append(p.tolist())
+    assert (np.linalg.norm(np.asarray(paths[0]) - [9.0, 2.0], axis=1) <= 0.3).sum() >= 5
+    demos = write_json(tmp_path / "demos.json", {"trajectories": paths})
+    run = tmp_path / "run"
+    run_in_process(run, "scene=file", f"scene.path={straight_room(tmp_path)}", "expert=file",
+                   f"expert.path={demos}", *LEARN)
+    stored = read_artefact(run / "demos.mcap").all("/demos")
+    assert len(stored) == copies
+    for d in stored:  # cut at the goal disk: only the goal itself is inside it
+        gaps = np.linalg.norm(np.asarray(d["points"]) - [9.0, 2.0], axis=1)
+        assert gaps[-1] == 0.0 and (gaps[:-1] > 0.3).all()
+    assert np.isfinite(learned_weights(run)).all()
+
+
+def test_the_smoothed_demos_resampled_to_the_goal_centre_learn(tmp_path):
+    """data/demos/metropolis_polite_smoothed.json resampled every 0.05 m and extended to the
+    goal centre (a recording that does not stop at the disk's edge) used to crash learning."""
+    data = json.loads((ROOT / "data" / "demos" / "metropolis_polite_smoothed.json").read_text())
+    resampled = []
+    for t in data["trajectories"]:
+        p = np.vstack([np.asarray(t, float), METROPOLIS_GOAL])
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        at = np.linspace(0.0, s[-1], int(np.ceil(s[-1] / 0.05)) + 1)
+        resampled.append(np.column_stack([np.interp(at, s, p[:, 0]),
+                                          np.interp(at, s, p[:, 1])]).tolist())
+    path = write_json(tmp_path / "dense.json", {"trajectories": resampled})
+    run = tmp_path / "run"
+    run_in_process(run, "expert=file", f"expert.path={path}", *LEARN)
+    assert len(read_artefact(run / "demos.mcap").all("/demos")) == 7
+    assert np.isfinite(learned_weights(run)).all()
+
+
+def test_an_odometry_bag_of_the_seven_metropolis_demos(tmp_path, default_dir, metropolis):
+    """The polite optimal expert's seven roadmap paths driven at 0.5 m/s, recorded at 10 Hz
+    with pauses at the starts (jittering by 1 cm) and at the goal, and drives back between
+    runs that pass near other starts: seven demonstrations, each assigned to its own start,
+    within 0.3 m (discrete Fréchet) of the path driven."""
+    driven = [np.asarray(d["points"], float)
+              for d in read_artefact(default_dir / "demos.mcap").all("/demos")]
+    assert len(driven) == 7
+    rng = np.random.default_rng(7)
+    parts: list[np.ndarray] = []
+    for path in driven:
+        if parts:  # driven back from the goal to this start
+            parts.append(walk(parts[-1][-1], path[0]))
+        parts.append(pause(path[0], 30) + rng.normal(0.0, 0.01, (30, 2)))
+        parts += [walk(a, b) for a, b in zip(path[:-1], path[1:], strict=True)]
+        parts.append(pause(path[-1], 20) + rng.normal(0.0, 0.01, (20, 2)))
+    stream = np.vstack(parts)
+    # on the way back to start 1 the robot passes start 6 closer than expert.start_radius
+    back_to_1 = walk(driven[0][-1], driven[1][0])
+    assert np.linalg.norm(back_to_1 - metropolis.starts[6], axis=1).min() < 1.0
+    bag = write_odometry_bag(tmp_path / "odom", stream)
+    run = tmp_path / "run"
+    run_in_process(run, "expert=file", f"expert.path={bag}", "stages=[scene,demos]")
+    demos = read_artefact(run / "demos.mcap").all("/demos")
+    assert [d["start_index"] for d in demos] == list(range(7))
+    for d, path in zip(demos, driven, strict=True):
+        assert discrete_frechet(np.asarray(d["points"]), path) <= 0.3, d["start_index"]

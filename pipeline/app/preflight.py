@@ -1,0 +1,182 @@
+"""Start-up checks: everything that can be refused before the first stage is refused here,
+in one line naming the key or file and, for sizes, the estimate (`run_pipeline` calls
+`preflight` before the run dir is touched).
+
+In the order of the run: the input files of the stages that run (scene file and its map,
+demonstration file, transfer scenes, the run dirs `from_run` and `birl.from_run` point to),
+then the sizes of what will be built (the obstacle raster, a random room's reachability
+lattice, the reference roadmap, the adaptive graph; `limits`) from the files' headers alone,
+then the files themselves: the scene file and every transfer scene are loaded and validated
+(transfer scenes also on their reference roadmap's lattice, and no two with one name),
+`birl=fixed` gets its weights, and the graph's resolution is checked on the scene's free
+space. Loaded scene files are kept for the stages (`build.scene_file`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.app import build, limits
+from pipeline.app.config import Config, FileExpertConfig, FileSceneConfig, RandomSceneConfig
+from pipeline.app.context import resolve_path
+from pipeline.app.rundir import check_from_run
+from pipeline.artefacts import codec, topics
+from pipeline.artefacts.store import read_artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE
+from pipeline.core.obstacles import ObstacleMap
+from pipeline.core.world import BodyParams, Scene
+from pipeline.errors import PipelineError
+from pipeline.inputs.map_file import read_map_header
+from pipeline.inputs.recorded import check_readable
+from pipeline.irl.fixed import FixedConfig
+
+log = logging.getLogger("pipeline")
+
+
+@dataclass(frozen=True)
+class SceneFacts:
+    """What the size checks need to know of the scene the stages will work on, known before
+    it is built; `load` builds and validates it (None: it is made by the scene stage)."""
+    name: str
+    area: float  # m² of the room
+    n_persons: int
+    obstacles: bool
+    free_area: Callable[[], float]  # m² of free space for the graph (loads what it needs)
+    load: Callable[[], Scene | None] = lambda: None
+
+
+@dataclass
+class Checked:
+    """What the checks found that the run records: content digests of inputs that are no
+    artefact of this run (`birl.from_run`'s birl.mcap), for the provenance."""
+    source_digests: dict[str, str] = dataclasses.field(default_factory=dict)
+
+
+def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
+    """Run every start-up check for the stages `cfg.stages`; raises PipelineError."""
+    build.forget_scene_files()
+    checked = Checked()
+    stages = set(cfg.stages)
+    if isinstance(cfg.birl, FixedConfig) and cfg.birl.from_run and stages & {"graph", "birl"}:
+        check_from_run(resolve_path(cfg.birl.from_run), cfg.birl.from_run, "birl.from_run")
+    if isinstance(cfg.expert, FileExpertConfig):
+        if "demos" in stages:
+            check_readable(resolve_path(cfg.expert.path))
+        if cfg.graph.weights in (True, "true") and "graph" in stages:
+            raise PipelineError("config error: graph.weights=true needs true weights, but the "
+                                "demonstrations come from a file (expert=file)")
+    facts = scene_facts(cfg, run_dir, from_run) if stages - {"birl"} else None
+    if facts is not None and "demos" in stages:
+        check_roadmap_size(cfg, facts)
+    if "graph" in stages:
+        limits.check_memory(f"an adaptive graph of {cfg.graph.max_nodes} nodes",
+                            cfg.graph.max_nodes, limits.BYTES_PER_GRAPH_NODE,
+                            "lower graph.max_nodes")
+    if facts is not None:
+        scene = facts.load()  # sizes are fine: the scene file is validated now, not at its stage
+        if scene is not None and scene.obstacles is None \
+                and scene.robot_radius != BodyParams.robot_radius:
+            log.warning("scene '%s' has no obstacles: robot_radius=%g m has no effect (it is "
+                        "the clearance kept from obstacles; the room's edge is none)",
+                        scene.name, scene.robot_radius)
+    if "evaluate" in stages:
+        check_transfer_scenes(cfg)
+    if isinstance(cfg.birl, FixedConfig) and stages & {"graph", "birl"}:
+        digest = build.fixed_weights_source(cfg)
+        if digest is not None:
+            checked.source_digests["birl.from_run"] = digest
+    if facts is not None and "graph" in stages:
+        limits.check_graph_resolution(cfg.graph.max_nodes, facts.free_area(),
+                                      cfg.reward.rho_personal, facts.name)
+    return checked
+
+
+# -- the scene -----------------------------------------------------------------------------
+
+
+def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts | None:
+    """The scene the stages will use: the configured one when the scene stage runs (a scene
+    file is loaded and validated now, after its size check), else the scene artefact the
+    stages will read (None when there is none: the stage says so)."""
+    sc = cfg.scene
+    if "scene" not in cfg.stages:
+        path = (from_run or run_dir) / ARTEFACT_FILE["scene"]
+        if not path.exists():
+            return None
+        scene = codec.decode_scene(read_artefact(path, required_topics=[topics.SCENE]))
+        return facts_of(scene)
+    if isinstance(sc, FileSceneConfig):
+        extent = build.scene_file_extent(sc.path)
+
+        def load() -> Scene:
+            return build.scene_file(sc.path, body_radius=sc.body_radius,
+                                    goal_tolerance=sc.goal_tolerance,
+                                    robot_radius=sc.robot_radius)
+
+        return SceneFacts(extent.name, extent.area, extent.n_persons, extent.obstacles,
+                          lambda: facts_of(load()).free_area(), load)
+    assert isinstance(sc, RandomSceneConfig)
+    n_persons = sc.n_singles + sc.n_groups * sc.group_size_max
+    if not sc.map:
+        build.check_reachability_lattice(sc.width * sc.height, n_persons, sc.width, sc.height)
+        area = sc.width * sc.height
+        return SceneFacts(f"random-{cfg.seed if sc.seed is None else sc.seed}", area,
+                          n_persons, False, lambda: area)
+    header = read_map_header(resolve_path(sc.map))
+    build.check_map_size(header)
+    x0, y0, x1, y1 = header.extent()
+
+    def free_area() -> float:
+        grid = build.map_grid_of(sc.map)
+        return ObstacleMap(grid).free_area(sc.robot_radius)
+
+    return SceneFacts(f"random on {sc.map}", (x1 - x0) * (y1 - y0), n_persons, True,
+                      free_area)
+
+
+def facts_of(scene: Scene) -> SceneFacts:
+    def free_area() -> float:
+        if scene.obstacles is None:
+            return scene.room.area
+        return scene.obstacles.free_area(scene.robot_radius, scene.room.bounds)
+
+    return SceneFacts(scene.name, scene.room.area, len(scene.persons),
+                      scene.obstacles is not None, free_area)
+
+
+def check_roadmap_size(cfg: Config, facts: SceneFacts) -> None:
+    rp = cfg.roadmap
+    limits.check_memory(f"the reference roadmap of scene '{facts.name}'",
+                        limits.lattice_edges(facts.area, rp.spacing, rp.connectivity),
+                        limits.bytes_per_lattice_edge(facts.n_persons, facts.obstacles),
+                        f"raise roadmap.spacing (now {rp.spacing:g} m) or use a smaller scene")
+
+
+# -- transfer scenes -----------------------------------------------------------------------
+
+
+def check_transfer_scenes(cfg: Config) -> None:
+    """Every evaluate.transfer_scenes file: found, small enough, valid, its goal reachable on
+    the reference roadmap's lattice (the message the demos stage gives for the main scene),
+    and no two with one name (their metrics.json keys would overwrite each other's)."""
+    names: dict[str, str] = {}
+    for i, path in enumerate(cfg.evaluate.transfer_scenes):
+        try:
+            extent = build.scene_file_extent(path)
+            check_roadmap_size(cfg, SceneFacts(extent.name, extent.area, extent.n_persons,
+                                               extent.obstacles, lambda: 0.0))
+            scene = build.scene_file(path)
+            build.check_roadmap_reaches_goal(scene, cfg.roadmap)
+        except PipelineError as e:
+            raise PipelineError(f"evaluate.transfer_scenes[{i}]: {e}") from None
+        name = build.transfer_name(scene.name, path)
+        if name in names:
+            raise PipelineError(
+                f"config error: evaluate.transfer_scenes names two scenes called '{name}' "
+                f"({names[name]} and {path}): their transfer_{name}_* metrics would overwrite "
+                "each other; give one another \"name\" in its file")
+        names[name] = path

@@ -1,0 +1,144 @@
+"""Start-up checks (pipeline/app/preflight.py): what can be refused is refused before the first
+stage and before the run dir is touched, within a second for sizes that cannot fit (from the
+files' headers, nothing rasterised); the free area a graph must cover is the room's free cells
+only; birl=fixed birl.from_run is checked like from_run and its weights' source is in the
+provenance."""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pipeline.app.config import register_configs
+from pipeline.app.preflight import facts_of, scene_facts
+from pipeline.app.provenance import INPUT_KEY
+from pipeline.artefacts.store import read_artefact, write_json_atomic
+from pipeline.errors import PipelineError
+from pipeline.inputs.scene_file import load_scene_file
+from tests.conftest import compose_config, run_in_process, write_json
+
+register_configs()
+QUICK = ("graph=small", "birl.n_iterations=2")
+ROOM = {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 10}
+
+
+def refused_before_any_stage(run: Path, match: str, *overrides: str) -> float:
+    t0 = time.perf_counter()
+    with pytest.raises(PipelineError, match=match):
+        run_in_process(run, *overrides)
+    seconds = time.perf_counter() - t0
+    assert not run.exists()  # the run dir was never touched
+    return seconds
+
+
+@pytest.mark.parametrize("overrides, match", [
+    (("graph.max_nodes=1",), r"graph\.max_nodes=1 is too few"),
+    (("birl=fixed", "birl.weights=[0,0]"), r"birl\.weights=\[0\.0, 0\.0\] needs 4 numbers"),
+    (("birl=fixed", "birl.weights=[5,5,5,5]"), r"lie outside \[birl\.lower, birl\.upper\]"),
+    (("evaluate.transfer_scenes=[/nonexistent/hall.json]",), r"transfer_scenes\[0\].*not found"),
+    (("expert=file", "expert.path=/dev/zero"), r"/dev/zero is a character device"),
+    (("expert=file", "expert.path=data/demos/metropolis_handdrawn.json", "graph.weights=true"),
+     r"graph\.weights=true needs true weights"),
+])
+def test_refused_before_the_first_stage(tmp_path, overrides, match):
+    refused_before_any_stage(tmp_path / "run", match, *overrides)
+
+
+def _png_header(width: int, height: int) -> bytes:
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + \
+            struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0,
+                                                                 0, 0, 0)) + \
+        chunk(b"IDAT", zlib.compress(b"\x00")) + chunk(b"IEND", b"")
+
+
+def test_sizes_that_cannot_fit_are_refused_within_a_second(tmp_path):
+    huge = write_json(tmp_path / "huge.json", {
+        "room": {"x_min": 0, "y_min": 0, "x_max": 1e5, "y_max": 1e5}, "persons": [],
+        "starts": [[1, 1]], "goal": [9, 9]})
+    (tmp_path / "m.png").write_bytes(_png_header(10**6, 10**6))
+    (tmp_path / "m.yaml").write_text("image: m.png\nresolution: 0.05\norigin: [0, 0, 0]\n"
+                                     "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    on_map = write_json(tmp_path / "on_map.json", {"map": "m.yaml", "persons": [],
+                                                   "starts": [[1, 1]], "goal": [9, 9]})
+    for path, match in ((huge, r"huge\.json: the obstacle raster .* TB .*'room'"),
+                        (on_map, r"m\.yaml: its 1,000,000 × 1,000,000 px image .* TB")):
+        seconds = refused_before_any_stage(tmp_path / "run", match, "scene=file",
+                                           f"scene.path={path}")
+        assert seconds < 1.0, seconds
+    seconds = refused_before_any_stage(tmp_path / "run", r"reachability lattice .*scene\.width",
+                                       "scene=random", "scene.width=5000", "scene.height=5000")
+    assert seconds < 1.0, seconds
+
+
+def test_a_room_larger_than_its_map_counts_only_the_maps_free_cells(tmp_path):
+    # a 10 m × 10 m free map in a 30 m × 30 m room: outside the map is unknown (occupied)
+    Image.fromarray(np.full((200, 200), 254, np.uint8)).save(tmp_path / "m.png")
+    (tmp_path / "m.yaml").write_text("image: m.png\nresolution: 0.05\norigin: [0, 0, 0]\n"
+                                     "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    path = write_json(tmp_path / "s.json", {
+        "map": "m.yaml", "room": {"x_min": 0, "y_min": 0, "x_max": 30, "y_max": 30},
+        "persons": [], "starts": [[1, 1]], "goal": [9, 9]})
+    scene = load_scene_file(path)
+    free = facts_of(scene).free_area()
+    # the map's free cells less the robot_radius (0.25 m) band along its unknown outside
+    assert free == pytest.approx(9.5 * 9.5, abs=0.5)
+    assert not scene.free(np.array([[15.0, 15.0]]))[0]  # outside the map: not free
+    cfg = compose_config("scene=file", f"scene.path={path}")
+    from pipeline.app.config import load_settings
+
+    facts = scene_facts(load_settings(cfg), tmp_path / "run", None)
+    assert facts.area == 900 and facts.free_area() == pytest.approx(free)
+
+
+def test_birl_from_run_is_checked_and_its_weights_recorded(tmp_path, caplog):
+    source = tmp_path / "source"
+    run_in_process(source, *QUICK, "stages=[scene,demos,graph,birl]")
+    fixed = ("birl=fixed", f"birl.from_run={source}", "graph=small",
+             "stages=[scene,demos,graph,birl]")
+    run_in_process(tmp_path / "a", *fixed)
+    digest = read_artefact(source / "birl.mcap").digest
+    for stage in ("graph", "birl"):
+        meta = read_artefact(tmp_path / "a" / f"{stage}.mcap").metadata
+        assert meta[INPUT_KEY + "birl.from_run"] == digest
+    assert INPUT_KEY + "birl.from_run" not in read_artefact(tmp_path / "a" / "demos.mcap").metadata
+    # RUN's birl.mcap replaced by another one (here a's): the same config, another digest
+    (source / "birl.mcap").unlink()
+    (source / "birl.mcap").write_bytes((tmp_path / "a" / "birl.mcap").read_bytes())
+    again = ("birl=fixed", f"birl.from_run={source}", "graph=small", "stages=[birl]",
+             f"from_run={tmp_path / 'a'}")
+    run_in_process(tmp_path / "b", *again)
+    recorded = read_artefact(tmp_path / "b" / "birl.mcap").metadata[INPUT_KEY + "birl.from_run"]
+    assert recorded == read_artefact(tmp_path / "a" / "birl.mcap").digest != digest
+    # a failed RUN is used with a warning, an interrupted one refused (as from_run=)
+    status = json.loads((source / "status.json").read_text())
+    write_json_atomic(source / "status.json", {**status, "state": "failed", "stage": "evaluate",
+                                               "error": "boom"})
+    with caplog.at_level(logging.WARNING, logger="pipeline"):
+        run_in_process(tmp_path / "c", *again)
+    assert any("birl.from_run=" in r.getMessage() and "failed" in r.getMessage()
+               for r in caplog.records)
+    write_json_atomic(source / "status.json", {**status, "state": "running", "stage": "birl"})
+    refused_before_any_stage(tmp_path / "d", r"birl\.from_run=.* is interrupted", *again)
+
+
+def test_a_robot_radius_without_obstacles_is_a_warning_and_one_too_wide_refused(tmp_path,
+                                                                                caplog):
+    with caplog.at_level(logging.WARNING, logger="pipeline"):
+        run_in_process(tmp_path / "a", "stages=[scene]", "scene.robot_radius=3")
+    [warning] = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert "robot_radius=3 m has no effect" in warning and "no obstacles" in warning
+    # 10 m across in a 10 m room: it could not move; a unit mistake
+    refused_before_any_stage(tmp_path / "b", r"robot_radius=5 m: a robot 10 m across does not "
+                             r"fit in the 10 m × 10 m room", "scene.robot_radius=5")

@@ -1,0 +1,194 @@
+"""The command line under faults, in real subprocesses: Ctrl-C and SIGTERM (one line, exit
+130/143, status.json says interrupted at the stage), a full disk (a real small tmpfs: one line,
+no temp file left, status.json failed, also when the log file cannot be written), and a run dir
+given with quotes (refused by the early lock before anything is created)."""
+
+from __future__ import annotations
+
+import errno
+import json
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pipeline.__main__ import LogFiles, guard_log_files
+from pipeline.app import rundir
+from pipeline.app.rundir import RunDir, read_status
+from pipeline.errors import PipelineError
+from tests.conftest import ROOT
+
+QUICK = ("graph=small", "birl.n_iterations=3")
+
+
+def lines(text: str) -> list[str]:
+    return [ln for ln in text.splitlines() if ln.strip()]
+
+
+def start_run(run_dir: Path, *overrides: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}",
+                             *overrides], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def wait_for_stage(run_dir: Path, stage: str, proc: subprocess.Popen) -> None:
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            if json.loads((run_dir / "status.json").read_text()).get("stage") == stage:
+                return
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.02)
+    raise AssertionError(f"the run never reached stage {stage}: {proc.poll()}")
+
+
+# -- signals ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("sig, code, says", [
+    (signal.SIGINT, 130, "interrupted by the user at stage graph"),
+    (signal.SIGTERM, 143, "stopped by SIGTERM at stage graph"),
+])
+def test_a_signal_stops_the_run_in_one_line(tmp_path, sig, code, says):
+    d = tmp_path / "run"
+    proc = start_run(d)  # the default graph grows for several seconds
+    wait_for_stage(d, "graph", proc)
+    time.sleep(0.3)
+    proc.send_signal(sig)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == code, err
+    assert lines(err) == [says], err
+    status = json.loads((d / "status.json").read_text())
+    assert (status["state"], status["stage"], status["error"]) == ("interrupted", "graph", says)
+    assert status["done"] == ["scene", "demos"]
+    assert read_status(d).state == "interrupted"
+    assert not list(d.glob("*.tmp")) and not (d / "graph.mcap").exists()
+    assert (d / "scene.mcap").exists() and (d / "demos.mcap").exists()
+
+
+# -- a full disk -----------------------------------------------------------------------------
+
+_ON_TMPFS = """
+set -e
+mount -t tmpfs -o size={kb}k tmpfs {mnt}
+cd {root}
+set +e
+{python} -m pipeline hydra.run.dir={mnt}/run {overrides} >/dev/null 2>{err}
+echo $? > {rc}
+ls -a {mnt}/run > {listing} 2>/dev/null
+cp {mnt}/run/status.json {status} 2>/dev/null
+exit 0
+"""
+
+
+def run_on_a_small_disk(tmp_path: Path, kb: int, *overrides: str) -> dict:
+    """A run into a tmpfs of `kb` KB, mounted in a private user and mount namespace
+    (`unshare -rm`: no root needed, gone when the process ends)."""
+    if shutil.which("unshare") is None:
+        pytest.skip("needs util-linux unshare for a private tmpfs")
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    out = {k: tmp_path / f"{k}.txt" for k in ("err", "rc", "listing", "status")}
+    script = _ON_TMPFS.format(kb=kb, mnt=mnt, root=ROOT, python=sys.executable,
+                              overrides=" ".join(overrides), **out)
+    done = subprocess.run(["unshare", "--user", "--map-root-user", "--mount", "sh", "-c",
+                           script], capture_output=True, text=True, timeout=600)
+    if done.returncode != 0 and "mount" in done.stderr + done.stdout:
+        pytest.skip(f"cannot mount a private tmpfs here: {done.stderr.strip()[:200]}")
+    assert done.returncode == 0, done.stderr
+    status = out["status"]
+    return {"rc": int(out["rc"].read_text()), "err": out["err"].read_text(),
+            "files": out["listing"].read_text().split(),
+            "status": json.loads(status.read_text()) if status.exists() else None}
+
+
+@pytest.mark.parametrize("kb, stage", [(20, "scene"), (64, "demos"), (384, "graph")])
+def test_a_full_disk_is_one_line_and_leaves_no_temp_file(tmp_path, kb, stage):
+    # 20 KB: Hydra's files and the log fit, scene.mcap does not (the log's writes fail too);
+    # 64 KB: scene.mcap fits; 384 KB: demos.mcap fits, graph.mcap does not
+    r = run_on_a_small_disk(tmp_path, kb, *QUICK)
+    assert r["rc"] == 2, r
+    assert len(lines(r["err"])) == 1 and "the disk is full" in r["err"], r["err"]
+    assert "Logging error" not in r["err"] and "Traceback" not in r["err"]
+    assert not [f for f in r["files"] if f.endswith(".tmp")], r["files"]
+    assert r["status"]["state"] == "failed" and r["status"]["stage"] == stage, r["status"]
+    assert "the disk is full" in r["status"]["error"]
+
+
+@pytest.mark.slow
+def test_a_full_disk_at_every_size(tmp_path):
+    for kb in (8, 12, 16, 24, 28, 36, 48, 96, 128, 192, 256, 320, 448, 512, 1024):
+        work = tmp_path / str(kb)
+        work.mkdir()
+        r = run_on_a_small_disk(work, kb, *QUICK)
+        assert r["rc"] in (0, 2), (kb, r)
+        assert len(lines(r["err"])) == (r["rc"] != 0), (kb, r["err"])
+        assert not [f for f in r["files"] if f.endswith(".tmp")], (kb, r["files"])
+        if r["status"] is not None:  # none when Hydra's own files did not fit
+            assert r["status"]["state"] == ("complete" if r["rc"] == 0 else "failed"), (kb, r)
+
+
+def test_status_json_is_written_in_place_when_no_temp_file_fits(tmp_path, monkeypatch):
+    d = tmp_path / "run"
+
+    def disk_full(path, obj):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with pytest.raises(PipelineError, match="the disk is full"):
+        with RunDir(d, ["scene"]):
+            monkeypatch.setattr(rundir, "write_json_atomic", disk_full)
+            raise PipelineError("stage scene: the disk is full")
+    status = json.loads((d / "status.json").read_text())
+    assert (status["state"], status["error"]) == ("failed", "stage scene: the disk is full")
+    assert [p.name for p in d.iterdir() if p.name != ".lock"] == ["status.json"]
+
+
+def test_a_log_file_that_cannot_be_written_is_dropped_without_tracebacks(tmp_path, capfd):
+    class FullDisk(logging.FileHandler):
+        def emit(self, record):
+            try:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            except OSError:
+                self.handleError(record)
+
+    handler = FullDisk(tmp_path / "birlg.log", delay=True)
+    root = logging.getLogger("a private root")  # the real root holds pytest's handlers
+    root.propagate = False
+    root.addHandler(handler)
+    LogFiles.failed.clear()
+    guard_log_files(root)
+    for _ in range(5):
+        root.getChild("pipeline").warning("a record")
+    assert "Logging error" not in capfd.readouterr().err
+    assert handler not in root.handlers
+    assert LogFiles.failed == [f"{tmp_path / 'birlg.log'}: the disk is full"]
+
+
+# -- run dirs given with quotes --------------------------------------------------------------
+
+
+@pytest.mark.parametrize("form", ['hydra.run.dir="{d}"', "hydra.run.dir='{d}'",
+                                  '++hydra.run.dir="{d}"'])
+def test_a_quoted_run_dir_in_use_is_refused_before_anything_is_made(tmp_path, form):
+    d = tmp_path / "run"
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    with RunDir(d, ["scene"]):
+        (d / ".hydra").mkdir()
+        (d / ".hydra" / "config.yaml").write_text("the holder's\n")
+        # from another cwd, where a dir named '"' would appear; this source tree's package
+        proc = subprocess.run([sys.executable, "-m", "pipeline", "seed=1", form.format(d=d),
+                               "stages=[scene]"], cwd=cwd, capture_output=True, text=True,
+                              timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 2 and lines(proc.stderr) == [
+        f"error: run dir {d} is in use by another run; wait for it to finish or choose another "
+        "hydra.run.dir"], proc.stderr
+    assert (d / ".hydra" / "config.yaml").read_text() == "the holder's\n"
+    assert list(cwd.iterdir()) == []  # no dir named '"' or "'"
