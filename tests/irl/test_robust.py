@@ -262,7 +262,7 @@ def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones()
         return max(boltzmann.log_likelihood(w, b) - np.log(b) for b in betas)
 
     w_map, _ = boltzmann.map(problem.w0, config.beta)
-    assert profile(w_map) - profile(w) <= chdtri(2, config.lr_level) / 2 + 1e-3
+    assert profile(w_map) - profile(w) <= chdtri(2, config.test_level) / 2 + 1e-3
     beta = betas[np.argmax([boltzmann.log_likelihood(w, b) - np.log(b) for b in betas])]
     assert 0.3 < route_a_share(boltzmann, w, beta) < 0.7
     assert len(result.iterations) == 4
