@@ -183,15 +183,16 @@ class EvaluateConfig:
     transfer_scenes: list[str] = field(default_factory=list)
     # DESIGN §9 held-out demonstrations, kept out of the graph and the likelihood: null
     # (none), a fraction (e.g. 0.3, drawn with the run's seed per start that has several),
-    # or a list of subject ids of the demonstration file's `subjects`. Typed Any: a number
-    # or a list.
+    # a list of subject ids of the demonstration file's `subjects`, or all (a deployed
+    # reward, birl=fixed, judged on demonstrations it never saw). Typed Any: a number, a
+    # list or a word.
     holdout: Any = None
 
     def __post_init__(self) -> None:
         h = self.holdout
-        require(h is None or (is_number(h) and 0 < h < 1) or (
+        require(h is None or h == "all" or (is_number(h) and 0 < h < 1) or (
             isinstance(h, list) and len(h) > 0 and all(isinstance(s, str | int) for s in h)),
-            "holdout", h, "null, a fraction in (0, 1) or a list of subject ids")
+            "holdout", h, "null, a fraction in (0, 1), a list of subject ids, or all")
 
 
 # -- the whole run -------------------------------------------------------------------------
@@ -378,6 +379,9 @@ def load_settings(cfg: DictConfig) -> Config:
 def _check_demonstrator(settings: Config) -> None:
     """What the expert kind allows: learning needs demonstrations, the oracle growth needs
     true weights on the learner's features."""
+    if settings.evaluate.holdout == "all" and settings.birl.kind != "fixed":
+        raise config_error("evaluate.holdout", "all", "a fraction or subject ids, unless "
+                           "birl=fixed (holding out every demonstration leaves none to learn)")
     if settings.expert.kind == "none" and settings.birl.kind != "fixed":
         raise config_error("birl", settings.birl.kind,
                            "fixed with expert=none (nothing to learn from: birl=fixed "

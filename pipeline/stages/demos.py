@@ -88,7 +88,7 @@ def run(ctx: RunContext) -> None:
         if not heldout.any():
             log.warning("evaluate.holdout=%s holds out nothing: no start has two "
                         "demonstrations", holdout)
-        if heldout.all():
+        if heldout.all() and holdout != "all":
             raise PipelineError(f"evaluate.holdout={holdout} holds out every demonstration; "
                                 "keep some to learn from")
     synthetic = expert.knows_true_reward

@@ -363,3 +363,11 @@ def test_goal_reaching_soft_values_sum_over_every_path():
                  for e in p) + beta * 1.0 for p in paths(0)]
     assert len(terms) == 4
     assert post.soft_values([w], beta)[0] == pytest.approx(logsumexp(terms), rel=1e-12)
+
+
+def test_the_old_spelling_of_the_test_level_still_works_with_a_warning(caplog):
+    with caplog.at_level("WARNING", logger="pipeline"):
+        config = BirlMapConfig(lr_level=0.05)
+    assert config.test_level == 0.05 and config.lr_level is None
+    assert [r.getMessage() for r in caplog.records] == [
+        "birl.lr_level is deprecated and will be removed: use birl.test_level"]
