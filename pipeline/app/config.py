@@ -37,6 +37,7 @@ from pipeline.core.params import (
 )
 from pipeline.core.roadmap import RoadmapParams
 from pipeline.core.scenegen import RandomSceneSpec
+from pipeline.core.social import PATH_METRICS
 from pipeline.core.social_planner import SocialPlannerParams
 from pipeline.core.world import BodyParams
 from pipeline.errors import PipelineError
@@ -205,9 +206,7 @@ DEMONSTRATOR_FEATURES = ("relation", "social", "goal_deviation", "length")
 # The metrics.json keys (written by the evaluate stage), as patterns: `objective` must name
 # one. Tests check real runs' metrics.json against them (test_transfer, test_learning), so
 # the two stay in step.
-_PATH = (r"(intimate_intrusion_m|personal_intrusion_m|min_distance_to_person|path_length"
-         r"|relation_crossings|success|time_to_goal|obstacle_collisions"
-         r"|min_distance_to_obstacle)")
+_PATH = "(" + "|".join(PATH_METRICS) + ")"
 METRIC_KEYS = (
     rf"(ref_)?{_PATH}", rf"transfer_.+_(policy_loss(_norm)?|{_PATH})",
     r"policy_loss(_ref)?(_initial|_rude|_iter_\d+)?", r"policy_loss_norm",

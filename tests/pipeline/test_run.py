@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
-from tests.conftest import ROOT, run_app, run_in_process
+from tests.conftest import POLITE, ROOT, run_app, run_in_process
 
 
 def test_a_subset_of_the_features_runs_end_to_end(tmp_path):
@@ -28,7 +28,7 @@ def test_default_experiment_writes_artefacts(default_dir):
     demos = read_artefact(default_dir / "demos.mcap",
                           required_topics=["/demos", "/demos/expert", "/demos/roadmap"])
     assert len(demos.all("/demos")) == 7
-    assert demos.one("/demos/expert")["true_weights"] == [-1.0, -0.7, -0.85, -0.1]
+    assert demos.one("/demos/expert")["true_weights"] == POLITE.tolist()
     assert all(d["reached"] for d in demos.all("/demos"))
     graph = read_artefact(default_dir / "graph.mcap", required_topics=[
         "/graph/node", "/graph/edge", "/graph/best_paths", "/graph/solution"])
