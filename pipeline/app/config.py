@@ -30,6 +30,7 @@ from pipeline.core.features import FeatureParams
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.params import (
     ParameterError,
+    deprecated,
     is_number,
     require,
     require_count,
@@ -90,11 +91,15 @@ class RewardConfig(FeatureParams):
 @dataclass
 class ExpertConfig:
     kind: str = MISSING  # optimal | boltzmann | file | planner | none
-    n_demos: Optional[int] = None  # learn from the demonstrations of the first n starts (null: all)
+    n_starts: Optional[int] = None  # demonstrations from the first n starts only (null: all)
+    n_demos: Optional[int] = None  # deprecated spelling of n_starts
 
     def __post_init__(self) -> None:
         if self.n_demos is not None:
-            require_count(self, "n_demos")
+            deprecated("expert.n_demos", "expert.n_starts")
+            self.n_starts, self.n_demos = self.n_demos, None
+        if self.n_starts is not None:
+            require_count(self, "n_starts")
 
     @property
     def knows_true_reward(self) -> bool:

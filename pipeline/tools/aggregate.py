@@ -100,7 +100,7 @@ def _is_metric(column: str) -> bool:
 # Names as in the paper and the README, for legends and table headers.
 METHOD_NAMES = {"map": "BIRL-G (MAP)", "mcmc": "BIRL-G (MCMC)", "policywalk": "PolicyWalk",
                 "maxent": "MaxEnt", "fixed": "fixed weights"}
-SETTING_NAMES = {"birl": "method", "expert.beta": "β_E", "expert.n_demos": "demos",
+SETTING_NAMES = {"birl": "method", "expert.beta": "β_E", "expert.n_starts": "demos",
                  "expert": "expert", "reward": "reward", "scene": "scene", "birl.beta": "β"}
 METRIC_NAMES = {"policy_loss_norm": "normalised policy loss", "policy_loss_ref":
                 "policy loss (roadmap)", "policy_loss": "policy loss (graph)",

@@ -330,7 +330,7 @@ def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]
     return pd.DataFrame(rows)
 
 
-POSTERIOR = {**{f"optimal_n{n}": ["expert=optimal", f"expert.n_demos={n}"] for n in (2, 7)},
+POSTERIOR = {**{f"optimal_n{n}": ["expert=optimal", f"expert.n_starts={n}"] for n in (2, 7)},
              **{f"beta20_k{k}": ["expert=boltzmann", "expert.beta=20",
                                  f"expert.demos_per_start={k}"] for k in (1, 3)}}
 

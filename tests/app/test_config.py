@@ -89,3 +89,10 @@ def test_the_mdp_presets_are_goal_reaching_and_the_papers_setting():
     assert validate(compose_config()).mdp == MDPParams()
     paper = validate(compose_config("mdp=paper")).mdp
     assert (paper.gamma, paper.time_cost, paper.dead_end_value) == (0.95, 0.0, -10.0)
+
+
+def test_the_old_spelling_of_n_starts_still_works_with_a_warning(caplog):
+    with caplog.at_level("WARNING", logger="pipeline"):
+        settings = validate(compose_config("expert.n_demos=3"))
+    assert settings.expert.n_starts == 3
+    assert "expert.n_demos is deprecated and will be removed: use expert.n_starts" in caplog.text

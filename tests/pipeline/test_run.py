@@ -115,7 +115,7 @@ def test_failing_run_keeps_earlier_artefacts(tmp_path, default_dir):
 
 def test_demos_stage_writes_k_noisy_demos_per_start(tmp_path):
     run_in_process(tmp_path, "stages=[scene,demos]", "expert=boltzmann", "expert.beta=20",
-                   "expert.demos_per_start=3", "expert.n_demos=2")
+                   "expert.demos_per_start=3", "expert.n_starts=2")
     demos = read_artefact(tmp_path / "demos.mcap").all("/demos")
     assert [d["start_index"] for d in demos] == [0, 0, 0, 1, 1, 1]
     assert len({len(d["points"]) for d in demos[:3]}) > 1  # three different walks
