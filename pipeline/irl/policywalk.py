@@ -84,8 +84,9 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
     """PolicyWalk: MH on the grid w0 + grid_step·Z^d. A proposal moves one random
     coordinate by ±grid_step (symmetric, so the acceptance is min(1, exp(Δ log
     posterior))); proposals outside the prior box are rejected without a solve (posterior
-    0), every other one solves the MDP warm-started from the current state's values. Runs burn_in + n_samples·thin steps and
-    keeps every thin-th state after burn-in; weights = posterior mean of the kept states.
+    0), every other one solves the MDP warm-started from the current state's values. Runs
+    burn_in + n_samples·thin steps and keeps every thin-th state after burn-in; weights =
+    posterior mean of the kept states.
     w0: (d,) initial weights in the prior box."""
     n_samples, burn_in, thin, step = chain.n_samples, chain.burn_in, chain.thin, grid_step
     if not (alpha > 0 and n_records >= 1):
