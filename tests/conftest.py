@@ -32,11 +32,13 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from pipeline.app.build import preset_weights
 from pipeline.app.config import register_configs
 from pipeline.app.provenance import INPUT_KEY
 from pipeline.artefacts import topics
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE
+from pipeline.core.features import FEATURE_NAMES
 from pipeline.core.graph_mdp import GraphMDP, MDPParams
 from pipeline.core.graph_mdp import Path as GraphPath
 from pipeline.inputs.scene_file import load_scene_file
@@ -46,8 +48,8 @@ ROOT = Path(__file__).resolve().parent.parent
 METROPOLIS = ROOT / "data" / "scenes" / "metropolis.json"
 OFFICE_SCENE = ROOT / "data" / "scenes" / "office.json"
 OFFICE_MAP = ROOT / "data" / "maps" / "office.yaml"
-POLITE = np.array([-1.0, -0.7, -0.85, -0.1])
-RUDE = np.array([0.0, 0.0, -0.85, -0.1])
+POLITE = preset_weights("polite", list(FEATURE_NAMES))  # conf/reward/polite.yaml
+RUDE = preset_weights("rude", list(FEATURE_NAMES))
 # The paper's discounted graph MDP (mdp=paper), for tests of that formulation.
 PAPER_MDP = MDPParams(gamma=0.95, time_cost=0.0)
 

@@ -47,12 +47,26 @@ def imports_of(path: Path, module: str, modules: dict[str, Path]) -> set[str]:
     return found
 
 
+def method_modules(modules: dict[str, Path]) -> set[str]:
+    """The IRL modules that register a method (`@register(...)`): method modules import the
+    shared modules of pipeline.irl, never another method's."""
+    def registers(path: Path) -> bool:
+        return any(isinstance(d, ast.Call) and getattr(d.func, "id", None) == "register"
+                   for node in ast.walk(ast.parse(path.read_text()))
+                   if isinstance(node, ast.FunctionDef) for d in node.decorator_list)
+
+    return {m for m, path in modules.items() if m.startswith("pipeline.irl.") and registers(path)}
+
+
 def violations(modules: dict[str, Path]) -> list[str]:
     """Every import that breaks a rule, as 'importer -> imported: why'."""
     bad = []
+    methods = method_modules(modules)
     for module, path in modules.items():
         package = _package(module)
         for target in sorted(imports_of(path, module, modules)):
+            if module in methods and target in methods and target != module:
+                bad.append(f"{module} -> {target}: a method module imports another method")
             root = target.split(".")[0]
             if package in ALGORITHMS and root in FRAMEWORKS:
                 bad.append(f"{module} -> {target}: algorithm code imports a framework")
@@ -78,6 +92,35 @@ def pipeline_modules(root: Path) -> dict[str, Path]:
     return modules
 
 
+def test_method_modules_are_found():
+    assert {"pipeline.irl.birl", "pipeline.irl.maxent", "pipeline.irl.policywalk",
+            "pipeline.irl.fixed"} <= method_modules(pipeline_modules(ROOT))
+
+
+def stage_imports_in_tests(root: Path, modules: dict[str, Path]) -> list[str]:
+    """Tests that import a stage module: what a test reaches through a stage (an
+    algorithm, an adapter) belongs to the library; tests run stages via run_pipeline."""
+    stage_modules = {m for m in modules if m.startswith("pipeline.stages.")}
+    bad = []
+    for path in sorted((root / "tests").rglob("*.py")):
+        module = ".".join(path.relative_to(root).with_suffix("").parts)
+        for target in imports_of(path, module, modules):
+            if target in stage_modules:
+                bad.append(f"{path.relative_to(root)} -> {target}")
+    return bad
+
+
+def test_tests_reach_algorithms_through_the_library_not_the_stages():
+    assert stage_imports_in_tests(ROOT, pipeline_modules(ROOT)) == []
+
+
+def test_a_test_importing_a_stage_is_detected(tmp_path):
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "test_x.py").write_text("from pipeline.stages.birl import run\n")
+    assert stage_imports_in_tests(tmp_path, pipeline_modules(ROOT)) == \
+        ["tests/test_x.py -> pipeline.stages.birl"]
+
+
 def test_every_package_has_a_layer():
     packages = {_package(m) for m in pipeline_modules(ROOT)} - {""}
     assert packages <= set(LAYER), f"new package(s) {packages - set(LAYER)}: give them a layer"
@@ -97,6 +140,9 @@ def test_imports_only_point_down():
     ("pipeline.stages.graph", "from pipeline.stages.demos import run\n", "another stage"),
     ("pipeline.stages.graph", "from pipeline.stages import demos\n", "another stage"),
     ("pipeline.stages.graph", "def f():\n    from . import birl\n", "another stage"),
+    ("pipeline.irl.maxent",
+     "from pipeline.irl.policywalk import f\n@register('x', C)\ndef fit(p, c):\n    pass\n",
+     "method module imports another method"),
 ])
 def test_a_violation_is_detected(tmp_path, module, source, expected):
     modules = pipeline_modules(ROOT)

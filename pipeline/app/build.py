@@ -7,14 +7,15 @@ import re
 from pathlib import Path
 
 import numpy as np
+from omegaconf import OmegaConf
 
 from pipeline.app import limits
 from pipeline.app.config import Config, RandomSceneConfig
-from pipeline.app.context import resolve_path
+from pipeline.app.context import PACKAGE_ROOT, resolve_path
 from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.controllers import Controller, PosqController, make_controller
-from pipeline.core.features import FeatureModel, FeatureParams
+from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
 from pipeline.core.obstacles import OccupancyGrid
 from pipeline.core.roadmap import Roadmap, RoadmapParams, build_roadmap, lattice_graph
 from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
@@ -26,6 +27,14 @@ from pipeline.irl import methods
 from pipeline.irl.base import Method
 from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import Prior
+
+
+def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
+    """The weights of a behaviour preset of conf/reward (`polite`, `rude`: the one source of
+    those numbers) on the given features (a feature the preset does not weigh gets 0)."""
+    preset = OmegaConf.load(PACKAGE_ROOT / "conf" / "reward" / f"{name}.yaml")
+    by_name = dict(zip(preset.get("features", FEATURE_NAMES), preset.weights, strict=True))
+    return np.array([float(by_name.get(n, 0.0)) for n in feature_names])
 
 
 def scene(cfg: Config, rng_for_seed) -> Scene:

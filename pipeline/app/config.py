@@ -30,6 +30,7 @@ from pipeline.core.features import FeatureParams
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.params import (
     ParameterError,
+    deprecated,
     is_number,
     require,
     require_count,
@@ -37,6 +38,7 @@ from pipeline.core.params import (
 )
 from pipeline.core.roadmap import RoadmapParams
 from pipeline.core.scenegen import RandomSceneSpec
+from pipeline.core.social import PATH_METRICS
 from pipeline.core.social_planner import SocialPlannerParams
 from pipeline.core.world import BodyParams
 from pipeline.errors import PipelineError
@@ -89,11 +91,15 @@ class RewardConfig(FeatureParams):
 @dataclass
 class ExpertConfig:
     kind: str = MISSING  # optimal | boltzmann | file | planner | none
-    n_demos: Optional[int] = None  # learn from the demonstrations of the first n starts (null: all)
+    n_starts: Optional[int] = None  # demonstrations from the first n starts only (null: all)
+    n_demos: Optional[int] = None  # deprecated spelling of n_starts
 
     def __post_init__(self) -> None:
         if self.n_demos is not None:
-            require_count(self, "n_demos")
+            deprecated("expert.n_demos", "expert.n_starts")
+            self.n_starts, self.n_demos = self.n_demos, None
+        if self.n_starts is not None:
+            require_count(self, "n_starts")
 
     @property
     def knows_true_reward(self) -> bool:
@@ -183,15 +189,16 @@ class EvaluateConfig:
     transfer_scenes: list[str] = field(default_factory=list)
     # DESIGN §9 held-out demonstrations, kept out of the graph and the likelihood: null
     # (none), a fraction (e.g. 0.3, drawn with the run's seed per start that has several),
-    # or a list of subject ids of the demonstration file's `subjects`. Typed Any: a number
-    # or a list.
+    # a list of subject ids of the demonstration file's `subjects`, or all (a deployed
+    # reward, birl=fixed, judged on demonstrations it never saw). Typed Any: a number, a
+    # list or a word.
     holdout: Any = None
 
     def __post_init__(self) -> None:
         h = self.holdout
-        require(h is None or (is_number(h) and 0 < h < 1) or (
+        require(h is None or h == "all" or (is_number(h) and 0 < h < 1) or (
             isinstance(h, list) and len(h) > 0 and all(isinstance(s, str | int) for s in h)),
-            "holdout", h, "null, a fraction in (0, 1) or a list of subject ids")
+            "holdout", h, "null, a fraction in (0, 1), a list of subject ids, or all")
 
 
 # -- the whole run -------------------------------------------------------------------------
@@ -204,9 +211,7 @@ DEMONSTRATOR_FEATURES = ("relation", "social", "goal_deviation", "length")
 # The metrics.json keys (written by the evaluate stage), as patterns: `objective` must name
 # one. Tests check real runs' metrics.json against them (test_transfer, test_learning), so
 # the two stay in step.
-_PATH = (r"(intimate_intrusion_m|personal_intrusion_m|min_distance_to_person|path_length"
-         r"|relation_crossings|success|time_to_goal|obstacle_collisions"
-         r"|min_distance_to_obstacle)")
+_PATH = "(" + "|".join(PATH_METRICS) + ")"
 METRIC_KEYS = (
     rf"(ref_)?{_PATH}", rf"transfer_.+_(policy_loss(_norm)?|{_PATH})",
     r"policy_loss(_ref)?(_initial|_rude|_iter_\d+)?", r"policy_loss_norm",
@@ -382,6 +387,9 @@ def load_settings(cfg: DictConfig) -> Config:
 def _check_demonstrator(settings: Config) -> None:
     """What the expert kind allows: learning needs demonstrations, the oracle growth needs
     true weights on the learner's features."""
+    if settings.evaluate.holdout == "all" and settings.birl.kind != "fixed":
+        raise config_error("evaluate.holdout", "all", "a fraction or subject ids, unless "
+                           "birl=fixed (holding out every demonstration leaves none to learn)")
     if settings.expert.kind == "none" and settings.birl.kind != "fixed":
         raise config_error("birl", settings.birl.kind,
                            "fixed with expert=none (nothing to learn from: birl=fixed "

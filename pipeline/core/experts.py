@@ -61,17 +61,20 @@ class Demonstration:
 
 
 def choose_heldout(start_index: Sequence[int], subjects: Sequence[str | None],
-                   holdout: float | Sequence[str] | None,
+                   holdout: float | str | Sequence[str] | None,
                    rng: np.random.Generator) -> np.ndarray:
     """Which demonstrations (n,) are held out of learning (DESIGN §9). A fraction f: from
     every start with k ≥ 2 demonstrations max(1, round(f·k)) of them, at most k − 1, drawn
-    with rng (starts in order); a start with one demonstration keeps it. Subject ids: every
+    with rng (starts in order); a start with one demonstration keeps it. "all": every one
+    (a fixed reward judged on what it never saw). Subject ids: every
     demonstration of those subjects (PipelineError naming an id no demonstration has)."""
     n = len(start_index)
     held = np.zeros(n, dtype=bool)
     if holdout is None:
         return held
-    if isinstance(holdout, (int, float)) and not isinstance(holdout, bool):
+    if holdout == "all":
+        return ~held
+    if isinstance(holdout, (int, float)):
         starts = np.asarray(start_index)
         for s in np.unique(starts):
             members = np.flatnonzero(starts == s)
@@ -80,6 +83,7 @@ def choose_heldout(start_index: Sequence[int], subjects: Sequence[str | None],
                 held[rng.choice(members, k, replace=False)] = True
         return held
     known = sorted({str(s) for s in subjects if s is not None})
+    assert not isinstance(holdout, str)  # "all" is handled above
     for sid in holdout:
         if str(sid) not in known:
             raise PipelineError(f"evaluate.holdout names subject {sid!r}, which demonstrated "

@@ -8,6 +8,7 @@ ParameterError naming the field; the app prefixes the config key.
 
 from __future__ import annotations
 
+import logging
 import math
 import numbers
 from typing import Any
@@ -25,6 +26,12 @@ def is_number(value: Any) -> bool:
     """A finite real number (bools are not numbers here)."""
     return (isinstance(value, numbers.Real) and not isinstance(value, bool)
             and math.isfinite(value))
+
+
+def deprecated(old: str, new: str) -> None:
+    """One warning line for a renamed setting that still works for one release."""
+    logging.getLogger("pipeline").warning("%s is deprecated and will be removed: use %s",
+                                          old, new)
 
 
 def require(ok: bool, field: str, value: Any, allowed: str) -> None:

@@ -10,6 +10,28 @@ from pipeline.core.world import Scene
 INTIMATE_ZONE = 0.45  # m
 PERSONAL_ZONE = 1.2  # m
 
+# The metrics of a path (path_metrics), and how the paths from all starts combine into a
+# run's metric: the one table of their names (metrics.json, sweeps, transfer keys).
+PATH_METRICS: dict[str, str] = {
+    "relation_crossings": "sum", "intimate_intrusion_m": "sum", "personal_intrusion_m": "sum",
+    "min_distance_to_person": "min", "path_length": "mean", "time_to_goal": "mean",
+    "success": "mean",
+    # scenes with obstacles only
+    "obstacle_collisions": "sum", "min_distance_to_obstacle": "min",
+}
+OBSTACLE_METRICS = ("obstacle_collisions", "min_distance_to_obstacle")
+
+
+def combine_path_metrics(per_path: list[dict[str, float]]) -> dict[str, float]:
+    """A run's metrics from its paths' (one per start), as PATH_METRICS says."""
+    out = {}
+    for name, how in PATH_METRICS.items():
+        values = [m[name] for m in per_path if name in m]
+        if values:
+            out[name] = float(sum(values) if how == "sum" else min(values) if how == "min"
+                              else np.mean(values))
+    return out
+
 
 def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (

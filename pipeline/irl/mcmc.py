@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Optional, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import solve_triangular
 
-from pipeline.core.params import require, require_count, require_positive
+from pipeline.core.params import deprecated, require, require_count, require_positive
 from pipeline.irl.base import PosteriorSamples
 from pipeline.irl.diagnostics import convergence
 
@@ -41,27 +41,32 @@ class ChainParams:
     n_samples: int = 1000
     burn_in: int = 500
     thin: int = 1
-    step: float = 0.05  # initial proposal size (random-walk std; PolicyWalk: grid step)
 
     def __post_init__(self) -> None:
         require_count(self, "n_samples", "thin")
         require_count(self, "burn_in", minimum=0)
-        require_positive(self, "step")
 
 
 @dataclass
 class AdaptiveChainParams(ChainParams):
     """Several chains whose step adapts during burn-in towards a target acceptance rate
-    (then stays fixed, so the kept samples come from a valid MH chain)."""
+    (then stays fixed, so the kept samples come from a valid MH chain); one chain of fixed
+    step with n_chains=1, adapt=false."""
+    proposal_step: float = 0.05  # the proposals' initial size (random-walk std)
     n_chains: int = 4  # chain 0 starts at the current estimate, the others at prior draws
     target_acceptance: float = 0.3  # 0.234 is optimal for high-dimensional Gaussians
-    adapt: bool = True  # false: `step` throughout
+    adapt: bool = True  # false: `proposal_step` throughout
     # rw: random-walk Metropolis; mala: Langevin proposals along the analytic gradient
     # (target_acceptance 0.57 is optimal for it)
     sampler: str = "rw"
+    step: Optional[float] = None  # deprecated spelling of proposal_step
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.step is not None:
+            deprecated("birl.step", "birl.proposal_step")
+            self.proposal_step, self.step = self.step, None
+        require_positive(self, "proposal_step")
         require_count(self, "n_chains")
         require(self.sampler in SAMPLERS, "sampler", self.sampler, f"one of {SAMPLERS}")
         require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
@@ -88,22 +93,21 @@ class ChainRun:
 
 
 def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
-         chain: ChainParams) -> PosteriorSamples:
+         chain: AdaptiveChainParams) -> PosteriorSamples:
     """Metropolis–Hastings on a log posterior with random-walk or MALA proposals
-    (`sampler`): `n_chains` chains (an AdaptiveChainParams; one otherwise), each burn_in +
+    (`sampler`): `n_chains` chains, each burn_in +
     n_samples·thin steps keeping every thin-th state after burn-in. During burn-in the step
     size adapts (Robbins–Monro on its logarithm) towards the target acceptance rate and the
     proposals are reshaped by the states' covariance (`_adaptive_burn_in`); the kept step
     is the chains' median, frozen for the sampling phase. Chain 0 starts at w0 (d,), the
     others at prior draws. R-hat and ESS by pipeline.irl.diagnostics."""
-    n_chains = getattr(chain, "n_chains", 1)
-    adapt = getattr(chain, "adapt", False)
-    proposal = Proposal(np.eye(len(w0)), getattr(chain, "sampler", "rw") == "mala")
+    n_chains, adapt = chain.n_chains, chain.adapt
+    proposal = Proposal(np.eye(len(w0)), chain.sampler == "mala")
     w = np.asarray(w0, dtype=float).copy()
     if not np.isfinite(posterior.log_posterior(w)):
         raise ValueError(f"mcmc must start inside the box (posterior > 0), got {w}")
     starts = [w] + [posterior.dispersed_start(rng) for _ in range(n_chains - 1)]
-    steps = np.full(n_chains, chain.step)
+    steps = np.full(n_chains, chain.proposal_step)
     burn_in = chain.burn_in
     if adapt and chain.burn_in > 0:
         proposal, steps = _adaptive_burn_in(posterior, starts, steps, rng, chain, proposal)
@@ -123,7 +127,7 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
 
 
 def _adaptive_burn_in(posterior: LogDensity, starts: list[np.ndarray], steps: np.ndarray,
-                      rng: np.random.Generator, chain: ChainParams,
+                      rng: np.random.Generator, chain: AdaptiveChainParams,
                       proposal: Proposal) -> tuple[Proposal, np.ndarray]:
     """Burn-in in phases (`starts` moved in place to where each chain ends): adapt the
     step with isotropic proposals, then shape the proposals by the covariance of the
@@ -133,7 +137,7 @@ def _adaptive_burn_in(posterior: LogDensity, starts: list[np.ndarray], steps: np
     with two phases, 1.03–1.05 with four). Returns the last proposal and the chains'
     median step."""
     d = len(starts[0])
-    target = getattr(chain, "target_acceptance", 0.3)
+    target = chain.target_acceptance
     phases = np.diff(np.linspace(0, chain.burn_in, BURN_IN_PHASES + 1).round()).astype(int)
     for phase, length in enumerate(phases):
         states = []

@@ -8,12 +8,13 @@ cost BIRL-G avoids. The weights are the running posterior mean.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from pipeline.core.graph_mdp import GraphMDP, Path
-from pipeline.core.params import require_positive
+from pipeline.core.params import deprecated, require_positive
 from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, Trace, register
 from pipeline.irl.mcmc import ChainParams
 from pipeline.irl.prior import Prior
@@ -25,10 +26,16 @@ class PolicyWalkConfig(IRLConfig, ChainParams):
     alpha: float = 10.0  # expert confidence in its Boltzmann likelihood
     n_samples: int = 600  # kept states (each a full MDP solve)
     burn_in: int = 200
+    grid_step: float = 0.05  # the weight grid's step (a proposal moves one coordinate by it)
+    step: Optional[float] = None  # deprecated spelling of grid_step
 
     def __post_init__(self) -> None:
         IRLConfig.__post_init__(self)
         ChainParams.__post_init__(self)
+        if self.step is not None:
+            deprecated("birl.step", "birl.grid_step")
+            self.grid_step, self.step = self.step, None
+        require_positive(self, "grid_step")
         require_positive(self, "alpha")
 
 
@@ -39,7 +46,8 @@ def fit_policywalk(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     mdp = problem.graph.mdp
     expert = expert_state_actions(mdp, problem.demo_paths(problem.graph))
     trace = policywalk(mdp, expert, problem.prior, problem.rng, alpha=config.alpha,
-                       chain=config, w0=problem.w0, n_records=config.n_iterations)
+                       chain=config, grid_step=config.grid_step, w0=problem.w0,
+                       n_records=config.n_iterations)
     return problem.record_trace(trace)
 
 
@@ -71,15 +79,16 @@ def _boltzmann_log_likelihood(mdp: GraphMDP, nodes: np.ndarray, edges: np.ndarra
 
 
 def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
-               rng: np.random.Generator, *, alpha: float, chain: ChainParams, w0: np.ndarray,
-               n_records: int = 20) -> PolicyWalkTrace:
-    """PolicyWalk: MH on the grid w0 + step·Z^d. A proposal moves one random coordinate by
-    ±step (symmetric, so the acceptance is min(1, exp(Δ log posterior))); proposals outside
-    the prior box are rejected without a solve (posterior 0), every other one solves the MDP
-    warm-started from the current state's values. Runs burn_in + n_samples·thin steps and
-    keeps every thin-th state after burn-in; weights = posterior mean of the kept states.
+               rng: np.random.Generator, *, alpha: float, chain: ChainParams,
+               grid_step: float, w0: np.ndarray, n_records: int = 20) -> PolicyWalkTrace:
+    """PolicyWalk: MH on the grid w0 + grid_step·Z^d. A proposal moves one random
+    coordinate by ±grid_step (symmetric, so the acceptance is min(1, exp(Δ log
+    posterior))); proposals outside the prior box are rejected without a solve (posterior
+    0), every other one solves the MDP warm-started from the current state's values. Runs
+    burn_in + n_samples·thin steps and keeps every thin-th state after burn-in; weights =
+    posterior mean of the kept states.
     w0: (d,) initial weights in the prior box."""
-    n_samples, burn_in, thin, step = chain.n_samples, chain.burn_in, chain.thin, chain.step
+    n_samples, burn_in, thin, step = chain.n_samples, chain.burn_in, chain.thin, grid_step
     if not (alpha > 0 and n_records >= 1):
         raise ValueError(f"policywalk needs alpha > 0 and n_records >= 1; got {alpha}, "
                          f"{n_records}")

@@ -71,10 +71,10 @@ def run(ctx: RunContext) -> None:
         demos = []
     else:
         demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes, solution)
-    if expert.n_demos is not None:
-        demos = [d for d in demos if d.start_index < expert.n_demos]
+    if expert.n_starts is not None:
+        demos = [d for d in demos if d.start_index < expert.n_starts]
         if not demos:
-            raise PipelineError(f"expert.n_demos={expert.n_demos} leaves no demonstration")
+            raise PipelineError(f"expert.n_starts={expert.n_starts} leaves no demonstration")
     unreached = [d.start_index for d in demos if not d.reached]
     if unreached:
         log.warning("demonstrations from starts %s do not reach the goal", unreached)
@@ -88,7 +88,7 @@ def run(ctx: RunContext) -> None:
         if not heldout.any():
             log.warning("evaluate.holdout=%s holds out nothing: no start has two "
                         "demonstrations", holdout)
-        if heldout.all():
+        if heldout.all() and holdout != "all":
             raise PipelineError(f"evaluate.holdout={holdout} holds out every demonstration; "
                                 "keep some to learn from")
     synthetic = expert.knows_true_reward

@@ -12,10 +12,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from omegaconf import OmegaConf
 
 from pipeline.app import build
-from pipeline.app.context import PACKAGE_ROOT, RunContext
+from pipeline.app.build import preset_weights
+from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import Artefact, write_json_atomic
 from pipeline.artefacts.topics import STAGES
@@ -26,21 +26,17 @@ from pipeline.core.evaluation import (
     frechet,
     policy_loss,
 )
-from pipeline.core.features import FEATURE_NAMES
 from pipeline.core.graph_mdp import SpatialGraph
-from pipeline.core.social import min_distance_to_person, path_metrics
+from pipeline.core.social import (
+    PATH_METRICS,
+    combine_path_metrics,
+    min_distance_to_person,
+    path_metrics,
+)
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 
 log = logging.getLogger(__name__)
-
-
-def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
-    """Behaviour presets straight from conf/reward (one source for the numbers), on the
-    run's features (a feature the preset does not weigh gets 0)."""
-    preset = OmegaConf.load(PACKAGE_ROOT / "conf" / "reward" / f"{name}.yaml")
-    by_name = dict(zip(preset.get("features", FEATURE_NAMES), preset.weights, strict=True))
-    return np.array([float(by_name.get(n, 0.0)) for n in feature_names])
 
 
 def loss_curve(graph: SpatialGraph, w_true: np.ndarray, weights_per_iteration: np.ndarray,
@@ -90,25 +86,13 @@ def summed_path_metrics(graph: SpatialGraph, policy: np.ndarray, scene: Scene,
         pts = graph.polyline(p)
         per_path.append((pts, path_metrics(pts, scene, graph.mdp.duration[p.edges].sum(),
                                            p.reached)))
-    m = [metrics for _, metrics in per_path]
-    total = {
-        "relation_crossings": sum(x["relation_crossings"] for x in m),
-        "intimate_intrusion_m": sum(x["intimate_intrusion_m"] for x in m),
-        "personal_intrusion_m": sum(x["personal_intrusion_m"] for x in m),
-        "min_distance_to_person": min(x["min_distance_to_person"] for x in m),
-        "path_length": float(np.mean([x["path_length"] for x in m])),
-        "time_to_goal": float(np.mean([x["time_to_goal"] for x in m])),
-        "success": float(np.mean([x["success"] for x in m])),
-    }
-    if scene.obstacles is not None:
-        total["obstacle_collisions"] = sum(x["obstacle_collisions"] for x in m)
-        total["min_distance_to_obstacle"] = min(x["min_distance_to_obstacle"] for x in m)
+    total = combine_path_metrics([metrics for _, metrics in per_path])
     return {prefix + k: v for k, v in total.items()}, per_path
 
 
-TRANSFER_KEYS = ("policy_loss", "policy_loss_norm", "relation_crossings", "intimate_intrusion_m",
-                 "personal_intrusion_m", "min_distance_to_person", "path_length", "success",
-                 "obstacle_collisions", "min_distance_to_obstacle")
+# DESIGN §9's transfer keys: the policy loss and every path metric but the duration
+TRANSFER_KEYS = ("policy_loss", "policy_loss_norm",
+                 *(k for k in PATH_METRICS if k != "time_to_goal"))
 
 
 def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,

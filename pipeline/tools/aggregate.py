@@ -25,6 +25,7 @@ import yaml
 
 from pipeline.app.rundir import job_dirs, read_status
 from pipeline.artefacts import codec, read_artefact, topics
+from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
 from pipeline.errors import PipelineError
 
 
@@ -59,8 +60,7 @@ def summary_table(sweep_dir: Path) -> pd.DataFrame:
 # the swept settings, the headline metrics, the social metrics (graph, then roadmap), the
 # learned weights, everything else, the per-iteration curves, the wall-clock timings.
 HEADLINE = ["policy_loss_norm", "policy_loss", "policy_loss_ref"]
-SOCIAL = ["relation_crossings", "intimate_intrusion_m", "personal_intrusion_m",
-          "min_distance_to_person", "path_length", "time_to_goal", "success"]
+SOCIAL = [k for k in PATH_METRICS if k not in OBSTACLE_METRICS]
 
 
 def column_order(columns: list[str]) -> list[str]:
@@ -100,7 +100,7 @@ def _is_metric(column: str) -> bool:
 # Names as in the paper and the README, for legends and table headers.
 METHOD_NAMES = {"map": "BIRL-G (MAP)", "mcmc": "BIRL-G (MCMC)", "policywalk": "PolicyWalk",
                 "maxent": "MaxEnt", "fixed": "fixed weights"}
-SETTING_NAMES = {"birl": "method", "expert.beta": "β_E", "expert.n_demos": "demos",
+SETTING_NAMES = {"birl": "method", "expert.beta": "β_E", "expert.n_starts": "demos",
                  "expert": "expert", "reward": "reward", "scene": "scene", "birl.beta": "β"}
 METRIC_NAMES = {"policy_loss_norm": "normalised policy loss", "policy_loss_ref":
                 "policy loss (roadmap)", "policy_loss": "policy loss (graph)",

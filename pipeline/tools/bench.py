@@ -32,10 +32,11 @@ GRAPH_SIZES = [250, 500, 1000, 2000, 5000]
 def _graph_once(max_nodes: int, seed: int) -> dict:
     """Grow one graph on metropolis from polite optimal demos under the prior-mean weights
     (what the default experiment does); time only the graph stage's own work."""
+    from pipeline.app.build import preset_weights
     from pipeline.core.adaptive_graph import AdaptiveGraph, Demo, GraphParams
     from pipeline.core.controllers import LinearController
     from pipeline.core.experts import optimal_demos
-    from pipeline.core.features import FeatureModel
+    from pipeline.core.features import FEATURE_NAMES, FeatureModel
     from pipeline.core.roadmap import build_roadmap
     from pipeline.inputs.scene_file import load_scene_file
     from pipeline.irl.prior import BoxConfig
@@ -45,7 +46,7 @@ def _graph_once(max_nodes: int, seed: int) -> dict:
     roadmap = build_roadmap(scene, fm)
     mdp = roadmap.mdp()
     demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes,
-                          mdp.solve([-1.0, -0.7, -0.85, -0.1]))
+                          mdp.solve(preset_weights("polite", list(FEATURE_NAMES))))
     weights = BoxConfig().make_prior(4).box_mean()  # the default prior's mean
     rss_before = _reset_peak_rss()
     t0 = time.perf_counter()
@@ -329,7 +330,7 @@ def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]
     return pd.DataFrame(rows)
 
 
-POSTERIOR = {**{f"optimal_n{n}": ["expert=optimal", f"expert.n_demos={n}"] for n in (2, 7)},
+POSTERIOR = {**{f"optimal_n{n}": ["expert=optimal", f"expert.n_starts={n}"] for n in (2, 7)},
              **{f"beta20_k{k}": ["expert=boltzmann", "expert.beta=20",
                                  f"expert.demos_per_start={k}"] for k in (1, 3)}}
 

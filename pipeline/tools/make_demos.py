@@ -22,9 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.app.build import preset_weights
 from pipeline.app.context import PACKAGE_ROOT
 from pipeline.core.experts import optimal_demos
-from pipeline.core.features import FeatureModel
+from pipeline.core.features import FEATURE_NAMES, FeatureModel
 from pipeline.core.roadmap import build_roadmap
 from pipeline.inputs.scene_file import load_scene_file
 
@@ -63,7 +64,7 @@ def write_handdrawn(root: Path) -> None:
     roadmap = build_roadmap(scene, fm)
     mdp = roadmap.mdp()
     demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes,
-                          mdp.solve([-1.0, -0.7, -0.85, -0.1]))
+                          mdp.solve(preset_weights("polite", list(FEATURE_NAMES))))
     rng = np.random.default_rng(11)
     persons, limit = scene.person_xy, scene.body_radius + 0.05
     trajectories = []

@@ -55,3 +55,44 @@ def test_out_of_range_values_name_the_key(override, key):
 def test_a_key_of_another_method_is_refused(overrides, key):
     with pytest.raises(ConfigCompositionException, match=f"override '{key}'"):
         compose_config(*overrides)
+
+
+def _options(group: str) -> list[str]:
+    from tests.conftest import ROOT
+
+    return sorted(p.stem for p in (ROOT / "conf" / group).glob("*.yaml"))
+
+
+@pytest.mark.parametrize("method", _options("birl"))
+def test_every_methods_command_line_defaults_are_its_python_defaults(method):
+    """One source per default: conf/birl/<method>.yaml sets nothing the method's config
+    dataclass does not already say, so `birl=<method>` and the class agree field by field."""
+    from pipeline.irl import methods
+
+    extra = ["birl.weights=[-1,-1,-1,-1]"] if method == "fixed" else []
+    composed = validate(compose_config(f"birl={method}", *extra)).birl
+    python = methods()[method].config(**({"weights": [-1, -1, -1, -1]} if extra else {}))
+    assert composed == python
+
+
+@pytest.mark.parametrize("expert", [e for e in _options("expert") if e != "file"])
+def test_every_experts_command_line_defaults_are_its_python_defaults(expert):
+    from pipeline.app.config import EXPERTS
+
+    fixed = ["birl=fixed", "birl.weights=[-1,-1,-1,-1]"] if expert == "none" else []
+    assert validate(compose_config(f"expert={expert}", *fixed)).expert == EXPERTS[expert]()
+
+
+def test_the_mdp_presets_are_goal_reaching_and_the_papers_setting():
+    from pipeline.core.graph_mdp import MDPParams
+
+    assert validate(compose_config()).mdp == MDPParams()
+    paper = validate(compose_config("mdp=paper")).mdp
+    assert (paper.gamma, paper.time_cost, paper.dead_end_value) == (0.95, 0.0, -10.0)
+
+
+def test_the_old_spelling_of_n_starts_still_works_with_a_warning(caplog):
+    with caplog.at_level("WARNING", logger="pipeline"):
+        settings = validate(compose_config("expert.n_demos=3"))
+    assert settings.expert.n_starts == 3
+    assert "expert.n_demos is deprecated and will be removed: use expert.n_starts" in caplog.text

@@ -743,10 +743,10 @@ def _other_features(tmp, default_dir):
 def _mixed_runs(tmp, default_dir):
     src = _copy_run(default_dir, tmp / "src")
     other = tmp / "other"
-    code = cli_quiet(f"hydra.run.dir={other}", "expert.n_demos=3", "stages=[scene,demos]")
+    code = cli_quiet(f"hydra.run.dir={other}", "expert.n_starts=3", "stages=[scene,demos]")
     assert code == 0
     shutil.copy(other / "demos.mcap", src / "demos.mcap")  # demos of another run
-    return [f"from_run={src}", "stages=[birl]", "expert.n_demos=3"], \
+    return [f"from_run={src}", "stages=[birl]", "expert.n_starts=3"], \
         ["graph.mcap", "another demos.mcap", "different runs"]
 
 

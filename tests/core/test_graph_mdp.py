@@ -19,6 +19,7 @@ from pipeline.core.graph_mdp import (
 from pipeline.core.params import ParameterError
 from pipeline.core.roadmap import build_roadmap
 from pipeline.core.world import scene_from_dict
+from tests.conftest import POLITE
 from tests.core.conftest import DISCOUNTED, GOAL, random_graph
 
 
@@ -158,7 +159,7 @@ def test_a_long_corridor_is_walked_to_the_goal_without_tuning():
     goal = roadmap.mdp(MDPParams())
     for w in itertools.product([0.0, -1.0], repeat=4):
         assert goal.follow(goal.solve(list(w)).policy, start).reached, w
-    assert goal.follow(goal.solve([-1.0, -0.7, -0.85, -0.1]).policy, start).reached
+    assert goal.follow(goal.solve(POLITE).policy, start).reached
 
 
 def test_goal_reaching_refuses_rewards_that_do_not_cost():

@@ -231,7 +231,8 @@ def test_mcmc_matches_numerical_posterior():
     mean, std = numerical_moments(post)
 
     result = mcmc(post, [-0.5], np.random.default_rng(0),
-                  ChainParams(n_samples=20_000, burn_in=1000, thin=2, step=0.4))
+                  AdaptiveChainParams(n_samples=20_000, burn_in=1000, thin=2, proposal_step=0.4,
+                                      n_chains=1, adapt=False))
     assert result.samples.shape == (20_000, 1)
     assert 0 < result.acceptance_rate < 1
     assert np.all((result.samples >= -1) & (result.samples <= 0))
@@ -244,7 +245,8 @@ def test_mcmc_matches_numerical_posterior():
 
 def test_mcmc_is_reproducible_and_validates():
     post = one_weight_posterior()
-    chain = ChainParams(n_samples=500, burn_in=100, thin=3, step=0.3)
+    chain = AdaptiveChainParams(n_samples=500, burn_in=100, thin=3, proposal_step=0.3,
+                                n_chains=1, adapt=False)
     a = mcmc(post, [-0.5], np.random.default_rng(7), chain)
     b = mcmc(post, [-0.5], np.random.default_rng(7), chain)
     np.testing.assert_array_equal(a.samples, b.samples)
@@ -259,8 +261,8 @@ def test_mcmc_is_reproducible_and_validates():
 def test_adaptive_chains_match_a_1d_posterior(sampler, target):
     post = one_weight_posterior()
     mean, std = numerical_moments(post)
-    chain = AdaptiveChainParams(n_samples=5000, burn_in=1000, thin=1, step=0.01, n_chains=4,
-                                sampler=sampler, target_acceptance=target)
+    chain = AdaptiveChainParams(n_samples=5000, burn_in=1000, thin=1, proposal_step=0.01,
+                                n_chains=4, sampler=sampler, target_acceptance=target)
     result = mcmc(post, [-0.5], np.random.default_rng(0), chain)
     assert result.samples.shape == (20_000, 1) and result.n_chains == 4
     assert abs(result.acceptance_rate - target) < 0.1  # adapted from a far too small step
@@ -275,7 +277,7 @@ def test_rhat_flags_chains_that_have_not_mixed():
     """Without adaptation and with no burn-in, a tiny step leaves the chains where they
     started (one at −0.9, the others at prior draws): R-hat is far above 1."""
     post = one_weight_posterior()
-    chain = AdaptiveChainParams(n_samples=300, burn_in=0, thin=1, step=1e-4, n_chains=4,
+    chain = AdaptiveChainParams(n_samples=300, burn_in=0, thin=1, proposal_step=1e-4, n_chains=4,
                                 adapt=False)
     result = mcmc(post, [-0.95], np.random.default_rng(1), chain)
     assert result.rhat[0] > 1.5

@@ -21,7 +21,7 @@ def test_policywalk_recovers_the_expert_region():
     expert = expert_state_actions(mdp, [routes["A"]] * 3)
     assert expert == [(0, 0), (1, 4)] * 3
     res = policywalk(mdp, expert, UNIFORM, np.random.default_rng(0), alpha=5.0,
-                     chain=ChainParams(n_samples=1500, burn_in=200, thin=1, step=0.1),
+                     chain=ChainParams(n_samples=1500, burn_in=200, thin=1), grid_step=0.1,
                      w0=np.array([-0.5, -0.5]), n_records=10)
     w = res.weights
     assert w[1] < w[0] - 0.2  # clearly inside the region where A is optimal
@@ -37,9 +37,9 @@ def test_policywalk_recovers_the_expert_region():
 
 
 def run_walk(mdp, expert, prior, seed, **kw):
-    chain = {"n_samples": 6000, "burn_in": 100, "thin": 1, "step": 0.25}
+    chain = {"n_samples": 6000, "burn_in": 100, "thin": 1}
     chain |= {k: kw.pop(k) for k in list(kw) if k in chain}
-    args = {"alpha": 2.0, "w0": np.array([-0.5, -0.5])}
+    args = {"alpha": 2.0, "w0": np.array([-0.5, -0.5]), "grid_step": 0.25}
     return policywalk(mdp, expert, prior, np.random.default_rng(seed),
                       chain=ChainParams(**chain), **(args | kw))
 

@@ -262,7 +262,7 @@ def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones()
         return max(boltzmann.log_likelihood(w, b) - np.log(b) for b in betas)
 
     w_map, _ = boltzmann.map(problem.w0, config.beta)
-    assert profile(w_map) - profile(w) <= chdtri(2, config.lr_level) / 2 + 1e-3
+    assert profile(w_map) - profile(w) <= chdtri(2, config.test_level) / 2 + 1e-3
     beta = betas[np.argmax([boltzmann.log_likelihood(w, b) - np.log(b) for b in betas])]
     assert 0.3 < route_a_share(boltzmann, w, beta) < 0.7
     assert len(result.iterations) == 4
@@ -363,3 +363,11 @@ def test_goal_reaching_soft_values_sum_over_every_path():
                  for e in p) + beta * 1.0 for p in paths(0)]
     assert len(terms) == 4
     assert post.soft_values([w], beta)[0] == pytest.approx(logsumexp(terms), rel=1e-12)
+
+
+def test_the_old_spelling_of_the_test_level_still_works_with_a_warning(caplog):
+    with caplog.at_level("WARNING", logger="pipeline"):
+        config = BirlMapConfig(lr_level=0.05)
+    assert config.test_level == 0.05 and config.lr_level is None
+    assert [r.getMessage() for r in caplog.records] == [
+        "birl.lr_level is deprecated and will be removed: use birl.test_level"]

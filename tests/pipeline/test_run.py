@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
-from tests.conftest import ROOT, run_app, run_in_process
+from tests.conftest import POLITE, ROOT, run_app, run_in_process
 
 
 def test_a_subset_of_the_features_runs_end_to_end(tmp_path):
@@ -28,7 +28,7 @@ def test_default_experiment_writes_artefacts(default_dir):
     demos = read_artefact(default_dir / "demos.mcap",
                           required_topics=["/demos", "/demos/expert", "/demos/roadmap"])
     assert len(demos.all("/demos")) == 7
-    assert demos.one("/demos/expert")["true_weights"] == [-1.0, -0.7, -0.85, -0.1]
+    assert demos.one("/demos/expert")["true_weights"] == POLITE.tolist()
     assert all(d["reached"] for d in demos.all("/demos"))
     graph = read_artefact(default_dir / "graph.mcap", required_topics=[
         "/graph/node", "/graph/edge", "/graph/best_paths", "/graph/solution"])
@@ -115,7 +115,7 @@ def test_failing_run_keeps_earlier_artefacts(tmp_path, default_dir):
 
 def test_demos_stage_writes_k_noisy_demos_per_start(tmp_path):
     run_in_process(tmp_path, "stages=[scene,demos]", "expert=boltzmann", "expert.beta=20",
-                   "expert.demos_per_start=3", "expert.n_demos=2")
+                   "expert.demos_per_start=3", "expert.n_starts=2")
     demos = read_artefact(tmp_path / "demos.mcap").all("/demos")
     assert [d["start_index"] for d in demos] == [0, 0, 0, 1, 1, 1]
     assert len({len(d["points"]) for d in demos[:3]}) > 1  # three different walks

@@ -1,0 +1,190 @@
+"""Benchmark: who can be learned, by which learner (`make bench`; issue "learning what
+people do"). Writes results/bench/learning.csv (one row per run), learning_summary.csv
+(per demonstrator × learner: median, worst, runs at ≤ 0.005, crossings, held-out
+distances, seconds) and learning.png.
+
+    python -m pipeline.tools.bench_learning                     # everything (~1 h on 2 cores)
+    python -m pipeline.tools.bench_learning --demonstrators optimal boltzmann20 --seeds 0 1
+
+Demonstrators: synthetic experts that share the learner's features (optimal, Boltzmann
+β_E 50/20/5, one walk per start), the hand-drawn-like set, and the independent planner
+(`expert=planner`, its own cost form): learned with subjects held out
+(leave-subjects-out), and learned on metropolis then deployed with `birl=fixed` on three
+random scenes, judged on the planner's own paths there (`evaluate.holdout=all`). The first
+three stages run once per (demonstrator, seed); every learner starts from them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.app.context import PROJECT_ROOT
+
+RESULTS = PROJECT_ROOT / "results" / "bench"
+HANDDRAWN = "data/demos/metropolis_handdrawn.json"
+PLANNER = ["expert=planner", "expert.n_subjects=5"]
+DEMONSTRATORS: dict[str, list[str]] = {
+    "optimal": [],
+    "optimal_random": ["scene=random"],
+    "boltzmann50": ["expert=boltzmann", "expert.beta=50"],
+    "boltzmann20": ["expert=boltzmann", "expert.beta=20"],
+    "boltzmann5": ["expert=boltzmann", "expert.beta=5"],
+    "handdrawn": ["expert=file", f"expert.path={HANDDRAWN}"],
+    "planner_heldout": PLANNER,  # + evaluate.holdout=[s<seed mod 5>]
+    "planner_transfer": PLANNER,  # learned here, judged on three random scenes
+}
+LEARNERS: dict[str, list[str]] = {
+    "default": [],
+    "paper": ["birl.likelihood=paper"],
+    "policywalk": ["birl=policywalk"],
+    "maxent": ["birl=maxent"],
+}
+BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
+TRANSFER_SCENES = (101, 102, 103)  # scene=random scene.seed=...: the deployment scenes
+KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m",
+        "ref_min_distance_to_person", "ref_success", "heldout_frechet_m",
+        "heldout_frechet_m_shortest", "heldout_min_distance_error_m",
+        "heldout_min_distance_error_m_shortest", "time_birl_learn_s")
+
+
+def run(run_dir: Path, *overrides: str) -> dict:
+    """One pipeline run in this process; its metrics.json."""
+    from hydra import compose, initialize_config_dir
+
+    from pipeline.app.config import register_configs
+    from pipeline.stages import run_pipeline
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=list(overrides))
+    with contextlib.redirect_stdout(io.StringIO()):
+        run_pipeline(cfg, run_dir)
+    path = run_dir / "metrics.json"
+    return json.loads(path.read_text()) if path.exists() else {}
+
+
+def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[str]],
+             baseline_seeds: set[int]) -> list[dict]:
+    """Every learner on one (demonstrator, seed)."""
+    from pipeline.errors import PipelineError
+
+    base_overrides = [*DEMONSTRATORS[demonstrator], f"seed={seed}"]
+    if demonstrator == "planner_heldout":
+        base_overrides.append(f"evaluate.holdout=[s{seed % 5}]")
+    base = tmp / f"{demonstrator}-{seed}"
+    run(base, *base_overrides, "stages=[scene,demos,graph]")
+    rows = []
+    for name, overrides in learners.items():
+        if name in BASELINES and seed not in baseline_seeds:
+            continue
+        learned = tmp / f"{demonstrator}-{seed}-{name}"
+        row = {"demonstrator": demonstrator, "learner": name, "seed": seed}
+        # the graph grows on the learner's features: another feature set, another graph
+        stages = "[graph,birl,evaluate]" if any(o.startswith("birl.features")
+                                                for o in overrides) else "[birl,evaluate]"
+        try:
+            m = run(learned, *base_overrides, *overrides, f"stages={stages}",
+                    f"from_run={base}")
+        except PipelineError as e:  # e.g. MaxEnt: demonstrations that are no roadmap paths
+            row["error"] = str(e)
+            rows.append(row)
+            continue
+        if demonstrator == "planner_transfer":
+            m = transfer(tmp, learned, name, seed, m)
+        rows.append(row | {k: m.get(k, np.nan) for k in KEYS})
+        print(f"  {rows[-1]}", flush=True)
+    return rows
+
+
+def transfer(tmp: Path, learned: Path, name: str, seed: int, metrics: dict) -> dict:
+    """The learned reward deployed on the transfer scenes (no demonstration of them
+    anywhere in learning), judged on the planner's paths there; medians over the scenes,
+    the learning time of the run that learned."""
+    per_scene = []
+    for k in TRANSFER_SCENES:
+        per_scene.append(run(tmp / f"transfer-{name}-{seed}-{k}", *PLANNER, "scene=random",
+                             f"scene.seed={k}", f"seed={seed}", "birl=fixed",
+                             f"birl.from_run={learned}", "evaluate.holdout=all"))
+    out = {key: float(np.median([m.get(key, np.nan) for m in per_scene])) for key in KEYS}
+    out["time_birl_learn_s"] = metrics.get("time_birl_learn_s", np.nan)
+    return out
+
+
+def summary(table: pd.DataFrame) -> pd.DataFrame:
+    ok = table[table.get("error").isna()] if "error" in table else table
+    grouped = ok.groupby(["demonstrator", "learner"], sort=False)
+    out = grouped.agg(runs=("seed", "size"),
+                      loss_median=("policy_loss_norm", "median"),
+                      loss_worst=("policy_loss_norm", "max"),
+                      runs_at_most_0005=("policy_loss_norm", lambda x: int((x <= 0.005).sum())),
+                      crossings=("ref_relation_crossings", "sum"),
+                      crossings_worst=("ref_relation_crossings", "max"),
+                      intimate_worst_m=("ref_intimate_intrusion_m", "max"),
+                      heldout_frechet_m=("heldout_frechet_m", "median"),
+                      heldout_frechet_m_shortest=("heldout_frechet_m_shortest", "median"),
+                      heldout_min_distance_error_m=("heldout_min_distance_error_m", "median"),
+                      learn_s=("time_birl_learn_s", "median"))
+    out["heldout_frechet_ratio"] = out["heldout_frechet_m"] / out["heldout_frechet_m_shortest"]
+    return out.reset_index()
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pipeline.tools.aggregate import save_figure
+
+    synthetic = table[table["policy_loss_norm"].notna()]
+    fig, ax = plt.subplots(figsize=(7, 3))
+    demonstrators = list(dict.fromkeys(synthetic["demonstrator"]))
+    learners = list(dict.fromkeys(synthetic["learner"]))
+    for j, learner in enumerate(learners):
+        for i, demonstrator in enumerate(demonstrators):
+            values = synthetic[(synthetic.learner == learner)
+                               & (synthetic.demonstrator == demonstrator)]["policy_loss_norm"]
+            x = i + (j - (len(learners) - 1) / 2) * 0.18
+            ax.scatter(np.full(len(values), x), np.maximum(values, 1e-5), s=8,
+                       color=f"C{j}", label=learner if i == 0 else None)
+    ax.set_yscale("log")
+    ax.axhline(0.005, color="0.5", lw=0.8, ls=":")
+    ax.set_xticks(range(len(demonstrators)), demonstrators, fontsize=8)
+    ax.set_ylabel("normalised policy loss (roadmap)", fontsize=8)
+    ax.legend(fontsize=8, frameon=False, ncol=len(learners), loc="upper left")
+    save_figure(fig, path)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--demonstrators", nargs="+", default=list(DEMONSTRATORS))
+    parser.add_argument("--learners", nargs="+", default=list(LEARNERS))
+    parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
+    parser.add_argument("--baseline-seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    learners = {k: LEARNERS[k] for k in args.learners}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for demonstrator in args.demonstrators:
+            for seed in args.seeds:
+                rows += one_case(Path(tmp), demonstrator, seed, learners,
+                                 set(args.baseline_seeds))
+                pd.DataFrame(rows).to_csv(args.out / "learning.csv", index=False)
+    table = pd.DataFrame(rows)
+    table.to_csv(args.out / "learning.csv", index=False)
+    summary(table).to_csv(args.out / "learning_summary.csv", index=False, float_format="%.4g")
+    plot(table, args.out / "learning.png")
+    print(summary(table).to_string())
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""Held-out demonstrations (DESIGN §9), the learner's own feature set, and deployment
+without demonstrations, through the real stages."""
+
+import json
+
+import numpy as np
+import pytest
+
+from pipeline.artefacts import read_artefact, topics
+from pipeline.core.experts import choose_heldout
+from pipeline.errors import PipelineError
+from tests.conftest import run_in_process
+
+QUICK = ("graph=small", "birl.n_iterations=3")
+
+
+@pytest.fixture(scope="module")
+def subjects_run(tmp_path_factory):
+    """Three planner subjects, subject s2 held out."""
+    run_dir = tmp_path_factory.mktemp("heldout")
+    metrics, out = run_in_process(run_dir, *QUICK, "expert=planner", "expert.n_subjects=3",
+                                  "evaluate.holdout=[s2]")
+    return run_dir, metrics, out
+
+
+def test_held_out_demonstrations_never_enter_the_graph_or_the_likelihood(subjects_run):
+    run_dir, metrics, _ = subjects_run
+    demos = read_artefact(run_dir / "demos.mcap").all(topics.DEMOS)
+    held = [d for d in demos if d["heldout"]]
+    kept = [d for d in demos if not d["heldout"]]
+    assert {d["subject"] for d in held} == {"s2"} and len(held) == 7 and len(kept) == 14
+    nodes = read_artefact(run_dir / "graph.mcap").all(topics.GRAPH_NODE)
+    demo_nodes = np.array([[n["x"], n["y"]] for n in nodes if n["kind"] == "demo"])
+    # every demonstration node is a waypoint of a kept demonstration, none only of a held one
+    kept_points = np.vstack([d["points"] for d in kept])
+    held_only = np.vstack([d["points"] for d in held])
+    near_kept = np.linalg.norm(demo_nodes[:, None] - kept_points[None], axis=2).min(axis=1)
+    assert near_kept.max() < 1e-9
+    near_held = np.linalg.norm(held_only[:, None] - demo_nodes[None], axis=2).min(axis=1)
+    assert (near_held > 1e-9).any()  # the held-out paths are not in the graph
+    expert = read_artefact(run_dir / "birl.mcap").one(topics.BIRL_EXPERT)["trajectories"]
+    assert len(expert) == len(kept)
+    np.testing.assert_allclose([t["phi"] for t in expert],
+                               [d["discounted_features"] for d in kept])
+    assert metrics["heldout_count"] == 7
+
+
+def test_held_out_metrics_compare_with_the_fastest_path(subjects_run):
+    _, metrics, out = subjects_run
+    for key in ("heldout_frechet_m", "heldout_frechet_m_shortest",
+                "heldout_min_distance_error_m", "heldout_min_distance_error_m_shortest"):
+        assert metrics[key] >= 0, key
+    # people avoid people; the fastest path does not, so it predicts them worse
+    assert metrics["heldout_frechet_m"] < metrics["heldout_frechet_m_shortest"]
+    assert "held out (7)" in out
+
+
+@pytest.mark.parametrize("holdout, expected", [
+    (None, [False] * 5),
+    ("all", [True] * 5),
+    (["b"], [False, True, False, True, False]),
+])
+def test_choose_heldout(holdout, expected):
+    starts, subjects = [0, 0, 0, 1, 1], ["a", "b", "c", "b", "a"]
+    assert choose_heldout(starts, subjects, holdout, np.random.default_rng(3)).tolist() \
+        == expected
+
+
+def test_a_held_out_fraction_is_drawn_per_start_and_seeded():
+    starts = [0, 0, 0, 1, 1]  # half of 3 rounds to 2, half of 2 is 1
+    held = choose_heldout(starts, [None] * 5, 0.5, np.random.default_rng(3))
+    assert held[:3].sum() == 2 and held[3:].sum() == 1
+    again = choose_heldout(starts, [None] * 5, 0.5, np.random.default_rng(3))
+    assert held.tolist() == again.tolist()
+
+
+def test_choose_heldout_keeps_one_per_start_and_refuses_unknown_subjects():
+    held = choose_heldout([0, 0, 1], [None] * 3, 0.99, np.random.default_rng(0))
+    assert held[:2].sum() == 1 and not held[2]  # start 1's only demonstration is kept
+    with pytest.raises(PipelineError, match="subject 'zz'"):
+        choose_heldout([0], ["a"], ["zz"], np.random.default_rng(0))
+
+
+def test_the_learner_may_order_its_features_differently_from_the_true_reward(tmp_path):
+    """A learner on the same features in another order learns the same reward: its policy
+    loss, scored on the true reward's features, is the default run's."""
+    base, _ = run_in_process(tmp_path / "a", *QUICK, "birl.init_weights=[-0.3,-0.5,-0.7,-0.2]")
+    perm, _ = run_in_process(tmp_path / "b", *QUICK, "birl.init_weights=[-0.2,-0.7,-0.5,-0.3]",
+                             "birl.features=[length,goal_deviation,social,relation]")
+    assert perm["policy_loss_norm"] == pytest.approx(base["policy_loss_norm"], abs=1e-6)
+    for name in ("relation", "social", "goal_deviation", "length"):
+        assert perm[f"weight_{name}"] == pytest.approx(base[f"weight_{name}"], abs=1e-4)
+
+
+def test_a_learner_with_more_features_is_scored_on_the_true_reward(tmp_path):
+    metrics, _ = run_in_process(tmp_path, *QUICK,
+                                "birl.features=[relation,intimate,social,goal_deviation,length]")
+    assert "weight_intimate" in metrics and metrics["policy_loss_norm"] >= 0
+    names = read_artefact(tmp_path / "birl.mcap").one(topics.BIRL_EXPERT)["feature_names"]
+    assert names == ["relation", "intimate", "social", "goal_deviation", "length"]
+
+
+def test_deployment_without_demonstrations_plans_with_the_given_reward(tmp_path):
+    weights = "birl.weights=[-1.0,-0.7,-0.85,-0.1]"
+    metrics, out = run_in_process(tmp_path, "graph=small", "expert=none", "birl=fixed",
+                                  weights)
+    demos = read_artefact(tmp_path / "demos.mcap")
+    assert demos.one(topics.DEMOS_EXPERT)["kind"] == "none"
+    assert not demos.messages.get(topics.DEMOS)
+    assert "policy_loss" not in metrics and metrics["ref_success"] == 1.0
+    assert json.loads((tmp_path / "status.json").read_text())["state"] == "complete"
