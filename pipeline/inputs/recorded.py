@@ -60,6 +60,10 @@ SUPPORTED_TYPES = (PATH_TYPE, *STREAM_TYPES)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
+# Positions are rounded to this many decimals of a metre (a nanometre, far below any sensor):
+# formats reach the same polyline by different float arithmetic (an odometry stream's 0.6 is
+# 0.5999999999999999), and learning should not tell them apart.
+COORDINATE_DECIMALS = 9
 # Where a pose stream's demonstration begins (`motion_begin`): a robot waiting at a start
 # jitters by centimetres, so poses within STOP_TOLERANCE of its closest approach to the start
 # count as its stop; only visits within VISIT_SLACK of the closest approach to any start in
@@ -572,7 +576,8 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     resampled up to its last pose before the goal with `clean_track(track, spacing)`: dense,
     noisy and repeated poses become an evenly spaced polyline. Trajectories given as polylines
     (JSON, CSV with ids, nav_msgs/Path) keep their points, only repeated points dropped, so the
-    same polylines learn the same reward whatever the file format. With `room`, every
+    same polylines learn the same reward whatever the file format (positions rounded to the
+    nanometre, COORDINATE_DECIMALS). With `room`, every
     trajectory must stay inside it. Each is then matched with `match_to_starts`; a start no
     demonstration begins at is named in one warning line.
     """
@@ -607,7 +612,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         if len(cut) < 2:
             raise PipelineError(f"{where}: trajectory {i} never moves (all its points are "
                                 f"within {REPEAT_TOLERANCE:g} m of each other)")
-        cleaned.append(cut)
+        cleaned.append(np.round(cut, COORDINATE_DECIMALS))
     matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
     without = sorted(set(range(len(np.asarray(starts).reshape(-1, 2)))) - set(matched))
     if without:

@@ -20,6 +20,7 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.world import Room
 from pipeline.inputs.demo_file import load_demo_file
 from pipeline.inputs.recorded import (
+    COORDINATE_DECIMALS,
     STOP_TOLERANCE,
     cut_at_goal,
     load_recorded,
@@ -52,7 +53,8 @@ def check_clean(demos, starts=(0, 2), atol=0.0) -> None:
     assert [d.start for d in demos] == list(starts)
     for d, clean in zip(demos, CLEAN, strict=True):
         assert d.points.shape == clean.shape
-        np.testing.assert_allclose(d.points, clean, rtol=0, atol=atol)
+        # positions come out rounded to the nanometre (COORDINATE_DECIMALS)
+        np.testing.assert_allclose(d.points, clean.round(COORDINATE_DECIMALS), rtol=0, atol=atol)
         assert np.array_equal(d.points[-1], GOAL)
 
 

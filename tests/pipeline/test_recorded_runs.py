@@ -198,16 +198,18 @@ def test_every_recorded_format_learns_the_weights_of_the_clean_polylines(tmp_pat
     files["bom_csv"].write_bytes(b"\xef\xbb\xbftrajectory,x,y\r\n" + rows.encode())
     files["path_bag"] = write_bag(tmp_path / "path_bag", {"/plan": ("nav_msgs/msg/Path", dense)})
     files["odometry_bag"] = write_odometry_bag(tmp_path / "odom_bag", odometry(CLEAN_DRIVES))
-    weights = {}
+    weights, points = {}, {}
     for name, path in files.items():
         run = tmp_path / f"run_{name}"
         run_in_process(run, "expert=file", f"expert.path={path}", *LEARN)
         demos = read_artefact(run / "demos.mcap").all("/demos")
         assert [d["start_index"] for d in demos] == [0, 2], name
-        for d, clean in zip(demos, CLEAN_DRIVES, strict=True):
-            np.testing.assert_allclose(d["points"], clean, rtol=0, atol=1e-12, err_msg=name)
+        for d, clean in zip(demos, CLEAN_DRIVES, strict=True):  # rounded to the nanometre
+            np.testing.assert_allclose(d["points"], clean, rtol=0, atol=1e-9, err_msg=name)
+        points[name] = [d["points"] for d in demos]
         weights[name] = learned_weights(run)
     for name, w in weights.items():
+        assert points[name] == points["clean"], name  # to the bit, whatever the arithmetic
         np.testing.assert_allclose(w, weights["clean"], rtol=0, atol=1e-6, err_msg=name)
 
 
