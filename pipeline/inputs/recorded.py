@@ -214,53 +214,63 @@ def _read_csv(path: Path, where: str) -> Recording:
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
         with path.open(newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
-            header = next((row for row in reader if any(c.strip() for c in row)), None)
-            if header is None:
-                raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
-            names = _csv_header(header, where)
-            col = {n: names.index(n) for n in names}
-            ids: list[str] = []
-            subjects: list[str] = []
-            rows: list[tuple[float, float, float]] = []
-            for row in reader:
-                if not row or all(not c.strip() for c in row):
-                    continue  # blank line
-                line = reader.line_num
-                if len(row) != len(header):
-                    raise PipelineError(f"{where}, line {line}: {len(row)} fields, the header "
-                                        f"has {len(header)}")
-                values = []
-                for name in ("x", "y", "t"):
-                    if name not in col:
-                        values.append(0.0)
-                        continue
-                    text = row[col[name]].strip()
-                    try:
-                        v = float(text)
-                    except ValueError:
-                        raise PipelineError(f"{where}, line {line}: {name}={text[:40]!r} is not "
-                                            f"a number") from None
-                    if not math.isfinite(v):
-                        raise PipelineError(f"{where}, line {line}: {name}={text!r} is not "
-                                            f"finite")
-                    values.append(v)
-                for name, out in (("trajectory", ids), ("subject", subjects)):
-                    if name in col:
-                        ident = row[col[name]].strip()
-                        if not ident:
-                            what = "trajectory id" if name == "trajectory" else "subject"
-                            raise PipelineError(f"{where}, line {line}: empty {what}")
-                        out.append(ident)
-                rows.append((values[0], values[1], values[2]))
+            col, table, ids, subjects = _csv_table(csv.reader(f), where)
     except UnicodeDecodeError:
         raise PipelineError(f"{where} is not UTF-8 text") from None
     except csv.Error as e:
         raise PipelineError(f"{where}: not valid CSV ({e})") from None
+    return _csv_recording(col, table, ids, subjects, where)
+
+
+def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, list[str], list[str]]:
+    """The CSV's columns (name -> index), its rows as (x, y, t) (t 0 without a t column), and
+    its trajectory ids and subjects (empty without those columns)."""
+    header = next((row for row in reader if any(c.strip() for c in row)), None)
+    if header is None:
+        raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
+    names = _csv_header(header, where)
+    col = {n: names.index(n) for n in names}
+    ids: list[str] = []
+    subjects: list[str] = []
+    rows: list[tuple[float, ...]] = []
+    for row in reader:
+        if not row or all(not c.strip() for c in row):
+            continue  # blank line
+        line = reader.line_num
+        if len(row) != len(header):
+            raise PipelineError(f"{where}, line {line}: {len(row)} fields, the header "
+                                f"has {len(header)}")
+        rows.append(tuple(_csv_number(row, col, name, f"{where}, line {line}")
+                          for name in ("x", "y", "t")))
+        for name, out in (("trajectory", ids), ("subject", subjects)):
+            if name in col:
+                ident = row[col[name]].strip()
+                if not ident:
+                    what = "trajectory id" if name == "trajectory" else "subject"
+                    raise PipelineError(f"{where}, line {line}: empty {what}")
+                out.append(ident)
     if not rows:
         raise PipelineError(f"{where} has no rows")
-    table = np.array(rows, dtype=float)
+    return col, np.array(rows, dtype=float), ids, subjects
 
+
+def _csv_number(row: list[str], col: dict[str, int], name: str, where: str) -> float:
+    """Column `name` of a CSV row as a finite number (0.0 where the file has no such column)."""
+    if name not in col:
+        return 0.0
+    text = row[col[name]].strip()
+    try:
+        v = float(text)
+    except ValueError:
+        raise PipelineError(f"{where}: {name}={text[:40]!r} is not a number") from None
+    if not math.isfinite(v):
+        raise PipelineError(f"{where}: {name}={text!r} is not finite")
+    return v
+
+
+def _csv_recording(col: dict[str, int], table: np.ndarray, ids: list[str],
+                   subjects: list[str], where: str) -> Recording:
+    """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given."""
     def ordered(sel: np.ndarray) -> np.ndarray:
         if "t" in col:
             sel = sel[np.argsort(table[sel, 2], kind="stable")]
@@ -298,54 +308,25 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
 
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
-            topics = {name: info.msgtype or "(several types)"
-                      for name, info in reader.topics.items()}
-            listing = ", ".join(f"{n} ({t})" for n, t in topics.items()) or "none"
-            if topic is None:
-                usable = [n for n, t in topics.items() if t in SUPPORTED_TYPES]
-                if not usable:
-                    raise PipelineError(
-                        f"{where} has no topic of a supported type ({', '.join(SUPPORTED_TYPES)}"
-                        f"); its topics: {listing}")
-                if len(usable) > 1:
-                    raise PipelineError(
-                        f"{where} has several usable topics: {', '.join(usable)}; choose one "
-                        f"with expert.topic=...")
-                topic = usable[0]
-            if topic not in topics:
-                raise PipelineError(f"{where} has no topic {topic!r} (expert.topic); its topics: "
-                                    f"{listing}")
-            msgtype = topics[topic]
-            if msgtype not in SUPPORTED_TYPES:
-                raise PipelineError(f"{where}: topic {topic} has type {msgtype}; supported: "
-                                    f"{', '.join(SUPPORTED_TYPES)}")
+            topic, msgtype = _bag_topic(reader, where, topic)
             connections = [c for c in reader.connections if c.topic == topic]
             tracks: list[np.ndarray] = []
             stream: list[tuple[float, float]] = []
             count = 0
             for count, (conn, _, raw) in enumerate(reader.messages(connections=connections), 1):
                 msg: Any = reader.deserialize(raw, conn.msgtype)
+                what = f"{where}: topic {topic} message {count - 1}"
                 found = msg.header.frame_id
                 if frame is not None and found != frame:
-                    raise PipelineError(
-                        f"{where}: topic {topic} message {count - 1} has frame_id {found!r}, "
-                        f"not expert.frame={frame!r}")
+                    raise PipelineError(f"{what} has frame_id {found!r}, not "
+                                        f"expert.frame={frame!r}")
                 if msgtype == PATH_TYPE:
-                    track = np.array([[p.pose.position.x, p.pose.position.y] for p in msg.poses],
-                                     dtype=float).reshape(-1, 2)
-                    if len(track) < 2:
-                        raise PipelineError(
-                            f"{where}: topic {topic} path message {count - 1} has {len(track)} "
-                            f"pose(s); a trajectory needs at least two")
-                    if not np.isfinite(track).all():
-                        raise PipelineError(f"{where}: topic {topic} path message {count - 1} "
-                                            f"has a non-finite position")
-                    tracks.append(track)
+                    tracks.append(_path_track(msg, f"{where}: topic {topic} path message "
+                                                   f"{count - 1}"))
                 else:
                     pos = STREAM_TYPES[msgtype](msg)
                     if not (math.isfinite(pos.x) and math.isfinite(pos.y)):
-                        raise PipelineError(f"{where}: topic {topic} message {count - 1} has a "
-                                            f"non-finite position")
+                        raise PipelineError(f"{what} has a non-finite position")
                     stream.append((pos.x, pos.y))
     except PipelineError:
         raise
@@ -360,6 +341,39 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
         raise PipelineError(f"{where}: topic {topic} has 1 message; a pose stream needs at "
                             f"least two")
     return Recording([np.array(stream, dtype=float)], True)
+
+
+def _bag_topic(reader: Any, where: str, topic: str | None) -> tuple[str, str]:
+    """The topic to read (`topic`, or the bag's one topic of a supported type) and its type."""
+    topics = {name: info.msgtype or "(several types)" for name, info in reader.topics.items()}
+    listing = ", ".join(f"{n} ({t})" for n, t in topics.items()) or "none"
+    if topic is None:
+        usable = [n for n, t in topics.items() if t in SUPPORTED_TYPES]
+        if not usable:
+            raise PipelineError(f"{where} has no topic of a supported type "
+                                f"({', '.join(SUPPORTED_TYPES)}); its topics: {listing}")
+        if len(usable) > 1:
+            raise PipelineError(f"{where} has several usable topics: {', '.join(usable)}; "
+                                f"choose one with expert.topic=...")
+        topic = usable[0]
+    if topic not in topics:
+        raise PipelineError(f"{where} has no topic {topic!r} (expert.topic); its topics: "
+                            f"{listing}")
+    if topics[topic] not in SUPPORTED_TYPES:
+        raise PipelineError(f"{where}: topic {topic} has type {topics[topic]}; supported: "
+                            f"{', '.join(SUPPORTED_TYPES)}")
+    return topic, topics[topic]
+
+
+def _path_track(msg: Any, what: str) -> np.ndarray:
+    """A nav_msgs/Path message's positions (K, 2): at least two, all finite."""
+    track = np.array([[p.pose.position.x, p.pose.position.y] for p in msg.poses],
+                     dtype=float).reshape(-1, 2)
+    if len(track) < 2:
+        raise PipelineError(f"{what} has {len(track)} pose(s); a trajectory needs at least two")
+    if not np.isfinite(track).all():
+        raise PipelineError(f"{what} has a non-finite position")
+    return track
 
 
 # ---------------------------------------------------------------------------------------------
