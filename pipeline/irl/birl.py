@@ -307,9 +307,7 @@ def birl_map(expert: list[TrajectoryStats], rollout: Callable[[np.ndarray], Roll
     next weights: the MAP estimate by default (a posterior mean for `birl=mcmc`).
     w0: (d,) initial weights in the prior box."""
     fit = fit or (lambda posterior, w_prev: posterior.map(w_prev))
-    w = np.asarray(w0, dtype=float).copy()
-    if w.shape != (prior.dim,) or not prior.in_box(w):
-        raise ValueError(f"w0 must have shape ({prior.dim},) and lie in the prior box, got {w}")
+    w = prior.check_start(w0)
     if n_iterations < 0:
         raise ValueError(f"n_iterations must be >= 0, got {n_iterations}")
 

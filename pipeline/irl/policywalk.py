@@ -8,6 +8,7 @@ cost BIRL-G avoids. The weights are the running posterior mean.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from typing import Optional
 
 import numpy as np
@@ -92,18 +93,9 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
     if not (alpha > 0 and n_records >= 1):
         raise ValueError(f"policywalk needs alpha > 0 and n_records >= 1; got {alpha}, "
                          f"{n_records}")
-    w0 = np.asarray(w0, dtype=float)
-    if w0.shape != (prior.dim,) or not prior.in_box(w0):
-        raise ValueError(f"w0 must have shape ({prior.dim},) and lie in the prior box, got {w0}")
-    nodes = np.array([s for s, _ in expert], dtype=np.int64)
-    edges = np.array([e for _, e in expert], dtype=np.int64)
-    if len(edges) and (edges.min() < 0 or edges.max() >= mdp.n_edges
-                       or np.any(mdp.src[edges] != nodes)):
-        raise ValueError("expert pairs must be (node, internal edge leaving that node)")
-
-    def log_lik(w: np.ndarray, values: np.ndarray) -> float:
-        return _boltzmann_log_likelihood(mdp, nodes, edges, alpha, w, values)
-
+    w0 = prior.check_start(w0)
+    # log_lik(w, values): the Boltzmann log likelihood of the expert's pairs
+    log_lik = partial(_boltzmann_log_likelihood, mdp, *_pair_arrays(mdp, expert), alpha)
     n_steps = burn_in + n_samples * thin
     # All randomness up front: the chain is a function of the generator state alone.
     coord = rng.integers(prior.dim, size=n_steps)
@@ -117,13 +109,11 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
     solves, accepted, outside = 1, 0, 0
     samples = np.empty((n_samples, prior.dim))
     solves_after = np.empty(n_steps, dtype=np.int64)  # cumulative solves after each step
-    slack = 1e-9 * step  # w0 + step·k may miss a box face by round-off
     for i in range(n_steps):
         trial = offset.copy()
         trial[coord[i]] += sign[i]
-        w_new = w0 + step * trial
-        if np.all((w_new >= prior.lower - slack) & (w_new <= prior.upper + slack)):
-            w_new = np.clip(w_new, prior.lower, prior.upper)
+        w_new = _grid_point_in_box(prior, w0 + step * trial, slack=1e-9 * step)
+        if w_new is not None:
             sol_new = mdp.solve(w_new, init_values=sol.values)
             solves += 1
             ll_new = log_lik(w_new, sol_new.values)
@@ -139,13 +129,35 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
 
     # Running posterior mean at n_records evenly spaced points of the kept chain; their
     # likelihoods cost extra solves that are reported apart from the algorithm's own.
-    ends = np.unique(np.linspace(0, n_samples, min(n_records, n_samples) + 1)[1:].round()
-                     .astype(int))
     history, log_likelihood, solves_at = [w0.copy()], [ll0], [1]
-    for k in ends:
+    for k in _record_ends(n_samples, n_records):
         mean = samples[:k].mean(axis=0)
         history.append(mean)
         log_likelihood.append(log_lik(mean, mdp.solve(mean, init_values=sol.values).values))
         solves_at.append(int(solves_after[burn_in + k * thin - 1]))
     return PolicyWalkTrace(history, log_likelihood, solves_at, samples, accepted / n_steps,
                            outside)
+
+
+def _grid_point_in_box(prior: Prior, w: np.ndarray, slack: float) -> np.ndarray | None:
+    """w clipped to the prior box, if it lies in it up to `slack` (w0 + step·k may miss a box
+    face by round-off); None outside."""
+    if np.all((w >= prior.lower - slack) & (w <= prior.upper + slack)):
+        return np.clip(w, prior.lower, prior.upper)
+    return None
+
+
+def _record_ends(n_samples: int, n_records: int) -> np.ndarray:
+    """How many kept states each record's running mean covers: evenly spaced, the last all."""
+    return np.unique(np.linspace(0, n_samples, min(n_records, n_samples) + 1)[1:].round()
+                     .astype(int))
+
+
+def _pair_arrays(mdp: GraphMDP, expert: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """The expert's (node, internal edge) pairs as two index arrays, checked against `mdp`."""
+    nodes = np.array([s for s, _ in expert], dtype=np.int64)
+    edges = np.array([e for _, e in expert], dtype=np.int64)
+    if len(edges) and (edges.min() < 0 or edges.max() >= mdp.n_edges
+                       or np.any(mdp.src[edges] != nodes)):
+        raise ValueError("expert pairs must be (node, internal edge leaving that node)")
+    return nodes, edges

@@ -93,6 +93,13 @@ class Prior:
     def in_box(self, w: np.ndarray) -> bool:
         return bool(np.all((w >= self.lower) & (w <= self.upper)))
 
+    def check_start(self, w0: ArrayLike) -> np.ndarray:
+        """w0 as a new float array (d,), if it lies in the box; else a ValueError."""
+        w = np.array(w0, dtype=float)
+        if w.shape != (self.dim,) or not self.in_box(w):
+            raise ValueError(f"w0 must have shape ({self.dim},) and lie in the prior box, got {w}")
+        return w
+
     def log_pdf(self, w: ArrayLike) -> float:
         """Log density up to a constant at w (d,); −inf outside the box."""
         w = np.asarray(w, dtype=float)
