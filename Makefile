@@ -96,13 +96,15 @@ screenshot: $(VENV)/.installed-viewer
 regress: $(STAMP)
 	$(PY) -m pipeline.tools.regress
 
-## Fast test suite (slow and benchmark tests excluded).
+## Fast test suite (slow and benchmark tests excluded), one worker per core (pytest-xdist;
+## TEST_WORKERS=0 runs it in this process, e.g. for pdb).
+TEST_WORKERS ?= auto
 test: $(VENV)/.installed-dev
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 ## Everything, including slow tests.
 test-all: $(VENV)/.installed-dev
-	$(PY) -m pytest -q -m "not bench"
+	$(PY) -m pytest -q -n $(TEST_WORKERS) -m "not bench"
 
 ## Style and types: ruff on the package and tests, mypy on the algorithm packages.
 lint: $(VENV)/.installed-dev

@@ -25,6 +25,9 @@ from tests.conftest import compose_config, run_in_process, write_json
 
 register_configs()
 QUICK = ("graph=small", "birl.n_iterations=2")
+# Refused from the files' headers alone: milliseconds on an idle machine (before the start-up
+# checks, 56-120 s of rasterising); the bound leaves room for a loaded test machine.
+REFUSED_WITHIN_S = 5.0
 ROOM = {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 10}
 
 
@@ -76,10 +79,10 @@ def test_sizes_that_cannot_fit_are_refused_within_a_second(tmp_path):
                         (on_map, r"m\.yaml: its 1,000,000 × 1,000,000 px image .* TB")):
         seconds = refused_before_any_stage(tmp_path / "run", match, "scene=file",
                                            f"scene.path={path}")
-        assert seconds < 1.0, seconds
+        assert seconds < REFUSED_WITHIN_S, seconds
     seconds = refused_before_any_stage(tmp_path / "run", r"reachability lattice .*scene\.width",
                                        "scene=random", "scene.width=5000", "scene.height=5000")
-    assert seconds < 1.0, seconds
+    assert seconds < REFUSED_WITHIN_S, seconds
 
 
 def test_a_room_larger_than_its_map_counts_only_the_maps_free_cells(tmp_path):
