@@ -51,6 +51,12 @@ def run_metadata(seed: int) -> dict[str, str]:
     return meta
 
 
+def stage_rng(seed: int, stage: str, *stream: int) -> np.random.Generator:
+    """The generator of `stage` (and optional sub-stream) for the run seed `seed`: each
+    stage draws from its own, derived from the seed only (`api.learn` draws the same)."""
+    return np.random.default_rng([int(seed), STAGES.index(stage), *stream])
+
+
 @dataclass
 class RunContext:
     cfg: Config  # the checked, typed settings
@@ -74,8 +80,7 @@ class RunContext:
     def rng(self, stage: str, seed: int | None = None, *stream: int) -> np.random.Generator:
         """An independent generator per stage (and optional sub-stream), derived from the run
         seed (or `seed`) only."""
-        seed = int(self.cfg.seed if seed is None else seed)
-        return np.random.default_rng([seed, STAGES.index(stage), *stream])
+        return stage_rng(self.cfg.seed if seed is None else seed, stage, *stream)
 
     def read(self, stage: str, required_topics: Iterable[str] = ()) -> Artefact:
         """The artefact of an earlier `stage`: made by this run, else from `from_run` (linked
