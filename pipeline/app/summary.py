@@ -10,6 +10,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
+from pipeline.app.config import is_metric_key
 from pipeline.app.rundir import job_dirs, read_status
 from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
 from pipeline.errors import PipelineError
@@ -73,6 +74,8 @@ def column_order(columns: list[str]) -> list[str]:
 
 
 def is_metric(column: str) -> bool:
-    """A metrics.json key (else a swept setting or the job's own columns)."""
-    return column.startswith(("policy_loss", "weight", "time_", "ref_", "frechet", "mcmc",
-                              "transfer_", "obstacle", "min_distance")) or column in SOCIAL
+    """A metrics.json key (else a swept setting or the job's own columns): the keys the
+    evaluate stage writes (is_metric_key), and the prefixes of older runs' keys."""
+    return is_metric_key(column) or column in SOCIAL or column.startswith(
+        ("policy_loss", "weight", "time_", "ref_", "frechet", "mcmc", "transfer_", "obstacle",
+         "min_distance"))
