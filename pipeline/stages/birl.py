@@ -33,12 +33,10 @@ log = logging.getLogger(__name__)
 def restore_adaptive_graph(ctx: RunContext) -> AdaptiveGraph:
     """The stored adaptive graph as a growable AdaptiveGraph (for birl.grow_nodes)."""
     cfg = ctx.cfg
-    # In pipeline order: from_run links each input it reads into the run dir, and linking
-    # the scene removes what was derived from the scene before (a graph.mcap linked first).
-    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
     art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
                                              topics.GRAPH_SOLUTION])
     sol = art.one(topics.GRAPH_SOLUTION)
+    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
     # Its own generator: growing must not change the stage's other random draws.
     return build.regrowable_graph(cfg, scene, sol["weights"], sol["min_separation"],
                                   *codec.graph_records(art), sol["start_nodes"],
