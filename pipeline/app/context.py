@@ -98,6 +98,13 @@ class RunContext:
             if self.before_replace is not None:  # what was derived from the old one goes
                 self.before_replace(stage, artefact.digest)
             link_or_copy(source, path)
+            # Inputs of this stage linked before it (read out of pipeline order, e.g. the
+            # graph before the scene) went with what was derived from the old one; they
+            # belong with it (checked above): link them again, so the dir stays complete.
+            for other in self.inputs:
+                again = self.run_dir / ARTEFACT_FILE[other]
+                if other not in self.cfg.stages and not again.exists():
+                    link_or_copy(self.from_run / again.name, again)
         return artefact
 
     def _read_cached(self, path: Path, required_topics: Iterable[str], stage: str) -> Artefact:
