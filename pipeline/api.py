@@ -320,7 +320,7 @@ def learning_environment(cfg: Config, scene: Scene, graph: AdaptiveGraph,
         return GraphEnvironment(spatial_graph(graph), cfg.mdp)
     nodes = [codec.node_record(graph, i) for i in range(graph.n_nodes)]
     edges = [codec.edge_record(graph, e) for e in range(len(graph.src))]
-    adaptive = build.regrowable_graph(cfg, scene, graph_weights, graph.p.min_separation,
+    adaptive = build.regrowable_graph(cfg, scene, graph_weights, graph.min_separation,
                                       nodes, edges, graph.start_nodes.tolist(),
                                       stage_rng(cfg.seed, "birl", 1))
     return GrowingGraphEnvironment(adaptive, cfg.mdp, grow_nodes)
