@@ -14,6 +14,7 @@ from pipeline.app.config import Config, RandomSceneConfig
 from pipeline.app.context import PACKAGE_ROOT, resolve_path
 from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
+from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.controllers import Controller, PosqController, make_controller
 from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
 from pipeline.core.obstacles import OccupancyGrid
@@ -198,6 +199,29 @@ def controller(cfg: Config) -> Controller:
 
 def prior(cfg: Config) -> Prior:
     return cfg.birl.make_prior(cfg.n_features)
+
+
+def initial_weights(cfg: Config, rng: np.random.Generator) -> np.ndarray:
+    """The weights learning starts from: birl=fixed's, else birl.init_weights, else a draw
+    from the prior with `rng` (the birl stage's generator)."""
+    fixed = fixed_weights(cfg)
+    if fixed is not None:
+        return fixed
+    if cfg.birl.init_weights is not None:
+        return np.asarray(cfg.birl.init_weights, float)
+    return prior(cfg).sample(rng)
+
+
+def regrowable_graph(cfg: Config, scene: Scene, weights: np.ndarray, min_separation: float,
+                     nodes: list[dict], edges: list[dict], start_nodes: list[int],
+                     rng: np.random.Generator) -> AdaptiveGraph:
+    """A grown adaptive graph (its node and edge records, as graph.mcap holds them) rebuilt
+    so that it can grow further under other weights (birl.grow_nodes), drawing from `rng`."""
+    params = dataclasses.replace(cfg.graph, min_separation=min_separation)
+    g = AdaptiveGraph(scene, learner_feature_model(cfg, scene), controller(cfg), weights,
+                      params, rng, cfg.mdp)
+    g.restore(nodes, edges, start_nodes)
+    return g
 
 
 def irl_method(cfg: Config) -> Method:

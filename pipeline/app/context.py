@@ -51,6 +51,12 @@ def run_metadata(seed: int) -> dict[str, str]:
     return meta
 
 
+def stage_rng(seed: int, stage: str, *stream: int) -> np.random.Generator:
+    """The generator of `stage` (and optional sub-stream) for the run seed `seed`: each
+    stage draws from its own, derived from the seed only (`api.learn` draws the same)."""
+    return np.random.default_rng([int(seed), STAGES.index(stage), *stream])
+
+
 @dataclass
 class RunContext:
     cfg: Config  # the checked, typed settings
@@ -74,8 +80,7 @@ class RunContext:
     def rng(self, stage: str, seed: int | None = None, *stream: int) -> np.random.Generator:
         """An independent generator per stage (and optional sub-stream), derived from the run
         seed (or `seed`) only."""
-        seed = int(self.cfg.seed if seed is None else seed)
-        return np.random.default_rng([seed, STAGES.index(stage), *stream])
+        return stage_rng(self.cfg.seed if seed is None else seed, stage, *stream)
 
     def read(self, stage: str, required_topics: Iterable[str] = ()) -> Artefact:
         """The artefact of an earlier `stage`: made by this run, else from `from_run` (linked
@@ -93,6 +98,13 @@ class RunContext:
             if self.before_replace is not None:  # what was derived from the old one goes
                 self.before_replace(stage, artefact.digest)
             link_or_copy(source, path)
+            # Inputs of this stage linked before it (read out of pipeline order, e.g. the
+            # graph before the scene) went with what was derived from the old one; they
+            # belong with it (checked above): link them again, so the dir stays complete.
+            for other in self.inputs:
+                again = self.run_dir / ARTEFACT_FILE[other]
+                if other not in self.cfg.stages and not again.exists():
+                    link_or_copy(self.from_run / again.name, again)
         return artefact
 
     def _read_cached(self, path: Path, required_topics: Iterable[str], stage: str) -> Artefact:

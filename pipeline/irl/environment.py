@@ -34,6 +34,12 @@ class Environment(Protocol):
     def rollout(self, w: np.ndarray) -> Rollout: ...
 
 
+def spatial_graph(g: AdaptiveGraph) -> SpatialGraph:
+    """The adaptive graph as it is now, as a SpatialGraph (what graph.mcap decodes to)."""
+    return SpatialGraph(g.positions.copy(), g.mdp(), g.start_nodes, list(g.waypoints),
+                        snap_tolerance=g.min_separation)
+
+
 class GraphEnvironment:
     """A fixed graph: warm-started solves under each new w."""
 
@@ -65,21 +71,16 @@ class GrowingGraphEnvironment(GraphEnvironment):
 
     def __init__(self, adaptive: AdaptiveGraph, mdp: MDPParams, grow_nodes: int,
                  grown: Callable[[int, int], None] | None = None) -> None:
-        super().__init__(self._spatial(adaptive), mdp)
+        super().__init__(spatial_graph(adaptive), mdp)
         self.adaptive, self.grow_nodes, self._grown = adaptive, grow_nodes, grown
         self.base_nodes, self.base_edges = adaptive.n_nodes, len(adaptive.src)
         self._calls = 0
-
-    @staticmethod
-    def _spatial(g: AdaptiveGraph) -> SpatialGraph:
-        return SpatialGraph(g.positions.copy(), g.mdp(), g.start_nodes, list(g.waypoints),
-                            snap_tolerance=g.min_separation)
 
     def rollout(self, w: np.ndarray) -> Rollout:
         if self._calls > 0:
             self.adaptive.set_weights(w)
             added = self.adaptive.grow_by(self.grow_nodes)
-            self._graph = self._spatial(self.adaptive)
+            self._graph = spatial_graph(self.adaptive)
             self._values = None  # node set changed: a cold solve (cheap next to the growth)
             if self._grown is not None:
                 self._grown(added, self.adaptive.n_nodes)

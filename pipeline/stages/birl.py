@@ -12,7 +12,6 @@ with birl.grow_nodes the nodes and edges grown during learning.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 
@@ -38,12 +37,10 @@ def restore_adaptive_graph(ctx: RunContext) -> AdaptiveGraph:
                                              topics.GRAPH_SOLUTION])
     sol = art.one(topics.GRAPH_SOLUTION)
     scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
-    params = dataclasses.replace(cfg.graph, min_separation=sol["min_separation"])
     # Its own generator: growing must not change the stage's other random draws.
-    g = AdaptiveGraph(scene, build.learner_feature_model(cfg, scene), build.controller(cfg),
-                      sol["weights"], params, ctx.rng("birl", None, 1), cfg.mdp)
-    g.restore(*codec.graph_records(art), sol["start_nodes"])
-    return g
+    return build.regrowable_graph(cfg, scene, sol["weights"], sol["min_separation"],
+                                  *codec.graph_records(art), sol["start_nodes"],
+                                  ctx.rng("birl", None, 1))
 
 
 def expert_stats(ctx: RunContext, demos: list[dict]) -> list[TrajectoryStats]:
@@ -64,12 +61,7 @@ def run(ctx: RunContext) -> None:
     expert = expert_stats(ctx, demos)
     prior = build.prior(cfg)
     rng = ctx.rng("birl")
-    fixed = build.fixed_weights(cfg)  # birl=fixed: the given or transferred weights
-    if fixed is not None:
-        w0 = fixed
-    else:
-        w0 = np.asarray(b.init_weights, float) if b.init_weights is not None else \
-            prior.sample(rng)
+    w0 = build.initial_weights(cfg, rng)  # birl=fixed: the given or transferred weights
     grow_nodes = getattr(b, "grow_nodes", 0)  # only methods that learn on the graph have it
     env: GraphEnvironment
     if grow_nodes > 0:

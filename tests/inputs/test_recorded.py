@@ -171,7 +171,8 @@ def test_odometry_stream_is_cut_into_two_trajectories(tmp_path):
     # at the goal, which replaces the first pose in the goal disk
     pieces = cut_stream(run, STARTS, GOAL, 1.0, TOL)
     for (_, p, _), piece, k in zip(demos, pieces, (0, 2), strict=True):
-        assert np.array_equal(p[0], piece[0].round(COORDINATE_DECIMALS)) and np.array_equal(p[-1], GOAL)
+        assert np.array_equal(p[0], piece[0].round(COORDINATE_DECIMALS))
+        assert np.array_equal(p[-1], GOAL)
         assert np.linalg.norm(piece[0] - STARTS[k]) <= STOP_TOLERANCE
         assert np.linalg.norm(piece[1] - STARTS[k]) > STOP_TOLERANCE
         assert np.linalg.norm(piece[-1] - GOAL) <= TOL < np.linalg.norm(piece[-2] - GOAL)

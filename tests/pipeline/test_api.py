@@ -1,19 +1,230 @@
-"""The Python API (pipeline/api.py): a run started from Python, its artefacts read as tables."""
+"""The Python API (pipeline/api.py): runs started from Python and read back through a `Run`
+handle, earlier runs and sweeps opened, and learning from Python objects in memory."""
 
+import json
+
+import matplotlib
+import numpy as np
 import pytest
+from omegaconf import OmegaConf
+
+from pipeline import api
+from pipeline.app import build
+from pipeline.app.config import load_settings
+from pipeline.artefacts import topics
+from pipeline.artefacts.store import ArtefactError, read_artefact
+from pipeline.core.experts import optimal_demos
+from pipeline.errors import PipelineError
+from tests.conftest import run_app
+from tests.pipeline.conftest import FAST
+
+matplotlib.use("Agg")  # before pyplot: no window in tests
+import matplotlib.pyplot as plt  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def fast_run(tmp_path_factory):
+    """One real run of the default experiment with the quick settings, through api.run."""
+    run_dir = tmp_path_factory.mktemp("api_run")
+    return api.run(list(FAST), run_dir=run_dir)
+
+
+def raw(run_dir, stage, topic):
+    """The messages as the artefact holds them (plain JSON values)."""
+    return read_artefact(run_dir / topics.ARTEFACT_FILE[stage]).all(topic)
 
 
 def test_python_api_runs_and_reads_tables(tmp_path):
-    from pipeline import api
-
-    metrics = api.run(["graph=small", "birl.n_iterations=3", "stages=[scene,demos,graph,birl,"
-                       "evaluate]"], run_dir=tmp_path)
-    assert metrics["policy_loss_norm"] >= 0
-    curve = api.messages(tmp_path, "evaluate", "/eval/policy_loss")
+    run = api.run(["graph=small", "birl.n_iterations=3", "stages=[scene,demos,graph,birl,"
+                   "evaluate]"], run_dir=tmp_path)
+    assert isinstance(run, api.Run) and run.dir == tmp_path
+    assert run.metrics["policy_loss_norm"] >= 0
+    curve = run.messages("evaluate", "/eval/policy_loss")
     assert len(curve) == 4 and {"iteration", "weights", "ref"} <= set(curve.columns)
     assert list(curve["iteration"]) == [0, 1, 2, 3]
-    persons = api.messages(tmp_path, "scene", "/scene")["persons"].iloc[0]
+    persons = run.messages("scene", "/scene")["persons"].iloc[0]
     assert len(persons) == 12  # metropolis
     with pytest.raises(ValueError, match="unknown stage"):
+        run.artefact("nope")
+    # the run-dir helpers of the first API still answer
+    assert api.messages(tmp_path, "evaluate", "/eval/policy_loss")["iteration"].tolist() == \
+        [0, 1, 2, 3]
+    with pytest.raises(ValueError, match="unknown stage"):
         api.artefact(tmp_path, "nope")
-    assert api.run(["stages=[scene]"], run_dir=tmp_path / "only_scene") == {}
+
+
+def test_run_handle_fields_match_the_files(fast_run):
+    d = fast_run.dir
+    assert fast_run.metrics == json.loads((d / "metrics.json").read_text())
+    assert fast_run.status.complete
+    cfg = fast_run.config
+    assert cfg.graph.max_nodes == 200 and cfg.birl.n_iterations == 3 and cfg.seed == 0
+    attached = read_artefact(d / "eval.mcap").config_yaml
+    assert OmegaConf.to_container(cfg) == OmegaConf.to_container(OmegaConf.create(attached))
+
+
+def test_messages_have_named_columns_and_numpy_arrays(fast_run):
+    d = fast_run.dir
+    its = fast_run.messages("birl", topics.BIRL_ITERATION)
+    stored = raw(d, "birl", topics.BIRL_ITERATION)
+    assert list(its.columns) == list(stored[0])  # every field, named
+    for cell, msg in zip(its["weights"], stored, strict=True):
+        assert isinstance(cell, np.ndarray) and cell.dtype == float and cell.shape == (4,)
+        assert cell.tolist() == msg["weights"]
+    assert isinstance(its["generated"].iloc[0], list)  # records stay dicts
+    demos = fast_run.messages("demos", topics.DEMOS)
+    points = demos["points"].iloc[0]
+    assert isinstance(points, np.ndarray) and points.ndim == 2 and points.shape[1] == 2
+    assert points.tolist() == raw(d, "demos", topics.DEMOS)[0]["points"]
+    scene = fast_run.messages("scene", topics.SCENE).iloc[0]
+    assert isinstance(scene["starts"], np.ndarray) and scene["starts"].shape == (7, 2)
+    assert isinstance(scene["persons"], list) and isinstance(scene["persons"][0], dict)
+
+
+def test_paths_are_the_learned_paths_of_eval_mcap(fast_run):
+    stored = raw(fast_run.dir, "evaluate", topics.EVAL_PATHS)
+    for graph in ("graph", "ref"):
+        paths = fast_run.paths(graph)
+        expected = {p["start"]: p["points"] for p in stored if p["graph"] == graph}
+        assert sorted(paths) == sorted(expected) == list(range(7))  # metropolis: 7 starts
+        for start, pts in paths.items():
+            assert isinstance(pts, np.ndarray) and pts.shape[1] == 2
+            assert pts.tolist() == expected[start]
+    assert not np.array_equal(fast_run.paths("graph")[0], fast_run.paths("ref")[0])
+    with pytest.raises(ValueError, match="one of graph, ref"):
+        fast_run.paths("roadmap")
+
+
+def drawn_lines(ax):
+    return [np.column_stack(line.get_data()) for line in ax.lines]
+
+
+@pytest.mark.parametrize("paths", ["graph", "ref"])
+def test_plot_draws_scene_demonstrations_and_learned_paths(fast_run, paths):
+    scene = raw(fast_run.dir, "scene", topics.SCENE)[0]
+    n_demos = len(raw(fast_run.dir, "demos", topics.DEMOS))
+    learned = fast_run.paths(paths)
+    try:
+        ax = fast_run.plot(paths=paths)
+        assert isinstance(ax, matplotlib.axes.Axes)
+        # graph nodes, room, one line per social link, demonstration and learned path,
+        # starts, goal
+        assert len(ax.lines) == 1 + 1 + len(scene["relations"]) + n_demos + len(learned) + 2
+        # per person: personal zone, body disk, heading arrow
+        assert len(ax.patches) == 3 * len(scene["persons"])
+        lines = drawn_lines(ax)
+        for pts in learned.values():
+            assert any(line.shape == pts.shape and np.array_equal(line, pts) for line in lines)
+        assert np.array_equal(lines[-2], np.asarray(scene["starts"]))
+        _, ax2 = plt.subplots()
+        assert fast_run.plot(ax=ax2) is ax2  # drawn onto the caller's Axes
+    finally:
+        plt.close("all")
+
+
+def test_open_run_reads_an_existing_dir(fast_run, tmp_path):
+    again = api.open_run(str(fast_run.dir))
+    assert again == fast_run and again.metrics == fast_run.metrics
+    assert all(np.array_equal(a, b) for a, b in
+               zip(again.paths().values(), fast_run.paths().values(), strict=True))
+    with pytest.raises(PipelineError, match="not found"):
+        api.open_run(tmp_path / "missing")
+    only_scene = api.run(["stages=[scene]"], run_dir=tmp_path / "only_scene")
+    assert only_scene.metrics == {} and api.open_run(tmp_path / "only_scene").metrics == {}
+    assert only_scene.config.stages == ["scene"]
+    with pytest.raises(ArtefactError, match="eval.mcap not found"):
+        only_scene.paths()
+    scene = raw(only_scene.dir, "scene", topics.SCENE)[0]
+    try:  # the scene alone: room, links, starts, goal
+        assert len(only_scene.plot().lines) == 1 + len(scene["relations"]) + 2
+    finally:
+        plt.close("all")
+
+
+def test_sweep_reads_a_multirun_with_a_failed_job(tmp_path):
+    result = run_app("-m", "graph=small", "birl.n_iterations=2", "scene.body_radius=0.25,-1",
+                     f"hydra.sweep.dir={tmp_path}")
+    assert result.returncode == 1, result.stderr[-2000:]  # the second job fails
+    table = api.sweep(tmp_path)
+    # the job, its outcome, the overrides alphabetically, then the metrics
+    assert list(table.columns[:6]) == ["job", "status", "error", "birl.n_iterations", "graph",
+                                       "scene.body_radius"]
+    assert table["scene.body_radius"].tolist() == ["0.25", "-1"]
+    assert table.columns[6] == "policy_loss_norm"  # every metric after the settings
+    assert table["job"].tolist() == ["0", "1"] and table.status.tolist() == ["ok", "failed"]
+    assert "scene.body_radius=-1" in table.error.iloc[1]
+    metrics = api.open_run(tmp_path / "0").metrics
+    row = table.iloc[0]
+    assert all(row[k] == v for k, v in metrics.items())
+    assert np.isnan(table.policy_loss_norm.iloc[1])
+    with pytest.raises(PipelineError, match="holds no Hydra jobs"):
+        api.sweep(tmp_path / "0" / ".hydra")
+    with pytest.raises(PipelineError, match="not found"):
+        api.sweep(tmp_path / "missing")
+
+
+def optimal_expert(scene, overrides=()):
+    """The default expert's demonstrations, made in memory: greedy paths under the true
+    weights on the reference roadmap (what the demos stage writes)."""
+    cfg = load_settings(api.compose_config(list(overrides)))
+    roadmap = build.reference_roadmap(cfg, scene, build.feature_model(cfg, scene))
+    mdp = roadmap.mdp(cfg.mdp)
+    return optimal_demos(mdp, roadmap.positions, roadmap.start_nodes,
+                         mdp.solve(np.asarray(cfg.reward.weights, float)))
+
+
+def birl_weights(run_dir):
+    return [np.asarray(m["weights"]) for m in raw(run_dir, "birl", topics.BIRL_ITERATION)]
+
+
+@pytest.mark.parametrize("method, settings", [("map", {}), ("maxent", {}),
+                                              ("map", {"grow_nodes": 10})])
+def test_learn_in_memory_gives_the_weights_of_the_pipeline(fast_run, metropolis, tmp_path,
+                                                           method, settings):
+    # The pipeline: the fast run itself; its birl stage again with grown nodes; MaxEnt (its
+    # own weight box: the graph grows under another prior mean) from the start.
+    run_dir = fast_run.dir
+    if method != "map":
+        run_dir = api.run([*FAST, f"birl={method}"], run_dir=tmp_path).dir
+    elif settings:
+        run_dir = api.run([*FAST, *(f"birl.{k}={v}" for k, v in settings.items()),
+                           "stages=[birl]", f"from_run={fast_run.dir}"], run_dir=tmp_path).dir
+    # In memory: the scene file's Scene and the optimal expert's demonstrations.
+    learned = api.learn(metropolis, optimal_expert(metropolis), method=method,
+                        overrides=["graph=small"], n_iterations=3, **settings)
+    expected = birl_weights(run_dir)
+    # the birl stage alone from an earlier run left a complete run dir (graph.mcap linked)
+    assert {"scene.mcap", "demos.mcap", "graph.mcap", "birl.mcap"} <= \
+        {p.name for p in run_dir.iterdir()}
+    assert np.array_equal(learned.weights, expected[-1])  # to the bit
+    assert all(np.array_equal(a, b) for a, b in
+               zip(learned.trace["weights"], expected, strict=True))
+    assert learned.feature_names == ["relation", "social", "goal_deviation", "length"]
+    assert learned.trace["iteration"].tolist() == [0, 1, 2, 3]
+    grown = raw(run_dir, "birl", topics.BIRL_GRAPH_NODE) if settings else []
+    n_graph = len(raw(run_dir, "graph", topics.GRAPH_NODE)) + len(grown)
+    assert learned.graph.mdp.n_nodes == n_graph
+
+
+def test_learn_takes_polylines_and_rows_of_an_earlier_run(fast_run):
+    scene = fast_run.scene()
+    rows = fast_run.messages("demos", topics.DEMOS).to_dict("records")
+    from_rows = api.learn(scene, rows, overrides=["graph=small"], n_iterations=3)
+    expected = birl_weights(fast_run.dir)[-1]
+    assert np.array_equal(from_rows.weights, expected)
+    # bare polylines: start index and goal reached found from the scene
+    polylines = [r["points"] for r in rows]
+    assert np.array_equal(api.learn(scene, polylines, overrides=["graph=small"],
+                                    n_iterations=3).weights, expected)
+    # another seed draws other initial weights
+    other = api.learn(scene, polylines, seed=1, overrides=["graph=small"], n_iterations=3)
+    assert not np.array_equal(other.iterations[0].weights, from_rows.iterations[0].weights)
+
+
+def test_learn_refuses_bad_input(metropolis):
+    with pytest.raises(ValueError, match="unknown method 'nope'"):
+        api.learn(metropolis, [], method="nope")
+    with pytest.raises(PipelineError, match="config error: birl.nope"):
+        api.learn(metropolis, [], nope=1)
+    with pytest.raises(PipelineError, match="polyline of at least two"):
+        api.learn(metropolis, [np.zeros((1, 2))], overrides=["graph=small"])

@@ -1,0 +1,71 @@
+"""Figures of a run dir drawn from its artefacts, onto a matplotlib Axes the caller owns (the
+caller picks the backend and saves or shows it): `make aggregate`'s scene.png and
+`api.Run.plot` draw the same picture."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.artefacts import codec, read_artefact, topics
+from pipeline.artefacts.topics import ARTEFACT_FILE
+
+
+def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
+    """The scene of `run_dir` (room, map, persons with their personal zones and headings,
+    social links, starts, goal) with the graph's nodes, the demonstrations and the learned
+    paths (`paths`: "graph" for the adaptive graph's, "ref" for the reference roadmap's)
+    when the run has them; returns `ax`."""
+    from matplotlib.patches import Circle
+
+    run_dir = Path(run_dir)
+    art = read_artefact(run_dir / ARTEFACT_FILE["scene"], producer_stage="scene")
+    scene = art.one(topics.SCENE)
+    obstacles = codec.decode_scene(art).obstacles
+    if obstacles is not None:  # the map and polygons under the scene
+        x0, y0, x1, y1 = obstacles.grid.extent()
+        ax.imshow(obstacles.grid.occupied, origin="lower", extent=(x0, x1, y0, y1),
+                  cmap="Greys", vmin=0, vmax=1.5, interpolation="nearest")
+    if (run_dir / ARTEFACT_FILE["graph"]).exists():  # the graph's samples (paper Fig. 1 left)
+        nodes = np.array([(n["x"], n["y"]) for n in
+                          read_artefact(run_dir / ARTEFACT_FILE["graph"]).all(topics.GRAPH_NODE)])
+        ax.plot(nodes[:, 0], nodes[:, 1], ".", color="0.55", ms=3,
+                label=f"graph nodes ({len(nodes)})")
+    room = scene["room"]
+    ax.plot([room["x_min"], room["x_max"], room["x_max"], room["x_min"], room["x_min"]],
+            [room["y_min"], room["y_min"], room["y_max"], room["y_max"], room["y_min"]], "k-")
+    pos = {p["id"]: (p["x"], p["y"]) for p in scene["persons"]}
+    for i, (a, b) in enumerate(scene["relations"]):
+        ax.plot(*zip(pos[a], pos[b], strict=True), color="tab:red", lw=2, alpha=0.6,
+                label="social links" if i == 0 else None)
+    for i, p in enumerate(scene["persons"]):
+        ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08,
+                            label="personal zone (1.2 m)" if i == 0 else None))
+        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange",
+                            label="persons" if i == 0 else None))
+        ax.arrow(p["x"], p["y"], 0.4 * np.cos(p["theta"]), 0.4 * np.sin(p["theta"]),
+                 head_width=0.12, color="k")
+    if (run_dir / ARTEFACT_FILE["demos"]).exists():
+        demos = read_artefact(run_dir / ARTEFACT_FILE["demos"]).messages.get(topics.DEMOS, [])
+        for i, d in enumerate(demos):
+            pts = np.asarray(d["points"])
+            ax.plot(pts[:, 0], pts[:, 1], "--", color="tab:green", lw=1.5,
+                    label="demonstrations" if i == 0 else None)
+    if (run_dir / ARTEFACT_FILE["evaluate"]).exists():
+        learned = [p for p in read_artefact(run_dir / ARTEFACT_FILE["evaluate"])
+                   .all(topics.EVAL_PATHS) if p["graph"] == paths]
+        for i, p in enumerate(learned):
+            pts = np.asarray(p["points"])
+            ax.plot(pts[:, 0], pts[:, 1], color="tab:blue", lw=1.5,
+                    label="learned paths" if i == 0 else None)
+    starts = np.asarray(scene["starts"])
+    ax.plot(starts[:, 0], starts[:, 1], "s", color="tab:purple", label="starts")
+    ax.plot(*scene["goal"], "*", color="gold", ms=18, mec="k", label="goal")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"scene '{scene['name']}': demonstrations and learned paths")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+    return ax

@@ -1,0 +1,81 @@
+"""The table of a Hydra sweep dir: one row per job, with its overrides, its outcome and every
+metric of its metrics.json (`make aggregate` writes it as summary.csv, `api.sweep` returns it).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import yaml
+
+from pipeline.app.config import is_metric_key
+from pipeline.app.rundir import job_dirs, read_status
+from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
+from pipeline.errors import PipelineError
+
+
+def parse_overrides(job: Path) -> dict[str, str]:
+    lines = yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text()) or []
+    return dict(line.split("=", 1) for line in lines if "=" in line)
+
+
+def job_row(job: Path, sweep_dir: Path) -> dict:
+    row = {"job": str(job.relative_to(sweep_dir)), **parse_overrides(job)}
+    status, metrics_file = read_status(job), job / "metrics.json"
+    if not status.complete:  # failed, killed, still running, or made before status.json
+        at = f"stage {status.stage}: " if status.stage else ""
+        row.update(status=status.state, error=at + (status.error or status.state))
+    elif not metrics_file.exists():
+        row.update(status="failed", error="no metrics.json (stage evaluate was not run)")
+    else:
+        row.update(status="ok", error="")
+        row.update(json.loads(metrics_file.read_text()))
+    return row
+
+
+def summary_table(sweep_dir: Path) -> pd.DataFrame:
+    """One row per job of `sweep_dir` (jobs in natural order), columns in `column_order`."""
+    jobs = job_dirs(sweep_dir)
+    if not jobs:
+        raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
+    table = pd.DataFrame([job_row(j, sweep_dir) for j in jobs])
+    return table[column_order(list(table.columns))]
+
+
+# summary.csv column order (README "Sweeps, tables and figures"): the job and its outcome,
+# the swept settings, the headline metrics, the social metrics (graph, then roadmap), the
+# learned weights, everything else, the per-iteration curves, the wall-clock timings.
+HEADLINE = ["policy_loss_norm", "policy_loss", "policy_loss_ref"]
+SOCIAL = [k for k in PATH_METRICS if k not in OBSTACLE_METRICS]
+
+
+def column_order(columns: list[str]) -> list[str]:
+    def rank(c: str) -> tuple:
+        if c in ("job", "status", "error"):
+            return (0, ["job", "status", "error"].index(c))
+        if not is_metric(c):
+            return (1, c != "seed", c)  # seed first, then the swept keys alphabetically
+        if c in HEADLINE:
+            return (2, HEADLINE.index(c))
+        for k, prefix in enumerate(("", "ref_")):
+            if c.removeprefix(prefix) in SOCIAL and c.startswith(prefix):
+                return (3 + k, SOCIAL.index(c.removeprefix(prefix)))
+        if c.startswith("weight"):
+            return (5, c)
+        if c.startswith(("policy_loss_iter_", "policy_loss_ref_iter_")):
+            return (7, c)
+        if c.startswith("time_"):
+            return (8, c)
+        return (6, c)
+
+    return sorted(columns, key=rank)
+
+
+def is_metric(column: str) -> bool:
+    """A metrics.json key (else a swept setting or the job's own columns): the keys the
+    evaluate stage writes (is_metric_key), and the prefixes of older runs' keys."""
+    return is_metric_key(column) or column in SOCIAL or column.startswith(
+        ("policy_loss", "weight", "time_", "ref_", "frechet", "mcmc", "transfer_", "obstacle",
+         "min_distance"))
