@@ -1,6 +1,7 @@
 """The one exception type that the app turns into a single clear line and a non-zero exit."""
 
 import errno
+import sys
 
 
 class PipelineError(Exception):
@@ -11,3 +12,13 @@ def os_error_reason(e: OSError) -> str:
     """Why an OSError happened, in words (disk full said plainly), with the file if known."""
     reason = "the disk is full" if e.errno == errno.ENOSPC else (e.strerror or str(e))
     return reason + (f" ({e.filename})" if e.filename else "")
+
+
+def report(e: PipelineError | OSError, writing: str) -> int:
+    """A command-line tool's error as one line on stderr; returns the exit status, 2. An
+    OSError (a read-only dir, a full disk) is said as "cannot write `writing`"."""
+    if isinstance(e, OSError):
+        print(f"error: cannot write {writing}: {os_error_reason(e)}", file=sys.stderr)
+    else:
+        print(f"error: {e}", file=sys.stderr)
+    return 2

@@ -60,7 +60,7 @@ from pipeline.core.features import FeatureModel, FeatureParams
 from pipeline.core.obstacles import OccupancyGrid, rasterise
 from pipeline.core.params import ParameterError
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import PipelineError, report
 
 EXPORT_DIR = "export"
 COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
@@ -510,13 +510,8 @@ def main(argv: list[str] | None = None) -> int:
             final, costmap, counts = export_run(run_dir)
         finally:
             os.close(lock)
-    except PipelineError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:  # e.g. a read-only run dir or a full disk
-        print(f"error: cannot write the export of {run_dir}: {os_error_reason(e)}",
-              file=sys.stderr)
-        return 2
+    except (PipelineError, OSError) as e:  # OSError: e.g. a read-only run dir, a full disk
+        return report(e, f"the export of {run_dir}")
     h, w = costmap.grid.shape
     scale = f"occupancy {MAX_LEARNED} = cost {costmap.scale:.4g} per m" if costmap.scale > 0 \
         else "the learned cost is 0 everywhere"

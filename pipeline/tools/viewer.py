@@ -27,7 +27,7 @@ import numpy as np
 from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.core.world import Scene
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import PipelineError, report
 
 # rerun-sdk is the optional `viewer` extra (670 MB with pyarrow), out of the core install.
 RERUN_MISSING = ("the viewer needs rerun-sdk, which is not installed: "
@@ -326,13 +326,8 @@ def main(argv: list[str] | None = None) -> int:
     warn_if_incomplete(args.run_dir)
     try:
         rrd = build_recording(args.run_dir, args.out)
-    except PipelineError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:  # e.g. a read-only run dir at the final rename
-        print(f"error: cannot write the recording of {args.run_dir}: {os_error_reason(e)}",
-              file=sys.stderr)
-        return 2
+    except (PipelineError, OSError) as e:  # OSError: e.g. a read-only run dir at the rename
+        return report(e, f"the recording of {args.run_dir}")
     cmd = viewer_command(rrd)
     if args.no_open or not _has_display():
         print(f"wrote {rrd}; open it with: {' '.join(cmd)}")
