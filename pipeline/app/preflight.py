@@ -139,13 +139,8 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
 
 
 def facts_of(scene: Scene) -> SceneFacts:
-    def free_area() -> float:
-        if scene.obstacles is None:
-            return scene.room.area
-        return scene.obstacles.free_area(scene.robot_radius, scene.room.bounds)
-
     return SceneFacts(scene.name, scene.room.area, len(scene.persons),
-                      scene.obstacles is not None, free_area)
+                      scene.obstacles is not None, lambda: scene.free_area)
 
 
 def check_roadmap_size(cfg: Config, facts: SceneFacts) -> None:
