@@ -358,7 +358,7 @@ def nodes_to_connect_all(by_n: dict[int, list[int]], n_starts: int) -> list[floa
             for k in range(len(DOOR_SEEDS))]
 
 
-@pytest.mark.slow  # a measurement (~10 s): make test-all
+@pytest.mark.slow  # a measurement (~15 s): make test-all
 def test_uniform_roadmap_finds_the_doors(door_measurements):
     """The measurement itself works: N uniform nodes link the rooms through 1 m doors."""
     assert max(nodes_to_connect_all(door_measurements["uniform"], 5)) < math.inf
