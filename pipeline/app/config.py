@@ -175,11 +175,23 @@ class ControllerConfig(PosqController):
 
 @dataclass
 class GraphConfig(GraphParams):
+    # null: derived from the scene at start-up (pipeline.app.limits.graph_size): the paper's
+    # 460, or twice the nodes that resolve personal space on the scene's free space where
+    # that is more; a number is used as given (and refused when it is too few)
+    max_nodes: Optional[int] = None  # type: ignore[assignment]
     # Reward that drives the growth: null = the learner's initial weights (the prior's
     # mean within the bounds); true = the expert's true weights (oracle mode, DESIGN §7);
     # or one number per feature. Typed Any because DESIGN fixes `true` | list | null.
     weights: Any = None
     controller: ControllerConfig = field(default_factory=ControllerConfig)
+
+    def __post_init__(self) -> None:
+        derived = self.max_nodes is None
+        if derived:  # the other checks, as for a given number
+            self.max_nodes = GraphParams.max_nodes
+        super().__post_init__()
+        if derived:
+            self.max_nodes = None  # type: ignore[assignment]
 
 
 @dataclass

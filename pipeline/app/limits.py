@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import os
 
+from pipeline.core.adaptive_graph import GraphParams
 from pipeline.errors import PipelineError
 
 BYTES_FIXED = 150e6  # working set besides the per-element arrays
@@ -73,12 +74,35 @@ def check_memory(what: str, n: float, per_element: float, fix: str) -> None:
                             f"but {_size(have)} are available: {fix}")
 
 
+def nodes_to_resolve(free_area: float, rho_personal: float) -> int:
+    """Nodes that put on average one node on every rho_personal × rho_personal square of
+    `free_area` m²: the fewest with which the adaptive graph resolves personal space."""
+    return math.ceil(free_area / rho_personal**2)
+
+
+# graph.max_nodes=null: twice nodes_to_resolve (nodes crowd along the best paths, and the
+# medial-axis nodes on maps may take up to half), at least the paper's 460 (GraphParams)
+GRAPH_NODES_MARGIN = 2
+
+
+def graph_size(free_area: float, rho_personal: float, scene_name: str) -> tuple[int, str]:
+    """graph.max_nodes derived from the scene (graph.max_nodes=null), and why, for the log."""
+    needed = nodes_to_resolve(free_area, rho_personal)
+    derived = max(GraphParams.max_nodes, GRAPH_NODES_MARGIN * needed)
+    base = (f"{GRAPH_NODES_MARGIN} × the {needed} nodes of one per {rho_personal:g} m × "
+            f"{rho_personal:g} m (reward.rho_personal) on the {free_area:.0f} m² of free space "
+            f"of scene '{scene_name}'")
+    if derived == GraphParams.max_nodes:
+        return derived, f"the paper's {derived}, as {base} is no more"
+    return derived, f"{base}, more than the paper's {GraphParams.max_nodes}"
+
+
 def check_graph_resolution(max_nodes: int, free_area: float, rho_personal: float,
                            scene_name: str) -> None:
     """The adaptive graph must be able to resolve personal space: on average at least one
     node per rho_personal × rho_personal square of free space, or learned paths cannot
     route around people (with graph.max_nodes=1 they cross social links)."""
-    needed = math.ceil(free_area / rho_personal**2)
+    needed = nodes_to_resolve(free_area, rho_personal)
     if max_nodes < needed:
         raise PipelineError(
             f"config error: graph.max_nodes={max_nodes} is too few for scene '{scene_name}': "

@@ -9,7 +9,9 @@ lattice, the reference roadmap, the adaptive graph; `limits`) from the files' he
 then the files themselves: the scene file and every transfer scene are loaded and validated
 (transfer scenes also on their reference roadmap's lattice, and no two with one name),
 `birl=fixed` gets its weights, and the graph's resolution is checked on the scene's free
-space. Loaded scene files are kept for the stages (`build.scene_file`).
+space. Loaded scene files are kept for the stages (`build.scene_file`). `graph.max_nodes`
+left null is derived from the scene's free space here (`limits.graph_size`, logged in one
+line); `run_pipeline` puts the number into the settings and the recorded config.
 """
 
 from __future__ import annotations
@@ -52,8 +54,10 @@ class SceneFacts:
 @dataclass
 class Checked:
     """What the checks found that the run records: content digests of inputs that are no
-    artefact of this run (`birl.from_run`'s birl.mcap), for the provenance."""
+    artefact of this run (`birl.from_run`'s birl.mcap), for the provenance; and the values
+    derived from the scene for settings left null (`graph.max_nodes`), by full key."""
     source_digests: dict[str, str] = dataclasses.field(default_factory=dict)
+    derived: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
 def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
@@ -69,13 +73,10 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         if cfg.graph.weights in (True, "true") and "graph" in stages:
             raise PipelineError("config error: graph.weights=true needs true weights, but the "
                                 "demonstrations come from a file (expert=file)")
-    facts = scene_facts(cfg, run_dir, from_run) if stages - {"birl"} else None
+    derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl"})
+    facts = scene_facts(cfg, run_dir, from_run) if stages - {"birl"} or derive_graph else None
     if facts is not None and "demos" in stages:
         check_roadmap_size(cfg, facts)
-    if "graph" in stages:
-        limits.check_memory(f"an adaptive graph of {cfg.graph.max_nodes} nodes",
-                            cfg.graph.max_nodes, limits.BYTES_PER_GRAPH_NODE,
-                            "lower graph.max_nodes")
     if facts is not None:
         scene = facts.load()  # sizes are fine: the scene file is validated now, not at its stage
         if scene is not None and scene.obstacles is None \
@@ -83,15 +84,24 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
             log.warning("scene '%s' has no obstacles: robot_radius=%g m has no effect (it is "
                         "the clearance kept from obstacles; the room's edge is none)",
                         scene.name, scene.robot_radius)
+    max_nodes = cfg.graph.max_nodes
+    if derive_graph and facts is not None:
+        max_nodes, why = limits.graph_size(facts.free_area(), cfg.reward.rho_personal,
+                                           facts.name)
+        log.info("graph.max_nodes=%d: %s", max_nodes, why)
+        checked.derived["graph.max_nodes"] = max_nodes
+    if "graph" in stages and max_nodes is not None:
+        limits.check_memory(f"an adaptive graph of {max_nodes} nodes", max_nodes,
+                            limits.BYTES_PER_GRAPH_NODE, "lower graph.max_nodes")
     if "evaluate" in stages:
         check_transfer_scenes(cfg)
     if isinstance(cfg.birl, FixedConfig) and stages & {"graph", "birl"}:
         digest = build.fixed_weights_source(cfg)
         if digest is not None:
             checked.source_digests["birl.from_run"] = digest
-    if facts is not None and "graph" in stages:
-        limits.check_graph_resolution(cfg.graph.max_nodes, facts.free_area(),
-                                      cfg.reward.rho_personal, facts.name)
+    if facts is not None and "graph" in stages and max_nodes is not None:
+        limits.check_graph_resolution(max_nodes, facts.free_area(), cfg.reward.rho_personal,
+                                      facts.name)
     return checked
 
 
@@ -139,13 +149,8 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
 
 
 def facts_of(scene: Scene) -> SceneFacts:
-    def free_area() -> float:
-        if scene.obstacles is None:
-            return scene.room.area
-        return scene.obstacles.free_area(scene.robot_radius, scene.room.bounds)
-
     return SceneFacts(scene.name, scene.room.area, len(scene.persons),
-                      scene.obstacles is not None, free_area)
+                      scene.obstacles is not None, lambda: scene.free_area)
 
 
 def check_roadmap_size(cfg: Config, facts: SceneFacts) -> None:

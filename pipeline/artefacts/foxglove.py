@@ -43,7 +43,7 @@ START, GOAL = _color(0.1, 0.7, 0.2), _color(0.15, 0.35, 0.9)
 EDGE = _color(0.6, 0.6, 0.6, 0.5)
 DEMO = _color(0.85, 0.7, 0.1)
 NODE = {"start": START, "goal": GOAL, "voronoi": _color(0.6, 0.2, 0.7), "demo": DEMO,
-        "sampled": _color(0.3, 0.3, 0.3)}
+        "medial": _color(0.2, 0.6, 0.7), "sampled": _color(0.3, 0.3, 0.3)}
 PATH = {"graph": _color(0.1, 0.45, 0.95), "ref": _color(0.6, 0.2, 0.8), "demo": DEMO}
 
 

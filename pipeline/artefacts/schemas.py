@@ -191,7 +191,7 @@ GRAPH_NODE = _message("GraphNode", "One node of the adaptive state graph (DESIGN
     "id": _node("This node"),
     "x": _num("Position x, metres."), "y": _num("Position y, metres."),
     "theta": _num("Heading of the robot state, radians."),
-    "kind": _str("How it was made: start, goal, voronoi, demo or sampled."),
+    "kind": _str("How it was made: start, goal, voronoi, demo, medial or sampled."),
     "parent": _int("Node it was sampled from; −1 for initial nodes.", minimum=-1),
     "iteration": _int("Growth iteration it was added (0 = initial nodes).", minimum=0),
     "gp_mean": _nullable(_num("GP-regression estimate of its value at sampling time."),

@@ -2,9 +2,13 @@
 
 The graph starts from the starts, the goal, the centroids of the Voronoi cells of the
 persons (clipped to the room) and the demonstrations' waypoints, and grows where it matters.
-One expansion (`step`) is DESIGN §7's steps 1–6:
+In scenes with obstacles it also starts from points along the medial axis of the free space
+(the obstacles' generalised Voronoi diagram, `medial_axis_points`), which run through every
+door and aisle: without demonstrations, growth by short controller runs seldom finds a 1 m
+door. One expansion (`step`) is DESIGN §7's steps 1–6:
 
-1. `expansion_set`: N_b (nodes on the best trajectories) with probability p_best, else N \\ N_b;
+1. `expansion_set`: N_b (nodes on the best trajectories; while a start's does not reach the
+   goal, every node that start reaches) with probability p_best, else N \\ N_b;
 2. `pick_node`: a node of it, with probability ∝ its exploration score;
 3. `sample_candidates`: controller runs from it with random heading and annealed duration;
 4. `score_candidates` (GP value estimate) and `pick_candidates` (probability ∝ score);
@@ -35,7 +39,7 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.params import require, require_count, require_non_negative, require_positive
 from pipeline.core.roadmap import segments_feasible
-from pipeline.core.state_graph import DEMO, GOAL, SAMPLED, START, VORONOI, StateGraph
+from pipeline.core.state_graph import DEMO, GOAL, MEDIAL, SAMPLED, START, VORONOI, StateGraph
 from pipeline.core.world import Room, Scene
 
 
@@ -51,8 +55,9 @@ class GraphParams:
     lambda_c: float = 0.4  # weight of concentration (sparse regions score high)
     t_min: float = 0.4  # s, shortest controller run for a candidate
     t_max: float = 1.6  # s, longest run at the start; annealed towards t_min as the graph grows
-    # m, no two nodes closer (zero-duration edges are loops); None: 0.35·√(room area /
-    # max_nodes), so the graph's finest resolution follows its size and growth never jams
+    # m, no two nodes closer (zero-duration edges are loops); None: 0.35·√(free area /
+    # max_nodes) (Scene.free_area), so the graph's finest resolution follows its size and
+    # growth never jams
     min_separation: float | None = None
     gp_length_scale: float = 1.0  # m, RBF length scale of the value GP
     gp_signal_std: float = 1.0  # prior std of the (normalised) value GP
@@ -60,6 +65,10 @@ class GraphParams:
     gp_kappa: float = 1.0  # optimism: candidate value = GP mean + kappa · GP std
     gp_max_points: int = 40  # nearest nodes within radius the GP is fitted to
     max_stalls: int = 500  # stop early after this many expansions in a row add nothing
+    # scenes with obstacles: initial nodes along the medial axis of the free space (through
+    # every door and aisle), about 0.8·radius apart; fewer when they would fill more than
+    # half of max_nodes
+    medial_axis: bool = True
 
     def __post_init__(self) -> None:
         require_positive(self, "radius", "t_min", "t_max", "gp_length_scale", "gp_signal_std",
@@ -75,11 +84,11 @@ class GraphParams:
         if self.min_separation is not None:
             require_positive(self, "min_separation")
 
-    def separation(self, room_area: float) -> float:
-        """min_separation, or its default for a room of this area."""
+    def separation(self, free_area: float) -> float:
+        """min_separation, or its default for a scene with this much free space (m²)."""
         if self.min_separation is not None:
             return self.min_separation
-        return 0.35 * math.sqrt(room_area / self.max_nodes)
+        return 0.35 * math.sqrt(free_area / self.max_nodes)
 
 
 @dataclass(frozen=True)
@@ -130,13 +139,22 @@ def voronoi_centroids(points: np.ndarray, room: Room) -> np.ndarray:
     return np.array(centroids)
 
 
+def medial_axis_points(scene: Scene, spacing: float) -> np.ndarray:
+    """Points (k, 2) about `spacing` apart along the medial axis of the scene's free space
+    (ObstacleMap.medial_axis), outside the body disks; none without obstacles."""
+    if scene.obstacles is None:
+        return np.zeros((0, 2))
+    blocked = scene.obstacles.blocked_disks(scene.person_xy, scene.body_radius)
+    return scene.obstacles.medial_axis(scene.robot_radius, spacing, scene.room.bounds, blocked)
+
+
 class AdaptiveGraph(StateGraph):
     """The adaptive state graph: `initialise`, then `grow` (or `grow_by`) by `step`s."""
 
     def __init__(self, scene: Scene, feature_model: FeatureModel, controller: Controller,
                  weights: np.ndarray, params: GraphParams, rng: np.random.Generator,
                  mdp: MDPParams | None = None) -> None:
-        min_separation = params.separation(scene.room.area)
+        min_separation = params.separation(scene.free_area)
         params = dataclasses.replace(params, min_separation=min_separation)
         super().__init__(scene, feature_model, controller, weights, radius=params.radius,
                          max_edges=params.max_edges, min_separation=min_separation,
@@ -152,8 +170,8 @@ class AdaptiveGraph(StateGraph):
 
     # -- initialisation ------------------------------------------------------------------
     def initialise(self, demos: Sequence[Demo] = ()) -> None:
-        """Starts, goal, Voronoi centroids, demo waypoints and demo edges; then connect and
-        solve."""
+        """Starts, goal, Voronoi centroids, demo waypoints and demo edges, with obstacles
+        points along the medial axis of the free space; then connect and solve."""
         scene = self.scene
 
         def heading_to_goal(p: np.ndarray) -> float:
@@ -167,9 +185,26 @@ class AdaptiveGraph(StateGraph):
                 self.add_node([*c, heading_to_goal(c)], VORONOI)
         for demo in demos:
             self._add_demo(demo)
+        for m in self.medial_points():
+            if not self.too_close(m):
+                self.add_node([*m, heading_to_goal(m)], MEDIAL)
         self.connect(range(self.n_nodes))
         self.solver.solve_full()
         self.solve()
+
+    def medial_points(self) -> np.ndarray:
+        """The initial nodes on the medial axis (graph.medial_axis, scenes with obstacles):
+        (k, 2) about 0.8·radius apart, so neighbours along it connect, and sparser when
+        they would fill more than half of max_nodes. Without them growth by short controller
+        runs seldom finds its way through a 1 m door (RRT's narrow-passage problem)."""
+        if not self.p.medial_axis or self.scene.obstacles is None:
+            return np.zeros((0, 2))
+        spacing = max(0.8 * self.p.radius, self.min_separation)
+        points = medial_axis_points(self.scene, spacing)
+        budget = self.p.max_nodes // 2
+        if len(points) > budget:  # along a line the count falls as 1/spacing
+            points = medial_axis_points(self.scene, spacing * len(points) / max(budget, 1))
+        return points
 
     def _add_demo(self, demo: Demo) -> None:
         """Demo waypoints become nodes (or merge into a node closer than min_separation);
@@ -260,11 +295,15 @@ class AdaptiveGraph(StateGraph):
         p_best, else the other non-terminal nodes."""
         on_best = np.zeros(self.n_nodes, dtype=bool)
         # A start whose best trajectory does not reach the goal yet has the lowest quality
-        # (V = −V_max) and would almost never be expanded; its trajectory is N_b until it does.
-        stuck = [path for path, reached in zip(self.best_paths, self.best_reached, strict=True)
-                 if not reached]
-        for path in stuck or self.best_paths:
-            on_best[path] = True
+        # (V = −V_max) and would almost never be expanded; until it does, N_b is every node
+        # it can reach (its trajectory could end at any of them), where the concentration
+        # term of the score favours the sparse frontier.
+        stuck = self.start_nodes[~self.best_reached]
+        if len(stuck):
+            on_best = self.reachable_from(stuck)
+        else:
+            for path in self.best_paths:
+                on_best[path] = True
         best_set = np.flatnonzero(on_best & ~self.terminal)
         other_set = np.flatnonzero(~on_best & ~self.terminal)
         return choose_expansion_set(self.rng, best_set, other_set, self.p.p_best)

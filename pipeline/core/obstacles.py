@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from pipeline.errors import PipelineError
 
@@ -319,6 +321,100 @@ class ObstacleMap:
         rows, cols, inside = self.grid.cell_of(targets)
         reached: np.ndarray = inside & (labels[rows, cols] == start) & (start > 0)
         return reached
+
+    def medial_axis(self, radius: float, spacing: float, bounds: Bounds | None = None,
+                    blocked: np.ndarray | None = None) -> np.ndarray:
+        """Points (k, 2) about `spacing` apart along the medial axis of the free space (the
+        generalised Voronoi diagram of the obstacles: the line through the middle of every
+        corridor, aisle and door), on cells free with clearance >= radius and not `blocked`
+        (H, W).
+
+        A cell is on the axis when its nearest obstacle point and a neighbouring cell's lie
+        at least 2·radius apart (the λ-medial axis with λ = 2·radius: the two sides of a gap
+        the robot fits through, not the two ends of one wall's corner). Outside `bounds`
+        (by cell centre) counts as occupied, so the room's edge is a wall here. The points
+        are cell centres picked along shortest paths through the 8-connected axis cells
+        from the first cell of each piece: a cell is picked when one more step along the
+        path from the last picked one could pass `spacing`, so neighbours along the axis are
+        at most `spacing` apart (in a straight line, less).
+        """
+        g = self.grid
+        occupied = self.clearance <= 0
+        if bounds is not None:
+            centres = g.cell_centres()
+            x0, y0, x1, y1 = bounds
+            occupied = occupied | (centres[..., 0] < x0) | (centres[..., 0] > x1) \
+                | (centres[..., 1] < y0) | (centres[..., 1] > y1)
+        if occupied.all():
+            return np.zeros((0, 2))
+        free = np.pad(~occupied, 1, constant_values=False)  # a wall around the grid
+        distance, (near_r, near_c) = ndimage.distance_transform_edt(free, return_indices=True)
+        distance, near_r, near_c = (a[1:-1, 1:-1] for a in (distance, near_r, near_c))
+        on_axis = np.zeros(g.shape, dtype=bool)
+        h, w = g.shape
+        steps = ((0, 1), (1, 0), (1, 1), (1, -1))
+        for dr, dc in steps:
+            a = (slice(0, h - dr), slice(max(0, -dc), w - max(0, dc)))
+            b = (slice(dr, h), slice(max(0, dc), w + min(0, dc)))
+            apart = np.hypot(near_r[a] - near_r[b], near_c[a] - near_c[b]) \
+                >= 2 * radius / self.resolution
+            on_axis[a] |= apart & (distance[a] >= distance[b])  # the cell farther from both
+            on_axis[b] |= apart & (distance[a] < distance[b])
+        on_axis &= ~occupied & self.free_mask(radius, blocked)
+        rows, cols = np.nonzero(on_axis)
+        if len(rows) == 0:
+            return np.zeros((0, 2))
+        ids = np.full(g.shape, -1, dtype=np.int64)
+        ids[rows, cols] = np.arange(len(rows))
+        src, dst, length = [], [], []
+        for dr, dc in steps:
+            r2, c2 = rows + dr, cols + dc
+            j = np.full(len(rows), -1, dtype=np.int64)
+            inside = (r2 < h) & (c2 >= 0) & (c2 < w)
+            j[inside] = ids[r2[inside], c2[inside]]
+            src.append(np.flatnonzero(j >= 0))
+            dst.append(j[j >= 0])
+            length.append(np.full(len(dst[-1]), math.hypot(dr, dc) * self.resolution))
+        n = len(rows)
+        adjacency = coo_matrix((np.concatenate(length), (np.concatenate(src),
+                                                          np.concatenate(dst))),
+                               shape=(n, n)).tocsr()
+        piece = connected_components(adjacency, directed=False)[1]
+        roots = np.unique(piece, return_index=True)[1]  # the first cell of each piece
+        along, before = dijkstra(adjacency, directed=False, indices=roots, min_only=True,
+                                 return_predecessors=True)[:2]
+        xy = g.origin + (np.column_stack([cols, rows]) + 0.5) * self.resolution
+        # The axis is one or two cells wide, so the tree has parallel branches: a cell due
+        # is not picked when a picked point lies within spacing/2 (which it then counts from).
+        since_pick = np.zeros(n)  # path length from the last picked cell
+        bucket: dict[tuple[int, int], list[int]] = {}  # picked cells by spacing-sized square
+        picked: list[int] = []
+
+        def pick(i: int) -> None:
+            picked.append(i)
+            key = (int(xy[i, 0] // spacing), int(xy[i, 1] // spacing))
+            bucket.setdefault(key, []).append(i)
+
+        def nearest_picked(i: int) -> float:
+            kx, ky = int(xy[i, 0] // spacing), int(xy[i, 1] // spacing)
+            near = [j for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+                    for j in bucket.get((kx + dx, ky + dy), ())]
+            return float(np.min(np.hypot(*(xy[near] - xy[i]).T))) if near else math.inf
+
+        due = spacing - math.sqrt(2) * self.resolution  # one more step could pass spacing
+        for i in np.argsort(along, kind="stable"):
+            p = before[i]
+            if p >= 0:
+                since_pick[i] = since_pick[p] + along[i] - along[p]
+                if since_pick[i] < due:
+                    continue
+            gap = nearest_picked(i)
+            if gap < spacing / 2:
+                since_pick[i] = gap
+            else:
+                pick(i)
+                since_pick[i] = 0.0
+        return np.asarray(xy[np.sort(picked)], dtype=float)
 
     def blocked_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """(H, W) bool: cells whose centre lies within `radius` of any of `centres` (p, 2)."""

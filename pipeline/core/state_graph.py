@@ -14,6 +14,8 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order
 from scipy.spatial import cKDTree
 
 from pipeline.core.controllers import Controller, Runs
@@ -25,6 +27,7 @@ from pipeline.core.world import Scene
 
 # Node kinds, as stored in graph.mcap.
 START, GOAL, VORONOI, DEMO, SAMPLED = "start", "goal", "voronoi", "demo", "sampled"
+MEDIAL = "medial"  # on the medial axis of the free space (scenes with obstacles)
 
 
 class SpatialIndex:
@@ -190,6 +193,18 @@ class StateGraph:
 
     def count_within(self, p: np.ndarray, radius: float) -> int:
         return self._index.count_within(np.asarray(p, float), radius)
+
+    def reachable_from(self, nodes: np.ndarray) -> np.ndarray:
+        """(n,) bool: the nodes a directed path of edges leads to from any of `nodes` (node
+        ids), those included."""
+        n = self.n_nodes
+        forward = coo_matrix((np.ones(len(self.src)), (self.src, self.dst)),
+                             shape=(n, n)).tocsr()
+        reached = np.zeros(n, dtype=bool)
+        for v in np.unique(nodes):  # one search per source: few stuck starts at a time
+            reached[breadth_first_order(forward, int(v), directed=True,
+                                        return_predecessors=False)] = True
+        return reached
 
     def mdp(self) -> GraphMDP:
         return GraphMDP(self.src, self.dst, self.duration, self.features, self.terminal,

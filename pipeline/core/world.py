@@ -109,6 +109,15 @@ class Scene:
         # room, whose edge is no obstacle (Room.contains keeps the robot inside)
         return ObstacleMap(grid, outside_occupied=self.map_grid is not None)
 
+    @cached_property
+    def free_area(self) -> float:
+        """m² of the room the robot can stand in: the room less the cells closer than
+        robot_radius to an obstacle (body disks not subtracted); the room's area without
+        obstacles."""
+        if self.obstacles is None:
+            return self.room.area
+        return self.obstacles.free_area(self.robot_radius, self.room.bounds)
+
     @property
     def person_xy(self) -> np.ndarray:
         return np.array([[p.x, p.y] for p in self.persons], dtype=float).reshape(-1, 2)

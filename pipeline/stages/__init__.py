@@ -7,6 +7,7 @@ any stage can be re-run alone from an earlier run dir (`from_run=...`).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import logging
@@ -20,7 +21,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 from threadpoolctl import threadpool_limits
 
-from pipeline.app.config import load_settings
+from pipeline.app.config import Config, load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
 from pipeline.app.preflight import preflight
 from pipeline.app.rundir import Interrupted, RunDir, check_from_run
@@ -45,6 +46,7 @@ def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
     stages = [s for s in STAGES if s in settings.stages]
     with stopped_by_signals():
         checked = preflight(settings, run_dir, from_run)  # before the run dir is touched
+    settings, cfg = with_derived(settings, cfg, checked.derived)
     ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
                      OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed),
                      source_digests=checked.source_digests)
@@ -60,6 +62,22 @@ def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
             except OSError as e:  # disk full, read-only dir, ...: one line, no traceback
                 raise PipelineError(f"stage {stage}: {os_error_reason(e)}") from None
     return timings
+
+
+def with_derived(settings: Config, cfg: DictConfig,
+                 derived: dict[str, int]) -> tuple[Config, DictConfig]:
+    """The settings and the composed config (a copy) with the values preflight derived for
+    keys left null (`graph.max_nodes`): stages, artefacts and their provenance see the
+    number, so a derived 460 records as a given one did."""
+    if not derived:
+        return settings, cfg
+    cfg = cfg.copy()
+    for key, value in derived.items():
+        OmegaConf.update(cfg, key, value, merge=False)
+        section, name = key.split(".")
+        settings = dataclasses.replace(settings, **{
+            section: dataclasses.replace(getattr(settings, section), **{name: value})})
+    return settings, cfg
 
 
 @contextmanager

@@ -46,7 +46,7 @@ except ModuleNotFoundError as e:
 APP_ID = "birlg"
 HEADING_LEN = 0.4  # m, length of the person heading arrows
 KIND_COLORS = {"start": (40, 180, 60), "goal": (220, 40, 40), "voronoi": (60, 110, 230),
-               "demo": (240, 150, 30), "sampled": (150, 150, 150)}
+               "demo": (240, 150, 30), "medial": (40, 160, 170), "sampled": (150, 150, 150)}
 PERSON, LINK = (235, 130, 40), (210, 40, 40)  # as in the figures: orange persons, red links
 # Distinct series colours (matplotlib's tab10): curves that share a view never look alike.
 TAB10 = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),

@@ -145,3 +145,64 @@ def test_a_robot_radius_without_obstacles_is_a_warning_and_one_too_wide_refused(
     # 10 m across in a 10 m room: it could not move; a unit mistake
     refused_before_any_stage(tmp_path / "b", r"robot_radius=5 m: a robot 10 m across does not "
                              r"fit in the 10 m × 10 m room", "scene.robot_radius=5")
+
+
+# -- graph.max_nodes derived from the scene ---------------------------------------------------
+
+def _derived(tmp_path, caplog, *overrides: str) -> tuple[dict[str, int], list[str]]:
+    from pipeline.app.config import load_settings
+    from pipeline.app.preflight import preflight
+
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="pipeline"):
+        checked = preflight(load_settings(compose_config(*overrides)), tmp_path / "run", None)
+    return checked.derived, [r.getMessage() for r in caplog.records
+                             if "graph.max_nodes=" in r.getMessage()]
+
+
+@pytest.mark.parametrize("overrides, free, expected", [
+    ((), 100, 460),  # metropolis: the paper's 460, so its results stay as they were
+    (("scene=office",), 176, 460),
+    (("scene=warehouse",), 810, 1126),  # 2 × 563
+    (("scene=random", "scene.width=30", "scene.height=30"), 900, 1250),  # 2 × 625
+])
+def test_graph_max_nodes_is_derived_from_the_free_area(tmp_path, caplog, overrides, free,
+                                                       expected):
+    from pipeline.app.limits import check_graph_resolution, nodes_to_resolve
+
+    derived, lines = _derived(tmp_path, caplog, *overrides)
+    assert derived == {"graph.max_nodes": expected}
+    assert expected == max(460, 2 * nodes_to_resolve(free, 1.2))
+    check_graph_resolution(expected, free, 1.2, "x")  # passes the check it is made for
+    [line] = lines  # one line: the value and why
+    assert line.startswith(f"graph.max_nodes={expected}: ")
+    assert f"{free} m² of free space" in line and "reward.rho_personal" in line
+    assert ("the paper's 460, as" in line) == (expected == 460)
+
+
+def test_a_given_graph_max_nodes_is_used_and_still_checked(tmp_path, caplog):
+    assert _derived(tmp_path, caplog, "scene=warehouse", "graph.max_nodes=600") == ({}, [])
+    with pytest.raises(PipelineError, match=r"graph\.max_nodes=500 is too few for scene "
+                                            r"'warehouse'.* needs graph\.max_nodes >= 563"):
+        _derived(tmp_path, caplog, "scene=warehouse", "graph.max_nodes=500")
+
+
+def test_the_derived_graph_size_is_what_the_stages_and_the_artefacts_see(tmp_path):
+    import yaml
+
+    from tests.conftest import ROOT
+
+    wide = write_json(tmp_path / "wide.json", {**json.loads((ROOT / "data" / "scenes" /
+                                                           "metropolis.json").read_text()),
+                                               "room": {**ROOM, "x_max": 20, "y_max": 20}})
+    run = tmp_path / "a"
+    run_in_process(run, "scene=file", f"scene.path={wide}", "stages=[scene,demos,graph]",
+                   "roadmap.spacing=0.5")
+    graph = read_artefact(run / "graph.mcap")
+    assert yaml.safe_load(graph.config_yaml)["graph"]["max_nodes"] == 2 * 278
+    solution = graph.one("/graph/solution")
+    assert solution["n_nodes"] == 556
+    # a later stage alone derives it again from the run's scene: the graph is accepted
+    run_in_process(tmp_path / "b", f"from_run={run}", "stages=[birl]", "birl.n_iterations=1",
+                   "birl.grow_nodes=10", "scene=file", f"scene.path={wide}",
+                   "roadmap.spacing=0.5")

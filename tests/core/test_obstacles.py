@@ -181,6 +181,41 @@ def test_blocked_disks_cut_a_corridor():
     assert not obstacles.blocked_disks(np.array([[20.0, 20.0]]), 0.5).any()
 
 
+# ---------------------------------------------------------------------------- medial axis
+
+def test_the_medial_axis_runs_through_the_door_mid_between_walls():
+    obstacles = _two_rooms(door=1.0)
+    points = obstacles.medial_axis(0.2, 0.5, (0, 0, 8, 4))
+    assert len(points) > 0
+    # every point free for the robot; those near the door on the line through its middle
+    assert obstacles.points_free(points, 0.2).all()
+    in_door = points[np.abs(points[:, 0] - 4.0) < 0.3]
+    assert len(in_door) >= 1 and np.abs(in_door[:, 1] - 2.0).max() < 0.1
+    # the points along the axis reach from one room through the door to the other ...
+    assert points[:, 0].min() < 2.0 and points[:, 0].max() > 6.0
+    # ... about `spacing` apart: each has a neighbour within it, none two closer than half
+    d = np.linalg.norm(points[:, None] - points[None], axis=2) + np.eye(len(points)) * 1e9
+    assert d.min(axis=1).max() <= 0.5 + 1e-9 and d.min() >= 0.25 - 1e-9
+    # the room's edge is a wall: from the corner (0, 0) the axis runs up the diagonal,
+    # equally far from the two edges
+    diagonal = points[(points[:, 0] < 1.8) & (points[:, 1] < 1.8)]
+    assert len(diagonal) >= 2 and np.abs(diagonal[:, 0] - diagonal[:, 1]).max() < 0.1
+
+
+def test_the_medial_axis_skips_gaps_the_robot_does_not_fit_through():
+    narrow = _two_rooms(door=0.3)  # narrower than the robot (2 × 0.2 m)
+    points = narrow.medial_axis(0.2, 0.5, (0, 0, 8, 4))
+    assert not (np.abs(points[:, 0] - 4.0) < 0.3).any()
+    # blocked cells (a person in the door) are no axis either
+    wide = _two_rooms(door=1.0)
+    blocked = wide.blocked_disks(np.array([[4.0, 2.0]]), 0.45)
+    points = wide.medial_axis(0.2, 0.5, (0, 0, 8, 4), blocked)
+    assert not (np.abs(points[:, 0] - 4.0) < 0.3).any()
+    # nothing free: no points
+    full = ObstacleMap(OccupancyGrid(np.ones((4, 4), dtype=bool), (0.0, 0.0), 0.5))
+    assert full.medial_axis(0.2, 0.5).shape == (0, 2)
+
+
 # ---------------------------------------------------------------- every obstacle source
 
 ROOM = {"x_min": 0.0, "y_min": 0.0, "x_max": 4.0, "y_max": 2.0}
