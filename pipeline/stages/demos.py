@@ -23,7 +23,11 @@ from pipeline.core.experts import (
     choose_heldout,
     optimal_demos,
 )
+from pipeline.core.features import FeatureModel
+from pipeline.core.graph_mdp import GraphMDP, Solution
+from pipeline.core.roadmap import Roadmap
 from pipeline.core.social_planner import planner_demos
+from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.demo_file import load_demo_file
 
@@ -46,10 +50,7 @@ def run(ctx: RunContext) -> None:
     roadmap = build.reference_roadmap(cfg, scene, features)
     cut_off = roadmap.starts_without_path_to_goal()
     if cut_off:  # nothing can be learned or scored from such a start: refuse, do not run on
-        raise PipelineError(
-            f"scene '{scene.name}': the goal cannot be reached from start(s) {cut_off} on the "
-            f"reference roadmap (spacing {cfg.roadmap.spacing:g} m): the way is closed by "
-            "persons' body disks or obstacles; move them or the start, or lower roadmap.spacing")
+        raise PipelineError(build.unreachable_message(scene, cut_off, cfg.roadmap.spacing))
     mdp = roadmap.mdp(md)
     t1 = time.perf_counter()
     solution = mdp.solve(w_true)
@@ -59,6 +60,18 @@ def run(ctx: RunContext) -> None:
              "(%d policy-iteration sweeps)", len(roadmap.positions), mdp.n_edges, t1 - t0,
              t2 - t1, solution.iterations)
 
+    demos = demonstrations(ctx, scene, features, roadmap, mdp, solution, recorded)
+    heldout = held_out(ctx, demos)
+    write_demos(ctx, demos, heldout, roadmap, mdp, solution)
+
+
+def demonstrations(ctx: RunContext, scene: Scene, features: FeatureModel, roadmap: Roadmap,
+                   mdp: GraphMDP, solution: Solution,
+                   recorded: list[Demonstration]) -> list[Demonstration]:
+    """The expert's demonstrations (`recorded` ones for expert=file), from its first
+    expert.n_starts starts."""
+    cfg, expert = ctx.cfg, ctx.cfg.expert
+    w_true = np.asarray(cfg.reward.weights, dtype=float)
     demos: list[Demonstration]
     if isinstance(expert, BoltzmannExpertConfig):
         demos = boltzmann_demos(mdp, roadmap.positions, roadmap.start_nodes, w_true, solution,
@@ -66,7 +79,7 @@ def run(ctx: RunContext) -> None:
     elif isinstance(expert, FileExpertConfig):
         demos = recorded
     elif isinstance(expert, PlannerExpertConfig):
-        demos = planner_demos(scene, features, expert, ctx.rng("demos"), md.speed)
+        demos = planner_demos(scene, features, expert, ctx.rng("demos"), cfg.mdp.speed)
     elif expert.kind == "none":
         demos = []
     else:
@@ -79,7 +92,12 @@ def run(ctx: RunContext) -> None:
     if unreached:
         log.warning("demonstrations from starts %s do not reach the goal", unreached)
     log.info("%s expert: %d demonstrations", expert.kind, len(demos))
-    holdout = cfg.evaluate.holdout
+    return demos
+
+
+def held_out(ctx: RunContext, demos: list[Demonstration]) -> np.ndarray:
+    """Which demonstrations evaluate.holdout keeps out of learning (bool per demonstration)."""
+    holdout = ctx.cfg.evaluate.holdout
     heldout = choose_heldout([d.start_index for d in demos], [d.subject for d in demos],
                              holdout, ctx.rng("demos", None, 1))
     if holdout is not None:
@@ -91,6 +109,14 @@ def run(ctx: RunContext) -> None:
         if heldout.all() and holdout != "all":
             raise PipelineError(f"evaluate.holdout={holdout} holds out every demonstration; "
                                 "keep some to learn from")
+    return heldout
+
+
+def write_demos(ctx: RunContext, demos: list[Demonstration], heldout: np.ndarray,
+                roadmap: Roadmap, mdp: GraphMDP, solution: Solution) -> None:
+    """demos.mcap: the expert, its demonstrations and the reference roadmap with its solution."""
+    cfg, md, expert = ctx.cfg, ctx.cfg.mdp, ctx.cfg.expert
+    w_true = np.asarray(cfg.reward.weights, dtype=float)
     synthetic = expert.knows_true_reward
     with ctx.writer("demos") as w:
         w.add(topics.DEMOS_EXPERT, "Expert", {
