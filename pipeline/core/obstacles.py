@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from pipeline.errors import PipelineError
@@ -338,6 +338,24 @@ class ObstacleMap:
         path from the last picked one could pass `spacing`, so neighbours along the axis are
         at most `spacing` apart (in a straight line, less).
         """
+        on_axis = self._medial_cells(radius, bounds, blocked)
+        rows, cols = np.nonzero(on_axis)
+        if len(rows) == 0:
+            return np.zeros((0, 2))
+        adjacency = self._cell_adjacency(on_axis, rows, cols)
+        piece = connected_components(adjacency, directed=False)[1]
+        roots = np.unique(piece, return_index=True)[1]  # the first cell of each piece
+        along, before = dijkstra(adjacency, directed=False, indices=roots, min_only=True,
+                                 return_predecessors=True)[:2]
+        xy = self.grid.origin + (np.column_stack([cols, rows]) + 0.5) * self.resolution
+        picked = _pick_along(xy, along, before, spacing,
+                             due=spacing - math.sqrt(2) * self.resolution)
+        return np.asarray(xy[np.sort(picked)], dtype=float)
+
+    def _medial_cells(self, radius: float, bounds: Bounds | None,
+                      blocked: np.ndarray | None) -> np.ndarray:
+        """(H, W) bool: the λ-medial axis cells of `medial_axis`, free with clearance >=
+        radius and not `blocked`."""
         g = self.grid
         occupied = self.clearance <= 0
         if bounds is not None:
@@ -345,29 +363,31 @@ class ObstacleMap:
             x0, y0, x1, y1 = bounds
             occupied = occupied | (centres[..., 0] < x0) | (centres[..., 0] > x1) \
                 | (centres[..., 1] < y0) | (centres[..., 1] > y1)
+        on_axis = np.zeros(g.shape, dtype=bool)
         if occupied.all():
-            return np.zeros((0, 2))
+            return on_axis
         free = np.pad(~occupied, 1, constant_values=False)  # a wall around the grid
         distance, (near_r, near_c) = ndimage.distance_transform_edt(free, return_indices=True)
         distance, near_r, near_c = (a[1:-1, 1:-1] for a in (distance, near_r, near_c))
-        on_axis = np.zeros(g.shape, dtype=bool)
         h, w = g.shape
-        steps = ((0, 1), (1, 0), (1, 1), (1, -1))
-        for dr, dc in steps:
+        for dr, dc in _HALF_NEIGHBOURS:
             a = (slice(0, h - dr), slice(max(0, -dc), w - max(0, dc)))
             b = (slice(dr, h), slice(max(0, dc), w + min(0, dc)))
             apart = np.hypot(near_r[a] - near_r[b], near_c[a] - near_c[b]) \
                 >= 2 * radius / self.resolution
             on_axis[a] |= apart & (distance[a] >= distance[b])  # the cell farther from both
             on_axis[b] |= apart & (distance[a] < distance[b])
-        on_axis &= ~occupied & self.free_mask(radius, blocked)
-        rows, cols = np.nonzero(on_axis)
-        if len(rows) == 0:
-            return np.zeros((0, 2))
-        ids = np.full(g.shape, -1, dtype=np.int64)
+        return on_axis & ~occupied & self.free_mask(radius, blocked)
+
+    def _cell_adjacency(self, cells: np.ndarray, rows: np.ndarray,
+                        cols: np.ndarray) -> csr_matrix:
+        """The 8-connected graph (n, n) of the `cells` (H, W) at rows, cols, edge weights
+        the metres between cell centres."""
+        h, w = cells.shape
+        ids = np.full(cells.shape, -1, dtype=np.int64)
         ids[rows, cols] = np.arange(len(rows))
         src, dst, length = [], [], []
-        for dr, dc in steps:
+        for dr, dc in _HALF_NEIGHBOURS:
             r2, c2 = rows + dr, cols + dc
             j = np.full(len(rows), -1, dtype=np.int64)
             inside = (r2 < h) & (c2 >= 0) & (c2 < w)
@@ -376,45 +396,8 @@ class ObstacleMap:
             dst.append(j[j >= 0])
             length.append(np.full(len(dst[-1]), math.hypot(dr, dc) * self.resolution))
         n = len(rows)
-        adjacency = coo_matrix((np.concatenate(length), (np.concatenate(src),
-                                                          np.concatenate(dst))),
-                               shape=(n, n)).tocsr()
-        piece = connected_components(adjacency, directed=False)[1]
-        roots = np.unique(piece, return_index=True)[1]  # the first cell of each piece
-        along, before = dijkstra(adjacency, directed=False, indices=roots, min_only=True,
-                                 return_predecessors=True)[:2]
-        xy = g.origin + (np.column_stack([cols, rows]) + 0.5) * self.resolution
-        # The axis is one or two cells wide, so the tree has parallel branches: a cell due
-        # is not picked when a picked point lies within spacing/2 (which it then counts from).
-        since_pick = np.zeros(n)  # path length from the last picked cell
-        bucket: dict[tuple[int, int], list[int]] = {}  # picked cells by spacing-sized square
-        picked: list[int] = []
-
-        def pick(i: int) -> None:
-            picked.append(i)
-            key = (int(xy[i, 0] // spacing), int(xy[i, 1] // spacing))
-            bucket.setdefault(key, []).append(i)
-
-        def nearest_picked(i: int) -> float:
-            kx, ky = int(xy[i, 0] // spacing), int(xy[i, 1] // spacing)
-            near = [j for dx in (-1, 0, 1) for dy in (-1, 0, 1)
-                    for j in bucket.get((kx + dx, ky + dy), ())]
-            return float(np.min(np.hypot(*(xy[near] - xy[i]).T))) if near else math.inf
-
-        due = spacing - math.sqrt(2) * self.resolution  # one more step could pass spacing
-        for i in np.argsort(along, kind="stable"):
-            p = before[i]
-            if p >= 0:
-                since_pick[i] = since_pick[p] + along[i] - along[p]
-                if since_pick[i] < due:
-                    continue
-            gap = nearest_picked(i)
-            if gap < spacing / 2:
-                since_pick[i] = gap
-            else:
-                pick(i)
-                since_pick[i] = 0.0
-        return np.asarray(xy[np.sort(picked)], dtype=float)
+        return coo_matrix((np.concatenate(length), (np.concatenate(src), np.concatenate(dst))),
+                          shape=(n, n)).tocsr()
 
     def blocked_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """(H, W) bool: cells whose centre lies within `radius` of any of `centres` (p, 2)."""
@@ -430,3 +413,41 @@ def _free(clearance: np.ndarray, radius: float) -> np.ndarray:
     """Free = not an obstacle (clearance > 0) and clearance >= radius."""
     free: np.ndarray = (clearance > 0) & (clearance >= radius)
     return free
+
+
+# Each of the 8 neighbour directions once (the other half is the reverse).
+_HALF_NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1))
+
+
+def _pick_along(xy: np.ndarray, along: np.ndarray, before: np.ndarray, spacing: float,
+                due: float) -> list[int]:
+    """Cells of `xy` (n, 2) picked along shortest-path trees (path length `along`,
+    predecessor `before`): a cell is picked once the path from the last picked cell reaches
+    `due` (one more step could pass `spacing`). The axis is one or two cells wide, so the
+    tree has parallel branches: a cell due is not picked when a picked point lies within
+    spacing/2 (which it then counts from)."""
+    since_pick = np.zeros(len(xy))  # path length from the last picked cell
+    bucket: dict[tuple[int, int], list[int]] = {}  # picked cells by spacing-sized square
+    picked: list[int] = []
+
+    def nearest_picked(i: int) -> float:
+        kx, ky = int(xy[i, 0] // spacing), int(xy[i, 1] // spacing)
+        near = [j for dx in (-1, 0, 1) for dy in (-1, 0, 1)
+                for j in bucket.get((kx + dx, ky + dy), ())]
+        return float(np.min(np.hypot(*(xy[near] - xy[i]).T))) if near else math.inf
+
+    for i in np.argsort(along, kind="stable"):
+        p = before[i]
+        if p >= 0:
+            since_pick[i] = since_pick[p] + along[i] - along[p]
+            if since_pick[i] < due:
+                continue
+        gap = nearest_picked(i)
+        if gap < spacing / 2:
+            since_pick[i] = gap
+        else:
+            picked.append(i)
+            key = (int(xy[i, 0] // spacing), int(xy[i, 1] // spacing))
+            bucket.setdefault(key, []).append(i)
+            since_pick[i] = 0.0
+    return picked
