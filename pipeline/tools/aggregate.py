@@ -174,8 +174,7 @@ def plot_scene(job: Path, path: Path) -> None:
         ax.imshow(obstacles.grid.occupied, origin="lower", extent=(x0, x1, y0, y1),
                   cmap="Greys", vmin=0, vmax=1.5, interpolation="nearest")
     if (job / "graph.mcap").exists():  # the graph's samples, as in the paper's Fig. 1 left
-        nodes = np.array([(n["x"], n["y"]) for n in
-                          read_artefact(job / "graph.mcap").all(topics.GRAPH_NODE)])
+        nodes = codec.decode_nodes(read_artefact(job / "graph.mcap")).positions
         ax.plot(nodes[:, 0], nodes[:, 1], ".", color="0.55", ms=3,
                 label=f"graph nodes ({len(nodes)})")
     room = scene["room"]
