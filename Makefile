@@ -119,6 +119,7 @@ clean:
 ## Benchmarks: tables under results/bench/ (adaptive-graph scaling, ...).
 bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench graph
+	$(PY) -m pipeline.tools.bench graph_io
 	$(PY) -m pipeline.tools.bench experiment
 	$(PY) -m pipeline.tools.bench irl
 	$(PY) -m pipeline.tools.bench obstacles

@@ -314,13 +314,12 @@ def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel,
 
 def learning_environment(cfg: Config, scene: Scene, graph: AdaptiveGraph,
                          graph_weights: np.ndarray) -> GraphEnvironment:
-    """The grown graph as the birl stage sees it (read back from graph.mcap's records)."""
+    """The grown graph as the birl stage sees it (as graph.mcap's tables hold it)."""
     grow_nodes = getattr(cfg.birl, "grow_nodes", 0)
     if grow_nodes <= 0:
         return GraphEnvironment(spatial_graph(graph), cfg.mdp)
-    nodes = [codec.node_record(graph, i) for i in range(graph.n_nodes)]
-    edges = [codec.edge_record(graph, e) for e in range(len(graph.src))]
     adaptive = build.regrowable_graph(cfg, scene, graph_weights, graph.min_separation,
-                                      nodes, edges, graph.start_nodes.tolist(),
+                                      graph.node_table(), graph.edge_table(),
+                                      graph.start_nodes.tolist(),
                                       stage_rng(cfg.seed, "birl", 1))
     return GrowingGraphEnvironment(adaptive, cfg.mdp, grow_nodes)

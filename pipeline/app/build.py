@@ -20,6 +20,7 @@ from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
 from pipeline.core.obstacles import OccupancyGrid
 from pipeline.core.roadmap import Roadmap, RoadmapParams, build_roadmap, lattice_graph
 from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
+from pipeline.core.state_graph import EdgeTable, NodeTable
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import MapHeader, load_map
@@ -213,9 +214,9 @@ def initial_weights(cfg: Config, rng: np.random.Generator) -> np.ndarray:
 
 
 def regrowable_graph(cfg: Config, scene: Scene, weights: np.ndarray, min_separation: float,
-                     nodes: list[dict], edges: list[dict], start_nodes: list[int],
+                     nodes: NodeTable, edges: EdgeTable, start_nodes: list[int],
                      rng: np.random.Generator) -> AdaptiveGraph:
-    """A grown adaptive graph (its node and edge records, as graph.mcap holds them) rebuilt
+    """A grown adaptive graph (its node and edge tables, as graph.mcap holds them) rebuilt
     so that it can grow further under other weights (birl.grow_nodes), drawing from `rng`."""
     params = dataclasses.replace(cfg.graph, min_separation=min_separation)
     g = AdaptiveGraph(scene, learner_feature_model(cfg, scene), controller(cfg), weights,

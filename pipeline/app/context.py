@@ -115,7 +115,8 @@ class RunContext:
             return read_artefact(path, required_topics=required_topics, producer_stage=stage)
         cached = self._cache.get(path)
         if cached is None or cached[0] != identity:
-            cached = (identity, read_artefact(path, producer_stage=stage))
+            # lazy: a stage parses only the topics it reads (the whole file is checked now)
+            cached = (identity, read_artefact(path, producer_stage=stage, lazy=True))
             self._cache[path] = cached
         return cached[1].require(required_topics)
 

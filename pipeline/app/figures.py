@@ -29,8 +29,7 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
         ax.imshow(obstacles.grid.occupied, origin="lower", extent=(x0, x1, y0, y1),
                   cmap="Greys", vmin=0, vmax=1.5, interpolation="nearest")
     if (run_dir / ARTEFACT_FILE["graph"]).exists():  # the graph's samples (paper Fig. 1 left)
-        nodes = np.array([(n["x"], n["y"]) for n in
-                          read_artefact(run_dir / ARTEFACT_FILE["graph"]).all(topics.GRAPH_NODE)])
+        nodes = codec.decode_nodes(read_artefact(run_dir / ARTEFACT_FILE["graph"])).positions
         ax.plot(nodes[:, 0], nodes[:, 1], ".", color="0.55", ms=3,
                 label=f"graph nodes ({len(nodes)})")
     room = scene["room"]

@@ -4,14 +4,22 @@ as messages, so that every reader of an artefact builds the same objects the sam
 from __future__ import annotations
 
 import base64
+import binascii
+import dataclasses
 
 import numpy as np
 
 from pipeline.artefacts import topics
-from pipeline.artefacts.store import Artefact
-from pipeline.core.graph_mdp import GraphMDP, MDPParams, SpatialGraph, TrajectoryStats
+from pipeline.artefacts.store import Artefact, ArtefactError
+from pipeline.core.graph_mdp import (
+    GraphMDP,
+    MDPParams,
+    Polylines,
+    SpatialGraph,
+    TrajectoryStats,
+)
 from pipeline.core.obstacles import OccupancyGrid
-from pipeline.core.state_graph import StateGraph
+from pipeline.core.state_graph import EdgeTable, NodeTable
 from pipeline.core.world import Scene, scene_from_dict
 
 
@@ -50,29 +58,202 @@ def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:
                         [positions[[a, b]] for a, b in zip(src, dst, strict=True)])
 
 
-def graph_records(art: Artefact, grown: Artefact | None = None) -> tuple[list[dict], list[dict]]:
-    """Node and edge records of graph.mcap in id order, plus those the BIRL stage grew
-    (`grown` = birl.mcap with birl.grow_nodes > 0)."""
-    extra_nodes = grown.messages.get(topics.BIRL_GRAPH_NODE, []) if grown else []
-    extra_edges = grown.messages.get(topics.BIRL_GRAPH_EDGE, []) if grown else []
-    nodes = sorted(art.all(topics.GRAPH_NODE) + extra_nodes, key=lambda n: n["id"])
-    edges = sorted(art.all(topics.GRAPH_EDGE) + extra_edges, key=lambda e: e["id"])
+# Columns of the /graph/nodes and /graph/edges messages (birlg.GraphNodes, birlg.GraphEdges):
+# one row per node or edge, row i being element first_id + i; a numeric column is the base64
+# of a little-endian binary array of this dtype (as JSON arrays of numbers they take several
+# times longer to parse: docs/artefacts.md), `kind` a JSON array of strings.
+F64, I32, U8 = "<f8", "<i4", "|u1"
+NODE_COLUMNS = {"x": F64, "y": F64, "theta": F64, "parent": I32, "iteration": I32,
+                "gp_mean": F64, "gp_std": F64, "score": F64}
+EDGE_COLUMNS = {"src": I32, "dst": I32, "duration": F64, "demo": U8, "iteration": I32,
+                "n_waypoints": I32}
+
+
+def column(values: np.ndarray, dtype: str) -> str:
+    """An array as a message column: base64 of its values as little-endian `dtype`."""
+    values = np.asarray(values)
+    converted = np.ascontiguousarray(values, dtype=dtype)
+    if values.size and np.dtype(dtype).kind == "i" and not np.array_equal(converted, values):
+        raise ValueError(f"values out of the range of {np.dtype(dtype).name}")
+    return base64.b64encode(converted.tobytes()).decode("ascii")
+
+
+def nodes_message(nodes: NodeTable, first_id: int, with_terminal: bool = False) -> dict:
+    """A GraphNodes message: `nodes` as columns, ids first_id, first_id + 1, ...; log_time:
+    the last iteration among them."""
+    values = {"x": nodes.pose[:, 0], "y": nodes.pose[:, 1], "theta": nodes.pose[:, 2],
+              "parent": nodes.parent, "iteration": nodes.added_at, "gp_mean": nodes.gp_mean,
+              "gp_std": nodes.gp_std, "score": nodes.score}
+    msg = {k: column(values[k], dtype) for k, dtype in NODE_COLUMNS.items()}
+    msg.update(first_id=first_id, count=len(nodes), kind=[str(k) for k in nodes.kind])
+    if with_terminal:
+        if nodes.terminal is None:
+            raise ValueError("nodes without terminal flags")
+        msg["terminal"] = column(nodes.terminal, U8)
+    return msg
+
+
+def edges_message(edges: EdgeTable, first_id: int) -> dict:
+    """A GraphEdges message: `edges` as columns, ids first_id, first_id + 1, ...;
+    features row-major (count × n_features), waypoints the [x, y] points of every edge's
+    path one after the other (n_waypoints of them per edge)."""
+    values = {"src": edges.src, "dst": edges.dst, "duration": edges.duration,
+              "demo": edges.demo, "iteration": edges.added_at,
+              "n_waypoints": edges.waypoints.counts}
+    msg = {k: column(values[k], dtype) for k, dtype in EDGE_COLUMNS.items()}
+    msg.update(first_id=first_id, count=len(edges), n_features=int(edges.features.shape[1]),
+               features=column(edges.features, F64), waypoints=column(edges.waypoints.points, F64))
+    return msg
+
+
+def last_iteration(table: NodeTable | EdgeTable) -> int:
+    """The log_time of a GraphNodes or GraphEdges message: its last growth iteration."""
+    return int(table.added_at.max()) if len(table) else 0
+
+
+class _Columns:
+    """Reads the columns of the messages on one topic, with one-line errors naming the
+    artefact, topic and field."""
+
+    def __init__(self, art: Artefact, topic: str) -> None:
+        self.art, self.topic = art, topic
+        self.msgs = art.all(topic)
+
+    def fail(self, what: str) -> ArtefactError:
+        return ArtefactError(f"artefact {self.art.path} has a message on topic '{self.topic}' "
+                             f"{what}")
+
+    def field(self, msg: dict, key: str) -> object:
+        if key not in msg:
+            raise self.fail(f"without the field '{key}'")
+        return msg[key]
+
+    def count(self, msg: dict, key: str = "count") -> int:
+        n = self.field(msg, key)
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise self.fail(f"whose '{key}' is not a non-negative integer ({n!r})")
+        return n
+
+    def array(self, msg: dict, key: str, dtype: str, n: int) -> np.ndarray:
+        """Column `key` of `msg`: n values of `dtype` (read-only, native byte order)."""
+        text = self.field(msg, key)
+        if not isinstance(text, str):
+            raise self.fail(f"whose column '{key}' is not a base64 string")
+        try:
+            raw = binascii.a2b_base64(text)  # as base64.b64decode, without copying the text
+        except ValueError as e:  # binascii.Error, or a str that is not ASCII
+            raise self.fail(f"whose column '{key}' is not valid base64 ({e})") from None
+        size = np.dtype(dtype).itemsize
+        if len(raw) != n * size:
+            raise self.fail(f"whose column '{key}' holds {len(raw)} bytes, expected {n} "
+                            f"values of {size} bytes")
+        return np.frombuffer(raw, dtype=dtype).astype(np.dtype(dtype).newbyteorder("="),
+                                                       copy=False)
+
+    def first_ids(self, first_id: int | None) -> int:
+        """The number of rows, after checking that message k starts at the id after message
+        k − 1's last, the first at first_id (None: at whichever it says)."""
+        n = 0
+        for msg in self.msgs:
+            first = self.count(msg, "first_id")
+            if first_id is None:
+                first_id = first
+            if first != first_id + n:
+                raise ArtefactError(
+                    f"artefact {self.art.path}: the rows on topic '{self.topic}' start at id "
+                    f"{first}, expected {first_id + n} (rows missing, repeated or out of order)")
+            n += self.count(msg)
+        return n
+
+
+def _cat(parts: list[np.ndarray], dtype: str, tail: tuple[int, ...] = ()) -> np.ndarray:
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate(parts) if parts else np.zeros((0, *tail), dtype=dtype)
+
+
+def decode_nodes(art: Artefact, topic: str = topics.GRAPH_NODES,
+                 first_id: int | None = 0) -> NodeTable:
+    """The nodes on `topic` (GraphNodes messages, in log_time order), ids from first_id
+    (None: from whichever the first row has)."""
+    reader = _Columns(art, topic)
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in [*NODE_COLUMNS, "terminal"]}
+    kinds: list[str] = []
+    for msg in reader.msgs:
+        n = reader.count(msg)
+        for key, dtype in NODE_COLUMNS.items():
+            cols[key].append(reader.array(msg, key, dtype, n))
+        if "terminal" in msg:
+            cols["terminal"].append(reader.array(msg, "terminal", U8, n).astype(bool))
+        kind = reader.field(msg, "kind")
+        if not isinstance(kind, list) or len(kind) != n \
+                or not all(isinstance(k, str) for k in kind):
+            raise reader.fail(f"whose 'kind' is not a list of {n} strings")
+        kinds += kind
+    reader.first_ids(first_id)
+    c = {k: _cat(v, NODE_COLUMNS.get(k, U8)) for k, v in cols.items()}
+    has_terminal = len(cols["terminal"]) == len(reader.msgs)
+    return NodeTable(np.stack([c["x"], c["y"], c["theta"]], axis=1), np.array(kinds, dtype=str),
+                     c["parent"].astype(np.int64), c["iteration"].astype(np.int64),
+                     c["gp_mean"], c["gp_std"], c["score"], c["terminal"] if has_terminal else None)
+
+
+def decode_edges(art: Artefact, topic: str = topics.GRAPH_EDGES,
+                 first_id: int | None = 0) -> EdgeTable:
+    """The edges on `topic` (GraphEdges messages, in log_time order), ids from first_id
+    (None: from whichever the first row has)."""
+    reader = _Columns(art, topic)
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in [*EDGE_COLUMNS, "features", "waypoints"]}
+    dims = set()
+    for msg in reader.msgs:
+        n, d = reader.count(msg), reader.count(msg, "n_features")
+        dims.add(d)
+        for key, dtype in EDGE_COLUMNS.items():
+            cols[key].append(reader.array(msg, key, dtype, n))
+        cols["features"].append(reader.array(msg, "features", F64, n * d).reshape(n, d))
+        counts = cols["n_waypoints"][-1]
+        if n and counts.min() < 0:
+            raise reader.fail("with a negative 'n_waypoints'")
+        cols["waypoints"].append(reader.array(msg, "waypoints", F64, 2 * int(counts.sum()))
+                                 .reshape(-1, 2))
+    if len(dims) > 1:
+        raise reader.fail(f"with another 'n_features' than the others ({sorted(dims)})")
+    reader.first_ids(first_id)
+    c = {k: _cat(v, EDGE_COLUMNS.get(k, F64)) for k, v in cols.items()
+         if k not in ("features", "waypoints")}
+    features = _cat(cols["features"], F64, (dims.pop() if dims else 0,))
+    waypoints = Polylines(_cat(cols["waypoints"], F64, (2,)), c["n_waypoints"])
+    return EdgeTable(c["src"].astype(np.int64), c["dst"].astype(np.int64), c["duration"],
+                     features, waypoints, c["demo"].astype(bool), c["iteration"].astype(np.int64))
+
+
+def graph_tables(art: Artefact, grown: Artefact | None = None) -> tuple[NodeTable, EdgeTable]:
+    """The nodes and edges of graph.mcap (terminal flags from /graph/solution), plus those
+    the BIRL stage grew (`grown` = birl.mcap with birl.grow_nodes > 0), in id order."""
+    nodes, edges = decode_nodes(art), decode_edges(art)
+    terminal = np.asarray(art.one(topics.GRAPH_SOLUTION)["terminal"], dtype=bool)
+    if len(terminal) != len(nodes):
+        raise ArtefactError(f"artefact {art.path} has {len(terminal)} terminal flags on "
+                            f"'{topics.GRAPH_SOLUTION}' for {len(nodes)} nodes")
+    nodes = dataclasses.replace(nodes, terminal=terminal)
+    if grown is not None and topics.BIRL_GRAPH_NODES in grown.messages:
+        more = decode_nodes(grown, topics.BIRL_GRAPH_NODES, len(nodes))
+        if more.terminal is None:
+            raise ArtefactError(f"artefact {grown.path} has nodes on "
+                                f"'{topics.BIRL_GRAPH_NODES}' without 'terminal'")
+        nodes = nodes.concat(more)
+        edges = edges.concat(decode_edges(grown, topics.BIRL_GRAPH_EDGES, len(edges)))
     return nodes, edges
 
 
 def decode_graph(art: Artefact, mdp: MDPParams, grown: Artefact | None = None) -> SpatialGraph:
     """The adaptive graph of graph.mcap (and the part grown during learning)."""
     sol = art.one(topics.GRAPH_SOLUTION)
-    nodes, edges = graph_records(art, grown)
-    extra = grown.messages.get(topics.BIRL_GRAPH_NODE, []) if grown else []
-    terminal = list(sol["terminal"]) + [n["terminal"] for n in sorted(extra, key=lambda n: n["id"])]
-    graph_mdp = GraphMDP([e["src"] for e in edges], [e["dst"] for e in edges],
-                         [e["duration"] for e in edges], [e["features"] for e in edges],
-                         terminal, mdp)
-    positions = np.array([[n["x"], n["y"]] for n in nodes])
-    return SpatialGraph(positions, graph_mdp, np.asarray(sol["start_nodes"]),
-                        [np.asarray(e["waypoints"], float) for e in edges],
-                        snap_tolerance=sol["min_separation"])
+    nodes, edges = graph_tables(art, grown)
+    graph_mdp = GraphMDP(edges.src, edges.dst, edges.duration, edges.features, nodes.terminal,
+                         mdp)
+    return SpatialGraph(nodes.positions, graph_mdp, np.asarray(sol["start_nodes"]),
+                        edges.waypoints, snap_tolerance=sol["min_separation"])
 
 
 def training_demos(art: Artefact) -> list[dict]:
@@ -97,23 +278,3 @@ def decode_expert_stats(demo_msgs: list[dict]) -> list[TrajectoryStats]:
     return [TrajectoryStats(int(m["start_index"]), np.asarray(m["discounted_features"], float),
                             float(m["offset"]), float(m["end_discount"]), bool(m["reached"]))
             for m in demo_msgs]
-
-
-def _none_if_nan(x: float) -> float | None:
-    return None if not np.isfinite(x) else float(x)
-
-
-def node_record(graph: StateGraph, i: int) -> dict:
-    """A GraphNode message for node i (log_time: its "iteration")."""
-    return {"id": i, "x": graph.pose[i, 0], "y": graph.pose[i, 1], "theta": graph.pose[i, 2],
-            "kind": graph.node_kind[i], "parent": int(graph.parent[i]),
-            "iteration": int(graph.added_at[i]), "gp_mean": _none_if_nan(graph.gp_mean[i]),
-            "gp_std": _none_if_nan(graph.gp_std[i]), "score": _none_if_nan(graph.score[i])}
-
-
-def edge_record(graph: StateGraph, e: int) -> dict:
-    """A GraphEdge message for edge e; an edge exists from the iteration both its ends do."""
-    return {"id": int(e), "src": int(graph.src[e]), "dst": int(graph.dst[e]),
-            "duration": graph.duration[e], "features": graph.features[e],
-            "waypoints": graph.waypoints[e], "demo": graph.edge_is_demo[e],
-            "iteration": int(max(graph.added_at[graph.src[e]], graph.added_at[graph.dst[e]]))}

@@ -123,7 +123,7 @@ def graph_update(positions: np.ndarray, kinds: Sequence[str], src: Sequence[int]
                  dst: Sequence[int]) -> Msg:
     """The final adaptive graph: one sphere per node (coloured by kind) and its edges as one
     LINE_LIST of straight segments, one per connected node pair (the controller's waypoints
-    are on /graph/edge)."""
+    are on /graph/edges)."""
     pairs = sorted({(min(a, b), max(a, b)) for a, b in zip(map(int, src), map(int, dst),
                                                              strict=True)})
     segments = [positions[i] for pair in pairs for i in pair]

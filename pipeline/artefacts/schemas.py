@@ -186,32 +186,66 @@ ROADMAP = _message("Roadmap", "The reference roadmap (DESIGN §6) with its exact
                                     "(n_nodes)."), "for file and planner demonstrations"),
 })
 
-GRAPH_NODE = _message("GraphNode", "One node of the adaptive state graph (DESIGN §7); log_time "
-                      "= the growth iteration it was added.", {
-    "id": _node("This node"),
-    "x": _num("Position x, metres."), "y": _num("Position y, metres."),
-    "theta": _num("Heading of the robot state, radians."),
-    "kind": _str("How it was made: start, goal, voronoi, demo, medial or sampled."),
-    "parent": _int("Node it was sampled from; −1 for initial nodes.", minimum=-1),
-    "iteration": _int("Growth iteration it was added (0 = initial nodes).", minimum=0),
-    "gp_mean": _nullable(_num("GP-regression estimate of its value at sampling time."),
-                         "for initial nodes"),
-    "gp_std": _nullable(_num("GP-regression standard deviation at sampling time.", minimum=0),
-                        "for initial nodes"),
-    "score": _nullable(_num("Exploration score ES it was picked with."), "for initial nodes"),
-    "terminal": _bool("Whether the node is terminal (only on /birl/graph_node)."),
+def _column(dtype: str, desc: str, per: str = "node") -> Schema:
+    """A column of a columnar message: one value per row, as the base64 of a little-endian
+    binary array (numpy: np.frombuffer(base64.b64decode(s), dtype))."""
+    return {"type": "string", "contentEncoding": "base64",
+            "contentMediaType": "application/octet-stream",
+            "description": f"{desc} Column: base64 of one little-endian {dtype} per {per}."}
+
+
+_COLUMNAR = ("Columns, one row per {per}: row i is {per} first_id + i. Each numeric column "
+             "is the base64 of a little-endian binary array (dtype in its description). "
+             "Several messages on one topic hold consecutive rows (each starts at the id after "
+             "the previous one's last); log_time = the last growth iteration among the rows.")
+
+GRAPH_NODES = _message("GraphNodes", "Nodes of the adaptive state graph (DESIGN §7). "
+                       + _COLUMNAR.format(per="node"), {
+    "first_id": _int("Node id (index into the graph's node list) of the first row.",
+                     minimum=0),
+    "count": _int("Number of nodes (rows) in this message.", minimum=0),
+    "x": _column("float64", "Position x, metres."),
+    "y": _column("float64", "Position y, metres."),
+    "theta": _column("float64", "Heading of the robot state, radians."),
+    "kind": _array(_str("start, goal, voronoi, demo, medial (on the medial axis of the "
+                        "free space, scenes with obstacles) or sampled."),
+                   "How each node was made (count strings)."),
+    "parent": _column("int32", "Node it was sampled from; −1 for initial nodes."),
+    "iteration": _column("int32", "Growth iteration it was added (0 = initial nodes): "
+                         "growth replays from this."),
+    "gp_mean": _column("float64", "GP-regression estimate of its value at sampling time; "
+                       "NaN for initial nodes."),
+    "gp_std": _column("float64", "GP-regression standard deviation at sampling time; NaN "
+                      "for initial nodes."),
+    "score": _column("float64", "Exploration score ES it was picked with; NaN for initial "
+                     "nodes."),
+    "terminal": _column("uint8", "1 if the node is terminal, else 0 (only on "
+                        "/birl/graph_nodes; graph.mcap's are in /graph/solution)."),
 }, optional=("terminal",))
 
-GRAPH_EDGE = _message("GraphEdge", "One directed edge (a local-controller run) of the adaptive "
-                      "graph; log_time = the growth iteration it was added.", {
-    "id": _int("Edge id (index into the graph's edge list).", minimum=0),
-    "src": _node("Source node"), "dst": _node("Destination node"),
-    "duration": _num("Duration τ(e) of the controller run, seconds.", exclusiveMinimum=0),
-    "features": _features("Feature integrals φ(e) of the edge"),
-    "waypoints": _array(_point("A waypoint"), "The controller's path from src to dst.",
-                        min_items=2),
-    "demo": _bool("Whether the edge is a segment of a demonstration (carries its features)."),
-    "iteration": _int("Growth iteration it was added (the later of its ends).", minimum=0),
+GRAPH_EDGES = _message("GraphEdges", "Directed edges (local-controller runs) of the adaptive "
+                       "graph. " + _COLUMNAR.format(per="edge"), {
+    "first_id": _int("Edge id (index into the graph's edge list) of the first row.",
+                     minimum=0),
+    "count": _int("Number of edges (rows) in this message.", minimum=0),
+    "n_features": _int("Entries of each edge's feature vector (len(feature_names)).",
+                       minimum=0),
+    "src": _column("int32", "Source node id.", "edge"),
+    "dst": _column("int32", "Destination node id.", "edge"),
+    "duration": _column("float64", "Duration τ(e) of the controller run, seconds (> 0).",
+                        "edge"),
+    "features": _column("float64", "Feature integrals φ(e): count × n_features values, "
+                        "row-major (edge by edge), in the order of feature_names.",
+                        "feature entry"),
+    "n_waypoints": _column("int32", "Number of points (≥ 2) of the edge's path in "
+                           "`waypoints`.", "edge"),
+    "waypoints": _column("float64", "The controller's path of every edge, edge after edge "
+                         "(n_waypoints points each, from src to dst), each point x then y, "
+                         "metres.", "coordinate"),
+    "demo": _column("uint8", "1 if the edge is a segment of a demonstration (carries its "
+                    "features), else 0.", "edge"),
+    "iteration": _column("int32", "Growth iteration it was added (the later of its ends).",
+                         "edge"),
 })
 
 BEST_PATHS = _message("BestPaths", "The greedy best trajectories after one growth iteration.", {
@@ -335,7 +369,7 @@ METRICS = {
 
 # Message type name (without the `birlg.` prefix) -> its schema.
 SCHEMAS: dict[str, Schema] = {s["title"].removeprefix("birlg."): s for s in (
-    SCENE, OCCUPANCY_GRID, EXPERT, DEMONSTRATION, ROADMAP, GRAPH_NODE, GRAPH_EDGE, BEST_PATHS,
+    SCENE, OCCUPANCY_GRID, EXPERT, DEMONSTRATION, ROADMAP, GRAPH_NODES, GRAPH_EDGES, BEST_PATHS,
     GRAPH_SOLUTION, BIRL_EXPERT, BIRL_ITERATION, BIRL_POSTERIOR, POLICY_LOSS, LEARNED_PATH,
     METRICS)}
 

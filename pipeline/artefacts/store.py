@@ -20,13 +20,13 @@ import uuid
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Attachment, Channel, Chunk, Message, MessageIndex, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from pipeline.artefacts.schemas import SCHEMAS
@@ -138,7 +138,7 @@ def _canonical(obj) -> bytes:
 @dataclass(frozen=True)
 class Artefact:
     path: Path
-    messages: dict[str, list[dict]]  # topic -> payloads in log_time order
+    messages: Mapping[str, list[dict]]  # topic -> payloads in log_time order
     config_yaml: str
     metadata: dict[str, str]
     digest: str = ""  # content digest (see content_digest): what later artefacts record
@@ -284,8 +284,10 @@ def write_artefact(path, records: Iterable[tuple[str, str, dict, int]], *, confi
 
 
 def _read_records(f) -> list:
-    """All records of a complete MCAP; raises on truncation, bad CRCs or trailing bytes."""
-    records = list(StreamReader(f, validate_crcs=True).records)  # stops after footer + magic
+    """The top-level records of a complete MCAP, chunks still compressed; raises on
+    truncation, a bad data-section or summary CRC, or trailing bytes. The data-section CRC
+    covers every byte of every chunk, so a chunk that is never decompressed is checked too."""
+    records = list(StreamReader(f, validate_crcs=True, emit_chunks=True).records)
     footer, end = records[-1], f.tell()
     if end != os.fstat(f.fileno()).st_size:
         raise ValueError("trailing bytes after the MCAP end magic")
@@ -297,8 +299,114 @@ def _read_records(f) -> list:
     return records
 
 
+def _corrupt(path: Path, e: Exception) -> ArtefactError:
+    detail = "unexpected end of file" if isinstance(e, EndOfFile) else str(e)
+    detail = " ".join((detail or type(e).__name__).split())  # keep it on one line
+    return ArtefactError(f"artefact {path} is truncated or corrupt (cannot read MCAP: {detail})")
+
+
+class _Messages(Mapping[str, list[dict]]):
+    """topic -> payloads in log_time order, of one artefact. A topic's chunks are
+    decompressed (their CRCs checked) and its JSON parsed when it is first looked up, so a
+    reader pays only for the topics it uses (graph.mcap's Foxglove view and best paths are
+    most of the file); `load_all` does every topic at once."""
+
+    def __init__(self, path: Path, channels: dict[int, Channel], schemas: dict[int, Schema],
+                 chunks: list[tuple[Chunk, set[int] | None]],
+                 loose: list[Message]) -> None:
+        self._path, self._channels, self._schemas = path, channels, schemas
+        # Chunks not yet broken up, with the channel ids of their messages (None: unknown).
+        self._chunks = chunks
+        self._raw: dict[int, list[Message]] = {}  # channel id -> messages of broken-up chunks
+        self._topics: dict[str, list[int]] = {}  # topic -> its channel ids
+        self._decoded: dict[str, list[dict]] = {}
+        for m in loose:
+            self._raw.setdefault(m.channel_id, []).append(m)
+        for c in channels.values():
+            self._topics.setdefault(c.topic, []).append(c.id)
+        # Chunks that may hold channels the summary did not list: broken up now, so that
+        # the set of topics is complete.
+        self._break_up([i for i, (_, ids) in enumerate(chunks)
+                        if ids is None or not ids <= channels.keys()])
+
+    def _break_up(self, which: list[int]) -> None:
+        for i in which:
+            chunk, _ = self._chunks[i]
+            self._chunks[i] = (chunk, set())  # nothing left in it
+            try:
+                records = breakup_chunk(chunk, validate_crc=True)
+            except Exception as e:  # noqa: BLE001 - zstd, CRC, struct: one line
+                raise _corrupt(self._path, e) from e
+            for r in records:
+                if isinstance(r, Channel) and r.id not in self._channels:
+                    self._channels[r.id] = r
+                    self._topics.setdefault(r.topic, []).append(r.id)
+                elif isinstance(r, Schema):
+                    self._schemas.setdefault(r.id, r)
+                elif isinstance(r, Message):
+                    self._raw.setdefault(r.channel_id, []).append(r)
+
+    def _check_channels(self) -> None:
+        for channel_id in self._raw:
+            ch = self._channels.get(channel_id)
+            if ch is None or ch.message_encoding != "json" or ch.schema_id not in self._schemas:
+                raise ArtefactError(f"artefact {self._path} has a message on channel "
+                                    f"{channel_id} with no JSON channel/schema")
+
+    def _decode(self, topic: str) -> list[dict]:
+        ids = set(self._topics[topic])
+        self._break_up([i for i, (_, in_chunk) in enumerate(self._chunks)
+                        if in_chunk is None or in_chunk & ids])
+        self._check_channels()
+        timed = []
+        for channel_id in self._topics[topic]:
+            for m in self._raw.pop(channel_id, []):
+                try:
+                    payload = json.loads(m.data)
+                except ValueError as e:
+                    raise ArtefactError(f"artefact {self._path} has a message on topic "
+                                        f"'{topic}' that is not valid JSON ({e})") from None
+                if not isinstance(payload, dict):
+                    raise ArtefactError(f"artefact {self._path} has a message on topic "
+                                        f"'{topic}' that is not a JSON object")
+                # Only the order of log_time matters here (index × LOG_TIME_NS; in artefacts
+                # written before that scale, the index itself), so no unscaling is needed.
+                timed.append((m.log_time, payload))
+        # sorted() is stable, so messages with equal log_time keep their file order.
+        return [p for _, p in sorted(timed, key=lambda x: x[0])]
+
+    def load_all(self) -> None:
+        """Decompress and parse everything now (errors are raised here, not on lookup)."""
+        self._break_up(list(range(len(self._chunks))))
+        self._check_channels()
+        for topic in self._topics:
+            self[topic]
+
+    def __getitem__(self, topic: str) -> list[dict]:
+        if topic not in self._decoded:
+            if topic not in self._topics:
+                raise KeyError(topic)
+            self._decoded[topic] = self._decode(topic)
+        return self._decoded[topic]
+
+    def __contains__(self, topic: object) -> bool:
+        return topic in self._topics
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._topics)
+
+    def __len__(self) -> int:
+        return len(self._topics)
+
+    def __repr__(self) -> str:
+        return f"<messages of {self._path}: {sorted(self._topics)}>"
+
+
 def read_artefact(path, *, required_topics: Iterable[str] = (),
-                  producer_stage: str | None = None) -> Artefact:
+                  producer_stage: str | None = None, lazy: bool = False) -> Artefact:
+    """The artefact at `path`, after checking the whole file (magic, the data-section and
+    summary CRCs, the footer). Every message is decompressed (chunk CRCs checked) and
+    parsed now; with `lazy`, a topic's messages when it is first looked up (errors then)."""
     path = Path(path)
 
     def fail(what: str) -> ArtefactError:
@@ -320,33 +428,24 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
         try:
             records = _read_records(f)
         except Exception as e:  # mcap raises many types here (struct.error, EndOfFile, CRC, zstd)
-            detail = "unexpected end of file" if isinstance(e, EndOfFile) else str(e)
-            detail = " ".join((detail or type(e).__name__).split())  # keep it on one line
-            raise fail(f"is truncated or corrupt (cannot read MCAP: {detail})") from e
+            raise _corrupt(path, e) from e
     schemas = {r.id: r for r in records if isinstance(r, Schema)}
     channels = {r.id: r for r in records if isinstance(r, Channel)}
+    chunks: list[tuple[Chunk, set[int] | None]] = []
+    for r in records:  # each chunk is followed by the message indexes of its channels
+        if isinstance(r, Chunk):
+            chunks.append((r, None))
+        elif isinstance(r, MessageIndex) and chunks:
+            chunks[-1] = (chunks[-1][0], (chunks[-1][1] or set()) | {r.channel_id})
     config = next((r.data for r in records
                    if isinstance(r, Attachment) and r.name == "config.yaml"), b"")
     meta = next((r.metadata for r in records
                  if isinstance(r, Metadata) and r.name == "run"), {})
     digest = next((r.metadata.get("sha256", "") for r in records
                    if isinstance(r, Metadata) and r.name == CONTENT_METADATA), "")
-    timed: dict[str, list[tuple[int, dict]]] = {c.topic: [] for c in channels.values()}
-    for m in (r for r in records if isinstance(r, Message)):
-        ch = channels.get(m.channel_id)
-        if ch is None or ch.message_encoding != "json" or ch.schema_id not in schemas:
-            raise fail(f"has a message on channel {m.channel_id} with no JSON channel/schema")
-        try:
-            payload = json.loads(m.data)
-        except ValueError as e:
-            raise fail(f"has a message on topic '{ch.topic}' that is not valid JSON ({e})") \
-                from None
-        if not isinstance(payload, dict):
-            raise fail(f"has a message on topic '{ch.topic}' that is not a JSON object")
-        # Only the order of log_time matters here (index × LOG_TIME_NS; in artefacts written
-        # before that scale, the index itself), so no unscaling is needed.
-        timed[ch.topic].append((m.log_time, payload))
-    # sorted() is stable, so messages with equal log_time keep their file order.
-    messages = {t: [p for _, p in sorted(v, key=lambda x: x[0])] for t, v in timed.items()}
+    messages = _Messages(path, channels, schemas, chunks,
+                         [r for r in records if isinstance(r, Message)])
+    if not lazy:
+        messages.load_all()
     return Artefact(path, messages, config.decode("utf-8", errors="replace"), dict(meta),
                     digest).require(required_topics)

@@ -15,16 +15,18 @@ DEMOS = "/demos"
 DEMOS_EXPERT = "/demos/expert"
 DEMOS_ROADMAP = "/demos/roadmap"
 
-GRAPH_NODE = "/graph/node"
-GRAPH_EDGE = "/graph/edge"
+# The graph's nodes and edges as columns (one row per element, with the iteration it was
+# added at): birlg.GraphNodes, birlg.GraphEdges.
+GRAPH_NODES = "/graph/nodes"
+GRAPH_EDGES = "/graph/edges"
 GRAPH_BEST_PATHS = "/graph/best_paths"
 GRAPH_SOLUTION = "/graph/solution"
 
 BIRL_EXPERT = "/birl/expert"
 BIRL_ITERATION = "/birl/iteration"
 BIRL_POSTERIOR = "/birl/posterior"
-BIRL_GRAPH_NODE = "/birl/graph_node"  # nodes grown during learning (birl.grow_nodes > 0)
-BIRL_GRAPH_EDGE = "/birl/graph_edge"
+BIRL_GRAPH_NODES = "/birl/graph_nodes"  # nodes grown during learning (birl.grow_nodes > 0)
+BIRL_GRAPH_EDGES = "/birl/graph_edges"
 
 EVAL_POLICY_LOSS = "/eval/policy_loss"
 EVAL_PATHS = "/eval/paths"

@@ -39,7 +39,17 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.params import require, require_count, require_non_negative, require_positive
 from pipeline.core.roadmap import segments_feasible
-from pipeline.core.state_graph import DEMO, GOAL, MEDIAL, SAMPLED, START, VORONOI, StateGraph
+from pipeline.core.state_graph import (
+    DEMO,
+    GOAL,
+    MEDIAL,
+    SAMPLED,
+    START,
+    VORONOI,
+    EdgeTable,
+    NodeTable,
+    StateGraph,
+)
 from pipeline.core.world import Room, Scene
 
 
@@ -231,17 +241,17 @@ class AdaptiveGraph(StateGraph):
         self.add_edges(nodes[:-1], nodes[1:], demo.segment_durations, demo.segment_features,
                        waypoints, is_demo=True)
 
-    def restore(self, nodes: list[dict], edges: list[dict],
+    def restore(self, nodes: NodeTable, edges: EdgeTable,
                 start_nodes: ArrayLike | None = None) -> None:
-        """Rebuild a stored graph (graph.mcap's node and edge records, ids in order) instead
+        """Rebuild a stored graph (graph.mcap's nodes and edges, rows in id order) instead
         of initialise(), so that it can grow further. start_nodes: (n_starts,) node ids of
         the scene's starts in order (default: the start nodes in id order)."""
         super().restore(nodes, edges)
         if start_nodes is None:
-            start_nodes = [i for i, n in enumerate(nodes) if n["kind"] == START]
+            start_nodes = np.flatnonzero(nodes.kind == START)
         self.start_nodes = np.asarray(start_nodes, dtype=np.int64)
-        self.goal_node = next(i for i, n in enumerate(nodes) if n["kind"] == GOAL)
-        self.iteration = max(n["iteration"] for n in nodes)
+        self.goal_node = int(np.flatnonzero(nodes.kind == GOAL)[0])
+        self.iteration = int(nodes.added_at.max())
         self.solver.solve_full()
         self.solve()
 

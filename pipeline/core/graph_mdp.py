@@ -28,8 +28,9 @@ Two formulations (`MDPParams`):
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, overload
 
 import numpy as np
 import scipy.sparse as sp
@@ -347,13 +348,60 @@ def reaches(src: np.ndarray, dst: np.ndarray, terminal: np.ndarray) -> np.ndarra
     return found
 
 
+class Polylines(Sequence[np.ndarray]):
+    """Many polylines (e.g. every edge's driven path) in one flat array: polyline i is
+    points[offsets[i]:offsets[i + 1]], a (K_i, 2) view. Indexing gives the views without
+    building one array per polyline up front (a stored graph has 10^5 of them)."""
+
+    def __init__(self, points: ArrayLike, counts: ArrayLike) -> None:
+        self.points = np.asarray(points, dtype=float).reshape(-1, 2)
+        counts = np.asarray(counts, dtype=np.int64)
+        self.offsets = np.zeros(len(counts) + 1, dtype=np.int64)
+        np.cumsum(counts, out=self.offsets[1:])
+        if len(counts) and (counts.min() < 0 or self.offsets[-1] != len(self.points)):
+            raise ValueError(f"{len(counts)} polylines of {self.offsets[-1]} points in all, "
+                             f"but {len(self.points)} points given")
+
+    @classmethod
+    def from_list(cls, polylines: Sequence[ArrayLike]) -> Polylines:
+        arrays = [np.asarray(p, dtype=float).reshape(-1, 2) for p in polylines]
+        points = np.concatenate(arrays) if arrays else np.zeros((0, 2))
+        return cls(points, [len(a) for a in arrays])
+
+    @property
+    def counts(self) -> np.ndarray:
+        return np.diff(self.offsets)  # (n,) points per polyline
+
+    def __len__(self) -> int:
+        return len(self.offsets) - 1
+
+    @overload
+    def __getitem__(self, i: int) -> np.ndarray: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> Sequence[np.ndarray]: ...
+
+    def __getitem__(self, i: int | slice) -> np.ndarray | Sequence[np.ndarray]:
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        i = int(i)
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"polyline {i} of {len(self)}")
+        i %= len(self)
+        return self.points[self.offsets[i]:self.offsets[i + 1]]
+
+    def concat(self, other: Polylines) -> Polylines:
+        return Polylines(np.concatenate([self.points, other.points]),
+                         np.concatenate([self.counts, other.counts]))
+
+
 @dataclass(frozen=True)
 class SpatialGraph:
     """A graph MDP with geometry: node positions, start nodes, each edge's driven path."""
     positions: np.ndarray  # (n, 2)
     mdp: GraphMDP
     start_nodes: np.ndarray  # (n_starts,)
-    waypoints: list[np.ndarray]  # per edge (caller's order)
+    waypoints: Sequence[np.ndarray]  # per edge (caller's order): a list or Polylines
     snap_tolerance: float = 0.0  # input points this close to a node were merged into it
 
     def with_features(self, features: np.ndarray) -> SpatialGraph:

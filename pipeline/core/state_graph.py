@@ -11,6 +11,7 @@ Plain numpy/scipy; no Hydra, no I/O.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -20,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.core.controllers import Controller, Runs
 from pipeline.core.features import FeatureModel
-from pipeline.core.graph_mdp import GraphMDP, MDPParams
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, Polylines
 from pipeline.core.incremental_mdp import GrowableArray, IncrementalGraphMDP
 from pipeline.core.roadmap import segments_feasible
 from pipeline.core.world import Scene
@@ -28,6 +29,57 @@ from pipeline.core.world import Scene
 # Node kinds, as stored in graph.mcap.
 START, GOAL, VORONOI, DEMO, SAMPLED = "start", "goal", "voronoi", "demo", "sampled"
 MEDIAL = "medial"  # on the medial axis of the free space (scenes with obstacles)
+
+
+@dataclass(frozen=True)
+class NodeTable:
+    """Nodes of a graph as columns, one row per node in id order: what graph.mcap stores,
+    and what `StateGraph.restore` rebuilds a graph from."""
+    pose: np.ndarray  # (n, 3) x, y, heading
+    kind: np.ndarray  # (n,) str: START, GOAL, VORONOI, DEMO, MEDIAL or SAMPLED
+    parent: np.ndarray  # (n,) int64: node expanded to create it, −1 if initial
+    added_at: np.ndarray  # (n,) int64: growth iteration it was added (0 = initial)
+    gp_mean: np.ndarray  # (n,) GP estimate at sampling time; NaN for initial nodes
+    gp_std: np.ndarray  # (n,)
+    score: np.ndarray  # (n,) exploration score it was picked with
+    terminal: np.ndarray | None = None  # (n,) bool, where stored (nodes grown in learning)
+
+    def __len__(self) -> int:
+        return len(self.pose)
+
+    @property
+    def positions(self) -> np.ndarray:
+        return np.ascontiguousarray(self.pose[:, :2])  # (n, 2)
+
+    def concat(self, other: NodeTable) -> NodeTable:
+        """These rows, then `other`'s (terminal only if both have it)."""
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(self, name), getattr(other, name)])
+        terminal = None if self.terminal is None or other.terminal is None else cat("terminal")
+        return NodeTable(cat("pose"), cat("kind"), cat("parent"), cat("added_at"),
+                         cat("gp_mean"), cat("gp_std"), cat("score"), terminal)
+
+
+@dataclass(frozen=True)
+class EdgeTable:
+    """Edges of a graph as columns, one row per edge in id order."""
+    src: np.ndarray  # (E,) int64
+    dst: np.ndarray  # (E,) int64
+    duration: np.ndarray  # (E,) seconds
+    features: np.ndarray  # (E, d)
+    waypoints: Polylines  # the controller's path of every edge
+    demo: np.ndarray  # (E,) bool: a segment of a demonstration
+    added_at: np.ndarray  # (E,) int64: growth iteration it was added (the later end's)
+
+    def __len__(self) -> int:
+        return len(self.src)
+
+    def concat(self, other: EdgeTable) -> EdgeTable:
+        """These rows, then `other`'s."""
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(self, name), getattr(other, name)])
+        return EdgeTable(cat("src"), cat("dst"), cat("duration"), cat("features"),
+                         self.waypoints.concat(other.waypoints), cat("demo"), cat("added_at"))
 
 
 class SpatialIndex:
@@ -292,15 +344,31 @@ class StateGraph:
         self.w = np.asarray(weights, dtype=float)
         self.solver.set_rewards(self.edge_rewards(self.features, self.duration))
 
-    def restore(self, nodes: list[dict], edges: list[dict]) -> None:
-        """Rebuild stored nodes and edges (graph.mcap's records, ids in order)."""
-        nan = float("nan")
-        for n in nodes:
-            self.iteration = n["iteration"]
-            self.add_node([n["x"], n["y"], n["theta"]], n["kind"], n["parent"],
-                          nan if n["gp_mean"] is None else n["gp_mean"],
-                          nan if n["gp_std"] is None else n["gp_std"],
-                          nan if n["score"] is None else n["score"])
-        for e in edges:
-            self.add_edges([e["src"]], [e["dst"]], [e["duration"]], [e["features"]],
-                           [np.asarray(e["waypoints"], float)], is_demo=e["demo"])
+    def node_table(self, first: int = 0) -> NodeTable:
+        """Nodes first, first + 1, ... as columns (with whether each is terminal)."""
+        rows = slice(first, self.n_nodes)
+        return NodeTable(self.pose[rows].copy(), np.array(self.node_kind[rows], dtype=str),
+                         self.parent[rows].copy(), self.added_at[rows].copy(),
+                         self.gp_mean[rows].copy(), self.gp_std[rows].copy(),
+                         self.score[rows].copy(), self.terminal[rows].copy())
+
+    def edge_table(self, first: int = 0) -> EdgeTable:
+        """Edges first, first + 1, ... as columns; an edge exists from the iteration both
+        its ends do."""
+        rows = slice(first, len(self.src))
+        src, dst = self.src[rows].copy(), self.dst[rows].copy()
+        return EdgeTable(src, dst, self.duration[rows].copy(), self.features[rows].copy(),
+                         Polylines.from_list(self.waypoints[rows]),
+                         np.array(self.edge_is_demo[rows], dtype=bool),
+                         np.maximum(self.added_at[src], self.added_at[dst]))
+
+    def restore(self, nodes: NodeTable, edges: EdgeTable) -> None:
+        """Rebuild stored nodes and edges (rows in id order)."""
+        for i in range(len(nodes)):
+            self.iteration = int(nodes.added_at[i])
+            self.add_node(nodes.pose[i], str(nodes.kind[i]), int(nodes.parent[i]),
+                          float(nodes.gp_mean[i]), float(nodes.gp_std[i]), float(nodes.score[i]))
+        for e in range(len(edges)):
+            self.add_edges(edges.src[e:e + 1], edges.dst[e:e + 1], edges.duration[e:e + 1],
+                           edges.features[e:e + 1], [edges.waypoints[e]],
+                           is_demo=bool(edges.demo[e]))

@@ -7,7 +7,8 @@ roadmap). All write the same topics, so stage 5 scores every method alike.
 Topics: /birl/expert (the demonstrations as the likelihood sees them), /birl/iteration (one
 per iteration: weights, log likelihood, log prior, generated trajectories), for sampling
 methods /birl/posterior (posterior mean, std, acceptance, samples of every iteration), and
-with birl.grow_nodes the nodes and edges grown during learning.
+with birl.grow_nodes the nodes and edges grown during learning (/birl/graph_nodes,
+/birl/graph_edges: columns, as graph.mcap's).
 """
 
 from __future__ import annotations
@@ -33,13 +34,13 @@ log = logging.getLogger(__name__)
 def restore_adaptive_graph(ctx: RunContext) -> AdaptiveGraph:
     """The stored adaptive graph as a growable AdaptiveGraph (for birl.grow_nodes)."""
     cfg = ctx.cfg
-    art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
+    art = ctx.read("graph", required_topics=[topics.GRAPH_NODES, topics.GRAPH_EDGES,
                                              topics.GRAPH_SOLUTION])
     sol = art.one(topics.GRAPH_SOLUTION)
     scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
     # Its own generator: growing must not change the stage's other random draws.
     return build.regrowable_graph(cfg, scene, sol["weights"], sol["min_separation"],
-                                  *codec.graph_records(art), sol["start_nodes"],
+                                  *codec.graph_tables(art), sol["start_nodes"],
                                   ctx.rng("birl", None, 1))
 
 
@@ -71,7 +72,7 @@ def run(ctx: RunContext) -> None:
 
         env = GrowingGraphEnvironment(restore_adaptive_graph(ctx), cfg.mdp, grow_nodes, grown)
     else:
-        graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
+        graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODES, topics.GRAPH_EDGES,
                                                        topics.GRAPH_SOLUTION])
         env = GraphEnvironment(codec.decode_graph(graph_art, cfg.mdp), cfg.mdp)
 
@@ -139,12 +140,11 @@ def _finite_or_none(values: np.ndarray) -> list[float | None]:
 
 def write_growth(w: ArtefactWriter, env: GrowingGraphEnvironment) -> None:
     """The nodes and edges grown during learning (graph.mcap holds the rest), so stage 5 and
-    the viewer see the final graph."""
-    g = env.adaptive
-    for i in range(env.base_nodes, g.n_nodes):
-        w.add(topics.BIRL_GRAPH_NODE, "GraphNode",
-              {**codec.node_record(g, i), "terminal": bool(g.terminal[i])},
-              log_time=int(g.added_at[i]))
-    for e in range(env.base_edges, len(g.src)):
-        rec = codec.edge_record(g, e)
-        w.add(topics.BIRL_GRAPH_EDGE, "GraphEdge", rec, log_time=rec["iteration"])
+    the viewer see the final graph: one GraphNodes and one GraphEdges message, ids
+    continuing graph.mcap's."""
+    nodes, edges = env.adaptive.node_table(env.base_nodes), env.adaptive.edge_table(env.base_edges)
+    w.add(topics.BIRL_GRAPH_NODES, "GraphNodes",
+          codec.nodes_message(nodes, env.base_nodes, with_terminal=True),
+          log_time=codec.last_iteration(nodes))
+    w.add(topics.BIRL_GRAPH_EDGES, "GraphEdges", codec.edges_message(edges, env.base_edges),
+          log_time=codec.last_iteration(edges))

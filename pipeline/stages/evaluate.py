@@ -33,6 +33,7 @@ from pipeline.core.social import (
     min_distance_to_person,
     path_metrics,
 )
+from pipeline.core.state_graph import DEMO
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 
@@ -169,7 +170,7 @@ def run(ctx: RunContext) -> None:
         raise PipelineError(f"{birl_art.path} holds weights on {len(w_final)} features but "
                             f"the learner's features are {names}: use the features of the run "
                             "that learned them (birl.features)")
-    graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODE, topics.GRAPH_EDGE,
+    graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODES, topics.GRAPH_EDGES,
                                                    topics.GRAPH_SOLUTION])
     ref, graph = feature_views(ctx, scene, codec.decode_roadmap(demos_art, md),
                                codec.decode_graph(graph_art, md, grown=birl_art))
@@ -214,8 +215,8 @@ def run(ctx: RunContext) -> None:
                  for d in training]
         metrics["frechet_to_demos"] = float(np.mean(dists))
         metrics["frechet_to_demos_max"] = float(np.max(dists))
-    kinds = [n["kind"] for n in graph_art.all(topics.GRAPH_NODE)]
-    metrics["graph_demo_node_share"] = kinds.count("demo") / max(len(kinds), 1)
+    kinds = codec.decode_nodes(graph_art).kind
+    metrics["graph_demo_node_share"] = int(np.count_nonzero(kinds == DEMO)) / max(len(kinds), 1)
 
     # The earlier stages' wall-clock times (timings.json, kept by run_pipeline) and this one.
     metrics.update(ctx.timings)

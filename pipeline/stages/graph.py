@@ -1,8 +1,8 @@
 """Stage 3: adaptive state graph -> graph.mcap (DESIGN §7, §10).
 
-Topics: /graph/node (one message per node, log_time = iteration it was added),
-/graph/edge (one per edge, log_time = iteration it was added), /graph/best_paths (one per
-iteration), /graph/solution (final values and policy, the weights that grew the graph).
+Topics: /graph/nodes and /graph/edges (every node and edge as columns in one message each,
+with the iteration each was added at; log_time = the last iteration), /graph/best_paths (one
+per iteration), /graph/solution (final values and policy, the weights that grew the graph).
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import numpy as np
 from pipeline.app import build
 from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, foxglove, topics
+from pipeline.artefacts.store import ArtefactWriter
 from pipeline.core.adaptive_graph import AdaptiveGraph, Demo
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
@@ -69,24 +70,28 @@ def run(ctx: RunContext) -> None:
 
 def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights: np.ndarray,
                 weights_source: str) -> None:
-    edge_iteration = np.maximum(graph.added_at[graph.src], graph.added_at[graph.dst])
     with ctx.writer("graph") as w:
-        for i in range(graph.n_nodes):
-            w.add(topics.GRAPH_NODE, "GraphNode", codec.node_record(graph, i),
-                  log_time=int(graph.added_at[i]))
-        for e in np.argsort(edge_iteration, kind="stable"):
-            w.add(topics.GRAPH_EDGE, "GraphEdge", codec.edge_record(graph, e),
-                  log_time=int(edge_iteration[e]))
-        for h in graph.history:
-            w.add(topics.GRAPH_BEST_PATHS, "BestPaths", {
-                "iteration": h["iteration"], "n_nodes": h["n_nodes"], "paths": h["paths"],
-                "values": h["values"], "reached": h["reached"]}, log_time=h["iteration"])
-        policy_dst = np.where(graph.policy != NO_EDGE, graph.dst[graph.policy], -1)
-        w.add(topics.GRAPH_SOLUTION, "GraphSolution", {
-            "weights": weights, "weights_source": weights_source, "values": graph.values,
-            "policy_dst": policy_dst, "terminal": graph.terminal,
-            "start_nodes": graph.start_nodes, "goal_node": graph.goal_node,
-            "n_nodes": graph.n_nodes, "n_edges": len(graph.src), "iterations": graph.iteration,
-            "min_separation": graph.p.min_separation},
-            log_time=graph.iteration)
-        foxglove.add_graph(w, graph.positions, graph.node_kind, graph.src, graph.dst)
+        add_graph(w, graph, weights, weights_source)
+
+
+def add_graph(w: ArtefactWriter, graph: AdaptiveGraph, weights: np.ndarray,
+              weights_source: str) -> None:
+    """graph.mcap's messages (also what `python -m pipeline.tools.bench graph_io` times)."""
+    nodes, edges = graph.node_table(), graph.edge_table()
+    w.add(topics.GRAPH_NODES, "GraphNodes", codec.nodes_message(nodes, 0),
+          log_time=codec.last_iteration(nodes))
+    w.add(topics.GRAPH_EDGES, "GraphEdges", codec.edges_message(edges, 0),
+          log_time=codec.last_iteration(edges))
+    for h in graph.history:
+        w.add(topics.GRAPH_BEST_PATHS, "BestPaths", {
+            "iteration": h["iteration"], "n_nodes": h["n_nodes"], "paths": h["paths"],
+            "values": h["values"], "reached": h["reached"]}, log_time=h["iteration"])
+    policy_dst = np.where(graph.policy != NO_EDGE, graph.dst[graph.policy], -1)
+    w.add(topics.GRAPH_SOLUTION, "GraphSolution", {
+        "weights": weights, "weights_source": weights_source, "values": graph.values,
+        "policy_dst": policy_dst, "terminal": graph.terminal,
+        "start_nodes": graph.start_nodes, "goal_node": graph.goal_node,
+        "n_nodes": graph.n_nodes, "n_edges": len(graph.src), "iterations": graph.iteration,
+        "min_separation": graph.p.min_separation},
+        log_time=graph.iteration)
+    foxglove.add_graph(w, graph.positions, graph.node_kind, graph.src, graph.dst)

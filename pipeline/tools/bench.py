@@ -2,6 +2,7 @@
 
     python -m pipeline.tools.bench graph            # adaptive-graph scaling on metropolis
     python -m pipeline.tools.bench graph --sizes 250 500
+    python -m pipeline.tools.bench graph_io         # graph.mcap write and read-back times
     python -m pipeline.tools.bench experiment       # the default experiment's time per stage
     python -m pipeline.tools.bench irl              # BIRL-G against PolicyWalk and MaxEnt IRL
     python -m pipeline.tools.bench imperfect        # noisy and hand-drawn demonstrations
@@ -27,11 +28,13 @@ from pipeline.app.context import PROJECT_ROOT
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 GRAPH_SIZES = [250, 500, 1000, 2000, 5000]
+GRAPH_IO_SIZES = [460, 5000, 20000]
 
 
-def _graph_once(max_nodes: int, seed: int) -> dict:
+def _grow(max_nodes: int, seed: int, before_growth=None):
     """Grow one graph on metropolis from polite optimal demos under the prior-mean weights
-    (what the default experiment does); time only the graph stage's own work."""
+    (what the default experiment does): the graph and its weights. `before_growth` is
+    called once the set-up is done."""
     from pipeline.app.build import preset_weights
     from pipeline.core.adaptive_graph import AdaptiveGraph, Demo, GraphParams
     from pipeline.core.controllers import LinearController
@@ -48,13 +51,25 @@ def _graph_once(max_nodes: int, seed: int) -> dict:
     demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes,
                           mdp.solve(preset_weights("polite", list(FEATURE_NAMES))))
     weights = BoxConfig().make_prior(4).box_mean()  # the default prior's mean
-    rss_before = _reset_peak_rss()
-    t0 = time.perf_counter()
+    if before_growth is not None:
+        before_growth()
     graph = AdaptiveGraph(scene, fm, LinearController(), weights,
                           GraphParams(max_nodes=max_nodes), np.random.default_rng(seed))
     graph.initialise([Demo(d.points, d.edge_features, d.durations) for d in demos])
     graph.grow()
-    seconds = time.perf_counter() - t0
+    return graph, weights
+
+
+def _graph_once(max_nodes: int, seed: int) -> dict:
+    """Grow one graph (as _grow); time only the graph stage's own work."""
+    start: dict[str, float] = {}
+
+    def mark() -> None:
+        start["rss"] = _reset_peak_rss()
+        start["t"] = time.perf_counter()
+
+    graph, _ = _grow(max_nodes, seed, mark)
+    rss_before, seconds = start["rss"], time.perf_counter() - start["t"]
     return {"nodes": graph.n_nodes, "edges": len(graph.src), "iterations": graph.iteration,
             "seconds": round(seconds, 3),
             "peak_memory_mb": round(_peak_rss_mb(), 1),
@@ -94,6 +109,51 @@ def graph_scaling(sizes: list[int], seed: int) -> pd.DataFrame:
     if len(base):
         table["time_vs_500"] = (table.seconds / float(base.iloc[0])).round(2)
     return table
+
+
+def _graph_io_once(max_nodes: int, seed: int, repeats: int) -> dict:
+    """Write graph.mcap for a grown graph as the graph stage does, and read it back as the
+    BIRL and evaluate stages do (lazily: nodes, edges and solution, decoded into the typed
+    graph); best of `repeats` each. read_all_s parses every topic (eager read, no decoding)."""
+    import tempfile
+
+    from pipeline.artefacts import codec, read_artefact
+    from pipeline.artefacts.store import ArtefactWriter
+    from pipeline.core.graph_mdp import MDPParams
+    from pipeline.stages.graph import add_graph
+
+    graph, weights = _grow(max_nodes, seed)
+    write, read, read_all = [], [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "graph.mcap"
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            with ArtefactWriter(path, config_yaml="", metadata={}) as w:
+                add_graph(w, graph, weights, "prior_mean")
+            write.append(time.perf_counter() - t0)
+        size = path.stat().st_size
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            typed = codec.decode_graph(read_artefact(path, lazy=True), MDPParams())
+            read.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            read_artefact(path)
+            read_all.append(time.perf_counter() - t0)
+    assert typed.mdp.n_nodes == graph.n_nodes and len(typed.waypoints) == len(graph.src)
+    return {"nodes": graph.n_nodes, "edges": len(graph.src), "iterations": graph.iteration,
+            "file_mb": round(size / 1e6, 2), "write_s": round(min(write), 4),
+            "read_s": round(min(read), 4), "read_all_s": round(min(read_all), 4)}
+
+
+def graph_io(sizes: list[int], seed: int, repeats: int) -> pd.DataFrame:
+    rows = []
+    for n in sizes:  # a fresh process per size, as graph_scaling
+        out = subprocess.run([sys.executable, "-m", "pipeline.tools.bench", "graph-io-once",
+                              str(n), "--seed", str(seed), "--repeats", str(repeats)],
+                             capture_output=True, text=True, check=True)
+        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        print(f"  {rows[-1]}", flush=True)
+    return pd.DataFrame(rows)
 
 
 def experiment_timings(repeats: int, *overrides: str) -> pd.DataFrame:
@@ -402,6 +462,11 @@ def main(argv=None) -> None:
     g = sub.add_parser("graph", help="adaptive-graph scaling -> results/bench/graph_scaling.csv")
     g.add_argument("--sizes", type=int, nargs="+", default=GRAPH_SIZES)
     g.add_argument("--seed", type=int, default=0)
+    io = sub.add_parser("graph_io", help="graph.mcap write and read-back seconds -> "
+                        "results/bench/graph_io.csv")
+    io.add_argument("--sizes", type=int, nargs="+", default=GRAPH_IO_SIZES)
+    io.add_argument("--seed", type=int, default=0)
+    io.add_argument("--repeats", type=int, default=5)
     e = sub.add_parser("experiment", help="default experiment -> results/bench/experiment.csv")
     e.add_argument("--repeats", type=int, default=3)
     irl = sub.add_parser("irl", help="IRL methods -> results/bench/irl_methods.csv and .png")
@@ -423,10 +488,17 @@ def main(argv=None) -> None:
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
+    io_once = sub.add_parser("graph-io-once")
+    io_once.add_argument("nodes", type=int)
+    io_once.add_argument("--seed", type=int, default=0)
+    io_once.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
 
     if args.suite == "graph-once":
         print(json.dumps(_graph_once(args.nodes, args.seed)))
+        return
+    if args.suite == "graph-io-once":
+        print(json.dumps(_graph_io_once(args.nodes, args.seed, args.repeats)))
         return
     RESULTS.mkdir(parents=True, exist_ok=True)
     if args.suite == "imperfect":
@@ -464,6 +536,10 @@ def main(argv=None) -> None:
         print(f"office map vs metropolis, min of {args.repeats} runs:", flush=True)
         table = obstacle_costs(args.repeats)
         path = RESULTS / "obstacles.csv"
+    elif args.suite == "graph_io":
+        print(f"graph.mcap write and read back on metropolis, sizes {args.sizes}:", flush=True)
+        table = graph_io(args.sizes, args.seed, args.repeats)
+        path = RESULTS / "graph_io.csv"
     elif args.suite == "experiment":
         print(f"default experiment, {args.repeats} runs:", flush=True)
         table = experiment_timings(args.repeats)

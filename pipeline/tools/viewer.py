@@ -115,32 +115,36 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
 
 
 def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
-    nodes, edges = graph.all(topics.GRAPH_NODE), graph.all(topics.GRAPH_EDGE)
+    nodes, edges = codec.decode_nodes(graph), codec.decode_edges(graph)
     best = graph.all(topics.GRAPH_BEST_PATHS)
-    pos = {n["id"]: (n["x"], n["y"]) for n in nodes}
+    pos = nodes.positions
     # The final graph, static: shown beside the BIRL timeline without switching timelines.
-    rec.log("graph/final/nodes", rr.Points2D(_xy([pos[n["id"]] for n in nodes]), radii=0.03,
-                                             colors=(150, 150, 150)), static=True, strict=True)
-    rec.log("graph/final/edges", rr.LineStrips2D(_strips([e["waypoints"] for e in edges]),
-                                                 radii=0.005, colors=(190, 200, 225),
-                                                 draw_order=-5.0), static=True, strict=True)
-    iterations = sorted({n["iteration"] for n in nodes} | {e["iteration"] for e in edges}
+    rec.log("graph/final/nodes", rr.Points2D(_xy(pos), radii=0.03, colors=(150, 150, 150)),
+            static=True, strict=True)
+    rec.log("graph/final/edges", rr.LineStrips2D(_strips(edges.waypoints), radii=0.005,
+                                                 colors=(190, 200, 225), draw_order=-5.0),
+            static=True, strict=True)
+    iterations = sorted(set(nodes.added_at.tolist()) | set(edges.added_at.tolist())
                         | {b["iteration"] for b in best})
     best_at = {b["iteration"]: b for b in best}
-    for k in iterations:
+    colors = np.array([KIND_COLORS.get(str(k), (0, 0, 0)) for k in nodes.kind],
+                      dtype=np.uint8).reshape(-1, 3)
+    # Edges grouped by the iteration that added them (rows in iteration order within each).
+    by_iteration = np.argsort(edges.added_at, kind="stable")
+    bounds = np.searchsorted(edges.added_at[by_iteration], [iterations, np.add(iterations, 1)])
+    for j, k in enumerate(iterations):
         rec.set_time("iteration", sequence=k)
         # Nodes cumulative (cheap); edges only the new ones, made cumulative in the view by a
         # visible-time-range override: cumulative edges would grow quadratically in the file.
-        grown = [n for n in nodes if n["iteration"] <= k]
-        rec.log("graph/nodes", rr.Points2D(
-            _xy([(n["x"], n["y"]) for n in grown]), radii=0.05,
-            colors=[KIND_COLORS.get(n["kind"], (0, 0, 0)) for n in grown]), strict=True)
-        new = [e["waypoints"] for e in edges if e["iteration"] == k]
+        grown = nodes.added_at <= k
+        rec.log("graph/nodes", rr.Points2D(_xy(pos[grown]), radii=0.05, colors=colors[grown]),
+                strict=True)
+        new = [edges.waypoints[e] for e in by_iteration[bounds[0, j]:bounds[1, j]]]
         if new:
             rec.log("graph/edges", rr.LineStrips2D(_strips(new), radii=0.01,
                                                    colors=(120, 140, 200)), strict=True)
         if k in best_at:  # one row per /graph/best_paths message, even if it has no paths
-            paths = [[pos[i] for i in p] for p in best_at[k]["paths"] if p]
+            paths = [pos[p] for p in best_at[k]["paths"] if p]
             rec.log("graph/best_paths", rr.LineStrips2D(_strips(paths), radii=0.04,
                                                         colors=(250, 200, 0)), strict=True)
     rec.reset_time()
@@ -180,9 +184,9 @@ def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | Non
             if loss.get(key) is not None:
                 rec.log(f"curves/policy_loss/{key}", rr.Scalars(loss[key]), strict=True)
     rec.reset_time()
-    if birl is not None and birl.messages.get(topics.BIRL_GRAPH_NODE):  # birl.grow_nodes > 0
-        grown = birl.all(topics.BIRL_GRAPH_NODE)
-        rec.log("birl/grown_nodes", rr.Points2D(_xy([(n["x"], n["y"]) for n in grown]), radii=0.05,
+    if birl is not None and birl.messages.get(topics.BIRL_GRAPH_NODES):  # birl.grow_nodes > 0
+        grown = codec.decode_nodes(birl, topics.BIRL_GRAPH_NODES, first_id=None)
+        rec.log("birl/grown_nodes", rr.Points2D(_xy(grown.positions), radii=0.05,
                                                 colors=(0, 190, 190)), static=True, strict=True)
     if ev is not None and topics.EVAL_PATHS in ev.messages:
         final = [p for p in ev.all(topics.EVAL_PATHS) if p.get("graph") == "graph" and p["points"]]

@@ -149,11 +149,11 @@ def test_foxglove_topics_draw_scene_demos_graph_and_paths(runs):
         [len(d["points"]) for d in demos]
 
     graph = read_artefact(run / "graph.mcap")
-    nodes, edges = graph.all(topics.GRAPH_NODE), graph.all(topics.GRAPH_EDGE)
+    nodes, edges = codec.decode_nodes(graph), codec.decode_edges(graph)
     ents = _foxglove(run / "graph.mcap", topics.FOXGLOVE_GRAPH)
     assert len(ents["nodes"]["spheres"]) == len(nodes)
     (lines,) = ents["edges"]["lines"]
-    pairs = {frozenset((e["src"], e["dst"])) for e in edges}
+    pairs = {frozenset(pair) for pair in zip(edges.src.tolist(), edges.dst.tolist(), strict=True)}
     assert lines["type"] == foxglove.LINE_LIST and len(lines["points"]) == 2 * len(pairs)
 
     paths = read_artefact(run / "eval.mcap").all(topics.EVAL_PATHS)

@@ -117,36 +117,55 @@ def test_same_inputs_give_identical_bytes(tmp_path):
     assert c.read_bytes() == a.read_bytes()
 
 
+@pytest.mark.parametrize("lazy", [False, True])
 @pytest.mark.parametrize("fraction", [0.0, 0.002, 0.1, 0.5, 0.9, 0.99, "len-1", "len-8"])
-def test_truncated_file_is_an_error(tmp_path, fraction):
+def test_truncated_file_is_an_error(tmp_path, fraction, lazy):
     path = _write(tmp_path / "scene.mcap")
     data = path.read_bytes()
     cut = {"len-1": len(data) - 1, "len-8": len(data) - 8}.get(fraction)
     cut = int(len(data) * fraction) if cut is None else cut
     path.write_bytes(data[:cut])
     with pytest.raises(ArtefactError, match="truncated or corrupt") as excinfo:
-        read_artefact(path)
+        read_artefact(path, lazy=lazy)
     _assert_one_line_error(excinfo, path)
 
 
-def test_every_truncation_offset_is_detected(tmp_path):
+@pytest.mark.parametrize("lazy", [False, True])
+def test_every_truncation_offset_is_detected(tmp_path, lazy):
     path = _write(tmp_path / "scene.mcap")
     data = path.read_bytes()
     for cut in range(len(data)):
         path.write_bytes(data[:cut])
         with pytest.raises(ArtefactError, match="truncated or corrupt"):
-            read_artefact(path)
+            read_artefact(path, lazy=lazy)
 
 
-def test_flipped_byte_or_trailing_garbage_is_an_error(tmp_path):
+@pytest.mark.parametrize("lazy", [False, True])
+def test_flipped_byte_or_trailing_garbage_is_an_error(tmp_path, lazy):
     path = _write(tmp_path / "scene.mcap")
     data = path.read_bytes()
     for bad in (data + b"junk", data[:40] + bytes([data[40] ^ 0xFF]) + data[41:],
                 data[:-60] + bytes([data[-60] ^ 0xFF]) + data[-59:]):
         path.write_bytes(bad)
         with pytest.raises(ArtefactError, match="truncated or corrupt") as excinfo:
-            read_artefact(path)
+            read_artefact(path, lazy=lazy)
         _assert_one_line_error(excinfo, path)
+
+
+def test_lazy_read_checks_the_whole_file_and_parses_a_topic_when_looked_up(tmp_path):
+    path = _write(tmp_path / "scene.mcap")
+    data = path.read_bytes()
+    # a flipped byte inside the compressed chunk: caught by the data-section CRC at once,
+    # although no topic is looked up
+    chunk = data.index(b"(\xb5/\xfd")  # zstd frame magic
+    path.write_bytes(data[:chunk + 20] + bytes([data[chunk + 20] ^ 0xFF]) + data[chunk + 21:])
+    with pytest.raises(ArtefactError, match="truncated or corrupt"):
+        read_artefact(path, lazy=True)
+    path.write_bytes(data)
+    lazy, eager = read_artefact(path, lazy=True), read_artefact(path)
+    assert sorted(lazy.messages) == ["/demos", "/params", "/scene"] and "/demos" in lazy.messages
+    assert lazy.messages == eager.messages and lazy.all("/demos") == eager.all("/demos")
+    assert "/other" not in lazy.messages and lazy.messages.get("/other") is None
 
 
 @pytest.mark.parametrize("content", [b'{"scene": 1}', b"hello world\n" * 10, b"\x89MC-not-mcap"])
@@ -188,6 +207,11 @@ def test_invalid_json_message(tmp_path):
         w.finish()
     with pytest.raises(ArtefactError, match="topic '/x' that is not valid JSON") as excinfo:
         read_artefact(path)
+    _assert_one_line_error(excinfo, path)
+    lazy = read_artefact(path, lazy=True)  # parsed on lookup: the error comes then
+    assert "/x" in lazy.messages
+    with pytest.raises(ArtefactError, match="topic '/x' that is not valid JSON") as excinfo:
+        lazy.all("/x")
     _assert_one_line_error(excinfo, path)
 
 

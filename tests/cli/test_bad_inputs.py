@@ -31,7 +31,8 @@ from rosbags.rosbag2 import Writer as Writer2
 
 from pipeline.__main__ import cli
 from pipeline.app.rundir import RunDir
-from pipeline.artefacts.store import content_digest, write_json_atomic
+from pipeline.artefacts import read_artefact, topics
+from pipeline.artefacts.store import ArtefactWriter, content_digest, write_json_atomic
 from tests.conftest import (
     METROPOLIS,
     ROS2,
@@ -707,6 +708,31 @@ def _truncated(tmp, default_dir):
     return [f"from_run={src}", "stages=[demos]"], ["scene.mcap", "truncated"]
 
 
+def _truncated_graph(tmp, default_dir):
+    src = _copy_run(default_dir, tmp / "src")
+    data = (src / "graph.mcap").read_bytes()  # cut through the node and edge columns
+    (src / "graph.mcap").write_bytes(data[: len(data) // 3])
+    return [f"from_run={src}", "stages=[birl]"], ["graph.mcap", "truncated"]
+
+
+def _garbled_graph_columns(tmp, default_dir):
+    """A whole, valid MCAP whose edge column is short by a few bytes."""
+    src = _copy_run(default_dir, tmp / "src")
+    art = read_artefact(src / "graph.mcap")
+    types = {topics.GRAPH_NODES: "GraphNodes", topics.GRAPH_EDGES: "GraphEdges",
+             topics.GRAPH_BEST_PATHS: "BestPaths", topics.GRAPH_SOLUTION: "GraphSolution",
+             topics.FOXGLOVE_GRAPH: "foxglove.SceneUpdate"}
+    with ArtefactWriter(src / "graph.mcap", config_yaml=art.config_yaml,
+                        metadata=art.metadata) as w:
+        for topic, msgs in art.messages.items():
+            for msg in msgs:
+                if topic == topics.GRAPH_EDGES:
+                    msg = {**msg, "waypoints": msg["waypoints"][:-8]}
+                w.add(topic, types[topic], msg, log_time=0)
+    return [f"from_run={src}", "stages=[birl]"], \
+        ["graph.mcap", "'/graph/edges'", "column 'waypoints'", "bytes"]
+
+
 def _empty_artefact(tmp, default_dir):
     src = _copy_run(default_dir, tmp / "src")
     (src / "demos.mcap").write_bytes(b"")
@@ -803,6 +829,8 @@ def _quoted_run_dir_in_use(tmp, default_dir):
 
 ARTEFACT_CASES = {
     "truncated input artefact": _truncated,
+    "truncated graph columns": _truncated_graph,
+    "garbled graph columns": _garbled_graph_columns,
     "empty input artefact": _empty_artefact,
     "input artefact not MCAP": _not_mcap,
     "input artefact of another stage": _wrong_stage,

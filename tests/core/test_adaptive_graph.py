@@ -193,14 +193,10 @@ def test_posq_graph_is_feasible_and_reaches_goal(metropolis, demos):
 
 
 def test_restored_graph_equals_original_and_keeps_growing(metropolis, demos):
-    from pipeline.artefacts.codec import edge_record, node_record
-
     g = grow(metropolis, demos, PRIOR_MEAN, max_nodes=150, seed=3)
-    nodes = [node_record(g, i) for i in range(g.n_nodes)]
-    edges = [edge_record(g, e) for e in range(len(g.src))]
     r = AdaptiveGraph(metropolis, FeatureModel.from_scene(metropolis), LinearController(),
                       PRIOR_MEAN, g.p, np.random.default_rng(0))
-    r.restore(nodes, edges, g.start_nodes)
+    r.restore(g.node_table(), g.edge_table(), g.start_nodes)
     np.testing.assert_array_equal(r.pose, g.pose)
     np.testing.assert_array_equal(r.src, g.src)
     np.testing.assert_allclose(r.values, g.values, atol=1e-12)

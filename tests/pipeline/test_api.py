@@ -11,7 +11,7 @@ from omegaconf import OmegaConf
 from pipeline import api
 from pipeline.app import build
 from pipeline.app.config import load_settings
-from pipeline.artefacts import topics
+from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import ArtefactError, read_artefact
 from pipeline.core.experts import optimal_demos
 from pipeline.errors import PipelineError
@@ -201,8 +201,8 @@ def test_learn_in_memory_gives_the_weights_of_the_pipeline(fast_run, metropolis,
                zip(learned.trace["weights"], expected, strict=True))
     assert learned.feature_names == ["relation", "social", "goal_deviation", "length"]
     assert learned.trace["iteration"].tolist() == [0, 1, 2, 3]
-    grown = raw(run_dir, "birl", topics.BIRL_GRAPH_NODE) if settings else []
-    n_graph = len(raw(run_dir, "graph", topics.GRAPH_NODE)) + len(grown)
+    n_graph = len(codec.graph_tables(api.artefact(run_dir, "graph"),
+                                     api.artefact(run_dir, "birl") if settings else None)[0])
     assert learned.graph.mdp.n_nodes == n_graph
 
 

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.artefacts import read_artefact, topics
+from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.core.experts import choose_heldout
 from pipeline.errors import PipelineError
 from tests.conftest import run_in_process
@@ -29,8 +29,8 @@ def test_held_out_demonstrations_never_enter_the_graph_or_the_likelihood(subject
     held = [d for d in demos if d["heldout"]]
     kept = [d for d in demos if not d["heldout"]]
     assert {d["subject"] for d in held} == {"s2"} and len(held) == 7 and len(kept) == 14
-    nodes = read_artefact(run_dir / "graph.mcap").all(topics.GRAPH_NODE)
-    demo_nodes = np.array([[n["x"], n["y"]] for n in nodes if n["kind"] == "demo"])
+    nodes = codec.decode_nodes(read_artefact(run_dir / "graph.mcap"))
+    demo_nodes = nodes.positions[nodes.kind == "demo"]
     # every demonstration node is a waypoint of a kept demonstration, none only of a held one
     kept_points = np.vstack([d["points"] for d in kept])
     held_only = np.vstack([d["points"] for d in held])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pipeline.app.config import is_metric_key
-from pipeline.artefacts import read_artefact
+from pipeline.artefacts import codec, read_artefact
 from pipeline.core.evaluation import discrete_frechet
 from tests.conftest import ROOT, run_in_process
 
@@ -133,13 +133,16 @@ def test_graph_grows_under_the_learned_weights(tmp_path_factory):
     # that loop and then records its choice with one more solve, so it grows twice as much.
     run_dir, m, _ = run_experiment(tmp_path_factory, "graph=small", "birl.n_iterations=3",
                                    "birl.grow_nodes=5", "birl.likelihood=paper")
-    birl = read_artefact(run_dir / "birl.mcap", required_topics=["/birl/graph_node",
-                                                                 "/birl/graph_edge"])
+    birl = read_artefact(run_dir / "birl.mcap", required_topics=["/birl/graph_nodes",
+                                                                 "/birl/graph_edges"])
     base = read_artefact(run_dir / "graph.mcap").one("/graph/solution")
-    grown = birl.all("/birl/graph_node")
+    # ids continue graph.mcap's (checked by the decoder)
+    grown = codec.decode_nodes(birl, "/birl/graph_nodes", first_id=base["n_nodes"])
+    grown_edges = codec.decode_edges(birl, "/birl/graph_edges", first_id=base["n_edges"])
     assert 15 <= len(grown) <= 18  # 5 per iteration after the first (an expansion adds <= 2)
-    assert [n["id"] for n in grown] == list(range(base["n_nodes"], base["n_nodes"] + len(grown)))
-    assert all(n["kind"] == "sampled" and n["parent"] >= 0 for n in grown)
+    assert (grown.kind == "sampled").all() and (grown.parent >= 0).all()
+    assert grown.terminal is not None and len(grown_edges) > len(grown)
+    assert grown.added_at.min() >= base["iterations"]
     # The last iteration's trajectories run on the grown graph and stage 5 scores that graph.
     last = birl.all("/birl/iteration")[-1]
     assert max(max(g["nodes"]) for g in last["generated"]) < base["n_nodes"] + len(grown)

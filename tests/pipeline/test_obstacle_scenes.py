@@ -72,16 +72,15 @@ def test_every_adaptive_graph_edge_keeps_the_robot_radius(walled_run):
     scene = codec.decode_scene(read_artefact(walled_run / "scene.mcap"))
     assert scene.obstacles is not None and len(scene.polygons) == 3
     art = read_artefact(walled_run / "graph.mcap")
-    nodes = {n["id"]: np.array([n["x"], n["y"]]) for n in art.all("/graph/node")}
-    edges = art.all("/graph/edge")
+    nodes, edges = codec.decode_nodes(art), codec.decode_edges(art)
     assert len(nodes) == 200 and len(edges) > len(nodes)
-    positions = np.array(list(nodes.values()))
+    positions = nodes.positions
     assert scene.free(positions).all()
-    worst = min(min_clearance(scene.obstacles, np.vstack([nodes[e["src"]], e["waypoints"],
-                                                          nodes[e["dst"]]])) for e in edges)
+    worst = min(min_clearance(scene.obstacles, np.vstack([positions[a], way, positions[b]]))
+                for a, b, way in zip(edges.src, edges.dst, edges.waypoints, strict=True))
     assert worst >= ROBOT_RADIUS
     # some edges do pass the gap: the graph is not merely split in two halves
-    ys = np.array([[nodes[e["src"]][1], nodes[e["dst"]][1]] for e in edges])
+    ys = np.stack([positions[edges.src, 1], positions[edges.dst, 1]], axis=1)
     assert ((ys[:, 0] < WALL_Y) & (ys[:, 1] > WALL_Y)).any()
 
 

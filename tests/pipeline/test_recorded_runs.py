@@ -168,8 +168,8 @@ def test_demonstration_through_a_wall_is_refused_or_kept_out_of_the_graph(tmp_pa
         return
     assert metrics["obstacle_collisions"] == 0  # as is keeping it out of the graph
     scene = codec.decode_scene(read_artefact(run / "scene.mcap"))
-    for edge in read_artefact(run / "graph.mcap").all("/graph/edge"):
-        assert min_clearance(scene.obstacles, edge["waypoints"]) >= ROBOT_RADIUS
+    for way in codec.decode_edges(read_artefact(run / "graph.mcap")).waypoints:
+        assert min_clearance(scene.obstacles, way) >= ROBOT_RADIUS
 
 
 # ---------------------------------------------------------------------------------------------

@@ -5,9 +5,10 @@ the features, and bad inputs refused in one line without touching earlier artefa
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from pipeline.artefacts import read_artefact
+from pipeline.artefacts import codec, read_artefact
 from pipeline.errors import PipelineError
 from tests.conftest import POLITE, ROOT, run_app, run_in_process
 
@@ -31,16 +32,17 @@ def test_default_experiment_writes_artefacts(default_dir):
     assert demos.one("/demos/expert")["true_weights"] == POLITE.tolist()
     assert all(d["reached"] for d in demos.all("/demos"))
     graph = read_artefact(default_dir / "graph.mcap", required_topics=[
-        "/graph/node", "/graph/edge", "/graph/best_paths", "/graph/solution"])
-    nodes, edges = graph.all("/graph/node"), graph.all("/graph/edge")
+        "/graph/nodes", "/graph/edges", "/graph/best_paths", "/graph/solution"])
+    assert len(graph.all("/graph/nodes")) == len(graph.all("/graph/edges")) == 1  # columns
+    nodes, edges = codec.decode_nodes(graph), codec.decode_edges(graph)
     solution = graph.one("/graph/solution")
     assert len(nodes) == 460 and solution["n_nodes"] == 460 and len(edges) == solution["n_edges"]
     assert solution["weights_source"] == "prior_mean"
     # Growth replays in order: nodes and edges appear no earlier than their iteration.
-    assert [n["iteration"] for n in nodes] == sorted(n["iteration"] for n in nodes)
-    added = {n["id"]: n["iteration"] for n in nodes}
-    assert all(e["iteration"] == max(added[e["src"]], added[e["dst"]]) for e in edges)
-    assert all(n["parent"] >= 0 for n in nodes if n["kind"] == "sampled")
+    assert (np.diff(nodes.added_at) >= 0).all() and nodes.added_at.max() == solution["iterations"]
+    added = nodes.added_at
+    assert np.array_equal(edges.added_at, np.maximum(added[edges.src], added[edges.dst]))
+    assert (nodes.parent[nodes.kind == "sampled"] >= 0).all()
     assert len(graph.all("/graph/best_paths")) == solution["iterations"] + 1
 
 

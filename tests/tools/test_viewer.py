@@ -10,7 +10,7 @@ import pytest
 from rerun.chunk import RrdReader
 from rerun.error_utils import RerunWarning
 
-from pipeline.artefacts import ArtefactError, read_artefact
+from pipeline.artefacts import ArtefactError, codec, read_artefact
 from pipeline.errors import PipelineError
 from pipeline.tools.viewer import build_recording
 from tests.conftest import ROOT, run_in_process
@@ -74,16 +74,23 @@ def test_rrd_has_the_entities_timelines_and_no_temp_file(run_dir, rrd):
 
 def test_graph_growth_replays_one_step_per_best_paths_message(run_dir, rrd):
     graph = read_artefact(run_dir / "graph.mcap")
+    nodes, edges = codec.decode_nodes(graph), codec.decode_edges(graph)
     chunks = chunks_by_entity(rrd)
     best = graph.all("/graph/best_paths")
     steps = column(chunks["/graph/best_paths"], "iteration")
     assert len(set(steps)) == len(steps) == len(best)
-    # nodes are cumulative: the last step shows every node
-    nodes = column(chunks["/graph/nodes"], "Points2D:positions")
-    assert len(nodes[-1]) == len(graph.all("/graph/node"))
+    # nodes are cumulative: each step shows the nodes added up to its iteration
+    logged = column(chunks["/graph/nodes"], "Points2D:positions")
+    at = column(chunks["/graph/nodes"], "iteration")
+    assert len(logged[-1]) == len(nodes)
+    for k, points in zip(at, logged, strict=True):
+        np.testing.assert_allclose(points, nodes.positions[nodes.added_at <= k] * [1, -1],
+                                   rtol=1e-6)
     # edges are logged once each, at the iteration that added them
     strips = column(chunks["/graph/edges"], "LineStrips2D:strips")
-    assert sum(len(s) for s in strips) == len(graph.all("/graph/edge"))
+    edge_steps = column(chunks["/graph/edges"], "iteration")
+    assert sum(len(s) for s in strips) == len(edges)
+    assert [len(s) for s in strips] == [np.count_nonzero(edges.added_at == k) for k in edge_steps]
 
 
 def test_curves_have_one_value_per_birl_iteration(run_dir, rrd):
@@ -138,7 +145,7 @@ def test_scene_is_drawn_y_up_and_the_final_graph_is_static(run_dir, rrd):
     graph = read_artefact(run_dir / "graph.mcap")
     assert all(static for static, _ in chunks["/graph/final/nodes"])
     final = column(chunks["/graph/final/nodes"], "Points2D:positions")[0]
-    assert len(final) == len(graph.all("/graph/node"))
+    assert len(final) == len(codec.decode_nodes(graph))
 
 
 def test_curves_have_distinct_colours(rrd):
