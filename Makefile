@@ -100,11 +100,11 @@ regress: $(STAMP)
 ## TEST_WORKERS=0 runs it in this process, e.g. for pdb).
 TEST_WORKERS ?= auto
 test: $(VENV)/.installed-dev
-	$(PY) -m pytest -q -n $(TEST_WORKERS)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal
 
 ## Everything, including slow tests.
 test-all: $(VENV)/.installed-dev
-	$(PY) -m pytest -q -n $(TEST_WORKERS) -m "not bench"
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal -m "not bench"
 
 ## Style and types: ruff on the package and tests, mypy on the algorithm packages.
 lint: $(VENV)/.installed-dev
