@@ -35,14 +35,13 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from threadpoolctl import threadpool_limits
 
 from pipeline.app import build
-from pipeline.app.config import Config, load_settings, register_configs
-from pipeline.app.context import PACKAGE_ROOT, stage_rng
+from pipeline.app.config import Config, compose_config, load_settings, register_configs
+from pipeline.app.context import stage_rng
 from pipeline.app.figures import draw_scene
 from pipeline.app.rundir import RunStatus, read_status
 from pipeline.app.summary import summary_table
@@ -63,12 +62,6 @@ from pipeline.stages import run_pipeline
 register_configs()
 
 PATH_GRAPHS = ("graph", "ref")  # where /eval/paths were planned: adaptive graph, roadmap
-
-
-def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
-    """The app's config with command-line style overrides, as `birlg` composes it."""
-    with initialize_config_dir(config_dir=str(PACKAGE_ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
 
 
 # -- runs ----------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
@@ -281,6 +282,17 @@ def config_groups_help() -> str:
         options = sorted(f.stem for f in group.glob("*.yaml"))
         lines.append(f"{group.name}: {', '.join(options)}")
     return "\n".join(lines)
+
+
+def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
+    """The app's config with command-line style overrides, as `birlg` composes it."""
+    from hydra import compose, initialize_config_dir
+
+    from pipeline.app.context import PACKAGE_ROOT
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(PACKAGE_ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
 
 
 def register_configs() -> None:

@@ -308,21 +308,16 @@ IMPERFECT_NAMES = {"birlg_paper": "BIRL-G (paper, eq. 2)", "birlg_robust": "BIRL
                    "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
 
 
-def _in_process(run_dir: Path, *overrides: str) -> dict:
-    """One pipeline run in this process (Hydra's compose API, as the tests do)."""
+def run_in_process(run_dir: Path, *overrides: str) -> dict:
+    """One pipeline run in this process (its summary not printed); its metrics.json."""
     import contextlib
     import io
 
-    from hydra import compose, initialize_config_dir
-
-    from pipeline.app.config import register_configs
+    from pipeline.app.config import compose_config
     from pipeline.stages import run_pipeline
 
-    register_configs()
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=list(overrides))
     with contextlib.redirect_stdout(io.StringIO()):
-        run_pipeline(cfg, run_dir)
+        run_pipeline(compose_config(overrides), run_dir)
     path = run_dir / "metrics.json"
     return json.loads(path.read_text()) if path.exists() else {}
 
@@ -354,13 +349,13 @@ def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]
         for cond in conditions:
             for seed in seeds:
                 base = Path(tmp) / f"{cond}-{seed}"
-                _in_process(base, *IMPERFECT[cond], f"seed={seed}", "stages=[scene,demos,graph]")
+                run_in_process(base, *IMPERFECT[cond], f"seed={seed}", "stages=[scene,demos,graph]")
                 for method, overrides in IMPERFECT_METHODS.items():
                     if method in ("policywalk", "maxent") and seed not in baseline_seeds:
                         continue
                     run = Path(tmp) / f"{cond}-{seed}-{method}"
                     try:
-                        m = _in_process(run, *IMPERFECT[cond], *overrides, f"seed={seed}",
+                        m = run_in_process(run, *IMPERFECT[cond], *overrides, f"seed={seed}",
                                         "stages=[birl,evaluate]", f"from_run={base}")
                     except PipelineError as e:  # MaxEnt: file demos off its roadmap
                         print(f"  {cond} {method} seed {seed}: {e}", flush=True)
@@ -410,7 +405,7 @@ def posterior(seeds: list[int], likelihoods: list[str], samplers: list[str]) -> 
         for cond, overrides in POSTERIOR.items():
             for seed, lik, sampler in itertools.product(seeds, likelihoods, samplers):
                 run = Path(tmp) / f"{cond}-{seed}-{lik}-{sampler}"
-                m = _in_process(run, *overrides, "birl=mcmc", f"birl.likelihood={lik}",
+                m = run_in_process(run, *overrides, "birl=mcmc", f"birl.likelihood={lik}",
                                 f"seed={seed}", *SAMPLER_OVERRIDES[sampler])
                 stds = [v for k, v in m.items() if k.startswith("weight_std_")]
                 rows.append({"condition": cond, "likelihood": lik, "sampler": sampler,

@@ -17,9 +17,6 @@ three stages run once per (demonstrator, seed); every learner starts from them.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
-import json
 import tempfile
 from pathlib import Path
 
@@ -27,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.tools.bench import run_in_process
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 HANDDRAWN = "data/demos/metropolis_handdrawn.json"
@@ -55,22 +53,6 @@ KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m"
         "heldout_min_distance_error_m_shortest", "time_birl_learn_s")
 
 
-def run(run_dir: Path, *overrides: str) -> dict:
-    """One pipeline run in this process; its metrics.json."""
-    from hydra import compose, initialize_config_dir
-
-    from pipeline.app.config import register_configs
-    from pipeline.stages import run_pipeline
-
-    register_configs()
-    with initialize_config_dir(config_dir=str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=list(overrides))
-    with contextlib.redirect_stdout(io.StringIO()):
-        run_pipeline(cfg, run_dir)
-    path = run_dir / "metrics.json"
-    return json.loads(path.read_text()) if path.exists() else {}
-
-
 def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[str]],
              baseline_seeds: set[int]) -> list[dict]:
     """Every learner on one (demonstrator, seed)."""
@@ -80,7 +62,7 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
     if demonstrator == "planner_heldout":
         base_overrides.append(f"evaluate.holdout=[s{seed % 5}]")
     base = tmp / f"{demonstrator}-{seed}"
-    run(base, *base_overrides, "stages=[scene,demos,graph]")
+    run_in_process(base, *base_overrides, "stages=[scene,demos,graph]")
     rows = []
     for name, overrides in learners.items():
         if name in BASELINES and seed not in baseline_seeds:
@@ -91,8 +73,8 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
         stages = "[graph,birl,evaluate]" if any(o.startswith("birl.features")
                                                 for o in overrides) else "[birl,evaluate]"
         try:
-            m = run(learned, *base_overrides, *overrides, f"stages={stages}",
-                    f"from_run={base}")
+            m = run_in_process(learned, *base_overrides, *overrides, f"stages={stages}",
+                               f"from_run={base}")
         except PipelineError as e:  # e.g. MaxEnt: demonstrations that are no roadmap paths
             row["error"] = str(e)
             rows.append(row)
@@ -110,9 +92,9 @@ def transfer(tmp: Path, learned: Path, name: str, seed: int, metrics: dict) -> d
     the learning time of the run that learned."""
     per_scene = []
     for k in TRANSFER_SCENES:
-        per_scene.append(run(tmp / f"transfer-{name}-{seed}-{k}", *PLANNER, "scene=random",
-                             f"scene.seed={k}", f"seed={seed}", "birl=fixed",
-                             f"birl.from_run={learned}", "evaluate.holdout=all"))
+        per_scene.append(run_in_process(
+            tmp / f"transfer-{name}-{seed}-{k}", *PLANNER, "scene=random", f"scene.seed={k}",
+            f"seed={seed}", "birl=fixed", f"birl.from_run={learned}", "evaluate.holdout=all"))
     out = {key: float(np.median([m.get(key, np.nan) for m in per_scene])) for key in KEYS}
     out["time_birl_learn_s"] = metrics.get("time_birl_learn_s", np.nan)
     return out
