@@ -420,6 +420,19 @@ def posterior(seeds: list[int], likelihoods: list[str], samplers: list[str]) -> 
     return pd.DataFrame(rows)
 
 
+def imperfect_summary(table: pd.DataFrame) -> pd.DataFrame:
+    """Per condition and method: median, mean and count of policy_loss_norm, and how many
+    runs were monotone (final loss at most twice the best, no rise after iteration 3)."""
+    summary = (table.groupby(["condition", "method"]).policy_loss_norm
+               .agg(["median", "mean", "count"]).reset_index())
+    if "final_over_best" in table:
+        summary = summary.merge(
+            table.assign(monotone=(table.final_over_best <= 2) & (table.rises_after_iter3 == 0))
+            .groupby(["condition", "method"]).monotone.sum().reset_index(),
+            on=["condition", "method"])
+    return summary
+
+
 def plot_imperfect(summary: pd.DataFrame, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -451,7 +464,7 @@ def plot_imperfect(summary: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> None:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m pipeline.tools.bench")
     sub = parser.add_subparsers(dest="suite", required=True)
     g = sub.add_parser("graph", help="adaptive-graph scaling -> results/bench/graph_scaling.csv")
@@ -487,8 +500,11 @@ def main(argv=None) -> None:
     io_once.add_argument("nodes", type=int)
     io_once.add_argument("--seed", type=int, default=0)
     io_once.add_argument("--repeats", type=int, default=5)
-    args = parser.parse_args(argv)
+    return parser
 
+
+def main(argv=None) -> None:
+    args = _parser().parse_args(argv)
     if args.suite == "graph-once":
         print(json.dumps(_graph_once(args.nodes, args.seed)))
         return
@@ -499,14 +515,7 @@ def main(argv=None) -> None:
     if args.suite == "imperfect":
         print(f"imperfect demonstrations {args.conditions}, seeds {args.seeds}:", flush=True)
         table = imperfect(args.seeds, args.baseline_seeds, args.conditions)
-        summary = (table.groupby(["condition", "method"]).policy_loss_norm
-                   .agg(["median", "mean", "count"]).reset_index())
-        if "final_over_best" in table:
-            summary = summary.merge(
-                table.assign(monotone=(table.final_over_best <= 2)
-                             & (table.rises_after_iter3 == 0))
-                .groupby(["condition", "method"]).monotone.sum().reset_index(),
-                on=["condition", "method"])
+        summary = imperfect_summary(table)
         summary.to_csv(RESULTS / "imperfect_summary.csv", index=False)
         plot_imperfect(summary, RESULTS / "imperfect.png")
         print(summary.to_string(index=False))
