@@ -178,28 +178,9 @@ def run(ctx: RunContext) -> None:
     metrics: dict[str, float] = {f"weight_{n}": float(v)
                                  for n, v in zip(names, w_final, strict=True)}
     metrics.update(posterior_metrics(birl_art, names))
-    curves = {}
-    if expert["true_weights"] is not None:
-        w_true = np.asarray(expert["true_weights"], float)
-        curves["graph"], final_graph, _ = loss_curve(graph.true, w_true, weights, graph.learner)
-        curves["ref"], final_ref, ref_optimal = loss_curve(ref.true, w_true, weights,
-                                                           ref.learner)
-        # Normalise by the loss of the contrasting behaviour (rude; polite if w* is rude).
-        contrast = contrast_preset(w_true, true_names)
-        baseline = policy_loss(ref.true.mdp, w_true, preset_weights(contrast, true_names),
-                               ref.true.start_nodes, ref_optimal).loss
-        curves["norm"] = curves["ref"] / baseline if baseline > 0 else np.full(len(weights), np.nan)
-        metrics.update({
-            "policy_loss": curves["graph"][-1], "policy_loss_ref": curves["ref"][-1],
-            "policy_loss_norm": curves["norm"][-1], "policy_loss_initial": curves["graph"][0],
-            "policy_loss_ref_initial": curves["ref"][0], f"policy_loss_ref_{contrast}": baseline})
-        for k, (g, r) in enumerate(zip(curves["graph"], curves["ref"], strict=True)):
-            metrics[f"policy_loss_iter_{k:02d}"] = g
-            metrics[f"policy_loss_ref_iter_{k:02d}"] = r
-        graph_policy, ref_policy = final_graph.policy, final_ref.policy
-    else:
-        graph_policy = graph.learner.mdp.solve(w_final).policy
-        ref_policy = ref.learner.mdp.solve(w_final).policy
+    losses, curves, graph_policy, ref_policy = loss_metrics(ref, graph, expert["true_weights"],
+                                                            weights, true_names)
+    metrics.update(losses)
 
     social, graph_paths = summed_path_metrics(graph.learner, graph_policy, scene)
     social_ref, ref_paths = summed_path_metrics(ref.learner, ref_policy, scene, prefix="ref_")
@@ -225,6 +206,34 @@ def run(ctx: RunContext) -> None:
     metrics = {k: float(v) for k, v in metrics.items() if np.isfinite(v)}
     write_evaluation(ctx, weights, curves, graph_paths, ref_paths, metrics)
     print_summary(metrics, ctx)
+
+
+def loss_metrics(ref: Views, graph: Views, true_weights: list[float] | None,
+                 weights: np.ndarray, true_names: list[str]
+                 ) -> tuple[dict[str, float], dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """Policy loss per iteration on the graph and the roadmap, normalised by the contrasting
+    behaviour's (rude; polite if w* is rude), where the true weights are known; and the final
+    learned policies on both. Returns (metrics, curves, graph policy, roadmap policy)."""
+    w_final = weights[-1]
+    if true_weights is None:
+        return ({}, {}, graph.learner.mdp.solve(w_final).policy,
+                ref.learner.mdp.solve(w_final).policy)
+    w_true = np.asarray(true_weights, float)
+    curves: dict[str, np.ndarray] = {}
+    curves["graph"], final_graph, _ = loss_curve(graph.true, w_true, weights, graph.learner)
+    curves["ref"], final_ref, ref_optimal = loss_curve(ref.true, w_true, weights, ref.learner)
+    contrast = contrast_preset(w_true, true_names)
+    baseline = policy_loss(ref.true.mdp, w_true, preset_weights(contrast, true_names),
+                           ref.true.start_nodes, ref_optimal).loss
+    curves["norm"] = curves["ref"] / baseline if baseline > 0 else np.full(len(weights), np.nan)
+    metrics = {
+        "policy_loss": curves["graph"][-1], "policy_loss_ref": curves["ref"][-1],
+        "policy_loss_norm": curves["norm"][-1], "policy_loss_initial": curves["graph"][0],
+        "policy_loss_ref_initial": curves["ref"][0], f"policy_loss_ref_{contrast}": baseline}
+    for k, (g, r) in enumerate(zip(curves["graph"], curves["ref"], strict=True)):
+        metrics[f"policy_loss_iter_{k:02d}"] = g
+        metrics[f"policy_loss_ref_iter_{k:02d}"] = r
+    return metrics, curves, final_graph.policy, final_ref.policy
 
 
 def posterior_metrics(birl_art: Artefact, names: list[str]) -> dict[str, float]:
