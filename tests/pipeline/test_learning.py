@@ -154,3 +154,29 @@ def test_graph_grows_under_the_learned_weights(tmp_path_factory):
 
     rrd = build_recording(run_dir)
     assert "/birl/grown_nodes" in {str(p) for p in RrdReader(rrd).store().schema().entity_paths()}
+
+
+def test_no_loop_of_the_grown_graph_is_free(tmp_path):
+    """Demonstration edges (with the hops that merge waypoints into nearby nodes) cost what
+    the robot drives, and every second costs, so no loop is free: from every start the greedy
+    policy reaches the goal for every weight vector of a grid over the box. The graph is the
+    noisy expert's where a free 2-cycle between demonstration nodes used to trap start 4
+    (under the paper's setting, w = [-1, -1, 0, 0] still does)."""
+    run_dir = tmp_path / "run"
+    run_in_process(run_dir, "expert=boltzmann", "expert.beta=5", "seed=4",
+                   "stages=[scene,demos,graph]")
+    art = read_artefact(run_dir / "graph.mcap")
+    mdp_params = codec.decode_mdp_params(
+        read_artefact(run_dir / "demos.mcap").one("/demos/expert"))
+    graph = codec.decode_graph(art, mdp_params)
+    edges = codec.decode_edges(art)
+    driven = np.array([np.linalg.norm(np.diff(edges.waypoints[e], axis=0), axis=1).sum()
+                       for e in range(len(edges))])
+    np.testing.assert_allclose(edges.duration, driven / mdp_params.speed, rtol=1e-9)
+    assert edges.demo.any() and (edges.duration > 0).all()
+    d = graph.mdp.features.shape[1]
+    grid = np.array(np.meshgrid(*[[-1.0, -0.5, 0.0]] * d)).reshape(d, -1).T
+    for w in grid:
+        policy = graph.mdp.solve(w).policy
+        for start in graph.start_nodes:
+            assert graph.mdp.follow(policy, int(start)).reached, (w, start)
