@@ -48,7 +48,7 @@ from pipeline.app.summary import summary_table
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import Artefact, read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
-from pipeline.core.adaptive_graph import AdaptiveGraph, Demo
+from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import SpatialGraph
@@ -248,7 +248,7 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
         graph_weights, _ = build.growth_weights(cfg, None)
         graph = AdaptiveGraph(scene, features, build.controller(cfg), graph_weights, cfg.graph,
                               stage_rng(cfg.seed, "graph"), cfg.mdp)
-        graph.initialise([Demo(d.points, d.edge_features, d.durations) for d in demonstrations])
+        graph.initialise(list(demonstrations))
         graph.grow()
         rng = stage_rng(cfg.seed, "birl")
         w0 = build.initial_weights(cfg, rng)

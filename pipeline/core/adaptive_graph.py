@@ -35,6 +35,7 @@ from scipy.spatial import Voronoi
 from threadpoolctl import threadpool_limits
 
 from pipeline.core.controllers import Controller, Runs
+from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.params import require, require_count, require_non_negative, require_positive
@@ -99,14 +100,6 @@ class GraphParams:
         if self.min_separation is not None:
             return self.min_separation
         return 0.35 * math.sqrt(free_area / self.max_nodes)
-
-
-@dataclass(frozen=True)
-class Demo:
-    """A demonstration as the graph sees it: waypoints with per-segment features/durations."""
-    points: np.ndarray  # (K+1, 2)
-    segment_features: np.ndarray  # (K, d)
-    segment_durations: np.ndarray  # (K,)
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,7 +172,7 @@ class AdaptiveGraph(StateGraph):
         self.history: list[dict] = []  # per iteration: best paths and values
 
     # -- initialisation ------------------------------------------------------------------
-    def initialise(self, demos: Sequence[Demo] = ()) -> None:
+    def initialise(self, demos: Sequence[Demonstration] = ()) -> None:
         """Starts, goal, Voronoi centroids, demo waypoints and demo edges, with obstacles
         points along the medial axis of the free space; then connect and solve."""
         scene = self.scene
@@ -216,8 +209,8 @@ class AdaptiveGraph(StateGraph):
             points = medial_axis_points(self.scene, spacing * len(points) / max(budget, 1))
         return points
 
-    def _add_demo(self, demo: Demo) -> None:
-        """Demo waypoints become nodes (or merge into a node closer than min_separation);
+    def _add_demo(self, demo: Demonstration) -> None:
+        """Demonstration waypoints become nodes (or merge into a node closer than min_separation);
         demo edges carry the features of the demo's own polyline segments."""
         nodes: list[int] = []
         for k, pt in enumerate(demo.points):
@@ -238,7 +231,7 @@ class AdaptiveGraph(StateGraph):
                              self.positions[nodes[k + 1]]])
             keep = np.concatenate([[True], np.any(np.diff(ways, axis=0) != 0, axis=1)])
             waypoints.append(ways[keep])
-        self.add_edges(nodes[:-1], nodes[1:], demo.segment_durations, demo.segment_features,
+        self.add_edges(nodes[:-1], nodes[1:], demo.durations, demo.edge_features,
                        waypoints, is_demo=True)
 
     def restore(self, nodes: NodeTable, edges: EdgeTable,

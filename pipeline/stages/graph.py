@@ -16,20 +16,20 @@ from pipeline.app import build
 from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import ArtefactWriter
-from pipeline.core.adaptive_graph import AdaptiveGraph, Demo
+from pipeline.core.adaptive_graph import AdaptiveGraph
+from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
 
 log = logging.getLogger(__name__)
 
 
-def demos_for_graph(demo_msgs: list[dict], features: FeatureModel, speed: float) -> list[Demo]:
-    out = []
-    for msg in demo_msgs:
-        pts = np.asarray(msg["points"], float)
-        out.append(Demo(pts, features.segments(pts[:-1], pts[1:]),
-                        np.linalg.norm(np.diff(pts, axis=0), axis=1) / speed))
-    return out
+def demos_for_graph(demo_msgs: list[dict], features: FeatureModel,
+                    speed: float) -> list[Demonstration]:
+    """demos.mcap's demonstrations with the features of the learner's feature set."""
+    return [Demonstration.from_points(m["start_index"], np.asarray(m["points"], float),
+                                      features, speed, m["reached"], m.get("subject"))
+            for m in demo_msgs]
 
 
 def run(ctx: RunContext) -> None:

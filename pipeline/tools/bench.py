@@ -36,7 +36,7 @@ def _grow(max_nodes: int, seed: int, before_growth=None):
     (what the default experiment does): the graph and its weights. `before_growth` is
     called once the set-up is done."""
     from pipeline.app.build import preset_weights
-    from pipeline.core.adaptive_graph import AdaptiveGraph, Demo, GraphParams
+    from pipeline.core.adaptive_graph import AdaptiveGraph, GraphParams
     from pipeline.core.controllers import LinearController
     from pipeline.core.experts import optimal_demos
     from pipeline.core.features import FEATURE_NAMES, FeatureModel
@@ -55,7 +55,7 @@ def _grow(max_nodes: int, seed: int, before_growth=None):
         before_growth()
     graph = AdaptiveGraph(scene, fm, LinearController(), weights,
                           GraphParams(max_nodes=max_nodes), np.random.default_rng(seed))
-    graph.initialise([Demo(d.points, d.edge_features, d.durations) for d in demos])
+    graph.initialise(list(demos))
     graph.grow()
     return graph, weights
 

@@ -7,7 +7,7 @@ import pytest
 
 from pipeline.artefacts import ArtefactError, codec, read_artefact, topics
 from pipeline.artefacts.store import ArtefactWriter
-from pipeline.core.adaptive_graph import AdaptiveGraph, Demo, GraphParams
+from pipeline.core.adaptive_graph import AdaptiveGraph, GraphParams
 from pipeline.core.controllers import LinearController, PosqController
 from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FeatureModel
@@ -26,8 +26,7 @@ def grown(request, metropolis):
     fm = FeatureModel.from_scene(metropolis)
     rm = build_roadmap(metropolis, fm)
     mdp = rm.mdp()
-    demos = [Demo(d.points, d.edge_features, d.durations)
-             for d in optimal_demos(mdp, rm.positions, rm.start_nodes, mdp.solve(POLITE))]
+    demos = optimal_demos(mdp, rm.positions, rm.start_nodes, mdp.solve(POLITE))
     controller = LinearController() if request.param == "linear" else PosqController()
     g = AdaptiveGraph(metropolis, fm, controller, PRIOR_MEAN, GraphParams(max_nodes=120),
                       np.random.default_rng(1))

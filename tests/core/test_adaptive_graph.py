@@ -16,7 +16,6 @@ from pipeline.app.config import load_settings
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.adaptive_graph import (
     AdaptiveGraph,
-    Demo,
     GraphParams,
     _probabilities,
     choose_expansion_set,
@@ -44,8 +43,7 @@ def demos(metropolis):
     fm = FeatureModel.from_scene(metropolis)
     rm = build_roadmap(metropolis, fm)
     mdp = rm.mdp()
-    return [Demo(d.points, d.edge_features, d.durations)
-            for d in optimal_demos(mdp, rm.positions, rm.start_nodes, mdp.solve(POLITE))]
+    return optimal_demos(mdp, rm.positions, rm.start_nodes, mdp.solve(POLITE))
 
 
 def grow(scene, demos, weights, controller=None, seed=0, **params):
