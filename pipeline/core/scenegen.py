@@ -1,4 +1,4 @@
-"""Seeded random scenes: persons alone or in F-formation groups (DESIGN §3, issue 2).
+"""Seeded random scenes: persons alone or in F-formation groups.
 
 Group members stand on a circle around the group's centre, facing it (an F-formation's
 o-space), and every pair of members is related. Starts lie near one wall and the goal near

@@ -1,7 +1,7 @@
-"""Benchmark: who can be learned, by which learner (`make bench`; issue "learning what
-people do"). Writes results/bench/learning.csv (one row per run), learning_summary.csv
-(per demonstrator × learner: median, worst, runs at ≤ 0.005, crossings, held-out
-distances, seconds) and learning.png.
+"""Benchmark: who can be learned, by which learner (`make bench`). Writes
+results/bench/learning.csv (one row per run), learning_summary.csv (per demonstrator ×
+learner: median, worst, runs at ≤ 0.005, crossings, held-out distances, seconds) and
+learning.png.
 
     python -m pipeline.tools.bench_learning                     # everything (~1 h on 2 cores)
     python -m pipeline.tools.bench_learning --demonstrators optimal boltzmann20 --seeds 0 1

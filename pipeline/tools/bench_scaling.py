@@ -1,4 +1,4 @@
-"""The paper's efficiency claim at scale (`make bench`, issue 14): learning time against
+"""The paper's efficiency claim at scale (`make bench`): learning time against
 state-space size for BIRL-G and the baselines, in rooms of 10, 20 and 40 m.
 
     python -m pipeline.tools.bench_scaling              # the full grid (~20 min on 2 cores)
@@ -28,7 +28,7 @@ METHODS = ["map", "robust", "mcmc", "policywalk", "maxent"]
 NAMES = {"map": "BIRL-G (MAP, paper eq. 2)", "robust": "BIRL-G (MAP, robust)",
          "mcmc": "BIRL-G (MCMC, paper eq. 2)", "policywalk": "PolicyWalk",
          "maxent": "MaxEnt (roadmap)"}
-# method -> overrides; BIRL-G's paper form and robust form (issue 11) side by side
+# method -> overrides; BIRL-G's paper form and robust form side by side
 METHOD_OVERRIDES = {"map": ["birl=map", "birl.likelihood=paper"],
                     "robust": ["birl=map", "birl.likelihood=robust"],
                     "mcmc": ["birl=mcmc", "birl.likelihood=paper"],
