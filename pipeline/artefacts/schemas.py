@@ -90,7 +90,7 @@ OFFSET = _num("The part of the path's return no weight changes: −c·Σ_t γ^{T
               "cost per second, τ_t the edges' durations) plus γ^T R_goal if it reaches the "
               "goal; Q(ξ; w) = w·Φ + offset.")
 
-SCENE = _message("Scene", "The scene (DESIGN §3): room, persons, relations, starts, goal, "
+SCENE = _message("Scene", "The scene: room, persons, relations, starts, goal, "
                  "obstacles. Written once, log_time 0.", {
     "name": _str("Name of the scene (its file stem, or 'random_<seed>')."),
     "room": _obj("The room, an axis-aligned rectangle (metres).", {
@@ -131,7 +131,7 @@ OCCUPANCY_GRID = _message("OccupancyGrid", "The scene's occupancy map (only for 
                      "(big-endian bit order) and base64-encoded.", contentEncoding="base64"),
 })
 
-EXPERT = _message("Expert", "Who demonstrated, under which true reward (DESIGN §6).", {
+EXPERT = _message("Expert", "Who demonstrated, under which true reward.", {
     "kind": _str("Expert kind: optimal, boltzmann, file or planner."),
     "reward": _nullable(_str("Name of the true reward preset (polite, rude, ...)."),
                         "for file and planner demonstrations"),
@@ -165,7 +165,7 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
                             "for file and planner demonstrations"),
 })
 
-ROADMAP = _message("Roadmap", "The reference roadmap (DESIGN §6) with its exact solution under "
+ROADMAP = _message("Roadmap", "The reference roadmap with its exact solution under "
                    "w*. Arrays over nodes have n_nodes entries, arrays over edges n_edges.", {
     "spacing": _num("Lattice spacing, metres.", exclusiveMinimum=0),
     "connectivity": _int("Lattice connectivity: 8 (king moves) or 16 (plus knight moves)."),
@@ -199,7 +199,7 @@ _COLUMNAR = ("Columns, one row per {per}: row i is {per} first_id + i. Each nume
              "Several messages on one topic hold consecutive rows (each starts at the id after "
              "the previous one's last); log_time = the last growth iteration among the rows.")
 
-GRAPH_NODES = _message("GraphNodes", "Nodes of the adaptive state graph (DESIGN §7). "
+GRAPH_NODES = _message("GraphNodes", "Nodes of the adaptive state graph. "
                        + _COLUMNAR.format(per="node"), {
     "first_id": _int("Node id (index into the graph's node list) of the first row.",
                      minimum=0),
@@ -310,7 +310,7 @@ BIRL_POSTERIOR = _message("BirlPosterior", "Posterior samples of one sampling it
     "samples": _array(_features("One kept sample"), "Kept samples (n_kept × n_features)."),
 })
 
-POLICY_LOSS = _message("PolicyLoss", "Policy loss of one iteration's weights (DESIGN §9; "
+POLICY_LOSS = _message("PolicyLoss", "Policy loss of one iteration's weights ("
                        "log_time = iteration). Losses only when w* is known.", {
     "iteration": _int("BIRL iteration.", minimum=0),
     "weights": _features("The learned weights of that iteration"),
