@@ -138,6 +138,17 @@ def test_office_runs_end_to_end_without_collisions(office_run):
         assert min_clearance(scene.obstacles, demo["points"]) >= 0.2
 
 
+def test_a_reward_is_deployed_on_the_office_without_any_demonstration(tmp_path):
+    """expert=none: the graph grows from the scene alone (the map's medial axis leads it
+    through the doors) and every start reaches the goal on it, without collisions; metrics
+    that need a true reward are not reported."""
+    metrics, _ = run_in_process(tmp_path, "scene=office", "expert=none", "birl=fixed",
+                                "birl.weights=[-1.0,-0.7,-0.85,-0.1]")
+    assert metrics["success"] == 1.0 and metrics["ref_success"] == 1.0
+    assert metrics["obstacle_collisions"] == 0 and metrics["ref_relation_crossings"] == 0
+    assert "policy_loss" not in metrics and metrics["graph_demo_node_share"] == 0
+
+
 # ---------------------------------------------------------------------------------------------
 # 3. Random scenes on a map
 
