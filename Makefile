@@ -126,4 +126,5 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench obstacles
 	$(PY) -m pipeline.tools.bench imperfect
 	$(PY) -m pipeline.tools.bench posterior
+	$(PY) -m pipeline.tools.bench bigroom
 	$(PY) -m pipeline.tools.bench_scaling

@@ -9,12 +9,13 @@ of a fresh process above its ~85-120 MB of imports, one case per process:
   reachability labels): 100 m and 200 m rooms with one box (4e6, 1.6e7 cells) took 184 and
   572 MB; maps of 2000², 4000², 6000² px took 181, 594 and 1298 MB: 36-46 bytes per cell;
 - lattices (the reference roadmap, 16-connected at 0.25 m; a random room's reachability
-  check, 8-connected at 0.2 m), by persons P in the room (each edge is tested against every
-  body disk and scored for every person): roadmap of 40 m rooms (405k edges) 434 B/edge for
-  P = 0, 1122 for P = 12, 3598 for P = 40, +113 B with an obstacle; 20 and 60 m rooms with
-  P = 12 gave 1136 and 1120 B/edge; reachability lattices of 30 and 60 m rooms (180k, 720k
-  edges) 1439 B/edge for P = 15 (the 200 m room of 8e6 edges reached 13.4 GB: 1675 B/edge)
-  and 3632 for P = 40;
+  check, 8-connected at 0.2 m): roadmaps (edges and their features) of 20, 40 and 80 m
+  random rooms (0.10, 0.41, 1.64 M edges by `lattice_edges`) took 60, 188 and 654 MB, about
+  30 MB + 380 B/edge, as much with 199, 395 and 785 persons as with none (the body-disk
+  tests look only at the persons near an edge, `pipeline.core.nearby`, and the features
+  tile by tile); the same rooms' reachability lattices 100-140 B/edge; an obstacle added
+  113 B/edge (roadmap of a 40 m room). Before the disk tests were cut off, every edge was
+  tested against every person: 1122 B/edge with 12 persons, 3598 with 40;
 - the adaptive graph at 20,000 nodes peaked at 523 MB.
 
 The constants below are these rounded up, so an estimate is never below what a run takes.
@@ -31,7 +32,8 @@ from pipeline.errors import PipelineError
 BYTES_FIXED = 150e6  # working set besides the per-element arrays
 BYTES_PER_RASTER_CELL = 48.0  # occupancy, clearance (float64), distance transform, labels
 BYTES_PER_LATTICE_EDGE = 500.0  # edge arrays, features, sub-step integration chunks ...
-BYTES_PER_LATTICE_EDGE_PERSON = 90.0  # ... and per person in the room (disk tests, features)
+BYTES_PER_LATTICE_EDGE_PERSON = 1.0  # ... and per person in the room (not measurable: a margin
+# for crowded feature tiles)
 BYTES_PER_LATTICE_EDGE_OBSTACLES = 150.0  # ... and the clearance samples with obstacles
 BYTES_PER_GRAPH_NODE = 30e3  # nodes, edges, GP data, per-iteration history
 MEMORY_SHARE = 0.8  # of the memory available now

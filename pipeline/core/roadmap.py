@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, SpatialGraph
+from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.params import require, require_positive
 from pipeline.core.world import Scene
 
@@ -64,19 +65,13 @@ class Roadmap:
 def segments_feasible(scene: Scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Mask (n,) of the straight segments a[i] → b[i] (each (n, 2)) that stay in the
     (convex) room, keep out of every body disk and keep robot_radius from every obstacle
-    (clearance sampled at most half a raster cell apart)."""
+    (clearance sampled at most half a raster cell apart). Only the persons near a segment
+    are tested (`nearby`): the same mask as testing every person."""
     ok = scene.room.contains(a) & scene.room.contains(b)
     if scene.obstacles is not None and len(a):
         ok &= scene.obstacles.segments_free(a, b, scene.robot_radius)
-    persons = scene.person_xy
-    if len(persons) and len(a):
-        seg = b - a
-        len2 = np.maximum(np.einsum("nk,nk->n", seg, seg), 1e-18)
-        ap = persons[None, :, :] - a[:, None, :]  # (n, P, 2)
-        t = np.clip(np.einsum("npk,nk->np", ap, seg) / len2[:, None], 0.0, 1.0)
-        closest = a[:, None, :] + t[..., None] * seg[:, None, :]
-        d = np.linalg.norm(closest - persons[None, :, :], axis=2)
-        ok &= (d >= scene.body_radius).all(axis=1)
+    if len(scene.persons) and len(a):
+        ok &= segments_clear_of_disks(a, b, scene.person_xy, scene.body_radius)
     return ok
 
 

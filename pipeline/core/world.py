@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.core.nearby import points_in_disks
 from pipeline.core.obstacles import (
     ObstacleMap,
     OccupancyGrid,
@@ -135,8 +136,7 @@ class Scene:
         p = np.atleast_2d(points)
         if not self.persons:
             return np.zeros(len(p), dtype=bool)
-        d = np.linalg.norm(p[:, None, :] - self.person_xy[None, :, :], axis=2)
-        return (d < self.body_radius + clearance).any(axis=1)
+        return points_in_disks(p, self.person_xy, self.body_radius + clearance)
 
     def free(self, points: np.ndarray) -> np.ndarray:
         """Mask (n,) of points (n, 2) inside the room, outside every body disk and at least

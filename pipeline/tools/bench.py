@@ -6,6 +6,8 @@
     python -m pipeline.tools.bench experiment       # the default experiment's time per stage
     python -m pipeline.tools.bench irl              # BIRL-G against PolicyWalk and MaxEnt IRL
     python -m pipeline.tools.bench imperfect        # noisy and hand-drawn demonstrations
+    python -m pipeline.tools.bench bigroom          # scene + demos of 10, 20, 40 m rooms
+    python -m pipeline.tools.bench bigroom --old /tmp/old   # ... and of another checkout
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
 """
@@ -15,6 +17,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -203,6 +206,64 @@ def obstacle_costs(repeats: int) -> pd.DataFrame:
     t0 = time.perf_counter()
     office.obstacles.segments_free(a, b, office.robot_radius)
     table["segments_100k_check_s"] = round(time.perf_counter() - t0, 3)
+    return table
+
+
+BIG_ROOM_SIDES = [10.0, 20.0, 40.0]
+
+
+def _big_room_once(code: Path, side: float) -> dict:
+    """scene + demos of a random side × side m room with the default 10 m room's density of
+    persons (3 singles and 3 groups per 100 m²), run by the checkout `code` in a fresh
+    process: the stages' seconds (timings.json) and the process's peak RSS (wait4)."""
+    import tempfile
+
+    n = max(1, round(3 * side * side / 100))
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "pipeline", "scene=random", f"scene.width={side:g}",
+               f"scene.height={side:g}", f"scene.n_singles={n}", f"scene.n_groups={n}",
+               "stages=[scene,demos]", f"hydra.run.dir={tmp}"]
+        env = {**os.environ, "PYTHONPATH": str(code)}
+        t0 = time.perf_counter()
+        child = subprocess.Popen(cmd, cwd=code, env=env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL)
+        _, status, usage = os.wait4(child.pid, 0)
+        wall = time.perf_counter() - t0
+        child.returncode = os.waitstatus_to_exitcode(status)
+        if child.returncode:
+            raise RuntimeError(f"{' '.join(cmd)} in {code} failed ({child.returncode})")
+        timings = json.loads((Path(tmp) / "timings.json").read_text())
+    return {"side_m": side, "n_singles": n, "n_groups": n, "wall_s": round(wall, 2),
+            "scene_demos_s": round(timings["time_scene_s"] + timings["time_demos_s"], 3),
+            "scene_s": timings["time_scene_s"], "demos_s": timings["time_demos_s"],
+            "peak_rss_mb": round(usage.ru_maxrss / 1024, 1)}
+
+
+def big_rooms(sides: list[float], repeats: int, old: Path | None) -> pd.DataFrame:
+    """scene + demos of growing rooms (_big_room_once), the best of `repeats` runs each (the
+    run with the fewest stage seconds); with `old` (another checkout, e.g. a `git worktree`
+    of an older commit) its runs alternate with this checkout's, so both see the same load."""
+    codes = {"new": PROJECT_ROOT, **({"old": old} if old is not None else {})}
+    rows = []
+    for side in sides:
+        runs: dict[str, list[dict]] = {name: [] for name in codes}
+        for _ in range(repeats):
+            for name, code in codes.items():
+                runs[name].append(_big_room_once(code, side))
+        for name, found in runs.items():
+            best = min(found, key=lambda r: r["scene_demos_s"])
+            rows.append({"code": name, **best,
+                         "scene_demos_s_median": round(float(np.median(
+                             [r["scene_demos_s"] for r in found])), 3),
+                         "peak_rss_mb_max": max(r["peak_rss_mb"] for r in found)})
+            print(f"  {rows[-1]}", flush=True)
+    table = pd.DataFrame(rows)
+    if old is not None:
+        before = table[table.code == "old"].set_index("side_m")
+        table["time_vs_old"] = [round(r.scene_demos_s / before.scene_demos_s[r.side_m], 3)
+                                for r in table.itertuples()]
+        table["rss_vs_old"] = [round(r.peak_rss_mb / before.peak_rss_mb[r.side_m], 3)
+                               for r in table.itertuples()]
     return table
 
 
@@ -493,6 +554,12 @@ def _parser() -> argparse.ArgumentParser:
     post.add_argument("--likelihoods", nargs="+", default=["robust", "paper"])
     post.add_argument("--samplers", nargs="+", default=list(SAMPLER_OVERRIDES),
                       choices=list(SAMPLER_OVERRIDES))
+    big = sub.add_parser("bigroom", help="scene + demos of 10-40 m random rooms -> "
+                         "results/bench/big_rooms.csv")
+    big.add_argument("--sides", type=float, nargs="+", default=BIG_ROOM_SIDES)
+    big.add_argument("--repeats", type=int, default=3)
+    big.add_argument("--old", type=Path, default=None,
+                     help="another checkout to measure side by side (code=old rows)")
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
@@ -540,6 +607,10 @@ def main(argv=None) -> None:
         print(f"office map vs metropolis, min of {args.repeats} runs:", flush=True)
         table = obstacle_costs(args.repeats)
         path = RESULTS / "obstacles.csv"
+    elif args.suite == "bigroom":
+        print(f"scene + demos of rooms of {args.sides} m, best of {args.repeats}:", flush=True)
+        table = big_rooms(args.sides, args.repeats, args.old)
+        path = RESULTS / "big_rooms.csv"
     elif args.suite == "graph_io":
         print(f"graph.mcap write and read back on metropolis, sizes {args.sizes}:", flush=True)
         table = graph_io(args.sizes, args.seed, args.repeats)

@@ -1,8 +1,12 @@
 """The reference roadmap (pipeline/core/roadmap.py) on the metropolis scene."""
 
 import numpy as np
+import pytest
 
-from pipeline.core.roadmap import segments_feasible
+import pipeline.core.roadmap as roadmap_module
+import pipeline.core.world as world_module
+from pipeline.core.nearby import PAIR_BUDGET, points_in_disks, segments_clear_of_disks
+from pipeline.core.roadmap import lattice_graph, segments_feasible
 
 
 def test_roadmap_is_feasible_and_16_connected(metropolis, roadmap):
@@ -16,3 +20,96 @@ def test_roadmap_is_feasible_and_16_connected(metropolis, roadmap):
     d = np.linalg.norm(roadmap.positions[:, None] - roadmap.positions[None], axis=2)
     assert (d + np.eye(len(d)) * 9).min() > 0.1
     np.testing.assert_allclose(roadmap.positions[roadmap.start_nodes], metropolis.starts)
+
+
+# -- the person tests against every person (the code before the k-d tree cut-off) ---------
+# Kept here only as the oracle: the package tests the persons near each segment or point.
+
+
+def dense_segments_clear(a, b, persons, radius):
+    seg = b - a
+    len2 = np.maximum(np.einsum("nk,nk->n", seg, seg), 1e-18)
+    ap = persons[None, :, :] - a[:, None, :]  # (n, P, 2)
+    t = np.clip(np.einsum("npk,nk->np", ap, seg) / len2[:, None], 0.0, 1.0)
+    closest = a[:, None, :] + t[..., None] * seg[:, None, :]
+    d = np.linalg.norm(closest - persons[None, :, :], axis=2)
+    return (d >= radius).all(axis=1)
+
+
+def dense_points_in_disks(points, persons, radius):
+    d = np.linalg.norm(points[:, None, :] - persons[None, :, :], axis=2)
+    return (d < radius).any(axis=1)
+
+
+def dense_lattice_graph(scene, spacing, connectivity):
+    """lattice_graph with the dense person tests (monkeypatched into the package)."""
+    import pipeline.core.nearby as nearby
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(nearby, "segments_clear_of_disks", dense_segments_clear)
+        mp.setattr(roadmap_module, "segments_clear_of_disks", dense_segments_clear)
+        mp.setattr(world_module, "points_in_disks", dense_points_in_disks)
+        return lattice_graph(scene, spacing, connectivity)
+
+
+def random_segments(rng, n, persons, radius):
+    """Random segments in a 6 m square with, mixed in, segments touching body disks
+    (an end at exactly `radius` from a person, along an axis so the distance is exact),
+    segments grazing them, zero-length segments and long ones."""
+    a = rng.uniform(0, 6, (n, 2))
+    b = a + rng.normal(0, 0.4, (n, 2))
+    k = n // 6
+    who = persons[rng.integers(len(persons), size=k)]
+    a[:k] = who + [radius, 0.0]  # on the disk's rim
+    b[:k] = a[:k] + [rng.uniform(0, 1), 0.0]  # leaving it radially
+    a[k:2 * k] = who + [0.0, -1.0]  # tangent to the disk: passes at exactly `radius`
+    a[k:2 * k, 0] += radius
+    b[k:2 * k] = a[k:2 * k] + [0.0, 2.0]
+    b[2 * k:3 * k] = a[2 * k:3 * k]  # zero length
+    a[3 * k:3 * k + 5] = who[:5] + [radius, 0.0]  # zero length on the rim
+    b[3 * k:3 * k + 5] = a[3 * k:3 * k + 5]
+    b[4 * k:4 * k + 10] = a[4 * k:4 * k + 10] + rng.normal(0, 8, (10, 2))  # long
+    return a, b
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("budget", [PAIR_BUDGET, 40])  # one chunk / many chunks and trees
+def test_segment_and_point_tests_equal_the_dense_ones(seed, budget, monkeypatch):
+    import pipeline.core.nearby as nearby
+    monkeypatch.setattr(nearby, "PAIR_BUDGET", budget)
+    monkeypatch.setattr(nearby, "DENSE_PAIRS", 0)  # always the tree path
+    rng = np.random.default_rng(seed)
+    radius = 0.25
+    persons = rng.uniform(0.5, 5.5, (rng.integers(5, 40), 2))
+    a, b = random_segments(rng, 3000, persons, radius)
+    dense = dense_segments_clear(a, b, persons, radius)
+    # every kind of case is there: blocked, free, and free exactly at the rim
+    assert dense.sum() > 100 and (~dense).sum() > 100
+    np.testing.assert_array_equal(segments_clear_of_disks(a, b, persons, radius), dense)
+    points = np.vstack([a, persons + [radius, 0.0], persons + [0.0, radius - 1e-12]])
+    for r in (radius, radius + 0.1):
+        np.testing.assert_array_equal(points_in_disks(points, persons, r),
+                                      dense_points_in_disks(points, persons, r))
+
+
+def test_segment_test_catches_one_blocked_pair(monkeypatch):
+    """A pair the k-d tree would leave out is caught: a segment through a person far from
+    its midpoint (the midpoint lies half the length away)."""
+    import pipeline.core.nearby as nearby
+    monkeypatch.setattr(nearby, "DENSE_PAIRS", 0)
+    persons = np.array([[0.0, 0.0], [50.0, 50.0]])
+    a = np.array([[-10.0, 0.0], [-10.0, 0.3], [0.25, 0.0], [0.0, 0.2499]])
+    b = np.array([[0.0, 0.0], [10.0, 0.3], [0.25, 0.0], [0.0, 0.2499]])
+    np.testing.assert_array_equal(segments_clear_of_disks(a, b, persons, 0.25),
+                                  [False, True, True, False])
+
+
+@pytest.mark.parametrize("connectivity", [8, 16])
+def test_lattice_edges_equal_the_dense_computation(metropolis, connectivity, monkeypatch):
+    import pipeline.core.nearby as nearby
+    monkeypatch.setattr(nearby, "DENSE_PAIRS", 0)
+    monkeypatch.setattr(nearby, "PAIR_BUDGET", 5000)
+    dense = dense_lattice_graph(metropolis, 0.25, connectivity)
+    new = lattice_graph(metropolis, 0.25, connectivity)
+    assert len(dense[1]) > 1000
+    for x, y in zip(new, dense, strict=True):
+        np.testing.assert_array_equal(x, y)
