@@ -17,6 +17,7 @@ import logging
 import os
 import re
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
@@ -299,6 +300,36 @@ def cli() -> None:
     if LogFiles.failed:
         print(f"warning: the log could not be written ({shorten(LogFiles.failed[0], 200)}); "
               "the run itself completed", file=sys.stderr)
+    if not multirun and is_the_command():
+        exit_now()
+
+
+def is_the_command() -> bool:
+    """Whether cli() runs as the process's command (`python -m pipeline`, the `birlg`
+    script), not called from a process that goes on (tests, notebooks)."""
+    main_module = sys.modules.get("__main__")
+    spec = getattr(main_module, "__spec__", None)
+    if spec is not None and spec.name == "pipeline.__main__":
+        return True
+    return Path(sys.argv[0]).name == "birlg"
+
+
+def exit_now() -> None:
+    """Exit 0 without Python's teardown (freeing every module and object, ~0.15 s of the
+    default run's 2.6 s): the run is over, each artefact closed and renamed and status.json
+    written (RunDir), the run dir's lock released and Hydra's log handlers closed (cli's
+    `finally`); what remains is memory the OS frees. Only on success, only with no other
+    thread alive (one whose work a normal exit would wait for), after flushing the standard
+    streams and the logging handlers left."""
+    if threading.active_count() > 1:
+        return
+    logging.shutdown()  # flushes and closes the handlers still registered
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed or broken pipe: the normal exit decides
+            return
+    os._exit(0)
 
 
 if __name__ == "__main__":
