@@ -178,10 +178,15 @@ def explicit_run_dir(parsed: list, multirun: bool) -> Path | None:
 def mode_from_the_command_line(parsed: list, flags: list[str]) -> Iterator[None]:
     """Hydra composes the whole config once only to read `hydra.mode`, then again to run
     (0.2-0.3 s each). No config of this package sets hydra.mode (tests/cli/test_cli.py
-    checks), so unless the command line can (a hydra.mode override, an experiment preset,
-    another config dir, path or name) Hydra's answer is known: None, `-m` decides."""
-    keys = {o.key_or_group for o in parsed}
-    if any(k.startswith("hydra.mode") or k == "experiment" for k in keys) \
+    checks), so unless the command line can (a hydra.mode override, an experiment preset
+    that is not one of the package's, another config dir, path, search path or name)
+    Hydra's answer is known: None, `-m` decides."""
+    def may_set_mode(o) -> bool:
+        key = o.key_or_group
+        return key.startswith(("hydra.mode", "hydra.searchpath")) or \
+            (key == "experiment" and not _preset_without_mode(o))
+
+    if any(may_set_mode(o) for o in parsed) \
             or any(f.startswith(("--config", "-c")) for f in flags):
         yield
         return
@@ -193,6 +198,19 @@ def mode_from_the_command_line(parsed: list, flags: list[str]) -> Iterator[None]
         yield
     finally:
         Hydra.get_mode = real  # type: ignore[method-assign]
+
+
+def _preset_without_mode(override) -> bool:
+    """`experiment=NAME` names a preset of the package's conf/experiment/ whose text sets no
+    `mode` (tests/cli/test_cli.py checks that none sets hydra.mode): a sweep of a preset
+    (`make sweep`) needs no extra composition either."""
+    if override.is_sweep_override() or override.is_delete():
+        return False
+    name = override.value()
+    path = Path(CONF_DIR) / "experiment" / f"{name}.yaml"
+    if not isinstance(name, str) or "/" in name or not path.is_file():
+        return False
+    return re.search(r"^\s*mode\s*:", path.read_text(), re.MULTILINE) is None
 
 
 class LogFiles:
