@@ -30,9 +30,9 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
+from pipeline.app.outcome import SweepOutcome
 from pipeline.app.rundir import (
     Interrupted,
-    SweepOutcome,
     as_interrupted,
     locked,
     read_status,
