@@ -14,6 +14,7 @@ PYTHONDONTWRITEBYTECODE keeps it from writing them).
 from __future__ import annotations
 
 import compileall
+import re
 import shutil
 import statistics
 import subprocess
@@ -57,7 +58,7 @@ def variants(root: Path, old: Path | None, jobs: int) -> dict[str, tuple[Path, l
 
 
 def measure_once(name: str, checkout: Path, args: list, work: Path, rep: int) -> float:
-    out = work / f"{name.split()[0]}-{name.replace(' ', '_')}-{rep}"
+    out = work / f"{re.sub(r'[^a-z-]+', '_', name)}-{rep}"  # a value Hydra takes unquoted
     if name.startswith("run"):
         return timed([sys.executable, "-m", *args, f"hydra.run.dir={out}"], checkout)
     if name.startswith("sweep"):
