@@ -62,7 +62,8 @@ lock: | $(UV_STAMP)
 experiment: $(STAMP)
 	$(PY) -m pipeline $(ARGS)
 
-## Hydra multirun over a preset of conf/experiment/ with the joblib launcher, then aggregate.
+## Hydra multirun over a preset of conf/experiment/ with long-lived forked workers (the pool
+## launcher; ARGS=hydra/launcher=joblib for joblib's), then aggregate.
 ## A failing job does not stop the others; the exit status says whether any failed.
 sweep: $(STAMP) $(if $(filter tune,$(EXP)),$(VENV)/.installed-tune)
 	@# Aggregate also when jobs failed (the table lists them); exit non-zero if any did.

@@ -17,6 +17,7 @@ import logging
 import os
 import re
 import sys
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
@@ -29,9 +30,9 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
+from pipeline.app.outcome import SweepOutcome
 from pipeline.app.rundir import (
     Interrupted,
-    SweepOutcome,
     as_interrupted,
     locked,
     read_status,
@@ -177,10 +178,15 @@ def explicit_run_dir(parsed: list, multirun: bool) -> Path | None:
 def mode_from_the_command_line(parsed: list, flags: list[str]) -> Iterator[None]:
     """Hydra composes the whole config once only to read `hydra.mode`, then again to run
     (0.2-0.3 s each). No config of this package sets hydra.mode (tests/cli/test_cli.py
-    checks), so unless the command line can (a hydra.mode override, an experiment preset,
-    another config dir, path or name) Hydra's answer is known: None, `-m` decides."""
-    keys = {o.key_or_group for o in parsed}
-    if any(k.startswith("hydra.mode") or k == "experiment" for k in keys) \
+    checks), so unless the command line can (a hydra.mode override, an experiment preset
+    that is not one of the package's, another config dir, path, search path or name)
+    Hydra's answer is known: None, `-m` decides."""
+    def may_set_mode(o) -> bool:
+        key = o.key_or_group
+        return key.startswith(("hydra.mode", "hydra.searchpath")) or \
+            (key == "experiment" and not _preset_without_mode(o))
+
+    if any(may_set_mode(o) for o in parsed) \
             or any(f.startswith(("--config", "-c")) for f in flags):
         yield
         return
@@ -192,6 +198,19 @@ def mode_from_the_command_line(parsed: list, flags: list[str]) -> Iterator[None]
         yield
     finally:
         Hydra.get_mode = real  # type: ignore[method-assign]
+
+
+def _preset_without_mode(override) -> bool:
+    """`experiment=NAME` names a preset of the package's conf/experiment/ whose text sets no
+    `mode` (tests/cli/test_cli.py checks that none sets hydra.mode): a sweep of a preset
+    (`make sweep`) needs no extra composition either."""
+    if override.is_sweep_override() or override.is_delete():
+        return False
+    name = override.value()
+    path = Path(CONF_DIR) / "experiment" / f"{name}.yaml"
+    if not isinstance(name, str) or "/" in name or not path.is_file():
+        return False
+    return re.search(r"^\s*mode\s*:", path.read_text(), re.MULTILINE) is None
 
 
 class LogFiles:
@@ -299,6 +318,36 @@ def cli() -> None:
     if LogFiles.failed:
         print(f"warning: the log could not be written ({shorten(LogFiles.failed[0], 200)}); "
               "the run itself completed", file=sys.stderr)
+    if not multirun and is_the_command():
+        exit_now()
+
+
+def is_the_command() -> bool:
+    """Whether cli() runs as the process's command (`python -m pipeline`, the `birlg`
+    script), not called from a process that goes on (tests, notebooks)."""
+    main_module = sys.modules.get("__main__")
+    spec = getattr(main_module, "__spec__", None)
+    if spec is not None and spec.name == "pipeline.__main__":
+        return True
+    return Path(sys.argv[0]).name == "birlg"
+
+
+def exit_now() -> None:
+    """Exit 0 without Python's teardown (freeing every module and object, ~0.15 s of the
+    default run's 2.6 s): the run is over, each artefact closed and renamed and status.json
+    written (RunDir), the run dir's lock released and Hydra's log handlers closed (cli's
+    `finally`); what remains is memory the OS frees. Only on success, only with no other
+    thread alive (one whose work a normal exit would wait for), after flushing the standard
+    streams and the logging handlers left."""
+    if threading.active_count() > 1:
+        return
+    logging.shutdown()  # flushes and closes the handlers still registered
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed or broken pipe: the normal exit decides
+            return
+    os._exit(0)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
+from pipeline.app.metric_keys import METRIC_KEYS, is_metric_key  # noqa: F401 - also here
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.adaptive_graph import GraphParams
 from pipeline.core.controllers import CONTROLLERS, PosqController
@@ -39,7 +39,6 @@ from pipeline.core.params import (
 )
 from pipeline.core.roadmap import RoadmapParams
 from pipeline.core.scenegen import RandomSceneSpec
-from pipeline.core.social import PATH_METRICS
 from pipeline.core.social_planner import SocialPlannerParams
 from pipeline.core.world import BodyParams
 from pipeline.errors import PipelineError
@@ -221,23 +220,8 @@ class EvaluateConfig:
 DEMONSTRATOR_FEATURES = ("relation", "social", "goal_deviation", "length")
 
 
-# The metrics.json keys (written by the evaluate stage), as patterns: `objective` must name
-# one. Tests check real runs' metrics.json against them (test_transfer, test_learning), so
-# the two stay in step.
-_PATH = "(" + "|".join(PATH_METRICS) + ")"
-METRIC_KEYS = (
-    rf"(ref_)?{_PATH}", rf"transfer_.+_(policy_loss(_norm)?|{_PATH})",
-    r"policy_loss(_ref)?(_initial|_rude|_iter_\d+)?", r"policy_loss_norm",
-    r"weight_((std|rhat|ess)_)?\w+", r"mcmc_(acceptance_rate|ess_min|rhat_max)",
-    r"frechet_to_demos(_max)?", r"time_\w+_s", r"graph_demo_node_share",
-    r"heldout_(count|(frechet_m|min_distance_error_m)(_shortest)?)",
-)
 OBJECTIVE_EXAMPLES = ("policy_loss_norm", "policy_loss", "policy_loss_ref", "success",
                       "relation_crossings", "path_length", "min_distance_to_person")
-
-
-def is_metric_key(key: str) -> bool:
-    return any(re.fullmatch(pattern, key) for pattern in METRIC_KEYS)
 
 
 @dataclass

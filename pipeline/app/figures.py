@@ -9,9 +9,6 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.artefacts import codec, read_artefact, topics
-from pipeline.artefacts.topics import ARTEFACT_FILE
-
 
 def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
     """The scene of `run_dir` (room, map, persons with their personal zones and headings,
@@ -19,6 +16,11 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
     paths (`paths`: "graph" for the adaptive graph's, "ref" for the reference roadmap's)
     when the run has them; returns `ax`."""
     from matplotlib.patches import Circle
+
+    # Here, not at the top: the artefact readers import the run's modules (scipy, ...), which
+    # the sweep table (make aggregate) does not need.
+    from pipeline.artefacts import codec, read_artefact, topics
+    from pipeline.artefacts.topics import ARTEFACT_FILE
 
     run_dir = Path(run_dir)
     art = read_artefact(run_dir / ARTEFACT_FILE["scene"], producer_stage="scene")

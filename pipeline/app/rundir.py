@@ -26,9 +26,6 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
-
 from pipeline.artefacts.store import content_digest, write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.errors import PipelineError, os_error_reason
@@ -286,14 +283,3 @@ def job_dirs(sweep_dir: Path) -> list[Path]:
 
     return sorted((p.parent.parent for p in Path(sweep_dir).glob("**/.hydra/overrides.yaml")),
                   key=natural)
-
-
-class SweepOutcome(Callback):
-    """Hydra callback (conf/config.yaml, hydra.callbacks): after a sweep, the jobs whose run
-    dir is not complete, so the command exits non-zero when any job failed."""
-
-    failed: list[str] = []  # job dirs of the last sweep in this process, read by cli()
-
-    def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
-        jobs = job_dirs(Path(config.hydra.sweep.dir))
-        SweepOutcome.failed[:] = [str(j) for j in jobs if not read_status(j).complete]

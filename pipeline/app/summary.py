@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from pipeline.app.config import is_metric_key
+from pipeline.app.metric_keys import is_metric_key
 from pipeline.app.rundir import job_dirs, read_status
 from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
 from pipeline.errors import PipelineError

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pipeline.core.world import Scene
+if TYPE_CHECKING:  # the metric names alone (a sweep's table) need no scene geometry (scipy)
+    from pipeline.core.world import Scene
 
 INTIMATE_ZONE = 0.45  # m
 PERSONAL_ZONE = 1.2  # m

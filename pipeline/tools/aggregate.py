@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.app.figures import draw_scene
 from pipeline.app.summary import is_metric, summary_table
 from pipeline.errors import PipelineError
 
@@ -57,13 +56,12 @@ def save_figure(fig, path: Path) -> None:
 
 
 def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: its import and state, not needed here
     from matplotlib.ticker import MaxNLocator
 
     ok = table[table.status == "ok"]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharex=True, sharey=True)
+    fig = Figure(figsize=(11, 4))
+    axes = fig.subplots(1, 2, sharex=True, sharey=True)
     plotted = False
     groups = _group_columns(ok)
     for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
@@ -92,20 +90,18 @@ def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
         axes[1].legend(fontsize=7, loc="upper right")
         fig.tight_layout()
         save_figure(fig, path)
-    plt.close(fig)
     return plotted
 
 
 def plot_scene(job: Path, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
-    fig, ax = plt.subplots(figsize=(7.5, 6))
-    draw_scene(ax, job)
+    from pipeline.app.figures import draw_scene  # the artefact readers: only for this figure
+
+    fig = Figure(figsize=(7.5, 6))
+    draw_scene(fig.subplots(), job)
     fig.tight_layout()
     save_figure(fig, path)
-    plt.close(fig)
 
 
 def results_table(table: pd.DataFrame) -> pd.DataFrame:
@@ -137,10 +133,12 @@ def write_tables(table: pd.DataFrame, sweep_dir: Path) -> None:
     (sweep_dir / "table.tex").write_text(latex)
 
 
-def aggregate(sweep_dir: Path) -> pd.DataFrame:
+def aggregate(sweep_dir: Path, figures: bool = True) -> pd.DataFrame:
     table = summary_table(sweep_dir)
     table.to_csv(sweep_dir / "summary.csv", index=False)
     write_tables(table, sweep_dir)
+    if not figures:  # the table alone: a third of the time (matplotlib, the artefacts)
+        return table
     plot_policy_loss(table, sweep_dir / "policy_loss.png")
     ok = table[table.status == "ok"]
     if len(ok):
@@ -152,11 +150,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pipeline.tools.aggregate", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sweep_dir", type=Path)
+    parser.add_argument("--no-figures", dest="figures", action="store_false",
+                        help="write the tables only (summary.csv, table.md, table.tex)")
     args = parser.parse_args(argv)
     try:
         if not args.sweep_dir.is_dir():
             raise PipelineError(f"sweep dir {args.sweep_dir} not found")
-        table = aggregate(args.sweep_dir)
+        table = aggregate(args.sweep_dir, figures=args.figures)
     except PipelineError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
                         "relation_crossings") if c in table.columns]
     print(table[cols].to_string(index=False))
     print(f"{len(table) - len(failed)} of {len(table)} jobs ok; wrote "
-          f"{args.sweep_dir / 'summary.csv'} and figures")
+          f"{args.sweep_dir / 'summary.csv'}{' and figures' if args.figures else ''}")
     for _, row in failed.iterrows():
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
     return 1 if len(failed) else 0

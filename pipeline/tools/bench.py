@@ -4,6 +4,7 @@
     python -m pipeline.tools.bench graph --sizes 250 500
     python -m pipeline.tools.bench graph_io         # graph.mcap write and read-back times
     python -m pipeline.tools.bench experiment       # the default experiment's time per stage
+    python -m pipeline.tools.bench startup --old /tmp/old   # start-up, sweeps, aggregation
     python -m pipeline.tools.bench irl              # BIRL-G against PolicyWalk and MaxEnt IRL
     python -m pipeline.tools.bench imperfect        # noisy and hand-drawn demonstrations
     python -m pipeline.tools.bench bigroom          # scene + demos of 10, 20, 40 m rooms
@@ -538,6 +539,12 @@ def _parser() -> argparse.ArgumentParser:
     io.add_argument("--repeats", type=int, default=5)
     e = sub.add_parser("experiment", help="default experiment -> results/bench/experiment.csv")
     e.add_argument("--repeats", type=int, default=3)
+    st = sub.add_parser("startup", help="default run, quick sweep and aggregation wall times "
+                        "-> results/bench/startup.csv (pipeline/tools/bench_startup.py)")
+    st.add_argument("--repeats", type=int, default=3)
+    st.add_argument("--jobs", type=int, default=2, help="sweep workers")
+    st.add_argument("--old", type=Path, default=None,
+                    help="a checkout of an earlier commit to measure beside this one")
     irl = sub.add_parser("irl", help="IRL methods -> results/bench/irl_methods.csv and .png")
     irl.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     irl.add_argument("--methods", nargs="+", default=IRL_METHODS)
@@ -615,6 +622,12 @@ def main(argv=None) -> None:
         print(f"graph.mcap write and read back on metropolis, sizes {args.sizes}:", flush=True)
         table = graph_io(args.sizes, args.seed, args.repeats)
         path = RESULTS / "graph_io.csv"
+    elif args.suite == "startup":
+        from pipeline.tools.bench_startup import startup_table
+
+        print(f"start-up, sweeps and aggregation, {args.repeats} interleaved runs:", flush=True)
+        table = startup_table(PROJECT_ROOT, args.old, args.repeats, args.jobs)
+        path = RESULTS / "startup.csv"
     elif args.suite == "experiment":
         print(f"default experiment, {args.repeats} runs:", flush=True)
         table = experiment_timings(args.repeats)

@@ -170,3 +170,23 @@ def test_figures_are_the_same_bytes_when_saved_again(tmp_path):
     plt.close(fig)
     for suffix in (".png", ".pdf"):
         assert (tmp_path / f"a{suffix}").read_bytes() == (tmp_path / f"b{suffix}").read_bytes()
+
+
+def test_pool_launcher_gives_the_joblib_launchers_jobs(tmp_path):
+    """The presets' pool launcher (long-lived forked workers) and Hydra's joblib launcher
+    (fresh worker processes) make the same job dirs with the same metrics."""
+    sweep = ["-m", "experiment=quick", "seed=0", "reward=polite,rude", "birl.n_iterations=3"]
+    for launcher in ("pool", "joblib"):
+        result = run_app(*sweep, f"hydra/launcher={launcher}", "hydra.launcher.n_jobs=2",
+                         f"hydra.sweep.dir={tmp_path / launcher}")
+        assert result.returncode == 0, result.stderr[-2000:]
+    for job in ("0", "1"):
+        pool, joblib = tmp_path / "pool" / job, tmp_path / "joblib" / job
+        for name in (".hydra/config.yaml", ".hydra/overrides.yaml"):
+            assert (pool / name).read_text() == (joblib / name).read_text()
+        assert json.loads((pool / "status.json").read_text())["state"] == "complete"
+        metrics = [{k: v for k, v in json.loads((d / "metrics.json").read_text()).items()
+                    if not k.startswith("time_")} for d in (pool, joblib)]
+        assert metrics[0] == metrics[1]
+        assert sorted(p.name for p in pool.glob("*.mcap")) == \
+            sorted(p.name for p in joblib.glob("*.mcap"))

@@ -1,0 +1,1 @@
+"""The pool launcher (pipeline.app.launcher) where Hydra looks for launchers."""

@@ -1,0 +1,98 @@
+"""Start-up and sweep benchmark (`python -m pipeline.tools.bench startup`): wall seconds of
+the default run beside the floor `python -c "import numpy, scipy.sparse"`, jobs per minute of
+the `quick` preset swept over 8 seeds x 2 rewards (16 jobs) with 2 workers, and seconds of
+aggregating that sweep. Measurements are interleaved (floor, run, old run, ... in each
+repetition) and reported as medians, so a machine's changing load hits every variant alike;
+with `--old DIR` (a checkout of an earlier commit, e.g. `git worktree add /tmp/old HEAD~5`)
+the same commands run from there too.
+
+Each command runs from the checkout it measures, as a user would (`python -m pipeline`), with
+the checkout's bytecode compiled first (a warm checkout: Python reads .pyc files even where
+PYTHONDONTWRITEBYTECODE keeps it from writing them).
+"""
+
+from __future__ import annotations
+
+import compileall
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+
+SWEEP = ["-m", "experiment=quick", "seed=range(8)", "reward=polite,rude"]
+N_SWEEP_JOBS = 16
+FLOOR = [sys.executable, "-c", "import numpy, scipy.sparse"]
+
+
+def timed(cmd: list[str], cwd: Path) -> float:
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                          text=True)
+    seconds = time.perf_counter() - t0
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed in {cwd}: {done.stderr[-500:]}")
+    return seconds
+
+
+def variants(root: Path, old: Path | None, jobs: int) -> dict[str, tuple[Path, list]]:
+    """name -> (checkout, the measurement's arguments after `python -m`)."""
+    sweep = [*SWEEP, f"hydra.launcher.n_jobs={jobs}"]
+    found: dict[str, tuple[Path, list]] = {
+        "run new": (root, ["pipeline"]),
+        "sweep new (pool launcher)": (root, ["pipeline", *sweep]),
+        "sweep new (joblib launcher)": (root, ["pipeline", *sweep, "hydra/launcher=joblib"]),
+        "aggregate new": (root, ["pipeline.tools.aggregate"]),
+        "aggregate new --no-figures": (root, ["pipeline.tools.aggregate", "--no-figures"]),
+    }
+    if old is not None:
+        found.update({"run old": (old, ["pipeline"]),
+                      "sweep old (joblib launcher)": (old, ["pipeline", *sweep]),
+                      "aggregate old": (old, ["pipeline.tools.aggregate"])})
+    return found
+
+
+def measure_once(name: str, checkout: Path, args: list, work: Path, rep: int) -> float:
+    out = work / f"{re.sub(r'[^a-z-]+', '_', name)}-{rep}"  # a value Hydra takes unquoted
+    if name.startswith("run"):
+        return timed([sys.executable, "-m", *args, f"hydra.run.dir={out}"], checkout)
+    if name.startswith("sweep"):
+        return timed([sys.executable, "-m", *args, f"hydra.sweep.dir={out}"], checkout)
+    sweep = work / "sweep-for-aggregation"  # one sweep (made once), aggregated each time
+    if not sweep.exists():
+        timed([sys.executable, "-m", "pipeline", *SWEEP, f"hydra.sweep.dir={sweep}"], checkout)
+    return timed([sys.executable, "-m", *args, str(sweep)], checkout)
+
+
+def startup_table(root: Path, old: Path | None, repeats: int, jobs: int) -> pd.DataFrame:
+    for checkout in [root] + ([old] if old else []):
+        compileall.compile_dir(checkout / "pipeline", quiet=2)
+    work = Path(tempfile.mkdtemp(prefix="bench-startup-"))
+    measured: dict[str, list[float]] = {"floor (import numpy, scipy.sparse)": []}
+    todo = variants(root, old, jobs)
+    try:
+        for rep in range(repeats):
+            measured["floor (import numpy, scipy.sparse)"].append(timed(FLOOR, root))
+            for name, (checkout, args) in todo.items():
+                seconds = measure_once(name, checkout, args, work, rep)
+                measured.setdefault(name, []).append(seconds)
+                print(f"  {name}: {seconds:.2f} s", flush=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    floor = statistics.median(measured["floor (import numpy, scipy.sparse)"])
+    rows = []
+    for name, times in measured.items():
+        median = statistics.median(times)
+        rows.append({"measurement": name, "median_s": round(median, 3),
+                     "runs_s": " ".join(f"{t:.3f}" for t in times),
+                     "x_floor": round(median / floor, 2),
+                     "jobs_per_min": round(60 * N_SWEEP_JOBS / median, 1)
+                     if name.startswith("sweep") else None,
+                     "jobs": N_SWEEP_JOBS if not name.startswith(("run", "floor")) else None,
+                     "workers": jobs if name.startswith("sweep") else None})
+    return pd.DataFrame(rows)
