@@ -22,16 +22,16 @@ numpy/scipy/scikit-learn; no Hydra, no I/O.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg import cho_solve, cholesky, solve_triangular
 from scipy.spatial import Voronoi
-from scipy.spatial.distance import cdist, pdist, squareform
 from threadpoolctl import threadpool_limits
 
 from pipeline.core.controllers import Controller, Runs
@@ -435,53 +435,39 @@ def choose_expansion_set(rng: np.random.Generator, best_set: np.ndarray, other_s
 def gp_value_estimate(train_xy: np.ndarray, train_values: np.ndarray, query_xy: np.ndarray,
                       p: GraphParams) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian-process regression (fixed RBF kernel, normalised targets) of node values
-    (n,) at (n, 2); returns mean and standard deviation (m,) at the (m, 2) query points.
-
-    scikit-learn's GaussianProcessRegressor (kernel C(s²)·RBF(l) + White(noise), fixed, no
-    optimiser, alpha 1e-10, normalize_y when n > 1), written out with the same operations
-    in the same order, so the same numbers to the bit (tests/core/test_gp.py compares): the
-    import of scikit-learn (and of scipy.stats under it) was a third of the default run's
-    wall time, its estimator's checks and bookkeeping most of the GP's."""
-    X = np.asarray(train_xy, dtype=float)
-    y = np.asarray(train_values, dtype=float)
-    Q = np.asarray(query_xy, dtype=float)
-    if len(y) > 1:  # normalize_y: sklearn's mean, and std with a zero std taken as 1
-        y_mean, y_std = np.mean(y, axis=0), np.std(y, axis=0)
-        if y_std == 0.0:
-            y_std = 1.0
-        y = (y - y_mean) / y_std
-    else:
-        y_mean, y_std = np.zeros(1), np.ones(1)
-    constant, noise = p.gp_signal_std ** 2, p.gp_noise
-    length_scale = np.squeeze(p.gp_length_scale).astype(float)
-    K = _rbf(X, None, length_scale)
-    K = np.full(K.shape, constant, dtype=np.array(constant).dtype) * K \
-        + noise * np.eye(len(X))
-    K[np.diag_indices_from(K)] += 1e-10  # GaussianProcessRegressor's alpha
-    L = cholesky(K, lower=True, check_finite=False)
-    alpha = cho_solve((L, True), y, check_finite=False)
-    K_trans = _rbf(Q, X, length_scale)
-    K_trans = np.full(K_trans.shape, constant, dtype=np.array(constant).dtype) * K_trans \
-        + np.zeros(K_trans.shape)
-    mean = K_trans @ alpha
-    mean = y_std * mean + y_mean
-    V = solve_triangular(L, K_trans.T, lower=True, check_finite=False)
-    n = len(Q)
-    var = (np.full(n, constant, dtype=np.array(constant).dtype) * np.ones(n)
-           + np.full(n, noise, dtype=np.array(noise).dtype)).copy()
-    var -= np.einsum("ij,ji->i", V.T, V)
-    var[var < 0] = 0.0  # numerical noise (sklearn warns)
-    var = np.outer(var, np.asarray(y_std) ** 2).reshape(*var.shape, -1)
-    return mean, np.sqrt(np.squeeze(var, axis=1))
+    (n,) at (n, 2); returns mean and standard deviation (m,) at the (m, 2) query points."""
+    sklearn, GaussianProcessRegressor, kernels = _import_sklearn_gp()
+    RBF, ConstantKernel, WhiteKernel = kernels.RBF, kernels.ConstantKernel, kernels.WhiteKernel
+    kernel = ConstantKernel(p.gp_signal_std ** 2, "fixed") * RBF(p.gp_length_scale, "fixed") \
+        + WhiteKernel(p.gp_noise, "fixed")
+    # Our inputs are finite arrays we built: skipping the input checks (a fifth of the time
+    # on these tiny problems) changes no result.
+    with sklearn.config_context(assume_finite=True, skip_parameter_validation=True):
+        gp = GaussianProcessRegressor(kernel, optimizer=None,
+                                      normalize_y=len(train_values) > 1)
+        gp.fit(train_xy, train_values)
+        return gp.predict(query_xy, return_std=True)
 
 
-def _rbf(X: np.ndarray, Y: np.ndarray | None, length_scale: np.ndarray) -> np.ndarray:
-    """sklearn's RBF kernel k(X, Y) (k(X, X) when Y is None), as it computes it."""
-    if Y is None:
-        K = squareform(np.exp(-0.5 * pdist(X / length_scale, metric="sqeuclidean")))
-        np.fill_diagonal(K, 1)
-        return K
-    return np.exp(-0.5 * cdist(X / length_scale, Y / length_scale, metric="sqeuclidean"))
+@functools.cache
+def _import_sklearn_gp() -> tuple[Any, Any, Any]:
+    """scikit-learn and its GP, imported here because only graph growth needs them (0.5 s).
+    sklearn.utils.fixes imports pandas when it is installed (0.25 s more, a tenth of the
+    default run) and never uses the module it binds; scikit-learn recognises DataFrames via
+    sys.modules and imports pandas itself where one is involved. So when pandas is not
+    loaded yet it is hidden during this import: the path scikit-learn takes when pandas is
+    not installed, which it supports. Later imports of pandas work as usual."""
+    hide = "pandas" not in sys.modules
+    if hide:
+        sys.modules["pandas"] = None  # type: ignore[assignment]  # import raises ImportError
+    try:
+        import sklearn
+        import sklearn.gaussian_process.kernels as kernels
+        from sklearn.gaussian_process import GaussianProcessRegressor
+    finally:
+        if hide and sys.modules.get("pandas", False) is None:
+            del sys.modules["pandas"]
+    return sklearn, GaussianProcessRegressor, kernels
 
 
 def _probabilities(scores: np.ndarray) -> np.ndarray:
