@@ -16,6 +16,7 @@ that failed, or never wrote metrics, stay in the table with their error; the exi
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -111,16 +112,48 @@ def results_table(table: pd.DataFrame) -> pd.DataFrame:
     groups = _group_columns(ok)
     metrics = [m for m in ("policy_loss_norm", "policy_loss_ref", "relation_crossings",
                            "success") if m in ok.columns]
-    rows = []
+    rows, means = [], []
     for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
         row = {SETTING_NAMES.get(g, g): (METHOD_NAMES.get(str(v), v) if g == "birl" else v)
                for g, v in zip(groups, np.atleast_1d(key), strict=False)}
         row["seeds"] = len(part)
+        means.append({})
         for m in metrics:
-            values = part[m].astype(float)
-            row[METRIC_NAMES.get(m, m)] = f"{values.mean():.4f} ± {values.std(ddof=0):.4f}"
+            values = part[m].astype(float).to_numpy()
+            row[METRIC_NAMES.get(m, m)] = mean_std(values)
+            means[-1][METRIC_NAMES.get(m, m)] = float(np.mean(values))
         rows.append(row)
-    return pd.DataFrame(rows)
+    table = pd.DataFrame(rows)
+    table.attrs["means"] = pd.DataFrame(means)  # for marking the best value
+    return table
+
+
+# Higher is better for these; lower for every other metric of the table.
+HIGHER_IS_BETTER = {METRIC_NAMES.get("success", "success")}
+
+
+def mean_std(values: np.ndarray) -> str:
+    """'mean ± std' over seeds, the sample std (ddof = 1; only the mean for one seed); counts
+    (every value a whole number) as whole numbers where the mean is one, else to 0.1."""
+    counts = bool(np.all(values == np.round(values)))
+    mean = float(np.mean(values))
+    if counts:
+        text = f"{mean:.0f}" if mean == round(mean) else f"{mean:.1f}"
+    else:
+        text = f"{mean:.4f}"
+    if len(values) < 2:
+        return text
+    std = float(np.std(values, ddof=1))
+    return f"{text} ± {std:.1f}" if counts else f"{text} ± {std:.4f}"
+
+
+def best_rows(means: pd.DataFrame) -> dict[str, set[int]]:
+    """Per metric column, the rows with the best mean (ties: all of them)."""
+    best = {}
+    for col in means.columns:
+        target = means[col].max() if col in HIGHER_IS_BETTER else means[col].min()
+        best[col] = set(np.flatnonzero(np.isclose(means[col], target, rtol=0, atol=1e-12)))
+    return best
 
 
 def write_tables(table: pd.DataFrame, sweep_dir: Path) -> None:
@@ -128,8 +161,14 @@ def write_tables(table: pd.DataFrame, sweep_dir: Path) -> None:
     if results.empty:
         return
     (sweep_dir / "table.md").write_text(results.to_markdown(index=False) + "\n")
-    latex = results.to_latex(index=False, escape=True).replace("±", "$\\pm$") \
+    marked = results.copy()
+    if len(results) > 1:  # the best value of each metric in bold
+        for col, rows in best_rows(results.attrs["means"]).items():
+            for i in rows:
+                marked.loc[i, col] = f"BEST{marked.loc[i, col]}TSEB"
+    latex = marked.to_latex(index=False, escape=True).replace("±", "$\\pm$") \
         .replace("β", "$\\beta$")
+    latex = re.sub(r"BEST(.*?)TSEB", r"\\textbf{\1}", latex)
     (sweep_dir / "table.tex").write_text(latex)
 
 

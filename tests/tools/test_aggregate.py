@@ -1,0 +1,43 @@
+"""The sweep tables of pipeline/tools/aggregate.py: mean ± sample std per setting, counts as
+whole numbers, the best value of each metric in bold in the LaTeX table."""
+
+import numpy as np
+import pandas as pd
+
+from pipeline.tools.aggregate import mean_std, results_table, write_tables
+
+
+def test_mean_std_by_hand():
+    # sample std (ddof = 1): values 0.1, 0.3 -> mean 0.2, std sqrt(0.02) = 0.1414
+    assert mean_std(np.array([0.1, 0.3])) == "0.2000 ± 0.1414"
+    assert mean_std(np.array([9.0, 9.0, 9.0])) == "9 ± 0.0"  # counts as whole numbers
+    assert mean_std(np.array([1.0, 2.0])) == "1.5 ± 0.7"
+    assert mean_std(np.array([0.25])) == "0.2500"  # one seed: no spread to show
+
+
+def sweep_table() -> pd.DataFrame:
+    return pd.DataFrame({
+        "job": [0, 1, 2, 3], "status": ["ok"] * 4, "error": [None] * 4, "seed": [0, 1, 0, 1],
+        "reward": ["polite", "polite", "rude", "rude"],
+        "policy_loss_norm": [0.01, 0.03, 0.2, 0.4], "relation_crossings": [0.0, 0.0, 9.0, 8.0],
+        "success": [1.0, 1.0, 0.5, 1.0]})
+
+
+def test_the_results_table_groups_seeds_per_setting():
+    table = results_table(sweep_table())
+    assert list(table["seeds"]) == [2, 2]
+    assert list(table["normalised policy loss"]) == ["0.0200 ± 0.0141", "0.3000 ± 0.1414"]
+    assert list(table["link crossings"]) == ["0 ± 0.0", "8.5 ± 0.7"]
+    assert list(table["success rate"]) == ["1 ± 0.0", "0.7500 ± 0.3536"]
+
+
+def test_the_best_value_of_each_metric_is_bold_in_latex(tmp_path):
+    write_tables(sweep_table(), tmp_path)
+    tex = (tmp_path / "table.tex").read_text()
+    polite = next(line for line in tex.splitlines() if line.startswith("polite"))
+    rude = next(line for line in tex.splitlines() if line.startswith("rude"))
+    # lower loss and fewer crossings are better, a higher success rate is
+    assert polite.count("\\textbf{") == 3 and "\\textbf" not in rude
+    assert "\\textbf{0.0200 $\\pm$ 0.0141}" in polite
+    assert "BEST" not in tex and "TSEB" not in tex
+    assert "BEST" not in (tmp_path / "table.md").read_text()
