@@ -200,8 +200,10 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     failed = table[table.status != "ok"]
-    cols = [c for c in ("job", "status", "policy_loss", "policy_loss_ref", "policy_loss_norm",
-                        "relation_crossings") if c in table.columns]
+    swept = [c for c in ("seed", *_group_columns(table)) if c in table.columns
+             and table[c].nunique(dropna=False) > 1]  # which job is which
+    cols = [c for c in ("job", "status", *swept, "policy_loss", "policy_loss_ref",
+                        "policy_loss_norm", "relation_crossings") if c in table.columns]
     print(table[cols].to_string(index=False))
     print(f"{len(table) - len(failed)} of {len(table)} jobs ok; wrote "
           f"{args.sweep_dir / 'summary.csv'}{' and figures' if args.figures else ''}")

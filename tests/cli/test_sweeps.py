@@ -24,6 +24,8 @@ def test_two_by_two_multirun_is_aggregated(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     agg = aggregate(tmp_path)
     assert agg.returncode == 0, agg.stderr
+    # the console table shows which job is which: the swept settings beside the metrics
+    assert agg.stdout.splitlines()[0].split()[:4] == ["job", "status", "seed", "reward"]
     table = pd.read_csv(tmp_path / "summary.csv")
     assert len(table) == 4 and (table.status == "ok").all()
     assert sorted(zip(table.seed, table.reward, strict=True)) == [(0, "polite"), (0, "rude"),
@@ -61,6 +63,7 @@ def test_failing_job_does_not_stop_the_sweep(tmp_path):
     assert statuses == {"0": "complete", "1": "failed"}
     agg = aggregate(tmp_path)
     assert agg.returncode == 1  # something failed, and the exit status says so
+    assert "scene.body_radius" in agg.stdout.splitlines()[0]  # which job is which
     assert "FAILED 1: config error: scene.body_radius=-1" in agg.stderr
     table = pd.read_csv(tmp_path / "summary.csv")
     assert list(table.status) == ["ok", "failed"]
