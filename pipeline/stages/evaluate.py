@@ -276,6 +276,21 @@ def write_evaluation(ctx: RunContext, weights: np.ndarray, curves: dict, graph_p
     write_json_atomic(ctx.run_dir / "metrics.json", metrics)
 
 
+def worse_than_initial(m: dict) -> list[str]:
+    """A warning line when the learned weights lose more than the initial ones, on the graph
+    or the roadmap, saying what that means."""
+    worse = [f"{name} {m[final]:.4f} > {m[initial]:.4f}" for name, final, initial in (
+        ("roadmap", "policy_loss_ref", "policy_loss_ref_initial"),
+        ("graph", "policy_loss", "policy_loss_initial")) if m[final] > m[initial] + 1e-9]
+    if not worse:
+        return []
+    return [f"  warning          the learned weights lose more than the initial ones "
+            f"({', '.join(worse)}): the demonstrations are explained best by weights that "
+            "are further from the true reward than the start was (few or noisy "
+            "demonstrations, or features the expert does not share); look at more seeds or "
+            "demonstrations before reading this run's weights"]
+
+
 def print_summary(m: dict, ctx: RunContext) -> None:
     def fmt(key: str, spec: str = ".4f") -> str:
         v = m.get(key)
@@ -298,6 +313,7 @@ def print_summary(m: dict, ctx: RunContext) -> None:
         lines.append(f"  policy loss      roadmap {fmt('policy_loss_ref')}, normalised "
                      f"{fmt('policy_loss_norm')}, graph {fmt('policy_loss')} (initial "
                      f"{fmt('policy_loss_initial')})")
+        lines += worse_than_initial(m)
     if "heldout_count" in m:
         lines.append(f"  held out ({fmt('heldout_count', '.0f')})    Fréchet "
                      f"{fmt('heldout_frechet_m', '.2f')} m (shortest path "

@@ -180,3 +180,20 @@ def test_no_loop_of_the_grown_graph_is_free(tmp_path):
         policy = graph.mdp.solve(w).policy
         for start in graph.start_nodes:
             assert graph.mdp.follow(policy, int(start)).reached, (w, start)
+
+
+def test_a_final_loss_worse_than_the_initial_one_is_said(tmp_path):
+    """The office, seed 1: the learned weights lose more on the roadmap than the initial
+    ones did; the summary says so and what it means (metropolis seed 0 does not)."""
+    m, out = run_in_process(tmp_path, "scene=office", "seed=1")
+    assert m["policy_loss_ref"] > m["policy_loss_ref_initial"]
+    warning = [line for line in out.splitlines() if line.strip().startswith("warning")]
+    assert len(warning) == 1
+    assert f"roadmap {m['policy_loss_ref']:.4f} > {m['policy_loss_ref_initial']:.4f}" \
+        in warning[0] and "further from the true reward" in warning[0]
+
+
+def test_a_final_loss_better_than_the_initial_one_gets_no_warning(polite):
+    _, m, out = polite
+    assert m["policy_loss_ref"] <= m["policy_loss_ref_initial"]
+    assert m["policy_loss"] <= m["policy_loss_initial"] and "warning" not in out
