@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import subprocess
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -32,17 +33,33 @@ def resolve_path(path: str) -> Path:
     return PACKAGE_ROOT / p if (PACKAGE_ROOT / p).exists() else p
 
 
-def git_revision() -> str:
+def _git(*args: str) -> str | None:
+    """A git command's output in the source tree; None where there is no git or no tree."""
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=PROJECT_ROOT, capture_output=True,
-                             text=True, timeout=10)
-        return out.stdout.strip() or "unknown"
+        out = subprocess.run(["git", *args], cwd=PROJECT_ROOT, capture_output=True, text=True,
+                             timeout=10)
     except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout if out.returncode == 0 else None
+
+
+@functools.cache  # one process, one source tree: asked once, not per artefact
+def git_revision() -> str:
+    """HEAD of the source tree; "unknown" outside a git checkout."""
+    return (_git("rev-parse", "HEAD") or "").strip() or "unknown"
+
+
+@functools.cache
+def git_tree_state() -> str:
+    """"clean" when the tracked files are HEAD's, "modified" when not, else "unknown"."""
+    if git_revision() == "unknown":
         return "unknown"
+    status = _git("status", "--porcelain", "--untracked-files=no")
+    return "unknown" if status is None else ("modified" if status.strip() else "clean")
 
 
 def run_metadata(seed: int) -> dict[str, str]:
-    meta = {"seed": str(seed), "git_revision": git_revision()}
+    meta = {"seed": str(seed), "git_revision": git_revision(), "git_tree": git_tree_state()}
     for dist in ["birlg-pipeline"] + _VERSIONED:
         try:
             meta[f"version.{dist}"] = importlib_metadata.version(dist)

@@ -3,6 +3,7 @@ artefacts, the same bytes from the same seed, stage subsets from an earlier run,
 the features, and bad inputs refused in one line without touching earlier artefacts."""
 
 import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,15 @@ def test_default_experiment_writes_artefacts(default_dir):
     assert scene.one("/scene")["name"] == "metropolis"
     assert "reward:" in scene.config_yaml and "seed: 0" in scene.config_yaml
     assert scene.metadata["seed"] == "0" and "version.numpy" in scene.metadata
+    # provenance: the revision, and whether the run used changed code (git asked here anew)
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
+                          text=True)
+    changed = subprocess.run(["git", "diff", "HEAD", "--quiet"], cwd=ROOT).returncode
+    if head.returncode == 0:
+        assert scene.metadata["git_revision"] == head.stdout.strip()
+        assert scene.metadata["git_tree"] == ("modified" if changed else "clean")
+    else:
+        assert scene.metadata["git_tree"] == "unknown"
     demos = read_artefact(default_dir / "demos.mcap",
                           required_topics=["/demos", "/demos/expert", "/demos/roadmap"])
     assert len(demos.all("/demos")) == 7
