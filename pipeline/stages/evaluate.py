@@ -304,11 +304,17 @@ def print_summary(m: dict, ctx: RunContext) -> None:
                 f"{fmt(prefix + 'success', '.2f')}")
 
     share = m.get("graph_demo_node_share", 0.0)
-    lines = [
-        f"BIRL-G run: {ctx.run_dir}",
-        "  learned weights  "
-        + ", ".join(f"{n} {fmt('weight_' + n, '.3f')}" for n in ctx.cfg.learner_features),
-    ]
+    def weight(n: str) -> str:  # sampling methods: the posterior mean ± its std
+        std = m.get(f"weight_std_{n}")
+        return f"{n} {fmt('weight_' + n, '.3f')}" + ("" if std is None else f" ± {std:.3f}")
+
+    lines = [f"BIRL-G run: {ctx.run_dir}",
+             "  learned weights  " + ", ".join(weight(n) for n in ctx.cfg.learner_features)]
+    if "mcmc_acceptance_rate" in m:
+        lines.append(f"  posterior        R-hat max {fmt('mcmc_rhat_max', '.3f')}, ESS min "
+                     f"{fmt('mcmc_ess_min', '.0f')}, acceptance "
+                     f"{fmt('mcmc_acceptance_rate', '.2f')} (R-hat near 1 and ESS in the "
+                     "hundreds: the chains agree)")
     if "policy_loss" in m:
         lines.append(f"  policy loss      roadmap {fmt('policy_loss_ref')}, normalised "
                      f"{fmt('policy_loss_norm')}, graph {fmt('policy_loss')} (initial "

@@ -79,9 +79,9 @@ def test_boltzmann_expert_beats_initial_weights(tmp_path_factory):
 def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posteriors):
     """paper: a posterior sample every iteration; robust: one sample of the Boltzmann
     posterior at the end, its mean one more iteration."""
-    run_dir, m, _ = run_experiment(tmp_path_factory, "birl=mcmc", "birl.n_iterations=5",
-                                   f"birl.likelihood={likelihood}", "graph=small",
-                                   "birl.n_samples=300", "birl.burn_in=200")
+    run_dir, m, out = run_experiment(tmp_path_factory, "birl=mcmc", "birl.n_iterations=5",
+                                     f"birl.likelihood={likelihood}", "graph=small",
+                                     "birl.n_samples=300", "birl.burn_in=200")
     birl = read_artefact(run_dir / "birl.mcap")
     post = birl.all("/birl/posterior")
     names = ("relation", "social", "goal_deviation", "length")
@@ -91,6 +91,9 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
     assert 0.2 <= m["mcmc_acceptance_rate"] <= 0.5  # the adapted step
     assert m["mcmc_rhat_max"] == max(post[-1]["rhat"]) and m["mcmc_ess_min"] > 0
     assert len(post[-1]["samples"]) == 4 * 300
+    # the summary gives the posterior mean ± std and the chains' diagnostics
+    assert f"relation {m['weight_relation']:.3f} ± {m['weight_std_relation']:.3f}" in out
+    assert f"R-hat max {m['mcmc_rhat_max']:.3f}, ESS min {m['mcmc_ess_min']:.0f}" in out
     assert all(is_metric_key(k) for k in m)  # every key can be a sweep's objective
 
 
