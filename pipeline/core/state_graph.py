@@ -144,7 +144,7 @@ class SpatialIndex:
     def any_within_many(self, ps: np.ndarray, r: float) -> np.ndarray:
         """(m,) bool: is any point within r of ps[i] (m, 2 or 3)? One batched query; the
         same answers as `len(nearest(p, 1, r)) > 0` for each p."""
-        found = self._recent_within(ps, r).any(axis=1)
+        found = np.asarray(self._recent_within(ps, r).any(axis=1))
         if self.tree is not None:
             d_old, _ = self.tree.query(ps[:, :2], k=1, distance_upper_bound=r)
             found |= np.isfinite(d_old)
