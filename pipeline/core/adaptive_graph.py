@@ -328,10 +328,10 @@ class AdaptiveGraph(StateGraph):
         targets = np.column_stack([self.pose[v, 0] + reach * np.cos(heading),
                                    self.pose[v, 1] + reach * np.sin(heading), heading])
         runs, feats = self.steer(np.repeat(self.pose[v:v + 1], p.n_new, 0), targets)
-        keep = [k for k in range(len(runs)) if not self.too_close(runs.end_poses[k])]
-        if not keep:
+        keep = np.flatnonzero(~self.too_close_many(runs.end_poses))
+        if not len(keep):
             return None
-        runs = runs.subset(np.array(keep))
+        runs = runs.subset(keep)
         return Candidates(v, runs.end_poses, runs, feats[keep])
 
     def score_candidates(self, c: Candidates) -> Candidates:
@@ -343,7 +343,7 @@ class AdaptiveGraph(StateGraph):
             self.edge_rewards(c.features, c.runs.durations) + \
             self.gamma ** c.runs.durations * (mean + p.gp_kappa * std)
         quality = np.clip((through - norm["q_lo"]) / norm["q_span"], 0.0, 1.0)
-        n_close = np.array([self.count_within(e, p.radius) for e in c.ends])
+        n_close = self.count_within_many(c.ends, p.radius)
         conc = np.minimum(1.0 / (1.0 + n_close) / norm["c_max"], 1.0)
         return dataclasses.replace(c, gp_mean=mean, gp_std=std,
                                    score=p.lambda_q * quality + p.lambda_c * conc)
@@ -436,17 +436,29 @@ def gp_value_estimate(train_xy: np.ndarray, train_values: np.ndarray, query_xy: 
                       p: GraphParams) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian-process regression (fixed RBF kernel, normalised targets) of node values
     (n,) at (n, 2); returns mean and standard deviation (m,) at the (m, 2) query points."""
-    sklearn, GaussianProcessRegressor, kernels = _import_sklearn_gp()
-    RBF, ConstantKernel, WhiteKernel = kernels.RBF, kernels.ConstantKernel, kernels.WhiteKernel
-    kernel = ConstantKernel(p.gp_signal_std ** 2, "fixed") * RBF(p.gp_length_scale, "fixed") \
-        + WhiteKernel(p.gp_noise, "fixed")
+    sklearn, GaussianProcessRegressor, _ = _import_sklearn_gp()
+    kernel = _gp_kernel(p.gp_signal_std, p.gp_length_scale, p.gp_noise)
     # Our inputs are finite arrays we built: skipping the input checks (a fifth of the time
-    # on these tiny problems) changes no result.
+    # on these tiny problems) changes no result; neither does fitting to them uncopied
+    # (copy_X_train=False: the regressor is dropped before the caller's arrays change).
     with sklearn.config_context(assume_finite=True, skip_parameter_validation=True):
         gp = GaussianProcessRegressor(kernel, optimizer=None,
-                                      normalize_y=len(train_values) > 1)
+                                      normalize_y=len(train_values) > 1, copy_X_train=False)
         gp.fit(train_xy, train_values)
         return gp.predict(query_xy, return_std=True)
+
+
+@functools.cache
+def _gp_kernel(signal_std: float, length_scale: float, noise: float) -> Any:
+    """The value GP's fixed kernel σ²·RBF(ℓ) + noise, built once per setting (the regressor
+    clones it on every fit). With σ = 1 the constant factor is left out: it multiplies
+    every entry by exactly 1.0, so the kernel matrices are bit for bit the same and each fit
+    walks one sub-kernel less (their parameter introspection is most of a fit's cost)."""
+    _, _, kernels = _import_sklearn_gp()
+    rbf = kernels.RBF(length_scale, "fixed")
+    if signal_std != 1.0:
+        rbf = kernels.ConstantKernel(signal_std ** 2, "fixed") * rbf
+    return rbf + kernels.WhiteKernel(noise, "fixed")
 
 
 @functools.cache

@@ -45,6 +45,14 @@ class GrowableArray:
         self.data[self.n:self.n + len(rows)] = rows
         self.n += len(rows)
 
+    def append(self, row: ArrayLike) -> None:
+        """One row (a scalar, or a sequence of the row's shape): `extend([row])` without
+        its conversions, the per-node bookkeeping of graph growth."""
+        if self.n == len(self.data):
+            self.data = np.concatenate([self.data, np.zeros_like(self.data)])
+        self.data[self.n] = row
+        self.n += 1
+
     @property
     def a(self) -> np.ndarray:
         return self.data[:self.n]
@@ -68,6 +76,7 @@ class IncrementalGraphMDP:
         self._reward, self._discount, self._cost = GrowableArray(), GrowableArray(), GrowableArray()
         self.out_edges: list[list[int]] = []
         self.in_edges: list[list[int]] = []
+        self._in_src: list[list[int]] = []  # per node, src of each of in_edges (Python ints)
         self._policy_children: list[set[int]] = []  # y with dst(policy(y)) == x
         self.sources: list[int] = []  # nodes with cost-to-come 0 (the starts)
         self._dirty_nodes: list[int] = []
@@ -117,12 +126,13 @@ class IncrementalGraphMDP:
     # -- growth ----------------------------------------------------------------------------
     def add_node(self, terminal: bool, source: bool = False) -> int:
         idx = self.n_nodes
-        self._terminal.extend(terminal)
-        self._value.extend(self.r_goal if terminal else -self.v_max)  # a dead end until it acts
-        self._policy.extend(NO_EDGE)
-        self._ctc.extend(0.0 if source else np.inf)
+        self._terminal.append(terminal)
+        self._value.append(self.r_goal if terminal else -self.v_max)  # a dead end until it acts
+        self._policy.append(NO_EDGE)
+        self._ctc.append(0.0 if source else np.inf)
         self.out_edges.append([])
         self.in_edges.append([])
+        self._in_src.append([])
         self._policy_children.append(set())
         if source:
             self.sources.append(idx)
@@ -146,6 +156,7 @@ class IncrementalGraphMDP:
         for k, (a, b) in enumerate(zip(src.tolist(), dst.tolist(), strict=True)):
             self.out_edges[a].append(first + k)
             self.in_edges[b].append(first + k)
+            self._in_src[b].append(a)
             self._dirty_nodes.append(a)
             self._new_edges.append(first + k)
 
@@ -208,40 +219,44 @@ class IncrementalGraphMDP:
         a policy cycle (whose exact value needs the full solve)."""
         value, policy, dst, discount = (self._value.data, self._policy.data, self._dst.data,
                                         self._discount.data)
+        reward, terminal, undiscounted = self._reward.data, self._terminal.data, self.undiscounted
+        out_edges, in_src, children = self.out_edges, self._in_src, self._policy_children
         queue = deque(dict.fromkeys(dirty))
         queued = set(queue)
         while queue:
             u = queue.popleft()
             queued.discard(u)
-            if self._terminal.data[u] or not self.out_edges[u]:
+            if terminal[u] or not out_edges[u]:
                 continue
-            out = np.asarray(self.out_edges[u])
+            out = np.asarray(out_edges[u])
             # Q of every out-edge at once (the hot loop of graph growth: 3x faster than
             # one edge at a time, the same floating-point operations per edge).
-            q = self._reward.data[out] + discount[out] * value[dst[out]]
-            if self.undiscounted:  # only edges into nodes that reach the goal are usable
-                ends = dst[out]
-                q[~(self._terminal.data[ends] | (policy[ends] != NO_EDGE))] = -np.inf
-            best = int(np.argmax(q))
-            if q[best] == -np.inf:
+            ends = dst[out]
+            q = reward[out] + discount[out] * value[ends]
+            if undiscounted:  # only edges into nodes that reach the goal are usable
+                q[~(terminal[ends] | (policy[ends] != NO_EDGE))] = -np.inf
+            best = int(q.argmax())
+            q_best = q[best]
+            if q_best == -np.inf:
                 continue  # no usable edge yet
             cur = int(policy[u])
-            q_cur = self._q(cur) if cur != NO_EDGE else -np.inf
-            if q[best] <= q_cur + self.tol * (1.0 + abs(q_cur)):
+            # _q(cur), inline
+            q_cur = reward[cur] + discount[cur] * value[dst[cur]] if cur != NO_EDGE else -np.inf
+            if q_best <= q_cur + self.tol * (1.0 + abs(q_cur)):
                 continue  # current action is (one of) the best: keep it, so PI terminates
             e = int(out[best])
             if self._reaches(int(dst[e]), u):
                 return False
             if cur != NO_EDGE:
-                self._policy_children[dst[cur]].discard(u)
+                children[dst[cur]].discard(u)
             policy[u] = e
-            self._policy_children[dst[e]].add(u)
-            if cur == NO_EDGE and self.undiscounted:
+            children[dst[e]].add(u)
+            if cur == NO_EDGE and undiscounted:
                 # u reaches the goal from now on; nothing acted through it before (no
                 # policy children), so its value is set, not shifted from the dead end's.
                 # The shift below is then 0 and queues its in-neighbours, which may now use it.
-                value[u] = q[best]
-            delta = q[best] - value[u]
+                value[u] = q_best
+            delta = q_best - value[u]
             # Exact evaluation of the new policy: u and its policy ancestors shift together.
             stack: list[tuple[int, float]] = [(u, 1.0)]
             shifted: set[int] = set()
@@ -251,12 +266,11 @@ class IncrementalGraphMDP:
                     return False
                 shifted.add(y)
                 value[y] += factor * delta
-                for e_in in self.in_edges[y]:
-                    x = int(self._src.data[e_in])
+                for x in in_src[y]:  # the in-edges' sources, in in_edges order
                     if x not in queued:
                         queued.add(x)
                         queue.append(x)
-                for z in self._policy_children[y]:
+                for z in children[y]:
                     stack.append((z, factor * discount[policy[z]]))
         return True
 

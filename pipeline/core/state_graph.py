@@ -94,7 +94,7 @@ class SpatialIndex:
         self.n_tree = 0
 
     def add(self, p: np.ndarray) -> None:
-        self.points.extend(p[:2])
+        self.points.append(p[:2])
         if self.points.n - self.n_tree > max(32, min(self.n_tree // 4, 512)):
             self.n_tree = self.points.n
             self.tree = cKDTree(self.points.a.copy())
@@ -134,6 +134,28 @@ class SpatialIndex:
         n = len(self._recent(p, r)[0])
         if self.tree is not None:
             n += int(self.tree.query_ball_point(p[:2], r, return_length=True))
+        return n
+
+    def _recent_within(self, ps: np.ndarray, r: float) -> np.ndarray:
+        """(m, k) bool: recent point j within r of ps[i] (the distances of `_recent`)."""
+        recent = self.points.a[self.n_tree:]
+        return np.linalg.norm(recent[None, :, :] - ps[:, None, :2], axis=2) <= r
+
+    def any_within_many(self, ps: np.ndarray, r: float) -> np.ndarray:
+        """(m,) bool: is any point within r of ps[i] (m, 2 or 3)? One batched query; the
+        same answers as `len(nearest(p, 1, r)) > 0` for each p."""
+        found = np.asarray(self._recent_within(ps, r).any(axis=1))
+        if self.tree is not None:
+            d_old, _ = self.tree.query(ps[:, :2], k=1, distance_upper_bound=r)
+            found |= np.isfinite(d_old)
+        return found
+
+    def count_within_many(self, ps: np.ndarray, r: float) -> np.ndarray:
+        """(m,) int64: `count_within(p, r)` for each row p of ps (m, 2 or 3), batched."""
+        n = self._recent_within(ps, r).sum(axis=1, dtype=np.int64)
+        if self.tree is not None:
+            n += np.asarray(self.tree.query_ball_point(ps[:, :2], r, return_length=True),
+                            dtype=np.int64)
         return n
 
 
@@ -246,6 +268,14 @@ class StateGraph:
     def count_within(self, p: np.ndarray, radius: float) -> int:
         return self._index.count_within(np.asarray(p, float), radius)
 
+    def too_close_many(self, ps: np.ndarray) -> np.ndarray:
+        """(m,) bool: `too_close` of each row of ps (m, 2 or 3), in one batched query."""
+        return self._index.any_within_many(np.asarray(ps, float), self.min_separation)
+
+    def count_within_many(self, ps: np.ndarray, radius: float) -> np.ndarray:
+        """(m,) int64: `count_within` of each row of ps (m, 2 or 3), in one batched query."""
+        return self._index.count_within_many(np.asarray(ps, float), radius)
+
     def reachable_from(self, nodes: np.ndarray) -> np.ndarray:
         """(n,) bool: the nodes a directed path of edges leads to from any of `nodes` (node
         ids), those included."""
@@ -274,12 +304,12 @@ class StateGraph:
         idx = self.n_nodes
         close = self._index.within(np.asarray(pose[:2], float), self.radius, ordered=False)
         self.n_close[close] += 1
-        self._pose.extend(pose)
+        self._pose.append(pose)
         self.node_kind.append(kind)
-        self._parent.extend(parent)
-        self._added_at.extend(self.iteration)
-        self._gp.extend([gp_mean, gp_std, score])
-        self._n_close.extend(len(close))
+        self._parent.append(parent)
+        self._added_at.append(self.iteration)
+        self._gp.append((gp_mean, gp_std, score))
+        self._n_close.append(len(close))
         self._index.add(self.pose[idx])
         at_goal = np.linalg.norm(self.pose[idx, :2] - self.scene.goal) <= self.scene.goal_tolerance
         self.solver.add_node(bool(at_goal), source=(kind == START))

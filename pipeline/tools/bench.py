@@ -9,6 +9,7 @@
     python -m pipeline.tools.bench imperfect        # noisy and hand-drawn demonstrations
     python -m pipeline.tools.bench bigroom          # scene + demos of 10, 20, 40 m rooms
     python -m pipeline.tools.bench bigroom --old /tmp/old   # ... and of another checkout
+    python -m pipeline.tools.bench memory           # peak RSS: birl=mcmc against the MAP run
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
 """
@@ -265,6 +266,43 @@ def big_rooms(sides: list[float], repeats: int, old: Path | None) -> pd.DataFram
                                 for r in table.itertuples()]
         table["rss_vs_old"] = [round(r.peak_rss_mb / before.peak_rss_mb[r.side_m], 3)
                                for r in table.itertuples()]
+    return table
+
+
+MEMORY_RUNS = {"map": [], "mcmc": ["birl=mcmc"]}
+
+
+def _peak_rss_run(*overrides: str) -> dict:
+    """One full run of the pipeline in a fresh process: wall seconds and its peak RSS
+    (wait4's ru_maxrss, what `/usr/bin/time -f %M` reports)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "pipeline", *overrides, f"hydra.run.dir={tmp}"]
+        t0 = time.perf_counter()
+        child = subprocess.Popen(cmd, cwd=PROJECT_ROOT, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL)
+        _, status, usage = os.wait4(child.pid, 0)
+        if os.waitstatus_to_exitcode(status):
+            raise RuntimeError(f"{' '.join(cmd)} failed")
+        return {"wall_s": round(time.perf_counter() - t0, 2),
+                "peak_rss_mb": round(usage.ru_maxrss / 1024, 1)}
+
+
+def memory(repeats: int) -> pd.DataFrame:
+    """Peak RSS of the default (MAP) run and of birl=mcmc, runs interleaved, the median of
+    `repeats` each, and each run's ratio to the MAP run's."""
+    found: dict[str, list[dict]] = {name: [] for name in MEMORY_RUNS}
+    for _ in range(repeats):
+        for name, overrides in MEMORY_RUNS.items():
+            found[name].append(_peak_rss_run(*overrides))
+    rows = [{"run": name, "overrides": " ".join(MEMORY_RUNS[name]) or "(default)",
+             "peak_rss_mb": float(np.median([r["peak_rss_mb"] for r in runs])),
+             "peak_rss_mb_max": max(r["peak_rss_mb"] for r in runs),
+             "wall_s": float(np.median([r["wall_s"] for r in runs])), "repeats": repeats}
+            for name, runs in found.items()]
+    table = pd.DataFrame(rows)
+    table["rss_vs_map"] = (table.peak_rss_mb / float(table.peak_rss_mb.iloc[0])).round(3)
     return table
 
 
@@ -567,6 +605,9 @@ def _parser() -> argparse.ArgumentParser:
     big.add_argument("--repeats", type=int, default=3)
     big.add_argument("--old", type=Path, default=None,
                      help="another checkout to measure side by side (code=old rows)")
+    mem = sub.add_parser("memory", help="peak RSS of birl=mcmc against the default MAP run "
+                         "-> results/bench/memory.csv")
+    mem.add_argument("--repeats", type=int, default=3)
     once = sub.add_parser("graph-once")
     once.add_argument("nodes", type=int)
     once.add_argument("--seed", type=int, default=0)
@@ -618,6 +659,10 @@ def main(argv=None) -> None:
         print(f"scene + demos of rooms of {args.sides} m, best of {args.repeats}:", flush=True)
         table = big_rooms(args.sides, args.repeats, args.old)
         path = RESULTS / "big_rooms.csv"
+    elif args.suite == "memory":
+        print(f"peak RSS of the MAP and MCMC runs, median of {args.repeats}:", flush=True)
+        table = memory(args.repeats)
+        path = RESULTS / "memory.csv"
     elif args.suite == "graph_io":
         print(f"graph.mcap write and read back on metropolis, sizes {args.sizes}:", flush=True)
         table = graph_io(args.sizes, args.seed, args.repeats)

@@ -98,6 +98,30 @@ def test_gp_interpolates_a_smooth_value_field():
     assert far_std[0] > 5 * std.max()
 
 
+def test_gp_kernel_without_the_unit_constant_gives_bit_identical_estimates():
+    """With gp_signal_std = 1 the value GP's kernel leaves out ConstantKernel(1.0) (one
+    sub-kernel less per fit): means and stds equal the full kernel's bit for bit."""
+    import sklearn
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    p, rng = GraphParams(), np.random.default_rng(2)
+    full = ConstantKernel(1.0, "fixed") * RBF(p.gp_length_scale, "fixed") \
+        + WhiteKernel(p.gp_noise, "fixed")
+    for n in (1, 2, 17, 40):
+        train, query = rng.uniform(0, 3, (n, 2)), rng.uniform(0, 3, (8, 2))
+        values = rng.normal(-3, 1, n)
+        with sklearn.config_context(assume_finite=True):
+            gp = GaussianProcessRegressor(full, optimizer=None, normalize_y=n > 1)
+            expected = gp.fit(train, values).predict(query, return_std=True)
+        got = gp_value_estimate(train, values, query, p)
+        np.testing.assert_array_equal(got[0], expected[0])
+        np.testing.assert_array_equal(got[1], expected[1])
+    # any other signal std keeps the constant factor
+    scaled = gp_value_estimate(train, values, query, GraphParams(gp_signal_std=2.0))
+    assert not np.array_equal(scaled[1], expected[1])
+
+
 def test_voronoi_centroids_clipped_to_room():
     room = Room(0, 0, 4, 2)
     c = voronoi_centroids(np.array([[1.0, 1.0], [3.0, 1.0]]), room)

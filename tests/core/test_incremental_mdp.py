@@ -61,3 +61,18 @@ def test_new_rewards_resolve_exactly():
     inc.update()
     inc.set_rewards(-rng.uniform(0, 1, keep.sum()))
     np.testing.assert_allclose(inc.values, inc.mdp().solve([1.0]).values, atol=1e-12)
+
+
+def test_growable_array_append_equals_extend():
+    """append (one row, the per-node bookkeeping) grows and stores as extend does."""
+    from pipeline.core.incremental_mdp import GrowableArray
+
+    for tail, dtype, rows in [((), float, [1.5, -np.inf, 2]), ((), np.int64, [3, -1, 7]),
+                              ((), bool, [True, False, True]),
+                              ((3,), float, [(1.0, 2.0, np.nan), [4, 5, 6], np.arange(3.0)])]:
+        a, b = GrowableArray(tail, dtype), GrowableArray(tail, dtype)
+        for i in range(40):
+            a.append(rows[i % 3])
+            b.extend(rows[i % 3])
+        assert a.n == b.n == 40 and a.a.dtype == b.a.dtype
+        np.testing.assert_array_equal(a.a, b.a)

@@ -25,3 +25,22 @@ def test_spatial_index_matches_brute_force_across_rebuilds():
                     assert np.allclose(np.sort(dist[near]), np.sort(dist[inside])[:4])
                 assert list(index.within(q, 1.5)) == sorted(
                     index.within(q, 1.5), key=lambda i: (round(dist[i], 12), i))
+
+
+def test_batched_queries_equal_the_single_point_queries():
+    """any_within_many and count_within_many (one query for a batch of candidates) answer
+    exactly as nearest(p, 1, r) and count_within(p, r) do point by point, before and after
+    the k-d tree's first build and with points since its last build."""
+    rng = np.random.default_rng(5)
+    index = SpatialIndex()
+    points = rng.uniform(0, 10, (1500, 2))
+    for n, p in enumerate(points, start=1):
+        index.add(p)
+        if n in (1, 20, 40, 300, 1111, 1500):
+            queries = np.vstack([rng.uniform(-1, 11, (8, 2)), points[:n][-3:] + 0.05])
+            poses = np.column_stack([queries, rng.uniform(-3, 3, len(queries))])
+            for r in (0.1, 0.4, 1.2):
+                assert index.any_within_many(poses, r).tolist() == \
+                    [len(index.nearest(q, 1, r)) > 0 for q in queries]
+                assert index.count_within_many(poses, r).tolist() == \
+                    [index.count_within(q, r) for q in queries]
