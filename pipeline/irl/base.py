@@ -105,6 +105,8 @@ class IRLProblem:
     rng: np.random.Generator
     roadmap: Callable[[], SpatialGraph]  # the reference roadmap, read on demand
     progress: Callable[[Iteration], None] | None = None
+    # long work inside a method (e.g. MCMC sampling) says how far it got, in words
+    status: Callable[[str], None] | None = None
 
     @property
     def graph(self) -> SpatialGraph:

@@ -206,7 +206,7 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
         records, post, beta = _robust_loop(problem, config)
         w = records[-1].weights
         joint = mcmc(LogBetaDensity(post, beta), np.append(w, np.log(beta)), problem.rng,
-                     config)
+                     config, problem.status)
         posteriors.append(joint.marginal(problem.prior.dim))
         w = np.clip(posteriors[-1].mean, problem.prior.lower, problem.prior.upper)
         beta = float(np.exp(joint.mean[-1]))
@@ -214,7 +214,7 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
         return IRLResult(records, list(range(1, len(records) + 1)), posteriors)
 
     def posterior_mean(posterior: Posterior, w_prev: np.ndarray) -> np.ndarray:
-        posteriors.append(mcmc(posterior, w_prev, problem.rng, config))
+        posteriors.append(mcmc(posterior, w_prev, problem.rng, config, problem.status))
         return posteriors[-1].mean
 
     records = birl_map(problem.expert, problem.environment.rollout, problem.prior,

@@ -9,6 +9,7 @@ sampled (the eq. (2) posterior of birl.py, the Boltzmann posterior of robust.py)
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Optional, Protocol
 
@@ -93,14 +94,17 @@ class ChainRun:
 
 
 def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
-         chain: AdaptiveChainParams) -> PosteriorSamples:
+         chain: AdaptiveChainParams,
+         status: Callable[[str], None] | None = None) -> PosteriorSamples:
     """Metropolis–Hastings on a log posterior with random-walk or MALA proposals
     (`sampler`): `n_chains` chains, each burn_in +
     n_samples·thin steps keeping every thin-th state after burn-in. During burn-in the step
     size adapts (Robbins–Monro on its logarithm) towards the target acceptance rate and the
     proposals are reshaped by the states' covariance (`_adaptive_burn_in`); the kept step
     is the chains' median, frozen for the sampling phase. Chain 0 starts at w0 (d,), the
-    others at prior draws. R-hat and ESS by pipeline.irl.diagnostics."""
+    others at prior draws. R-hat and ESS by pipeline.irl.diagnostics. `status` hears how far
+    the sampling got (each burn-in phase, each chain)."""
+    say = status or (lambda _: None)
     n_chains, adapt = chain.n_chains, chain.adapt
     proposal = Proposal(np.eye(len(w0)), chain.sampler == "mala")
     w = np.asarray(w0, dtype=float).copy()
@@ -110,10 +114,13 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
     steps = np.full(n_chains, chain.proposal_step)
     burn_in = chain.burn_in
     if adapt and chain.burn_in > 0:
-        proposal, steps = _adaptive_burn_in(posterior, starts, steps, rng, chain, proposal)
+        proposal, steps = _adaptive_burn_in(posterior, starts, steps, rng, chain, proposal,
+                                            say)
         burn_in = 0
     kept, accepted = [], 0
     for c in range(n_chains):
+        say(f"sampling chain {c + 1} of {n_chains} ({burn_in + chain.n_samples * chain.thin} "
+            "steps)")
         run = run_chain(posterior, starts[c], rng, proposal, steps[c],
                         burn_in + chain.n_samples * chain.thin, thin=chain.thin, skip=burn_in)
         kept.append(run.samples)
@@ -128,7 +135,8 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
 
 def _adaptive_burn_in(posterior: LogDensity, starts: list[np.ndarray], steps: np.ndarray,
                       rng: np.random.Generator, chain: AdaptiveChainParams,
-                      proposal: Proposal) -> tuple[Proposal, np.ndarray]:
+                      proposal: Proposal,
+                      say: Callable[[str], None]) -> tuple[Proposal, np.ndarray]:
     """Burn-in in phases (`starts` moved in place to where each chain ends): adapt the
     step with isotropic proposals, then shape the proposals by the covariance of the
     previous phase's states (pooled over chains; adaptive Metropolis, Haario et al. 2001)
@@ -140,6 +148,8 @@ def _adaptive_burn_in(posterior: LogDensity, starts: list[np.ndarray], steps: np
     target = chain.target_acceptance
     phases = np.diff(np.linspace(0, chain.burn_in, BURN_IN_PHASES + 1).round()).astype(int)
     for phase, length in enumerate(phases):
+        say(f"burn-in phase {phase + 1} of {len(phases)} ({len(starts)} chains x {length} "
+            "steps, adapting the proposals)")
         states = []
         for c in range(len(starts)):
             run = run_chain(posterior, starts[c], rng, proposal, steps[c], int(length),

@@ -257,6 +257,18 @@ def test_mcmc_is_reproducible_and_validates():
         ChainParams(thin=0)
 
 
+def test_mcmc_says_how_far_it_got_without_changing_the_samples():
+    post = one_weight_posterior()
+    chain = AdaptiveChainParams(n_samples=200, burn_in=80, n_chains=3)
+    said: list[str] = []
+    quiet = mcmc(post, [-0.5], np.random.default_rng(3), chain)
+    told = mcmc(post, [-0.5], np.random.default_rng(3), chain, said.append)
+    np.testing.assert_array_equal(quiet.samples, told.samples)
+    assert said == [f"burn-in phase {k} of 4 (3 chains x 20 steps, adapting the proposals)"
+                    for k in (1, 2, 3, 4)] + \
+        [f"sampling chain {c} of 3 (200 steps)" for c in (1, 2, 3)]
+
+
 @pytest.mark.parametrize("sampler, target", [("rw", 0.3), ("mala", 0.57)])
 def test_adaptive_chains_match_a_1d_posterior(sampler, target):
     post = one_weight_posterior()
