@@ -211,7 +211,10 @@ class RunDir:
         beside old outputs; a failed or killed stage leaves the earlier files untouched."""
         if content_digest(self.path / ARTEFACT_FILE[stage]) == new_digest:
             return
-        later = [self.path / ARTEFACT_FILE[s] for s in STAGES[STAGES.index(stage) + 1:]]
+        # A later stage this run already made read the new inputs (an input linked out of
+        # pipeline order, e.g. evaluate reading the scene after birl): its artefact stays.
+        later = [self.path / ARTEFACT_FILE[s] for s in STAGES[STAGES.index(stage) + 1:]
+                 if s not in self.done_stages]
         removed = [p for p in later + [self.path / METRICS_FILE] if p.exists()]
         for p in removed:
             p.unlink()

@@ -475,3 +475,13 @@ def test_no_side_file_is_left_half_written_by_a_run(tmp_path):
         assert isinstance(json.loads((d / name).read_text()), dict), name
     assert not list(d.glob("*.tmp"))
     assert check_run_dir(d) == []
+
+
+def test_from_run_learning_and_evaluation_keep_this_runs_artefacts(tmp_path):
+    # evaluate reads the scene after birl made its artefact: linking the scene must not
+    # remove the birl artefact of this very run (make bench's stages=[birl,evaluate])
+    run_in_process(tmp_path / "base", *QUICK, "stages=[scene,demos,graph]")
+    d = tmp_path / "learn"
+    run_in_process(d, *QUICK, "stages=[birl,evaluate]", f"from_run={tmp_path / 'base'}")
+    assert (d / "birl.mcap").exists() and (d / "metrics.json").exists()
+    assert check_run_dir(d) == []
