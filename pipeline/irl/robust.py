@@ -43,6 +43,18 @@ BASE_MEASURES = ("walk", "uniform")
 REFINE_STEPS, REFINE_RATE = 30, 0.5
 
 
+def factorise(transposed: sp.csc_matrix) -> SuperLU:
+    """The sparse LU of I − γ^τ P_π, given as its transpose in CSC. The matrix is a
+    nonsingular M-matrix (discounted: strictly diagonally dominant; goal reaching: its
+    system has a positive solution, and scaled by it the matrix is weakly chained
+    diagonally dominant), so Gaussian elimination needs no pivoting and stays stable:
+    diagonal pivots and a fill-reducing ordering of the pattern A + Aᵀ (the graph's edges
+    mostly come in pairs) leave a third of COLAMD's fill and factorise 2.5-4× faster on the
+    scaling benchmark's graphs (5000-20 000 nodes)."""
+    return splu(transposed, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True})
+
+
 class BoltzmannPosterior:
     """log p(w, β | Ξ_E) up to a constant: the demonstrations' log likelihood under the
     Boltzmann (soft) policy of the rewards βw·φ and goal value βR_goal on a graph, plus the
@@ -96,7 +108,8 @@ class BoltzmannPosterior:
         """x with (I − γ^τ P_π) x = rhs (trans "T": policy evaluation) or its transpose
         (trans "N": discounted visits), for edge probabilities pi; rhs (n,) or (n, k).
 
-        A sparse LU costs about n^1.7 on these graphs (39 ms at 5000 nodes), but the
+        A sparse LU (`factorise`) costs about n^1.5 on these graphs (26 ms at 5000 nodes,
+        0.33 s at 20 000), but the
         policies met in a row (Newton steps, nearby parameters of a line search) differ
         little: iterative refinement on the last LU, x += LU⁻¹(rhs − A x), converges in a
         few steps of a triangular solve and a product each. Where it converges slowly, π
@@ -121,7 +134,7 @@ class BoltzmannPosterior:
                     break  # too far from the factored policy
                 last = error
                 x = x + self._lu.solve(residual, trans=trans)
-        self._lu = splu(transposed)
+        self._lu = factorise(transposed)
         return self._lu.solve(rhs, trans=trans)
 
     def _log_weights(self, theta: np.ndarray) -> np.ndarray:
