@@ -175,6 +175,7 @@ def test_figures_are_the_same_bytes_when_saved_again(tmp_path):
         assert (tmp_path / f"a{suffix}").read_bytes() == (tmp_path / f"b{suffix}").read_bytes()
 
 
+@pytest.mark.slow  # 7 s (joblib's fresh workers); the fast suite's sweeps run the pool launcher
 def test_pool_launcher_gives_the_joblib_launchers_jobs(tmp_path):
     """The presets' pool launcher (long-lived forked workers) and Hydra's joblib launcher
     (fresh worker processes) make the same job dirs with the same metrics."""
