@@ -618,6 +618,63 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _imperfect_suite(args) -> pd.DataFrame:
+    table = imperfect(args.seeds, args.baseline_seeds, args.conditions)
+    summary = imperfect_summary(table)
+    summary.to_csv(RESULTS / "imperfect_summary.csv", index=False)
+    plot_imperfect(summary, RESULTS / "imperfect.png")
+    print(summary.to_string(index=False))
+    return table
+
+
+def _posterior_suite(args) -> pd.DataFrame:
+    table = posterior(args.seeds, args.likelihoods, args.samplers)
+    print(table.groupby(["condition", "likelihood", "sampler"])[
+        ["policy_loss_norm", "acceptance", "rhat_max", "ess_min", "std_mean"]].median()
+        .to_string())
+    return table
+
+
+def _irl_suite(args) -> pd.DataFrame:
+    table, curves = irl_methods(args.seeds, args.methods, args.scenes)
+    curves.to_csv(RESULTS / "irl_methods_curves.csv", index=False)  # the figure's data
+    plot_loss_vs_time(curves, RESULTS / "irl_methods.png")
+    print(table.groupby("method")[["wall_s", "mdp_solves", "policy_loss_ref",
+                                   "policy_loss_norm"]].mean().to_string())
+    return table
+
+
+def _startup_suite(args) -> pd.DataFrame:
+    from pipeline.tools.bench_startup import startup_table
+
+    return startup_table(PROJECT_ROOT, args.old, args.repeats, args.jobs)
+
+
+# suite -> (what it measures, given the args; the table; its file under results/bench/)
+SUITES: dict[str, tuple] = {
+    "imperfect": (lambda a: f"imperfect demonstrations {a.conditions}, seeds {a.seeds}",
+                  _imperfect_suite, "imperfect.csv"),
+    "posterior": (lambda a: f"birl=mcmc diagnostics, seeds {a.seeds}", _posterior_suite,
+                  "posterior.csv"),
+    "irl": (lambda a: f"IRL methods {a.methods} on {a.scenes}, seeds {a.seeds}", _irl_suite,
+            "irl_methods.csv"),
+    "obstacles": (lambda a: f"office map vs metropolis, min of {a.repeats} runs",
+                  lambda a: obstacle_costs(a.repeats), "obstacles.csv"),
+    "bigroom": (lambda a: f"scene + demos of rooms of {a.sides} m, best of {a.repeats}",
+                lambda a: big_rooms(a.sides, a.repeats, a.old), "big_rooms.csv"),
+    "memory": (lambda a: f"peak RSS of the MAP and MCMC runs, median of {a.repeats}",
+               lambda a: memory(a.repeats), "memory.csv"),
+    "graph_io": (lambda a: f"graph.mcap write and read back on metropolis, sizes {a.sizes}",
+                 lambda a: graph_io(a.sizes, a.seed, a.repeats), "graph_io.csv"),
+    "startup": (lambda a: f"start-up, sweeps and aggregation, {a.repeats} interleaved runs",
+                _startup_suite, "startup.csv"),
+    "experiment": (lambda a: f"default experiment, {a.repeats} runs",
+                   lambda a: experiment_timings(a.repeats), "experiment.csv"),
+    "graph": (lambda a: f"adaptive graph scaling on metropolis, sizes {a.sizes}",
+              lambda a: graph_scaling(a.sizes, a.seed), "graph_scaling.csv"),
+}
+
+
 def main(argv=None) -> None:
     args = _parser().parse_args(argv)
     if args.suite == "graph-once":
@@ -627,60 +684,10 @@ def main(argv=None) -> None:
         print(json.dumps(_graph_io_once(args.nodes, args.seed, args.repeats)))
         return
     RESULTS.mkdir(parents=True, exist_ok=True)
-    if args.suite == "imperfect":
-        print(f"imperfect demonstrations {args.conditions}, seeds {args.seeds}:", flush=True)
-        table = imperfect(args.seeds, args.baseline_seeds, args.conditions)
-        summary = imperfect_summary(table)
-        summary.to_csv(RESULTS / "imperfect_summary.csv", index=False)
-        plot_imperfect(summary, RESULTS / "imperfect.png")
-        print(summary.to_string(index=False))
-        path = RESULTS / "imperfect.csv"
-    elif args.suite == "posterior":
-        print(f"birl=mcmc diagnostics, seeds {args.seeds}:", flush=True)
-        table = posterior(args.seeds, args.likelihoods, args.samplers)
-        print(table.groupby(["condition", "likelihood", "sampler"])[
-            ["policy_loss_norm", "acceptance", "rhat_max", "ess_min", "std_mean"]].median()
-            .to_string())
-        path = RESULTS / "posterior.csv"
-    elif args.suite == "irl":
-        print(f"IRL methods {args.methods} on {args.scenes}, seeds {args.seeds}:", flush=True)
-        table, curves = irl_methods(args.seeds, args.methods, args.scenes)
-        curves.to_csv(RESULTS / "irl_methods_curves.csv", index=False)  # the figure's data
-        plot_loss_vs_time(curves, RESULTS / "irl_methods.png")
-        path = RESULTS / "irl_methods.csv"
-        summary = table.groupby("method")[["wall_s", "mdp_solves", "policy_loss_ref",
-                                           "policy_loss_norm"]].mean()
-        print(summary.to_string())
-    elif args.suite == "obstacles":
-        print(f"office map vs metropolis, min of {args.repeats} runs:", flush=True)
-        table = obstacle_costs(args.repeats)
-        path = RESULTS / "obstacles.csv"
-    elif args.suite == "bigroom":
-        print(f"scene + demos of rooms of {args.sides} m, best of {args.repeats}:", flush=True)
-        table = big_rooms(args.sides, args.repeats, args.old)
-        path = RESULTS / "big_rooms.csv"
-    elif args.suite == "memory":
-        print(f"peak RSS of the MAP and MCMC runs, median of {args.repeats}:", flush=True)
-        table = memory(args.repeats)
-        path = RESULTS / "memory.csv"
-    elif args.suite == "graph_io":
-        print(f"graph.mcap write and read back on metropolis, sizes {args.sizes}:", flush=True)
-        table = graph_io(args.sizes, args.seed, args.repeats)
-        path = RESULTS / "graph_io.csv"
-    elif args.suite == "startup":
-        from pipeline.tools.bench_startup import startup_table
-
-        print(f"start-up, sweeps and aggregation, {args.repeats} interleaved runs:", flush=True)
-        table = startup_table(PROJECT_ROOT, args.old, args.repeats, args.jobs)
-        path = RESULTS / "startup.csv"
-    elif args.suite == "experiment":
-        print(f"default experiment, {args.repeats} runs:", flush=True)
-        table = experiment_timings(args.repeats)
-        path = RESULTS / "experiment.csv"
-    else:
-        print(f"adaptive graph scaling on metropolis, sizes {args.sizes}:", flush=True)
-        table = graph_scaling(args.sizes, args.seed)
-        path = RESULTS / "graph_scaling.csv"
+    title, measure, name = SUITES[args.suite]
+    print(f"{title(args)}:", flush=True)
+    table = measure(args)
+    path = RESULTS / name
     table.to_csv(path, index=False)
     print(table.to_string(index=False))
     print(f"wrote {path}")
