@@ -15,8 +15,6 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
     social links, starts, goal) with the graph's nodes, the demonstrations and the learned
     paths (`paths`: "graph" for the adaptive graph's, "ref" for the reference roadmap's)
     when the run has them; returns `ax`."""
-    from matplotlib.patches import Circle
-
     # Here, not at the top: the artefact readers import the run's modules (scipy, ...), which
     # the sweep table (make aggregate) does not need.
     from pipeline.artefacts import codec, read_artefact, topics
@@ -37,17 +35,7 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
     room = scene["room"]
     ax.plot([room["x_min"], room["x_max"], room["x_max"], room["x_min"], room["x_min"]],
             [room["y_min"], room["y_min"], room["y_max"], room["y_max"], room["y_min"]], "k-")
-    pos = {p["id"]: (p["x"], p["y"]) for p in scene["persons"]}
-    for i, (a, b) in enumerate(scene["relations"]):
-        ax.plot(*zip(pos[a], pos[b], strict=True), color="tab:red", lw=2, alpha=0.6,
-                label="social links" if i == 0 else None)
-    for i, p in enumerate(scene["persons"]):
-        ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08,
-                            label="personal zone (1.2 m)" if i == 0 else None))
-        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange",
-                            label="persons" if i == 0 else None))
-        ax.arrow(p["x"], p["y"], 0.4 * np.cos(p["theta"]), 0.4 * np.sin(p["theta"]),
-                 head_width=0.12, color="k")
+    _draw_people(ax, scene)
     if (run_dir / ARTEFACT_FILE["demos"]).exists():
         demos = read_artefact(run_dir / ARTEFACT_FILE["demos"]).messages.get(topics.DEMOS, [])
         for i, d in enumerate(demos):
@@ -70,3 +58,20 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
     ax.set_title(f"scene '{scene['name']}': demonstrations and learned paths")
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     return ax
+
+
+def _draw_people(ax: Any, scene: dict) -> None:
+    """The social links, and every person's body, personal zone and heading."""
+    from matplotlib.patches import Circle
+
+    pos = {p["id"]: (p["x"], p["y"]) for p in scene["persons"]}
+    for i, (a, b) in enumerate(scene["relations"]):
+        ax.plot(*zip(pos[a], pos[b], strict=True), color="tab:red", lw=2, alpha=0.6,
+                label="social links" if i == 0 else None)
+    for i, p in enumerate(scene["persons"]):
+        ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08,
+                            label="personal zone (1.2 m)" if i == 0 else None))
+        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange",
+                            label="persons" if i == 0 else None))
+        ax.arrow(p["x"], p["y"], 0.4 * np.cos(p["theta"]), 0.4 * np.sin(p["theta"]),
+                 head_width=0.12, color="k")
