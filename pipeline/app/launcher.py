@@ -37,6 +37,7 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 
 from pipeline.artefacts.topics import STAGES
+from pipeline.errors import PipelineError
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +46,9 @@ class PoolLauncher(Launcher):
     """`n_jobs` forked workers (-1 or 0: one per CPU), each taking the next job when done."""
 
     def __init__(self, n_jobs: int = 2, **_: Any) -> None:
+        if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < -1:
+            raise PipelineError(f"config error: hydra.launcher.n_jobs={n_jobs!r} is not allowed "
+                                "(allowed: an integer >= 1, or -1 or 0 for one per CPU)")
         self.n_jobs = n_jobs
         self.config: DictConfig | None = None
         self.task_function: TaskFunction | None = None

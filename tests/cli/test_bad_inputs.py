@@ -980,6 +980,12 @@ SWEEP_CASES = {
     "-m after an override, with a bad value": (
         lambda t: ["seed=-3", "-m", f"hydra.sweep.dir={t / 'sweep'}"],
         ["1 sweep job(s) failed", "seed=-3"], 1),
+    "pool launcher workers not a number": (
+        lambda t: ["-m", "experiment=quick", "hydra.launcher.n_jobs=abc",
+                   f"hydra.sweep.dir={t / 'sweep'}"], ["hydra.launcher.n_jobs='abc'"], 2),
+    "pool launcher workers below -1": (
+        lambda t: ["-m", "experiment=quick", "hydra.launcher.n_jobs=-3",
+                   f"hydra.sweep.dir={t / 'sweep'}"], ["hydra.launcher.n_jobs=-3"], 2),
 }
 
 
