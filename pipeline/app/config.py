@@ -22,7 +22,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
-from pipeline.app.metric_keys import METRIC_KEYS, is_metric_key  # noqa: F401 - also here
+from pipeline.app.metric_keys import is_metric_key
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.adaptive_graph import GraphParams
 from pipeline.core.controllers import CONTROLLERS, PosqController

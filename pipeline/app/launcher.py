@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 from hydra.core.hydra_config import HydraConfig
-from hydra.core.singleton import Singleton
 from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
@@ -118,8 +117,7 @@ def _worker_started() -> None:
     # Ctrl-C reaches the whole process group: the sweep's process stops the pool, and a
     # worker between jobs must not die with a traceback of its own. (A running job's stages
     # install their own handler and record `interrupted`.)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    Singleton.get_state()  # nothing to restore: the fork copied Hydra's singletons
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (the fork copied Hydra's singletons)
 
 
 def _execute(idx: int) -> JobReturn:

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.app.config import is_metric_key
+from pipeline.app.metric_keys import is_metric_key
 from pipeline.artefacts import codec, read_artefact
 from pipeline.core.evaluation import discrete_frechet
 from tests.conftest import ROOT, run_in_process

@@ -3,7 +3,7 @@ whose answer is known exactly."""
 
 import pytest
 
-from pipeline.app.config import is_metric_key
+from pipeline.app.metric_keys import is_metric_key
 from pipeline.artefacts import read_artefact
 from pipeline.errors import PipelineError
 from pipeline.tools.viewer import build_recording
