@@ -5,6 +5,7 @@ learning.png.
 
     python -m pipeline.tools.bench_learning                     # everything (~1 h on 2 cores)
     python -m pipeline.tools.bench_learning --demonstrators optimal boltzmann20 --seeds 0 1
+    python -m pipeline.tools.bench_learning --learners policywalk maxent --merge  # add rows
 
 Demonstrators: synthetic experts that share the learner's features (optimal, Boltzmann
 β_E 50/20/5, one walk per start), the hand-drawn-like set, and the independent planner
@@ -46,6 +47,7 @@ LEARNERS: dict[str, list[str]] = {
     "maxent": ["birl=maxent"],
 }
 BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
+OWN_GRAPH = ("maxent",)  # its box, [-100, 0], enters the graph's growth
 TRANSFER_SCENES = (101, 102, 103)  # scene=random scene.seed=...: the deployment scenes
 KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m",
         "ref_min_distance_to_person", "ref_success", "heldout_frechet_m",
@@ -58,6 +60,10 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
     """Every learner on one (demonstrator, seed)."""
     from pipeline.errors import PipelineError
 
+    learners = {name: overrides for name, overrides in learners.items()
+                if name not in BASELINES or seed in baseline_seeds}
+    if not learners:
+        return []
     base_overrides = [*DEMONSTRATORS[demonstrator], f"seed={seed}"]
     if demonstrator == "planner_heldout":
         base_overrides.append(f"evaluate.holdout=[s{seed % 5}]")
@@ -65,13 +71,12 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
     run_in_process(base, *base_overrides, "stages=[scene,demos,graph]")
     rows = []
     for name, overrides in learners.items():
-        if name in BASELINES and seed not in baseline_seeds:
-            continue
         learned = tmp / f"{demonstrator}-{seed}-{name}"
         row = {"demonstrator": demonstrator, "learner": name, "seed": seed}
-        # the graph grows on the learner's features: another feature set, another graph
-        stages = "[graph,birl,evaluate]" if any(o.startswith("birl.features")
-                                                for o in overrides) else "[birl,evaluate]"
+        # the graph grows on the learner's features and from its box (initial weights):
+        # another feature set or box (MaxEnt's), another graph
+        stages = "[graph,birl,evaluate]" if name in OWN_GRAPH or any(
+            o.startswith("birl.features") for o in overrides) else "[birl,evaluate]"
         try:
             m = run_in_process(learned, *base_overrides, *overrides, f"stages={stages}",
                                f"from_run={base}")
@@ -80,21 +85,25 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
             rows.append(row)
             continue
         if demonstrator == "planner_transfer":
-            m = transfer(tmp, learned, name, seed, m)
+            m = transfer(tmp, learned, name, seed, m,
+                         [o for o in overrides if o.startswith("birl.features")])
         rows.append(row | {k: m.get(k, np.nan) for k in KEYS})
         print(f"  {rows[-1]}", flush=True)
     return rows
 
 
-def transfer(tmp: Path, learned: Path, name: str, seed: int, metrics: dict) -> dict:
+def transfer(tmp: Path, learned: Path, name: str, seed: int, metrics: dict,
+             features: list[str]) -> dict:
     """The learned reward deployed on the transfer scenes (no demonstration of them
     anywhere in learning), judged on the planner's paths there; medians over the scenes,
-    the learning time of the run that learned."""
+    the learning time of the run that learned. `features`: the learner's birl.features
+    override, if any (a deployment plans on the features it learned)."""
     per_scene = []
     for k in TRANSFER_SCENES:
         per_scene.append(run_in_process(
             tmp / f"transfer-{name}-{seed}-{k}", *PLANNER, "scene=random", f"scene.seed={k}",
-            f"seed={seed}", "birl=fixed", f"birl.from_run={learned}", "evaluate.holdout=all"))
+            f"seed={seed}", "birl=fixed", f"birl.from_run={learned}", "evaluate.holdout=all",
+            *features))
     out = {key: float(np.median([m.get(key, np.nan) for m in per_scene])) for key in KEYS}
     out["time_birl_learn_s"] = metrics.get("time_birl_learn_s", np.nan)
     return out
@@ -145,6 +154,15 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     save_figure(fig, path)
 
 
+def kept_rows(path: Path, demonstrators: list[str], learners: list[str]) -> list[dict]:
+    """The rows of an earlier learning.csv whose (demonstrator, learner) is not run now."""
+    if not path.exists():
+        return []
+    earlier = pd.read_csv(path)
+    rerun = earlier["demonstrator"].isin(demonstrators) & earlier["learner"].isin(learners)
+    return earlier[~rerun].to_dict("records")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--demonstrators", nargs="+", default=list(DEMONSTRATORS))
@@ -152,16 +170,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     parser.add_argument("--baseline-seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the rows of learning.csv for the (demonstrator, learner) "
+                             "pairs not run now (e.g. add the baselines to a committed table)")
     args = parser.parse_args(argv)
+    kept = kept_rows(args.out / "learning.csv", args.demonstrators, args.learners) \
+        if args.merge else []
     learners = {k: LEARNERS[k] for k in args.learners}
-    rows = []
+    rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         for demonstrator in args.demonstrators:
             for seed in args.seeds:
                 rows += one_case(Path(tmp), demonstrator, seed, learners,
                                  set(args.baseline_seeds))
-                pd.DataFrame(rows).to_csv(args.out / "learning.csv", index=False)
-    table = pd.DataFrame(rows)
+                pd.DataFrame(kept + rows).to_csv(args.out / "learning.csv", index=False)
+    table = pd.DataFrame(kept + rows)
     table.to_csv(args.out / "learning.csv", index=False)
     summary(table).to_csv(args.out / "learning_summary.csv", index=False, float_format="%.4g")
     plot(table, args.out / "learning.png")
