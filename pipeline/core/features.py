@@ -59,7 +59,7 @@ FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "lengt
 _PARAMETER_FIELD: dict[str, str | None] = {
     "relation": "rho_relation", "social": "rho_personal", "intimate": None,
     "gaussian": "sigma", "front": "rho_personal", "group_space": "rho_group",
-    "obstacle": "rho_obstacle", "goal_deviation": None, "length": None,
+    "obstacle": "rho_obstacle", "goal_deviation": None, "length": None, "crossing": None,
 }
 FEATURE_KINDS: tuple[str, ...] = tuple(_PARAMETER_FIELD)
 
@@ -400,6 +400,8 @@ class FeatureModel:
                 out[:, col] = self._obstacle_segments(a, b, f.value)
             elif f.kind == "relation":
                 out[:, col] = self._relation_segments(a, b, f.value)
+            elif f.kind == "crossing":
+                out[:, col] = self._crossing_segments(a, b)
             else:
                 tiled.append(col)
         if not tiled:
@@ -466,6 +468,36 @@ class FeatureModel:
                                    minlength=len(length[sl]))
         return out
 
+    def _crossing_segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Σ_links ½|σ(b) − σ(a)| (n,) for a[i] → b[i], σ the side (−1, 0, 1) of a link's line
+        a point is on, counted where the segment meets the line within the link: 1 for a
+        segment that cuts through a link, ½ for one that ends (or starts) on it (so a path
+        that touches a link and turns back counts 1, like one that crosses). Exact, and
+        additive: a path that cuts through a link counts 1 however it is split (a split on
+        the link gives two halves), one that stays on one side counts 0."""
+        n, n_links = len(a), len(self.link_a)
+        out = np.zeros(n)
+        if n == 0 or n_links == 0:
+            return out
+        ab = self.link_b - self.link_a  # (L, 2)
+        chunk = max(1, _CHUNK_POINTS // n_links)
+        for lo in range(0, n, chunk):
+            sl = slice(lo, lo + chunk)
+            # (m, L) signed areas: the ends' sides of each link's line
+            side_a = _cross2(ab, a[sl, None, :] - self.link_a)
+            side_b = _cross2(ab, b[sl, None, :] - self.link_a)
+            change = 0.5 * np.abs(np.sign(side_b) - np.sign(side_a))
+            owner, link = np.nonzero(change)
+            # where the segment meets the line, as a fraction along the link
+            t = side_a[owner, link] / (side_a[owner, link] - side_b[owner, link])
+            meet = a[sl][owner] + t[:, None] * (b[sl][owner] - a[sl][owner])
+            along = np.einsum("mk,mk->m", meet - self.link_a[link], ab[link]) / \
+                np.einsum("mk,mk->m", ab[link], ab[link])
+            inside = (along >= 0.0) & (along <= 1.0)
+            out[sl] += np.bincount(owner[inside], change[owner, link][inside],
+                                   minlength=len(out[sl]))
+        return out
+
     def _obstacle_segments(self, a: np.ndarray, b: np.ndarray, rho: float) -> np.ndarray:
         """∫ max(0, ρ − c(p)) ds (n,) along a[i] → b[i], exact for the clearance map c, which
         is constant per cell: the segment is cut at every cell border it crosses and each
@@ -526,6 +558,11 @@ class FeatureModel:
         out = np.zeros((len(pts), self.dim))
         np.add.at(out, owner, per_segment)
         return out
+
+
+def _cross2(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """z-component of u × v over the last axis (broadcast)."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
 def _hinge_antiderivative(y: np.ndarray, rho: float) -> np.ndarray:

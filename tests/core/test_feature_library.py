@@ -401,6 +401,50 @@ def test_obstacle_from_scene_polygons_and_zero_without_obstacles(metropolis):
     assert (free.densities(points)[:, 0] == 0).all()
 
 
+# -- crossing ------------------------------------------------------------------------------
+
+# Two related persons 2 m apart on the x axis: the link is the segment (0, 0)-(2, 0).
+LINKED = dict(persons=[[0.0, 0.0], [2.0, 0.0]], features=["crossing"], relations=[(0, 1)])
+
+
+@pytest.mark.parametrize("path, count", [
+    (line(1.0, -1.0, 1.0, 1.0), 1.0),  # straight through the middle
+    (line(0.5, 1.0, 1.7, -3.0), 1.0),  # at a slant
+    (line(2.5, -1.0, 2.5, 1.0), 0.0),  # past the link's end
+    (line(-3.0, 0.5, 5.0, 0.5), 0.0),  # alongside, however close
+    (line(1.0, -1.0, 1.0, 0.0), 0.5),  # ends on the link
+    (line(0.0, 0.0, 2.0, 0.0), 0.0),  # along the link itself
+    (np.array([[1.0, -1.0], [1.0, 1.0], [1.2, -1.0]]), 2.0),  # through and back
+    (np.array([[1.0, -1.0], [1.0, 0.0], [1.3, 1.0]]), 1.0),  # through, split on the link
+    (np.array([[1.0, -1.0], [1.0, 0.0], [1.3, -1.0]]), 1.0),  # touches it and turns back
+])
+def test_crossing_counts_the_cuts_through_a_link(path, count):
+    assert model(**LINKED).polyline(path)[0] == count
+
+
+def test_crossing_does_not_depend_on_how_the_path_is_split():
+    fm = model(**LINKED)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        a, b = rng.uniform(-1, 3, (2, 2))
+        whole = fm.polyline(np.array([a, b]))[0]
+        cuts = np.sort(rng.random(rng.integers(1, 6)))
+        pieces = np.vstack([a, a + cuts[:, None] * (b - a), b])
+        assert fm.polyline(pieces)[0] == pytest.approx(whole, abs=1e-12)
+        assert whole in (0.0, 0.5, 1.0)
+
+
+def test_crossing_counts_every_link_and_matches_the_crossings_metric(metropolis):
+    from pipeline.core.social import relation_crossings
+
+    fm = FeatureModel.from_scene(metropolis, FeatureParams(features=["crossing"]))
+    path = wiggly(metropolis)
+    count = fm.polyline(path)[0]
+    assert count >= 2
+    assert count == relation_crossings(path, fm.link_a, fm.link_b)
+    assert np.isnan(fm.densities(path)[:, 0]).all()  # no density of position: not a costmap
+
+
 # -- properties of every feature -----------------------------------------------------------
 
 EVERY = EVERY_LOCAL + ("obstacle", "goal_deviation", "length")
