@@ -216,8 +216,11 @@ class EvaluateConfig:
 # -- the whole run -------------------------------------------------------------------------
 
 # The learner's features for demonstrations whose demonstrator shares no features with us
-# (expert=file, planner, none): chosen by measurement (docs/methods.md).
-DEMONSTRATOR_FEATURES = ("relation", "social", "goal_deviation", "length")
+# (expert=file, planner, none), chosen by measurement (results/bench/learner_features.csv):
+# the paper's four and `crossing`, which tells cutting through a link from passing near
+# it (people graze links; they do not cut through them). More hinges, `gaussian`, `front`
+# or `group_space` did not predict the independent planner's paths better.
+DEMONSTRATOR_FEATURES = ("relation", "crossing", "social", "goal_deviation", "length")
 
 
 OBJECTIVE_EXAMPLES = ("policy_loss_norm", "policy_loss", "policy_loss_ref", "success",
@@ -403,6 +406,10 @@ def _check_demonstrator(settings: Config) -> None:
                            "fixed with expert=none (nothing to learn from: birl=fixed "
                            "birl.weights=[...] or birl.from_run=RUN)")
     w = settings.graph.weights
+    if (w is True or w == "true") and not settings.expert.knows_true_reward:
+        raise config_error("graph.weights", w, "null or numbers: graph.weights=true needs true "
+                           f"weights, but the demonstrations have none "
+                           f"(expert={settings.expert.kind})")
     if (w is True or w == "true") and settings.learner_features != list(settings.reward.features):
         raise config_error("graph.weights", w, "null or numbers: the true weights are on "
                            f"reward.features={list(settings.reward.features)}, the learner's "

@@ -143,6 +143,7 @@ def test_a_reward_is_deployed_on_the_office_without_any_demonstration(tmp_path):
     through the doors) and every start reaches the goal on it, without collisions; metrics
     that need a true reward are not reported."""
     metrics, _ = run_in_process(tmp_path, "scene=office", "expert=none", "birl=fixed",
+                                "birl.features=[relation,social,goal_deviation,length]",
                                 "birl.weights=[-1.0,-0.7,-0.85,-0.1]")
     assert metrics["success"] == 1.0 and metrics["ref_success"] == 1.0
     assert metrics["obstacle_collisions"] == 0 and metrics["ref_relation_crossings"] == 0
