@@ -16,6 +16,7 @@ from scipy.sparse.linalg import spsolve
 
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
 from pipeline.core.params import require_positive
+from pipeline.errors import PipelineError
 from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, Trace, register
 
 
@@ -58,7 +59,8 @@ def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10, max_iter: in
                 init_values: np.ndarray | None = None) -> np.ndarray:
     """Soft value iteration V(s) (n,) = log Σ_e exp(w·φ(e) + γ^τ(e) V(dst(e))), fixed values at
     terminals and dead ends; w (d,). A γ-contraction in the sup norm, so it converges from any
-    start; `init_values` (n,) (e.g. the previous weights' values) warm-starts it."""
+    start when γ < 1; `init_values` (n,) (e.g. the previous weights' values) warm-starts it.
+    PipelineError where it diverges without discounting."""
     r = mdp.rewards(w)
     values = (np.where(mdp.has_out, 0.0, mdp.fixed_values) if init_values is None
               else np.where(mdp.has_out, init_values, mdp.fixed_values))
@@ -68,6 +70,13 @@ def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10, max_iter: in
         if np.max(np.abs(new - values), initial=0.0) < tol:
             return new
         values = new
+    if mdp.gamma == 1.0:
+        # Undiscounted, the sum over paths of exp(reward) is finite only where the costs
+        # outweigh the branching (16 out-edges per lattice node): small weights diverge.
+        raise PipelineError(f"birl=maxent: the soft values diverge at weights "
+                            f"{np.round(np.asarray(w, float), 4).tolist()} without discounting "
+                            "(mdp.gamma=1: the paths' exp(reward) sum to infinity); run MaxEnt "
+                            "with mdp=paper")
     raise RuntimeError(f"soft value iteration did not converge in {max_iter} sweeps "
                        f"(max edge discount {mdp.discount.max():.6f})")
 

@@ -8,6 +8,7 @@ import pytest
 from scipy.special import logsumexp
 
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, discounted_counts
+from pipeline.errors import PipelineError
 from pipeline.irl.maxent import expected_discounted_counts, maxent_irl, soft_policy, soft_values
 from tests.irl.conftest import ROUTES_BOX, greedy_route, three_routes
 
@@ -77,6 +78,20 @@ def test_discounted_soft_values_follow_the_recursion_and_bound_hard_values(seed)
 def test_soft_value_iteration_reports_non_convergence():
     with pytest.raises(RuntimeError, match="did not converge"):
         soft_values(random_cyclic(0), np.array([-0.3, -0.6, -0.1]), max_iter=3)
+
+
+def test_soft_values_that_diverge_without_discounting_are_said_plainly():
+    # Two nodes joined both ways by two edges each, and a goal: undiscounted, with rewards
+    # of about 0 the paths' exp(reward) sum to infinity (twice as many paths per extra
+    # loop), so the values grow without bound; large costs make the sum finite.
+    src, dst = np.array([0, 0, 1, 1, 1]), np.array([1, 1, 0, 0, 2])
+    terminal = np.array([False, False, True])
+    mdp = GraphMDP(src, dst, np.ones(5), np.ones((5, 1)), terminal,
+                   MDPParams(gamma=1.0, time_cost=0.01, r_goal=1.0, v_max=3.0))
+    with pytest.raises(PipelineError, match=r"birl=maxent: the soft values diverge.*mdp=paper"):
+        soft_values(mdp, np.array([-0.01]), max_iter=2000)
+    values = soft_values(mdp, np.array([-5.0]))
+    assert np.isfinite(values).all()
 
 
 # ---------------------------------------------------------------- expected feature counts
