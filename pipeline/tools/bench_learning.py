@@ -6,6 +6,9 @@ learning.png.
     python -m pipeline.tools.bench_learning                     # everything (~1 h on 2 cores)
     python -m pipeline.tools.bench_learning --demonstrators optimal boltzmann20 --seeds 0 1
     python -m pipeline.tools.bench_learning --learners policywalk maxent --merge  # add rows
+    python -m pipeline.tools.bench_learning --table learner_features \
+        --demonstrators handdrawn planner_heldout planner_transfer --seeds 0 1 2 3 4 \
+        --learners default paper_features rich_features hinge_features gaussian_features
 
 Demonstrators: synthetic experts that share the learner's features (optimal, Boltzmann
 β_E 50/20/5, one walk per start), the hand-drawn-like set, and the independent planner
@@ -46,6 +49,16 @@ LEARNERS: dict[str, list[str]] = {
     "policywalk": ["birl=policywalk"],
     "maxent": ["birl=maxent"],
 }
+# The default learner on other feature sets, for demonstrators that share no features with
+# us (how the default set was chosen): --table learner_features --learners default *_features
+FEATURE_SETS = {
+    "paper_features": "[relation,social,goal_deviation,length]",
+    "rich_features": "[relation,crossing,group_space,social@0.8,social,front,goal_deviation,"
+                     "length]",
+    "hinge_features": "[relation,crossing,social@0.6,social,social@2.0,goal_deviation,length]",
+    "gaussian_features": "[relation,crossing,group_space,gaussian,goal_deviation,length]",
+}
+LEARNERS |= {name: [f"birl.features={features}"] for name, features in FEATURE_SETS.items()}
 BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
 OWN_GRAPH = ("maxent",)  # its box, [-100, 0], enters the graph's growth
 TRANSFER_SCENES = (101, 102, 103)  # scene=random scene.seed=...: the deployment scenes
@@ -170,12 +183,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     parser.add_argument("--baseline-seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--table", default="learning",
+                        help="the tables' name: NAME.csv, NAME_summary.csv, NAME.png")
     parser.add_argument("--merge", action="store_true",
                         help="keep the rows of learning.csv for the (demonstrator, learner) "
                              "pairs not run now (e.g. add the baselines to a committed table)")
     args = parser.parse_args(argv)
-    kept = kept_rows(args.out / "learning.csv", args.demonstrators, args.learners) \
-        if args.merge else []
+    table_path = args.out / f"{args.table}.csv"
+    kept = kept_rows(table_path, args.demonstrators, args.learners) if args.merge else []
     learners = {k: LEARNERS[k] for k in args.learners}
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -183,11 +198,13 @@ def main(argv: list[str] | None = None) -> None:
             for seed in args.seeds:
                 rows += one_case(Path(tmp), demonstrator, seed, learners,
                                  set(args.baseline_seeds))
-                pd.DataFrame(kept + rows).to_csv(args.out / "learning.csv", index=False)
+                pd.DataFrame(kept + rows).to_csv(table_path, index=False)
     table = pd.DataFrame(kept + rows)
-    table.to_csv(args.out / "learning.csv", index=False)
-    summary(table).to_csv(args.out / "learning_summary.csv", index=False, float_format="%.4g")
-    plot(table, args.out / "learning.png")
+    table.to_csv(table_path, index=False)
+    summary(table).to_csv(args.out / f"{args.table}_summary.csv", index=False,
+                          float_format="%.4g")
+    if table.get("policy_loss_norm", pd.Series(dtype=float)).notna().any():
+        plot(table, args.out / f"{args.table}.png")  # the losses, where a true reward exists
     print(summary(table).to_string())
 
 
