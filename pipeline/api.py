@@ -256,7 +256,7 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
 
         @functools.cache
         def roadmap() -> SpatialGraph:
-            r = build.reference_roadmap(cfg, scene, build.feature_model(cfg, scene))
+            r = build.reference_roadmap(cfg, scene, build.learner_feature_model(cfg, scene))
             return r.spatial(r.mdp(cfg.mdp))
 
         problem = IRLProblem([d.stats(cfg.mdp) for d in demonstrations],

@@ -17,6 +17,7 @@ from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.controllers import Controller, PosqController, make_controller
 from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
+from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.obstacles import OccupancyGrid
 from pipeline.core.roadmap import Roadmap, RoadmapParams, build_roadmap, lattice_graph
 from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
@@ -147,6 +148,16 @@ def learner_feature_model(cfg: Config, scene: Scene) -> FeatureModel:
                               for f in dataclasses.fields(FeatureParams)})
     return FeatureModel.from_scene(scene, dataclasses.replace(params,
                                                               features=cfg.learner_features))
+
+
+def roadmap_on_learner_features(cfg: Config, scene: Scene, roadmap: SpatialGraph) -> SpatialGraph:
+    """The reference roadmap (stored with the true reward's features) with the learner's
+    features instead, computed from its straight edges; itself when the two sets agree."""
+    if cfg.learner_features == list(cfg.reward.features):
+        return roadmap
+    m = roadmap.mdp
+    return roadmap.with_features(learner_feature_model(cfg, scene).segments(
+        roadmap.positions[m.src], roadmap.positions[m.dst]))
 
 
 def unreachable_message(scene: Scene, cut_off: list[int], spacing: float) -> str:
@@ -286,5 +297,7 @@ def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.nd
         if true_weights is None:
             raise PipelineError("config error: graph.weights=true needs true weights, but the "
                                 "demonstrations have none (expert=file or expert=planner)")
-        return np.asarray(true_weights, float), "true"
+        on_learner = cfg.on_learner_features(true_weights)
+        assert on_learner is not None  # Config refuses graph.weights=true otherwise
+        return np.asarray(on_learner, float), "true"
     return np.asarray(list(w), float), "given"

@@ -215,12 +215,12 @@ class EvaluateConfig:
 
 # -- the whole run -------------------------------------------------------------------------
 
-# The learner's features for demonstrations whose demonstrator shares no features with us
-# (expert=file, planner, none), chosen by measurement (results/bench/learner_features.csv):
-# the paper's four and `crossing`, which tells cutting through a link from passing near
-# it (people graze links; they do not cut through them). More hinges, `gaussian`, `front`
-# or `group_space` did not predict the independent planner's paths better.
-DEMONSTRATOR_FEATURES = ("relation", "crossing", "social", "goal_deviation", "length")
+# The features the learner has beyond the reward's, for every demonstrator (chosen by
+# measurement: results/bench/learner_features.csv and learning.csv): `crossing` tells
+# cutting through a link from passing near it. People and synthetic experts graze links
+# (relation > 0) but do not cut through them; with relation alone the two are one cost, and
+# a learned reward that tolerates grazing also cuts through.
+LEARNER_EXTRA_FEATURES = ("crossing",)
 
 
 OBJECTIVE_EXAMPLES = ("policy_loss_norm", "policy_loss", "policy_loss_ref", "success",
@@ -246,13 +246,20 @@ class Config:
 
     @property
     def learner_features(self) -> list[str]:
-        """The features the reward is learned on: birl.features, else the true reward's
-        for synthetic experts and DEMONSTRATOR_FEATURES for demonstrations of people."""
+        """The features the reward is learned on: birl.features, else reward.features and
+        LEARNER_EXTRA_FEATURES (one learner for every demonstrator)."""
         if self.birl.features is not None:
             return list(self.birl.features)
-        if self.expert.knows_true_reward:
-            return list(self.reward.features)
-        return list(DEMONSTRATOR_FEATURES)
+        names = list(self.reward.features)
+        return names + [n for n in LEARNER_EXTRA_FEATURES if n not in names]
+
+    def on_learner_features(self, true_weights: list[float]) -> list[float] | None:
+        """The true weights (on reward.features) on the learner's features: 0 where the true
+        reward lacks a feature; None when the learner lacks one of the reward's."""
+        true = dict(zip(self.reward.features, true_weights, strict=True))
+        if not set(true) <= set(self.learner_features):
+            return None
+        return [float(true.get(n, 0.0)) for n in self.learner_features]
 
     @property
     def n_features(self) -> int:
@@ -410,10 +417,11 @@ def _check_demonstrator(settings: Config) -> None:
         raise config_error("graph.weights", w, "null or numbers: graph.weights=true needs true "
                            f"weights, but the demonstrations have none "
                            f"(expert={settings.expert.kind})")
-    if (w is True or w == "true") and settings.learner_features != list(settings.reward.features):
+    if (w is True or w == "true") and not set(settings.reward.features) <= set(
+            settings.learner_features):
         raise config_error("graph.weights", w, "null or numbers: the true weights are on "
-                           f"reward.features={list(settings.reward.features)}, the learner's "
-                           f"features are {settings.learner_features}")
+                           f"reward.features={list(settings.reward.features)}, not all of "
+                           f"them among the learner's {settings.learner_features}")
 
 
 # A dead end's value is −v_max and the goal's R_goal; path values are sums of rewards of

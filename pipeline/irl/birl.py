@@ -119,7 +119,10 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     (`reproduces`), and a likelihood-ratio test at `birl.test_level` does not reject it
     against the MAP under the Boltzmann model (β profiled out): 2·(log p(MAP) −
     log p(iterate)) ≤ χ²_{d+1}. The estimate is the admissible iterate of highest eq. (2)
-    posterior given all generated trajectories, or the MAP if none is. Optimal
+    posterior given all generated trajectories, or the MAP if none is. Eq. (2)'s loop
+    starts at the MAP, not at birl.init_weights: a weight the demonstrations say nothing
+    about stays where it starts, at the prior's centre rather than at a random draw (on
+    metropolis, optimal experts, seeds 0-9: 10 of 10 at a loss <= 0.005 against 8). Optimal
     demonstrations keep eq. (2)'s sharper estimate; noisy ones, which eq. (2) collapses
     towards w = 0, get the Boltzmann MAP. Iteration n records the choice among the MAP and
     iterates 1..n."""
@@ -127,7 +130,7 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     w_map, beta_map = boltzmann.map(problem.w0, config.beta)
     best = -boltzmann.neg_log_posterior(np.append(w_map, beta_map))[0]
     paper = birl_map(problem.expert, problem.environment.rollout, problem.prior,
-                     beta=config.beta, n_iterations=config.n_iterations, w0=problem.w0)
+                     beta=config.beta, n_iterations=config.n_iterations, w0=w_map)
     threshold = chdtri(problem.prior.dim + 1, config.test_level) / 2  # χ² quantile
     records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
     # Among the iterates the test keeps, eq. (2)'s posterior given every generated

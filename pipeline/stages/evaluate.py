@@ -70,10 +70,7 @@ def feature_views(ctx: RunContext, scene: Scene, roadmap: SpatialGraph,
     cfg = ctx.cfg
     if cfg.learner_features == list(cfg.reward.features):
         return Views(roadmap, roadmap), Views(graph, graph)
-    learner_fm = build.learner_feature_model(cfg, scene)
-    m = roadmap.mdp
-    ref = Views(roadmap, roadmap.with_features(
-        learner_fm.segments(roadmap.positions[m.src], roadmap.positions[m.dst])))
+    ref = Views(roadmap, build.roadmap_on_learner_features(cfg, scene, roadmap))
     true_fm = build.feature_model(cfg, scene)
     return ref, Views(graph.with_features(true_fm.polylines(graph.internal_waypoints())), graph)
 

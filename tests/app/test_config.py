@@ -13,7 +13,7 @@ from tests.conftest import compose_config
     [], ["scene=random"], ["scene=file", "scene.path=data/scenes/metropolis.json"],
     ["reward=rude"], ["expert=boltzmann"], ["expert=file", "expert.path=x.json"],
     ["graph=small"], ["graph.controller.kind=posq"], ["graph.weights=true"],
-    ["graph.weights=[-1,-1,-1,-1]"], ["birl=mcmc"],
+    ["graph.weights=[-1,-1,-1,-1,-1]"], ["birl=mcmc"],
 ])
 def test_every_config_group_option_composes_and_validates(overrides):
     validate(compose_config(*overrides))

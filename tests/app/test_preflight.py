@@ -42,8 +42,8 @@ def refused_before_any_stage(run: Path, match: str, *overrides: str) -> float:
 
 @pytest.mark.parametrize("overrides, match", [
     (("graph.max_nodes=1",), r"graph\.max_nodes=1 is too few"),
-    (("birl=fixed", "birl.weights=[0,0]"), r"birl\.weights=\[0\.0, 0\.0\] needs 4 numbers"),
-    (("birl=fixed", "birl.weights=[5,5,5,5]"), r"lie outside \[birl\.lower, birl\.upper\]"),
+    (("birl=fixed", "birl.weights=[0,0]"), r"birl\.weights=\[0\.0, 0\.0\] needs 5 numbers"),
+    (("birl=fixed", "birl.weights=[5,5,5,5,5]"), r"lie outside \[birl\.lower, birl\.upper\]"),
     (("evaluate.transfer_scenes=[/nonexistent/hall.json]",), r"transfer_scenes\[0\].*not found"),
     (("expert=file", "expert.path=/dev/zero"), r"/dev/zero is a character device"),
     (("expert=file", "expert.path=data/demos/metropolis_handdrawn.json", "graph.weights=true"),

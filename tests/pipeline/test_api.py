@@ -69,7 +69,7 @@ def test_messages_have_named_columns_and_numpy_arrays(fast_run):
     stored = raw(d, "birl", topics.BIRL_ITERATION)
     assert list(its.columns) == list(stored[0])  # every field, named
     for cell, msg in zip(its["weights"], stored, strict=True):
-        assert isinstance(cell, np.ndarray) and cell.dtype == float and cell.shape == (4,)
+        assert isinstance(cell, np.ndarray) and cell.dtype == float and cell.shape == (5,)
         assert cell.tolist() == msg["weights"]
     assert isinstance(its["generated"].iloc[0], list)  # records stay dicts
     demos = fast_run.messages("demos", topics.DEMOS)
@@ -199,7 +199,7 @@ def test_learn_in_memory_gives_the_weights_of_the_pipeline(fast_run, metropolis,
     assert np.array_equal(learned.weights, expected[-1])  # to the bit
     assert all(np.array_equal(a, b) for a, b in
                zip(learned.trace["weights"], expected, strict=True))
-    assert learned.feature_names == ["relation", "social", "goal_deviation", "length"]
+    assert learned.feature_names == ["relation", "social", "goal_deviation", "length", "crossing"]
     assert learned.trace["iteration"].tolist() == [0, 1, 2, 3]
     n_graph = len(codec.graph_tables(api.artefact(run_dir, "graph"),
                                      api.artefact(run_dir, "birl") if settings else None)[0])

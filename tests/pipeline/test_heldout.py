@@ -88,11 +88,13 @@ def test_choose_heldout_keeps_one_per_start_and_refuses_unknown_subjects():
 def test_the_learner_may_order_its_features_differently_from_the_true_reward(tmp_path):
     """A learner on the same features in another order learns the same reward: its policy
     loss, scored on the true reward's features, is the default run's."""
-    base, _ = run_in_process(tmp_path / "a", *QUICK, "birl.init_weights=[-0.3,-0.5,-0.7,-0.2]")
-    perm, _ = run_in_process(tmp_path / "b", *QUICK, "birl.init_weights=[-0.2,-0.7,-0.5,-0.3]",
-                             "birl.features=[length,goal_deviation,social,relation]")
+    base, _ = run_in_process(tmp_path / "a", *QUICK,
+                             "birl.init_weights=[-0.3,-0.5,-0.7,-0.2,-0.4]")
+    perm, _ = run_in_process(tmp_path / "b", *QUICK,
+                             "birl.init_weights=[-0.2,-0.4,-0.7,-0.5,-0.3]",
+                             "birl.features=[length,crossing,goal_deviation,social,relation]")
     assert perm["policy_loss_norm"] == pytest.approx(base["policy_loss_norm"], abs=1e-6)
-    for name in ("relation", "social", "goal_deviation", "length"):
+    for name in ("relation", "social", "goal_deviation", "length", "crossing"):
         assert perm[f"weight_{name}"] == pytest.approx(base[f"weight_{name}"], abs=1e-4)
 
 
@@ -105,7 +107,7 @@ def test_a_learner_with_more_features_is_scored_on_the_true_reward(tmp_path):
 
 
 def test_deployment_without_demonstrations_plans_with_the_given_reward(tmp_path):
-    weights = "birl.weights=[-1.0,-0.5,-0.7,-0.85,-0.1]"  # relation, crossing, social, ...
+    weights = "birl.weights=[-1.0,-0.7,-0.85,-0.1,-0.5]"  # the polite weights, crossing -0.5
     metrics, out = run_in_process(tmp_path, "graph=small", "expert=none", "birl=fixed",
                                   weights)
     demos = read_artefact(tmp_path / "demos.mcap")

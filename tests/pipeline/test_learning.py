@@ -42,7 +42,7 @@ def test_birl_and_eval_artefacts(polite):
         assert np.all(np.array(it["weights"]) <= 0) and np.all(np.array(it["weights"]) >= -1)
         assert len(it["generated"]) == 7
     assert its[-1]["weights"] == [m[f"weight_{n}"] for n in
-                                  ("relation", "social", "goal_deviation", "length")]
+                                  ("relation", "social", "goal_deviation", "length", "crossing")]
     ev = read_artefact(run_dir / "eval.mcap",
                        required_topics=["/eval/policy_loss", "/eval/paths", "/eval/metrics"])
     losses = ev.all("/eval/policy_loss")
@@ -84,7 +84,7 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
                                      "birl.n_samples=300", "birl.burn_in=200")
     birl = read_artefact(run_dir / "birl.mcap")
     post = birl.all("/birl/posterior")
-    names = ("relation", "social", "goal_deviation", "length")
+    names = ("relation", "social", "goal_deviation", "length", "crossing")
     assert len(post) == n_posteriors and post[-1]["n_chains"] == 4
     assert post[-1]["mean"] == [m[f"weight_{n}"] for n in names] or likelihood == "robust"
     assert all(m[f"weight_std_{n}"] > 0 for n in names)
@@ -186,9 +186,10 @@ def test_no_loop_of_the_grown_graph_is_free(tmp_path):
 
 
 def test_a_final_loss_worse_than_the_initial_one_is_said(tmp_path):
-    """The office, seed 1: the learned weights lose more on the roadmap than the initial
-    ones did; the summary says so and what it means (metropolis seed 0 does not)."""
-    m, out = run_in_process(tmp_path, "scene=office", "seed=1")
+    """A random scene, seed 1: the initial weights happen to lose nothing on the roadmap,
+    the learned ones a little; the summary says so and what it means (metropolis seed 0
+    does not)."""
+    m, out = run_in_process(tmp_path, "scene=random", "seed=1")
     assert m["policy_loss_ref"] > m["policy_loss_ref_initial"]
     warning = [line for line in out.splitlines() if line.strip().startswith("warning")]
     assert len(warning) == 1

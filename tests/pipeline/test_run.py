@@ -17,7 +17,9 @@ from tests.conftest import POLITE, ROOT, run_app, run_in_process
 def test_a_subset_of_the_features_runs_end_to_end(tmp_path):
     metrics, _ = run_in_process(tmp_path, "reward.features=[social,length]",
                                 "reward.weights=[-0.7,-0.1]", "graph=small", "birl.n_iterations=3")
-    assert {k for k in metrics if k.startswith("weight_")} == {"weight_social", "weight_length"}
+    # the learner has the reward's features and crossing
+    assert {k for k in metrics if k.startswith("weight_")} == {"weight_social", "weight_length",
+                                                               "weight_crossing"}
     assert metrics["policy_loss"] >= 0
     assert read_artefact(tmp_path / "graph.mcap").one("/graph/solution")["n_nodes"] > 0
 

@@ -14,12 +14,13 @@ SMALL = ("graph=small",)
 
 
 def test_fixed_true_weights_have_zero_loss_and_full_artefacts(tmp_path):
-    weights = "[" + ",".join(str(x) for x in POLITE) + "]"
+    true_on_learner = [*POLITE.tolist(), 0.0]  # the true reward has no crossing weight
+    weights = "[" + ",".join(str(x) for x in true_on_learner) + "]"
     m, _ = run_in_process(tmp_path, "birl=fixed", f"birl.weights={weights}", *SMALL)
     assert m["policy_loss_ref"] == 0.0 and m["policy_loss"] == 0.0  # w = w*: the optimal policy
     its = read_artefact(tmp_path / "birl.mcap").all("/birl/iteration")
     assert [it["index"] for it in its] == [0] and its[0]["method"] == "fixed"
-    assert its[0]["weights"] == POLITE.tolist()
+    assert its[0]["weights"] == true_on_learner
     solution = read_artefact(tmp_path / "graph.mcap").one("/graph/solution")
     assert solution["weights_source"] == "fixed"  # the graph grows under the given reward
     assert build_recording(tmp_path).stat().st_size > 0  # `make view` works on it
@@ -50,8 +51,8 @@ def test_transfer_to_the_same_scene_repeats_the_run_metrics(tmp_path):
 @pytest.mark.parametrize("overrides, fragment", [
     (["birl=fixed"], "birl.weights"),
     (["birl=fixed", "birl.weights=[-1,-1,-1,-1]", "birl.from_run=x"], "birl.weights"),
-    (["birl=fixed", "birl.weights=[-1,-1]"], "needs 4 numbers"),
-    (["birl=fixed", "birl.weights=[-5,-1,-1,-1]"], "outside [birl.lower, birl.upper]"),
+    (["birl=fixed", "birl.weights=[-1,-1]"], "needs 5 numbers"),
+    (["birl=fixed", "birl.weights=[-5,-1,-1,-1,-1]"], "outside [birl.lower, birl.upper]"),
     (["birl=fixed", "birl.n_iterations=3", "birl.weights=[-1,-1,-1,-1]"], "birl.n_iterations"),
 ])
 def test_bad_fixed_settings_are_one_line(tmp_path, overrides, fragment):

@@ -154,7 +154,7 @@ def test_curves_have_distinct_colours(rrd):
                if p.startswith("/curves/")}
     losses = [colours[f"/curves/policy_loss/{k}"] for k in ("graph", "ref", "norm")]
     weights = [c for p, c in colours.items() if p.startswith("/curves/weights/")]
-    assert len(set(losses)) == 3 and len(set(weights)) == len(weights) == 4
+    assert len(set(losses)) == 3 and len(set(weights)) == len(weights) == 5
 
 
 def test_only_the_scene_is_required(run_dir, tmp_path):
