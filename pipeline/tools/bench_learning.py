@@ -58,6 +58,7 @@ FEATURE_SETS = {
     "hinge_features": "[relation,crossing,social@0.6,social,social@2.0,goal_deviation,length]",
     "gaussian_features": "[relation,crossing,group_space,gaussian,goal_deviation,length]",
 }
+METHODS = tuple(LEARNERS)  # what runs unless --learners says otherwise
 LEARNERS |= {name: [f"birl.features={features}"] for name, features in FEATURE_SETS.items()}
 BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
 OWN_GRAPH = ("maxent",)  # its box, [-100, 0], enters the graph's growth
@@ -179,7 +180,7 @@ def kept_rows(path: Path, demonstrators: list[str], learners: list[str]) -> list
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--demonstrators", nargs="+", default=list(DEMONSTRATORS))
-    parser.add_argument("--learners", nargs="+", default=list(LEARNERS))
+    parser.add_argument("--learners", nargs="+", default=list(METHODS), choices=list(LEARNERS))
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     parser.add_argument("--baseline-seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--out", type=Path, default=RESULTS)
