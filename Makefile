@@ -25,7 +25,7 @@ SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S-%N))
 RUN ?=
 SHOT ?= docs/viewer.png
 
-.PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress export lock
+.PHONY: experiment test test-all lint clean bench figures sweep aggregate view screenshot regress export lock
 
 $(STAMP): pyproject.toml uv.lock | $(UV_STAMP)
 	@echo "make: installing the package and its locked dependencies into $(VENV) (first time ~30 s) ..."
@@ -116,6 +116,11 @@ lint: $(VENV)/.installed-dev
 clean:
 	rm -rf $(VENV) outputs multirun .pytest_cache *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+
+## Every committed figure under results/ redrawn from its committed table, in the shared
+## style (pipeline/app/figure_style.py), without re-running the benchmarks.
+figures: $(STAMP)
+	$(PY) -m pipeline.tools.redraw
 
 ## Benchmarks: tables under results/bench/ (adaptive-graph scaling, ...).
 bench: $(STAMP)
