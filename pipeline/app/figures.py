@@ -9,13 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.app.figure_style import OKABE_ITO
+from pipeline.app.figure_style import COLUMN_IN, OKABE_ITO
 from pipeline.core.social import PERSONAL_ZONE
 
 # What each thing of the scene is drawn in: the same in the sweep's scene.png and Run.plot.
 SCENE_COLOURS = {"person": OKABE_ITO["orange"], "link": OKABE_ITO["vermillion"],
                  "demo": OKABE_ITO["green"], "learned": OKABE_ITO["sky"],
                  "start": OKABE_ITO["purple"], "goal": OKABE_ITO["yellow"], "node": "0.65"}
+SCENE_SIZE_IN = (COLUMN_IN, 4.4)  # a square room with its legend below
 
 
 def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.app.figure_style import COLOURS, COLUMN_IN, PAGE_IN, new_figure, paper_style, \
+from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, \
     save_figure
 from pipeline.app.summary import is_metric, summary_table
 from pipeline.errors import PipelineError
@@ -99,10 +99,11 @@ def plot_policy_loss(summary_csv: Path, path: Path) -> bool:
 
 
 def plot_scene(job: Path, path: Path) -> None:
-    from pipeline.app.figures import draw_scene  # the artefact readers: only for this figure
+    # the artefact readers: only for this figure
+    from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
 
     with paper_style():
-        fig = new_figure(COLUMN_IN, 4.4)
+        fig = new_figure(*SCENE_SIZE_IN)
         draw_scene(fig.subplots(), job)
         save_figure(fig, path)
 
