@@ -23,8 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, \
-    save_figure
+from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
 from pipeline.app.summary import is_metric, summary_table
 from pipeline.errors import PipelineError
 

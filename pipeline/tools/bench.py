@@ -362,8 +362,14 @@ def plot_loss_vs_time(curves_csv: Path, path: Path) -> None:
     the curves table (irl_methods_curves.csv). Artefacts carry no wall clock, so iteration k
     of n is placed at k/n of the run's learning time; the initial weights' loss (time 0, off
     a log axis) is a dotted line."""
-    from pipeline.app.figure_style import COLUMN_IN, MARKERS, REFERENCE, new_figure, \
-        paper_style, save_figure
+    from pipeline.app.figure_style import (
+        COLUMN_IN,
+        MARKERS,
+        REFERENCE,
+        new_figure,
+        paper_style,
+        save_figure,
+    )
     from pipeline.tools.aggregate import METHOD_NAMES
 
     curves = pd.read_csv(curves_csv)
@@ -536,8 +542,7 @@ def imperfect_summary(table: pd.DataFrame) -> pd.DataFrame:
 def plot_imperfect(summary_csv: Path, path: Path) -> None:
     """Median normalised policy loss of each method against the expert's β_E and against the
     number of demonstrations per start, from imperfect_summary.csv."""
-    from pipeline.app.figure_style import MARKERS, PAGE_IN, new_figure, paper_style, \
-        save_figure
+    from pipeline.app.figure_style import MARKERS, PAGE_IN, new_figure, paper_style, save_figure
 
     summary = pd.read_csv(summary_csv)
     betas = {f"beta{b}": b for b in (5, 10, 20, 50)}

@@ -140,8 +140,14 @@ def plot(learning_csv: Path, path: Path) -> None:
     left out)."""
     from matplotlib.lines import Line2D
 
-    from pipeline.app.figure_style import MARKERS, PAGE_IN, REFERENCE, new_figure, \
-        paper_style, save_figure
+    from pipeline.app.figure_style import (
+        MARKERS,
+        PAGE_IN,
+        REFERENCE,
+        new_figure,
+        paper_style,
+        save_figure,
+    )
 
     table = pd.read_csv(learning_csv)
     synthetic = table[table["policy_loss_norm"].notna()]

@@ -141,8 +141,7 @@ def plot(scaling_csv: Path, path: Path) -> None:
     method key), from scaling.csv."""
     from matplotlib.lines import Line2D
 
-    from pipeline.app.figure_style import MARKERS, PAGE_IN, new_figure, paper_style, \
-        save_figure
+    from pipeline.app.figure_style import MARKERS, PAGE_IN, new_figure, paper_style, save_figure
 
     table = pd.read_csv(scaling_csv)
     ok = table[table.error.isna()].sort_values("states")
