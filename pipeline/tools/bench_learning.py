@@ -47,6 +47,10 @@ LEARNERS: dict[str, list[str]] = {
     "maxent": ["birl=maxent"],
 }
 BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
+LEARNER_NAMES = {"default": "BIRL-G (robust, default)", "paper": "BIRL-G (paper, eq. 2)",
+                 "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
+LEARNED_WELL = 0.005  # normalised policy loss: runs at or below it count as learned
+FLOOR_EXPONENT = -5  # losses below 10^-5 (exact zeros too) are drawn at it, on the log axis
 OWN_GRAPH = ("maxent",)  # its box, [-100, 0], enters the graph's growth
 TRANSFER_SCENES = (101, 102, 103)  # scene=random scene.seed=...: the deployment scenes
 KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m",
@@ -128,12 +132,6 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     return out.reset_index()
 
 
-LEARNER_NAMES = {"default": "BIRL-G (robust, default)", "paper": "BIRL-G (paper, eq. 2)",
-                 "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
-LEARNED_WELL = 0.005  # normalised policy loss: runs at or below it count as learned
-FLOOR_EXPONENT = -5  # losses below 10^-5 (exact zeros too) are drawn at it, on the log axis
-
-
 def plot(learning_csv: Path, path: Path) -> None:
     """Every run's normalised policy loss per demonstrator, one colour and marker per
     learner, side by side, from learning.csv (runs without the loss, e.g. the planner's, are
@@ -160,10 +158,9 @@ def plot(learning_csv: Path, path: Path) -> None:
         for j, (learner, marker) in enumerate(zip(learners, MARKERS, strict=False)):
             part = synthetic[synthetic.learner == learner]
             x = part.demonstrator.map(demonstrators.index) + (j - (len(learners) - 1) / 2) * 0.2
-            collection = ax.scatter(x, np.maximum(part.policy_loss_norm, 10.0 ** FLOOR_EXPONENT),
-                                    s=14,
-                                    marker=marker, facecolors="none", edgecolors=f"C{j}",
-                                    linewidths=0.8)
+            loss = np.maximum(part.policy_loss_norm, 10.0 ** FLOOR_EXPONENT)
+            collection = ax.scatter(x, loss, s=14, marker=marker, facecolors="none",
+                                    edgecolors=f"C{j}", linewidths=0.8)
             handles.append(Line2D([], [], ls="", marker=marker, mfc="none",
                                   mec=collection.get_edgecolor()[0],
                                   label=LEARNER_NAMES.get(learner, learner)))
