@@ -553,6 +553,7 @@ def plot_imperfect(summary_csv: Path, path: Path) -> None:
         for ax, xs, label in [(axes[0], betas, "expert β_E (1 demonstration per start)"),
                               (axes[1], ks, "demonstrations per start (β_E = 20)")]:
             for (method, part), marker in zip(summary.groupby("method"), MARKERS, strict=False):
+                # a method without these conditions still takes its colour: the same in both
                 part = part[part.condition.isin(list(xs))]
                 x = part.condition.map(xs).to_numpy()
                 order = np.argsort(x)

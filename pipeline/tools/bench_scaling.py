@@ -149,7 +149,8 @@ def plot(scaling_csv: Path, path: Path) -> None:
         fig = new_figure(PAGE_IN, 3.0)
         ax = fig.subplots()
         methods = []
-        for method, marker in zip(METHODS, MARKERS, strict=False):
+        present = [m for m in METHODS if (ok.method == m).any()]  # in the order of METHODS
+        for method, marker in zip(present, MARKERS, strict=False):
             part = ok[ok.method == method]
             median = part.groupby("states").learn_s.median()  # one point per size, over rooms
             line, = ax.plot(median.index, median.values)
