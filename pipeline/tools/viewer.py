@@ -48,6 +48,8 @@ except ModuleNotFoundError as e:
 
 APP_ID = "birlg"
 HEADING_LEN = 0.4  # m, length of the person heading arrows
+START_RADIUS = 0.12  # m, the start discs
+LABEL_GAP = 0.22  # m, from a disc's edge down to its label's anchor
 # What each thing is drawn in, on the viewer's near-black background; LEGEND names them.
 PERSON, LINK = (235, 130, 40), (210, 40, 40)  # as in the figures: orange persons, red links
 START, GOAL = (40, 180, 60), (240, 240, 240)
@@ -146,10 +148,6 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
     _log_labels(rec, [(xy, scene["body_radius"], ids),
                       (np.asarray(scene["starts"], float), START_RADIUS, starts),
                       (np.asarray([scene["goal"]], float), goal_radius, ["goal"])])
-
-
-START_RADIUS = 0.12  # m, the start discs
-LABEL_GAP = 0.22  # m, from a disc's edge down to its label's anchor
 
 
 def _log_labels(rec: rr.RecordingStream,
