@@ -23,9 +23,9 @@ JOBS ?= 2
 SWEEP ?=
 SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S-%N))
 RUN ?=
-SHOT ?= docs/viewer.png
+SHOT ?=
 
-.PHONY: experiment test test-all lint clean bench sweep aggregate view screenshot regress export lock
+.PHONY: experiment test test-all lint clean bench figures sweep aggregate view screenshot regress export lock
 
 $(STAMP): pyproject.toml uv.lock | $(UV_STAMP)
 	@echo "make: installing the package and its locked dependencies into $(VENV) (first time ~30 s) ..."
@@ -87,11 +87,12 @@ export: $(STAMP)
 	$(PY) -m pipeline.tools.export $(RUN)
 
 ## The viewer showing a run, rendered headless under Xvfb, as a 256-colour PNG (default
-## docs/viewer.png, the README's): make screenshot RUN=outputs/... [SHOT=file.png]
+## outputs/screenshot.png; the README's picture only when asked: SHOT=docs/viewer.png):
+## make screenshot RUN=outputs/... [SHOT=file.png]
 ## (apt-get install xvfb imagemagick mesa-vulkan-drivers)
 screenshot: $(VENV)/.installed-viewer
 	@test -n "$(RUN)" || { echo "usage: make screenshot RUN=<run dir> [SHOT=<png>]"; exit 2; }
-	$(PY) -m pipeline.tools.screenshot $(RUN) --out $(SHOT) --colors 256
+	$(PY) -m pipeline.tools.screenshot $(RUN) $(if $(SHOT),--out $(SHOT)) --colors 256
 
 ## Re-run the reference experiments and compare with results/baseline/.
 regress: $(STAMP)
@@ -116,6 +117,11 @@ lint: $(VENV)/.installed-dev
 clean:
 	rm -rf $(VENV) outputs multirun .pytest_cache *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+
+## Every committed figure under results/ redrawn from its committed table, in the shared
+## style (pipeline/app/figure_style.py), without re-running the benchmarks.
+figures: $(STAMP)
+	$(PY) -m pipeline.tools.redraw
 
 ## Benchmarks: tables under results/bench/ (adaptive-graph scaling, ...).
 bench: $(STAMP)

@@ -42,7 +42,8 @@ from threadpoolctl import threadpool_limits
 from pipeline.app import build
 from pipeline.app.config import Config, compose_config, load_settings, register_configs
 from pipeline.app.context import stage_rng
-from pipeline.app.figures import draw_scene
+from pipeline.app.figure_style import paper_style
+from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
 from pipeline.app.rundir import RunStatus, read_status
 from pipeline.app.summary import summary_table
 from pipeline.artefacts import codec, topics
@@ -131,14 +132,13 @@ class Run:
         is the caller's (inline in a notebook; `matplotlib.use("Agg")` in scripts)."""
         if paths not in PATH_GRAPHS:
             raise ValueError(f"paths='{paths}': one of {', '.join(PATH_GRAPHS)}")
-        new = ax is None
-        if new:
-            import matplotlib.pyplot as plt
-            _, ax = plt.subplots(figsize=(7.5, 6))
-        draw_scene(ax, self.dir, paths)
-        if new:
-            ax.figure.tight_layout()
-        return ax
+        if ax is not None:
+            return draw_scene(ax, self.dir, paths)
+        import matplotlib.pyplot as plt
+
+        with paper_style():  # as the sweep's scene.png
+            _, ax = plt.subplots(figsize=SCENE_SIZE_IN, layout="constrained")
+            return draw_scene(ax, self.dir, paths)
 
 
 def _cell(value: Any) -> Any:

@@ -9,6 +9,15 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.app.figure_style import COLUMN_IN, OKABE_ITO
+from pipeline.core.social import PERSONAL_ZONE
+
+# What each thing of the scene is drawn in: the same in the sweep's scene.png and Run.plot.
+SCENE_COLOURS = {"person": OKABE_ITO["orange"], "link": OKABE_ITO["vermillion"],
+                 "demo": OKABE_ITO["green"], "learned": OKABE_ITO["sky"],
+                 "start": OKABE_ITO["purple"], "goal": OKABE_ITO["yellow"], "node": "0.65"}
+SCENE_SIZE_IN = (COLUMN_IN, 4.4)  # a square room with its legend below
+
 
 def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
     """The scene of `run_dir` (room, map, persons with their personal zones and headings,
@@ -30,48 +39,55 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
                   cmap="Greys", vmin=0, vmax=1.5, interpolation="nearest")
     if (run_dir / ARTEFACT_FILE["graph"]).exists():  # the graph's samples (paper Fig. 1 left)
         nodes = codec.decode_nodes(read_artefact(run_dir / ARTEFACT_FILE["graph"])).positions
-        ax.plot(nodes[:, 0], nodes[:, 1], ".", color="0.55", ms=3,
-                label=f"graph nodes ({len(nodes)})")
+        ax.plot(nodes[:, 0], nodes[:, 1], ".", color=SCENE_COLOURS["node"], ms=1.5,
+                label=f"graph nodes ({len(nodes)})", zorder=1)
     room = scene["room"]
     ax.plot([room["x_min"], room["x_max"], room["x_max"], room["x_min"], room["x_min"]],
             [room["y_min"], room["y_min"], room["y_max"], room["y_max"], room["y_min"]], "k-")
     _draw_people(ax, scene)
-    if (run_dir / ARTEFACT_FILE["demos"]).exists():
-        demos = read_artefact(run_dir / ARTEFACT_FILE["demos"]).messages.get(topics.DEMOS, [])
-        for i, d in enumerate(demos):
-            pts = np.asarray(d["points"])
-            ax.plot(pts[:, 0], pts[:, 1], "--", color="tab:green", lw=1.5,
-                    label="demonstrations" if i == 0 else None)
+    # The learned paths wide and under the dashed demonstrations: where the two agree, both
+    # stay visible.
     if (run_dir / ARTEFACT_FILE["evaluate"]).exists():
         learned = [p for p in read_artefact(run_dir / ARTEFACT_FILE["evaluate"])
                    .all(topics.EVAL_PATHS) if p["graph"] == paths]
         for i, p in enumerate(learned):
             pts = np.asarray(p["points"])
-            ax.plot(pts[:, 0], pts[:, 1], color="tab:blue", lw=1.5,
+            ax.plot(pts[:, 0], pts[:, 1], color=SCENE_COLOURS["learned"], lw=2.4, zorder=3,
                     label="learned paths" if i == 0 else None)
+    if (run_dir / ARTEFACT_FILE["demos"]).exists():
+        demos = read_artefact(run_dir / ARTEFACT_FILE["demos"]).messages.get(topics.DEMOS, [])
+        for i, d in enumerate(demos):
+            pts = np.asarray(d["points"])
+            ax.plot(pts[:, 0], pts[:, 1], "--", color=SCENE_COLOURS["demo"], lw=1.1, zorder=4,
+                    label="demonstrations" if i == 0 else None)
     starts = np.asarray(scene["starts"])
-    ax.plot(starts[:, 0], starts[:, 1], "s", color="tab:purple", label="starts")
-    ax.plot(*scene["goal"], "*", color="gold", ms=18, mec="k", label="goal")
+    ax.plot(starts[:, 0], starts[:, 1], "s", color=SCENE_COLOURS["start"], ms=4, zorder=5,
+            label="starts")
+    ax.plot(*scene["goal"], "*", color=SCENE_COLOURS["goal"], ms=11, mec="k", mew=0.6,
+            zorder=5, label="goal")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"scene '{scene['name']}': demonstrations and learned paths")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+    ax.set_title(f"scene '{scene['name']}'")
+    # Below the room, where it hides nothing; two columns keep it short.
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     return ax
 
 
 def _draw_people(ax: Any, scene: dict) -> None:
-    """The social links, and every person's body, personal zone and heading."""
+    """The social links, and every person's body, heading and personal zone (an outline:
+    filled zones would overlap and darken)."""
     from matplotlib.patches import Circle
 
     pos = {p["id"]: (p["x"], p["y"]) for p in scene["persons"]}
     for i, (a, b) in enumerate(scene["relations"]):
-        ax.plot(*zip(pos[a], pos[b], strict=True), color="tab:red", lw=2, alpha=0.6,
-                label="social links" if i == 0 else None)
+        ax.plot(*zip(pos[a], pos[b], strict=True), color=SCENE_COLOURS["link"], lw=1.2,
+                zorder=2, label="social links" if i == 0 else None)
     for i, p in enumerate(scene["persons"]):
-        ax.add_patch(Circle((p["x"], p["y"]), 1.2, color="tab:orange", alpha=0.08,
-                            label="personal zone (1.2 m)" if i == 0 else None))
-        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color="tab:orange",
-                            label="persons" if i == 0 else None))
+        ax.add_patch(Circle((p["x"], p["y"]), PERSONAL_ZONE, fill=False, lw=0.6, ls=":",
+                            ec=SCENE_COLOURS["person"], zorder=2,
+                            label=f"personal zone ({PERSONAL_ZONE} m)" if i == 0 else None))
+        ax.add_patch(Circle((p["x"], p["y"]), scene["body_radius"], color=SCENE_COLOURS["person"],
+                            zorder=2.5, label="persons (arrow: heading)" if i == 0 else None))
         ax.arrow(p["x"], p["y"], 0.4 * np.cos(p["theta"]), 0.4 * np.sin(p["theta"]),
-                 head_width=0.12, color="k")
+                 head_width=0.12, lw=0.6, color="k", zorder=2.6)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
 from pipeline.app.summary import is_metric, summary_table
 from pipeline.errors import PipelineError
 
@@ -34,6 +35,7 @@ def _group_columns(table: pd.DataFrame) -> list[str]:
             and table[c].nunique(dropna=False) > 1]
 
 
+SUMMARY_FILE = "summary.csv"
 # Names as in the paper and the README, for legends and table headers.
 METHOD_NAMES = {"map": "BIRL-G (MAP)", "mcmc": "BIRL-G (MCMC)", "policywalk": "PolicyWalk",
                 "maxent": "MaxEnt", "fixed": "fixed weights"}
@@ -49,60 +51,60 @@ def setting_label(key: str, value) -> str:
     return f"{SETTING_NAMES.get(key, key)} {value}"
 
 
-def save_figure(fig, path: Path) -> None:
-    """PNG for the README and slides, PDF (vector) for papers; no creation date in the PDF,
-    so the same figure gives the same bytes."""
-    fig.savefig(path, dpi=150)
-    fig.savefig(path.with_suffix(".pdf"), metadata={"CreationDate": None})
-
-
-def plot_policy_loss(table: pd.DataFrame, path: Path) -> bool:
-    from matplotlib.figure import Figure  # no pyplot: its import and state, not needed here
+def plot_policy_loss(summary_csv: Path, path: Path) -> bool:
+    """Policy loss against BIRL iteration on the adaptive graph and on the reference roadmap,
+    one colour per swept setting, from a sweep's summary.csv: the median over seeds, and the
+    range over seeds as thin lines (bands of several settings would overlap and mix). False,
+    and no figure, when no job has the curves."""
+    from matplotlib.lines import Line2D
     from matplotlib.ticker import MaxNLocator
 
+    table = pd.read_csv(summary_csv)
     ok = table[table.status == "ok"]
-    fig = Figure(figsize=(11, 4))
-    axes = fig.subplots(1, 2, sharex=True, sharey=True)
-    plotted = False
     groups = _group_columns(ok)
-    for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
-        label = ", ".join(setting_label(g, v) for g, v in
-                          zip(groups, np.atleast_1d(key), strict=False)) or "all jobs"
-        for ax, prefix, title in ((axes[0], "policy_loss_iter_", "adaptive graph"),
-                                  (axes[1], "policy_loss_ref_iter_", "reference roadmap")):
-            cols = sorted(c for c in part.columns if c.startswith(prefix))
-            curves = part[cols].to_numpy(dtype=float)
-            if curves.size == 0 or np.isnan(curves).all():
-                continue
-            x = np.arange(len(cols))
-            # Median and the full range over seeds: never below 0, honest with 2-3 seeds.
-            line, = ax.plot(x, np.nanmedian(curves, axis=0), label=f"{label} (n={len(part)})")
-            ax.fill_between(x, np.nanmin(curves, axis=0), np.nanmax(curves, axis=0),
-                            color=line.get_color(), alpha=0.15, lw=0)
+    with paper_style():
+        fig = new_figure(PAGE_IN, 2.8)
+        axes = fig.subplots(1, 2, sharex=True, sharey=True)
+        handles = []
+        for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
+            label = ", ".join(setting_label(g, v) for g, v in
+                              zip(groups, np.atleast_1d(key), strict=False)) or "all jobs"
+            colour = COLOURS[len(handles) % len(COLOURS)]
+            for ax, prefix in ((axes[0], "policy_loss_iter_"), (axes[1], "policy_loss_ref_iter_")):
+                curves = part[sorted(c for c in part.columns if c.startswith(prefix))] \
+                    .to_numpy(dtype=float)
+                if curves.size == 0 or np.isnan(curves).all():
+                    continue
+                x = np.arange(curves.shape[1])
+                # Median and the full range over seeds: never below 0, honest with 2-3 seeds.
+                ax.plot(x, np.nanmedian(curves, axis=0), color=colour)
+                for bound in (np.nanmin(curves, axis=0), np.nanmax(curves, axis=0)):
+                    ax.plot(x, bound, color=colour, lw=0.5, ls=(0, (2, 2)))
+            handles.append(Line2D([], [], color=colour, label=f"{label} (n={len(part)})"))
+        if not any(ax.lines for ax in axes):
+            return False
+        for ax, title in zip(axes, ("adaptive graph", "reference roadmap"), strict=True):
             ax.set_title(f"policy loss on the {title}")
-            plotted = True
-    for ax in axes:
-        ax.set_xlabel("BIRL-G iteration")
-        ax.set_yscale("symlog", linthresh=1e-4)  # spans 1 to 1e-4, and exact zeros
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.grid(alpha=0.3, which="both")
-    axes[0].set_ylabel("policy loss (median; band: min–max over seeds)")
-    if plotted:
-        axes[1].legend(fontsize=7, loc="upper right")
-        fig.tight_layout()
-        save_figure(fig, path)
-    return plotted
+            ax.set_xlabel("BIRL-G iteration")
+            ax.set_yscale("symlog", linthresh=1e-4)  # spans 1 to 1e-4, and exact zeros
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+            ax.grid(which="major")
+        axes[0].set_ylabel("policy loss")
+        handles += [Line2D([], [], color="k", label="median over seeds"),
+                    Line2D([], [], color="k", lw=0.5, ls=(0, (2, 2)), label="min and max")]
+        fig.legend(handles=handles, loc="outside lower center", ncol=3)
+        save_figure(fig, path, [summary_csv])
+    return True
 
 
 def plot_scene(job: Path, path: Path) -> None:
-    from matplotlib.figure import Figure
+    # the artefact readers: only for this figure
+    from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
 
-    from pipeline.app.figures import draw_scene  # the artefact readers: only for this figure
-
-    fig = Figure(figsize=(7.5, 6))
-    draw_scene(fig.subplots(), job)
-    fig.tight_layout()
-    save_figure(fig, path)
+    with paper_style():
+        fig = new_figure(*SCENE_SIZE_IN)
+        draw_scene(fig.subplots(), job)
+        save_figure(fig, path)
 
 
 def results_table(table: pd.DataFrame) -> pd.DataFrame:
@@ -174,11 +176,11 @@ def write_tables(table: pd.DataFrame, sweep_dir: Path) -> None:
 
 def aggregate(sweep_dir: Path, figures: bool = True) -> pd.DataFrame:
     table = summary_table(sweep_dir)
-    table.to_csv(sweep_dir / "summary.csv", index=False)
+    table.to_csv(sweep_dir / SUMMARY_FILE, index=False)
     write_tables(table, sweep_dir)
     if not figures:  # the table alone: a third of the time (matplotlib, the artefacts)
         return table
-    plot_policy_loss(table, sweep_dir / "policy_loss.png")
+    plot_policy_loss(sweep_dir / SUMMARY_FILE, sweep_dir / "policy_loss.png")
     ok = table[table.status == "ok"]
     if len(ok):
         plot_scene(sweep_dir / ok.iloc[0]["job"], sweep_dir / "scene.png")
@@ -206,7 +208,7 @@ def main(argv=None) -> int:
                         "policy_loss_norm", "relation_crossings") if c in table.columns]
     print(table[cols].to_string(index=False))
     print(f"{len(table) - len(failed)} of {len(table)} jobs ok; wrote "
-          f"{args.sweep_dir / 'summary.csv'}{' and figures' if args.figures else ''}")
+          f"{args.sweep_dir / SUMMARY_FILE}{' and figures' if args.figures else ''}")
     for _, row in failed.iterrows():
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
     return 1 if len(failed) else 0

@@ -357,35 +357,41 @@ def read_artefact_iterations(run: Path) -> list[dict]:
     return read_artefact(run / "birl.mcap").all(topics.BIRL_ITERATION)
 
 
-def plot_loss_vs_time(curves: pd.DataFrame, path: Path) -> None:
-    """Policy loss against learning time, log–log, one line per method (paper names).
-    Artefacts carry no wall clock, so iteration k of n is placed at k/n of the run's
-    learning time; the initial weights' loss (time 0, off a log axis) is a dotted line."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def plot_loss_vs_time(curves_csv: Path, path: Path) -> None:
+    """Policy loss against learning time, log-log, one line per method (paper names), from
+    the curves table (irl_methods_curves.csv). Artefacts carry no wall clock, so iteration k
+    of n is placed at k/n of the run's learning time; the initial weights' loss (time 0, off
+    a log axis) is a dotted line."""
+    from pipeline.app.figure_style import (
+        COLUMN_IN,
+        MARKERS,
+        REFERENCE,
+        new_figure,
+        paper_style,
+        save_figure,
+    )
+    from pipeline.tools.aggregate import METHOD_NAMES
 
-    from pipeline.tools.aggregate import METHOD_NAMES, save_figure
-
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    curves = pd.read_csv(curves_csv)
     curves = curves.assign(k=curves.groupby(["method", "scene", "seed"]).cumcount())
-    initial = curves[curves.k == 0].policy_loss_ref.mean()
-    ax.axhline(initial, color="0.5", linestyle=":", label="initial weights (iteration 0)")
-    for method, part in curves[curves.k > 0].groupby("method"):
-        # Iteration k of every run at its mean elapsed time, loss averaged over runs.
-        mean = part.groupby("k")[["wall_s", "policy_loss_ref"]].mean()
-        ax.plot(mean.wall_s, mean.policy_loss_ref, marker=".",
-                label=METHOD_NAMES.get(str(method), str(method)))
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("learning time (s)")
-    ax.set_ylabel("policy loss on the reference roadmap\n(mean over scenes and seeds)")
-    ax.set_title("IRL methods on metropolis and three random scenes")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize="small")
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    with paper_style():
+        fig = new_figure(COLUMN_IN, 3.2)
+        ax = fig.subplots()
+        initial = curves[curves.k == 0].policy_loss_ref.mean()
+        ax.axhline(initial, color=REFERENCE, linestyle=":", label="initial weights")
+        for (method, part), marker in zip(curves[curves.k > 0].groupby("method"), MARKERS,
+                                          strict=False):
+            # Iteration k of every run at its mean elapsed time, loss averaged over runs.
+            mean = part.groupby("k")[["wall_s", "policy_loss_ref"]].mean()
+            ax.plot(mean.wall_s, mean.policy_loss_ref, marker=marker, ms=2.5,
+                    label=METHOD_NAMES.get(str(method), str(method)))
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("learning time [s]")
+        ax.set_ylabel("policy loss on the reference roadmap\n(mean over scenes and seeds)")
+        ax.grid(which="major")
+        fig.legend(loc="outside lower center", ncol=2)
+        save_figure(fig, path, [curves_csv])
 
 
 # Imperfect demonstrations (README "Imperfect demonstrations"): condition -> overrides.
@@ -533,35 +539,34 @@ def imperfect_summary(table: pd.DataFrame) -> pd.DataFrame:
     return summary
 
 
-def plot_imperfect(summary: pd.DataFrame, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def plot_imperfect(summary_csv: Path, path: Path) -> None:
+    """Median normalised policy loss of each method against the expert's β_E and against the
+    number of demonstrations per start, from imperfect_summary.csv."""
+    from pipeline.app.figure_style import MARKERS, PAGE_IN, new_figure, paper_style, save_figure
 
-    from pipeline.tools.aggregate import save_figure
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    summary = pd.read_csv(summary_csv)
     betas = {f"beta{b}": b for b in (5, 10, 20, 50)}
     ks = {"beta20": 1, "beta20_k2": 2, "beta20_k3": 3, "beta20_k5": 5}
-    for ax, xs, label in [(axes[0], betas, "expert β_E (1 demo per start)"),
-                          (axes[1], ks, "demos per start (β_E = 20)")]:
-        for method, part in summary.groupby("method"):
-            part = part[part.condition.isin(list(xs))]
-            if part.empty:
-                continue
-            x = part.condition.map(xs)
-            order = np.argsort(x.to_numpy())
-            ax.plot(x.to_numpy()[order], part["median"].to_numpy()[order], marker="o",
-                    label=IMPERFECT_NAMES.get(str(method), str(method)))
-        ax.set_xlabel(label)
-        ax.set_ylabel("median normalised policy loss")
-        ax.set_yscale("symlog", linthresh=0.01)
-        ax.grid(alpha=0.3)
-    axes[0].legend()
-    fig.suptitle("Imperfect demonstrations on metropolis")
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+    with paper_style():
+        fig = new_figure(PAGE_IN, 2.9)
+        axes = fig.subplots(1, 2, sharey=True)
+        for ax, xs, label in [(axes[0], betas, "expert β_E (1 demonstration per start)"),
+                              (axes[1], ks, "demonstrations per start (β_E = 20)")]:
+            for (method, part), marker in zip(summary.groupby("method"), MARKERS, strict=False):
+                # a method without these conditions still takes its colour: the same in both
+                part = part[part.condition.isin(list(xs))]
+                x = part.condition.map(xs).to_numpy()
+                order = np.argsort(x)
+                ax.plot(x[order], part["median"].to_numpy()[order], marker=marker,
+                        label=IMPERFECT_NAMES.get(str(method), str(method)))
+            ax.set_xlabel(label)
+            ax.set_xticks(list(xs.values()))
+            ax.set_yscale("symlog", linthresh=0.01)  # exact zeros too
+            ax.grid(which="major")
+        axes[0].set_ylabel("median normalised policy loss")
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncol=3)
+        save_figure(fig, path, [summary_csv])
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -622,7 +627,7 @@ def _imperfect_suite(args) -> pd.DataFrame:
     table = imperfect(args.seeds, args.baseline_seeds, args.conditions)
     summary = imperfect_summary(table)
     summary.to_csv(RESULTS / "imperfect_summary.csv", index=False)
-    plot_imperfect(summary, RESULTS / "imperfect.png")
+    plot_imperfect(RESULTS / "imperfect_summary.csv", RESULTS / "imperfect.png")
     print(summary.to_string(index=False))
     return table
 
@@ -638,7 +643,7 @@ def _posterior_suite(args) -> pd.DataFrame:
 def _irl_suite(args) -> pd.DataFrame:
     table, curves = irl_methods(args.seeds, args.methods, args.scenes)
     curves.to_csv(RESULTS / "irl_methods_curves.csv", index=False)  # the figure's data
-    plot_loss_vs_time(curves, RESULTS / "irl_methods.png")
+    plot_loss_vs_time(RESULTS / "irl_methods_curves.csv", RESULTS / "irl_methods.png")
     print(table.groupby("method")[["wall_s", "mdp_solves", "policy_loss_ref",
                                    "policy_loss_norm"]].mean().to_string())
     return table

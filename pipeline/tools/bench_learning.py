@@ -61,6 +61,10 @@ FEATURE_SETS = {
 METHODS = tuple(LEARNERS)  # what runs unless --learners says otherwise
 LEARNERS |= {name: [f"birl.features={features}"] for name, features in FEATURE_SETS.items()}
 BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
+LEARNER_NAMES = {"default": "BIRL-G (robust, default)", "paper": "BIRL-G (paper, eq. 2)",
+                 "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
+LEARNED_WELL = 0.005  # normalised policy loss: runs at or below it count as learned
+FLOOR_EXPONENT = -5  # losses below 10^-5 (exact zeros too) are drawn at it, on the log axis
 OWN_GRAPH = ("maxent",)  # its box, [-100, 0], enters the graph's growth
 TRANSFER_SCENES = (101, 102, 103)  # scene=random scene.seed=...: the deployment scenes
 KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m",
@@ -129,7 +133,8 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     out = grouped.agg(runs=("seed", "size"),
                       loss_median=("policy_loss_norm", "median"),
                       loss_worst=("policy_loss_norm", "max"),
-                      runs_at_most_0005=("policy_loss_norm", lambda x: int((x <= 0.005).sum())),
+                      runs_at_most_0005=("policy_loss_norm",
+                                         lambda x: int((x <= LEARNED_WELL).sum())),
                       crossings=("ref_relation_crossings", "sum"),
                       crossings_worst=("ref_relation_crossings", "max"),
                       intimate_worst_m=("ref_intimate_intrusion_m", "max"),
@@ -141,31 +146,49 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
     return out.reset_index()
 
 
-def plot(table: pd.DataFrame, path: Path) -> None:
-    import matplotlib
+def plot(learning_csv: Path, path: Path) -> None:
+    """Every run's normalised policy loss per demonstrator, one colour and marker per
+    learner, side by side, from learning.csv (runs without the loss, e.g. the planner's, are
+    left out)."""
+    from matplotlib.lines import Line2D
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from pipeline.app.figure_style import (
+        MARKERS,
+        PAGE_IN,
+        REFERENCE,
+        new_figure,
+        paper_style,
+        save_figure,
+    )
 
-    from pipeline.tools.aggregate import save_figure
-
+    table = pd.read_csv(learning_csv)
     synthetic = table[table["policy_loss_norm"].notna()]
-    fig, ax = plt.subplots(figsize=(7, 3))
     demonstrators = list(dict.fromkeys(synthetic["demonstrator"]))
     learners = list(dict.fromkeys(synthetic["learner"]))
-    for j, learner in enumerate(learners):
-        for i, demonstrator in enumerate(demonstrators):
-            values = synthetic[(synthetic.learner == learner)
-                               & (synthetic.demonstrator == demonstrator)]["policy_loss_norm"]
-            x = i + (j - (len(learners) - 1) / 2) * 0.18
-            ax.scatter(np.full(len(values), x), np.maximum(values, 1e-5), s=8,
-                       color=f"C{j}", label=learner if i == 0 else None)
-    ax.set_yscale("log")
-    ax.axhline(0.005, color="0.5", lw=0.8, ls=":")
-    ax.set_xticks(range(len(demonstrators)), demonstrators, fontsize=8)
-    ax.set_ylabel("normalised policy loss (roadmap)", fontsize=8)
-    ax.legend(fontsize=8, frameon=False, ncol=len(learners), loc="upper left")
-    save_figure(fig, path)
+    with paper_style():
+        fig = new_figure(PAGE_IN, 2.8)
+        ax = fig.subplots()
+        handles = []
+        for j, (learner, marker) in enumerate(zip(learners, MARKERS, strict=False)):
+            part = synthetic[synthetic.learner == learner]
+            x = part.demonstrator.map(demonstrators.index) + (j - (len(learners) - 1) / 2) * 0.2
+            loss = np.maximum(part.policy_loss_norm, 10.0 ** FLOOR_EXPONENT)
+            collection = ax.scatter(x, loss, s=14, marker=marker, facecolors="none",
+                                    edgecolors=f"C{j}", linewidths=0.8)
+            handles.append(Line2D([], [], ls="", marker=marker, mfc="none",
+                                  mec=collection.get_edgecolor()[0],
+                                  label=LEARNER_NAMES.get(learner, learner)))
+        ax.axhline(LEARNED_WELL, color=REFERENCE, lw=0.8, ls=":")
+        handles.append(Line2D([], [], color=REFERENCE, lw=0.8, ls=":",
+                              label=f"loss {LEARNED_WELL:g}: learned well"))
+        ax.set_yscale("log")
+        ax.set_xticks(range(len(demonstrators)), demonstrators)
+        ax.set_xlabel("demonstrator (one marker per seed)")
+        ax.set_ylabel(f"normalised policy loss (roadmap;\nbelow $10^{{{FLOOR_EXPONENT}}}$ drawn "
+                      "there)")
+        ax.grid(axis="y", which="major")
+        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles))
+        save_figure(fig, path, [learning_csv])
 
 
 def kept_rows(path: Path, demonstrators: list[str], learners: list[str]) -> list[dict]:
@@ -205,7 +228,7 @@ def main(argv: list[str] | None = None) -> None:
     summary(table).to_csv(args.out / f"{args.table}_summary.csv", index=False,
                           float_format="%.4g")
     if table.get("policy_loss_norm", pd.Series(dtype=float)).notna().any():
-        plot(table, args.out / f"{args.table}.png")  # the losses, where a true reward exists
+        plot(table_path, args.out / f"{args.table}.png")  # the losses, where a true reward is
     print(summary(table).to_string())
 
 

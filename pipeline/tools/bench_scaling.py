@@ -127,31 +127,52 @@ def exponents(table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def plot(table: pd.DataFrame, path: Path) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+# Marker area (pt²) against the final normalised policy loss, clipped at the last key value.
+LOSS_KEY = [0.0, 0.1, 0.3]
 
-    from pipeline.tools.aggregate import save_figure
 
-    fig, ax = plt.subplots(figsize=(7.5, 5))
-    for method, part in table[table.error == ""].sort_values("states").groupby("method"):
-        median = part.groupby("states").learn_s.median()  # one point per size, over rooms
-        line, = ax.plot(median.index, median.values, "-", label=NAMES.get(method, method))
-        # marker area grows with the final loss: small markers = good rewards
-        ax.scatter(part.states, part.learn_s, s=20 + 2000 * part.policy_loss_norm.clip(0, 0.3),
-                   color=line.get_color(), alpha=0.6, edgecolors="k", linewidths=0.5)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("state-space size (graph nodes; roadmap nodes for MaxEnt)")
-    ax.set_ylabel("learning time [s], one thread")
-    ax.set_title("learning time against state-space size\n(marker area: final normalised "
-                 "policy loss)")
-    ax.grid(alpha=0.3, which="both")
-    ax.legend()
-    fig.tight_layout()
-    save_figure(fig, path)
-    plt.close(fig)
+def marker_area(loss) -> np.ndarray:
+    return 6 + 300 * np.clip(np.asarray(loss, float), 0, LOSS_KEY[-1])
+
+
+def plot(scaling_csv: Path, path: Path) -> None:
+    """Learning time against state-space size, one colour per method (median over rooms as a
+    line, every run as an open marker whose area shows its final loss: a size key beside the
+    method key), from scaling.csv."""
+    from matplotlib.lines import Line2D
+
+    from pipeline.app.figure_style import MARKERS, PAGE_IN, new_figure, paper_style, save_figure
+
+    table = pd.read_csv(scaling_csv)
+    ok = table[table.error.isna()].sort_values("states")
+    with paper_style():
+        fig = new_figure(PAGE_IN, 3.0)
+        ax = fig.subplots()
+        methods = []
+        present = [m for m in METHODS if (ok.method == m).any()]  # in the order of METHODS
+        for method, marker in zip(present, MARKERS, strict=False):
+            part = ok[ok.method == method]
+            median = part.groupby("states").learn_s.median()  # one point per size, over rooms
+            line, = ax.plot(median.index, median.values)
+            # Open markers: overlapping ones stay apart, no translucent mixing.
+            ax.scatter(part.states, part.learn_s, s=marker_area(part.policy_loss_norm),
+                       marker=marker, facecolors="none", edgecolors=line.get_color(),
+                       linewidths=0.8)
+            methods.append(Line2D([], [], color=line.get_color(), marker=marker, mfc="none",
+                                  label=NAMES[method]))
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("state-space size (graph nodes; roadmap nodes for MaxEnt)")
+        ax.set_ylabel("learning time [s], one thread")
+        ax.grid(which="major")
+        fig.legend(handles=methods, title="method (marker: one run;\nline: median over rooms)",
+                   loc="outside right upper", alignment="left")
+        sizes = [Line2D([], [], ls="", marker="o", mfc="none", mec="k",
+                        ms=float(np.sqrt(marker_area(v))),
+                        label=f"≥ {v:g}" if v == LOSS_KEY[-1] else f"{v:g}") for v in LOSS_KEY]
+        fig.legend(handles=sizes, title="marker area: the run's final\nnormalised policy loss",
+                   loc="outside right lower", alignment="left", labelspacing=1.0)
+        save_figure(fig, path, [scaling_csv])
 
 
 def main(argv=None) -> None:
@@ -184,7 +205,7 @@ def main(argv=None) -> None:
     table.to_csv(RESULTS / "scaling.csv", index=False)
     fits = exponents(table)
     fits.to_csv(RESULTS / "scaling_exponents.csv", index=False)
-    plot(table, RESULTS / "scaling.png")
+    plot(RESULTS / "scaling.csv", RESULTS / "scaling.png")
     print(table.to_string(index=False))
     print(fits.to_string(index=False))
     print(f"wrote {RESULTS / 'scaling.csv'}, scaling_exponents.csv and scaling.png")

@@ -1,7 +1,7 @@
 """Screenshot of the rerun viewer showing a run, as a user sees it: headless, under Xvfb.
 
-    python -m pipeline.tools.screenshot RUN_DIR [--out docs/viewer.png] [--size 1600x1000]
-                                        [--colors 256]
+    python -m pipeline.tools.screenshot RUN_DIR [--out outputs/screenshot.png]
+                                        [--size 1600x1000] [--colors 256]
 
 Builds the recording as `make view` does (RUN_DIR/run.rrd), starts its own X server (Xvfb),
 runs the native viewer in it (Vulkan; without a GPU Mesa's software driver, lavapipe),
@@ -44,7 +44,8 @@ except ModuleNotFoundError as e:  # rerun-sdk, the optional viewer extra: its me
     print(f"error: {e}", file=sys.stderr)
     sys.exit(2)
 
-DEFAULT_OUT = Path("docs/viewer.png")
+# Not docs/viewer.png (the README's): that one is replaced only when asked for by name.
+DEFAULT_OUT = Path("outputs/screenshot.png")
 MIN_COLOURS = 64  # fewer: a blank screen (a black one has 1), not the viewer
 VULKAN_ICD_DIRS = ["/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d"]
 MARK = "BIRLG_SCREENSHOT"  # in the environment of Xvfb and the viewer: the recording's path

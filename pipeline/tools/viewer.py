@@ -7,8 +7,11 @@ Static: the scene, demonstrations, the final graph and the final learned paths (
 on the `birl_iteration` timeline (learned paths and curves), which the layout selects, so
 scene, final graph, learned paths and curves show together; graph growth replays on the
 `iteration` timeline in its own view. rerun 0.41's 2-D views draw y downwards, so y is
-logged negated and the scene appears y-up as in the figures (hover shows -y). Written
-against rerun-sdk 0.41 (pinned): its API changes between releases.
+logged negated and the scene appears y-up as in the figures (hover shows -y). A text view
+under the scene (LEGEND) says what each colour is; labels are drawn light, below their discs;
+the demonstrations above the learned paths; the weights plot has the true weights as thin
+reference lines when the run knows them; each plot's y range leaves room above the curves for
+its legend. Written against rerun-sdk 0.41 (pinned): its API changes between releases.
 """
 
 from __future__ import annotations
@@ -45,9 +48,34 @@ except ModuleNotFoundError as e:
 
 APP_ID = "birlg"
 HEADING_LEN = 0.4  # m, length of the person heading arrows
-KIND_COLORS = {"start": (40, 180, 60), "goal": (220, 40, 40), "voronoi": (60, 110, 230),
-               "demo": (240, 150, 30), "medial": (40, 160, 170), "sampled": (150, 150, 150)}
+START_RADIUS = 0.12  # m, the start discs
+LABEL_GAP = 0.22  # m, from a disc's edge down to its label's anchor
+# What each thing is drawn in, on the viewer's near-black background; LEGEND names them.
 PERSON, LINK = (235, 130, 40), (210, 40, 40)  # as in the figures: orange persons, red links
+START, GOAL = (40, 180, 60), (240, 240, 240)
+DEMO = (240, 70, 200)  # magenta: apart from the persons' orange and the paths' green and cyan
+FINAL_PATHS, BIRL_PATHS = (30, 200, 30), (0, 190, 190)
+POSTERIOR_PATHS = (150, 150, 255)
+GRAPH_NODES, GRAPH_EDGES = (150, 150, 150), (190, 200, 225)
+OBSTACLE = (140, 140, 140)
+LABEL = (225, 225, 225)  # label text, beside its disc: never red on red, green on green
+KIND_COLORS = {"start": START, "goal": GOAL, "voronoi": (60, 110, 230), "demo": DEMO,
+               "medial": (40, 160, 170), "sampled": GRAPH_NODES}
+# Draw order, low to high: the demonstrations above the learned paths of the selected BIRL
+# iteration, both above the wide final paths (at the last iteration all three coincide).
+ORDER = {"obstacles": -10.0, "graph_edges": -5.0, "graph_nodes": -4.0, "final_paths": 20.0,
+         "birl_paths": 21.0, "demos": 22.0, "labels": 40.0}
+LEGEND = """\
+**Scene** orange discs: persons (number below; arrow: heading) · red lines: social links \
+(groups) · grey outlines: obstacles, map walls · green dots: starts s0, s1, … · white disc: goal
+
+**Paths** magenta: demonstrations · wide green: final learned paths · thin cyan: learned paths \
+at the BIRL iteration selected below · lavender: paths under posterior samples (MCMC) · grey: \
+the adaptive graph's nodes and edges
+
+**Graph growth** (tab) nodes: green start, white goal, magenta on a demonstration, blue \
+Voronoi, teal medial axis, grey sampled · gold: best paths so far
+"""
 # Distinct series colours (matplotlib's tab10): curves that share a view never look alike.
 TAB10 = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
          (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
@@ -81,8 +109,9 @@ def _log_obstacles(rec: rr.RecordingStream, outlines: list[np.ndarray]) -> None:
     """The obstacle raster's outlines (map walls, polygons), under everything else."""
     if outlines:
         rec.log("scene/obstacles", rr.LineStrips2D(_strips(outlines), radii=0.02,
-                                                   colors=(40, 40, 40),
-                                                   draw_order=-10.0), static=True, strict=True)
+                                                   colors=OBSTACLE,
+                                                   draw_order=ORDER["obstacles"]),
+                static=True, strict=True)
 
 
 def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
@@ -95,8 +124,11 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
     theta = np.array([p["theta"] for p in persons], dtype=float)
     rec.log("scene/room", rr.LineStrips2D(_strips([room]), colors=(80, 80, 80)), static=True,
             strict=True)
+    ids = [str(p["id"]) for p in persons]
+    # Every label (shown on hover) is also drawn below its disc by _log_labels: rerun draws a
+    # label in its point's colour, on the point, which is unreadable on a disc of that colour.
     rec.log("scene/persons", rr.Points2D(_xy(xy), radii=scene["body_radius"], colors=PERSON,
-                                         labels=[str(p["id"]) for p in persons]),
+                                         labels=ids, show_labels=False),
             static=True, strict=True)
     heading = HEADING_LEN * np.stack([np.cos(theta), np.sin(theta)], axis=-1)
     # Light grey: the dark grey of the (white) figures is invisible on the viewer's black.
@@ -105,12 +137,27 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
     links = [[pos[a], pos[b]] for a, b in scene["relations"]]
     rec.log("scene/links", rr.LineStrips2D(_strips(links), colors=LINK, radii=0.03),
             static=True, strict=True)
-    rec.log("scene/starts", rr.Points2D(_xy(scene["starts"]), radii=0.12,
-                                        colors=KIND_COLORS["start"],
-                                        labels=[f"s{k}" for k in range(len(scene["starts"]))]),
+    starts = [f"s{k}" for k in range(len(scene["starts"]))]
+    rec.log("scene/starts", rr.Points2D(_xy(scene["starts"]), radii=START_RADIUS, colors=START,
+                                        labels=starts, show_labels=False),
             static=True, strict=True)
-    rec.log("scene/goal", rr.Points2D(_xy([scene["goal"]]), radii=scene.get("goal_tolerance", 0.2),
-                                      colors=KIND_COLORS["goal"], labels=["goal"]),
+    goal_radius = scene.get("goal_tolerance", 0.2)
+    rec.log("scene/goal", rr.Points2D(_xy([scene["goal"]]), radii=goal_radius, colors=GOAL,
+                                      labels=["goal"], show_labels=False),
+            static=True, strict=True)
+    _log_labels(rec, [(xy, scene["body_radius"], ids),
+                      (np.asarray(scene["starts"], float), START_RADIUS, starts),
+                      (np.asarray([scene["goal"]], float), goal_radius, ["goal"])])
+
+
+def _log_labels(rec: rr.RecordingStream,
+                groups: list[tuple[np.ndarray, float, list[str]]]) -> None:
+    """The labels of discs (centres, radius, texts), light grey just below each disc."""
+    anchors = np.concatenate([np.asarray(xy, float).reshape(-1, 2) - [0.0, radius + LABEL_GAP]
+                              for xy, radius, _ in groups])
+    texts = [t for _, _, group in groups for t in group]
+    rec.log("scene/labels", rr.Points2D(_xy(anchors), radii=0.001, colors=LABEL, labels=texts,
+                                        show_labels=True, draw_order=ORDER["labels"]),
             static=True, strict=True)
 
 
@@ -119,10 +166,12 @@ def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
     best = graph.all(topics.GRAPH_BEST_PATHS)
     pos = nodes.positions
     # The final graph, static: shown beside the BIRL timeline without switching timelines.
-    rec.log("graph/final/nodes", rr.Points2D(_xy(pos), radii=0.03, colors=(150, 150, 150)),
+    rec.log("graph/final/nodes", rr.Points2D(_xy(pos), radii=0.03, colors=GRAPH_NODES,
+                                             draw_order=ORDER["graph_nodes"]),
             static=True, strict=True)
     rec.log("graph/final/edges", rr.LineStrips2D(_strips(edges.waypoints), radii=0.005,
-                                                 colors=(190, 200, 225), draw_order=-5.0),
+                                                 colors=GRAPH_EDGES,
+                                                 draw_order=ORDER["graph_edges"]),
             static=True, strict=True)
     iterations = sorted(set(nodes.added_at.tolist()) | set(edges.added_at.tolist())
                         | {b["iteration"] for b in best})
@@ -150,50 +199,76 @@ def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
     rec.reset_time()
 
 
-def _log_series_styles(rec: rr.RecordingStream, names: list[str]) -> None:
-    """Names and distinct colours of the curves (static, so every view shows them)."""
-    styles = {f"curves/policy_loss/{k}": (TAB10[i], label) for i, (k, label) in enumerate(
-        [("graph", "adaptive graph"), ("ref", "reference roadmap"), ("norm", "normalised")])}
-    styles.update({f"curves/weights/{n}": (TAB10[i % len(TAB10)], n)
-                   for i, n in enumerate(names)})
-    styles["curves/log_posterior"] = (TAB10[4], "log posterior")
-    for path, (color, label) in styles.items():
-        rec.log(path, rr.SeriesLines(colors=[color], names=[label], widths=[2.0]), static=True,
+LOSS_SERIES = {"graph": "adaptive graph", "ref": "reference roadmap", "norm": "normalised"}
+
+
+def _tint(colour: tuple[int, int, int]) -> tuple[int, ...]:
+    """The colour halfway to white: a true weight's line beside its learned weight's."""
+    return tuple((c + 255) // 2 for c in colour)
+
+
+def _log_series_styles(rec: rr.RecordingStream, names: list[str], true: dict[str, float]) -> None:
+    """Names and distinct colours of the curves (static, so every view shows them); a true
+    weight thin, in its learned weight's colour lightened."""
+    styles = {f"curves/policy_loss/{k}": (TAB10[i], label, 2.0)
+              for i, (k, label) in enumerate(LOSS_SERIES.items())}
+    for i, n in enumerate(names):
+        styles[f"curves/weights/{n}"] = (TAB10[i % len(TAB10)], n, 2.0)
+        if n in true:
+            styles[f"curves/weights_true/{n}"] = (_tint(TAB10[i % len(TAB10)]), f"{n} (true)", 1.0)
+    styles["curves/log_posterior"] = (TAB10[4], "log posterior", 2.0)
+    for path, (color, label, width) in styles.items():
+        rec.log(path, rr.SeriesLines(colors=[color], names=[label], widths=[width]), static=True,
                 strict=True)
 
 
+def true_weights(arts: dict[str, Artefact], names: list[str]) -> dict[str, float]:
+    """The demonstrator's true weight of each learned feature it has, when the run knows them
+    (synthetic experts; not file or planner demonstrations)."""
+    demos = arts.get("demos")
+    expert = demos.one(topics.DEMOS_EXPERT) if demos is not None \
+        and demos.messages.get(topics.DEMOS_EXPERT) else {}
+    if expert.get("true_weights") is None:
+        return {}
+    true = dict(zip(expert["feature_names"], expert["true_weights"], strict=True))
+    return {n: float(true[n]) for n in names if n in true}
+
+
 def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | None,
-              names: list[str]) -> None:
-    _log_series_styles(rec, names)
+              names: list[str], true: dict[str, float]) -> None:
+    _log_series_styles(rec, names, true)
     for it in birl.all(topics.BIRL_ITERATION) if birl else []:
         rec.set_time("birl_iteration", sequence=it["index"])
         paths = [g["points"] for g in it["generated"] if g.get("points")]
-        # Thin and above the other lines (default draw order 20): at the last iteration they
-        # are the final paths (eval/paths), which would hide them entirely.
-        rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.025,
-                                                      colors=(0, 190, 190), draw_order=21.0),
+        # Thinner than and above the final paths (eval/paths): at the last iteration they are
+        # the same paths, which would hide them entirely.
+        rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.03,
+                                                      colors=BIRL_PATHS,
+                                                      draw_order=ORDER["birl_paths"]),
                 strict=True)
         for i, w in enumerate(it["weights"]):
             name = names[i] if i < len(names) else f"w{i}"
             rec.log(f"curves/weights/{name}", rr.Scalars(w), strict=True)
+        for name, w in true.items():  # a flat reference line beside the learned weights
+            rec.log(f"curves/weights_true/{name}", rr.Scalars(w), strict=True)
         if it.get("log_posterior") is not None:
             rec.log("curves/log_posterior", rr.Scalars(it["log_posterior"]), strict=True)
     for loss in ev.all(topics.EVAL_POLICY_LOSS) if ev else []:
         rec.set_time("birl_iteration", sequence=loss["iteration"])
-        for key in ("graph", "ref", "norm"):
+        for key in LOSS_SERIES:
             if loss.get(key) is not None:
                 rec.log(f"curves/policy_loss/{key}", rr.Scalars(loss[key]), strict=True)
     rec.reset_time()
     if birl is not None and birl.messages.get(topics.BIRL_GRAPH_NODES):  # birl.grow_nodes > 0
         grown = codec.decode_nodes(birl, topics.BIRL_GRAPH_NODES, first_id=None)
         rec.log("birl/grown_nodes", rr.Points2D(_xy(grown.positions), radii=0.05,
-                                                colors=(0, 190, 190)), static=True, strict=True)
+                                                colors=BIRL_PATHS), static=True, strict=True)
     if ev is not None and topics.EVAL_PATHS in ev.messages:
         final = [p for p in ev.all(topics.EVAL_PATHS) if p.get("graph") == "graph" and p["points"]]
         # No labels: the starts carry them (s0, s1, ...), path labels would overlap them.
         rec.log("eval/paths", rr.LineStrips2D(
-            _strips([p["points"] for p in final]), radii=0.05, colors=(30, 200, 30)),
-            static=True, strict=True)
+            _strips([p["points"] for p in final]), radii=0.06, colors=FINAL_PATHS,
+            draw_order=ORDER["final_paths"]), static=True, strict=True)
 
 
 GROWTH = ["/graph/nodes", "/graph/edges", "/graph/best_paths"]  # on the `iteration` timeline
@@ -218,11 +293,52 @@ def _log_posterior_paths(rec: rr.RecordingStream, arts: dict[str, Artefact]) -> 
         policy = graph.mdp.solve(w).policy
         paths += [graph.polyline(graph.mdp.follow(policy, int(s))) for s in graph.start_nodes]
     rec.log("birl/posterior_paths", rr.LineStrips2D(_strips(paths), radii=0.02,
-                                                    colors=(170, 90, 200)),
+                                                    colors=POSTERIOR_PATHS),
             static=True, strict=True)
 
 
-def _blueprint(room: dict) -> rrb.Blueprint:
+# A curve view's y range leaves room above the curves for its legend (top right): this share
+# of the curves' span per legend entry, and a little more.
+LEGEND_ROW_SPAN, LEGEND_PAD_SPAN = 0.2, 0.1
+
+
+def curve_range(values: list[float], legend_rows: int) -> tuple[float, float]:
+    """The y range of a curve view: its values, a small margin below and room for its legend
+    above (the legend then never covers a curve)."""
+    lo, hi = (float(np.min(values)), float(np.max(values))) if values else (0.0, 1.0)
+    span = hi - lo if hi > lo else max(abs(hi), 1.0)
+    return lo - 0.05 * span, hi + span * (LEGEND_PAD_SPAN + LEGEND_ROW_SPAN * legend_rows)
+
+
+def curve_ranges(birl: Artefact | None, ev: Artefact | None,
+                 true: dict[str, float]) -> dict[str, tuple[float, float]]:
+    """The y range of each curve view (by its entity under /curves), from the logged values."""
+    its = birl.all(topics.BIRL_ITERATION) if birl else []
+    losses = [v for loss in (ev.all(topics.EVAL_POLICY_LOSS) if ev else [])
+              for k, v in loss.items() if k in LOSS_SERIES and v is not None]
+    weights = [w for it in its for w in it["weights"]] + list(true.values())
+    posterior = [it["log_posterior"] for it in its if it.get("log_posterior") is not None]
+    n_weights = len(its[0]["weights"]) if its else 0
+    return {"policy_loss": curve_range(losses, len(LOSS_SERIES)),
+            "weights": curve_range(weights, n_weights + len(true)),
+            "log_posterior": curve_range(posterior, 1)}
+
+
+def _curve_view(name: str, entity: str, y_range: tuple[float, float], last_iteration: int,
+                contents: list[str] | None = None) -> rrb.TimeSeriesView:
+    """A time-series view over every BIRL iteration with its legend top right, above the
+    curves (curve_range), and axes long enough for more than one labelled tick."""
+    end = rrb.TimeRangeBoundary.absolute(seq=max(last_iteration, 1))
+    return rrb.TimeSeriesView(
+        name=name, origin=f"/curves/{entity}", contents=contents or "$origin/**",
+        axis_x=rrb.TimeAxis(view_range=rrb.TimeRange(
+            start=rrb.TimeRangeBoundary.absolute(seq=0), end=end)),
+        axis_y=rrb.ScalarAxis(range=y_range),
+        plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop, visible=True))
+
+
+def _blueprint(room: dict, ranges: dict[str, tuple[float, float]],
+               last_iteration: int) -> rrb.Blueprint:
     margin = 0.5
     bounds = rrb.VisualBounds2D(  # y negated (Y_UP)
         x_range=[room["x_min"] - margin, room["x_max"] + margin],
@@ -230,7 +346,7 @@ def _blueprint(room: dict) -> rrb.Blueprint:
     # Scene, final graph, learned paths of the selected BIRL iteration and final paths.
     learning = rrb.Spatial2DView(
         name="scene and learning (BIRL timeline)", origin="/",
-        contents=["+ /**", "- /curves/**", *[f"- {p}" for p in GROWTH]],
+        contents=["+ /**", "- /curves/**", "- /legend", *[f"- {p}" for p in GROWTH]],
         visual_bounds=bounds)
     # Edges are logged once, at the iteration that added them: show all up to the cursor.
     grown = rrb.VisibleTimeRanges(timeline="iteration", start=rrb.TimeRangeBoundary.infinite(),
@@ -239,16 +355,45 @@ def _blueprint(room: dict) -> rrb.Blueprint:
         name="graph growth (iteration timeline)", origin="/",
         contents=["+ /scene/**", *[f"+ {p}" for p in GROWTH]],
         overrides={"graph/edges": grown}, visual_bounds=bounds)
-    # The loss drops from the top left: its legend goes where the curve is not.
-    curves = rrb.Vertical(rrb.TimeSeriesView(name="policy loss", origin="/curves/policy_loss",
-                                             plot_legend=rrb.Corner2D.RightTop),
-                          rrb.TimeSeriesView(name="weights", origin="/curves/weights"),
-                          rrb.TimeSeriesView(name="log posterior", origin="/curves/log_posterior"))
+    legend = rrb.TextDocumentView(name="legend", origin="/legend")
+    curves = rrb.Vertical(
+        _curve_view("policy loss", "policy_loss", ranges["policy_loss"], last_iteration),
+        _curve_view("weights (thin: true)", "weights", ranges["weights"], last_iteration,
+                    ["+ /curves/weights/**", "+ /curves/weights_true/**"]),
+        _curve_view("log posterior", "log_posterior", ranges["log_posterior"], last_iteration),
+        row_shares=[2, 3, 2])  # the weights' legend has up to twice as many entries
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Tabs(learning, growth), curves, column_shares=[3, 2]),
-        rrb.TimePanel(timeline="birl_iteration"),
+        rrb.Horizontal(rrb.Vertical(rrb.Tabs(learning, growth), legend, row_shares=[4, 1]),
+                       curves, column_shares=[3, 2]),
+        # collapsed: the time controls only, the room goes to the views
+        rrb.TimePanel(timeline="birl_iteration", state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),  # recording metadata: room for the plots
         collapse_panels=False)
+
+
+def _log_run(rec: rr.RecordingStream, scene_art: Artefact, arts: dict[str, Artefact]) -> None:
+    """The blueprint, the legend and every entity of the run's artefacts."""
+    scene = scene_art.one(topics.SCENE)
+    names = next((a.messages[t][0]["feature_names"] for a, t in
+                  ((arts.get("birl"), topics.BIRL_EXPERT), (arts.get("demos"), topics.DEMOS_EXPERT))
+                  if a is not None and a.messages.get(t)), [])
+    true = true_weights(arts, names)
+    iterations = arts["birl"].all(topics.BIRL_ITERATION) if "birl" in arts else []
+    rec.send_blueprint(_blueprint(scene["room"],
+                                  curve_ranges(arts.get("birl"), arts.get("eval"), true),
+                                  iterations[-1]["index"] if iterations else 0))
+    rec.log("legend", rr.TextDocument(LEGEND, media_type=rr.MediaType.MARKDOWN), static=True,
+            strict=True)
+    _log_scene(rec, scene)
+    _log_obstacles(rec, obstacle_outlines(codec.decode_scene(scene_art)))
+    if "demos" in arts:
+        rec.log("demos/trajectories", rr.LineStrips2D(
+            _strips([d["points"] for d in arts["demos"].all(topics.DEMOS)]), radii=0.025,
+            colors=DEMO, draw_order=ORDER["demos"]), static=True, strict=True)
+    if "graph" in arts:
+        _log_graph(rec, arts["graph"])
+    _log_birl(rec, arts.get("birl"), arts.get("eval"), names, true)
+    _log_posterior_paths(rec, arts)
 
 
 def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
@@ -257,7 +402,6 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     if not run_dir.is_dir():
         raise PipelineError(f"run dir {run_dir} does not exist or is not a directory")
     scene_art = read_artefact(run_dir / "scene.mcap")
-    scene = scene_art.one(topics.SCENE)
     arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
             if (run_dir / f"{n}.mcap").exists()}
     rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
@@ -274,21 +418,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
         except RuntimeError as e:  # the bindings report an unwritable path this way
             raise PipelineError(f"cannot write {rrd_path}: {e}") from None
         rec.send_recording_name(run_dir.resolve().name)
-        rec.send_blueprint(_blueprint(scene["room"]))
-        _log_scene(rec, scene)
-        _log_obstacles(rec, obstacle_outlines(codec.decode_scene(scene_art)))
-        if "demos" in arts:
-            rec.log("demos/trajectories", rr.LineStrips2D(
-                _strips([d["points"] for d in arts["demos"].all(topics.DEMOS)]), radii=0.03,
-                colors=(240, 150, 30)), static=True, strict=True)
-        if "graph" in arts:
-            _log_graph(rec, arts["graph"])
-        names = next((a.messages[t][0]["feature_names"] for a, t in
-                      ((arts.get("birl"), topics.BIRL_EXPERT),
-                       (arts.get("demos"), topics.DEMOS_EXPERT))
-                      if a is not None and a.messages.get(t)), [])
-        _log_birl(rec, arts.get("birl"), arts.get("eval"), names)
-        _log_posterior_paths(rec, arts)
+        _log_run(rec, scene_art, arts)
         rec.flush()
         rec.disconnect()  # closes the file sink, writing the footer
         os.replace(tmp, rrd_path)

@@ -163,7 +163,7 @@ def test_figures_are_the_same_bytes_when_saved_again(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pipeline.tools.aggregate import save_figure
+    from pipeline.app.figure_style import save_figure
 
     fig, ax = plt.subplots()
     ax.plot([0, 1], [1, 0])

@@ -11,10 +11,8 @@ import pytest
 from PIL import Image
 
 from pipeline.tools.screenshot import MARK
-from pipeline.tools.viewer import LINK, TAB10
+from pipeline.tools.viewer import DEMO, FINAL_PATHS, LINK, TAB10
 from tests.conftest import ROOT, run_in_process
-
-FINAL_PATHS = (30, 200, 30)  # eval/paths in pipeline/tools/viewer.py
 
 pytestmark = [
     pytest.mark.slow,
@@ -61,5 +59,7 @@ def test_the_viewer_draws_the_scene_and_the_curves(tmp_path):
     # final learned paths in the scene view; the policy-loss and weight curves (tab10's first
     # colours) and the log posterior (its fifth) in the plots.
     assert pixels_of(image, LINK) > 500 and pixels_of(image, FINAL_PATHS) > 500
+    # the demonstrations, drawn above the learned paths they mostly run along, show
+    assert pixels_of(image, DEMO) > 500
     for colour in (TAB10[0], TAB10[1], TAB10[2], TAB10[4]):
         assert pixels_of(image, colour) > 50, colour

@@ -122,7 +122,8 @@ def test_blueprint_has_a_2d_view_beside_time_series(rrd):
         if "ViewContents:query" in names:
             queries[path.removesuffix("/ViewContents")] = column(chunks, "ViewContents:query")[0]
     kinds = sorted(views.values())
-    assert kinds == [("2D", "/"), ("2D", "/"), ("TimeSeries", "/curves/log_posterior"),
+    assert kinds == [("2D", "/"), ("2D", "/"), ("TextDocument", "/legend"),
+                     ("TimeSeries", "/curves/log_posterior"),
                      ("TimeSeries", "/curves/policy_loss"), ("TimeSeries", "/curves/weights")]
     learning, growth = sorted((p for p, v in views.items() if v[0] == "2D"),
                               key=lambda p: "- /curves/**" not in queries[p])
@@ -252,3 +253,123 @@ def test_mcmc_run_shows_paths_under_posterior_samples(tmp_path):
     assert "/birl/posterior_paths" in chunks
     strips = column(chunks["/birl/posterior_paths"], "LineStrips2D:strips")
     assert len(strips) == 1 and len(strips[0]) == 6 * 7  # 6 posterior samples x 7 starts
+
+
+def rgb(packed: int) -> tuple[int, int, int]:
+    """An arrow-stored colour (0xRRGGBBAA) as (r, g, b)."""
+    return (packed >> 24) & 255, (packed >> 16) & 255, (packed >> 8) & 255
+
+
+def blueprint_views(rrd) -> dict[str, dict[str, list]]:
+    """Each view's space origin -> its blueprint components (column -> first row's value),
+    the view's own and those of its properties (axes, legend)."""
+    reader = RrdReader(rrd)
+    (bp,) = reader.blueprints()
+    by_view: dict[str, dict[str, list]] = defaultdict(dict)
+    for path, chunks in chunks_by_entity(rrd, store=bp).items():
+        if path.startswith("/view/"):
+            view = path.split("/")[2]
+            for name in chunks[0][1].schema.names:
+                if ":" in name:
+                    by_view[view][name] = column(chunks, name)[0]
+    return {v["ViewBlueprint:space_origin"][0]: v for v in by_view.values()
+            if "ViewBlueprint:space_origin" in v and v["ViewBlueprint:class_identifier"][0]
+            != "2D"}
+
+
+def test_the_legend_names_every_kind_of_entity(rrd):
+    chunks = chunks_by_entity(rrd)
+    (text,) = column(chunks["/legend"], "TextDocument:text")
+    assert all(static for static, _ in chunks["/legend"])
+    assert column(chunks["/legend"], "TextDocument:media_type") == [["text/markdown"]]
+    for thing in ("persons", "heading", "social links", "obstacles", "starts", "goal",
+                  "demonstrations", "final learned paths", "learned paths at the BIRL iteration",
+                  "posterior", "nodes and edges"):
+        assert thing in text[0], thing
+    assert "/legend" in blueprint_views(rrd)
+
+
+def test_labels_are_light_and_below_their_discs(run_dir, rrd):
+    from pipeline.tools.viewer import LABEL, LABEL_GAP, START_RADIUS
+
+    scene = read_artefact(run_dir / "scene.mcap").one("/scene")
+    chunks = chunks_by_entity(rrd)
+    # The discs keep their labels (hover) but do not draw them: their colour on their colour.
+    for disc in ("/scene/persons", "/scene/starts", "/scene/goal"):
+        assert column(chunks[disc], "Points2D:show_labels") == [[False]], disc
+    persons = scene["persons"]
+    texts = column(chunks["/scene/labels"], "Points2D:labels")[0]
+    assert texts == [str(p["id"]) for p in persons] + \
+        [f"s{k}" for k in range(len(scene["starts"]))] + ["goal"]
+    assert {rgb(c) for c in column(chunks["/scene/labels"], "Points2D:colors")[0]} == {LABEL}
+    assert column(chunks["/scene/labels"], "Points2D:show_labels") == [[True]]
+    below = [(p["x"], p["y"] - scene["body_radius"] - LABEL_GAP) for p in persons] + \
+        [(x, y - START_RADIUS - LABEL_GAP) for x, y in scene["starts"]] + \
+        [(scene["goal"][0], scene["goal"][1] - scene["goal_tolerance"] - LABEL_GAP)]
+    np.testing.assert_allclose(column(chunks["/scene/labels"], "Points2D:positions")[0],
+                               np.array(below) * [1, -1], rtol=1e-6)
+
+
+def test_demonstrations_are_drawn_above_the_learned_paths(rrd):
+    chunks = chunks_by_entity(rrd)
+
+    def drawn(path):
+        return (column(chunks[path], "LineStrips2D:draw_order")[0][0],
+                column(chunks[path], "LineStrips2D:radii")[0][0])
+
+    (demos, demo_radius), (learned, learned_radius), (final, final_radius) = (
+        drawn(p) for p in ("/demos/trajectories", "/birl/learned_paths", "/eval/paths"))
+    assert demos > learned > final  # the final paths widest and lowest, all three visible
+    assert demo_radius < learned_radius < final_radius
+
+
+def test_true_weights_are_reference_lines_beside_the_weights(run_dir, rrd):
+    expert = read_artefact(run_dir / "demos.mcap").one("/demos/expert")
+    true = dict(zip(expert["feature_names"], expert["true_weights"], strict=True))
+    its = read_artefact(run_dir / "birl.mcap").all("/birl/iteration")
+    chunks = chunks_by_entity(rrd)
+    for name, w in true.items():
+        series = chunks[f"/curves/weights_true/{name}"]
+        assert column(series, "birl_iteration") == [it["index"] for it in its]
+        np.testing.assert_allclose([v[0] for v in column(series, "Scalars:scalars")],
+                                   [w] * len(its))
+        assert column(series, "SeriesLines:names") == [[f"{name} (true)"]]
+    weights = blueprint_views(rrd)["/curves/weights"]
+    assert "+ /curves/weights_true/**" in weights["ViewContents:query"]
+
+
+def test_a_run_without_true_weights_has_no_reference_lines(run_dir, tmp_path):
+    for name in ("scene", "graph", "birl", "eval"):  # no demos.mcap: no expert, no w*
+        (tmp_path / f"{name}.mcap").write_bytes((run_dir / f"{name}.mcap").read_bytes())
+    paths = set(RrdReader(build_recording(tmp_path)).store().schema().entity_paths())
+    assert "/curves/weights/relation" in paths
+    assert not any(p.startswith("/curves/weights_true") for p in paths)
+
+
+def test_curve_axes_span_every_iteration_and_leave_room_for_the_legend(run_dir, rrd):
+    from pipeline.tools.viewer import LEGEND_ROW_SPAN
+
+    its = read_artefact(run_dir / "birl.mcap").all("/birl/iteration")
+    chunks = chunks_by_entity(rrd)
+    views = blueprint_views(rrd)
+    for origin, entities in (("/curves/policy_loss", ["/curves/policy_loss/"]),
+                             ("/curves/weights", ["/curves/weights/", "/curves/weights_true/"]),
+                             ("/curves/log_posterior", ["/curves/log_posterior"])):
+        view = views[origin]
+        series = [p for p in chunks if any(p.startswith(e) for e in entities)]
+        values = [v[0] for p in series for v in column(chunks[p], "Scalars:scalars")]
+        lo, hi = view["ScalarAxis:range"][0]
+        # every value inside; above them a band for the legend's entries, top right
+        assert lo < min(values) and hi - max(values) >= \
+            LEGEND_ROW_SPAN * len(series) * (max(values) - min(values)), origin
+        assert view["PlotLegend:corner"] == [2] and view["PlotLegend:visible"] == [True]
+        assert view["TimeAxis:view_range"] == [{"start": 0, "end": its[-1]["index"]}], origin
+
+
+def test_curve_range_by_hand():
+    from pipeline.tools.viewer import curve_range
+
+    # span 1: 5 % below, 0.1 + 0.2 per legend entry above
+    np.testing.assert_allclose(curve_range([0.0, 1.0], 3), (-0.05, 1.7))
+    np.testing.assert_allclose(curve_range([-2.0, -2.0], 1), (-2.1, -1.4))  # flat: span |v|
+    np.testing.assert_allclose(curve_range([], 1), (-0.05, 1.3))  # no values: 0 to 1
