@@ -22,6 +22,7 @@ import contextlib
 import dataclasses
 import inspect
 import io
+import json
 import logging
 import math
 import re
@@ -88,6 +89,7 @@ def _public(comment: str) -> str:
     and without mypy's pragmas."""
     comment = re.sub(r"type: ignore\[[\w-]+\]", "", comment)
     comment = re.sub(r"\s*\(?DESIGN §[\d.]+[^,;:)]*\)?", "", comment)
+    comment = re.sub(r';?\s*README "[^"]+"', "", comment)  # the README keeps no such section
     return re.sub(r"\s+", " ", comment).strip(" ;,")
 
 
@@ -443,11 +445,14 @@ SAMPLE_RUN_DIR = "outputs/<date>/<time>"
 
 
 def default_run_metrics() -> dict[str, float]:
-    """metrics.json of the default experiment, run in-process into a temporary dir."""
-    from pipeline import api
+    """metrics.json of the default experiment, run in-process (as `make experiment` runs
+    it, without the subprocess) into a temporary dir."""
+    from pipeline.stages import run_pipeline
 
     with tempfile.TemporaryDirectory() as tmp, contextlib.redirect_stdout(io.StringIO()):
-        return api.run([], run_dir=Path(tmp) / "run").metrics
+        run_dir = Path(tmp) / "run"
+        run_pipeline(compose_config(), run_dir)
+        return json.loads((run_dir / "metrics.json").read_text())
 
 
 def sample_output(metrics: dict[str, float]) -> str:
