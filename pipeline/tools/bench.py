@@ -388,7 +388,7 @@ def plot_loss_vs_time(curves: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-# Imperfect demonstrations (docs/benchmarks/index.md, "Imperfect demonstrations"): condition -> overrides.
+# Imperfect demonstrations (docs/benchmarks/index.md): condition -> overrides.
 IMPERFECT = {
     "optimal": ["expert=optimal"],
     "optimal_random": ["scene=random", "expert=optimal"],
