@@ -7,15 +7,15 @@ from __future__ import annotations
 
 import re
 
-from pipeline.core.social import PATH_METRICS
+from pipeline.core.social import INTIMATE_ZONE, PATH_METRICS, PERSONAL_ZONE
 
 # What each social metric of a path measures; PATH_METRICS says how the paths from all
 # starts combine into the run's value.
 PATH_METRIC_MEANING: dict[str, str] = {
     "relation_crossings": "crossings of the path with social links (the segment between two "
                           "related persons)",
-    "intimate_intrusion_m": "metres of path inside a person's intimate zone (0.45 m)",
-    "personal_intrusion_m": "metres of path inside a person's personal zone (1.2 m)",
+    "intimate_intrusion_m": f"metres of path inside a person's intimate zone ({INTIMATE_ZONE} m)",
+    "personal_intrusion_m": f"metres of path inside a person's personal zone ({PERSONAL_ZONE} m)",
     "min_distance_to_person": "smallest distance from the path to a person's centre, m",
     "path_length": "length of the path, m",
     "time_to_goal": "duration of the path, s",

@@ -305,6 +305,8 @@ A method's or an expert's keys exist only under its preset: `birl=maxent birl.al
 
 
 def config_reference() -> str:
+    """The configuration reference page: the top-level keys, each group's presets and keys,
+    and the sections without presets."""
     register_configs()
     out = [CONFIG_INTRO.format(note=GENERATED_NOTE.format(
         source="pipeline/app/config.py, the parameter classes it builds on and conf/")),
@@ -363,6 +365,7 @@ a stage.
 
 
 def metrics_reference() -> str:
+    """The metrics.json page: every key pattern with what it holds, then the path metrics."""
     missing = set(PATH_METRICS) - set(PATH_METRIC_MEANING)
     if missing:
         raise PipelineError(f"pipeline.app.metric_keys: no meaning for {sorted(missing)}")
@@ -420,6 +423,7 @@ The tables under `results/bench/`, as committed, each with the command that made
 
 
 def benchmark_tables() -> str:
+    """The tables page: each results/bench CSV (or, when long, its columns) and its command."""
     out = [BENCH_INTRO.format(note=GENERATED_NOTE.format(source="results/bench/*.csv"))]
     for path in sorted(BENCH.glob("*.csv")):
         table = pd.read_csv(path)
