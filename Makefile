@@ -25,7 +25,7 @@ SWEEP_DIR := $(or $(SWEEP),multirun/$(EXP)/$(shell date +%Y-%m-%d_%H-%M-%S-%N))
 RUN ?=
 SHOT ?=
 
-.PHONY: experiment test test-all lint clean bench figures sweep aggregate view screenshot regress export lock
+.PHONY: experiment test test-all lint clean bench figures sweep aggregate view screenshot regress export lock docs docs-gen
 
 $(STAMP): pyproject.toml uv.lock | $(UV_STAMP)
 	@echo "make: installing the package and its locked dependencies into $(VENV) (first time ~30 s) ..."
@@ -113,9 +113,20 @@ lint: $(VENV)/.installed-dev
 	$(VENV)/bin/ruff check pipeline tests
 	$(VENV)/bin/mypy
 
+## The documentation site (MkDocs, Material theme) into site/, from the committed pages:
+## a broken link or a missing page fails it (--strict). The docs extra installs on first use.
+docs: $(VENV)/.installed-docs
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
+	@echo "make: the site is in site/ (open site/index.html)"
+
+## Regenerate the generated pages (configuration reference, metrics.json keys, benchmark
+## tables) and README.md's sample output, which runs the default experiment once.
+docs-gen: $(STAMP)
+	$(PY) -m pipeline.tools.docs
+
 ## Remove the venv, run outputs and caches (not results/).
 clean:
-	rm -rf $(VENV) outputs multirun .pytest_cache *.egg-info
+	rm -rf $(VENV) outputs multirun site .pytest_cache *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
 ## Every committed figure under results/ redrawn from its committed table, in the shared

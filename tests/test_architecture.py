@@ -1,4 +1,4 @@
-"""The package layers (README "What is inside"): imports only point down.
+"""The package layers (docs/architecture.md): imports only point down.
 
     errors  <  core  <  irl | inputs | artefacts  <  app  <  stages  <  tools, __main__
 

@@ -52,7 +52,7 @@ from pipeline.irl.prior import broadcast
 @dataclass
 class FileSceneConfig(BodyParams):
     kind: str = "file"
-    path: str = MISSING  # scene JSON (DESIGN §3); relative paths: cwd, then project root
+    path: str = MISSING  # scene JSON; relative paths: cwd, then the package data
     # null: the scene file's value (or the world model's default)
     body_radius: Optional[float] = None
     goal_tolerance: Optional[float] = None
@@ -115,7 +115,7 @@ class OptimalExpertConfig(ExpertConfig):
 
 @dataclass
 class NoExpertConfig(ExpertConfig):
-    """No demonstrations (DESIGN §9 deployment): the graph grows from the scene alone and a
+    """No demonstrations (deployment): the graph grows from the scene alone and a
     given reward is planned with (birl=fixed)."""
     kind: str = "none"
 
@@ -132,7 +132,7 @@ class BoltzmannExpertConfig(ExpertConfig, BoltzmannParams):
 @dataclass
 class FileExpertConfig(ExpertConfig):
     kind: str = "file"
-    path: str = MISSING  # demonstrations (DESIGN §3): .json, .csv, a ROS bag (dir, .mcap, .bag)
+    path: str = MISSING  # demonstrations: .json, .csv, a ROS bag (dir, .mcap, .bag)
     topic: Optional[str] = None  # bag topic; null: the only usable one
     frame: Optional[str] = None  # required header.frame_id of bag messages; null: any
     start_radius: float = 1.0  # m, a demonstration begins this close to a start
@@ -180,8 +180,8 @@ class GraphConfig(GraphParams):
     # that is more; a number is used as given (and refused when it is too few)
     max_nodes: Optional[int] = None  # type: ignore[assignment]
     # Reward that drives the growth: null = the learner's initial weights (the prior's
-    # mean within the bounds); true = the expert's true weights (oracle mode, DESIGN §7);
-    # or one number per feature. Typed Any because DESIGN fixes `true` | list | null.
+    # mean within the bounds); true = the expert's true weights (oracle mode, as in the
+    # authors' experiments); or one number per feature. Typed Any: `true`, a list or null.
     weights: Any = None
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 
@@ -196,10 +196,10 @@ class GraphConfig(GraphParams):
 
 @dataclass
 class EvaluateConfig:
-    # DESIGN §9 Transfer: scene files on which the learned reward is also planned with and
+    # Transfer: scene files on which the learned reward is also planned with and
     # scored (reference roadmap of each), as transfer_<scene>_<metric> keys
     transfer_scenes: list[str] = field(default_factory=list)
-    # DESIGN §9 held-out demonstrations, kept out of the graph and the likelihood: null
+    # Held-out demonstrations, kept out of the graph and the likelihood: null
     # (none), a fraction (e.g. 0.3, drawn with the run's seed per start that has several),
     # a list of subject ids of the demonstration file's `subjects`, or all (a deployed
     # reward, birl=fixed, judged on demonstrations it never saw). Typed Any: a number, a
@@ -229,7 +229,8 @@ OBJECTIVE_EXAMPLES = ("policy_loss_norm", "policy_loss", "policy_loss_ref", "suc
 
 @dataclass
 class Config:
-    seed: int = 0
+    seed: int = 0  # the run seed: every random draw of every stage derives from it
+    # the stages to run, always in pipeline order; the others' artefacts come from from_run
     stages: list[str] = field(default_factory=lambda: list(STAGES))
     from_run: Optional[str] = None  # run dir whose artefacts feed stages not run now
     objective: str = "policy_loss_norm"  # metric a sweep job returns to a sweeper (Optuna)

@@ -1,23 +1,59 @@
-"""The metrics.json keys (written by the evaluate stage), as patterns: a sweep's `objective`
-must name one, and a sweep's table (pipeline.app.summary) tells metrics from settings by
-them. Apart from pipeline.app.config so the table needs none of the run's imports."""
+"""The metrics.json keys (written by the evaluate stage), as patterns with what each holds: a
+sweep's `objective` must name one, a sweep's table (pipeline.app.summary) tells metrics from
+settings by them, and the docs' metrics page is generated from them (pipeline.tools.docs).
+Apart from pipeline.app.config so the table needs none of the run's imports."""
 
 from __future__ import annotations
 
 import re
 
-from pipeline.core.social import PATH_METRICS
+from pipeline.core.social import INTIMATE_ZONE, PATH_METRICS, PERSONAL_ZONE
+
+# What each social metric of a path measures; PATH_METRICS says how the paths from all
+# starts combine into the run's value.
+PATH_METRIC_MEANING: dict[str, str] = {
+    "relation_crossings": "crossings of the path with social links (the segment between two "
+                          "related persons)",
+    "intimate_intrusion_m": f"metres of path inside a person's intimate zone ({INTIMATE_ZONE} m)",
+    "personal_intrusion_m": f"metres of path inside a person's personal zone ({PERSONAL_ZONE} m)",
+    "min_distance_to_person": "smallest distance from the path to a person's centre, m",
+    "path_length": "length of the path, m",
+    "time_to_goal": "duration of the path, s",
+    "success": "1 when the path reaches the goal, else 0",
+    "obstacle_collisions": "1 when the path comes closer than `robot_radius` to an "
+                           "obstacle, else 0 (scenes with obstacles only)",
+    "min_distance_to_obstacle": "smallest clearance along the path, m (scenes with "
+                                "obstacles only)",
+}
 
 # Tests check real runs' metrics.json against them (test_transfer, test_learning), so
 # the two stay in step.
 _PATH = "(" + "|".join(PATH_METRICS) + ")"
-METRIC_KEYS = (
-    rf"(ref_)?{_PATH}", rf"transfer_.+_(policy_loss(_norm)?|{_PATH})",
-    r"policy_loss(_ref)?(_initial|_rude|_iter_\d+)?", r"policy_loss_norm",
-    r"weight_((std|rhat|ess)_)?\w+", r"mcmc_(acceptance_rate|ess_min|rhat_max)",
-    r"frechet_to_demos(_max)?", r"time_\w+_s", r"graph_demo_node_share",
-    r"heldout_(count|(frechet_m|min_distance_error_m)(_shortest)?)",
-)
+METRIC_KEYS: dict[str, str] = {
+    rf"(ref_)?{_PATH}": "a social metric of the learned paths (below) on the adaptive graph; "
+                        "`ref_`: on the reference roadmap",
+    rf"transfer_.+_(policy_loss(_norm)?|{_PATH})": "`evaluate.transfer_scenes`: the learned "
+        "weights planned with on another scene's roadmap (its name in the key)",
+    r"policy_loss(_ref)?(_initial|_iter_\d+)?": "policy loss on the adaptive graph (`_ref`: "
+        "on the reference roadmap) of the final weights, the initial ones, or iteration NN's; "
+        "synthetic experts only",
+    r"policy_loss_ref_(polite|rude)": "the roadmap policy loss of the contrasting behaviour "
+                                      "(rude; polite when the true reward is rude)",
+    r"policy_loss_norm": "the roadmap policy loss divided by the contrasting behaviour's: "
+                         "0 is the expert, 1 as bad as the contrast",
+    r"weight_((std|rhat|ess)_)?\w+": "the learned weight of a feature; sampling methods also "
+                                     "its posterior std, split R-hat and bulk ESS",
+    r"mcmc_(acceptance_rate|ess_min|rhat_max)": "sampling methods: acceptance rate, smallest "
+                                                "ESS and largest R-hat over the weights",
+    r"frechet_to_demos(_max)?": "demonstrations without a true reward: mean (max) discrete "
+                                "Fréchet distance of the learned paths to them, m",
+    r"time_\w+_s": "wall-clock seconds of a stage (or a part of one); never in an artefact",
+    r"graph_demo_node_share": "share of the adaptive graph's nodes that are demonstration "
+                              "waypoints",
+    r"heldout_(count|(frechet_m|min_distance_error_m)(_shortest)?)": "`evaluate.holdout`: "
+        "the held-out demonstrations, their median Fréchet distance to the learned paths and "
+        "median error of the smallest distance to a person (`_shortest`: of the fastest path)",
+}
 
 
 def is_metric_key(key: str) -> bool:

@@ -44,7 +44,7 @@ def summary_table(sweep_dir: Path) -> pd.DataFrame:
     return table[column_order(list(table.columns))]
 
 
-# summary.csv column order (README "Sweeps, tables and figures"): the job and its outcome,
+# summary.csv column order (docs/outputs.md, "Sweeps"): the job and its outcome,
 # the swept settings, the headline metrics, the social metrics (graph, then roadmap), the
 # learned weights, everything else, the per-iteration curves, the wall-clock timings.
 HEADLINE = ["policy_loss_norm", "policy_loss", "policy_loss_ref"]

@@ -289,6 +289,12 @@ def worse_than_initial(m: dict) -> list[str]:
 
 
 def print_summary(m: dict, ctx: RunContext) -> None:
+    print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features), flush=True)
+
+
+def summary_text(m: dict, run_dir: str, learner_features: list[str]) -> str:
+    """The one screen a run ends with, from its metrics (the docs generator prints the same
+    for the README's sample output)."""
     def fmt(key: str, spec: str = ".4f") -> str:
         v = m.get(key)
         return "n/a" if v is None else format(v, spec)
@@ -305,8 +311,8 @@ def print_summary(m: dict, ctx: RunContext) -> None:
         std = m.get(f"weight_std_{n}")
         return f"{n} {fmt('weight_' + n, '.3f')}" + ("" if std is None else f" ± {std:.3f}")
 
-    lines = [f"BIRL-G run: {ctx.run_dir}",
-             "  learned weights  " + ", ".join(weight(n) for n in ctx.cfg.learner_features)]
+    lines = [f"BIRL-G run: {run_dir}",
+             "  learned weights  " + ", ".join(weight(n) for n in learner_features)]
     if "mcmc_acceptance_rate" in m:
         lines.append(f"  posterior        R-hat max {fmt('mcmc_rhat_max', '.3f')}, ESS min "
                      f"{fmt('mcmc_ess_min', '.0f')}, acceptance "
@@ -335,4 +341,4 @@ def print_summary(m: dict, ctx: RunContext) -> None:
                      "(on the graph that holds them)")
     lines.append("  stage seconds    " + ", ".join(
         f"{stage} {m[f'time_{stage}_s']:.2f}" for stage in STAGES if f"time_{stage}_s" in m))
-    print("\n".join(lines), flush=True)
+    return "\n".join(lines)

@@ -394,7 +394,7 @@ def plot_loss_vs_time(curves_csv: Path, path: Path) -> None:
         save_figure(fig, path, [curves_csv])
 
 
-# Imperfect demonstrations (README "Imperfect demonstrations"): condition -> overrides.
+# Imperfect demonstrations (docs/benchmarks/index.md): condition -> overrides.
 IMPERFECT = {
     "optimal": ["expert=optimal"],
     "optimal_random": ["scene=random", "expert=optimal"],

@@ -60,8 +60,8 @@ def test_rude_expert_learns_to_cross_links(tmp_path_factory):
 @pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow),
                                   pytest.param(3, marks=pytest.mark.slow)])
 def test_random_scenes(tmp_path_factory, seed):
-    # Both forms learn optimal demonstrations on random scenes (README "Imperfect
-    # demonstrations": the robust form keeps an admissible eq. (2) iterate here).
+    # Both forms learn optimal demonstrations on random scenes (docs/methods.md, "The robust
+    # form": it keeps an admissible eq. (2) iterate here).
     for likelihood, bound in (("paper", 0.02), ("robust", 0.02)):
         _, m, _ = run_experiment(tmp_path_factory, "scene=random", f"seed={seed}",
                                  f"birl.likelihood={likelihood}")

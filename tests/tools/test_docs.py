@@ -1,0 +1,64 @@
+"""The documentation does not go stale: the README's sample output is what the default run
+prints, the generated pages are what the generator writes now, and the README keeps the
+newcomer's five jobs near its top with links that resolve (pipeline.tools.docs)."""
+
+import re
+
+import pytest
+
+from pipeline.tools import docs
+from tests.conftest import ROOT
+
+README = ROOT / "README.md"
+REGENERATE = "regenerate with `make docs-gen` (python -m pipeline.tools.docs) and commit"
+
+# The newcomer's five jobs, each with a command to copy, within the README's first lines.
+JOB_COMMANDS = {
+    "run the default experiment": ("make experiment", 'make experiment ARGS="'),
+    "your own scene or ROS map": ("scene=file scene.path=", '"map":'),
+    "your own demonstrations (file, ROS bag)": ("expert=file expert.path=", "expert.topic="),
+    "a sweep and its table": ("make sweep EXP=quick", "make aggregate SWEEP="),
+    "view a run offline": ("make view RUN=",),
+}
+README_MAX_LINES, JOBS_WITHIN = 300, 150
+
+
+def test_readme_sample_output_is_what_the_default_run_prints(default_run):
+    run_dir, metrics, printed = default_run
+    expected = docs.sample_output(metrics)
+    # the formatting the generator reuses is the one the run printed
+    assert printed.strip().endswith(expected.replace(docs.SAMPLE_RUN_DIR, str(run_dir), 1))
+    shown = docs.sample_block(README.read_text()).splitlines()
+    expected_lines = expected.splitlines()
+    assert [line.split()[:2] for line in shown] == [line.split()[:2] for line in expected_lines]
+    for line, want in zip(shown, expected_lines, strict=True):
+        if "stage seconds" in line:  # wall-clock: the stages must match, not the seconds
+            assert re.sub(r"\d+\.\d+", "#", line) == re.sub(r"\d+\.\d+", "#", want), REGENERATE
+        else:
+            assert line == want, f"README.md's sample output is stale: {REGENERATE}"
+
+
+@pytest.mark.parametrize("relative", list(docs.PAGES))
+def test_generated_page_is_current(relative):
+    with docs.quiet_logging():
+        expected = docs.PAGES[relative]()
+    assert (ROOT / relative).read_text() == expected, f"{relative} is stale: {REGENERATE}"
+
+
+def test_readme_is_short_with_contents_and_the_five_jobs_near_the_top():
+    lines = README.read_text().splitlines()
+    assert len(lines) <= README_MAX_LINES
+    assert any(re.fullmatch(r"#+ (Table of )?[Cc]ontents", line) for line in lines[:40])
+    top = "\n".join(lines[:JOBS_WITHIN])
+    for job, commands in JOB_COMMANDS.items():
+        missing = [c for c in commands if c not in top]
+        assert not missing, f"README.md: {job}: {missing} not in its first {JOBS_WITHIN} lines"
+
+
+def test_readme_relative_links_resolve():
+    text = README.read_text()
+    targets = re.findall(r"\]\(([^)\s]+)\)", text) + re.findall(r'src="([^"]+)"', text)
+    relative = [t.split("#")[0] for t in targets if not re.match(r"[a-z]+:|#", t)]
+    assert relative, "README.md links to no file of the repository"
+    missing = [t for t in relative if not (ROOT / t).exists()]
+    assert not missing, f"README.md links to missing files: {missing}"
