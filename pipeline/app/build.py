@@ -141,23 +141,36 @@ def feature_model(cfg: Config, scene: Scene) -> FeatureModel:
     return FeatureModel.from_scene(scene, cfg.reward)
 
 
-def learner_feature_model(cfg: Config, scene: Scene) -> FeatureModel:
-    """The features the reward is learned on (Config.learner_features), with the reward's
-    constants (ρ_r, ρ_p, σ, ...)."""
+def learner_feature_model(cfg: Config, scene: Scene,
+                          names: list[str] | None = None) -> FeatureModel:
+    """The features the reward is learned on (Config.learner_features), or `names`, with the
+    reward's constants (ρ_r, ρ_p, σ, ...)."""
     params = FeatureParams(**{f.name: getattr(cfg.reward, f.name)
                               for f in dataclasses.fields(FeatureParams)})
-    return FeatureModel.from_scene(scene, dataclasses.replace(params,
-                                                              features=cfg.learner_features))
+    chosen = cfg.learner_features if names is None else names
+    return FeatureModel.from_scene(scene, dataclasses.replace(params, features=chosen))
 
 
-def roadmap_on_learner_features(cfg: Config, scene: Scene, roadmap: SpatialGraph) -> SpatialGraph:
-    """The reference roadmap (stored with the true reward's features) with the learner's
-    features instead, computed from its straight edges; itself when the two sets agree."""
-    if cfg.learner_features == list(cfg.reward.features):
-        return roadmap
-    m = roadmap.mdp
-    return roadmap.with_features(learner_feature_model(cfg, scene).segments(
-        roadmap.positions[m.src], roadmap.positions[m.dst]))
+def with_named_features(cfg: Config, scene: Scene, graph: SpatialGraph, have: list[str],
+                        want: list[str]) -> SpatialGraph:
+    """`graph`, whose edge features are the features `have`, with the features `want`
+    instead: the columns it holds are reused (the same name is the same feature: both sets
+    take the reward's constants), the others integrated along its edges' driven paths."""
+    if want == have:
+        return graph
+    missing = [n for n in want if n not in have]
+    m = graph.mdp
+    computed = None
+    if missing:
+        model, ways = learner_feature_model(cfg, scene, missing), graph.internal_waypoints()
+        if all(len(w) == 2 for w in ways):  # straight edges (the roadmap): one batch
+            computed = model.segments(graph.positions[m.src], graph.positions[m.dst])
+        else:
+            computed = model.polylines(ways)
+    features = m.features
+    columns = [features[:, have.index(n)] if n in have else computed[:, missing.index(n)]
+               for n in want]
+    return graph.with_features(np.column_stack(columns).reshape(len(features), len(want)))
 
 
 def unreachable_message(scene: Scene, cut_off: list[int], spacing: float) -> str:

@@ -73,7 +73,8 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         if cfg.graph.weights in (True, "true") and "graph" in stages:
             raise PipelineError("config error: graph.weights=true needs true weights, but the "
                                 "demonstrations come from a file (expert=file)")
-    derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl"})
+    # evaluate too: its inputs were made with the derived value, which it must match
+    derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl", "evaluate"})
     facts = scene_facts(cfg, run_dir, from_run) if stages - {"birl"} or derive_graph else None
     if facts is not None and "demos" in stages:
         check_roadmap_size(cfg, facts)

@@ -79,7 +79,8 @@ def run(ctx: RunContext) -> None:
     def roadmap() -> SpatialGraph:
         art = ctx.read("demos", required_topics=[topics.DEMOS_ROADMAP])
         scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
-        return build.roadmap_on_learner_features(cfg, scene, codec.decode_roadmap(art, cfg.mdp))
+        return build.with_named_features(cfg, scene, codec.decode_roadmap(art, cfg.mdp),
+                                         list(cfg.reward.features), cfg.learner_features)
 
     def progress(it: Iteration) -> None:
         reached = sum(t.reached for t in it.generated)

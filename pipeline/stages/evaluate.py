@@ -66,13 +66,11 @@ class Views:
 def feature_views(ctx: RunContext, scene: Scene, roadmap: SpatialGraph,
                   graph: SpatialGraph) -> tuple[Views, Views]:
     """The reference roadmap (stored with the true features) and the adaptive graph (stored
-    with the learner's), each with the other feature set computed from its edges' paths."""
+    with the learner's), each also with the other feature set (`with_named_features`)."""
     cfg = ctx.cfg
-    if cfg.learner_features == list(cfg.reward.features):
-        return Views(roadmap, roadmap), Views(graph, graph)
-    ref = Views(roadmap, build.roadmap_on_learner_features(cfg, scene, roadmap))
-    true_fm = build.feature_model(cfg, scene)
-    return ref, Views(graph.with_features(true_fm.polylines(graph.internal_waypoints())), graph)
+    true, learner = list(cfg.reward.features), cfg.learner_features
+    return (Views(roadmap, build.with_named_features(cfg, scene, roadmap, true, learner)),
+            Views(build.with_named_features(cfg, scene, graph, learner, true), graph))
 
 
 def summed_path_metrics(graph: SpatialGraph, policy: np.ndarray, scene: Scene,

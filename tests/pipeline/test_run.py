@@ -133,3 +133,11 @@ def test_demos_stage_writes_k_noisy_demos_per_start(tmp_path):
     demos = read_artefact(tmp_path / "demos.mcap").all("/demos")
     assert [d["start_index"] for d in demos] == [0, 0, 0, 1, 1, 1]
     assert len({len(d["points"]) for d in demos[:3]}) > 1  # three different walks
+
+
+def test_evaluate_alone_on_a_run_with_a_derived_graph_size(default_run, tmp_path):
+    """graph.max_nodes left null is derived from the scene; stage evaluate alone derives it
+    too, so the earlier run's artefacts match and score the same."""
+    run_dir, metrics = default_run[0], default_run[1]
+    again, _ = run_in_process(tmp_path, "stages=[evaluate]", f"from_run={run_dir}")
+    assert again["policy_loss_norm"] == metrics["policy_loss_norm"]
