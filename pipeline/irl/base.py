@@ -31,8 +31,8 @@ class IRLConfig(BoxConfig):
     kind: str = ""  # the method's registry name; each subclass fixes its default
     n_iterations: int = 20
     init_weights: Optional[list[float]] = None  # null: drawn from the prior with the seed
-    # The learner's features (names as reward.features, e.g. social@0.8); null: the true
-    # reward's for synthetic experts, the default set for demonstrations of people
+    # The learner's features (names as reward.features, e.g. social@0.8); null:
+    # reward.features and crossing, for every demonstrator
     features: Optional[list[str]] = None
 
     def __post_init__(self) -> None:

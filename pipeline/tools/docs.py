@@ -386,6 +386,10 @@ def metrics_reference() -> str:
 BENCH = PROJECT_ROOT / "results" / "bench"
 MAX_ROWS = 50  # longer tables are one row per run: the page names them, their summaries show
 
+LEARNER_FEATURES_COMMAND = (
+    "python -m pipeline.tools.bench_learning --table learner_features --demonstrators "
+    "handdrawn planner_heldout planner_transfer --seeds 0 1 2 3 4 --learners default "
+    "paper_features rich_features hinge_features gaussian_features")
 # The tables `python -m pipeline.tools.bench SUITE` writes are found in its SUITES; the
 # other tools' tables are these.
 OTHER_MAKERS = {
@@ -394,6 +398,8 @@ OTHER_MAKERS = {
     "scaling_exponents.csv": "python -m pipeline.tools.bench_scaling",
     "learning.csv": "python -m pipeline.tools.bench_learning",
     "learning_summary.csv": "python -m pipeline.tools.bench_learning",
+    "learner_features.csv": LEARNER_FEATURES_COMMAND,
+    "learner_features_summary.csv": LEARNER_FEATURES_COMMAND,
     "imperfect_summary.csv": "python -m pipeline.tools.bench imperfect",
     "irl_methods_curves.csv": "python -m pipeline.tools.bench irl",
     "install.csv": "by hand: each row's command is in its `command` column",
