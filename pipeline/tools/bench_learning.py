@@ -187,7 +187,8 @@ def plot(learning_csv: Path, path: Path) -> None:
         ax.set_ylabel(f"normalised policy loss (roadmap;\nbelow $10^{{{FLOOR_EXPONENT}}}$ drawn "
                       "there)")
         ax.grid(axis="y", which="major")
-        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles))
+        # two rows: the five keys do not fit one row at 7 in
+        fig.legend(handles=handles, loc="outside lower center", ncol=3)
         save_figure(fig, path, [learning_csv])
 
 
