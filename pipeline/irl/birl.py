@@ -121,8 +121,7 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     log p(iterate)) ≤ χ²_{d+1}. The estimate is the admissible iterate of highest eq. (2)
     posterior given all generated trajectories, or the MAP if none is. Eq. (2)'s loop
     starts at the MAP, not at birl.init_weights: a weight the demonstrations say nothing
-    about stays where it starts, at the prior's centre rather than at a random draw (on
-    metropolis, optimal experts, seeds 0-9: 10 of 10 at a loss <= 0.005 against 8). Optimal
+    about stays where it starts, at the prior's centre rather than at a random draw. Optimal
     demonstrations keep eq. (2)'s sharper estimate; noisy ones, which eq. (2) collapses
     towards w = 0, get the Boltzmann MAP. Iteration n records the choice among the MAP and
     iterates 1..n."""

@@ -23,7 +23,7 @@ def polite(default_run):
 def test_polite_expert_is_learned_on_metropolis(polite):
     run_dir, m, stdout = polite
     print({k: m[k] for k in ("policy_loss", "policy_loss_ref", "policy_loss_norm")})
-    assert m["policy_loss_norm"] <= 0.02
+    assert m["policy_loss_norm"] <= 0.005  # the target for optimal experts
     assert m["relation_crossings"] == 0 and m["ref_relation_crossings"] == 0
     assert m["success"] == 1.0
     assert m["policy_loss"] < m["policy_loss_initial"]
@@ -205,14 +205,6 @@ def test_a_final_loss_better_than_the_initial_one_gets_no_warning(polite):
 
 # The default learner's targets on cases that once failed (results/bench/learning.csv).
 
-def test_an_optimal_expert_is_learned_where_an_unidentified_weight_used_to_drift(tmp_path):
-    """Metropolis seed 6: the demonstrations never come near a link. Eq. (2)'s iterates
-    drifted towards relation alone (0.0128); started at the Boltzmann MAP, with crossing
-    beside relation, the learner stays within 0.005 of the optimal policy's value."""
-    m, _ = run_in_process(tmp_path, "seed=6")
-    assert m["policy_loss_norm"] <= 0.005 and m["ref_relation_crossings"] == 0
-
-
 def test_a_noisy_expert_is_learned_within_the_target(tmp_path):
     m, _ = run_in_process(tmp_path, "expert=boltzmann", "expert.beta=20")
     assert m["policy_loss_norm"] <= 0.05 and m["ref_relation_crossings"] == 0
@@ -221,10 +213,12 @@ def test_a_noisy_expert_is_learned_within_the_target(tmp_path):
 def test_hand_drawn_paths_teach_not_to_cut_through_links(tmp_path):
     """Seed 1 of the hand-drawn set: with the crossing feature the learned reward plans no
     crossing on the roadmap; with relation alone (the paper's four) it cuts through four
-    links, because the drawers graze links and relation charges grazing like cutting."""
+    links, because the drawers graze links and relation charges grazing like cutting. The
+    drawings say nothing about crossing: its weight stays at the prior's centre, and that
+    cost is enough."""
     drawn = ("expert=file", "expert.path=data/demos/metropolis_handdrawn.json", "seed=1")
     m, _ = run_in_process(tmp_path / "default", *drawn)
-    assert m["ref_relation_crossings"] == 0 and m["weight_crossing"] < 0
+    assert m["ref_relation_crossings"] == 0 and m["weight_crossing"] == pytest.approx(-0.5, abs=0.01)
     paper, _ = run_in_process(tmp_path / "four", *drawn,
                               "birl.features=[relation,social,goal_deviation,length]")
     assert paper["ref_relation_crossings"] > 0
