@@ -11,7 +11,8 @@ under the polite weights): corner-cut (a moving average over about 1 m), resampl
 10 cm, with a slow sideways wobble (smoothed random walk, up to about 15 cm, pinned at both
 ends) and a small per-point tremor (1 cm). A drawing that would enter a body disk (+5 cm)
 is redrawn with less wobble. Deterministic (seeded). The learned paths should keep the
-drawers' median distance to people (docs/benchmarks/index.md, "Imperfect demonstrations").
+drawers' median distance to people and cross no social link (`handdrawn` in
+results/bench/learning_summary.csv, docs/benchmarks/index.md).
 """
 
 from __future__ import annotations
