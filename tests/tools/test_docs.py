@@ -62,3 +62,58 @@ def test_readme_relative_links_resolve():
     assert relative, "README.md links to no file of the repository"
     missing = [t for t in relative if not (ROOT / t).exists()]
     assert not missing, f"README.md links to missing files: {missing}"
+
+
+# -- hand-written pages quote no measured number -----------------------------------------------
+# Measured numbers belong in committed tables under results/ (shown on the generated tables
+# page); hand-typed ones in prose go stale. Parameters and defaults (0.5 m, 7.43 σ) are fine;
+# a loss-like decimal (three or more decimals) or a count of seeds or runs is not.
+HAND_WRITTEN = sorted({*ROOT.glob("docs/*.md"), ROOT / "docs/benchmarks/index.md"}
+                      - {ROOT / p for p in docs.PAGES} - {ROOT / "docs/changelog.md"})
+COUNT = r"(?:\d+|one|two|three|four|five|six|seven|eight|nine|ten)"
+MEASURED = re.compile(
+    r"(?<![\w.])\d*\.\d{3,}(?![\w.])"                                    # 0.0035, 1.046
+    rf"|\b{COUNT} (?:out )?of {COUNT} (?:seeds|runs|cases|scenes|starts)\b"  # 4 of 10 seeds
+    r"|\b\d+ ?/ ?\d+ (?:seeds|runs|on)\b", re.IGNORECASE)                # 7/10 runs, 9/10 on
+
+
+def prose_lines(text: str):
+    """(line number, line) of a Markdown page's prose: without fenced or indented code
+    blocks, display maths ($$ ... $$), inline maths ($...$), inline code and HTML comments."""
+    fence, maths = None, False
+    for number, line in enumerate(text.splitlines(), 1):
+        stripped = line.strip()
+        if fence:
+            fence = None if stripped.startswith(fence) else fence
+            continue
+        if stripped.startswith(("```", "~~~")):
+            fence = stripped[:3]
+            continue
+        if maths or stripped.startswith("$$"):
+            maths = not maths if stripped.count("$$") % 2 else maths
+            continue
+        if line.startswith(("    ", "\t")):
+            continue
+        line = re.sub(r"`[^`]*`|\$[^$]*\$|<!--.*?-->", " ", line)
+        yield number, line
+
+
+def measured_numbers(text: str) -> list[str]:
+    return [f"{number}: {match.group(0)!r} in {line.strip()[:80]!r}"
+            for number, line in prose_lines(text) for match in MEASURED.finditer(line)]
+
+
+def test_measured_number_detector():
+    found = measured_numbers("median 0.0035 over seeds\nin 4 of 10 seeds the test\n"
+                             "9/10 on metropolis\nin two of five seeds\n")
+    assert [f.split(":")[0] for f in found] == ["1", "2", "3", "4"]
+    assert not measured_numbers(
+        "a 0.5 m hinge, 7.43 σ, `birl.lr_level=0.001`, $\\gamma = 0.955$, 1.5× target\n"
+        "\n    make experiment ARGS=\"x=0.0035\"\n\n```\n0.0123\n```\n$$\nx = 0.125\n$$\n")
+
+
+@pytest.mark.parametrize("page", HAND_WRITTEN, ids=lambda p: str(p.relative_to(ROOT)))
+def test_hand_written_page_quotes_no_measured_number(page):
+    found = measured_numbers(page.read_text())
+    assert not found, (f"{page.relative_to(ROOT)} quotes measured numbers in prose; point to "
+                       f"the committed table under results/ instead:\n" + "\n".join(found))
