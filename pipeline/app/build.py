@@ -298,19 +298,20 @@ def _fixed(cfg: Config) -> tuple[np.ndarray, str | None] | None:
 
 
 def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.ndarray, str]:
-    """The reward that grows the graph: the learner's prior mean on the reward's features
-    (0 on the learner's other features) unless asked otherwise (with `birl=fixed`, its
-    weights)."""
+    """The reward that grows the graph: the learner's prior mean (with `birl=fixed`, its
+    weights) on the reward's features, 0 on the learner's other features, unless
+    graph.weights says otherwise."""
     w = cfg.graph.weights
     if w is None or w == "prior":
+        # On the reward's features only: the learner's extras (crossing) leave the graph as
+        # it is, so learners with other feature sets are compared on the same graph. Growth
+        # is sensitive to its reward: grown with crossing as well, the warehouse's optimal
+        # expert lost 0.48 and 0.13 in two seeds (0.017 on this graph), and a metropolis
+        # deployment's graph lost the detours round a group (12 crossed links, 0 here).
+        extra = [n not in cfg.reward.features for n in cfg.learner_features]
         fixed = fixed_weights(cfg)
         if fixed is not None:
-            return fixed, "fixed"
-        # On the reward's features only: the learner's extras (crossing) leave the graph as
-        # it is, so learners with other feature sets are compared on the same graph (grown
-        # with crossing as well, the metropolis optimal expert learned 10 of 10 seeds but the
-        # warehouse's lost 0.48 and 0.13 where this graph gives 0.017)
-        extra = [n not in cfg.reward.features for n in cfg.learner_features]
+            return np.where(extra, 0.0, fixed), "fixed"
         return np.where(extra, 0.0, prior(cfg).box_mean()), "prior_mean"
     if w is True or w == "true":
         if true_weights is None:
