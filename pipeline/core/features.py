@@ -49,7 +49,10 @@ from scipy.sparse.csgraph import connected_components
 
 from pipeline.core.obstacles import ObstacleMap
 from pipeline.core.params import ParameterError, is_number, require_positive
-from pipeline.core.social import INTIMATE_ZONE  # `intimate` is `social` at this radius
+from pipeline.core.social import (
+    INTIMATE_ZONE,  # `intimate` is `social` at this radius
+    orientation,
+)
 from pipeline.core.world import Scene
 
 FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "length")  # default
@@ -484,8 +487,8 @@ class FeatureModel:
         for lo in range(0, n, chunk):
             sl = slice(lo, lo + chunk)
             # (m, L) signed areas: the ends' sides of each link's line
-            side_a = _cross2(ab, a[sl, None, :] - self.link_a)
-            side_b = _cross2(ab, b[sl, None, :] - self.link_a)
+            side_a = orientation(self.link_a, self.link_b, a[sl, None, :])
+            side_b = orientation(self.link_a, self.link_b, b[sl, None, :])
             change = 0.5 * np.abs(np.sign(side_b) - np.sign(side_a))
             owner, link = np.nonzero(change)
             # where the segment meets the line, as a fraction along the link
@@ -558,11 +561,6 @@ class FeatureModel:
         out = np.zeros((len(pts), self.dim))
         np.add.at(out, owner, per_segment)
         return out
-
-
-def _cross2(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """z-component of u × v over the last axis (broadcast)."""
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
 def _hinge_antiderivative(y: np.ndarray, rho: float) -> np.ndarray:

@@ -36,7 +36,9 @@ def combine_path_metrics(per_path: list[dict[str, float]]) -> dict[str, float]:
     return out
 
 
-def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def orientation(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(a − o) × (b − o), z-component, broadcast over leading axes: > 0 where b lies left of
+    the line from o through a, 0 on it."""
     return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (
         b[..., 0] - o[..., 0])
 
@@ -51,8 +53,8 @@ def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarra
         return 0
     a, b = p[:-1, None, :], p[1:, None, :]
     c, d = link_a[None, :, :], link_b[None, :, :]
-    d1, d2 = _cross(c, d, a), _cross(c, d, b)
-    d3, d4 = _cross(a, b, c), _cross(a, b, d)
+    d1, d2 = orientation(c, d, a), orientation(c, d, b)
+    d3, d4 = orientation(a, b, c), orientation(a, b, d)
     return int(((d1 * d2 < 0) & (d3 * d4 < 0)).sum())
 
 
