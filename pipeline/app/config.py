@@ -414,12 +414,13 @@ def _check_demonstrator(settings: Config) -> None:
                            "fixed with expert=none (nothing to learn from: birl=fixed "
                            "birl.weights=[...] or birl.from_run=RUN)")
     w = settings.graph.weights
-    if (w is True or w == "true") and not settings.expert.knows_true_reward:
+    if not (w is True or w == "true"):
+        return
+    if not settings.expert.knows_true_reward:
         raise config_error("graph.weights", w, "null or numbers: graph.weights=true needs true "
                            f"weights, but the demonstrations have none "
                            f"(expert={settings.expert.kind})")
-    if (w is True or w == "true") and not set(settings.reward.features) <= set(
-            settings.learner_features):
+    if settings.on_learner_features(settings.reward.weights) is None:
         raise config_error("graph.weights", w, "null or numbers: the true weights are on "
                            f"reward.features={list(settings.reward.features)}, not all of "
                            f"them among the learner's {settings.learner_features}")

@@ -67,12 +67,8 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
     stages = set(cfg.stages)
     if isinstance(cfg.birl, FixedConfig) and cfg.birl.from_run and stages & {"graph", "birl"}:
         check_from_run(resolve_path(cfg.birl.from_run), cfg.birl.from_run, "birl.from_run")
-    if isinstance(cfg.expert, FileExpertConfig):
-        if "demos" in stages:
-            check_readable(resolve_path(cfg.expert.path))
-        if cfg.graph.weights in (True, "true") and "graph" in stages:
-            raise PipelineError("config error: graph.weights=true needs true weights, but the "
-                                "demonstrations come from a file (expert=file)")
+    if isinstance(cfg.expert, FileExpertConfig) and "demos" in stages:
+        check_readable(resolve_path(cfg.expert.path))
     # evaluate too: its inputs were made with the derived value, which it must match
     derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl", "evaluate"})
     facts = scene_facts(cfg, run_dir, from_run) if stages - {"birl"} or derive_graph else None
