@@ -131,7 +131,9 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     paper = birl_map(problem.expert, problem.environment.rollout, problem.prior,
                      beta=config.beta, n_iterations=config.n_iterations, w0=w_map)
     threshold = chdtri(problem.prior.dim + 1, config.test_level) / 2  # χ² quantile
-    records = [problem.record(0, problem.w0, paper[0].log_likelihood)]
+    # every record's log likelihood is the Boltzmann model's at its weights and the MAP's β
+    # (eq. (2)'s loop starts at the MAP, so its iteration 0 is not about w0)
+    records = [problem.record(0, problem.w0, boltzmann.log_likelihood(problem.w0, beta_map))]
     # Among the iterates the test keeps, eq. (2)'s posterior given every generated
     # trajectory decides (the last iterate is not the best: eq. (2)'s iterates oscillate).
     pool = [t for it in paper for t in it.generated]

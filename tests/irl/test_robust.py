@@ -233,7 +233,7 @@ def two_route_problem(routes):
 
 
 def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones():
-    from pipeline.irl.birl import fit_robust
+    from pipeline.irl.birl import _boltzmann_posterior, fit_robust
 
     config = BirlMapConfig(n_iterations=3)
     # Always route B: eq. (2)'s iterates reproduce it, the Boltzmann model accepts one.
@@ -246,6 +246,13 @@ def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones()
     assert not np.allclose(result.weights, w_map)
     policy = graph.mdp.solve(result.weights).policy
     assert list(graph.mdp.follow(policy, 0).nodes) == [0, 1, 3]
+    # every record, the initial weights' included, is scored by the Boltzmann model (with
+    # the robust form's prior) at the MAP's β
+    model = _boltzmann_posterior(problem, config)
+    _, beta_map = model.map(problem.w0, config.beta)
+    np.testing.assert_array_equal(result.iterations[0].weights, problem.w0)
+    for it in result.iterations:
+        assert it.log_likelihood == pytest.approx(model.log_likelihood(it.weights, beta_map))
     # Route A and B alike: the estimate is the Boltzmann MAP or an eq. (2) iterate the test
     # cannot tell from it (its profile log posterior within χ²_{d+1}(level)/2 of the MAP's),
     # and at its best β the soft policy takes both routes. (Not exactly half: with the
