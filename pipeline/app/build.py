@@ -17,7 +17,7 @@ from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.controllers import Controller, PosqController, make_controller
 from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
-from pipeline.core.graph_mdp import SpatialGraph
+from pipeline.core.graph_mdp import Polylines, SpatialGraph
 from pipeline.core.obstacles import OccupancyGrid
 from pipeline.core.roadmap import Roadmap, RoadmapParams, build_roadmap, lattice_graph
 from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
@@ -162,11 +162,13 @@ def with_named_features(cfg: Config, scene: Scene, graph: SpatialGraph, have: li
     m = graph.mdp
     computed = None
     if missing:
-        model, ways = learner_feature_model(cfg, scene, missing), graph.internal_waypoints()
-        if all(len(w) == 2 for w in ways):  # straight edges (the roadmap): one batch
-            computed = model.segments(graph.positions[m.src], graph.positions[m.dst])
+        model, ways = learner_feature_model(cfg, scene, missing), graph.waypoints
+        straight = (ways.counts == 2).all() if isinstance(ways, Polylines) \
+            else all(len(w) == 2 for w in ways)
+        if straight:  # the roadmap: one batch
+            computed = model.edge_features(graph.positions, m.src, m.dst)
         else:
-            computed = model.polylines(ways)
+            computed = model.polylines(graph.internal_waypoints())
     features = m.features
     columns = [features[:, have.index(n)] if n in have else computed[:, missing.index(n)]
                for n in want]

@@ -15,10 +15,12 @@ from pipeline.core.graph_mdp import (
     GraphMDP,
     MDPParams,
     Polylines,
+    Solution,
     SpatialGraph,
     TrajectoryStats,
 )
 from pipeline.core.obstacles import OccupancyGrid
+from pipeline.core.roadmap import Roadmap, RoadmapParams
 from pipeline.core.state_graph import EdgeTable, NodeTable
 from pipeline.core.world import Scene, scene_from_dict
 
@@ -46,16 +48,6 @@ def decode_scene(art: Artefact) -> Scene:
         else None
     return scene_from_dict(art.one(topics.SCENE), source=f"artefact {art.path}",
                            map_grid=map_grid)
-
-
-def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:
-    """The reference roadmap of demos.mcap as a SpatialGraph (straight edges)."""
-    msg = art.one(topics.DEMOS_ROADMAP)
-    positions = np.asarray(msg["positions"], float)
-    src, dst = np.asarray(msg["src"]), np.asarray(msg["dst"])
-    graph_mdp = GraphMDP(src, dst, msg["duration"], msg["features"], msg["terminal"], mdp)
-    return SpatialGraph(positions, graph_mdp, np.asarray(msg["start_nodes"]),
-                        [positions[[a, b]] for a, b in zip(src, dst, strict=True)])
 
 
 # Columns of the /graph/nodes and /graph/edges messages (birlg.GraphNodes, birlg.GraphEdges):
@@ -104,6 +96,36 @@ def edges_message(edges: EdgeTable, first_id: int) -> dict:
     msg.update(first_id=first_id, count=len(edges), n_features=int(edges.features.shape[1]),
                features=column(edges.features, F64), waypoints=column(edges.waypoints.points, F64))
     return msg
+
+
+def roadmap_message(roadmap: Roadmap, params: RoadmapParams,
+                    solution: Solution | None, mdp: GraphMDP) -> dict:
+    """A Roadmap message: the reference roadmap as columns, with its solution under w*
+    (`solution` of `mdp`, None when the true reward is unknown)."""
+    return {"spacing": params.spacing, "connectivity": params.connectivity,
+            "n_nodes": len(roadmap.positions), "n_edges": len(roadmap.src),
+            "n_features": int(roadmap.features.shape[1]),
+            "positions": column(roadmap.positions, F64), "src": column(roadmap.src, I32),
+            "dst": column(roadmap.dst, I32), "duration": column(roadmap.duration, F64),
+            "features": column(roadmap.features, F64), "terminal": column(roadmap.terminal, U8),
+            "start_nodes": roadmap.start_nodes, "goal_node": roadmap.goal_node,
+            "true_values": None if solution is None else column(solution.values, F64),
+            "true_policy": None if solution is None
+            else column(mdp.caller_edges(solution.policy), I32)}
+
+
+def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:
+    """The reference roadmap of demos.mcap as a SpatialGraph (straight edges)."""
+    reader = _Columns(art, topics.DEMOS_ROADMAP)
+    msg = art.one(topics.DEMOS_ROADMAP)
+    n, e, d = (reader.count(msg, k) for k in ("n_nodes", "n_edges", "n_features"))
+    positions = reader.array(msg, "positions", F64, 2 * n).reshape(n, 2)
+    src, dst = (reader.array(msg, k, I32, e).astype(np.int64) for k in ("src", "dst"))
+    graph_mdp = GraphMDP(src, dst, reader.array(msg, "duration", F64, e),
+                         reader.array(msg, "features", F64, e * d).reshape(e, d),
+                         reader.array(msg, "terminal", U8, n).astype(bool), mdp)
+    return SpatialGraph(positions, graph_mdp, np.asarray(reader.field(msg, "start_nodes")),
+                        Polylines.straight(positions, src, dst))
 
 
 def last_iteration(table: NodeTable | EdgeTable) -> int:

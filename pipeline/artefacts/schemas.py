@@ -165,27 +165,6 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
                             "for file and planner demonstrations"),
 })
 
-ROADMAP = _message("Roadmap", "The reference roadmap with its exact solution under "
-                   "w*. Arrays over nodes have n_nodes entries, arrays over edges n_edges.", {
-    "spacing": _num("Lattice spacing, metres.", exclusiveMinimum=0),
-    "connectivity": _int("Lattice connectivity: 8 (king moves) or 16 (plus knight moves)."),
-    "positions": _array(_point("A node"), "Node positions (n_nodes).", min_items=1),
-    "src": _ids("Source node of every edge (n_edges)."),
-    "dst": _ids("Destination node of every edge (n_edges)."),
-    "duration": _array({"type": "number", "minimum": 0}, "Duration of every edge, seconds "
-                       "(n_edges)."),
-    "features": _array(_features("Feature integrals of the edge"),
-                       "Features of every edge (n_edges × n_features)."),
-    "terminal": _array({"type": "boolean"}, "Whether each node is terminal (n_nodes)."),
-    "start_nodes": _ids("Node of every start, in the order of Scene.starts."),
-    "goal_node": _node("The goal's node"),
-    "true_values": _nullable(_array({"type": "number"}, "Optimal values V* under w* (n_nodes)."),
-                             "for file and planner demonstrations"),
-    "true_policy": _nullable(_array({"type": "integer", "minimum": -1}, "Optimal policy under "
-                                    "w*: the edge index taken at each node, −1 for none "
-                                    "(n_nodes)."), "for file and planner demonstrations"),
-})
-
 def _column(dtype: str, desc: str, per: str = "node") -> Schema:
     """A column of a columnar message: one value per row, as the base64 of a little-endian
     binary array (numpy: np.frombuffer(base64.b64decode(s), dtype))."""
@@ -246,6 +225,34 @@ GRAPH_EDGES = _message("GraphEdges", "Directed edges (local-controller runs) of 
                     "features), else 0.", "edge"),
     "iteration": _column("int32", "Growth iteration it was added (the later of its ends).",
                          "edge"),
+})
+
+ROADMAP = _message("Roadmap", "The reference roadmap with its exact solution under w*, as "
+                   "columns (like birlg.GraphNodes and birlg.GraphEdges, in one message): a "
+                   "roadmap has 10^4-10^6 edges, which as JSON arrays took longer to write and "
+                   "read than to build.", {
+    "spacing": _num("Lattice spacing, metres.", exclusiveMinimum=0),
+    "connectivity": _int("Lattice connectivity: 8 (king moves) or 16 (plus knight moves)."),
+    "n_nodes": _int("Number of nodes.", minimum=1),
+    "n_edges": _int("Number of edges.", minimum=0),
+    "n_features": _int("Entries of each edge's feature vector (len(feature_names)).",
+                       minimum=0),
+    "positions": _column("float64", "Node positions: x then y of every node, metres.",
+                         "coordinate"),
+    "src": _column("int32", "Source node of every edge.", "edge"),
+    "dst": _column("int32", "Destination node of every edge.", "edge"),
+    "duration": _column("float64", "Duration of every edge, seconds.", "edge"),
+    "features": _column("float64", "Feature integrals of every edge: n_edges × n_features "
+                        "values, row-major (edge by edge), in the order of feature_names.",
+                        "feature entry"),
+    "terminal": _column("uint8", "1 if the node is terminal, else 0."),
+    "start_nodes": _ids("Node of every start, in the order of Scene.starts."),
+    "goal_node": _node("The goal's node"),
+    "true_values": _nullable(_column("float64", "Optimal values V* under w*."),
+                             "for file and planner demonstrations"),
+    "true_policy": _nullable(_column("int32", "Optimal policy under w*: the edge index taken "
+                                     "at each node, −1 for none."),
+                             "for file and planner demonstrations"),
 })
 
 BEST_PATHS = _message("BestPaths", "The greedy best trajectories after one growth iteration.", {

@@ -426,6 +426,33 @@ class FeatureModel:
                 out[:, col] += np.bincount(owner[sl], ds[sl] * dens[:, j], minlength=n)
         return out
 
+    def edge_features(self, positions: np.ndarray, src: np.ndarray,
+                      dst: np.ndarray) -> np.ndarray:
+        """`segments` (E, d) of the straight edges positions[src] → positions[dst] of a graph
+        whose edges mostly come in both directions (the roadmap's lattice). Every feature but
+        goal_deviation integrates over the segment's points alone, the same both ways, so a
+        pair is integrated once and goal_deviation per direction: half the work (a reverse
+        edge may differ from its own integration in the last bits)."""
+        positions = np.asarray(positions, float).reshape(-1, 2)
+        src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
+        if len(src) == 0:
+            return self.segments(positions[src], positions[dst])
+        n = len(positions)
+        key, reverse_key = src * n + dst, dst * n + src
+        order = np.argsort(key, kind="stable")
+        at = order[np.minimum(np.searchsorted(key, reverse_key, sorter=order), len(key) - 1)]
+        reverse = np.where(key[at] == reverse_key, at, -1)
+        once = (reverse < 0) | (src <= dst)
+        out = np.empty((len(src), self.dim))
+        out[once] = self.segments(positions[src[once]], positions[dst[once]])
+        twin = np.flatnonzero(~once)
+        out[twin] = out[reverse[twin]]
+        for col, f in enumerate(self.selected):
+            if f.kind == "goal_deviation":
+                out[twin, col] = _distance_increase(positions[src[twin]], positions[dst[twin]],
+                                                    self.goal)
+        return out
+
     def _relation_segments(self, a: np.ndarray, b: np.ndarray, rho: float) -> np.ndarray:
         """∫ Σ_links max(0, ρ − d(p, link)) · [p projects inside the link] ds (n,) along
         a[i] → b[i], exact: along a straight segment the projection onto a link moves

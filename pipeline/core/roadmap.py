@@ -14,7 +14,7 @@ from scipy.sparse.csgraph import breadth_first_order
 from scipy.spatial import cKDTree
 
 from pipeline.core.features import FeatureModel
-from pipeline.core.graph_mdp import GraphMDP, MDPParams, SpatialGraph
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, Polylines, SpatialGraph
 from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.params import require, require_positive
 from pipeline.core.world import Scene
@@ -58,8 +58,8 @@ class Roadmap:
 
     def spatial(self, mdp: GraphMDP) -> SpatialGraph:
         """The roadmap with its MDP `mdp` as a SpatialGraph (straight edges)."""
-        ways = [self.positions[[a, b]] for a, b in zip(self.src, self.dst, strict=True)]
-        return SpatialGraph(self.positions, mdp, self.start_nodes, ways)
+        return SpatialGraph(self.positions, mdp, self.start_nodes,
+                            Polylines.straight(self.positions, self.src, self.dst))
 
 
 def segments_feasible(scene: Scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -132,9 +132,8 @@ def build_roadmap(scene: Scene, feature_model: FeatureModel, params: RoadmapPara
     """Lattice of `spacing` over the room, nodes in body disks removed, plus starts and goal."""
     params = params or RoadmapParams()
     positions, src, dst = lattice_graph(scene, params.spacing, params.connectivity)
-    a, b = positions[src], positions[dst]
-    features = feature_model.segments(a, b)
-    duration = np.linalg.norm(b - a, axis=1) / speed
+    features = feature_model.edge_features(positions, src, dst)
+    duration = np.linalg.norm(positions[dst] - positions[src], axis=1) / speed
     terminal = np.linalg.norm(positions - scene.goal, axis=1) <= scene.goal_tolerance
     n_starts = len(scene.starts)
     n_lattice = len(positions) - n_starts - 1

@@ -134,11 +134,7 @@ def write_demos(ctx: RunContext, demos: list[Demonstration], heldout: np.ndarray
                 "offset": stats.offset, "duration": float(d.durations.sum()),
                 "reached": d.reached, "subject": d.subject, "heldout": bool(heldout[i]),
                 "value_true": stats.quality(w_true) if synthetic else None}, log_time=i)
-        w.add(topics.DEMOS_ROADMAP, "Roadmap", {
-            "spacing": cfg.roadmap.spacing, "connectivity": cfg.roadmap.connectivity,
-            "positions": roadmap.positions, "src": roadmap.src, "dst": roadmap.dst,
-            "duration": roadmap.duration, "features": roadmap.features,
-            "terminal": roadmap.terminal, "start_nodes": roadmap.start_nodes,
-            "goal_node": roadmap.goal_node, "true_values": solution.values if synthetic else None,
-            "true_policy": mdp.caller_edges(solution.policy) if synthetic else None}, log_time=0)
+        w.add(topics.DEMOS_ROADMAP, "Roadmap",
+              codec.roadmap_message(roadmap, cfg.roadmap, solution if synthetic else None, mdp),
+              log_time=0)
         foxglove.add_demos(w, [(d.start_index, d.points) for d in demos])

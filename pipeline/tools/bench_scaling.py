@@ -110,7 +110,7 @@ def _states(run: Path, method: str) -> int:
     from pipeline.artefacts import read_artefact, topics
 
     if method == "maxent":
-        return len(read_artefact(run / "demos.mcap").one(topics.DEMOS_ROADMAP)["positions"])
+        return int(read_artefact(run / "demos.mcap").one(topics.DEMOS_ROADMAP)["n_nodes"])
     return int(read_artefact(run / "graph.mcap").one(topics.GRAPH_SOLUTION)["n_nodes"])
 
 

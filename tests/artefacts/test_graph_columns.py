@@ -2,6 +2,8 @@
 field round-trips to the bit, growth replays from the iteration columns, chunked topics read
 as one, and a garbled column is a one-line error naming the file, topic and field."""
 
+import base64
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,7 @@ from pipeline.core.controllers import LinearController, PosqController
 from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams, Polylines
-from pipeline.core.roadmap import build_roadmap
+from pipeline.core.roadmap import RoadmapParams, build_roadmap
 from pipeline.core.state_graph import EdgeTable, NodeTable
 from tests.conftest import POLITE
 
@@ -222,3 +224,56 @@ def test_a_truncated_graph_file_is_an_error_before_any_topic_is_read(tmp_path, g
         path.write_bytes(data[:cut])
         with pytest.raises(ArtefactError, match="truncated or corrupt"):
             read_artefact(path, lazy=True)
+
+
+@pytest.fixture(scope="module")
+def roadmap(metropolis):
+    """The metropolis reference roadmap and its solution under the polite reward."""
+    rm = build_roadmap(metropolis, FeatureModel.from_scene(metropolis))
+    mdp = rm.mdp()
+    return rm, mdp, mdp.solve(POLITE)
+
+
+def _roadmap_file(path, rm, mdp, solution):
+    return _write(path, [(topics.DEMOS_ROADMAP, "Roadmap",
+                          codec.roadmap_message(rm, RoadmapParams(), solution, mdp), 0)])
+
+
+def test_the_roadmap_round_trips_to_the_bit(tmp_path, roadmap):
+    rm, mdp, solution = roadmap
+    art = read_artefact(_roadmap_file(tmp_path / "demos.mcap", rm, mdp, solution))
+    graph = codec.decode_roadmap(art, MDPParams())
+    assert np.array_equal(graph.positions, rm.positions)
+    assert np.array_equal(graph.start_nodes, rm.start_nodes)
+    m = graph.mdp  # the MDP orders edges its own way; caller order via edge_ids
+    assert np.array_equal(m.src, mdp.src) and np.array_equal(m.dst, mdp.dst)
+    assert np.array_equal(m.features, mdp.features) and np.array_equal(m.duration, mdp.duration)
+    assert np.array_equal(m.terminal, rm.terminal)
+    e = int(rm.src.size) // 2  # straight edges between the right nodes
+    assert np.array_equal(graph.waypoints[e], rm.positions[[rm.src[e], rm.dst[e]]])
+    msg = art.one(topics.DEMOS_ROADMAP)
+    values = np.frombuffer(base64.b64decode(msg["true_values"]), "<f8")
+    policy = np.frombuffer(base64.b64decode(msg["true_policy"]), "<i4")
+    assert np.array_equal(values, solution.values)
+    assert np.array_equal(policy, mdp.caller_edges(solution.policy))
+    # and without a true reward: no solution
+    art = read_artefact(_roadmap_file(tmp_path / "none.mcap", rm, mdp, None))
+    assert art.one(topics.DEMOS_ROADMAP)["true_values"] is None
+
+
+@pytest.mark.parametrize("garble, words", [
+    (lambda m: m.update(features=m["features"][:-12]), ["column 'features' holds", "bytes"]),
+    (lambda m: m.update(n_edges=m["n_edges"] + 1), ["column 'src' holds"]),
+    (lambda m: m.update(src=[0, 1]), ["column 'src' is not a base64"]),
+    (lambda m: m.pop("terminal"), ["without the field 'terminal'"]),
+    (lambda m: m.update(n_nodes="9"), ["'n_nodes' is not a non-negative"]),
+])
+def test_a_garbled_roadmap_is_a_one_line_error(tmp_path, roadmap, garble, words):
+    rm, mdp, solution = roadmap
+    msg = codec.roadmap_message(rm, RoadmapParams(), solution, mdp)
+    garble(msg)
+    path = _write(tmp_path / "demos.mcap", [(topics.DEMOS_ROADMAP, "Roadmap", msg, 0)])
+    with pytest.raises(ArtefactError) as err:
+        codec.decode_roadmap(read_artefact(path), MDPParams())
+    text = str(err.value)
+    assert str(path) in text and "\n" not in text and all(w in text for w in words), text

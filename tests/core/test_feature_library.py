@@ -25,6 +25,7 @@ from pipeline.core.features import (
 )
 from pipeline.core.obstacles import ObstacleMap, OccupancyGrid
 from pipeline.core.params import ParameterError
+from pipeline.core.roadmap import lattice_graph
 from pipeline.core.world import scene_from_dict
 from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import ROOT
@@ -559,3 +560,26 @@ def test_columns_follow_the_selected_order(metropolis):
     full = FeatureModel.from_scene(metropolis, FeatureParams(features=list(EVERY)))
     g = full.polyline(path)
     np.testing.assert_allclose(f, [g[EVERY.index(n)] for n in names], rtol=1e-12)
+
+
+@pytest.mark.parametrize("scene_name", ["metropolis", "office"])
+def test_edge_features_integrate_each_pair_once_and_agree_with_segments(scene_name, metropolis,
+                                                                        office):
+    # Both directions of a lattice edge cover the same points: every feature but
+    # goal_deviation is the same both ways (to rounding); goal_deviation, the increase of
+    # the distance to the goal, is not, and is integrated per direction.
+    scene = {"metropolis": metropolis, "office": office}[scene_name]
+    fm = FeatureModel.from_scene(scene, FeatureParams(features=[*EVERY, "crossing"]))
+    positions, src, dst = lattice_graph(scene, 0.5, 16)
+    # a one-way edge, a self-loop and a repeated edge as well
+    src = np.concatenate([src, [0, 5, src[0]]])
+    dst = np.concatenate([dst, [len(positions) - 1, 5, dst[0]]])
+    edges = fm.edge_features(positions, src, dst)
+    direct = fm.segments(positions[src], positions[dst])
+    np.testing.assert_allclose(edges, direct, rtol=1e-9, atol=1e-12)
+    forward = src <= dst  # integrated, not copied: the same bits
+    assert np.array_equal(edges[forward], direct[forward])
+    deviation = EVERY.index("goal_deviation")
+    backward = fm.segments(positions[dst], positions[src])[:, deviation]
+    assert (np.abs(backward - direct[:, deviation]) > 0.1).any()
+    assert (edges[:, :-1] != 0).any(axis=0).sum() >= len(EVERY) - (scene_name == "metropolis")

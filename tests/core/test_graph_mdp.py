@@ -12,6 +12,7 @@ from pipeline.core.graph_mdp import (
     NO_EDGE,
     GraphMDP,
     MDPParams,
+    Polylines,
     TrajectoryStats,
     discounted_counts,
     reaches,
@@ -251,3 +252,14 @@ def test_snap_path_follows_edges_when_a_later_node_is_nearer_to_a_waypoint():
         g.snap_path(np.array([(2, 0), (0, 0)]))  # no edge leads back
     with pytest.raises(ValueError, match="from the nearest node"):
         g.snap_path(np.array([(0, 0), (0.5, 0.5)]))
+
+
+def test_polylines_take_and_straight_by_hand():
+    lines = Polylines.from_list([[[0, 0], [1, 0]], [[2, 2], [3, 3], [4, 4]], [[5, 5], [6, 6]]])
+    taken = lines.take([2, 1, 1])
+    assert [p.tolist() for p in taken] == [[[5, 5], [6, 6]], [[2, 2], [3, 3], [4, 4]],
+                                           [[2, 2], [3, 3], [4, 4]]]
+    assert len(lines.take([])) == 0
+    positions = np.array([[0.0, 0.0], [1.0, 2.0], [3.0, 1.0]])
+    straight = Polylines.straight(positions, np.array([0, 2]), np.array([1, 0]))
+    assert [p.tolist() for p in straight] == [[[0, 0], [1, 2]], [[3, 1], [0, 0]]]
