@@ -140,13 +140,14 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     eq2 = Posterior(problem.expert, pool, problem.prior, config.beta)
     chosen, chosen_score = w_map, -np.inf
     admissible: dict[tuple[float, ...], bool] = {}  # iterates often repeat
+    distances: dict[tuple[int, tuple[int, ...]], float] = {}  # and their paths more often
     chosen_ll = boltzmann.log_likelihood(chosen, beta_map)
     for n in range(1, config.n_iterations + 1):
         score = eq2.log_posterior(paper[n].weights)
         key = tuple(paper[n].weights)
         # Only an iterate that would be chosen is tested (the tests are the costly part).
         if score > chosen_score and key not in admissible:
-            admissible[key] = reproduces(paper[n].rollout, problem) and \
+            admissible[key] = reproduces(paper[n].rollout, problem, distances) and \
                 boltzmann.admissible(paper[n].weights, best - threshold, beta_map)
         if score > chosen_score and admissible[key]:
             chosen, chosen_score = paper[n].weights, score
@@ -164,13 +165,21 @@ REPRODUCTION_TOLERANCE = 2.0
 REPRODUCTION_SPACING = 0.2  # m, the polylines' resampling for the Fréchet distance
 
 
-def reproduces(rolled: Rollout, problem: IRLProblem) -> bool:
+def reproduces(rolled: Rollout, problem: IRLProblem,
+               known: dict[tuple[int, tuple[int, ...]], float] | None = None) -> bool:
     """Whether the greedy paths of a rollout reproduce the demonstrations: the mean over
     demonstrations of the Fréchet distance between the demonstration and the greedy path
-    from its start is at most REPRODUCTION_TOLERANCE × the graph's resolution."""
-    distances = [frechet(rolled.graph.polyline(rolled.paths[t.start]), points,
-                         REPRODUCTION_SPACING)
-                 for t, points in zip(problem.expert, problem.demo_points, strict=True)]
+    from its start is at most REPRODUCTION_TOLERANCE × the graph's resolution. `known`:
+    distances already computed, by (demonstration, path's edges), filled in here (eq. (2)'s
+    iterates alternate between a few paths)."""
+    known = {} if known is None else known
+    distances = []
+    for k, (t, points) in enumerate(zip(problem.expert, problem.demo_points, strict=True)):
+        path = rolled.paths[t.start]
+        key = (k, tuple(path.edges))
+        if key not in known:
+            known[key] = frechet(rolled.graph.polyline(path), points, REPRODUCTION_SPACING)
+        distances.append(known[key])
     return float(np.mean(distances)) <= REPRODUCTION_TOLERANCE * rolled.graph.snap_tolerance
 
 
