@@ -5,16 +5,18 @@ the presets' default; `hydra/launcher=joblib` is Hydra's joblib launcher as befo
 Each job gets the run dir Hydra's launchers give it (SWEEP_DIR/<job number>/, with .hydra/,
 its log, status.json, artefacts and metrics.json) and runs through Hydra's own `run_job`;
 what it saves is the start-up of each worker (a fresh interpreter importing Hydra, numpy,
-scipy and the stages: ~1 s per worker) and the second composition of each job's config:
-Hydra's sweeper composes every job once to check the batch before launching it, and the
-workers, forked after that, take those configs instead of composing them again (0.1-0.3 s
-per job). Measured on `make sweep EXP=quick` (pipeline/tools/bench.py startup).
+scipy and the stages: ~1 s per worker) and time composing configs: Hydra's sweeper
+composes every job's config to check the batch before launching it (0.1-0.2 s per job, one
+after another), and a launcher composes each again to run it. Here the workers compose each
+job's config once, in parallel, all before any job runs (so a batch that does not compose
+still fails before anything runs, as with Hydra's check), and the job runs on that config.
+Measured on `make sweep EXP=quick` (pipeline/tools/bench.py startup).
 
-The worker processes are forked (POSIX), so nothing is pickled to them but the job's
-number; a job's result (Hydra's JobReturn) comes back pickled. A failing job fails alone
-(pipeline.__main__ writes its status.json and returns NaN); a signal (Ctrl-C, SIGTERM)
-stops the sweep: running jobs record `interrupted`, the pool is terminated and the command
-says so in one line.
+The worker processes are forked (POSIX): a job's number goes to a worker, its composed
+config comes back and goes out again pickled, and so does its result (Hydra's JobReturn).
+A failing job fails alone (pipeline.__main__ writes its status.json and returns NaN); a
+signal (Ctrl-C, SIGTERM) stops the sweep: running jobs record `interrupted`, the pool is
+terminated and the command says so in one line.
 """
 
 from __future__ import annotations
@@ -52,12 +54,11 @@ class PoolLauncher(Launcher):
         self.config: DictConfig | None = None
         self.task_function: TaskFunction | None = None
         self.hydra_context: HydraContext | None = None
-        self.composed: dict[tuple[int, tuple[str, ...]], DictConfig] = {}
 
     def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
               config: DictConfig) -> None:
         self.config, self.task_function, self.hydra_context = config, task_function, hydra_context
-        remember_composed(hydra_context, self.composed)
+        defer_batch_check(hydra_context)
 
     def launch(self, job_overrides: Sequence[Sequence[str]],
                initial_job_idx: int) -> Sequence[JobReturn]:
@@ -75,27 +76,35 @@ class PoolLauncher(Launcher):
             log.info("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
         _Current.launcher, _Current.jobs = self, dict(jobs)
         if n_workers == 1:
-            return [_execute(idx) for idx, _ in jobs]
+            configs = [self.compose(overrides) for _, overrides in jobs]
+            return [self.execute(idx, cfg) for (idx, _), cfg in zip(jobs, configs, strict=True)]
         for stage in STAGES:  # imported once here, shared by every forked worker
             importlib.import_module(f"pipeline.stages.{stage}")
         with ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("fork"),
                                  initializer=_worker_started) as pool:
-            futures = [pool.submit(_execute, idx) for idx, _ in jobs]
             try:
+                composed = list(pool.map(_compose, [idx for idx, _ in jobs]))
+                for (idx, overrides), cfg in zip(jobs, composed, strict=True):
+                    if cfg is None:  # compose it here: its error, as Hydra's check raises it
+                        self.compose(overrides)
+                futures = [pool.submit(_execute, idx, cfg)
+                           for (idx, _), cfg in zip(jobs, composed, strict=True)]
                 return [f.result() for f in futures]
             except BaseException:  # Ctrl-C: the running jobs record it; no new one starts
                 pool.shutdown(wait=True, cancel_futures=True)
                 raise
 
-    def execute(self, idx: int, overrides: list[str]) -> JobReturn:
-        """One job, as Hydra's launchers run it: its config (composed when the sweeper
-        checked the batch, else now), hydra.job.id/num, then `run_job` in its run dir."""
+    def compose(self, overrides: list[str]) -> DictConfig:
+        """A job's config, as Hydra's launchers compose it."""
+        assert self.config is not None and self.hydra_context is not None
+        loader = self.hydra_context.config_loader
+        return type(loader).load_sweep_config(loader, self.config, overrides)
+
+    def execute(self, idx: int, sweep_config: DictConfig) -> JobReturn:
+        """One job, as Hydra's launchers run it: hydra.job.id/num of its composed config,
+        then `run_job` in its run dir."""
         assert self.config is not None and self.hydra_context is not None
         setup_globals()
-        sweep_config = self.composed.pop((id(self.config), tuple(overrides)), None)
-        if sweep_config is None:
-            loader = self.hydra_context.config_loader
-            sweep_config = type(loader).load_sweep_config(loader, self.config, overrides)
         with open_dict(sweep_config):
             sweep_config.hydra.job.id = f"{sweep_config.hydra.job.name}_{idx}"
             sweep_config.hydra.job.num = idx
@@ -120,22 +129,33 @@ def _worker_started() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # (the fork copied Hydra's singletons)
 
 
-def _execute(idx: int) -> JobReturn:
+def _compose(idx: int) -> DictConfig | None:
+    """Job idx's config, or None if it does not compose (the parent composes it again to
+    raise the error: some of Hydra's exceptions do not survive pickling)."""
     launcher = _Current.launcher
     assert launcher is not None
-    return launcher.execute(idx, _Current.jobs[idx])
+    try:
+        return launcher.compose(_Current.jobs[idx])
+    except Exception:
+        return None
 
 
-def remember_composed(hydra_context: HydraContext,
-                      composed: dict[tuple[int, tuple[str, ...]], DictConfig]) -> None:
-    """Keep the job configs the sweeper composes to check a batch (Hydra's
-    `validate_batch_is_legal`), so the job does not compose its config a second time."""
+def _execute(idx: int, sweep_config: DictConfig) -> JobReturn:
+    launcher = _Current.launcher
+    assert launcher is not None
+    return launcher.execute(idx, sweep_config)
+
+
+def defer_batch_check(hydra_context: HydraContext) -> None:
+    """Hydra's sweeper composes every job's config one after another to check a batch
+    (`validate_batch_is_legal`, which uses nothing but the errors). The pool launcher
+    composes them in its workers, in parallel, before any job runs: so the sweeper's
+    composing is turned into a no-op on this loader (launchers compose through the
+    class's method)."""
     loader = hydra_context.config_loader
-    compose = type(loader).load_sweep_config
 
-    def load_sweep_config(master_config: DictConfig, sweep_overrides: list[str]) -> DictConfig:
-        cfg = compose(loader, master_config, sweep_overrides)
-        composed[(id(master_config), tuple(sweep_overrides))] = cfg  # checked, then unused
-        return cfg
+    def checked_by_the_launcher(master_config: DictConfig,
+                                sweep_overrides: list[str]) -> None:
+        return None
 
-    loader.load_sweep_config = load_sweep_config  # type: ignore[method-assign]
+    loader.load_sweep_config = checked_by_the_launcher  # type: ignore[method-assign]

@@ -980,6 +980,9 @@ SWEEP_CASES = {
     "-m after an override, with a bad value": (
         lambda t: ["seed=-3", "-m", f"hydra.sweep.dir={t / 'sweep'}"],
         ["1 sweep job(s) failed", "seed=-3"], 1),
+    "sweep of a missing option": (
+        lambda t: ["-m", "experiment=quick", "seed=0", "reward=polite,nope",
+                   f"hydra.sweep.dir={t / 'sweep'}"], ["reward/nope"], 2),
     "pool launcher workers not a number": (
         lambda t: ["-m", "experiment=quick", "hydra.launcher.n_jobs=abc",
                    f"hydra.sweep.dir={t / 'sweep'}"], ["hydra.launcher.n_jobs='abc'"], 2),

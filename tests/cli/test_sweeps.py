@@ -194,3 +194,13 @@ def test_pool_launcher_gives_the_joblib_launchers_jobs(tmp_path):
         assert metrics[0] == metrics[1]
         assert sorted(p.name for p in pool.glob("*.mcap")) == \
             sorted(p.name for p in joblib.glob("*.mcap"))
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_batch_that_does_not_compose_runs_no_job(tmp_path, workers):
+    """Every job's config is composed before any job runs (by the pool's workers, in
+    parallel): one option that does not exist stops the sweep before the others run."""
+    result = run_app("-m", "experiment=quick", "seed=0,1", "reward=polite,nope",
+                     f"hydra.launcher.n_jobs={workers}", f"hydra.sweep.dir={tmp_path}")
+    assert result.returncode == 2 and "reward/nope" in result.stderr, result.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["multirun.yaml"]
