@@ -84,7 +84,7 @@ class PoolLauncher(Launcher):
                                  initializer=_worker_started) as pool:
             try:
                 composed = list(pool.map(_compose, [idx for idx, _ in jobs]))
-                for (idx, overrides), cfg in zip(jobs, composed, strict=True):
+                for (_, overrides), cfg in zip(jobs, composed, strict=True):
                     if cfg is None:  # compose it here: its error, as Hydra's check raises it
                         self.compose(overrides)
                 futures = [pool.submit(_execute, idx, cfg)
