@@ -43,16 +43,60 @@ BASE_MEASURES = ("walk", "uniform")
 REFINE_STEPS, REFINE_RATE = 30, 0.5
 
 
-def factorise(transposed: sp.csc_matrix) -> SuperLU:
-    """The sparse LU of I − γ^τ P_π, given as its transpose in CSC. The matrix is a
-    nonsingular M-matrix (discounted: strictly diagonally dominant; goal reaching: its
-    system has a positive solution, and scaled by it the matrix is weakly chained
-    diagonally dominant), so Gaussian elimination needs no pivoting and stays stable:
-    diagonal pivots and a fill-reducing ordering of the pattern A + Aᵀ (the graph's edges
-    mostly come in pairs) leave a third of COLAMD's fill and factorise 2.5-4× faster on the
-    scaling benchmark's graphs (5000-20 000 nodes)."""
-    return splu(transposed, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                options={"SymmetricMode": True})
+class PatternLU:
+    """Sparse LUs of I − γ^τ P_π for one graph, given as its transpose in CSC with a fixed
+    pattern (`indices`, `indptr`). The matrix is a nonsingular M-matrix (discounted:
+    strictly diagonally dominant; goal reaching: its system has a positive solution, and
+    scaled by it the matrix is weakly chained diagonally dominant), so Gaussian elimination
+    needs no pivoting and stays stable: diagonal pivots and a fill-reducing ordering of the
+    pattern A + Aᵀ (the graph's edges mostly come in pairs) leave a third of COLAMD's fill
+    and factorise 2.5-4× faster on the scaling benchmark's graphs (5000-20 000 nodes).
+    The pattern is the same for every policy, so the ordering is computed with the first
+    LU and reused: later matrices are permuted by it (symmetrically: the diagonal stays
+    the diagonal) and factorised in their natural order, a fifth faster at 20 000 nodes
+    (0.26 s instead of 0.33 s) and the same fill."""
+
+    def __init__(self, indices: np.ndarray, indptr: np.ndarray) -> None:
+        self.indices, self.indptr = indices, indptr
+        self.n = len(indptr) - 1
+        # set by the first LU: the ordering, and where each entry goes in the permuted
+        # matrix (entries of one position, a self-loop's and the diagonal's, are summed)
+        self.order: np.ndarray | None = None
+        self._slot = self._permuted_indices = self._permuted_indptr = np.zeros(0, np.int64)
+
+    def factorise(self, data: np.ndarray) -> OrderedLU:
+        n = self.n
+        if self.order is None:
+            lu = splu(sp.csc_matrix((data, self.indices, self.indptr), shape=(n, n)),
+                      permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                      options={"SymmetricMode": True})
+            self.order = lu.perm_c
+            columns = np.repeat(np.arange(n), np.diff(self.indptr))
+            key = self.order[columns] * n + self.order[self.indices]
+            unique, self._slot = np.unique(key, return_inverse=True)
+            self._permuted_indices = unique % n
+            self._permuted_indptr = np.concatenate(
+                [[0], np.cumsum(np.bincount(unique // n, minlength=n))])
+            return OrderedLU(lu, None)
+        permuted = sp.csc_matrix((np.bincount(self._slot, data, len(self._permuted_indices)),
+                                  self._permuted_indices, self._permuted_indptr), shape=(n, n))
+        lu = splu(permuted, permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+        return OrderedLU(lu, self.order)
+
+
+class OrderedLU:
+    """An LU of a symmetrically permuted matrix B = P A Pᵀ (B[order[i], order[j]] =
+    A[i, j]), solving with A (trans "N") or Aᵀ (trans "T"); order None: an LU of A."""
+
+    def __init__(self, lu: SuperLU, order: np.ndarray | None) -> None:
+        self.lu, self.order = lu, order
+        self.inverse = None if order is None else np.argsort(order)
+
+    def solve(self, rhs: np.ndarray, trans: str = "N") -> np.ndarray:
+        if self.order is None:
+            return self.lu.solve(rhs, trans=trans)
+        return self.lu.solve(np.ascontiguousarray(rhs[self.inverse]), trans=trans)[self.order]
 
 
 class BoltzmannPosterior:
@@ -94,7 +138,7 @@ class BoltzmannPosterior:
         self._planes: list[tuple[float, np.ndarray, float]] = []
         # I − γ^τ P_π in CSR, row s = [diagonal, out-edges of s in edge order]: the pattern
         # is fixed, so each solve only fills in the policy's values; the last LU (_solve).
-        self._lu: SuperLU | None = None
+        self._lu: OrderedLU | None = None
         # Without discounting: the last (θ, V, m, y) of _linear_soft_values
         self._linear: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         n, rows = mdp.n_nodes, np.arange(mdp.n_nodes + 1)
@@ -103,12 +147,13 @@ class BoltzmannPosterior:
         self._edge_slots = np.arange(len(mdp.src)) + mdp.src + 1
         self._indices = np.empty(len(mdp.src) + n, dtype=np.int64)
         self._indices[self._diagonal], self._indices[self._edge_slots] = rows[:-1], mdp.dst
+        self._factors = PatternLU(self._indices, self._indptr)
 
     def _solve(self, pi: np.ndarray, rhs: np.ndarray, trans: str) -> np.ndarray:
         """x with (I − γ^τ P_π) x = rhs (trans "T": policy evaluation) or its transpose
         (trans "N": discounted visits), for edge probabilities pi; rhs (n,) or (n, k).
 
-        A sparse LU (`factorise`) costs about n^1.5 on these graphs (26 ms at 5000 nodes,
+        A sparse LU (`PatternLU`) costs about n^1.5 on these graphs (26 ms at 5000 nodes,
         0.33 s at 20 000), but the
         policies met in a row (Newton steps, nearby parameters of a line search) differ
         little: iterative refinement on the last LU, x += LU⁻¹(rhs − A x), converges in a
@@ -134,7 +179,7 @@ class BoltzmannPosterior:
                     break  # too far from the factored policy
                 last = error
                 x = x + self._lu.solve(residual, trans=trans)
-        self._lu = factorise(transposed)
+        self._lu = self._factors.factorise(data)
         return self._lu.solve(rhs, trans=trans)
 
     def _log_weights(self, theta: np.ndarray) -> np.ndarray:

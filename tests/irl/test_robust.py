@@ -13,7 +13,7 @@ from pipeline.core.graph_mdp import GraphMDP, MDPParams, Path
 from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
-from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity
+from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity, PatternLU
 from tests.conftest import TWO_ROUTES_GAMMA as GAMMA
 from tests.conftest import two_routes
 from tests.irl.conftest import central_difference
@@ -398,3 +398,38 @@ def test_the_old_spelling_of_the_test_level_still_works_with_a_warning(caplog):
     assert config.test_level == 0.05 and config.lr_level is None
     assert [r.getMessage() for r in caplog.records] == [
         "birl.lr_level is deprecated and will be removed: use birl.test_level"]
+
+
+def test_pattern_lu_reuses_its_ordering_and_sums_a_self_loop_into_the_diagonal():
+    """The first LU computes the ordering; later ones factorise the matrix permuted by it.
+    Both solve like dense solves, for vectors and matrices, in both orientations, with a
+    self-loop's entry (the diagonal's position twice) summed."""
+    rng = np.random.default_rng(4)
+    n = 40
+    src = np.concatenate([np.arange(n - 1), np.arange(1, n), [7, 7, 20]])
+    dst = np.concatenate([np.arange(1, n), np.arange(n - 1), [7, 30, 20]])  # two self-loops
+    order = np.lexsort((dst, src))
+    src, dst = src[order], dst[order]
+    # CSC of the transpose of I − P: column s = row s of I − P, diagonal first
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=n) + 1)])
+    indices = np.empty(indptr[-1], np.int64)
+    diagonal = indptr[:-1]
+    edge_slots = np.arange(len(src)) + src + 1
+    indices[diagonal], indices[edge_slots] = np.arange(n), dst
+    factors = PatternLU(indices, indptr)
+    for k in range(3):  # the first LU, then two reusing its ordering
+        p = rng.uniform(0.1, 1.0, len(src))
+        p *= 0.9 / np.bincount(src, p, minlength=n)[src]  # rows sum to 0.9
+        data = np.empty(indptr[-1])
+        data[diagonal], data[edge_slots] = 1.0, -p
+        lu = factors.factorise(data)
+        assert (lu.order is None) == (k == 0)
+        dense = np.eye(n)
+        np.add.at(dense, (src, dst), -p)
+        rhs = rng.normal(size=(n, 3))
+        np.testing.assert_allclose(lu.solve(rhs[:, 0], "T"), np.linalg.solve(dense, rhs[:, 0]),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(lu.solve(rhs, "T"), np.linalg.solve(dense, rhs),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(lu.solve(rhs, "N"), np.linalg.solve(dense.T, rhs),
+                                   rtol=0, atol=1e-12)
