@@ -198,9 +198,9 @@ def main(argv=None) -> None:
     print(f"scaling: rooms and graph sizes {grid}, methods {args.methods}", flush=True)
     old = pd.read_csv(RESULTS / "scaling.csv", keep_default_na=False) \
         if args.merge and (RESULTS / "scaling.csv").exists() else None
-    if old is not None:
-        old["time_to_policywalk_loss_s"] = pd.to_numeric(old["time_to_policywalk_loss_s"],
-                                                         errors="coerce")
+    if old is not None:  # numbers back to numbers (a failed row's are empty: NaN)
+        for name in old.columns.difference(["method", "error"]):
+            old[name] = pd.to_numeric(old[name], errors="coerce")
     earlier = {} if old is None else {
         (r.room_m, r.graph_nodes): float(r.policy_loss_ref)
         for r in old[old.method == "policywalk"].itertuples()}
