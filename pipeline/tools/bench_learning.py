@@ -14,8 +14,11 @@ Demonstrators: synthetic experts that share the learner's features (optimal, Bol
 β_E 50/20/5, one walk per start), the hand-drawn-like set, and the independent planner
 (`expert=planner`, its own cost form): learned with subjects held out
 (leave-subjects-out), and learned on metropolis then deployed with `birl=fixed` on three
-random scenes, judged on the planner's own paths there (`evaluate.holdout=all`). The first
-three stages run once per (demonstrator, seed); every learner starts from them.
+random scenes, judged on the planner's own paths there (`evaluate.holdout=all`); and 80
+passes of a standing person in a hallway by 16 planner subjects, 4 held out per seed (the
+stand-in for recorded passes of people): the learned roadmap paths' passing distance
+against the demonstrators' 10-90 % range. The first three stages run once per
+(demonstrator, seed); every learner starts from them.
 """
 
 from __future__ import annotations
@@ -42,7 +45,10 @@ DEMONSTRATORS: dict[str, list[str]] = {
     "handdrawn": ["expert=file", f"expert.path={HANDDRAWN}"],
     "planner_heldout": PLANNER,  # + evaluate.holdout=[s<seed mod 5>]
     "planner_transfer": PLANNER,  # learned here, judged on three random scenes
+    # 80 passes of a standing person by 16 planner subjects, 4 subjects held out per seed
+    "planner_hallway": ["scene=hallway", "expert=planner", "expert.n_subjects=16"],
 }
+HALLWAY_SUBJECTS, HALLWAY_HELD_OUT = 16, 4
 LEARNERS: dict[str, list[str]] = {
     "default": [],
     "paper": ["birl.likelihood=paper"],
@@ -85,6 +91,9 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
     base_overrides = [*DEMONSTRATORS[demonstrator], f"seed={seed}"]
     if demonstrator == "planner_heldout":
         base_overrides.append(f"evaluate.holdout=[s{seed % 5}]")
+    if demonstrator == "planner_hallway":
+        held = [(HALLWAY_HELD_OUT * seed + k) % HALLWAY_SUBJECTS for k in range(HALLWAY_HELD_OUT)]
+        base_overrides.append(f"evaluate.holdout=[{','.join(f's{k}' for k in held)}]")
     base = tmp / f"{demonstrator}-{seed}"
     run_in_process(base, *base_overrides, "stages=[scene,demos,graph]")
     rows = []
@@ -105,6 +114,8 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
         if demonstrator == "planner_transfer":
             m = transfer(tmp, learned, name, seed, m,
                          [o for o in overrides if o.startswith("birl.features")])
+        if demonstrator == "planner_hallway":
+            row |= passing_distances(learned)
         rows.append(row | {k: m.get(k, np.nan) for k in KEYS})
         print(f"  {rows[-1]}", flush=True)
     return rows
@@ -127,6 +138,27 @@ def transfer(tmp: Path, learned: Path, name: str, seed: int, metrics: dict,
     return out
 
 
+def passing_distances(run: Path) -> dict:
+    """How closely the demonstrators that learning saw passed the people (10 % and 90 %
+    quantiles of each demonstration's smallest distance), and the learned reward's paths
+    on the reference roadmap: their median, and the fraction within the demonstrators'
+    10-90 % range."""
+    from pipeline import api
+    from pipeline.core.social import min_distance_to_person
+
+    done = api.open_run(run)
+    persons = done.scene().person_xy
+    demos = done.messages("demos", "/demos")
+    seen = [min_distance_to_person(np.asarray(p, float), persons)
+            for p, held in zip(demos.points, demos.heldout, strict=True) if not held]
+    low, high = np.percentile(seen, [10, 90])
+    learned = np.array([min_distance_to_person(np.asarray(p, float), persons)
+                        for p in done.paths("ref").values()])
+    return {"people_pass_p10_m": float(low), "people_pass_p90_m": float(high),
+            "ref_pass_median_m": float(np.median(learned)),
+            "ref_pass_in_range": float(np.mean((learned >= low) & (learned <= high)))}
+
+
 def summary(table: pd.DataFrame) -> pd.DataFrame:
     ok = table[table.get("error").isna()] if "error" in table else table
     grouped = ok.groupby(["demonstrator", "learner"], sort=False)
@@ -142,6 +174,13 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
                       heldout_frechet_m_shortest=("heldout_frechet_m_shortest", "median"),
                       heldout_min_distance_error_m=("heldout_min_distance_error_m", "median"),
                       learn_s=("time_birl_learn_s", "median"))
+    if "ref_pass_in_range" in ok:  # the hallway: passing distances
+        passes = ok.groupby(["demonstrator", "learner"], sort=False).agg(
+            people_pass_p10_m=("people_pass_p10_m", "median"),
+            people_pass_p90_m=("people_pass_p90_m", "median"),
+            ref_pass_median_m=("ref_pass_median_m", "median"),
+            ref_pass_in_range=("ref_pass_in_range", "mean"))
+        out = out.join(passes)
     out["heldout_frechet_ratio"] = out["heldout_frechet_m"] / out["heldout_frechet_m_shortest"]
     return out.reset_index()
 
