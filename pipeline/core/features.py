@@ -6,6 +6,7 @@ the path is sampled and the features of a concatenated path are the sums of its 
 
 - relation       = ∫ Σ_links max(0, ρ_r − d(p, link)) · [p projects inside the link] ds
 - social         = ∫ max(0, ρ_p − min_i d_i) ds
+- social_squared = ∫ max(0, ρ_p − min_i d_i)² / ρ_p ds     (the hinge squared: convex in depth)
 - intimate       = ∫ max(0, 0.45 − min_i d_i) ds                 (social at Hall's 0.45 m)
 - gaussian       = ∫ Σ_i exp(−d_i² / 2σ²) ds
 - front          = ∫ max_i [max(0, ρ_p − d_i) · max(0, cos φ_i)] ds, φ_i the angle between
@@ -14,6 +15,11 @@ the path is sampled and the features of a concatenated path are the sums of its 
 - obstacle       = ∫ max(0, ρ_o − c(p)) ds
 - goal_deviation = total increase of |p − g| along the path
 - length         = ∫ ds
+
+`social` costs each metre of depth alike, so a reward of it alone passes a person either
+outside ρ_p or as close as the path allows, whichever is cheaper: nothing in between.
+`social_squared` costs deeper metres more, so a weighed trade-off with the detour's time
+stops at a depth of its own: a reward can say "pass at about 1 m".
 
 `front` takes, like `social`, the largest hinge over the persons (social's
 max(0, ρ − min_i d_i) is max_i max(0, ρ − d_i)), each person's hinge weighted by how much p
@@ -60,7 +66,8 @@ FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "lengt
 # Every feature kind, and the FeatureParams field that holds its parameter when the name
 # carries no `@value` (None: the kind takes no parameter).
 _PARAMETER_FIELD: dict[str, str | None] = {
-    "relation": "rho_relation", "social": "rho_personal", "intimate": None,
+    "relation": "rho_relation", "social": "rho_personal", "social_squared": "rho_personal",
+    "intimate": None,
     "gaussian": "sigma", "front": "rho_personal", "group_space": "rho_group",
     "obstacle": "rho_obstacle", "goal_deviation": None, "length": None, "crossing": None,
 }
@@ -71,7 +78,7 @@ FEATURE_KINDS: tuple[str, ...] = tuple(_PARAMETER_FIELD)
 GAUSSIAN_CUTOFF = 1e-12
 _GAUSSIAN_REACH = math.sqrt(2.0 * math.log(1.0 / GAUSSIAN_CUTOFF))
 
-_PERSON_KINDS = frozenset({"social", "gaussian", "front"})
+_PERSON_KINDS = frozenset({"social", "social_squared", "gaussian", "front"})
 # Densities evaluated tile by tile; on segments all but relation are integrated by sub-steps.
 _TILED_KINDS = _PERSON_KINDS | {"relation", "group_space"}
 
@@ -98,7 +105,7 @@ class FeatureParams:
     """Which features make up the reward, in which order, and their constants."""
     features: list[str] = field(default_factory=lambda: list(FEATURE_NAMES))
     rho_relation: float = 0.6  # m, ρ_r
-    rho_personal: float = 1.2  # m, ρ_p (social, front)
+    rho_personal: float = 1.2  # m, ρ_p (social, social_squared, front)
     resolution: float = 0.05  # m, integration step of the density features
     sigma: float = 0.8  # m, σ of gaussian: a third of the peak at ρ_p, ~0 beyond 3σ = 2.4 m
     rho_group: float = 0.3  # m, o-space radius beyond the members' mean distance to the centre
@@ -291,10 +298,11 @@ class FeatureModel:
             assert dx is not None and dy is not None
             if len(who) == 0:
                 out[:, col] = 0.0
-            elif f.kind == "social":  # social, intimate and social@ρ share the nearest
+            elif f.kind in ("social", "social_squared"):  # all of them share the nearest
                 if nearest is None:
                     nearest = np.sqrt(dist2.min(axis=1))
-                out[:, col] = np.maximum(0.0, f.value - nearest)
+                depth = np.maximum(0.0, f.value - nearest)
+                out[:, col] = depth if f.kind == "social" else depth * depth / f.value
             elif f.kind == "front":
                 dist = np.sqrt(dist2)
                 heading = self._heading_vectors[who]

@@ -8,7 +8,8 @@ learning.png.
     python -m pipeline.tools.bench_learning --learners policywalk maxent --merge  # add rows
     python -m pipeline.tools.bench_learning --table learner_features \
         --demonstrators handdrawn planner_heldout planner_transfer --seeds 0 1 2 3 4 \
-        --learners default paper_features rich_features hinge_features gaussian_features
+        --learners default paper_features rich_features hinge_features gaussian_features \
+        squared_features hinge_squared_features
 
 Demonstrators: synthetic experts that share the learner's features (optimal, Boltzmann
 β_E 50/20/5, one walk per start), the hand-drawn-like set, and the independent planner
@@ -63,6 +64,8 @@ FEATURE_SETS = {
                      "length]",
     "hinge_features": "[relation,crossing,social@0.6,social,social@2.0,goal_deviation,length]",
     "gaussian_features": "[relation,crossing,group_space,gaussian,goal_deviation,length]",
+    "squared_features": "[relation,crossing,social_squared,goal_deviation,length]",
+    "hinge_squared_features": "[relation,crossing,social,social_squared,goal_deviation,length]",
 }
 METHODS = tuple(LEARNERS)  # what runs unless --learners says otherwise
 LEARNERS |= {name: [f"birl.features={features}"] for name, features in FEATURE_SETS.items()}

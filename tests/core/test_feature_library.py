@@ -31,8 +31,8 @@ from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import ROOT
 
 K = FeatureParams().resolution  # the default sub-step bound, 0.05 m
-EVERY_LOCAL = ("relation", "intimate", "social@0.8", "social", "gaussian", "front",
-               "group_space")
+EVERY_LOCAL = ("relation", "intimate", "social@0.8", "social", "social_squared", "gaussian",
+               "front", "group_space")
 
 
 def midpoint_bound(length, f2_max, kinks=(), k=K):
@@ -158,6 +158,35 @@ def test_hinge_past_a_person_at_known_distance(name, rho, h):
     got = fm.polyline(line(-3, h, 3, h))[0]
     assert abs(got - hinge_integral(rho, h)) <= hinge_bound(rho, h)
     assert hinge_bound(rho, h) < 0.02 * hinge_integral(rho, h)  # sees a wrong factor
+
+
+def squared_hinge_integral(rho, h):
+    """∫ max(0, ρ − √(t² + h²))² / ρ dt over the line at distance h < ρ: with
+    a = √(ρ² − h²), expanding the square and ∫_{−a}^{a} √(t² + h²) dt = aρ + h² asinh(a/h),
+    (2a³/3 + 2ah² − 2ρh² asinh(a/h)) / ρ."""
+    a = math.sqrt(rho**2 - h**2)
+    return (2 * a**3 / 3 + 2 * a * h**2 - 2 * rho * h**2 * math.asinh(a / h)) / rho
+
+
+@pytest.mark.parametrize("name, rho, h", [("social_squared", 1.2, 0.5),
+                                          ("social_squared@0.8", 0.8, 0.3),
+                                          ("social_squared@2.0", 2.0, 1.4)])
+def test_squared_hinge_past_a_person_at_known_distance(name, rho, h):
+    fm = model([(0, 0)], [name, "social@" + str(rho)])
+    got, linear = fm.polyline(line(-3, h, 3, h))
+    # midpoint rule: |f''| <= (2/ρ)(1 + ρ/h) on the 2a where f > 0, f' continuous
+    a = math.sqrt(rho**2 - h**2)
+    bound = midpoint_bound(2 * a, 2 / rho * (1 + rho / h))
+    assert abs(got - squared_hinge_integral(rho, h)) <= bound
+    assert bound < 0.02 * squared_hinge_integral(rho, h)  # sees a wrong factor
+    assert 0 < got < linear  # depth/ρ < 1: the square weighs every metre less than the hinge
+
+
+def test_the_squared_hinge_grows_with_depth_faster_than_the_hinge():
+    # Passing twice as deep costs the hinge about three times as much here, the square more.
+    fm = model([(0, 0)], ["social", "social_squared"])
+    shallow, deep = fm.polyline(line(-3, 0.9, 3, 0.9)), fm.polyline(line(-3, 0.6, 3, 0.6))
+    assert deep[1] / shallow[1] > deep[0] / shallow[0] > 1
 
 
 def test_a_family_of_hinges_side_by_side():
