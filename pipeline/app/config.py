@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +24,8 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
 
 from pipeline.app.metric_keys import is_metric_key
-from pipeline.artefacts.topics import STAGES
+from pipeline.artefacts.store import read_artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE, BIRL_EXPERT, STAGES
 from pipeline.core.adaptive_graph import GraphParams
 from pipeline.core.controllers import CONTROLLERS, PosqController
 from pipeline.core.experts import BoltzmannParams
@@ -44,6 +46,7 @@ from pipeline.core.world import BodyParams
 from pipeline.errors import PipelineError
 from pipeline.irl import methods
 from pipeline.irl.base import IRLConfig
+from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import broadcast
 
 # -- scene ---------------------------------------------------------------------------------
@@ -247,10 +250,15 @@ class Config:
 
     @property
     def learner_features(self) -> list[str]:
-        """The features the reward is learned on: birl.features, else reward.features and
+        """The features the reward is learned on: birl.features; with birl=fixed
+        birl.from_run=RUN, those RUN learned on; else reward.features and
         LEARNER_EXTRA_FEATURES (one learner for every demonstrator)."""
         if self.birl.features is not None:
             return list(self.birl.features)
+        if isinstance(self.birl, FixedConfig) and self.birl.from_run is not None:
+            learned = learned_feature_names(self.birl.from_run)
+            if learned is not None:  # a deployment plans on the features it learned on
+                return list(learned)
         names = list(self.reward.features)
         return names + [n for n in LEARNER_EXTRA_FEATURES if n not in names]
 
@@ -266,6 +274,31 @@ class Config:
     def n_features(self) -> int:
         """How many weights are learned."""
         return len(self.learner_features)
+
+
+def learned_feature_names(run: str) -> tuple[str, ...] | None:
+    """The features the reward of run dir `run` was learned on (its birl.mcap), or None
+    while it cannot be read (preflight checks birl.from_run and says why)."""
+    from pipeline.app.context import resolve_path  # context imports this module
+
+    path = resolve_path(run) / ARTEFACT_FILE["birl"]
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    return _feature_names_in(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=8)
+def _feature_names_in(path: Path, mtime_ns: int, size: int) -> tuple[str, ...] | None:
+    """birl.mcap's feature names, read once per version of the file (mtime, size)."""
+    try:
+        names = read_artefact(path, required_topics=[BIRL_EXPERT]).one(BIRL_EXPERT)[
+            "feature_names"]
+    except (PipelineError, KeyError, TypeError):
+        return None
+    return tuple(names) if isinstance(names, list) and all(
+        isinstance(n, str) for n in names) else None
 
 
 def config_groups_help() -> str:

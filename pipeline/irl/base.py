@@ -32,7 +32,8 @@ class IRLConfig(BoxConfig):
     n_iterations: int = 20
     init_weights: Optional[list[float]] = None  # null: drawn from the prior with the seed
     # The learner's features (names as reward.features, e.g. social@0.8); null:
-    # reward.features and crossing, for every demonstrator
+    # reward.features and crossing, for every demonstrator; birl=fixed birl.from_run=RUN:
+    # the features RUN learned on
     features: Optional[list[str]] = None
 
     def __post_init__(self) -> None:

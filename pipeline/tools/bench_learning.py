@@ -146,17 +146,16 @@ def passing_distances(run: Path) -> dict:
     quantiles of each demonstration's smallest distance), and the learned reward's paths
     on the reference roadmap: their median, and the fraction within the demonstrators'
     10-90 % range."""
-    from pipeline import api
+    from pipeline.artefacts import codec, read_artefact, topics
     from pipeline.core.social import min_distance_to_person
 
-    done = api.open_run(run)
-    persons = done.scene().person_xy
-    demos = done.messages("demos", "/demos")
-    seen = [min_distance_to_person(np.asarray(p, float), persons)
-            for p, held in zip(demos.points, demos.heldout, strict=True) if not held]
+    persons = codec.decode_scene(read_artefact(run / "scene.mcap")).person_xy
+    seen = [min_distance_to_person(np.asarray(d["points"], float), persons)
+            for d in read_artefact(run / "demos.mcap").all(topics.DEMOS) if not d["heldout"]]
     low, high = np.percentile(seen, [10, 90])
-    learned = np.array([min_distance_to_person(np.asarray(p, float), persons)
-                        for p in done.paths("ref").values()])
+    learned = np.array([min_distance_to_person(np.asarray(p["points"], float), persons)
+                        for p in read_artefact(run / "eval.mcap").all(topics.EVAL_PATHS)
+                        if p["graph"] == "ref"])
     return {"people_pass_p10_m": float(low), "people_pass_p90_m": float(high),
             "ref_pass_median_m": float(np.median(learned)),
             "ref_pass_in_range": float(np.mean((learned >= low) & (learned <= high)))}

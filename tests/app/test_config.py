@@ -96,3 +96,13 @@ def test_the_old_spelling_of_n_starts_still_works_with_a_warning(caplog):
         settings = validate(compose_config("expert.n_demos=3"))
     assert settings.expert.n_starts == 3
     assert "expert.n_demos is deprecated and will be removed: use expert.n_starts" in caplog.text
+
+
+@pytest.mark.parametrize("overrides, expected", [
+    ([], ["relation", "social", "goal_deviation", "length", "crossing"]),
+    (["expert=planner"], ["relation", "social", "goal_deviation", "length", "crossing"]),
+    (["expert=planner", "birl.features=[relation,social,length]"],
+     ["relation", "social", "length"]),
+])
+def test_the_learners_default_features_are_the_rewards_and_crossing(overrides, expected):
+    assert validate(compose_config(*overrides)).learner_features == expected

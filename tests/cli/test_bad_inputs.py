@@ -899,8 +899,7 @@ FIXED_CASES = {
                        f"{_fixed_from(t, d, lambda s: (s / 'birl.mcap').unlink())}"],
                       ["birl.mcap", "not found"])),
     "fixed from a run on other features": (
-        lambda t, d: (["birl=fixed", f"birl.from_run={d}",
-                       "reward.features=[relation,length]", "reward.weights=[0,0]"],
+        lambda t, d: (["birl=fixed", f"birl.from_run={d}", "birl.features=[relation,length]"],
                       ["birl.from_run", "birl.features"])),
     "fixed from a truncated birl.mcap": (
         lambda t, d: (["birl=fixed", f"birl.from_run={_fixed_from(t, d, _truncate_birl)}"],

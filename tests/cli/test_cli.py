@@ -35,7 +35,7 @@ def test_help_lists_groups_and_options_without_schemas():
     assert result.returncode == 0, result.stderr
     text = result.stdout
     assert text.startswith("birlg: BIRL-G")
-    assert "scene: file, metropolis, office, random" in text
+    assert "scene: file, hallway, metropolis, office, random" in text
     assert "base_" not in text and "__main__" not in text and "powered by Hydra" not in text
     assert len(text.splitlines()) < 40  # groups and options, not the whole config
 

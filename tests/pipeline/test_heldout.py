@@ -115,3 +115,21 @@ def test_deployment_without_demonstrations_plans_with_the_given_reward(tmp_path)
     assert not demos.messages.get(topics.DEMOS)
     assert "policy_loss" not in metrics and metrics["ref_success"] == 1.0
     assert json.loads((tmp_path / "status.json").read_text())["state"] == "complete"
+
+
+def test_a_deployment_plans_on_the_features_its_reward_was_learned_on(tmp_path):
+    """birl=fixed birl.from_run=RUN without birl.features takes RUN's learner features
+    (here six, one more than the default five)."""
+    learned = tmp_path / "learned"
+    six = "[relation,social,social_squared,goal_deviation,length,crossing]"
+    metrics, _ = run_in_process(learned, *QUICK, "expert=file",
+                                "expert.path=data/demos/metropolis_handdrawn.json",
+                                f"birl.features={six}")
+    deployed, out = run_in_process(tmp_path / "deployed", "graph=small", "expert=none",
+                                   "birl=fixed", f"birl.from_run={learned}")
+    names = read_artefact(tmp_path / "deployed" / "birl.mcap").one(
+        topics.BIRL_EXPERT)["feature_names"]
+    assert names == six.strip("[]").split(",")
+    for name in names:
+        assert deployed[f"weight_{name}"] == metrics[f"weight_{name}"]
+    assert deployed["ref_success"] == 1.0
