@@ -118,6 +118,10 @@ def decode_roadmap(art: Artefact, mdp: MDPParams) -> SpatialGraph:
     """The reference roadmap of demos.mcap as a SpatialGraph (straight edges)."""
     reader = _Columns(art, topics.DEMOS_ROADMAP)
     msg = art.one(topics.DEMOS_ROADMAP)
+    if isinstance(msg.get("positions"), list):  # JSON arrays: written before the columns
+        raise ArtefactError(f"artefact {art.path} holds the reference roadmap as JSON arrays, "
+                            "the layout of an earlier version: re-make it (add 'demos' to "
+                            "stages)")
     n, e, d = (reader.count(msg, k) for k in ("n_nodes", "n_edges", "n_features"))
     positions = reader.array(msg, "positions", F64, 2 * n).reshape(n, 2)
     src, dst = (reader.array(msg, k, I32, e).astype(np.int64) for k in ("src", "dst"))

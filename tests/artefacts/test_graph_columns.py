@@ -267,6 +267,7 @@ def test_the_roadmap_round_trips_to_the_bit(tmp_path, roadmap):
     (lambda m: m.update(src=[0, 1]), ["column 'src' is not a base64"]),
     (lambda m: m.pop("terminal"), ["without the field 'terminal'"]),
     (lambda m: m.update(n_nodes="9"), ["'n_nodes' is not a non-negative"]),
+    (lambda m: m.update(positions=[[0.0, 0.0]]), ["JSON arrays", "add 'demos' to stages"]),
 ])
 def test_a_garbled_roadmap_is_a_one_line_error(tmp_path, roadmap, garble, words):
     rm, mdp, solution = roadmap
