@@ -196,11 +196,9 @@ def main(argv=None) -> None:
     if args.max_nodes is not None:
         grid = {side: [n for n in sizes if n <= args.max_nodes] for side, sizes in grid.items()}
     print(f"scaling: rooms and graph sizes {grid}, methods {args.methods}", flush=True)
-    old = pd.read_csv(RESULTS / "scaling.csv", keep_default_na=False) \
+    # the kept rows: numbers as numbers (a failed row's are NaN), no error as "" (run_grid's)
+    old = pd.read_csv(RESULTS / "scaling.csv", dtype={"error": str}).fillna({"error": ""}) \
         if args.merge and (RESULTS / "scaling.csv").exists() else None
-    if old is not None:  # numbers back to numbers (a failed row's are empty: NaN)
-        for name in old.columns.difference(["method", "error"]):
-            old[name] = pd.to_numeric(old[name], errors="coerce")
     earlier = {} if old is None else {
         (r.room_m, r.graph_nodes): float(r.policy_loss_ref)
         for r in old[old.method == "policywalk"].itertuples()}
