@@ -116,6 +116,9 @@ def test_name_at_value_sets_the_parameter_and_plain_names_take_the_params():
     (["social@0.8", "social@0.80"], "'social@0.80' is the same feature as 'social@0.8'"),
     (["social@0.45", "intimate"], "'intimate' is the same feature as 'social@0.45'"),
     (["front@1.2", "front"], "'front' is the same feature as 'front@1.2'"),
+    (["social_squared@-1"], "finite number > 0"),
+    (["social_squared", "social_squared@1.2"],
+     "'social_squared@1.2' is the same feature as 'social_squared'"),
     (["length", "length"], "'length' is the same feature as 'length'"),
 ])
 def test_bad_feature_names_are_refused_naming_the_field_and_the_allowed_names(features,
