@@ -158,20 +158,41 @@ def best_rows(means: pd.DataFrame) -> dict[str, set[int]]:
     return best
 
 
+# LaTeX's special characters, escaped as pandas' to_latex(escape=True) does; ± and β in math.
+_LATEX_ESCAPES = {"\\": r"\textbackslash ", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#",
+                  "_": r"\_", "{": r"\{", "}": r"\}", "~": r"\textasciitilde ",
+                  "^": r"\textasciicircum ", "±": r"$\pm$", "β": r"$\beta$"}
+_LATEX_SPECIAL = re.compile("|".join(re.escape(k) for k in _LATEX_ESCAPES))
+
+
+def latex_cell(value) -> str:
+    return _LATEX_SPECIAL.sub(lambda m: _LATEX_ESCAPES[m.group()], str(value))
+
+
+def latex_table(results: pd.DataFrame, bold: dict[str, set[int]]) -> str:
+    """A booktabs tabular of the results, the cells of `bold` (column -> rows) in bold.
+    Written here rather than by DataFrame.to_latex, whose Styler and jinja2 templates take
+    longer to load than the rest of the aggregation."""
+    align = "".join("r" if pd.api.types.is_numeric_dtype(results[c]) else "l"
+                    for c in results.columns)
+    lines = [rf"\begin{{tabular}}{{{align}}}", r"\toprule",
+             " & ".join(latex_cell(c) for c in results.columns) + r" \\", r"\midrule"]
+    for i, row in enumerate(results.itertuples(index=False)):
+        cells = [latex_cell(v) for v in row]
+        cells = [rf"\textbf{{{c}}}" if i in bold.get(col, ()) else c
+                 for col, c in zip(results.columns, cells, strict=True)]
+        lines.append(" & ".join(cells) + r" \\")
+    return "\n".join([*lines, r"\bottomrule", r"\end{tabular}", ""])
+
+
 def write_tables(table: pd.DataFrame, sweep_dir: Path) -> None:
     results = results_table(table)
     if results.empty:
         return
     (sweep_dir / "table.md").write_text(results.to_markdown(index=False) + "\n")
-    marked = results.copy()
-    if len(results) > 1:  # the best value of each metric in bold
-        for col, rows in best_rows(results.attrs["means"]).items():
-            for i in rows:
-                marked.loc[i, col] = f"BEST{marked.loc[i, col]}TSEB"
-    latex = marked.to_latex(index=False, escape=True).replace("±", "$\\pm$") \
-        .replace("β", "$\\beta$")
-    latex = re.sub(r"BEST(.*?)TSEB", r"\\textbf{\1}", latex)
-    (sweep_dir / "table.tex").write_text(latex)
+    # the best value of each metric in bold, where there is more than one row to compare
+    bold = best_rows(results.attrs["means"]) if len(results) > 1 else {}
+    (sweep_dir / "table.tex").write_text(latex_table(results, bold))
 
 
 def aggregate(sweep_dir: Path, figures: bool = True) -> pd.DataFrame:

@@ -41,3 +41,17 @@ def test_the_best_value_of_each_metric_is_bold_in_latex(tmp_path):
     assert "\\textbf{0.0200 $\\pm$ 0.0141}" in polite
     assert "BEST" not in tex and "TSEB" not in tex
     assert "BEST" not in (tmp_path / "table.md").read_text()
+
+
+def test_the_latex_table_is_what_pandas_writes():
+    """latex_table (written by hand to skip pandas' Styler) against DataFrame.to_latex, with
+    every character LaTeX treats specially."""
+    from pipeline.tools.aggregate import latex_table
+
+    results = pd.DataFrame({"method": ["BIRL-G (MAP)", "a_b & 50% #1 {x} $y ~z ^w \\v"],
+                            "seeds": [3, 10], "β": ["0.1 ± 0.0", "2"]})
+    pandas = results.to_latex(index=False, escape=True).replace("±", "$\\pm$") \
+        .replace("β", "$\\beta$")
+    assert latex_table(results, {}) == pandas
+    bold = latex_table(results, {"seeds": {1}})
+    assert bold.splitlines()[5].split(" & ")[1] == "\\textbf{10}"
