@@ -66,8 +66,11 @@ class GraphEnvironment:
 class GrowingGraphEnvironment(GraphEnvironment):
     """`birl.grow_nodes: k`: before every rollout but the first (which scores the stored
     graph under w0), the adaptive graph grows k more nodes under the current weights, so
-    it adapts to the reward being learned. `grown` reports each growth (nodes added,
-    nodes now), e.g. to a log."""
+    it adapts to the reward being learned; once per weight vector: a method that rolls
+    out weights it has grown under before (the robust form records its choice among
+    earlier iterates) reuses the graph as it is, which halves the robust form's growth
+    and changes none of its choices. `grown` reports each growth (nodes added, nodes
+    now), e.g. to a log."""
 
     def __init__(self, adaptive: AdaptiveGraph, mdp: MDPParams, grow_nodes: int,
                  grown: Callable[[int, int], None] | None = None) -> None:
@@ -75,9 +78,12 @@ class GrowingGraphEnvironment(GraphEnvironment):
         self.adaptive, self.grow_nodes, self._grown = adaptive, grow_nodes, grown
         self.base_nodes, self.base_edges = adaptive.n_nodes, len(adaptive.src)
         self._calls = 0
+        self._grown_under: set[tuple[float, ...]] = set()  # weights grown under so far
 
     def rollout(self, w: np.ndarray) -> Rollout:
-        if self._calls > 0:
+        key = tuple(np.asarray(w, float))
+        if self._calls > 0 and key not in self._grown_under:
+            self._grown_under.add(key)
             self.adaptive.set_weights(w)
             added = self.adaptive.grow_by(self.grow_nodes)
             self._graph = spatial_graph(self.adaptive)

@@ -133,7 +133,7 @@ def test_baselines_write_the_same_topics(tmp_path_factory, method, overrides):
 
 def test_graph_grows_under_the_learned_weights(tmp_path_factory):
     # The paper's loop: one solve (and growth) per iteration. The robust form also runs
-    # that loop and then records its choice with one more solve, so it grows twice as much.
+    # that loop and then records its choice among the iterates, which grows nothing more.
     run_dir, m, _ = run_experiment(tmp_path_factory, "graph=small", "birl.n_iterations=3",
                                    "birl.grow_nodes=5", "birl.likelihood=paper")
     birl = read_artefact(run_dir / "birl.mcap", required_topics=["/birl/graph_nodes",
