@@ -52,8 +52,10 @@ def scene(cfg: Config, rng_for_seed) -> Scene:
             check_reachability_lattice(spec.width * spec.height,
                                        spec.n_singles + spec.n_groups * spec.group_size_max,
                                        spec.width, spec.height)
+        # a drawn scene the reference roadmap cannot connect is drawn again, not refused
         return random_scene(spec, rng_for_seed(seed), name=f"random-{seed}", map_grid=map_grid,
-                            map_source=sc.map)
+                            map_source=sc.map,
+                            accept=lambda s: not roadmap_cut_off(s, cfg.roadmap))
     return scene_file(sc.path, body_radius=sc.body_radius, goal_tolerance=sc.goal_tolerance,
                       robot_radius=sc.robot_radius)
 
@@ -181,15 +183,19 @@ def unreachable_message(scene: Scene, cut_off: list[int], spacing: float) -> str
             "persons' body disks or obstacles; move them or the start, or lower roadmap.spacing")
 
 
-def check_roadmap_reaches_goal(scene: Scene, params: RoadmapParams) -> None:
-    """Every start reaches the goal on the reference roadmap's lattice (its edges only, no
-    features: what `reference_roadmap` would refuse, found without building it)."""
+def roadmap_cut_off(scene: Scene, params: RoadmapParams) -> list[int]:
+    """The starts that cannot reach the goal on the reference roadmap's lattice (its edges
+    only, no features: what `reference_roadmap` would refuse, found without building it)."""
     positions, src, dst = lattice_graph(scene, params.spacing, params.connectivity)
     n = len(positions)
     n_starts = len(scene.starts)
     lattice = Roadmap(positions, src, dst, np.zeros(len(src)), np.zeros((len(src), 0)),
                       np.zeros(n, bool), np.arange(n - 1 - n_starts, n - 1), n - 1)
-    cut_off = lattice.starts_without_path_to_goal()
+    return lattice.starts_without_path_to_goal()
+
+
+def check_roadmap_reaches_goal(scene: Scene, params: RoadmapParams) -> None:
+    cut_off = roadmap_cut_off(scene, params)
     if cut_off:
         raise PipelineError(unreachable_message(scene, cut_off, params.spacing))
 

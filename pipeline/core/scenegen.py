@@ -158,9 +158,13 @@ def all_starts_reach_goal(scene: Scene, spacing: float = REACHABILITY_SPACING) -
 
 
 def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "random",
-                 map_grid: OccupancyGrid | None = None, map_source: str | None = None) -> Scene:
+                 map_grid: OccupancyGrid | None = None, map_source: str | None = None,
+                 accept: Callable[[Scene], bool] | None = None) -> Scene:
     """A seeded random scene in a width x height room, or on `map_grid` (its extent is the
-    room; width and height are then unused)."""
+    room; width and height are then unused). `accept`: a further test a drawn scene must
+    pass, else the next one is drawn (e.g. that the reference roadmap, coarser than the
+    reachability checks here, connects every start: a gap between a body disk and a wall
+    can be passable on the obstacle raster and closed on the roadmap's lattice)."""
     room = Room(*map_grid.extent()) if map_grid is not None else \
         Room(0.0, 0.0, spec.width, spec.height)
     empty = Scene(name, room, (), (), np.zeros((0, 2)), np.zeros(2), spec.body_radius,
@@ -189,9 +193,9 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
         clear = ~scene.in_body(np.vstack([starts, goal[None]]), clearance=0.1)
         if not clear.all():
             continue
-        if map_grid is None and all_starts_reach_goal(scene):
-            return scene
-        if map_grid is not None and not scene.unreachable_starts():
+        reachable = all_starts_reach_goal(scene) if map_grid is None else \
+            not scene.unreachable_starts()
+        if reachable and (accept is None or accept(scene)):
             return scene
     where = f"on the map {map_source}" if map_grid is not None else \
         f"in a {spec.width:g} x {spec.height:g} m room"

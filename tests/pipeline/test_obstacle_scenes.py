@@ -8,11 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.app import build
 from pipeline.artefacts import codec, read_artefact
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.obstacles import ObstacleMap
-from pipeline.core.roadmap import segments_feasible
+from pipeline.core.roadmap import RoadmapParams, segments_feasible
+from pipeline.core.scenegen import RandomSceneSpec, random_scene
 from pipeline.core.world import scene_from_dict
+from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import load_map
 from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import (
@@ -193,3 +196,29 @@ def test_random_scene_on_a_map_is_seeded(random_office_runs):
                    for k in ("a", "b", "other"))
     assert a == b
     assert a != other
+
+
+def test_a_drawn_scene_the_roadmap_cannot_connect_is_drawn_again(tmp_path):
+    """On the office map, seed 25's first draw leaves a gap between a body disk and a wall
+    that the obstacle raster passes and the 0.25 m roadmap does not: the generator draws
+    again instead of the demos stage refusing the scene."""
+    metrics, _ = run_in_process(tmp_path, "scene=random", "scene.map=data/maps/office.yaml",
+                                "seed=25", "stages=[scene,demos]")
+    scene = codec.decode_scene(read_artefact(tmp_path / "scene.mcap"))
+    assert not build.roadmap_cut_off(scene, RoadmapParams())
+    assert len(read_artefact(tmp_path / "demos.mcap").all("/demos")) == len(scene.starts)
+
+
+def test_the_generator_draws_until_the_extra_test_passes():
+    spec = RandomSceneSpec()
+    calls = []
+
+    def second_draw_only(scene) -> bool:
+        calls.append(scene)
+        return len(calls) == 2
+
+    scene = random_scene(spec, np.random.default_rng(0), accept=second_draw_only)
+    assert len(calls) == 2 and scene is calls[1]
+    assert not np.array_equal(calls[0].person_xy, calls[1].person_xy)
+    with pytest.raises(PipelineError, match="no valid scene in scene.max_tries"):
+        random_scene(spec, np.random.default_rng(0), accept=lambda s: False)
