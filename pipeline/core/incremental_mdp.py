@@ -26,7 +26,9 @@ from collections import deque
 from collections.abc import Iterable
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import ArrayLike, DTypeLike
+from scipy.sparse.csgraph import dijkstra
 
 from pipeline.core.graph_mdp import NO_EDGE, GraphMDP, MDPParams
 
@@ -185,9 +187,17 @@ class IncrementalGraphMDP:
         self._policy_children = [set() for _ in range(self.n_nodes)]
         for y in np.flatnonzero(policy != NO_EDGE):
             self._policy_children[self.dst[policy[y]]].add(int(y))
-        self._ctc.data[: self.n_nodes] = np.inf
-        self._ctc.data[self.sources] = 0.0
-        self._repair_cost_to_come(range(self._src.n))
+        n, cost = self.n_nodes, self._cost.data[: self._src.n]
+        if len(self.sources) and len(cost) and cost.min() > 0:
+            # scipy's Dijkstra (pairs never repeat here, and a positive cost is never a
+            # stored zero that csgraph would drop): the relaxation below, in C
+            graph = sp.csr_matrix((cost, (self._src.data[: len(cost)],
+                                          self._dst.data[: len(cost)])), shape=(n, n))
+            self._ctc.data[:n] = dijkstra(graph, indices=self.sources, min_only=True)
+        else:
+            self._ctc.data[:n] = np.inf
+            self._ctc.data[self.sources] = 0.0
+            self._repair_cost_to_come(range(self._src.n))
         self._dirty_nodes, self._new_edges = [], []
 
     def update(self) -> None:

@@ -398,7 +398,9 @@ class StateGraph:
             self.iteration = int(nodes.added_at[i])
             self.add_node(nodes.pose[i], str(nodes.kind[i]), int(nodes.parent[i]),
                           float(nodes.gp_mean[i]), float(nodes.gp_std[i]), float(nodes.score[i]))
-        for e in range(len(edges)):
-            self.add_edges(edges.src[e:e + 1], edges.dst[e:e + 1], edges.duration[e:e + 1],
-                           edges.features[e:e + 1], [edges.waypoints[e]],
-                           is_demo=bool(edges.demo[e]))
+        # In runs of equal `demo` flags, each run one call (ids and order as stored).
+        cuts = np.flatnonzero(np.diff(edges.demo.astype(np.int8))) + 1
+        for lo, hi in zip([0, *cuts], [*cuts, len(edges)], strict=True):
+            self.add_edges(edges.src[lo:hi], edges.dst[lo:hi], edges.duration[lo:hi],
+                           edges.features[lo:hi], [edges.waypoints[e] for e in range(lo, hi)],
+                           is_demo=bool(edges.demo[lo]))

@@ -76,3 +76,26 @@ def test_growable_array_append_equals_extend():
             b.extend(rows[i % 3])
         assert a.n == b.n == 40 and a.a.dtype == b.a.dtype
         np.testing.assert_array_equal(a.a, b.a)
+
+
+@pytest.mark.parametrize("zero_costs", [False, True])
+def test_cost_to_come_of_a_full_solve_by_hand(zero_costs):
+    """A full solve's cost-to-come (scipy's Dijkstra when every cost is positive, the
+    relaxation otherwise: csgraph would drop a zero cost) against Bellman-Ford by hand."""
+    rng = np.random.default_rng(3)
+    inc = IncrementalGraphMDP(MDPParams(gamma=0.8, time_cost=0.0))
+    for k in range(15):
+        inc.add_node(terminal=(k == 0), source=(k in (1, 2)))
+    pairs = list(dict.fromkeys((int(a), int(b)) for a, b in rng.integers(0, 15, (60, 2))
+                               if a != b))
+    src, dst = map(np.array, zip(*pairs, strict=True))
+    rewards = -rng.uniform(0.1, 1, len(src))
+    if zero_costs:
+        rewards[::4] = 0.0
+    inc.add_edges(src, dst, np.ones(len(src)), rewards)
+    inc.set_rewards(rewards)  # a full solve
+    expected = np.full(15, np.inf)
+    expected[[1, 2]] = 0.0
+    for _ in range(15):  # Bellman-Ford: |V| rounds of relaxing every edge
+        np.minimum.at(expected, dst, expected[src] - rewards)
+    np.testing.assert_allclose(inc.cost_to_come, expected, atol=1e-12)
