@@ -308,7 +308,7 @@ def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel,
 def learning_environment(cfg: Config, scene: Scene, graph: AdaptiveGraph,
                          graph_weights: np.ndarray) -> GraphEnvironment:
     """The grown graph as the birl stage sees it (as graph.mcap's tables hold it)."""
-    grow_nodes = getattr(cfg.birl, "grow_nodes", 0)
+    grow_nodes = build.learning_growth(cfg, scene)
     if grow_nodes <= 0:
         return GraphEnvironment(spatial_graph(graph), cfg.mdp)
     adaptive = build.regrowable_graph(cfg, scene, graph_weights, graph.min_separation,

@@ -177,6 +177,16 @@ def with_named_features(cfg: Config, scene: Scene, graph: SpatialGraph, have: li
     return graph.with_features(np.column_stack(columns).reshape(len(features), len(want)))
 
 
+def learning_growth(cfg: Config, scene: Scene) -> int:
+    """birl.grow_nodes, derived from the scene where it is null (start-up derives it for a
+    run; this is for callers that skip start-up, as pipeline.api does); 0 for methods that
+    do not learn on the graph."""
+    grow_nodes = getattr(cfg.birl, "grow_nodes", 0)
+    if grow_nodes is None:
+        return limits.learning_growth(scene.obstacles is not None, scene.name)[0]
+    return int(grow_nodes)
+
+
 def unreachable_message(scene: Scene, cut_off: list[int], spacing: float) -> str:
     return (f"scene '{scene.name}': the goal cannot be reached from start(s) {cut_off} on the "
             f"reference roadmap (spacing {spacing:g} m): the way is closed by "

@@ -11,7 +11,8 @@ then the files themselves: the scene file and every transfer scene are loaded an
 `birl=fixed` gets its weights, and the graph's resolution is checked on the scene's free
 space. Loaded scene files are kept for the stages (`build.scene_file`). `graph.max_nodes`
 left null is derived from the scene's free space here (`limits.graph_size`, logged in one
-line); `run_pipeline` puts the number into the settings and the recorded config.
+line), `birl.grow_nodes` left null from whether it has obstacles (`limits.learning_growth`);
+`run_pipeline` puts the numbers into the settings and the recorded config.
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ class SceneFacts:
 class Checked:
     """What the checks found that the run records: content digests of inputs that are no
     artefact of this run (`birl.from_run`'s birl.mcap), for the provenance; and the values
-    derived from the scene for settings left null (`graph.max_nodes`), by full key."""
+    derived from the scene for settings left null (`graph.max_nodes`, `birl.grow_nodes`), by
+    full key."""
     source_digests: dict[str, str] = dataclasses.field(default_factory=dict)
     derived: dict[str, int] = dataclasses.field(default_factory=dict)
 
@@ -71,7 +73,17 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         check_readable(resolve_path(cfg.expert.path))
     # evaluate too: its inputs were made with the derived value, which it must match
     derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl", "evaluate"})
-    facts = scene_facts(cfg, run_dir, from_run) if stages - {"birl"} or derive_graph else None
+    # evaluate checks birl.mcap against the birl section, derived value included
+    derive_growth = getattr(cfg.birl, "grow_nodes", 0) is None and \
+        bool(stages & {"birl", "evaluate"})
+    facts = scene_facts(cfg, run_dir, from_run) \
+        if stages - {"birl"} or derive_graph or derive_growth else None
+    if derive_growth and facts is not None:
+        grow_nodes, why = limits.learning_growth(facts.obstacles, facts.name)
+        # said where it changes what runs (growth on a map); an open room runs as always
+        log.log(logging.INFO if grow_nodes else logging.DEBUG, "birl.grow_nodes=%d: %s",
+                grow_nodes, why)
+        checked.derived["birl.grow_nodes"] = grow_nodes
     if facts is not None and "demos" in stages:
         check_roadmap_size(cfg, facts)
     if facts is not None:

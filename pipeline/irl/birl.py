@@ -52,7 +52,10 @@ LIKELIHOODS = ("paper", "robust", "boltzmann")
 class BirlMapConfig(IRLConfig):
     kind: str = "map"
     beta: float = 10.0  # expert optimality β of eq. (2)
-    grow_nodes: int = 0  # nodes the graph grows per iteration under the current weights
+    # nodes the graph grows per iteration under the current weights (BIRL-G's loop); null:
+    # derived from the scene at start-up, some on a scene with obstacles (a map), none in an
+    # open room (the log says how many; pipeline.app.limits.learning_growth)
+    grow_nodes: Optional[int] = None
     # paper: eq. (2) against the greedy generated trajectories; robust: against every
     # trajectory of the graph under the Boltzmann policy, β learned (pipeline.irl.robust;
     # README "Imperfect demonstrations")
@@ -72,7 +75,8 @@ class BirlMapConfig(IRLConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         require_positive(self, "beta", "beta_min", "beta_max")
-        require_count(self, "grow_nodes", minimum=0)
+        if self.grow_nodes is not None:
+            require_count(self, "grow_nodes", minimum=0)
         require(self.likelihood in LIKELIHOODS, "likelihood", self.likelihood,
                 " or ".join(repr(k) for k in LIKELIHOODS))
         if self.lr_level is not None:

@@ -63,7 +63,8 @@ def run(ctx: RunContext) -> None:
     prior = build.prior(cfg)
     rng = ctx.rng("birl")
     w0 = build.initial_weights(cfg, rng)  # birl=fixed: the given or transferred weights
-    grow_nodes = getattr(b, "grow_nodes", 0)  # only methods that learn on the graph have it
+    grow_nodes = build.learning_growth(cfg, codec.decode_scene(
+        ctx.read("scene", required_topics=[topics.SCENE])))
     env: GraphEnvironment
     if grow_nodes > 0:
         def grown(added: int, n_nodes: int) -> None:

@@ -186,11 +186,14 @@ def experiment_timings(repeats: int, *overrides: str) -> pd.DataFrame:
 
 def obstacle_costs(repeats: int) -> pd.DataFrame:
     """The default experiment on the office map against the empty metropolis room (stage
-    seconds, min of `repeats`), and the collision check alone (100k random segments)."""
+    seconds, min of `repeats`), and the collision check alone (100k random segments). On a
+    map the graph also grows while learning (birl.grow_nodes derived): the row without it
+    is the like-for-like cost of the obstacles."""
     from pipeline.inputs.scene_file import load_scene_file
 
     rows = []
     for name, overrides in [("metropolis", []), ("office", ["scene=office"]),
+                            ("office_no_learning_growth", ["scene=office", "birl.grow_nodes=0"]),
                             ("office_preset", ["experiment=office"])]:
         runs = experiment_timings(repeats, *overrides)
         stages = runs[[f"{s}_s" for s in ("scene", "demos", "graph", "birl", "evaluate")]]

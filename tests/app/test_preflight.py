@@ -160,18 +160,18 @@ def _derived(tmp_path, caplog, *overrides: str) -> tuple[dict[str, int], list[st
                              if "graph.max_nodes=" in r.getMessage()]
 
 
-@pytest.mark.parametrize("overrides, free, expected", [
-    ((), 100, 460),  # metropolis: the paper's 460, so its results stay as they were
-    (("scene=office",), 176, 460),
-    (("scene=warehouse",), 810, 1126),  # 2 × 563
-    (("scene=random", "scene.width=30", "scene.height=30"), 900, 1250),  # 2 × 625
+@pytest.mark.parametrize("overrides, free, expected, grow", [
+    ((), 100, 460, 0),  # metropolis: the paper's 460, so its results stay as they were
+    (("scene=office",), 176, 460, 10),  # maps: the graph grows while learning
+    (("scene=warehouse",), 810, 1126, 10),  # 2 × 563
+    (("scene=random", "scene.width=30", "scene.height=30"), 900, 1250, 0),  # 2 × 625
 ])
 def test_graph_max_nodes_is_derived_from_the_free_area(tmp_path, caplog, overrides, free,
-                                                       expected):
+                                                       expected, grow):
     from pipeline.app.limits import check_graph_resolution, nodes_to_resolve
 
     derived, lines = _derived(tmp_path, caplog, *overrides)
-    assert derived == {"graph.max_nodes": expected}
+    assert derived == {"graph.max_nodes": expected, "birl.grow_nodes": grow}
     assert expected == max(460, 2 * nodes_to_resolve(free, 1.2))
     check_graph_resolution(expected, free, 1.2, "x")  # passes the check it is made for
     [line] = lines  # one line: the value and why
@@ -181,7 +181,8 @@ def test_graph_max_nodes_is_derived_from_the_free_area(tmp_path, caplog, overrid
 
 
 def test_a_given_graph_max_nodes_is_used_and_still_checked(tmp_path, caplog):
-    assert _derived(tmp_path, caplog, "scene=warehouse", "graph.max_nodes=600") == ({}, [])
+    assert _derived(tmp_path, caplog, "scene=warehouse", "graph.max_nodes=600",
+                    "birl.grow_nodes=0") == ({}, [])
     with pytest.raises(PipelineError, match=r"graph\.max_nodes=500 is too few for scene "
                                             r"'warehouse'.* needs graph\.max_nodes >= 563"):
         _derived(tmp_path, caplog, "scene=warehouse", "graph.max_nodes=500")
@@ -206,3 +207,41 @@ def test_the_derived_graph_size_is_what_the_stages_and_the_artefacts_see(tmp_pat
     run_in_process(tmp_path / "b", f"from_run={run}", "stages=[birl]", "birl.n_iterations=1",
                    "birl.grow_nodes=10", "scene=file", f"scene.path={wide}",
                    "roadmap.spacing=0.5")
+
+
+# -- birl.grow_nodes derived from the scene -----------------------------------------------------
+
+def test_the_graph_grows_while_learning_on_a_map_and_not_in_an_open_room(tmp_path, caplog):
+    """birl.grow_nodes=null: growth on a scene with obstacles, said in the log; none in an
+    open room; a given value is used as given; methods without the key derive nothing."""
+    from pipeline.app.limits import GROW_ON_MAPS
+
+    derived, _ = _derived(tmp_path, caplog, "scene=office")
+    assert derived["birl.grow_nodes"] == GROW_ON_MAPS > 0
+    assert any(r.getMessage().startswith(f"birl.grow_nodes={GROW_ON_MAPS}: scene 'office' "
+                                         "has obstacles") for r in caplog.records)
+    assert _derived(tmp_path, caplog, "scene=metropolis")[0]["birl.grow_nodes"] == 0
+    random_on_map = _derived(tmp_path, caplog, "scene=random",
+                             "scene.map=data/maps/office.yaml")[0]
+    assert random_on_map["birl.grow_nodes"] == GROW_ON_MAPS
+    assert "birl.grow_nodes" not in _derived(tmp_path, caplog, "scene=office",
+                                             "birl.grow_nodes=3")[0]
+    assert "birl.grow_nodes" not in _derived(tmp_path, caplog, "scene=office",
+                                             "birl=policywalk")[0]
+
+
+def test_a_run_on_a_map_records_and_reuses_the_derived_growth(tmp_path):
+    """The derived number is what the birl stage grows by and what the recorded config holds,
+    so evaluate alone on that run (from_run) passes the provenance check."""
+    import yaml
+
+    from pipeline.app.limits import GROW_ON_MAPS
+
+    run = tmp_path / "a"
+    metrics, _ = run_in_process(run, "scene=office", "graph=small", "birl.n_iterations=2")
+    birl = read_artefact(run / "birl.mcap")
+    assert yaml.safe_load(birl.config_yaml)["birl"]["grow_nodes"] == GROW_ON_MAPS
+    assert birl.messages.get("/birl/graph_nodes"), "the graph grew while learning"
+    again, _ = run_in_process(tmp_path / "b", "scene=office", "graph=small",
+                              "birl.n_iterations=2", "stages=[evaluate]", f"from_run={run}")
+    assert again["policy_loss_norm"] == metrics["policy_loss_norm"]
