@@ -46,3 +46,31 @@ def test_discrete_frechet_known_values():
     fine = np.column_stack([np.linspace(0, 2, 9), np.zeros(9)])
     assert discrete_frechet(p, fine) == pytest.approx(discrete_frechet(fine, p))
     assert discrete_frechet(p, fine) <= 0.5
+
+
+def _frechet_by_recursion(p: np.ndarray, q: np.ndarray) -> float:
+    """Eiter & Mannila's recursion, cell by cell, as written in their paper."""
+    import functools
+
+    @functools.cache
+    def c(i: int, j: int) -> float:
+        d = float(np.linalg.norm(p[i] - q[j]))
+        if i == 0 and j == 0:
+            return d
+        if i == 0:
+            return max(c(0, j - 1), d)
+        if j == 0:
+            return max(c(i - 1, 0), d)
+        return max(min(c(i - 1, j), c(i - 1, j - 1), c(i, j - 1)), d)
+
+    return c(len(p) - 1, len(q) - 1)
+
+
+def test_discrete_frechet_equals_the_recursion_to_the_bit():
+    """The anti-diagonal sweep takes the same min and max of the same distances as the
+    recursion: equal results, single points and very unequal lengths included."""
+    rng = np.random.default_rng(0)
+    for n, m in [(1, 1), (1, 7), (9, 1), (2, 2), *rng.integers(1, 30, (60, 2)).tolist()]:
+        p = rng.normal(size=(n, 2)).cumsum(axis=0)
+        q = rng.normal(size=(m, 2)).cumsum(axis=0)
+        assert discrete_frechet(p, q) == _frechet_by_recursion(p, q), (n, m)
