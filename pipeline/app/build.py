@@ -52,10 +52,13 @@ def scene(cfg: Config, rng_for_seed) -> Scene:
             check_reachability_lattice(spec.width * spec.height,
                                        spec.n_singles + spec.n_groups * spec.group_size_max,
                                        spec.width, spec.height)
-        # a drawn scene the reference roadmap cannot connect is drawn again, not refused
+        # On a map the generator checks reachability on the obstacle raster, finer than the
+        # roadmap's lattice: a draw the roadmap cannot connect is drawn again, not refused.
+        # (A room's own check runs on a lattice finer than the roadmap's already.)
+        accept = None if map_grid is None else \
+            (lambda s: not roadmap_cut_off(s, cfg.roadmap))
         return random_scene(spec, rng_for_seed(seed), name=f"random-{seed}", map_grid=map_grid,
-                            map_source=sc.map,
-                            accept=lambda s: not roadmap_cut_off(s, cfg.roadmap))
+                            map_source=sc.map, accept=accept)
     return scene_file(sc.path, body_radius=sc.body_radius, goal_tolerance=sc.goal_tolerance,
                       robot_radius=sc.robot_radius)
 
@@ -205,6 +208,7 @@ def roadmap_cut_off(scene: Scene, params: RoadmapParams) -> list[int]:
 
 
 def check_roadmap_reaches_goal(scene: Scene, params: RoadmapParams) -> None:
+    """PipelineError when a start cannot reach the goal on the reference roadmap."""
     cut_off = roadmap_cut_off(scene, params)
     if cut_off:
         raise PipelineError(unreachable_message(scene, cut_off, params.spacing))

@@ -101,7 +101,7 @@ def graph_size(free_area: float, rho_personal: float, scene_name: str) -> tuple[
 
 # birl.grow_nodes derived for a scene with obstacles (measured: random scenes on the office
 # map and the office itself learn closer to the true reward when the graph grows under the
-# weights being learned; in open rooms it changes little and costs about 1 s per run)
+# weights being learned; in open rooms it changes little and costs up to a second per run)
 GROW_ON_MAPS = 10
 
 
