@@ -202,8 +202,8 @@ def test_a_drawn_scene_the_roadmap_cannot_connect_is_drawn_again(tmp_path):
     """On the office map, seed 25's first draw leaves a gap between a body disk and a wall
     that the obstacle raster passes and the 0.25 m roadmap does not: the generator draws
     again instead of the demos stage refusing the scene."""
-    metrics, _ = run_in_process(tmp_path, "scene=random", "scene.map=data/maps/office.yaml",
-                                "seed=25", "stages=[scene,demos]")
+    run_in_process(tmp_path, "scene=random", "scene.map=data/maps/office.yaml", "seed=25",
+                   "stages=[scene,demos]")
     scene = codec.decode_scene(read_artefact(tmp_path / "scene.mcap"))
     assert not build.roadmap_cut_off(scene, RoadmapParams())
     assert len(read_artefact(tmp_path / "demos.mcap").all("/demos")) == len(scene.starts)
