@@ -25,32 +25,31 @@ from pipeline.artefacts.store import ArtefactWriter
 from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.experts import Demonstration
 from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
+from pipeline.core.world import Scene
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment
 
 log = logging.getLogger(__name__)
 
 
-def restore_adaptive_graph(ctx: RunContext) -> AdaptiveGraph:
+def restore_adaptive_graph(ctx: RunContext, scene: Scene) -> AdaptiveGraph:
     """The stored adaptive graph as a growable AdaptiveGraph (for birl.grow_nodes)."""
     cfg = ctx.cfg
     art = ctx.read("graph", required_topics=[topics.GRAPH_NODES, topics.GRAPH_EDGES,
                                              topics.GRAPH_SOLUTION])
     sol = art.one(topics.GRAPH_SOLUTION)
-    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
     # Its own generator: growing must not change the stage's other random draws.
     return build.regrowable_graph(cfg, scene, sol["weights"], sol["min_separation"],
                                   *codec.graph_tables(art), sol["start_nodes"],
                                   ctx.rng("birl", None, 1))
 
 
-def expert_stats(ctx: RunContext, demos: list[dict]) -> list[TrajectoryStats]:
+def expert_stats(ctx: RunContext, demos: list[dict], scene: Scene) -> list[TrajectoryStats]:
     """The demonstrations as the likelihood sees them, on the learner's features: as
     demos.mcap holds them when those are the true reward's, else from their polylines."""
     cfg = ctx.cfg
     if cfg.learner_features == list(cfg.reward.features):
         return codec.decode_expert_stats(demos)
-    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
     features = build.learner_feature_model(cfg, scene)
     return [Demonstration.from_points(m["start_index"], m["points"], features, cfg.mdp.speed,
                                       m["reached"]).stats(cfg.mdp) for m in demos]
@@ -59,19 +58,20 @@ def expert_stats(ctx: RunContext, demos: list[dict]) -> list[TrajectoryStats]:
 def run(ctx: RunContext) -> None:
     cfg, b = ctx.cfg, ctx.cfg.birl
     demos = codec.training_demos(ctx.read("demos", required_topics=[topics.DEMOS_EXPERT]))
-    expert = expert_stats(ctx, demos)
+    scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
+    expert = expert_stats(ctx, demos, scene)
     prior = build.prior(cfg)
     rng = ctx.rng("birl")
     w0 = build.initial_weights(cfg, rng)  # birl=fixed: the given or transferred weights
-    grow_nodes = build.learning_growth(cfg, codec.decode_scene(
-        ctx.read("scene", required_topics=[topics.SCENE])))
+    grow_nodes = build.learning_growth(cfg, scene)
     env: GraphEnvironment
     if grow_nodes > 0:
         def grown(added: int, n_nodes: int) -> None:
             log.info("    graph grown by %d nodes under the current weights (%d nodes)",
                      added, n_nodes)
 
-        env = GrowingGraphEnvironment(restore_adaptive_graph(ctx), cfg.mdp, grow_nodes, grown)
+        env = GrowingGraphEnvironment(restore_adaptive_graph(ctx, scene), cfg.mdp, grow_nodes,
+                                      grown)
     else:
         graph_art = ctx.read("graph", required_topics=[topics.GRAPH_NODES, topics.GRAPH_EDGES,
                                                        topics.GRAPH_SOLUTION])
@@ -79,7 +79,6 @@ def run(ctx: RunContext) -> None:
 
     def roadmap() -> SpatialGraph:
         art = ctx.read("demos", required_topics=[topics.DEMOS_ROADMAP])
-        scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
         return build.with_named_features(cfg, scene, codec.decode_roadmap(art, cfg.mdp),
                                          list(cfg.reward.features), cfg.learner_features)
 
