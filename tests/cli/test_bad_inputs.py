@@ -277,6 +277,8 @@ CONFIG_CASES = {
                          ["birl.prior.scale"]),
     "negative iterations": (["birl.n_iterations=-1"], ["birl.n_iterations"]),
     "zero optimality": (["birl.beta=0"], ["birl.beta"]),
+    "negative learning growth": (["birl.grow_nodes=-1"], ["birl.grow_nodes"]),
+    "learning growth not a number": (["birl.grow_nodes=many"], ["birl.grow_nodes"]),
     "mcmc without samples": (["birl=mcmc", "birl.n_samples=0"], ["birl.n_samples"]),
     "mcmc negative burn-in": (["birl=mcmc", "birl.burn_in=-5"], ["birl.burn_in"]),
     "mcmc zero chains": (["birl=mcmc", "birl.n_chains=0"], ["birl.n_chains"]),
