@@ -13,6 +13,8 @@ the path is sampled and the features of a concatenated path are the sums of its 
                    θ_i and p − x_i
 - group_space    = ∫ Σ_groups max(0, r_g − |p − c_g|) ds
 - obstacle       = ∫ max(0, ρ_o − c(p)) ds
+- wall           = ∫ max(0, ρ_o − min(c(p), b(p))) ds, b(p) the distance to the room's border:
+                   `obstacle` with the room's border as a wall too (open rooms have walls)
 - goal_deviation = total increase of |p − g| along the path
 - length         = ∫ ds
 
@@ -37,8 +39,10 @@ others are exact per straight segment: `relation` (its projection indicator jump
 link ends, where a Riemann sum is only first order; per link the integrand along a segment
 is a hinge of a linear function on one interval, integrated in closed form), `obstacle` (the
 clearance map is constant per raster cell, so the segment is cut where it crosses a cell
-border and each piece counts its cell's value), `goal_deviation` and `length`. Only the
-selected features are computed.
+border and each piece counts its cell's value), `goal_deviation` and `length`. `wall` is
+integrated like `obstacle` where there is a raster (the distance to the room's border taken
+at each piece's middle) and by sub-steps where there is none. Only the selected features
+are computed.
 """
 
 from __future__ import annotations
@@ -59,7 +63,7 @@ from pipeline.core.social import (
     INTIMATE_ZONE,  # `intimate` is `social` at this radius
     orientation,
 )
-from pipeline.core.world import Scene
+from pipeline.core.world import Room, Scene
 
 FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "length")  # default
 
@@ -69,7 +73,7 @@ _PARAMETER_FIELD: dict[str, str | None] = {
     "relation": "rho_relation", "social": "rho_personal", "social_squared": "rho_personal",
     "intimate": None,
     "gaussian": "sigma", "front": "rho_personal", "group_space": "rho_group",
-    "obstacle": "rho_obstacle", "goal_deviation": None, "length": None, "crossing": None,
+    "obstacle": "rho_obstacle", "wall": "rho_obstacle", "goal_deviation": None, "length": None, "crossing": None,
 }
 FEATURE_KINDS: tuple[str, ...] = tuple(_PARAMETER_FIELD)
 
@@ -194,6 +198,7 @@ class FeatureModel:
     headings: np.ndarray | None = None  # (P,) θ_i in rad (front); None: every θ_i = 0
     groups: tuple[tuple[int, ...], ...] = ()  # person indices of each group (group_space)
     obstacles: ObstacleMap | None = None  # clearance map (obstacle); None: no obstacles
+    room: Room | None = None  # the room whose border is a wall (wall); None: no border
     sigma: float = FeatureParams.sigma
     rho_group: float = FeatureParams.rho_group
     rho_obstacle: float = FeatureParams.rho_obstacle
@@ -214,7 +219,7 @@ class FeatureModel:
                    headings=np.array([p.theta for p in scene.persons], float),
                    groups=social_groups(len(scene.persons), pairs),
                    obstacles=scene.obstacles, sigma=params.sigma, rho_group=params.rho_group,
-                   rho_obstacle=params.rho_obstacle)
+                   rho_obstacle=params.rho_obstacle, room=scene.room)
 
     @cached_property
     def selected(self) -> tuple[Feature, ...]:
@@ -374,6 +379,20 @@ class FeatureModel:
             return np.zeros(len(p))
         return np.maximum(0.0, rho - self.obstacles.clearance_at(p))
 
+    def wall_density(self, p: np.ndarray, rho: float | None = None) -> np.ndarray:
+        """max(0, ρ_o − clearance to the nearest obstacle or the room's border) (n,) at the
+        points p (n, 2); 0 with neither."""
+        rho = self.rho_obstacle if rho is None else rho
+        clearance = np.full(len(p), np.inf)
+        if self.obstacles is not None:
+            clearance = self.obstacles.clearance_at(p)
+        if self.room is not None:
+            r = self.room
+            border = np.minimum(np.minimum(p[:, 0] - r.x_min, r.x_max - p[:, 0]),
+                                np.minimum(p[:, 1] - r.y_min, r.y_max - p[:, 1]))
+            clearance = np.minimum(clearance, np.maximum(border, 0.0))
+        return np.maximum(0.0, rho - clearance)
+
     def densities(self, points: np.ndarray) -> np.ndarray:
         """Per-metre density (n, d) of each selected feature at the points (n, 2): the
         integrand f(p) of a feature that is ∫ f(p) ds along the path (`length`: 1), NaN for
@@ -388,6 +407,8 @@ class FeatureModel:
                 out[:, col] = 1.0
             elif f.kind == "obstacle":
                 out[:, col] = self.obstacle_density(p, f.value)
+            elif f.kind == "wall":
+                out[:, col] = self.wall_density(p, f.value)
         return out
 
     # -- features of straight segments ---------------------------------------------------
@@ -408,7 +429,9 @@ class FeatureModel:
             elif f.kind == "goal_deviation":
                 out[:, col] = _distance_increase(a, b, self.goal)
             elif f.kind == "obstacle":
-                out[:, col] = self._obstacle_segments(a, b, f.value)
+                out[:, col] = self._raster_segments(a, b, f.value, self.obstacle_density)
+            elif f.kind == "wall" and self.obstacles is not None:
+                out[:, col] = self._raster_segments(a, b, f.value, self.wall_density)
             elif f.kind == "relation":
                 out[:, col] = self._relation_segments(a, b, f.value)
             elif f.kind == "crossing":
@@ -417,7 +440,7 @@ class FeatureModel:
                 tiled.append(col)
         if not tiled:
             return out
-        features = tuple(self.selected[c] for c in tiled)
+        features = tuple(self.selected[c] for c in tiled if self.selected[c].kind != "wall")
 
         # Split every segment into equal sub-steps of at most `resolution`.
         n_sub = np.maximum(1, np.ceil(length / self.resolution - 1e-9).astype(np.int64))
@@ -429,9 +452,11 @@ class FeatureModel:
         for lo in range(0, len(owner), _CHUNK_POINTS):
             sl = slice(lo, lo + _CHUNK_POINTS)
             p = a[owner[sl]] + frac[sl, None] * seg[owner[sl]]
-            dens = self._tiled(p, features)
-            for j, col in enumerate(tiled):
-                out[:, col] += np.bincount(owner[sl], ds[sl] * dens[:, j], minlength=n)
+            dens = iter(self._tiled(p, features).T)
+            for col in tiled:
+                f = self.selected[col]
+                density = self.wall_density(p, f.value) if f.kind == "wall" else next(dens)
+                out[:, col] += np.bincount(owner[sl], ds[sl] * density, minlength=n)
         return out
 
     def edge_features(self, positions: np.ndarray, src: np.ndarray,
@@ -536,10 +561,13 @@ class FeatureModel:
                                    minlength=len(out[sl]))
         return out
 
-    def _obstacle_segments(self, a: np.ndarray, b: np.ndarray, rho: float) -> np.ndarray:
-        """∫ max(0, ρ − c(p)) ds (n,) along a[i] → b[i], exact for the clearance map c, which
-        is constant per cell: the segment is cut at every cell border it crosses and each
-        piece counts the value at its middle."""
+    def _raster_segments(self, a: np.ndarray, b: np.ndarray, rho: float,
+                         density: Callable[[np.ndarray, float], np.ndarray]) -> np.ndarray:
+        """∫ density(p, ρ) ds (n,) along a[i] → b[i] for a density of the clearance map c,
+        which is constant per cell: the segment is cut at every cell border it crosses and
+        each piece counts the value at its middle. Exact for `obstacle`; for `wall` the
+        midpoint rule on pieces no longer than a cell's diagonal (the distance to the room's
+        border is linear along a piece but at a corner)."""
         n = len(a)
         out = np.zeros(n)
         if self.obstacles is None:
@@ -576,7 +604,7 @@ class FeatureModel:
             t0, t1 = t[:-1][same], t[1:][same]
             mid = a[piece_owner] + (0.5 * (t0 + t1))[:, None] * (b - a)[piece_owner]
             out += np.bincount(piece_owner, (t1 - t0) * length[piece_owner]
-                               * self.obstacle_density(mid, rho), minlength=n)
+                               * density(mid, rho), minlength=n)
         return out
 
     def polyline(self, points: np.ndarray) -> np.ndarray:

@@ -26,7 +26,7 @@ from pipeline.core.features import (
 from pipeline.core.obstacles import ObstacleMap, OccupancyGrid
 from pipeline.core.params import ParameterError
 from pipeline.core.roadmap import lattice_graph
-from pipeline.core.world import scene_from_dict
+from pipeline.core.world import Room, scene_from_dict
 from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import ROOT
 
@@ -421,6 +421,38 @@ def test_obstacle_does_not_depend_on_the_resolution():
     assert f[0] == pytest.approx(f[1], rel=1e-12)
 
 
+ROOM = Room(0.0, 0.0, 10.0, 6.0)
+
+
+def test_wall_along_and_towards_the_room_border():
+    fm = model([(50, 50)], ["wall", "wall@1.0", "obstacle"], room=ROOM)
+    # Along the border 0.2 m off for 4 m: (ρ − 0.2) × 4, for ρ = 0.5 and 1.0; no obstacle.
+    np.testing.assert_allclose(fm.polyline(line(1, 0.2, 5, 0.2)), [1.2, 3.2, 0.0], rtol=1e-12)
+    # Straight at the border from 3 m off: ∫_0^ρ (ρ − c) dc = ρ²/2, within the midpoint
+    # rule's error at the hinge's kink (slope 1: k²/8).
+    towards = fm.polyline(line(5, 3, 5, 0))
+    np.testing.assert_allclose(towards[:2], [0.125, 0.5], atol=K**2 / 8)
+    # Along the middle of the room (1 m or more from every edge): nothing.
+    assert fm.polyline(line(1.2, 3, 8.8, 3))[:2].tolist() == [0.0, 0.0]
+    # Outside the room the path is in the wall: ρ per metre.
+    np.testing.assert_allclose(fm.polyline(line(-5, -20, 15, -20))[:2], [10.0, 20.0])
+
+
+def test_wall_takes_the_nearer_of_an_obstacle_and_the_border():
+    # The map's wall at y = 5 (wall_map) and the room's border at y = 1: a path at y = 4.75
+    # is 0.25 m from the map's wall, one at y = 1.1 0.1 m from the border (and 1.1 m from the
+    # raster's edge, which `obstacle` counts as a wall).
+    fm = model([(50, 50)], ["wall", "obstacle"], obstacles=wall_map(), room=Room(-10, 1, 20, 6))
+    np.testing.assert_allclose(fm.polyline(line(0, 4.75, 10, 4.75)), [2.5, 2.5], rtol=1e-12)
+    np.testing.assert_allclose(fm.polyline(line(0, 1.1, 10, 1.1)), [4.0, 0.0], rtol=1e-12)
+    # Without a room (a model built by hand) it is `obstacle`.
+    alone = model([(50, 50)], ["wall", "obstacle"], obstacles=wall_map())
+    points = np.random.default_rng(0).uniform([-10, 0], [20, 6], (2000, 2))
+    dens = alone.densities(points)
+    assert (dens[:, 1] > 0).sum() > 100
+    np.testing.assert_array_equal(dens[:, 0], dens[:, 1])
+
+
 def test_obstacle_from_scene_polygons_and_zero_without_obstacles(metropolis):
     scene = scene_from_dict({
         "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 10}, "persons": [],
@@ -480,7 +512,7 @@ def test_crossing_counts_every_link_and_matches_the_crossings_metric(metropolis)
 
 # -- properties of every feature -----------------------------------------------------------
 
-EVERY = EVERY_LOCAL + ("obstacle", "goal_deviation", "length")
+EVERY = EVERY_LOCAL + ("obstacle", "wall", "goal_deviation", "length")
 
 
 @pytest.fixture(scope="module")
@@ -506,8 +538,8 @@ def test_resolution_independence(scene_name, metropolis, office):
                                                                  resolution=r)).polyline(path)
                     for r in (0.1, 0.01))
     for name, c, f in zip(EVERY, coarse, fine, strict=True):
-        if name == "obstacle" and scene_name == "metropolis":
-            assert c == f == 0.0
+        if name in ("obstacle", "wall") and scene_name == "metropolis":
+            assert c == f == 0.0  # no obstacles, and the path keeps 1 m off the edges
             continue
         assert f > 0, name
         assert c == pytest.approx(f, rel=0.01 if name == "relation" else 3e-3), name
@@ -537,15 +569,16 @@ def test_zero_far_from_everyone(metropolis):
     fm = FeatureModel.from_scene(metropolis, FeatureParams(features=list(EVERY)))
     f = fm.polyline(line(-30, -20, 40, -20))
     assert f[:len(EVERY_LOCAL) + 1].tolist() == [0.0] * (len(EVERY_LOCAL) + 1)
+    assert f[EVERY.index("wall")] == pytest.approx(0.5 * 70.0)  # outside the room: in the wall
     assert f[-1] == pytest.approx(70.0)
 
 
 def test_densities_are_the_integrands_of_segments(office):
     # A segment of tiny length ℓ centred on p is one sub-step with its midpoint at p:
-    # ℓ·density(p) for the sub-stepped features. The exact ones (relation, obstacle) agree
-    # as closely unless the segment crosses a kink or jump of the integrand: a link's edge
-    # (slope 1: off by < ℓ/2) or end (a jump < ρ_r), a cell border (neighbouring cells'
-    # clearances differ by <= √2 × 0.05 m).
+    # ℓ·density(p) for the sub-stepped features. The ones cut at kinks (relation, obstacle,
+    # wall) agree as closely unless the segment crosses a kink or jump of the integrand: a
+    # link's edge (slope 1: off by < ℓ/2) or end (a jump < ρ_r), a cell border (neighbouring
+    # cells' clearances differ by <= √2 × 0.05 m).
     fm = FeatureModel.from_scene(office, FeatureParams(features=list(EVERY)))
     rng = np.random.default_rng(3)
     x0, y0, x1, y1 = office.room.bounds
@@ -557,7 +590,7 @@ def test_densities_are_the_integrands_of_segments(office):
     dens = fm.densities(p)
     assert np.isnan(dens[:, EVERY.index("goal_deviation")]).all()
     assert (dens[:, EVERY.index("length")] == 1.0).all()
-    jump = {"relation": 0.6, "obstacle": math.sqrt(2) * 0.05}
+    jump = {"relation": 0.6, "obstacle": math.sqrt(2) * 0.05, "wall": math.sqrt(2) * 0.05}
     for k, name in enumerate(EVERY):
         if name == "goal_deviation":
             continue
