@@ -83,7 +83,7 @@ def test_name_at_value_sets_the_parameter_and_plain_names_take_the_params():
     params = FeatureParams(features=["relation@0.8", "social@0.8", "social", "intimate",
                                      "gaussian", "gaussian@0.5", "front", "front@2",
                                      "group_space@0.5", "group_space", "obstacle@0.3",
-                                     "obstacle", "goal_deviation", "length"],
+                                     "obstacle", "wall@0.3", "wall", "goal_deviation", "length"],
                            rho_personal=1.5, sigma=0.7, rho_group=0.2, rho_obstacle=0.4)
     got = [(f.name, f.kind, f.value) for f in params.selected()]
     assert got[:-2] == [
@@ -92,7 +92,8 @@ def test_name_at_value_sets_the_parameter_and_plain_names_take_the_params():
         ("gaussian", "gaussian", 0.7), ("gaussian@0.5", "gaussian", 0.5),
         ("front", "front", 1.5), ("front@2", "front", 2.0),
         ("group_space@0.5", "group_space", 0.5), ("group_space", "group_space", 0.2),
-        ("obstacle@0.3", "obstacle", 0.3), ("obstacle", "obstacle", 0.4)]
+        ("obstacle@0.3", "obstacle", 0.3), ("obstacle", "obstacle", 0.4),
+        ("wall@0.3", "wall", 0.3), ("wall", "wall", 0.4)]
     assert [f.kind for f in params.selected()[-2:]] == ["goal_deviation", "length"]
     assert all(math.isnan(f.value) for f in params.selected()[-2:])
 
