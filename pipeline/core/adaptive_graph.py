@@ -479,7 +479,23 @@ def _import_sklearn_gp() -> tuple[Any, Any, Any]:
     finally:
         if hide and sys.modules.get("pandas", False) is None:
             del sys.modules["pandas"]
-    return sklearn, GaussianProcessRegressor, kernels
+
+    class FixedKernelGP(GaussianProcessRegressor):
+        """scikit-learn's GP regressor, whose fit without an optimiser still computes the
+        log marginal likelihood for its attribute `log_marginal_likelihood_value_`: a
+        second kernel matrix and Cholesky factor of the training points, a fifth of
+        growth's GP time, for a number nothing here reads (left NaN). Predictions are
+        unchanged to the bit."""
+
+        def log_marginal_likelihood(self, theta: Any = None, eval_gradient: bool = False,
+                                    clone_kernel: bool = True) -> Any:
+            if theta is not None and not eval_gradient and not clone_kernel:
+                return np.nan  # fit's call (optimizer=None)
+            if theta is None and not eval_gradient:  # scikit-learn returns the stored value
+                return super().log_marginal_likelihood(self.kernel_.theta)
+            return super().log_marginal_likelihood(theta, eval_gradient, clone_kernel)
+
+    return sklearn, FixedKernelGP, kernels
 
 
 def _probabilities(scores: np.ndarray) -> np.ndarray:

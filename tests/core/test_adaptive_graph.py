@@ -122,6 +122,25 @@ def test_gp_kernel_without_the_unit_constant_gives_bit_identical_estimates():
     assert not np.array_equal(scaled[1], expected[1])
 
 
+def test_value_gp_skips_only_the_fits_own_log_marginal_likelihood():
+    """The value GP leaves out the log marginal likelihood that scikit-learn's fit computes
+    for an attribute (its predictions are checked against scikit-learn's above); asked
+    for directly it is scikit-learn's."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+
+    from pipeline.core.adaptive_graph import _gp_kernel, _import_sklearn_gp
+
+    p, rng = GraphParams(), np.random.default_rng(4)
+    train, values = rng.uniform(0, 3, (12, 2)), rng.normal(-3, 1, 12)
+    kernel = _gp_kernel(p.gp_signal_std, p.gp_length_scale, p.gp_noise)
+    ours = _import_sklearn_gp()[1](kernel, optimizer=None).fit(train, values)
+    theirs = GaussianProcessRegressor(kernel, optimizer=None).fit(train, values)
+    assert np.isnan(ours.log_marginal_likelihood_value_)
+    assert np.isfinite(theirs.log_marginal_likelihood_value_)
+    assert ours.log_marginal_likelihood(kernel.theta) == theirs.log_marginal_likelihood_value_
+    assert ours.log_marginal_likelihood() == theirs.log_marginal_likelihood()
+
+
 def test_voronoi_centroids_clipped_to_room():
     room = Room(0, 0, 4, 2)
     c = voronoi_centroids(np.array([[1.0, 1.0], [3.0, 1.0]]), room)
