@@ -73,7 +73,8 @@ _PARAMETER_FIELD: dict[str, str | None] = {
     "relation": "rho_relation", "social": "rho_personal", "social_squared": "rho_personal",
     "intimate": None,
     "gaussian": "sigma", "front": "rho_personal", "group_space": "rho_group",
-    "obstacle": "rho_obstacle", "wall": "rho_obstacle", "goal_deviation": None, "length": None, "crossing": None,
+    "obstacle": "rho_obstacle", "wall": "rho_obstacle", "goal_deviation": None, "length": None,
+    "crossing": None,
 }
 FEATURE_KINDS: tuple[str, ...] = tuple(_PARAMETER_FIELD)
 
