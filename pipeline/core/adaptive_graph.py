@@ -483,9 +483,8 @@ def _import_sklearn_gp() -> tuple[Any, Any, Any]:
     class FixedKernelGP(GaussianProcessRegressor):
         """scikit-learn's GP regressor, whose fit without an optimiser still computes the
         log marginal likelihood for its attribute `log_marginal_likelihood_value_`: a
-        second kernel matrix and Cholesky factor of the training points, a fifth of
-        growth's GP time, for a number nothing here reads (left NaN). Predictions are
-        unchanged to the bit."""
+        second kernel matrix and Cholesky factor of the training points, for a number
+        nothing here reads (left NaN). Predictions are unchanged to the bit."""
 
         def log_marginal_likelihood(self, theta: Any = None, eval_gradient: bool = False,
                                     clone_kernel: bool = True) -> Any:
