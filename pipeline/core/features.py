@@ -388,10 +388,7 @@ class FeatureModel:
         if self.obstacles is not None:
             clearance = self.obstacles.clearance_at(p)
         if self.room is not None:
-            r = self.room
-            border = np.minimum(np.minimum(p[:, 0] - r.x_min, r.x_max - p[:, 0]),
-                                np.minimum(p[:, 1] - r.y_min, r.y_max - p[:, 1]))
-            clearance = np.minimum(clearance, np.maximum(border, 0.0))
+            clearance = np.minimum(clearance, self.room.border_distance(p))
         return np.maximum(0.0, rho - clearance)
 
     def densities(self, points: np.ndarray) -> np.ndarray:

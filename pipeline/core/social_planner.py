@@ -208,10 +208,7 @@ class SocialCost:
         if self.scene.obstacles is not None:
             clearance = self.scene.obstacles.clearance_at(p)
         if self.params.room_walls:
-            r = self.scene.room
-            border = np.minimum(np.minimum(p[:, 0] - r.x_min, r.x_max - p[:, 0]),
-                                np.minimum(p[:, 1] - r.y_min, r.y_max - p[:, 1]))
-            clearance = np.minimum(clearance, np.maximum(border, 0.0))
+            clearance = np.minimum(clearance, self.scene.room.border_distance(p))
         return clearance
 
     def segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -62,6 +62,13 @@ class Room:
             & (p[:, 1] <= self.y_max - margin)
         )
 
+    def border_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance (n,) from the points (n, 2) to the room's border; 0 outside the room."""
+        p = np.atleast_2d(points)
+        border = np.minimum(np.minimum(p[:, 0] - self.x_min, self.x_max - p[:, 0]),
+                            np.minimum(p[:, 1] - self.y_min, self.y_max - p[:, 1]))
+        return np.maximum(border, 0.0)
+
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         return self.x_min, self.y_min, self.x_max, self.y_max
