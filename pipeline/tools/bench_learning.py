@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -143,19 +144,26 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
     return rows
 
 
+def over_transfer_scenes(tmp: Path, name: str, seed: int,
+                         judge: Callable[[Path, list[str]], dict]) -> dict:
+    """`judge(run dir, the scene's overrides)` on every transfer scene (the planner's, with
+    this seed; no demonstration of them anywhere in learning), and each of KEYS' median
+    over the scenes."""
+    per_scene = [judge(tmp / f"transfer-{name}-{seed}-{k}",
+                       [*PLANNER, "scene=random", f"scene.seed={k}", f"seed={seed}"])
+                 for k in TRANSFER_SCENES]
+    return {key: float(np.median([m.get(key, np.nan) for m in per_scene])) for key in KEYS}
+
+
 def transfer(tmp: Path, learned: Path, name: str, seed: int, metrics: dict,
              features: list[str]) -> dict:
-    """The learned reward deployed on the transfer scenes (no demonstration of them
-    anywhere in learning), judged on the planner's paths there; medians over the scenes,
-    the learning time of the run that learned. `features`: the learner's birl.features
-    override, if any (a deployment plans on the features it learned)."""
-    per_scene = []
-    for k in TRANSFER_SCENES:
-        per_scene.append(run_in_process(
-            tmp / f"transfer-{name}-{seed}-{k}", *PLANNER, "scene=random", f"scene.seed={k}",
-            f"seed={seed}", "birl=fixed", f"birl.from_run={learned}", "evaluate.holdout=all",
-            *features))
-    out = {key: float(np.median([m.get(key, np.nan) for m in per_scene])) for key in KEYS}
+    """The learned reward deployed on the transfer scenes, judged on the planner's paths
+    there; medians over the scenes, the learning time of the run that learned. `features`:
+    the learner's birl.features override, if any (a deployment plans on the features it
+    learned)."""
+    out = over_transfer_scenes(tmp, name, seed, lambda run, scene: run_in_process(
+        run, *scene, "birl=fixed", f"birl.from_run={learned}", "evaluate.holdout=all",
+        *features))
     out["time_birl_learn_s"] = metrics.get("time_birl_learn_s", np.nan)
     return out
 
@@ -168,13 +176,12 @@ def planner_cost_row(tmp: Path, demonstrator: str, seed: int, base: Path) -> dic
         if demonstrator == "planner_hallway":
             metrics |= passing_distances(base, paths)
         return metrics
-    per_scene = []
-    for k in TRANSFER_SCENES:
-        run = tmp / f"transfer-{PLANNER_COST}-{seed}-{k}"
-        run_in_process(run, *PLANNER, "scene=random", f"scene.seed={k}", f"seed={seed}",
-                       "stages=[scene,demos]")
-        per_scene.append(planner_cost_metrics(run, every_demo=True)[0])
-    return {key: float(np.median([m.get(key, np.nan) for m in per_scene])) for key in KEYS}
+
+    def judge(run: Path, scene: list[str]) -> dict:
+        run_in_process(run, *scene, "stages=[scene,demos]")
+        return planner_cost_metrics(run, every_demo=True)[0]
+
+    return over_transfer_scenes(tmp, PLANNER_COST, seed, judge)
 
 
 def planner_cost_metrics(run: Path, every_demo: bool = False) -> tuple[dict, list[np.ndarray]]:
