@@ -420,7 +420,7 @@ class FeatureModel:
             return out
         seg = b - a
         length = np.linalg.norm(seg, axis=1)
-        tiled = []
+        stepped = []  # integrated by sub-steps: the tiled kinds, and `wall` without a raster
         for col, f in enumerate(self.selected):
             if f.kind == "length":
                 out[:, col] = length
@@ -435,10 +435,12 @@ class FeatureModel:
             elif f.kind == "crossing":
                 out[:, col] = self._crossing_segments(a, b)
             else:
-                tiled.append(col)
-        if not tiled:
+                stepped.append(col)
+        if not stepped:
             return out
-        features = tuple(self.selected[c] for c in tiled if self.selected[c].kind != "wall")
+        tiled = [c for c in stepped if self.selected[c].kind != "wall"]
+        walls = [c for c in stepped if self.selected[c].kind == "wall"]
+        features = tuple(self.selected[c] for c in tiled)
 
         # Split every segment into equal sub-steps of at most `resolution`.
         n_sub = np.maximum(1, np.ceil(length / self.resolution - 1e-9).astype(np.int64))
@@ -450,11 +452,12 @@ class FeatureModel:
         for lo in range(0, len(owner), _CHUNK_POINTS):
             sl = slice(lo, lo + _CHUNK_POINTS)
             p = a[owner[sl]] + frac[sl, None] * seg[owner[sl]]
-            dens = iter(self._tiled(p, features).T)
-            for col in tiled:
-                f = self.selected[col]
-                density = self.wall_density(p, f.value) if f.kind == "wall" else next(dens)
-                out[:, col] += np.bincount(owner[sl], ds[sl] * density, minlength=n)
+            dens = self._tiled(p, features)
+            for j, col in enumerate(tiled):
+                out[:, col] += np.bincount(owner[sl], ds[sl] * dens[:, j], minlength=n)
+            for col in walls:
+                out[:, col] += np.bincount(owner[sl], ds[sl] * self.wall_density(
+                    p, self.selected[col].value), minlength=n)
         return out
 
     def edge_features(self, positions: np.ndarray, src: np.ndarray,
