@@ -121,6 +121,8 @@ def test_name_at_value_sets_the_parameter_and_plain_names_take_the_params():
     (["social_squared", "social_squared@1.2"],
      "'social_squared@1.2' is the same feature as 'social_squared'"),
     (["length", "length"], "'length' is the same feature as 'length'"),
+    (["wall@-0.5"], "finite number > 0"),
+    (["wall", "wall@0.5"], "'wall@0.5' is the same feature as 'wall'"),
 ])
 def test_bad_feature_names_are_refused_naming_the_field_and_the_allowed_names(features,
                                                                              culprit):
