@@ -261,7 +261,7 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
 
         problem = IRLProblem([d.stats(cfg.mdp) for d in demonstrations],
                              [d.points for d in demonstrations], env, build.prior(cfg), w0, rng,
-                             roadmap)
+                             roadmap, lattice=build.alternatives_lattice(cfg, scene))
         result = build.irl_method(cfg).fit(problem, cfg.birl)
     return Learned(result, cfg.learner_features, env.graph, cfg)
 

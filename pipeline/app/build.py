@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
+import logging
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +33,8 @@ from pipeline.irl import methods
 from pipeline.irl.base import Method
 from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import Prior
+
+log = logging.getLogger(__name__)
 
 
 def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
@@ -228,6 +233,37 @@ def reference_roadmap(cfg: Config, scene: Scene, features: FeatureModel) -> Road
     if cut_off:  # nothing can be learned or scored from such a start: refuse, do not run on
         raise PipelineError(unreachable_message(scene, cut_off, rp.spacing))
     return roadmap
+
+
+def alternatives_lattice(cfg: Config,
+                         scene: Scene) -> Callable[[], SpatialGraph | None] | None:
+    """birl.alternatives=lattice: builds, once and on demand, a 16-connected lattice over the
+    free space of `scene` on the learner's features, whose paths the demonstrations are
+    compared with. The lattice is None (and the adaptive graph's paths serve) when a start
+    cannot reach the goal on it; the factory is None for methods without the setting."""
+    spacing = getattr(cfg.birl, "alternatives_spacing", None)
+    if spacing is None:
+        return None
+
+    @functools.cache
+    def lattice() -> SpatialGraph | None:
+        chosen, why = limits.alternatives_spacing(scene.room.area, spacing, scene.name)
+        if why:
+            log.info("%s", why)
+        limits.check_memory(f"the alternatives lattice of scene '{scene.name}'",
+                            limits.lattice_edges(scene.room.area, chosen, 16),
+                            limits.bytes_per_lattice_edge(len(scene.persons),
+                                                          scene.obstacles is not None),
+                            "raise birl.alternatives_spacing or set birl.alternatives=graph")
+        built = build_roadmap(scene, learner_feature_model(cfg, scene),
+                              RoadmapParams(spacing=chosen), cfg.mdp.speed)
+        if built.starts_without_path_to_goal():
+            log.warning("a start cannot reach the goal on the %g m alternatives lattice of "
+                        "scene '%s': the demonstrations are compared with the adaptive "
+                        "graph's paths instead (birl.alternatives=graph)", chosen, scene.name)
+            return None
+        return built.spatial(built.mdp(cfg.mdp))
+    return lattice
 
 
 def transfer_name(scene_name: str, path: str) -> str:

@@ -114,6 +114,22 @@ def learning_growth(obstacles: bool, scene_name: str) -> tuple[int, str]:
     return 0, f"scene '{scene_name}' is an open room: the graph stays as stage 3 grew it"
 
 
+# birl.alternatives=lattice: at most this many lattice nodes (a 0.2 m lattice of a 20 m × 20 m
+# room); a larger floor gets a coarser lattice, so learning costs at most a few seconds
+ALTERNATIVES_MAX_NODES = 10_000
+
+
+def alternatives_spacing(area: float, spacing: float, scene_name: str) -> tuple[float, str]:
+    """The spacing of the alternatives lattice over `area` m² (birl.alternatives_spacing, or
+    coarser to stay within ALTERNATIVES_MAX_NODES), and why, for the log ('' if as set)."""
+    if area / spacing**2 <= ALTERNATIVES_MAX_NODES:
+        return spacing, ""
+    coarse = math.sqrt(area / ALTERNATIVES_MAX_NODES)
+    return coarse, (f"the alternatives lattice of scene '{scene_name}' is {coarse:.2f} m apart, "
+                    f"not {spacing:g} m (birl.alternatives_spacing): {area:.0f} m² at most "
+                    f"{ALTERNATIVES_MAX_NODES} nodes")
+
+
 def check_graph_resolution(max_nodes: int, free_area: float, rho_personal: float,
                            scene_name: str) -> None:
     """The adaptive graph must be able to resolve personal space: on average at least one

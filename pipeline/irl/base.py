@@ -108,6 +108,9 @@ class IRLProblem:
     progress: Callable[[Iteration], None] | None = None
     # long work inside a method (e.g. MCMC sampling) says how far it got, in words
     status: Callable[[str], None] | None = None
+    # a lattice over the room's free space on the learner's features, its start nodes in
+    # the scene's order, built on demand (birl.alternatives=lattice); None: not available
+    lattice: Callable[[], SpatialGraph | None] | None = None
 
     @property
     def graph(self) -> SpatialGraph:

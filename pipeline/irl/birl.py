@@ -46,6 +46,7 @@ from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BASE_MEASURES, BoltzmannPosterior, LogBetaDensity
 
 LIKELIHOODS = ("paper", "robust", "boltzmann")
+ALTERNATIVES = ("lattice", "graph")
 
 
 @dataclass
@@ -70,6 +71,14 @@ class BirlMapConfig(IRLConfig):
     # robust: the paths' base measure, what the demonstrator does at β = 0 (walk: the
     # uniform random walk; uniform: each path once, as MaxEnt); pipeline.irl.robust
     base_measure: str = "walk"
+    # robust: the paths each demonstration is compared with, the model's alternatives
+    # (lattice: every path of a 16-connected lattice over the room's free space; graph: the
+    # adaptive graph's, which crowd where the demonstrations are, so a weight that only an
+    # untaken route would reveal stays unidentified); pipeline.irl.robust
+    alternatives: str = "lattice"
+    # robust, alternatives=lattice: its spacing in m (coarsened on large floors, the log
+    # says so)
+    alternatives_spacing: float = 0.2
     lr_level: Optional[float] = None  # deprecated spelling of test_level
 
     def __post_init__(self) -> None:
@@ -87,6 +96,9 @@ class BirlMapConfig(IRLConfig):
             require_positive(self, "boltzmann_prior_scale")
         require(self.base_measure in BASE_MEASURES, "base_measure", self.base_measure,
                 " or ".join(repr(k) for k in BASE_MEASURES))
+        require(self.alternatives in ALTERNATIVES, "alternatives", self.alternatives,
+                " or ".join(repr(k) for k in ALTERNATIVES))
+        require_positive(self, "alternatives_spacing")
         require(self.beta_min < self.beta_max, "beta_min", self.beta_min,
                 f"below beta_max ({self.beta_max})")
 
@@ -193,8 +205,13 @@ def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> Boltzman
     if config.boltzmann_prior_scale is not None:
         prior = Prior("gaussian", config.boltzmann_prior_scale, prior.lower, prior.upper,
                       (prior.lower + prior.upper) / 2)
+    alternatives = None
+    lattice = problem.lattice() if config.alternatives == "lattice" and problem.lattice else None
+    if lattice is not None:
+        alternatives = (lattice.mdp, lattice.start_nodes[[t.start for t in problem.expert]])
     return BoltzmannPosterior(graph.mdp, problem.demo_paths(graph), prior,
-                              (config.beta_min, config.beta_max), config.base_measure)
+                              (config.beta_min, config.beta_max), config.base_measure,
+                              alternatives)
 
 
 def _robust_loop(problem: IRLProblem,

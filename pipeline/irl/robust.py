@@ -107,28 +107,39 @@ class BoltzmannPosterior:
     L-BFGS-B over (w, β) finds the global MAP."""
 
     def __init__(self, mdp: GraphMDP, expert_paths: list[Path], prior: Prior,
-                 beta_range: tuple[float, float], base_measure: str = "walk") -> None:
+                 beta_range: tuple[float, float], base_measure: str = "walk",
+                 alternatives: tuple[GraphMDP, np.ndarray] | None = None) -> None:
+        """expert_paths: the demonstrations as paths of `mdp`. alternatives: the graph whose
+        paths the demonstrations are compared with (the normaliser V_soft) and the node of
+        each demonstration's start there (K,), when that is not `mdp` itself: a lattice
+        over the room (`birl.alternatives`). Each demonstration enters only by its sums
+        Φ(ξ), b(ξ) and log μ(ξ), which do not depend on the graph that lists the
+        alternatives; log μ(ξ) is constant in (w, β) and moves no estimate."""
         if not expert_paths:
             raise ValueError("the robust likelihood needs at least one demonstration")
         if base_measure not in BASE_MEASURES:
             raise ValueError(f"base_measure must be one of {BASE_MEASURES}, got {base_measure!r}")
-        self.mdp, self.prior, self.beta_range = mdp, prior, beta_range
-        # log μ per edge, a step's share of the base measure (0 for `uniform`)
-        self.log_base = np.zeros(len(mdp.src))
-        if base_measure == "walk":
-            self.log_base = -np.log(np.diff(mdp.indptr)[mdp.src].astype(float))
-        self.starts = np.array([p.nodes[0] for p in expert_paths], dtype=np.int64)
+        self.prior, self.beta_range, self.base_measure = prior, beta_range, base_measure
         self.empirical = np.zeros(prior.dim)  # Σ_k Φ(ξ_k) on this graph
         self.goal_term = 0.0  # Σ_k b(ξ_k): cost per second and γ^{T_k} R_goal [reached]
         self.base_term = 0.0  # Σ_k log μ(ξ_k), discounted like Φ: constant in (w, β)
+        log_base = self._log_base(mdp)
         for p in expert_paths:
             phi, end = discounted_counts(np.column_stack([mdp.features[p.edges],
                                                           mdp.base_reward[p.edges],
-                                                          self.log_base[p.edges]]),
+                                                          log_base[p.edges]]),
                                          mdp.duration[p.edges], mdp.gamma)
             self.empirical += phi[:-2]
             self.base_term += phi[-1]
             self.goal_term += phi[-2] + (end * mdp.r_goal if p.reached else 0.0)
+        self.starts = np.array([p.nodes[0] for p in expert_paths], dtype=np.int64)
+        if alternatives is not None:
+            mdp, starts = alternatives
+            if len(starts) != len(expert_paths):
+                raise ValueError("alternatives need one start node per demonstration")
+            self.starts = np.asarray(starts, dtype=np.int64)
+            log_base = self._log_base(mdp)
+        self.mdp, self.log_base = mdp, log_base  # log μ per edge, a step's share (0: uniform)
         # Warm start of the next soft policy iteration: the last values, the parameters
         # θ = (βw, β) they belong to, and their derivative dV/dθ (n, d + 1) or None.
         self._values: np.ndarray | None = None
@@ -148,6 +159,12 @@ class BoltzmannPosterior:
         self._indices = np.empty(len(mdp.src) + n, dtype=np.int64)
         self._indices[self._diagonal], self._indices[self._edge_slots] = rows[:-1], mdp.dst
         self._factors = PatternLU(self._indices, self._indptr)
+
+    def _log_base(self, mdp: GraphMDP) -> np.ndarray:
+        """log μ per edge of `mdp` (E,): a step's share of the base measure."""
+        if self.base_measure == "walk":
+            return -np.log(np.diff(mdp.indptr)[mdp.src].astype(float))
+        return np.zeros(len(mdp.src))
 
     def _solve(self, pi: np.ndarray, rhs: np.ndarray, trans: str) -> np.ndarray:
         """x with (I − γ^τ P_π) x = rhs (trans "T": policy evaluation) or its transpose
