@@ -54,6 +54,52 @@ def test_robust_likelihood_on_a_tiny_graph_by_hand(w, beta, base):
         pytest.approx(by_hand(w, beta, 2, 1, walk=base == "walk"), abs=1e-8)
 
 
+def route_b_only():
+    """The two-route graph without route A (edge 0→3): what an adaptive graph that grew only
+    along the demonstrations holds. Its nodes are the full graph's, so the starts agree."""
+    src, dst = [0, 1, 1], [1, 3, 2]
+    mdp = GraphMDP(src, dst, np.ones(3), [[0.2], [0.3], [0.0]], [False, False, False, True],
+                   MDPParams(gamma=GAMMA, time_cost=0.0))
+    return mdp, along(mdp, [0, 1, 3])
+
+
+@pytest.mark.parametrize("w, beta", [(-0.5, 2.0), (-0.1, 10.0)])
+def test_alternatives_graph_lists_the_routes_the_demonstrations_did_not_take(w, beta):
+    """Demonstrations on route B, given as paths of a graph that holds route B only, compared
+    with the full two-route graph's paths: the log likelihood is the full graph's by hand
+    (uniform base measure), and not the demonstration graph's own, where B is the only
+    route and every weight explains it equally (log likelihood 0, but for the dead end's
+    vanishing share)."""
+    full, _, _ = two_routes()
+    own, b = route_b_only()
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    alone = BoltzmannPosterior(own, [b, b], prior, (0.1, 100), "uniform")
+    assert alone.log_likelihood([w], beta) == pytest.approx(0.0, abs=1e-6)
+    post = BoltzmannPosterior(own, [b, b], prior, (0.1, 100), "uniform",
+                              alternatives=(full, np.array([0, 0])))
+    assert post.log_likelihood([w], beta) == pytest.approx(by_hand(w, beta, 0, 2), abs=1e-8)
+
+
+def test_a_walk_base_measure_on_other_alternatives_moves_the_likelihood_by_a_constant():
+    """With the random-walk base measure the demonstrations' log μ comes from their own
+    graph, not the alternatives': a constant in (w, β), so the likelihood's differences,
+    its gradient and its MAP are those of the full graph by hand."""
+    full, _, b_full = two_routes()
+    own, b = route_b_only()
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    post = BoltzmannPosterior(own, [b], prior, (0.1, 100), "walk",
+                              alternatives=(full, np.array([0])))
+    same = BoltzmannPosterior(full, [b_full], prior, (0.1, 100), "walk")
+    points = [(-0.5, 2.0), (-0.1, 10.0), (-0.9, 0.5)]
+    shift = {round(post.log_likelihood([w], beta) - same.log_likelihood([w], beta), 9)
+             for w, beta in points}
+    assert len(shift) == 1 and shift != {0.0}
+    np.testing.assert_allclose(post.map([-0.5], 2.0)[0], same.map([-0.5], 2.0)[0], atol=1e-6)
+    with pytest.raises(ValueError, match="one start node per demonstration"):
+        BoltzmannPosterior(own, [b, b], prior, (0.1, 100), "walk",
+                           alternatives=(full, np.array([0])))
+
+
 def fan(k):
     """Start 0 with two ways to the goal G, each three steps of feature 0: via 1 and 3, or
     via 2 and one of k parallel middle nodes."""
@@ -207,6 +253,10 @@ def test_config_checks():
         BirlMapConfig(likelihood="robust", beta_min=5.0, beta_max=1.0)
     with pytest.raises(ValueError, match="base_measure=walks is not allowed.*'walk'"):
         BirlMapConfig(base_measure="walks")
+    with pytest.raises(ValueError, match="alternatives=grid is not allowed.*'lattice'"):
+        BirlMapConfig(alternatives="grid")
+    with pytest.raises(ValueError, match="alternatives_spacing"):
+        BirlMapConfig(alternatives_spacing=0.0)
     with pytest.raises(ValueError, match="target_acceptance"):
         AdaptiveChainParams(target_acceptance=1.5)
     with pytest.raises(ValueError, match="demos_per_start"):

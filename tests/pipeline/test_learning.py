@@ -185,6 +185,17 @@ def test_no_loop_of_the_grown_graph_is_free(tmp_path):
             assert graph.mdp.follow(policy, int(start)).reached, (w, start)
 
 
+def test_the_lattice_of_alternatives_identifies_what_the_graph_leaves_open(tmp_path):
+    """Metropolis seed 2, optimal expert: compared with the adaptive graph's paths only, two
+    starts' routes nearly tie with a long detour the graph does not hold, nothing bounds the
+    length and goal-deviation weights, and the learned reward takes the detour on the
+    roadmap; compared with every path of the lattice, it does not."""
+    lattice, _ = run_in_process(tmp_path / "lattice", "seed=2")
+    graph, _ = run_in_process(tmp_path / "graph", "seed=2", "birl.alternatives=graph")
+    assert lattice["policy_loss_norm"] <= 0.005 < graph["policy_loss_norm"]
+    assert lattice["ref_relation_crossings"] == 0
+
+
 def test_a_final_loss_worse_than_the_initial_one_is_said(tmp_path):
     """A random scene, seed 1, compared with the adaptive graph's paths only: the initial
     weights happen to lose nothing on the roadmap, the learned ones a little; the summary
