@@ -403,14 +403,25 @@ class BoltzmannPosterior:
         raise RuntimeError("the admissibility test did not settle")  # not seen in practice
 
     def map(self, w0: ArrayLike, beta0: float) -> tuple[np.ndarray, float]:
-        """MAP (w (d,), β) by L-BFGS-B within the prior box and the β range."""
-        lower = np.append(self.prior.lower, self.beta_range[0])
-        upper = np.append(self.prior.upper, self.beta_range[1])
-        x0 = np.clip(np.append(np.asarray(w0, dtype=float), beta0), lower, upper)
-        res = minimize(self.neg_log_posterior, x0, method="L-BFGS-B", jac=True,
+        """MAP (w (d,), β) by L-BFGS-B within the prior box and the β range. The search runs
+        over (w, log β), the same function of other coordinates (its minimum is the same
+        point): β spans four decades and w one unit, and on log β the quasi-Newton steps
+        are scaled alike (metropolis seed 2, optimal expert, on the lattice of
+        alternatives: 54 evaluations instead of 67, the same MAP)."""
+        log_range = np.log(self.beta_range)
+        lower = np.append(self.prior.lower, log_range[0])
+        upper = np.append(self.prior.upper, log_range[1])
+
+        def objective(u: np.ndarray) -> tuple[float, np.ndarray]:
+            x = np.append(u[:-1], np.exp(u[-1]))
+            value, grad = self.neg_log_posterior(x)
+            return value, np.append(grad[:-1], grad[-1] * x[-1])  # d/d log β = β d/dβ
+
+        u0 = np.clip(np.append(np.asarray(w0, dtype=float), np.log(beta0)), lower, upper)
+        res = minimize(objective, u0, method="L-BFGS-B", jac=True,
                        bounds=list(zip(lower, upper, strict=True)))
-        x = np.clip(res.x, lower, upper)
-        return x[:-1], float(x[-1])
+        u = np.clip(res.x, lower, upper)
+        return u[:-1], float(np.clip(np.exp(u[-1]), *self.beta_range))
 
 
 class LogBetaDensity:
