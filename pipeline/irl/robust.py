@@ -41,6 +41,10 @@ BASE_MEASURES = ("walk", "uniform")
 # _solve: refinement steps on the last LU before refactoring, and the least error reduction
 # per step (a slower rate means the policy is too far from the factored one)
 REFINE_STEPS, REFINE_RATE = 30, 0.5
+# _linear_soft_values: y = exp(V − H) up to e^LOG_Y_KEPT is solved as is; beyond, relative
+# to soft values from log-space sweeps, kept to SWEEP_TOLERANCE (nats) or MAX_SWEEPS sweeps
+# (only a reference: the linear solve makes them exact)
+LOG_Y_KEPT, SWEEP_TOLERANCE, MAX_SWEEPS = 25.0, 1e-3, 5000
 
 
 class PatternLU:
@@ -261,21 +265,57 @@ class BoltzmannPosterior:
         """Soft values V (n,) at θ = (βw, β) without discounting, and the (m, y) they come
         from. The soft Bellman equation is then linear in z = exp(V) (a linearly solvable
         MDP, Todorov 2007): z(s) = Σ_e exp(βr(e) + log μ(e)) z(dst(e)). Written relative to
-        the hard values H of the same edge terms (Dijkstra), z = exp(H)·y, it reads
-        (I − M) y = 1 at absorbing nodes with M(e) = exp(βr + log μ + H(dst) − H(src)) ≤ 1
-        and y ≥ 1, so nothing under- or overflows: one sparse solve, exact (no iteration)."""
+        a reference R (z = exp(R)·y; R = β·fixed at absorbing nodes) it reads (I − M) y = 1
+        at absorbing nodes with M(e) = exp(βr + log μ + R(dst) − R(src)): one sparse
+        solve, exact. R is first the hard values H of the same edge terms (Dijkstra), so M
+        ≤ 1, y ≥ 1 and nothing overflows. But y = exp(V − H) counts the near-optimal paths,
+        and on a lattice their number grows combinatorially with the distance (paths that
+        take the same moves in another order tie exactly): y can span tens of decades,
+        where its small entries are lost and the factorisation can break down. Then R is
+        the soft values themselves to within a small error, by value iteration in log space
+        from H (`_soft_sweeps`), M is nearly the soft policy (a stochastic matrix) and y
+        is nearly 1 everywhere."""
         if self._linear is not None and np.array_equal(self._linear[0], theta):
             return self._linear[1:]
         mdp = self.mdp
         edge_terms = self._log_weights(theta)
-        hard = theta[-1] * mdp.fixed_values
-        hard[mdp.has_out] = theta[-1] * mdp.r_goal - mdp.cost_to_goal(edge_terms)[mdp.has_out]
-        m = np.exp(np.minimum(edge_terms + hard[mdp.dst] - hard[mdp.src], 0.0))
-        y = self._solve(m, np.where(mdp.has_out, 0.0, 1.0), "T")
-        if not np.all(np.isfinite(y) & (y > 0)):
-            raise RuntimeError("the soft values' linear system has no positive solution")
-        self._linear = (theta.copy(), hard + np.log(y), m, y)
-        return self._linear[1:]
+        reference = theta[-1] * mdp.fixed_values
+        reference[mdp.has_out] = (theta[-1] * mdp.r_goal
+                                  - mdp.cost_to_goal(edge_terms)[mdp.has_out])
+        absorbing = np.where(mdp.has_out, 0.0, 1.0)
+        hard = reference
+        # (relative to the sweeps?, a fresh LU?): the first is the cheap common case
+        for refined, fresh in ((False, False), (True, False), (True, True)):
+            if refined and reference is hard:
+                reference = self._soft_sweeps(edge_terms, hard)
+            if fresh:  # refinement on the last LU can settle on a huge multiple of the
+                self._lu = None  # near-null vector 1 of I − M when M is nearly stochastic
+            m = np.exp(np.minimum(edge_terms + reference[mdp.dst] - reference[mdp.src],
+                                  np.inf if refined else 0.0))
+            try:
+                y = self._solve(m, absorbing, "T")
+            except RuntimeError:  # SuperLU: the factor is exactly singular
+                self._lu = None
+                continue
+            with np.errstate(divide="ignore", invalid="ignore"):
+                log_y = np.log(y)
+            if np.all(np.isfinite(log_y)) and (fresh or np.abs(log_y).max() <= LOG_Y_KEPT):
+                self._linear = (theta.copy(), reference + log_y, m, y)
+                return self._linear[1:]
+        raise RuntimeError("the soft values' linear system has no positive solution")
+
+    def _soft_sweeps(self, edge_terms: np.ndarray, hard: np.ndarray) -> np.ndarray:
+        """The soft values, to SWEEP_TOLERANCE, by value iteration in log space from the
+        hard values H (a lower bound: log Σ exp ≥ max, so the sweeps rise monotonically to
+        the fixed point); absorbing nodes keep their values."""
+        mdp, values = self.mdp, hard
+        for _ in range(MAX_SWEEPS):
+            new = np.where(mdp.has_out, mdp.log_sum_exp(edge_terms + values[mdp.dst]), hard)
+            change = float(np.max(np.abs(new - values), initial=0.0))
+            values = new
+            if change < SWEEP_TOLERANCE:
+                break
+        return values
 
     def _keep(self, values: np.ndarray, theta: np.ndarray,
               step: np.ndarray | None) -> np.ndarray:
