@@ -114,9 +114,11 @@ def learning_growth(obstacles: bool, scene_name: str) -> tuple[int, str]:
     return 0, f"scene '{scene_name}' is an open room: the graph stays as stage 3 grew it"
 
 
-# birl.alternatives=lattice: at most this many lattice nodes (a 0.2 m lattice of a 20 m × 20 m
-# room); a larger floor gets a coarser lattice, so learning costs at most a few seconds
-ALTERNATIVES_MAX_NODES = 10_000
+# birl.alternatives=lattice: at most this many lattice nodes (a 0.2 m lattice of a 14 m × 14 m
+# room); a larger floor gets a coarser one. Learning on the lattice costs about its nodes^1.5
+# (sparse LUs), and its near-optimal paths multiply with the distance (more solves): a 20 m
+# room on a 10 000-node lattice took 25 s to learn, the 10 m metropolis on 2 546 nodes 1 s
+ALTERNATIVES_MAX_NODES = 5_000
 
 
 def alternatives_spacing(area: float, spacing: float, scene_name: str) -> tuple[float, str]:
