@@ -411,9 +411,13 @@ IMPERFECT_METHODS = {"birlg_paper": ["birl.likelihood=paper"],
                      # the robust form with each path counted once (MaxEnt's measure)
                      "birlg_robust_uniform": ["birl.likelihood=robust",
                                               "birl.base_measure=uniform"],
+                     # the robust form against the adaptive graph's paths alone
+                     "birlg_robust_graph": ["birl.likelihood=robust",
+                                            "birl.alternatives=graph"],
                      "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
 IMPERFECT_NAMES = {"birlg_paper": "BIRL-G (paper, eq. 2)", "birlg_robust": "BIRL-G (robust)",
                    "birlg_robust_uniform": "BIRL-G (robust, uniform path measure)",
+                   "birlg_robust_graph": "BIRL-G (robust, the graph's paths as alternatives)",
                    "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
 
 
