@@ -483,3 +483,68 @@ def test_pattern_lu_reuses_its_ordering_and_sums_a_self_loop_into_the_diagonal()
                                    rtol=0, atol=1e-12)
         np.testing.assert_allclose(lu.solve(rhs, "N"), np.linalg.solve(dense.T, rhs),
                                    rtol=0, atol=1e-12)
+
+
+
+def diamond_chain(k, back=False):
+    """Start 0, goal 3k: k diamonds in a row, each two equal two-step ways (via 3i+1 or
+    3i+2) from node 3i to 3i+3. 2^k paths tie exactly, as lattice paths that take the same
+    moves in another order do. back: every edge also the other way (cycles, as on a
+    lattice), 2 s long, and every edge has feature 1 (else the looping paths' total
+    weight would diverge)."""
+    src, dst, dur = [], [], []
+    for i in range(k):
+        a = 3 * i
+        src += [a, a, a + 1, a + 2]
+        dst += [a + 1, a + 2, a + 3, a + 3]
+        dur += [1.0] * 4
+        if back:
+            src += [a + 1, a + 2, a + 3, a + 3]
+            dst += [a, a, a + 1, a + 2]
+            dur += [2.0] * 4
+    terminal = np.zeros(3 * k + 1, bool)
+    terminal[-1] = True
+    mdp = GraphMDP(src, dst, np.array(dur), np.ones((len(src), 1)) if back else
+                   np.zeros((len(src), 1)), terminal, MDPParams(gamma=1.0, time_cost=0.01))
+    upper = [node for i in range(k) for node in (3 * i, 3 * i + 1)] + [3 * k]
+    return mdp, along(mdp, upper)
+
+
+def soft_values_by_iteration(mdp, beta, w):
+    """The soft Bellman equation's fixed point by plain value iteration in log space
+    (uniform base measure), to round-off: the oracle."""
+    r = beta * (mdp.features @ np.asarray(w, float) + mdp.base_reward)
+    values = np.where(mdp.has_out, 0.0, beta * mdp.fixed_values)
+    for _ in range(200_000):
+        new = np.where(mdp.has_out, mdp.log_sum_exp(r + values[mdp.dst]), values)
+        if np.max(np.abs(new - values)) < 1e-12:
+            return new
+        values = new
+    raise AssertionError("value iteration did not converge")
+
+
+@pytest.mark.parametrize("k", [10, 60, 200])
+def test_soft_values_where_equal_paths_multiply_by_hand(k):
+    """Each diamond doubles the paths: V(3i) = (k − i)(log 2 − 2βc) + βR_goal (uniform base
+    measure); at k = 200 the soft values exceed the hard ones by 139 nats."""
+    mdp, path = diamond_chain(k)
+    beta, c = 2.0, 0.01
+    post = BoltzmannPosterior(mdp, [path], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100),
+                              "uniform")
+    values = post.soft_values([-0.5], beta)
+    i = np.arange(k + 1)
+    np.testing.assert_allclose(values[3 * i], (k - i) * (math.log(2) - 2 * beta * c) + beta,
+                               rtol=1e-9, atol=1e-8)
+
+
+@pytest.mark.parametrize("k", [30, 120])
+def test_soft_values_where_equal_paths_multiply_around_cycles(k):
+    """The diamonds with every edge also backwards: relative to the hard values the linear
+    system's solution spans tens of decades; the values must still be the fixed point of
+    the soft Bellman equation, by plain value iteration. (A 2-D lattice, where one LU of
+    that system failed, is the 20 m room of the preflight tests.)"""
+    mdp, path = diamond_chain(k, back=True)
+    post = BoltzmannPosterior(mdp, [path], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100),
+                              "uniform")
+    np.testing.assert_allclose(post.soft_values([-1.0], 2.0),
+                               soft_values_by_iteration(mdp, 2.0, [-1.0]), rtol=1e-8, atol=1e-7)
