@@ -99,6 +99,12 @@ class BirlMapConfig(IRLConfig):
         require(self.alternatives in ALTERNATIVES, "alternatives", self.alternatives,
                 " or ".join(repr(k) for k in ALTERNATIVES))
         require_positive(self, "alternatives_spacing")
+        # every lattice path counted once: with 16 ways out of each node and rewards of a
+        # few hundredths per step, the looping paths' total weight diverges below β ≈ 1000
+        require(not (self.base_measure == "uniform" and self.alternatives == "lattice"),
+                "base_measure", self.base_measure, "'walk' with birl.alternatives=lattice "
+                "(uniform counts every lattice path once, an infinite total), or set "
+                "birl.alternatives=graph")
         require(self.beta_min < self.beta_max, "beta_min", self.beta_min,
                 f"below beta_max ({self.beta_max})")
 

@@ -408,9 +408,11 @@ IMPERFECT = {
 }
 IMPERFECT_METHODS = {"birlg_paper": ["birl.likelihood=paper"],
                      "birlg_robust": ["birl.likelihood=robust"],
-                     # the robust form with each path counted once (MaxEnt's measure)
+                     # the robust form with each path of the graph counted once (MaxEnt's
+                     # measure; on the lattice the paths' total weight would diverge)
                      "birlg_robust_uniform": ["birl.likelihood=robust",
-                                              "birl.base_measure=uniform"],
+                                              "birl.base_measure=uniform",
+                                              "birl.alternatives=graph"],
                      # the robust form against the adaptive graph's paths alone
                      "birlg_robust_graph": ["birl.likelihood=robust",
                                             "birl.alternatives=graph"],

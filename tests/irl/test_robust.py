@@ -257,6 +257,9 @@ def test_config_checks():
         BirlMapConfig(alternatives="grid")
     with pytest.raises(ValueError, match="alternatives_spacing"):
         BirlMapConfig(alternatives_spacing=0.0)
+    with pytest.raises(ValueError, match="base_measure=uniform.*birl.alternatives=graph"):
+        BirlMapConfig(base_measure="uniform")
+    assert BirlMapConfig(base_measure="uniform", alternatives="graph").base_measure == "uniform"
     with pytest.raises(ValueError, match="target_acceptance"):
         AdaptiveChainParams(target_acceptance=1.5)
     with pytest.raises(ValueError, match="demos_per_start"):
