@@ -284,6 +284,7 @@ class BoltzmannPosterior:
                                   - mdp.cost_to_goal(edge_terms)[mdp.has_out])
         absorbing = np.where(mdp.has_out, 0.0, 1.0)
         hard = reference
+        wide = None  # a positive solution relative to H that spans more than e^LOG_Y_KEPT
         # (relative to the sweeps?, a fresh LU?): the first is the cheap common case
         for refined, fresh in ((False, False), (True, False), (True, True)):
             if refined and reference is hard:
@@ -302,7 +303,16 @@ class BoltzmannPosterior:
             if np.all(np.isfinite(log_y)) and (fresh or np.abs(log_y).max() <= LOG_Y_KEPT):
                 self._linear = (theta.copy(), reference + log_y, m, y)
                 return self._linear[1:]
-        raise RuntimeError("the soft values' linear system has no positive solution")
+            if not refined and np.all(np.isfinite(log_y)):
+                wide = (theta.copy(), reference + log_y, m, y)
+        if wide is None and self.base_measure == "uniform":
+            raise RuntimeError(f"the paths' total weight diverges at β = {theta[-1]:.3g}: "
+                               "with birl.base_measure=uniform every path of a graph with "
+                               "cycles counts once; use birl.base_measure=walk")
+        if wide is None:
+            raise RuntimeError("the soft values' linear system has no positive solution")
+        self._linear = wide  # the sweeps found no better reference (they converge slowly
+        return wide[1:]  # where the total weight nearly diverges)
 
     def _soft_sweeps(self, edge_terms: np.ndarray, hard: np.ndarray) -> np.ndarray:
         """The soft values, to SWEEP_TOLERANCE, by value iteration in log space from the

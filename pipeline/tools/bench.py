@@ -408,17 +408,11 @@ IMPERFECT = {
 }
 IMPERFECT_METHODS = {"birlg_paper": ["birl.likelihood=paper"],
                      "birlg_robust": ["birl.likelihood=robust"],
-                     # the robust form with each path of the graph counted once (MaxEnt's
-                     # measure; on the lattice the paths' total weight would diverge)
-                     "birlg_robust_uniform": ["birl.likelihood=robust",
-                                              "birl.base_measure=uniform",
-                                              "birl.alternatives=graph"],
                      # the robust form against the adaptive graph's paths alone
                      "birlg_robust_graph": ["birl.likelihood=robust",
                                             "birl.alternatives=graph"],
                      "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
 IMPERFECT_NAMES = {"birlg_paper": "BIRL-G (paper, eq. 2)", "birlg_robust": "BIRL-G (robust)",
-                   "birlg_robust_uniform": "BIRL-G (robust, uniform path measure)",
                    "birlg_robust_graph": "BIRL-G (robust, the graph's paths as alternatives)",
                    "policywalk": "PolicyWalk", "maxent": "MaxEnt"}
 
