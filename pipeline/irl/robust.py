@@ -5,9 +5,10 @@ Eq. (2) scores each demonstration against the trajectories generated so far, the
 under earlier weights. A noisy or hand-drawn demonstration is worse than every greedy path
 in every cost feature, so its likelihood is largest at w = 0 where all trajectories tie,
 and the weights collapse. The paper notes that Q can be estimated by Monte Carlo; here the
-generated set is taken to its limit: every trajectory of the adaptive graph from the
-demonstration's start, weighted by the Boltzmann (soft) policy. The normaliser of eq. (2)
-is then exp(V_soft(s)), computed exactly by soft value iteration on the small graph:
+generated set is taken to its limit: every trajectory from the demonstration's start (on
+a lattice over the room, or on the adaptive graph: `birl.alternatives`), weighted by the
+Boltzmann (soft) policy. The normaliser of eq. (2)
+is then exp(V_soft(s)), computed exactly by soft value iteration:
 
     log p(ξ_k | w, β) = β(w·Φ(ξ_k) + b(ξ_k)) + log μ(ξ_k) − V_soft(s_k; βw, β)
 
@@ -124,7 +125,7 @@ class BoltzmannPosterior:
         if base_measure not in BASE_MEASURES:
             raise ValueError(f"base_measure must be one of {BASE_MEASURES}, got {base_measure!r}")
         self.prior, self.beta_range, self.base_measure = prior, beta_range, base_measure
-        self.empirical = np.zeros(prior.dim)  # Σ_k Φ(ξ_k) on this graph
+        self.empirical = np.zeros(prior.dim)  # Σ_k Φ(ξ_k)
         self.goal_term = 0.0  # Σ_k b(ξ_k): cost per second and γ^{T_k} R_goal [reached]
         self.base_term = 0.0  # Σ_k log μ(ξ_k), discounted like Φ: constant in (w, β)
         log_base = self._log_base(mdp)
