@@ -24,13 +24,16 @@ import pandas as pd
 
 from pipeline.tools.bench import RESULTS, _app, read_artefact_iterations
 
-METHODS = ["map", "robust", "mcmc", "policywalk", "maxent"]
+METHODS = ["map", "robust", "robust_graph", "mcmc", "policywalk", "maxent"]
 NAMES = {"map": "BIRL-G (MAP, paper eq. 2)", "robust": "BIRL-G (MAP, robust)",
+         "robust_graph": "BIRL-G (MAP, robust, the graph's paths as alternatives)",
          "mcmc": "BIRL-G (MCMC, paper eq. 2)", "policywalk": "PolicyWalk",
          "maxent": "MaxEnt (roadmap)"}
 # method -> overrides; BIRL-G's paper form and robust form side by side
 METHOD_OVERRIDES = {"map": ["birl=map", "birl.likelihood=paper"],
                     "robust": ["birl=map", "birl.likelihood=robust"],
+                    "robust_graph": ["birl=map", "birl.likelihood=robust",
+                                     "birl.alternatives=graph"],
                     "mcmc": ["birl=mcmc", "birl.likelihood=paper"],
                     "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
 # MaxEnt learns in another box (conf/birl/maxent.yaml), and the graph grows under the box's
