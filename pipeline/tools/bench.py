@@ -445,7 +445,8 @@ def _median_distance_to_people(paths: list, scene) -> float:
     return float(np.median(out))
 
 
-def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]):
+def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str],
+              methods: list[str] | None = None):
     """BIRL-G (paper and robust form) on seeds, PolicyWalk and MaxEnt on baseline_seeds, for
     every condition; the first three stages run once per (condition, seed)."""
     import tempfile
@@ -460,12 +461,15 @@ def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]
                 base = Path(tmp) / f"{cond}-{seed}"
                 run_in_process(base, *IMPERFECT[cond], f"seed={seed}", "stages=[scene,demos,graph]")
                 for method, overrides in IMPERFECT_METHODS.items():
-                    if method in ("policywalk", "maxent") and seed not in baseline_seeds:
+                    if method in ("policywalk", "maxent") and seed not in baseline_seeds \
+                            or methods is not None and method not in methods:
                         continue
                     run = Path(tmp) / f"{cond}-{seed}-{method}"
+                    # MaxEnt's box, [-100, 0], enters the graph's growth: its own graph
+                    stages = "[graph,birl,evaluate]" if method == "maxent" else "[birl,evaluate]"
                     try:
                         m = run_in_process(run, *IMPERFECT[cond], *overrides, f"seed={seed}",
-                                        "stages=[birl,evaluate]", f"from_run={base}")
+                                           f"stages={stages}", f"from_run={base}")
                     except PipelineError as e:  # MaxEnt: file demos off its roadmap
                         print(f"  {cond} {method} seed {seed}: {e}", flush=True)
                         continue
@@ -602,6 +606,9 @@ def _parser() -> argparse.ArgumentParser:
     imp.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
     imp.add_argument("--baseline-seeds", type=int, nargs="+", default=[0, 1, 2])
     imp.add_argument("--conditions", nargs="+", default=list(IMPERFECT))
+    imp.add_argument("--methods", nargs="+", default=None, choices=list(IMPERFECT_METHODS))
+    imp.add_argument("--merge", action="store_true",
+                     help="keep the rows of imperfect.csv of the methods not run now")
     post = sub.add_parser("posterior", help="birl=mcmc diagnostics -> results/bench/posterior.csv")
     post.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     post.add_argument("--likelihoods", nargs="+", default=["robust", "paper"])
@@ -627,7 +634,11 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _imperfect_suite(args) -> pd.DataFrame:
-    table = imperfect(args.seeds, args.baseline_seeds, args.conditions)
+    table = imperfect(args.seeds, args.baseline_seeds, args.conditions, args.methods)
+    if args.merge and (RESULTS / "imperfect.csv").exists():  # keep the other methods' rows
+        kept = pd.read_csv(RESULTS / "imperfect.csv")
+        table = pd.concat([kept[~kept.method.isin(table.method.unique())], table],
+                          ignore_index=True)
     summary = imperfect_summary(table)
     summary.to_csv(RESULTS / "imperfect_summary.csv", index=False)
     plot_imperfect(RESULTS / "imperfect_summary.csv", RESULTS / "imperfect.png")
