@@ -228,9 +228,13 @@ def _robust_loop(problem: IRLProblem,
     w, beta = problem.w0, config.beta  # β starts at birl.beta
     post = _boltzmann_posterior(problem, config)
     records = [problem.record(0, w, post.log_likelihood(w, beta))]
+    solved_on = None  # the graph's size when the MAP was last found: the same graph, the same MAP
     for n in range(1, config.n_iterations + 1):
-        post = _boltzmann_posterior(problem, config)
-        w, beta = post.map(w, beta)
+        size = (problem.graph.mdp.n_nodes, problem.graph.mdp.n_edges)
+        if size != solved_on:
+            post = _boltzmann_posterior(problem, config)
+            w, beta = post.map(w, beta)
+            solved_on = size
         records.append(problem.record(n, w, post.log_likelihood(w, beta)))
     return records, post, beta
 
