@@ -322,6 +322,13 @@ def _app(run_dir: Path, *overrides: str) -> dict:
         if (run_dir / "metrics.json").exists() else {}
 
 
+def learning_stages(method: str) -> str:
+    """The stages a method runs from a run with scene, demos and graph: MaxEnt learns in its
+    own box ([-100, 0], conf/birl/maxent.yaml), which enters the graph's growth, so a graph
+    grown for BIRL's box is refused and it grows its own."""
+    return "stages=[graph,birl,evaluate]" if method == "maxent" else "stages=[birl,evaluate]"
+
+
 def irl_methods(seeds: list[int], methods: list[str], scenes: list[str]):
     """Every method on the same scene, demos and adaptive graph: the first three stages run
     once per (scene, seed), then each method's learning and evaluation from that run."""
@@ -336,7 +343,7 @@ def irl_methods(seeds: list[int], methods: list[str], scenes: list[str]):
                 for method in methods:
                     run = Path(tmp) / f"{scene}-{seed}-{method}"
                     m = _app(run, *IRL_SCENES[scene], f"seed={seed}", f"birl={method}",
-                             "stages=[birl,evaluate]", f"from_run={base}")
+                             learning_stages(method), f"from_run={base}")
                     its = read_artefact_iterations(run)
                     rows.append({"method": method, "scene": scene, "seed": seed,
                                  "wall_s": m["time_birl_learn_s"],
@@ -465,11 +472,9 @@ def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]
                             or methods is not None and method not in methods:
                         continue
                     run = Path(tmp) / f"{cond}-{seed}-{method}"
-                    # MaxEnt's box, [-100, 0], enters the graph's growth: its own graph
-                    stages = "[graph,birl,evaluate]" if method == "maxent" else "[birl,evaluate]"
                     try:
                         m = run_in_process(run, *IMPERFECT[cond], *overrides, f"seed={seed}",
-                                           f"stages={stages}", f"from_run={base}")
+                                           learning_stages(method), f"from_run={base}")
                     except PipelineError as e:  # MaxEnt: file demos off its roadmap
                         print(f"  {cond} {method} seed {seed}: {e}", flush=True)
                         continue
