@@ -219,16 +219,25 @@ def check_roadmap_reaches_goal(scene: Scene, params: RoadmapParams) -> None:
         raise PipelineError(unreachable_message(scene, cut_off, params.spacing))
 
 
+def fitting_lattice(cfg: Config, scene: Scene, features: FeatureModel, params: RoadmapParams,
+                    what: str, fix: str) -> Roadmap:
+    """A lattice roadmap of `scene` (`build_roadmap`), refused up front if it cannot fit in
+    memory (`what` names it in the message, `fix` says which key to change)."""
+    limits.check_memory(f"{what} of scene '{scene.name}'",
+                        limits.lattice_edges(scene.room.area, params.spacing,
+                                             params.connectivity),
+                        limits.bytes_per_lattice_edge(len(scene.persons),
+                                                      scene.obstacles is not None), fix)
+    return build_roadmap(scene, features, params, cfg.mdp.speed)
+
+
 def reference_roadmap(cfg: Config, scene: Scene, features: FeatureModel) -> Roadmap:
     """The reference roadmap (roadmap.*) of `scene`, refused up front if it cannot fit, and
     when a start cannot reach the goal on it."""
     rp = cfg.roadmap
-    limits.check_memory(f"the reference roadmap of scene '{scene.name}'",
-                        limits.lattice_edges(scene.room.area, rp.spacing, rp.connectivity),
-                        limits.bytes_per_lattice_edge(len(scene.persons),
-                                                      scene.obstacles is not None),
-                        f"raise roadmap.spacing (now {rp.spacing:g} m) or use a smaller scene")
-    roadmap = build_roadmap(scene, features, rp, cfg.mdp.speed)
+    roadmap = fitting_lattice(cfg, scene, features, rp, "the reference roadmap",
+                              f"raise roadmap.spacing (now {rp.spacing:g} m) or use a "
+                              "smaller scene")
     cut_off = roadmap.starts_without_path_to_goal()
     if cut_off:  # nothing can be learned or scored from such a start: refuse, do not run on
         raise PipelineError(unreachable_message(scene, cut_off, rp.spacing))
@@ -250,13 +259,10 @@ def alternatives_lattice(cfg: Config,
         chosen, why = limits.alternatives_spacing(scene.room.area, spacing, scene.name)
         if why:
             log.info("%s", why)
-        limits.check_memory(f"the alternatives lattice of scene '{scene.name}'",
-                            limits.lattice_edges(scene.room.area, chosen, 16),
-                            limits.bytes_per_lattice_edge(len(scene.persons),
-                                                          scene.obstacles is not None),
-                            "raise birl.alternatives_spacing or set birl.alternatives=graph")
-        built = build_roadmap(scene, learner_feature_model(cfg, scene),
-                              RoadmapParams(spacing=chosen), cfg.mdp.speed)
+        built = fitting_lattice(cfg, scene, learner_feature_model(cfg, scene),
+                                RoadmapParams(spacing=chosen), "the alternatives lattice",
+                                "raise birl.alternatives_spacing or set "
+                                "birl.alternatives=graph")
         if built.starts_without_path_to_goal():
             log.warning("a start cannot reach the goal on the %g m alternatives lattice of "
                         "scene '%s': the demonstrations are compared with the adaptive "
