@@ -322,11 +322,18 @@ def _app(run_dir: Path, *overrides: str) -> dict:
         if (run_dir / "metrics.json").exists() else {}
 
 
-def learning_stages(method: str) -> str:
-    """The stages a method runs from a run with scene, demos and graph: MaxEnt learns in its
-    own box ([-100, 0], conf/birl/maxent.yaml), which enters the graph's growth, so a graph
-    grown for BIRL's box is refused and it grows its own."""
-    return "stages=[graph,birl,evaluate]" if method == "maxent" else "stages=[birl,evaluate]"
+# Methods that learn in their own box (MaxEnt: [-100, 0], conf/birl/maxent.yaml), which
+# enters the graph's growth: a graph grown for BIRL's box is refused, so they grow their own
+OWN_GRAPH = ("maxent",)
+
+
+def learning_stages(method: str, regrow: bool = False) -> str:
+    """The stages a method runs from a run with scene, demos and graph: the graph again for
+    a method in OWN_GRAPH, or where the graph grows differently (`regrow`: e.g. on another
+    learner feature set)."""
+    if regrow or method in OWN_GRAPH:
+        return "stages=[graph,birl,evaluate]"
+    return "stages=[birl,evaluate]"
 
 
 def irl_methods(seeds: list[int], methods: list[str], scenes: list[str]):

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
-from pipeline.tools.bench import run_in_process
+from pipeline.tools.bench import learning_stages, run_in_process
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 HANDDRAWN = "data/demos/metropolis_handdrawn.json"
@@ -90,7 +90,6 @@ LEARNER_NAMES = {"default": "BIRL-G (robust, default)", "paper": "BIRL-G (paper,
                  PLANNER_COST: "the planner's own cost (anchor)"}
 LEARNED_WELL = 0.005  # normalised policy loss: runs at or below it count as learned
 FLOOR_EXPONENT = -5  # losses below 10^-5 (exact zeros too) are drawn at it, on the log axis
-OWN_GRAPH = ("maxent",)  # its box, [-100, 0], enters the graph's growth
 TRANSFER_SCENES = (101, 102, 103)  # scene=random scene.seed=...: the deployment scenes
 KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m",
         "ref_min_distance_to_person", "ref_success", "heldout_frechet_m",
@@ -125,10 +124,10 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
             continue
         # the graph grows on the learner's features and from its box (initial weights):
         # another feature set or box (MaxEnt's), another graph
-        stages = "[graph,birl,evaluate]" if name in OWN_GRAPH or any(
-            o.startswith("birl.features") for o in overrides) else "[birl,evaluate]"
+        stages = learning_stages(name, regrow=any(o.startswith("birl.features")
+                                                  for o in overrides))
         try:
-            m = run_in_process(learned, *base_overrides, *overrides, f"stages={stages}",
+            m = run_in_process(learned, *base_overrides, *overrides, stages,
                                f"from_run={base}")
         except PipelineError as e:  # e.g. MaxEnt: demonstrations that are no roadmap paths
             row["error"] = str(e)
