@@ -280,40 +280,52 @@ class BoltzmannPosterior:
             return self._linear[1:]
         mdp = self.mdp
         edge_terms = self._log_weights(theta)
-        reference = theta[-1] * mdp.fixed_values
-        reference[mdp.has_out] = (theta[-1] * mdp.r_goal
-                                  - mdp.cost_to_goal(edge_terms)[mdp.has_out])
-        absorbing = np.where(mdp.has_out, 0.0, 1.0)
-        hard = reference
-        wide = None  # a positive solution relative to H that spans more than e^LOG_Y_KEPT
-        # (relative to the sweeps?, a fresh LU?): the first is the cheap common case
-        for refined, fresh in ((False, False), (True, False), (True, True)):
-            if refined and reference is hard:
-                reference = self._soft_sweeps(edge_terms, hard)
+        hard = theta[-1] * mdp.fixed_values
+        hard[mdp.has_out] = theta[-1] * mdp.r_goal - mdp.cost_to_goal(edge_terms)[mdp.has_out]
+        # The common case, cheap: relative to H, refined on the last LU.
+        wide = self._relative_solution(edge_terms, hard, clip=True)
+        if wide is not None and np.abs(wide[2]).max() <= LOG_Y_KEPT:
+            return self._keep_linear(theta, hard, *wide)
+        reference = self._soft_sweeps(edge_terms, hard)
+        for fresh in (False, True):
             if fresh:  # refinement on the last LU can settle on a huge multiple of the
                 self._lu = None  # near-null vector 1 of I − M when M is nearly stochastic
-            m = np.exp(np.minimum(edge_terms + reference[mdp.dst] - reference[mdp.src],
-                                  np.inf if refined else 0.0))
-            try:
-                y = self._solve(m, absorbing, "T")
-            except RuntimeError:  # SuperLU: the factor is exactly singular
-                self._lu = None
-                continue
-            with np.errstate(divide="ignore", invalid="ignore"):
-                log_y = np.log(y)
-            if np.all(np.isfinite(log_y)) and (fresh or np.abs(log_y).max() <= LOG_Y_KEPT):
-                self._linear = (theta.copy(), reference + log_y, m, y)
-                return self._linear[1:]
-            if not refined and np.all(np.isfinite(log_y)):
-                wide = (theta.copy(), reference + log_y, m, y)
-        if wide is None and self.base_measure == "uniform":
+            solved = self._relative_solution(edge_terms, reference, clip=False)
+            if solved is not None and (fresh or np.abs(solved[2]).max() <= LOG_Y_KEPT):
+                return self._keep_linear(theta, reference, *solved)
+        # Positive but wide: the sweeps found no better reference (they converge slowly
+        # where the paths' total weight nearly diverges).
+        if wide is not None:
+            return self._keep_linear(theta, hard, *wide)
+        if self.base_measure == "uniform":
             raise RuntimeError(f"the paths' total weight diverges at β = {theta[-1]:.3g}: "
                                "with birl.base_measure=uniform every path of a graph with "
                                "cycles counts once; use birl.base_measure=walk")
-        if wide is None:
-            raise RuntimeError("the soft values' linear system has no positive solution")
-        self._linear = wide  # the sweeps found no better reference (they converge slowly
-        return wide[1:]  # where the total weight nearly diverges)
+        raise RuntimeError("the soft values' linear system has no positive solution")
+
+    def _relative_solution(self, edge_terms: np.ndarray, reference: np.ndarray,
+                           clip: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(m, y, log y) of (I − M) y = 1 at absorbing nodes, M(e) = exp(edge term + R(dst) −
+        R(src)) for the reference R (clip: M ≤ 1, which R = H guarantees but for round-off),
+        or None where y is not positive and finite or the factor is exactly singular."""
+        mdp = self.mdp
+        terms = edge_terms + reference[mdp.dst] - reference[mdp.src]
+        m = np.exp(np.minimum(terms, 0.0) if clip else terms)
+        try:
+            y = self._solve(m, np.where(mdp.has_out, 0.0, 1.0), "T")
+        except RuntimeError:  # SuperLU: the factor is exactly singular
+            self._lu = None
+            return None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_y = np.log(y)
+        return (m, y, log_y) if np.all(np.isfinite(log_y)) else None
+
+    def _keep_linear(self, theta: np.ndarray, reference: np.ndarray, m: np.ndarray,
+                     y: np.ndarray, log_y: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                np.ndarray]:
+        """Remember (θ, V = R + log y, m, y) and return (V, m, y)."""
+        self._linear = (theta.copy(), reference + log_y, m, y)
+        return self._linear[1:]
 
     def _soft_sweeps(self, edge_terms: np.ndarray, hard: np.ndarray) -> np.ndarray:
         """The soft values, to SWEEP_TOLERANCE, by value iteration in log space from the
