@@ -152,7 +152,7 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     iterates 1..n."""
     boltzmann = _boltzmann_posterior(problem, config)
     w_map, beta_map = boltzmann.map(problem.w0, config.beta)
-    best = -boltzmann.neg_log_posterior(np.append(w_map, beta_map))[0]
+    best = -boltzmann.neg_log_posterior(np.append(w_map, np.log(beta_map)))[0]
     paper = birl_map(problem.expert, problem.environment.rollout, problem.prior,
                      beta=config.beta, n_iterations=config.n_iterations, w0=w_map)
     threshold = chdtri(problem.prior.dim + 1, config.test_level) / 2  # χ² quantile

@@ -119,6 +119,12 @@ class Prior:
             return -np.sign(w - self.mean) / self.scale  # subgradient, sign(0) = 0
         return np.zeros_like(w)
 
+    def hess_log_pdf(self, w: ArrayLike) -> np.ndarray:
+        """The log density's Hessian, diagonal (d,): −1/σ² (gaussian), else 0 (laplace: away
+        from its peak)."""
+        w = np.asarray(w, dtype=float)
+        return np.full_like(w, -1 / self.scale**2 if self.kind == "gaussian" else 0.0)
+
     def _laplace_sides(
         self,
     ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray]:

@@ -29,10 +29,12 @@ with β_E = 20 the median loss falls from 0.053 to 0.012 with `walk`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.optimize import minimize
+from scipy.optimize import lsq_linear, minimize
 from scipy.sparse.linalg import SuperLU, splu
 
 from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
@@ -155,6 +157,7 @@ class BoltzmannPosterior:
         # I − γ^τ P_π in CSR, row s = [diagonal, out-edges of s in edge order]: the pattern
         # is fixed, so each solve only fills in the policy's values; the last LU (_solve).
         self._lu: OrderedLU | None = None
+        self._lu_data = np.zeros(0)  # the matrix entries it factorises
         # Without discounting: the last (θ, V, m, y) of _linear_soft_values
         self._linear: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         n, rows = mdp.n_nodes, np.arange(mdp.n_nodes + 1)
@@ -187,7 +190,9 @@ class BoltzmannPosterior:
         data[self._diagonal], data[self._edge_slots] = 1.0, -pi * self.mdp.discount
         transposed = sp.csc_matrix((data, self._indices, self._indptr), shape=(n, n))
         matrix = transposed.T if trans == "T" else transposed
-        if self._lu is not None:
+        # with several columns a refinement step costs a triangular solve per column:
+        # factorise this very matrix unless the last LU is of it (`count_derivatives`)
+        if self._lu is not None and (rhs.ndim == 1 or np.array_equal(data, self._lu_data)):
             x = self._lu.solve(rhs, trans=trans)
             last = np.inf
             for _ in range(REFINE_STEPS):
@@ -201,7 +206,7 @@ class BoltzmannPosterior:
                     break  # too far from the factored policy
                 last = error
                 x = x + self._lu.solve(residual, trans=trans)
-        self._lu = self._factors.factorise(data)
+        self._lu, self._lu_data = self._factors.factorise(data), data
         return self._lu.solve(rhs, trans=trans)
 
     def _log_weights(self, theta: np.ndarray) -> np.ndarray:
@@ -382,6 +387,38 @@ class BoltzmannPosterior:
                     + flow @ mdp.base_reward)
         return flow @ mdp.features, end
 
+    def count_derivatives(self, w: np.ndarray, beta: float) -> np.ndarray:
+        """d(E[Φ], E[b])/dθ ((d + 1) × (d + 1)) at θ = (βw, β) without discounting: the
+        covariance of the paths' sums (Φ, b) summed over the starts, minus the log
+        likelihood's Hessian in θ. Forward differentiation of `expected_counts` along each
+        parameter, with the reference R of the linear system held fixed: its matrix M(e)
+        moves by M(e)·a(e), a(e) = (φ(e), b(e)) the edge term's derivative, and y at the
+        absorbing nodes by y·fixed (their values β·fixed); two solves on the same LU per
+        parameter, all parameters at once."""
+        mdp, n = self.mdp, self.mdp.n_nodes
+        _, m, y = self._linear_soft_values(np.append(beta * w, beta))
+        x0 = np.bincount(self.starts, minlength=n).astype(float)
+        u = self._solve(m, x0 / y, "N")
+        slopes = np.column_stack([mdp.features, mdp.base_reward])  # a(e) (E, d + 1)
+        absorbing = ~mdp.has_out
+
+        def per_node(index: np.ndarray, per_edge: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.bincount(index, col, minlength=n) for col in per_edge.T])
+
+        forward = m * y[mdp.dst]  # dy = (I − M)⁻¹ (dM y + dy at the absorbing nodes)
+        rhs = per_node(mdp.src, forward[:, None] * slopes)
+        rhs[absorbing, -1] = mdp.fixed_values[absorbing] * y[absorbing]
+        dy = self._solve(m, rhs, "T")
+        backward = m * u[mdp.src]  # du = (I − M)⁻ᵀ (dMᵀ u − d(x0 / y))
+        du = self._solve(m, per_node(mdp.dst, backward[:, None] * slopes)
+                         - (x0 / y**2)[:, None] * dy, "N")
+        dflow = (du[mdp.src] * forward[:, None] + (backward * y[mdp.dst])[:, None] * slopes
+                 + backward[:, None] * dy[mdp.dst])
+        derivative = slopes.T @ dflow
+        derivative[-1] += mdp.fixed_values[absorbing] @ (du[absorbing] * y[absorbing, None]
+                                                        + u[absorbing, None] * dy[absorbing])
+        return (derivative + derivative.T) / 2  # symmetric but for round-off
+
     def log_likelihood(self, w: ArrayLike, beta: float, tol: float = 1e-10) -> float:
         w = np.asarray(w, dtype=float)
         return self.likelihood_given_values(w, beta, self.soft_values(w, beta, tol))
@@ -399,14 +436,9 @@ class BoltzmannPosterior:
         return self.empirical - counts, self.goal_term - end
 
     def neg_log_posterior(self, x: np.ndarray) -> tuple[float, np.ndarray]:
-        """−log posterior and its gradient at x = (w, β), (d + 1,)."""
-        w, beta = x[:-1], float(x[-1])
-        values = self.soft_values(w, beta)
-        ll = self.likelihood_given_values(w, beta, values)
-        grad_v, grad_b = self._tangent(w, beta, values, ll)
-        grad_w = beta * grad_v + self.prior.grad_log_pdf(w)
-        grad_beta = w @ grad_v + grad_b - 1 / beta
-        return -(ll + self.prior.log_pdf(w) - np.log(beta)), -np.append(grad_w, grad_beta)
+        """−log posterior density in (w, β) (the log-uniform prior on β: 1/β) and its
+        gradient, at x = (w, log β) (d + 1,) in the box."""
+        return self._terms(x)[:2]
 
     def _tangent(self, w: np.ndarray, beta: float, values: np.ndarray,
                  ll: float) -> tuple[np.ndarray, float]:
@@ -466,25 +498,101 @@ class BoltzmannPosterior:
         raise RuntimeError("the admissibility test did not settle")  # not seen in practice
 
     def map(self, w0: ArrayLike, beta0: float) -> tuple[np.ndarray, float]:
-        """MAP (w (d,), β) by L-BFGS-B within the prior box and the β range. The search runs
-        over (w, log β), the same function of other coordinates (its minimum is the same
-        point): β spans four decades and w one unit, and on log β the quasi-Newton steps
-        are scaled alike (metropolis seed 2, optimal expert, on the lattice of
-        alternatives: 54 evaluations instead of 67, the same MAP)."""
+        """MAP (w (d,), β) within the prior box and the β range. The search runs over x =
+        (w, log β), the same function of other coordinates (its minimum is the same point):
+        β spans four decades and w one unit, and on log β steps are scaled alike. Without
+        discounting the Hessian is known (`count_derivatives`) and Newton steps in a trust
+        region take a third of L-BFGS-B's evaluations (metropolis, optimal expert, on the
+        lattice: 17-25 against 84); with discounting, L-BFGS-B."""
         log_range = np.log(self.beta_range)
         lower = np.append(self.prior.lower, log_range[0])
         upper = np.append(self.prior.upper, log_range[1])
+        x0 = np.clip(np.append(np.asarray(w0, dtype=float), np.log(beta0)), lower, upper)
+        if self.mdp.gamma == 1.0:
+            x = trust_region_newton(self._newton_terms, self._objective_value, x0, lower, upper)
+        else:
+            res = minimize(self.neg_log_posterior, x0, method="L-BFGS-B", jac=True,
+                           bounds=list(zip(lower, upper, strict=True)))
+            x = np.clip(res.x, lower, upper)
+        return x[:-1], float(np.clip(np.exp(x[-1]), *self.beta_range))
 
-        def objective(u: np.ndarray) -> tuple[float, np.ndarray]:
-            x = np.append(u[:-1], np.exp(u[-1]))
-            value, grad = self.neg_log_posterior(x)
-            return value, np.append(grad[:-1], grad[-1] * x[-1])  # d/d log β = β d/dβ
+    def _objective_value(self, x: np.ndarray) -> float:
+        """`neg_log_posterior` without its gradient (one solve fewer)."""
+        w, beta = x[:-1], float(np.exp(x[-1]))
+        return -(self.log_likelihood(w, beta) + self.prior.log_pdf(w)) + x[-1]
 
-        u0 = np.clip(np.append(np.asarray(w0, dtype=float), np.log(beta0)), lower, upper)
-        res = minimize(objective, u0, method="L-BFGS-B", jac=True,
-                       bounds=list(zip(lower, upper, strict=True)))
-        u = np.clip(res.x, lower, upper)
-        return u[:-1], float(np.clip(np.exp(u[-1]), *self.beta_range))
+    def _terms(self, x: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """`neg_log_posterior`, its gradient in x = (w, u = log β) and the log likelihood's
+        gradient ∇θL in θ = (βw, β): ∇ₓL = Jᵀ∇θL, J = ∂θ/∂x (`_jacobian_of`)."""
+        w, beta = x[:-1], float(np.exp(x[-1]))
+        values = self.soft_values(w, beta)
+        ll = self.likelihood_given_values(w, beta, values)
+        grad_theta = np.append(*self._tangent(w, beta, values, ll))
+        value = -(ll + self.prior.log_pdf(w)) + x[-1]
+        gradient = -(self._jacobian_of(x).T @ grad_theta) - np.append(
+            self.prior.grad_log_pdf(w), -1.0)
+        return value, gradient, grad_theta
+
+    @staticmethod
+    def _jacobian_of(x: np.ndarray) -> np.ndarray:
+        """∂θ/∂x ((d + 1) × (d + 1)) for θ = (βw, β), x = (w, log β)."""
+        beta = float(np.exp(x[-1]))
+        jacobian = beta * np.eye(len(x))
+        jacobian[:-1, -1] = x[:-1] * beta
+        return jacobian
+
+    def _newton_terms(self, x: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """`neg_log_posterior`, its gradient and Hessian in x: ∇²ₓL = Jᵀ∇²θL J + Σₖ ∂L/∂θₖ ∇²ₓθₖ,
+        where ∇²θL = −`count_derivatives` and the second derivatives of θₖ = e^u wₖ and
+        θ_β = e^u are β at (wₖ, u) and βwₖ, β at (u, u)."""
+        value, gradient, grad_theta = self._terms(x)
+        w, beta = x[:-1], float(np.exp(x[-1]))
+        jacobian = self._jacobian_of(x)
+        curvature = np.zeros_like(jacobian)  # Σₖ ∂L/∂θₖ ∇²ₓθₖ
+        curvature[:-1, -1] = curvature[-1, :-1] = beta * grad_theta[:-1]
+        curvature[-1, -1] = beta * (w @ grad_theta[:-1] + grad_theta[-1])
+        hess = jacobian.T @ self.count_derivatives(w, beta) @ jacobian - curvature
+        hess[:-1, :-1] -= np.diag(self.prior.hess_log_pdf(w))
+        return value, gradient, hess
+
+
+def trust_region_newton(terms: Callable[[np.ndarray], tuple[float, np.ndarray, np.ndarray]],
+                        value: Callable[[np.ndarray], float], x0: np.ndarray,
+                        lower: np.ndarray, upper: np.ndarray, max_iter: int = 200) -> np.ndarray:
+    """Minimise f over the box [lower, upper] from x0 by Newton steps in a trust region.
+    Each step minimises f's quadratic model (the Hessian's eigenvalues made positive where
+    f is not convex) within the box and within `radius` of x in every coordinate: one box,
+    so the step is a bounded least-squares problem (scipy's BVLS), exact. The radius grows
+    where the model predicts f's decrease well and shrinks where it does not: at large β
+    the log likelihood is nearly piecewise linear and a full Newton step overshoots many
+    times in a row, while a line search restarted at the full step would pay for each
+    overshoot again. terms(x): f, its gradient and Hessian; value(x): f alone."""
+    x = np.clip(x0, lower, upper)
+    f, g, h = terms(x)
+    radius = 1.0
+    for _ in range(max_iter):
+        eig, vec = np.linalg.eigh(h)
+        eig = np.maximum(np.abs(eig), 1e-10 * max(float(np.abs(eig).max()), 1e-300))
+        # ½‖As + b‖² = ½ sᵀHs + g·s + const for A = √Λ Vᵀ, b = Λ^{-½} Vᵀ g
+        root = np.sqrt(eig)
+        bounds = (np.maximum(lower - x, -radius), np.minimum(upper - x, radius))
+        step = lsq_linear(root[:, None] * vec.T, -(vec.T @ g) / root, bounds,
+                          method="bvls").x
+        predicted = -float(g @ step + 0.5 * np.sum((root * (vec.T @ step)) ** 2))
+        if predicted <= 1e-10 * max(1.0, abs(f)):
+            break
+        trial = np.clip(x + step, lower, upper)
+        f_trial = value(trial)
+        ratio = (f - f_trial) / predicted
+        size = float(np.abs(step).max())
+        if ratio < 0.25:
+            radius = size / 4
+        elif ratio > 0.75 and size > 0.99 * radius:
+            radius *= 2
+        if ratio > 1e-4:
+            x = trial
+            f, g, h = terms(x)
+    return x
 
 
 class LogBetaDensity:

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import minimize
 from scipy.special import chdtri, logsumexp
 
 from pipeline.core.experts import BoltzmannParams
@@ -13,7 +14,7 @@ from pipeline.core.graph_mdp import GraphMDP, MDPParams, Path
 from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
-from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity, PatternLU
+from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity, PatternLU, trust_region_newton
 from tests.conftest import TWO_ROUTES_GAMMA as GAMMA
 from tests.conftest import two_routes
 from tests.irl.conftest import central_difference
@@ -135,7 +136,7 @@ def test_random_walk_base_measure_does_not_count_paths(k):
 def test_robust_gradient_matches_finite_differences():
     mdp, a, b = two_routes()
     post = BoltzmannPosterior(mdp, [a, b, b], Prior("gaussian", 0.5, [-1.0], [0.0]), (0.1, 100))
-    x = np.array([-0.4, 3.0])
+    x = np.array([-0.4, math.log(3.0)])  # (w, log β)
     f, grad = post.neg_log_posterior(x)
     numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
     np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-7)
@@ -166,7 +167,7 @@ def test_soft_values_satisfy_the_soft_bellman_equation_with_a_self_loop():
                                atol=1e-9)
     # h: the values are exact to ~1e-10 of their size, which over h = 1e-4 is already
     # ~1e-5 of noise; at 1e-3 the difference's own error is ~1e-8
-    x = np.array([-0.7, 2.0])
+    x = np.array([-0.7, math.log(2.0)])
     numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-3)
     np.testing.assert_allclose(post.neg_log_posterior(x)[1], numeric, rtol=1e-5, atol=1e-7)
 
@@ -415,9 +416,79 @@ def test_goal_reaching_gradient_matches_finite_differences(seed):
              (([-0.5, -0.5], 0), ([-0.9, -0.1], 3), ([-0.1, -0.9], 5))]
     post = BoltzmannPosterior(mdp, demos, Prior("gaussian", 0.5, -np.ones(2), np.zeros(2)),
                               (0.1, 100))
-    x = np.array([-0.4, -0.6, 3.0])
+    x = np.array([-0.4, -0.6, math.log(3.0)])
     numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
     np.testing.assert_allclose(post.neg_log_posterior(x)[1], numeric, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_goal_reaching_hessian_matches_finite_differences(seed):
+    """The Newton steps' Hessian in (w, log β) against central differences of the exact
+    gradient; its likelihood part, the paths' covariance summed over the starts, is
+    symmetric and positive semidefinite."""
+    mdp = random_goal_graph(seed)
+    demos = [mdp.follow(mdp.solve(w).policy, s) for w, s in
+             (([-0.5, -0.5], 0), ([-0.9, -0.1], 3), ([-0.1, -0.9], 5))]
+    post = BoltzmannPosterior(mdp, demos, Prior("gaussian", 0.5, -np.ones(2), np.zeros(2)),
+                              (0.1, 100))
+    x = np.array([-0.4, -0.6, math.log(3.0)])
+    value, gradient, hessian = post._newton_terms(x)
+    same_value, same_gradient = post.neg_log_posterior(x)
+    assert value == pytest.approx(same_value, rel=1e-12)
+    np.testing.assert_allclose(gradient, same_gradient, rtol=1e-12)
+    numeric = np.column_stack([central_difference(
+        lambda y, j=j: post.neg_log_posterior(y)[1][j], x, h=1e-5) for j in range(3)])
+    np.testing.assert_allclose(hessian, numeric, rtol=1e-5, atol=1e-6)
+    covariance = post.count_derivatives(x[:-1], math.exp(x[-1]))
+    np.testing.assert_array_equal(covariance, covariance.T)
+    assert np.linalg.eigvalsh(covariance).min() > -1e-12
+
+
+def test_trust_region_newton_on_a_box_by_hand():
+    """f = ½(x − c)ᵀA(x − c), A = [[2, 1], [1, 2]], c = (0.8, −1) on [0, 1]²: x₂ rests at
+    its lower bound (∂f/∂x₂ = 1.5 > 0 there) and ∂f/∂x₁ = 2(x₁ − 0.8) + 1 = 0 puts x₁ at
+    0.3. Rosenbrock's function on [−2, 0.5] × [−1, 2] (not convex) from (−1.2, 1): x₁ at
+    its upper bound, x₂ = x₁² = 0.25, f = 0.25."""
+    a, c = np.array([[2.0, 1.0], [1.0, 2.0]]), np.array([0.8, -1.0])
+
+    def quadratic(x):
+        return 0.5 * (x - c) @ a @ (x - c), a @ (x - c), a
+
+    x = trust_region_newton(quadratic, lambda x: quadratic(x)[0], np.array([1.0, 1.0]),
+                         np.zeros(2), np.ones(2))
+    np.testing.assert_allclose(x, [0.3, 0.0], atol=1e-12)
+
+    def rosenbrock(x):
+        f = (1 - x[0]) ** 2 + 100 * (x[1] - x[0] ** 2) ** 2
+        g = [-2 * (1 - x[0]) - 400 * x[0] * (x[1] - x[0] ** 2), 200 * (x[1] - x[0] ** 2)]
+        h = [[2 - 400 * (x[1] - 3 * x[0] ** 2), -400 * x[0]], [-400 * x[0], 200]]
+        return f, np.array(g), np.array(h)
+
+    x = trust_region_newton(rosenbrock, lambda x: rosenbrock(x)[0], np.array([-1.2, 1.0]),
+                         np.array([-2.0, -1.0]), np.array([0.5, 2.0]))
+    np.testing.assert_allclose(x, [0.5, 0.25], atol=1e-8)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_goal_reaching_map_by_newton_agrees_with_a_quasi_newton_search(seed):
+    """The MAP by Newton steps in a trust region equals L-BFGS-B's run to tight tolerances on the
+    same function: inside the box (noisy demonstrations) and with β held at its upper
+    bound (consistent ones, whose β would lie beyond 0.5)."""
+    mdp = random_goal_graph(seed)
+    optimal = [mdp.follow(mdp.solve([-0.7, -0.2]).policy, s) for s in (0, 3, 5)]
+    noisy = optimal + [mdp.follow(mdp.solve(w).policy, 0) for w in ([-0.1, -0.9], [-0.9, 0])]
+    betas = []
+    for demos, kind, beta_max in ((optimal, "uniform", 0.5), (noisy, "gaussian", 100.0)):
+        post = BoltzmannPosterior(mdp, demos, Prior(kind, 0.5, -np.ones(2), np.zeros(2)),
+                                  (0.1, beta_max))
+        w, beta = post.map([-0.5, -0.5], 1.0)
+        bounds = [(-1, 0), (-1, 0), (math.log(0.1), math.log(beta_max))]
+        ref = minimize(post.neg_log_posterior, [-0.5, -0.5, 0.0], jac=True, method="L-BFGS-B",
+                       bounds=bounds, options={"ftol": 1e-15, "gtol": 1e-10, "maxiter": 1000})
+        np.testing.assert_allclose(np.append(w, math.log(beta)), ref.x, atol=1e-4)
+        assert post.neg_log_posterior(np.append(w, math.log(beta)))[0] <= ref.fun + 1e-9
+        betas.append(beta)
+    assert betas[0] == pytest.approx(0.5, rel=1e-12) and 0.1 < betas[1] < 100
 
 
 def test_goal_reaching_soft_values_sum_over_every_path():
