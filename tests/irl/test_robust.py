@@ -611,6 +611,24 @@ def test_soft_values_where_equal_paths_multiply_by_hand(k):
                                rtol=1e-9, atol=1e-8)
 
 
+def test_soft_values_relative_to_the_last_ones_by_hand():
+    """A search's next parameters are near its last: where the solution relative to the
+    hard values spans too many decades (k = 200 diamonds: 139 nats), the system is solved
+    relative to the last soft values, and the values are still those by hand."""
+    k, c = 200, 0.01
+    mdp, path = diamond_chain(k)
+    post = BoltzmannPosterior(mdp, [path], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100),
+                              "uniform")
+    i = np.arange(k + 1)
+    kinds = []
+    for beta in (2.0, 2.05, 1.9, 2.4):
+        values = post.soft_values([-0.5], beta)
+        kinds.append(post._last_reference)
+        np.testing.assert_allclose(values[3 * i], (k - i) * (math.log(2) - 2 * beta * c) + beta,
+                                   rtol=1e-9, atol=1e-8)
+    assert kinds[0] == "sweeps" and "last" in kinds[1:]
+
+
 @pytest.mark.parametrize("k", [30, 120])
 def test_soft_values_where_equal_paths_multiply_around_cycles(k):
     """The diamonds with every edge also backwards: relative to the hard values the linear
