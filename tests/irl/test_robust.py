@@ -409,13 +409,19 @@ def test_goal_reaching_solves_match_dense_solves(seed):
                                        rtol=1e-10, atol=0)
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_goal_reaching_gradient_matches_finite_differences(seed):
+def three_demo_posterior(seed):
+    """The posterior of three greedy demonstrations from starts 0, 3 and 5 of a random goal
+    graph under three weights, with a Gaussian prior."""
     mdp = random_goal_graph(seed)
     demos = [mdp.follow(mdp.solve(w).policy, s) for w, s in
              (([-0.5, -0.5], 0), ([-0.9, -0.1], 3), ([-0.1, -0.9], 5))]
-    post = BoltzmannPosterior(mdp, demos, Prior("gaussian", 0.5, -np.ones(2), np.zeros(2)),
+    return BoltzmannPosterior(mdp, demos, Prior("gaussian", 0.5, -np.ones(2), np.zeros(2)),
                               (0.1, 100))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_goal_reaching_gradient_matches_finite_differences(seed):
+    post = three_demo_posterior(seed)
     x = np.array([-0.4, -0.6, math.log(3.0)])
     numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
     np.testing.assert_allclose(post.neg_log_posterior(x)[1], numeric, rtol=1e-5, atol=1e-7)
@@ -426,11 +432,7 @@ def test_goal_reaching_hessian_matches_finite_differences(seed):
     """The Newton steps' Hessian in (w, log β) against central differences of the exact
     gradient; its likelihood part, the paths' covariance summed over the starts, is
     symmetric and positive semidefinite."""
-    mdp = random_goal_graph(seed)
-    demos = [mdp.follow(mdp.solve(w).policy, s) for w, s in
-             (([-0.5, -0.5], 0), ([-0.9, -0.1], 3), ([-0.1, -0.9], 5))]
-    post = BoltzmannPosterior(mdp, demos, Prior("gaussian", 0.5, -np.ones(2), np.zeros(2)),
-                              (0.1, 100))
+    post = three_demo_posterior(seed)
     x = np.array([-0.4, -0.6, math.log(3.0)])
     value, gradient, hessian = post._newton_terms(x)
     same_value, same_gradient = post.neg_log_posterior(x)
