@@ -300,7 +300,8 @@ class BoltzmannPosterior:
             attempts = attempts + [last] if self._last_reference == "hard" else [last] + attempts
         wide = None
         for kind, reference in attempts:
-            solved = self._relative_solution(edge_terms, reference, clip=kind == "hard")
+            solved = self._relative_solution(edge_terms, reference, clip=kind == "hard",
+                                             near=kind == "last")
             if kind == "hard":
                 wide = solved
             if solved is not None and np.abs(solved[2]).max() <= LOG_Y_KEPT:
@@ -323,13 +324,21 @@ class BoltzmannPosterior:
         raise RuntimeError("the soft values' linear system has no positive solution")
 
     def _relative_solution(self, edge_terms: np.ndarray, reference: np.ndarray,
-                           clip: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+                           clip: bool, near: bool = False) -> tuple[np.ndarray, np.ndarray,
+                                                                     np.ndarray] | None:
         """(m, y, log y) of (I − M) y = 1 at absorbing nodes, M(e) = exp(edge term + R(dst) −
         R(src)) for the reference R (clip: M ≤ 1, which R = H guarantees but for round-off),
-        or None where y is not positive and finite or the factor is exactly singular."""
+        or None where y is not positive and finite or the factor is exactly singular.
+        near: R is to be within e^±LOG_Y_KEPT of the soft values V, else None without a
+        solve; relative to V itself M(e) ≤ 1, so an M(e) above e^(2·LOG_Y_KEPT) says it is
+        not (the last soft values after a long step of a search)."""
         mdp = self.mdp
         terms = edge_terms + reference[mdp.dst] - reference[mdp.src]
-        m = np.exp(np.minimum(terms, 0.0) if clip else terms)
+        if clip:
+            terms = np.minimum(terms, 0.0)
+        if near and terms.max(initial=0.0) > 2 * LOG_Y_KEPT:
+            return None
+        m = np.exp(terms)
         try:
             y = self._solve(m, np.where(mdp.has_out, 0.0, 1.0), "T")
         except RuntimeError:  # SuperLU: the factor is exactly singular

@@ -3,6 +3,7 @@ hand on tiny graphs, its gradients, MAP, admissibility test and joint sampler, a
 form of the learning loop on consistent and noisy demonstrations — cases with known answers."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -616,19 +617,27 @@ def test_soft_values_where_equal_paths_multiply_by_hand(k):
 def test_soft_values_relative_to_the_last_ones_by_hand():
     """A search's next parameters are near its last: where the solution relative to the
     hard values spans too many decades (k = 200 diamonds: 139 nats), the system is solved
-    relative to the last soft values, and the values are still those by hand."""
-    k, c = 200, 0.01
+    relative to the last soft values, and the values are still those by hand. Every edge
+    has feature 1, so V(3i) = (k − i)(log 2 + 2β(w − c)) + βR_goal; after a long step (β
+    1000 → 2 at w = −1: the last values a thousand nats apart per edge) that reference is
+    passed over, without overflowing."""
+    k, c, w = 200, 0.01, -1.0
     mdp, path = diamond_chain(k)
-    post = BoltzmannPosterior(mdp, [path], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100),
+    mdp = GraphMDP(mdp.src, mdp.dst, mdp.duration, np.ones((mdp.n_edges, 1)), mdp.terminal,
+                   mdp.params)
+    post = BoltzmannPosterior(mdp, [path], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 1000),
                               "uniform")
     i = np.arange(k + 1)
     kinds = []
-    for beta in (2.0, 2.05, 1.9, 2.4):
-        values = post.soft_values([-0.5], beta)
-        kinds.append(post._last_reference)
-        np.testing.assert_allclose(values[3 * i], (k - i) * (math.log(2) - 2 * beta * c) + beta,
-                                   rtol=1e-9, atol=1e-8)
-    assert kinds[0] == "sweeps" and "last" in kinds[1:]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for beta in (2.0, 2.05, 1.9, 1000.0, 2.0):
+            values = post.soft_values([w], beta)
+            kinds.append(post._last_reference)
+            np.testing.assert_allclose(values[3 * i],
+                                       (k - i) * (math.log(2) + 2 * beta * (w - c)) + beta,
+                                       rtol=1e-9, atol=1e-8)
+    assert kinds[0] == "sweeps" and "last" in kinds[1:3] and kinds[4] != "last"
 
 
 @pytest.mark.parametrize("k", [30, 120])
