@@ -11,6 +11,9 @@ learning.png.
         --seeds 0 1 2 3 4 \
         --learners default paper_features rich_features hinge_features gaussian_features \
         squared_features hinge_squared_features wall_features gaussian_wall_features
+    python -m pipeline.tools.bench_learning --table alternatives_spacing \
+        --demonstrators optimal optimal_random boltzmann20 handdrawn planner_hallway \
+        --learners default lattice_0.1 lattice_0.15 lattice_0.25 lattice_0.3
 
 Demonstrators: synthetic experts that share the learner's features (optimal, Boltzmann
 β_E 50/20/5, one walk per start), the hand-drawn-like set, and the independent planner
@@ -84,6 +87,10 @@ PLANNER_COST = "planner_cost"
 LEARNERS[PLANNER_COST] = []
 METHODS = tuple(LEARNERS)  # what runs unless --learners says otherwise
 LEARNERS |= {name: [f"birl.features={features}"] for name, features in FEATURE_SETS.items()}
+# The default learner on other lattices of alternatives (how far apart their nodes are
+# moves what it learns): --table alternatives_spacing --learners default lattice_*
+ALTERNATIVES_SPACINGS = (0.1, 0.15, 0.25, 0.3)
+LEARNERS |= {f"lattice_{s:g}": [f"birl.alternatives_spacing={s}"] for s in ALTERNATIVES_SPACINGS}
 BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
 LEARNER_NAMES = {"default": "BIRL-G (robust, default)", "paper": "BIRL-G (paper, eq. 2)",
                  "policywalk": "PolicyWalk", "maxent": "MaxEnt",

@@ -390,6 +390,10 @@ LEARNER_FEATURES_COMMAND = (
     "python -m pipeline.tools.bench_learning --table learner_features --demonstrators "
     "handdrawn planner_heldout planner_transfer --seeds 0 1 2 3 4 --learners default "
     "paper_features rich_features hinge_features gaussian_features")
+ALTERNATIVES_SPACING_COMMAND = (
+    "python -m pipeline.tools.bench_learning --table alternatives_spacing --demonstrators "
+    "optimal optimal_random boltzmann20 handdrawn planner_hallway --learners default "
+    "lattice_0.1 lattice_0.15 lattice_0.25 lattice_0.3")
 # The tables `python -m pipeline.tools.bench SUITE` writes are found in its SUITES; the
 # other tools' tables are these.
 OTHER_MAKERS = {
@@ -400,6 +404,8 @@ OTHER_MAKERS = {
     "learning_summary.csv": "python -m pipeline.tools.bench_learning",
     "learner_features.csv": LEARNER_FEATURES_COMMAND,
     "learner_features_summary.csv": LEARNER_FEATURES_COMMAND,
+    "alternatives_spacing.csv": ALTERNATIVES_SPACING_COMMAND,
+    "alternatives_spacing_summary.csv": ALTERNATIVES_SPACING_COMMAND,
     "imperfect_summary.csv": "python -m pipeline.tools.bench imperfect",
     "irl_methods_curves.csv": "python -m pipeline.tools.bench irl",
     "install.csv": "by hand: each row's command is in its `command` column",
