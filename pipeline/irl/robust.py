@@ -111,7 +111,7 @@ class BoltzmannPosterior:
     Boltzmann (soft) policy of the rewards βw·φ and goal value βR_goal on a graph, plus the
     prior on w (β log-uniform on [beta_min, beta_max]). βQ is linear in (βw, β), so the log
     likelihood is concave in those; the box over (w, β) maps onto a convex cone of them, so
-    L-BFGS-B over (w, β) finds the global MAP."""
+    a local search over (w, log β) (`map`) finds the global MAP."""
 
     def __init__(self, mdp: GraphMDP, expert_paths: list[Path], prior: Prior,
                  beta_range: tuple[float, float], base_measure: str = "walk",

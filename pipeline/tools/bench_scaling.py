@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.tools.bench import RESULTS, _app, read_artefact_iterations
+from pipeline.tools.bench import RESULTS, _app, learning_stages, read_artefact_iterations
 
 METHODS = ["map", "robust", "robust_graph", "mcmc", "policywalk", "maxent"]
 NAMES = {"map": "BIRL-G (MAP, paper eq. 2)", "robust": "BIRL-G (MAP, robust)",
@@ -36,10 +36,6 @@ METHOD_OVERRIDES = {"map": ["birl=map", "birl.likelihood=paper"],
                                      "birl.alternatives=graph"],
                     "mcmc": ["birl=mcmc", "birl.likelihood=paper"],
                     "policywalk": ["birl=policywalk"], "maxent": ["birl=maxent"]}
-# MaxEnt learns in another box (conf/birl/maxent.yaml), and the graph grows under the box's
-# centre: a graph grown for BIRL's box is refused, so it grows its own (it learns on the
-# roadmap; the graph is only evaluated on)
-STAGES_OF = {"maxent": "stages=[graph,birl,evaluate]"}
 # room side (m) -> graph sizes; persons scale with the area (metropolis: ~12 per 100 m²)
 GRID = {10: [460, 2000, 5000], 20: [2000, 5000, 20000], 40: [5000, 20000]}
 QUICK = {10: [460, 2000]}
@@ -78,7 +74,7 @@ def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str],
                     try:
                         m = _app(run, *scene_overrides(side), f"seed={seed}",
                                  f"graph.max_nodes={nodes}", *METHOD_OVERRIDES[method],
-                                 STAGES_OF.get(method, "stages=[birl,evaluate]"),
+                                 learning_stages(method),
                                  f"from_run={base}")
                     except subprocess.CalledProcessError as e:  # reported, not hidden
                         error = (e.stderr or b"").decode().strip().splitlines()[-1:]
