@@ -1,19 +1,24 @@
 """The table of a Hydra sweep dir: one row per job, with its overrides, its outcome and every
 metric of its metrics.json (`make aggregate` writes it as summary.csv, `api.sweep` returns it).
+Rows are plain dicts: `make aggregate` runs without pandas, whose import alone would take
+most of its time; `api.sweep` makes them a DataFrame.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import pandas as pd
 import yaml
 
 from pipeline.app.metric_keys import is_metric_key
 from pipeline.app.rundir import job_dirs, read_status
 from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
 from pipeline.errors import PipelineError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 def parse_overrides(job: Path) -> dict[str, str]:
@@ -35,13 +40,22 @@ def job_row(job: Path, sweep_dir: Path) -> dict:
     return row
 
 
-def summary_table(sweep_dir: Path) -> pd.DataFrame:
-    """One row per job of `sweep_dir` (jobs in natural order), columns in `column_order`."""
+def summary_rows(sweep_dir: Path) -> tuple[list[str], list[dict]]:
+    """The columns (in `column_order`) and one row per job of `sweep_dir` (jobs in natural
+    order; a row lacks the keys its job did not write)."""
     jobs = job_dirs(sweep_dir)
     if not jobs:
         raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
-    table = pd.DataFrame([job_row(j, sweep_dir) for j in jobs])
-    return table[column_order(list(table.columns))]
+    rows = [job_row(j, sweep_dir) for j in jobs]
+    return column_order(list(dict.fromkeys(key for row in rows for key in row))), rows
+
+
+def summary_table(sweep_dir: Path) -> pd.DataFrame:
+    """`summary_rows` as a DataFrame (missing values NaN)."""
+    import pandas as pd
+
+    columns, rows = summary_rows(sweep_dir)
+    return pd.DataFrame(rows, columns=columns)
 
 
 # summary.csv column order (docs/outputs.md, "Sweeps"): the job and its outcome,

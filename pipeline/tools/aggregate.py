@@ -16,23 +16,49 @@ that failed, or never wrote metrics, stay in the table with their error; the exi
 from __future__ import annotations
 
 import argparse
+import csv
+import math
 import re
 import sys
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
-from pipeline.app.summary import is_metric, summary_table
+from pipeline.app.summary import is_metric, summary_rows
 from pipeline.errors import PipelineError
 
+# A table as the sweep's jobs give it: plain rows (dicts; a row lacks what its job did not
+# write). pandas is left out of the tables' path: its import alone (0.3-0.5 s) would be most
+# of the aggregation's time; the figures, which load matplotlib anyway, use it.
+Row = dict
 
-def _group_columns(table: pd.DataFrame) -> list[str]:
-    """Swept settings other than the seed: each combination is one curve."""
+
+def _missing(value) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
+
+
+def varies(column: str, rows: list[Row]) -> bool:
+    """Whether the column's value (or its absence) differs between rows."""
+    return len({None if _missing(r.get(column)) else r[column] for r in rows}) > 1
+
+
+def swept_columns(columns: list[str], rows: list[Row]) -> list[str]:
+    """Swept settings other than the seed, among `columns`: each combination of their
+    values is one curve or table row."""
     meta = {"job", "status", "error", "seed"}
-    return [c for c in table.columns if c not in meta and not is_metric(c)
-            and table[c].nunique(dropna=False) > 1]
+    return [c for c in columns if c not in meta and not is_metric(c) and varies(c, rows)]
+
+
+def group_rows(rows: list[Row], groups: list[str]) -> list[tuple[tuple, list[Row]]]:
+    """The rows per combination of the `groups` columns' values, ordered by those values
+    (missing last), as pandas' groupby(sort=True, dropna=False); one group of every row
+    when there are no groups."""
+    parts: dict[tuple, list[Row]] = {}
+    for row in rows:
+        key = tuple(None if _missing(row.get(g)) else row[g] for g in groups)
+        parts.setdefault(key, []).append(row)
+    return sorted(parts.items(), key=lambda item: [(v is None, v) for v in item[0]])
 
 
 SUMMARY_FILE = "summary.csv"
@@ -56,23 +82,26 @@ def plot_policy_loss(summary_csv: Path, path: Path) -> bool:
     one colour per swept setting, from a sweep's summary.csv: the median over seeds, and the
     range over seeds as thin lines (bands of several settings would overlap and mix). False,
     and no figure, when no job has the curves."""
+    import pandas as pd
     from matplotlib.lines import Line2D
     from matplotlib.ticker import MaxNLocator
 
     table = pd.read_csv(summary_csv)
-    ok = table[table.status == "ok"]
-    groups = _group_columns(ok)
+    columns = list(table.columns)
+    ok = table[table.status == "ok"].to_dict("records")
+    groups = swept_columns(columns, ok)
     with paper_style():
         fig = new_figure(PAGE_IN, 2.8)
         axes = fig.subplots(1, 2, sharex=True, sharey=True)
         handles = []
-        for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
-            label = ", ".join(setting_label(g, v) for g, v in
-                              zip(groups, np.atleast_1d(key), strict=False)) or "all jobs"
+        for key, part in group_rows(ok, groups):
+            label = ", ".join(setting_label(g, v)
+                              for g, v in zip(groups, key, strict=True)) or "all jobs"
             colour = COLOURS[len(handles) % len(COLOURS)]
             for ax, prefix in ((axes[0], "policy_loss_iter_"), (axes[1], "policy_loss_ref_iter_")):
-                curves = part[sorted(c for c in part.columns if c.startswith(prefix))] \
-                    .to_numpy(dtype=float)
+                curves = np.array([[row[c] for c in sorted(c for c in columns
+                                                          if c.startswith(prefix))]
+                                   for row in part], dtype=float)
                 if curves.size == 0 or np.isnan(curves).all():
                     continue
                 x = np.arange(curves.shape[1])
@@ -107,27 +136,26 @@ def plot_scene(job: Path, path: Path) -> None:
         save_figure(fig, path)
 
 
-def results_table(table: pd.DataFrame) -> pd.DataFrame:
+def results_table(columns: list[str], rows: list[Row]) -> tuple[list[Row], list[Row]]:
     """Main results, one row per swept setting: mean ± std over seeds of the headline
-    metrics (the table a paper or a README shows)."""
-    ok = table[table.status == "ok"]
-    groups = _group_columns(ok)
+    metrics (the table a paper or a README shows); and the means, for marking the best."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    groups = swept_columns(columns, ok)
     metrics = [m for m in ("policy_loss_norm", "policy_loss_ref", "relation_crossings",
-                           "success") if m in ok.columns]
-    rows, means = [], []
-    for key, part in (ok.groupby(groups, dropna=False) if groups else [("all", ok)]):
-        row = {SETTING_NAMES.get(g, g): (METHOD_NAMES.get(str(v), v) if g == "birl" else v)
-               for g, v in zip(groups, np.atleast_1d(key), strict=False)}
+                           "success") if m in columns]
+    results, means = [], []
+    for key, part in (group_rows(ok, groups) if ok else []):
+        row: Row = {SETTING_NAMES.get(g, g): (METHOD_NAMES.get(str(v), v) if g == "birl" else v)
+                    for g, v in zip(groups, key, strict=True)}
         row["seeds"] = len(part)
         means.append({})
         for m in metrics:
-            values = part[m].astype(float).to_numpy()
+            values = np.array([np.nan if _missing(r.get(m)) else r[m] for r in part],
+                              dtype=float)
             row[METRIC_NAMES.get(m, m)] = mean_std(values)
             means[-1][METRIC_NAMES.get(m, m)] = float(np.mean(values))
-        rows.append(row)
-    table = pd.DataFrame(rows)
-    table.attrs["means"] = pd.DataFrame(means)  # for marking the best value
-    return table
+        results.append(row)
+    return results, means
 
 
 # Higher is better for these; lower for every other metric of the table.
@@ -149,12 +177,13 @@ def mean_std(values: np.ndarray) -> str:
     return f"{text} ± {std:.1f}" if counts else f"{text} ± {std:.4f}"
 
 
-def best_rows(means: pd.DataFrame) -> dict[str, set[int]]:
+def best_rows(means: list[Row]) -> dict[str, set[int]]:
     """Per metric column, the rows with the best mean (ties: all of them)."""
     best = {}
-    for col in means.columns:
-        target = means[col].max() if col in HIGHER_IS_BETTER else means[col].min()
-        best[col] = set(np.flatnonzero(np.isclose(means[col], target, rtol=0, atol=1e-12)))
+    for col in means[0] if means else ():
+        values = np.array([m[col] for m in means])
+        target = values.max() if col in HIGHER_IS_BETTER else values.min()
+        best[col] = set(np.flatnonzero(np.isclose(values, target, rtol=0, atol=1e-12)))
     return best
 
 
@@ -169,43 +198,62 @@ def latex_cell(value) -> str:
     return _LATEX_SPECIAL.sub(lambda m: _LATEX_ESCAPES[m.group()], str(value))
 
 
-def latex_table(results: pd.DataFrame, bold: dict[str, set[int]]) -> str:
-    """A booktabs tabular of the results, the cells of `bold` (column -> rows) in bold.
-    Written here rather than by DataFrame.to_latex, whose Styler and jinja2 templates take
-    longer to load than the rest of the aggregation."""
-    align = "".join("r" if pd.api.types.is_numeric_dtype(results[c]) else "l"
-                    for c in results.columns)
+def latex_table(results: list[Row], bold: dict[str, set[int]]) -> str:
+    """A booktabs tabular of the results, the cells of `bold` (column -> rows) in bold, as
+    pandas' DataFrame.to_latex writes it (whose Styler and jinja2 templates would take longer
+    to load than the rest of the aggregation)."""
+    columns = list(results[0])
+    align = "".join("r" if all(_is_number(r[c]) for r in results) else "l" for c in columns)
     lines = [rf"\begin{{tabular}}{{{align}}}", r"\toprule",
-             " & ".join(latex_cell(c) for c in results.columns) + r" \\", r"\midrule"]
-    for i, row in enumerate(results.itertuples(index=False)):
-        cells = [latex_cell(v) for v in row]
-        cells = [rf"\textbf{{{c}}}" if i in bold.get(col, ()) else c
-                 for col, c in zip(results.columns, cells, strict=True)]
+             " & ".join(latex_cell(c) for c in columns) + r" \\", r"\midrule"]
+    for i, row in enumerate(results):
+        cells = [rf"\textbf{{{latex_cell(row[c])}}}" if i in bold.get(c, ())
+                 else latex_cell(row[c]) for c in columns]
         lines.append(" & ".join(cells) + r" \\")
     return "\n".join([*lines, r"\bottomrule", r"\end{tabular}", ""])
 
 
-def write_tables(table: pd.DataFrame, sweep_dir: Path) -> None:
-    results = results_table(table)
-    if results.empty:
+def _is_number(value) -> bool:
+    return isinstance(value, int | float | np.number) and not isinstance(value, bool)
+
+
+def markdown_table(results: list[Row]) -> str:
+    """The results as a Markdown (pipe) table, as pandas' DataFrame.to_markdown writes it."""
+    from tabulate import tabulate
+
+    return tabulate(results, headers="keys", tablefmt="pipe", showindex=False)
+
+
+def write_tables(columns: list[str], rows: list[Row], sweep_dir: Path) -> None:
+    results, means = results_table(columns, rows)
+    if not results:
         return
-    (sweep_dir / "table.md").write_text(results.to_markdown(index=False) + "\n")
+    (sweep_dir / "table.md").write_text(markdown_table(results) + "\n")
     # the best value of each metric in bold, where there is more than one row to compare
-    bold = best_rows(results.attrs["means"]) if len(results) > 1 else {}
+    bold = best_rows(means) if len(results) > 1 else {}
     (sweep_dir / "table.tex").write_text(latex_table(results, bold))
 
 
-def aggregate(sweep_dir: Path, figures: bool = True) -> pd.DataFrame:
-    table = summary_table(sweep_dir)
-    table.to_csv(sweep_dir / SUMMARY_FILE, index=False)
-    write_tables(table, sweep_dir)
-    if not figures:  # the table alone: a third of the time (matplotlib, the artefacts)
-        return table
+def write_summary_csv(columns: list[str], rows: list[Row], path: Path) -> None:
+    """summary.csv: a missing value is an empty cell (as pandas writes NaN and None)."""
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(columns)
+        writer.writerows([["" if _missing(r.get(c)) else r[c] for c in columns] for r in rows])
+
+
+def aggregate(sweep_dir: Path, figures: bool = True) -> tuple[list[str], list[Row]]:
+    """Write the sweep's tables (and figures); its columns and rows."""
+    columns, rows = summary_rows(sweep_dir)
+    write_summary_csv(columns, rows, sweep_dir / SUMMARY_FILE)
+    write_tables(columns, rows, sweep_dir)
+    if not figures:  # the tables alone: a fifth of the time (matplotlib, pandas, artefacts)
+        return columns, rows
     plot_policy_loss(sweep_dir / SUMMARY_FILE, sweep_dir / "policy_loss.png")
-    ok = table[table.status == "ok"]
-    if len(ok):
-        plot_scene(sweep_dir / ok.iloc[0]["job"], sweep_dir / "scene.png")
-    return table
+    ok = [r for r in rows if r["status"] == "ok"]
+    if ok:
+        plot_scene(sweep_dir / ok[0]["job"], sweep_dir / "scene.png")
+    return columns, rows
 
 
 def main(argv=None) -> int:
@@ -218,22 +266,24 @@ def main(argv=None) -> int:
     try:
         if not args.sweep_dir.is_dir():
             raise PipelineError(f"sweep dir {args.sweep_dir} not found")
-        table = aggregate(args.sweep_dir, figures=args.figures)
+        columns, rows = aggregate(args.sweep_dir, figures=args.figures)
     except PipelineError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    failed = table[table.status != "ok"]
-    swept = [c for c in ("seed", *_group_columns(table)) if c in table.columns
-             and table[c].nunique(dropna=False) > 1]  # which job is which
-    cols = [c for c in ("job", "status", *swept, "policy_loss", "policy_loss_ref",
-                        "policy_loss_norm", "relation_crossings") if c in table.columns]
-    print(table[cols].to_string(index=False))
-    print(f"{len(table) - len(failed)} of {len(table)} jobs ok; wrote "
-          f"{args.sweep_dir / SUMMARY_FILE}{' and figures' if args.figures else ''}")
-    for _, row in failed.iterrows():
-        print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
-    return 1 if len(failed) else 0
+    from tabulate import tabulate
 
+    failed = [r for r in rows if r["status"] != "ok"]
+    swept = [c for c in ("seed", *swept_columns(columns, rows))  # which job is which
+             if c in columns and varies(c, rows)]
+    cols = [c for c in ("job", "status", *swept, "policy_loss", "policy_loss_ref",
+                        "policy_loss_norm", "relation_crossings") if c in columns]
+    print(tabulate([[r.get(c) for c in cols] for r in rows], headers=cols, tablefmt="plain",
+                   missingval="NaN"))
+    print(f"{len(rows) - len(failed)} of {len(rows)} jobs ok; wrote "
+          f"{args.sweep_dir / SUMMARY_FILE}{' and figures' if args.figures else ''}")
+    for row in failed:
+        print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
+    return 1 if failed else 0
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -4,7 +4,14 @@ whole numbers, the best value of each metric in bold in the LaTeX table."""
 import numpy as np
 import pandas as pd
 
-from pipeline.tools.aggregate import mean_std, results_table, write_tables
+from pipeline.tools.aggregate import (
+    latex_table,
+    markdown_table,
+    mean_std,
+    results_table,
+    write_summary_csv,
+    write_tables,
+)
 
 
 def test_mean_std_by_hand():
@@ -15,24 +22,42 @@ def test_mean_std_by_hand():
     assert mean_std(np.array([0.25])) == "0.2500"  # one seed: no spread to show
 
 
-def sweep_table() -> pd.DataFrame:
-    return pd.DataFrame({
-        "job": [0, 1, 2, 3], "status": ["ok"] * 4, "error": [None] * 4, "seed": [0, 1, 0, 1],
-        "reward": ["polite", "polite", "rude", "rude"],
-        "policy_loss_norm": [0.01, 0.03, 0.2, 0.4], "relation_crossings": [0.0, 0.0, 9.0, 8.0],
-        "success": [1.0, 1.0, 0.5, 1.0]})
+def sweep_table() -> tuple[list[str], list[dict]]:
+    """Columns and rows as summary_rows gives them: jobs out of order of their settings."""
+    table = pd.DataFrame({
+        "job": [0, 1, 2, 3], "status": ["ok"] * 4, "error": [None] * 4, "seed": [0, 0, 1, 1],
+        "reward": ["rude", "polite", "polite", "rude"],
+        "policy_loss_norm": [0.2, 0.01, 0.03, 0.4], "relation_crossings": [9.0, 0.0, 0.0, 8.0],
+        "success": [0.5, 1.0, 1.0, 1.0]})
+    return list(table.columns), table.to_dict("records")
 
 
 def test_the_results_table_groups_seeds_per_setting():
-    table = results_table(sweep_table())
+    results, _ = results_table(*sweep_table())
+    table = pd.DataFrame(results)
+    assert list(table["reward"]) == ["polite", "rude"]
     assert list(table["seeds"]) == [2, 2]
     assert list(table["normalised policy loss"]) == ["0.0200 ± 0.0141", "0.3000 ± 0.1414"]
     assert list(table["link crossings"]) == ["0 ± 0.0", "8.5 ± 0.7"]
     assert list(table["success rate"]) == ["1 ± 0.0", "0.7500 ± 0.3536"]
 
 
+def test_a_failed_job_is_left_out_of_the_results_and_is_an_empty_cell_in_the_csv(tmp_path):
+    columns, rows = sweep_table()
+    rows[3] = {"job": 3, "status": "failed", "error": "stage birl: boom", "seed": 1,
+               "reward": "rude"}  # no metrics
+    results, _ = results_table(columns, rows)
+    assert [r["seeds"] for r in results] == [2, 1]
+    write_summary_csv(columns, rows, tmp_path / "summary.csv")
+    table = pd.read_csv(tmp_path / "summary.csv")
+    assert list(table.columns) == columns
+    assert table.policy_loss_norm.isna().tolist() == [False, False, False, True]
+    assert table.error.isna().tolist() == [True, True, True, False]
+    assert table.policy_loss_norm[1] == 0.01  # floats written in full
+
+
 def test_the_best_value_of_each_metric_is_bold_in_latex(tmp_path):
-    write_tables(sweep_table(), tmp_path)
+    write_tables(*sweep_table(), tmp_path)
     tex = (tmp_path / "table.tex").read_text()
     polite = next(line for line in tex.splitlines() if line.startswith("polite"))
     rude = next(line for line in tex.splitlines() if line.startswith("rude"))
@@ -46,12 +71,16 @@ def test_the_best_value_of_each_metric_is_bold_in_latex(tmp_path):
 def test_the_latex_table_is_what_pandas_writes():
     """latex_table (written by hand to skip pandas' Styler) against DataFrame.to_latex, with
     every character LaTeX treats specially."""
-    from pipeline.tools.aggregate import latex_table
-
     results = pd.DataFrame({"method": ["BIRL-G (MAP)", "a_b & 50% #1 {x} $y ~z ^w \\v"],
                             "seeds": [3, 10], "β": ["0.1 ± 0.0", "2"]})
     pandas = results.to_latex(index=False, escape=True).replace("±", "$\\pm$") \
         .replace("β", "$\\beta$")
-    assert latex_table(results, {}) == pandas
-    bold = latex_table(results, {"seeds": {1}})
+    assert latex_table(results.to_dict("records"), {}) == pandas
+    bold = latex_table(results.to_dict("records"), {"seeds": {1}})
     assert bold.splitlines()[5].split(" & ")[1] == "\\textbf{10}"
+
+
+def test_the_markdown_table_is_what_pandas_writes():
+    results = pd.DataFrame({"method": ["BIRL-G (MAP)", "PolicyWalk"], "seeds": [3, 10],
+                            "normalised policy loss": ["0.0100 ± 0.0020", "0.2"]})
+    assert markdown_table(results.to_dict("records")) == results.to_markdown(index=False)
