@@ -25,7 +25,16 @@ stand-in for recorded passes of people): the learned roadmap paths' passing dist
 against the demonstrators' 10-90 % range. The first three stages run once per
 (demonstrator, seed); every learner starts from them. The planner's rows have an anchor,
 `planner_cost`: no learning, the planner's own cost planned on the same roadmap, judged the
-same way (what the roadmap's resolution and the subjects' differences leave to win).
+same way (what the roadmap's resolution and the subjects' differences leave to win); and a
+ceiling per feature set, `planner_fit` (the default learner's features) and
+`planner_fit_<set>`: no learning, the planner's cost fitted by least squares to the features
+over the training scene's roadmap edges, deployed like a learned reward (what the best
+weights on those features reach: a learner near it is held back by its features).
+
+    python -m pipeline.tools.bench_learning --table feature_ceiling \
+        --demonstrators planner_heldout planner_transfer planner_hallway \
+        --learners default planner_cost planner_fit gaussian_wall_features \
+        planner_fit_gaussian_wall
 """
 
 from __future__ import annotations
@@ -87,6 +96,13 @@ PLANNER_COST = "planner_cost"
 LEARNERS[PLANNER_COST] = []
 METHODS = tuple(LEARNERS)  # what runs unless --learners says otherwise
 LEARNERS |= {name: [f"birl.features={features}"] for name, features in FEATURE_SETS.items()}
+# The ceiling of a feature set on the planner's rows (module docstring): planner_fit on the
+# default learner's features, planner_fit_<set> on FEATURE_SETS' <set>_features
+PLANNER_FIT = "planner_fit"
+LEARNERS[PLANNER_FIT] = []
+LEARNERS |= {f"{PLANNER_FIT}_{name.removesuffix('_features')}": [f"birl.features={features}"]
+             for name, features in FEATURE_SETS.items()}
+ANCHORS = (PLANNER_COST, PLANNER_FIT)  # no learning; the planner's rows only
 # The default learner on other lattices of alternatives (how far apart their nodes are
 # moves what it learns): --table alternatives_spacing --learners default lattice_*
 ALTERNATIVES_SPACINGS = (0.1, 0.15, 0.25, 0.3)
@@ -111,7 +127,7 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
 
     learners = {name: overrides for name, overrides in learners.items()
                 if (name not in BASELINES or seed in baseline_seeds)
-                and (name != PLANNER_COST or demonstrator.startswith("planner"))}
+                and (not name.startswith(ANCHORS) or demonstrator.startswith("planner"))}
     if not learners:
         return []
     base_overrides = [*DEMONSTRATORS[demonstrator], f"seed={seed}"]
@@ -128,6 +144,11 @@ def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[s
         row = {"demonstrator": demonstrator, "learner": name, "seed": seed}
         if name == PLANNER_COST:
             rows.append(row | planner_cost_row(tmp, demonstrator, seed, base))
+            continue
+        if name.startswith(PLANNER_FIT):
+            rows.append(row | planner_fit_row(tmp, name, demonstrator, seed, base,
+                                              [*base_overrides, *overrides]))
+            print(f"  {rows[-1]}", flush=True)
             continue
         # the graph grows on the learner's features and from its box (initial weights):
         # another feature set or box (MaxEnt's), another graph
@@ -197,8 +218,22 @@ def planner_cost_metrics(run: Path, every_demo: bool = False) -> tuple[dict, lis
     them; nothing learns from them) like a learned reward's (heldout_* keys); also the
     paths from every start."""
     from pipeline.artefacts import codec, read_artefact, topics
-    from pipeline.core.social_planner import SocialCost, SocialPlannerParams
     from pipeline.stages.evaluate import heldout_metrics
+
+    scene, roadmap, cost = planner_cost_on_roadmap(run)
+    graph = roadmap.with_features(cost[:, None])
+    policy = graph.mdp.solve(np.array([-1.0])).policy
+    paths = [graph.polyline(graph.mdp.follow(policy, int(s))) for s in graph.start_nodes]
+    demos = read_artefact(run / "demos.mcap")
+    judged = demos.all(topics.DEMOS) if every_demo else codec.heldout_demos(demos)
+    return heldout_metrics(graph, policy, judged, scene), paths
+
+
+def planner_cost_on_roadmap(run: Path) -> tuple:
+    """The run's scene, its reference roadmap and the planner's own cost (default subject)
+    of every roadmap edge (E,), in the MDP's edge order."""
+    from pipeline.artefacts import codec, read_artefact, topics
+    from pipeline.core.social_planner import SocialCost, SocialPlannerParams
 
     scene = codec.decode_scene(read_artefact(run / "scene.mcap"))
     demos = read_artefact(run / "demos.mcap")
@@ -206,11 +241,42 @@ def planner_cost_metrics(run: Path, every_demo: bool = False) -> tuple[dict, lis
     m = roadmap.mdp
     cost = SocialCost(scene, SocialPlannerParams()).segments(roadmap.positions[m.src],
                                                              roadmap.positions[m.dst])
-    graph = roadmap.with_features(cost[:, None])
-    policy = graph.mdp.solve(np.array([-1.0])).policy
-    paths = [graph.polyline(graph.mdp.follow(policy, int(s))) for s in graph.start_nodes]
-    judged = demos.all(topics.DEMOS) if every_demo else codec.heldout_demos(demos)
-    return heldout_metrics(graph, policy, judged, scene), paths
+    return scene, roadmap, cost
+
+
+def planner_fit_weights(run: Path, features: list[str]) -> np.ndarray:
+    """The weights (d,) on `features` whose cost −w·φ fits the planner's own cost of every
+    edge of the run's reference roadmap best (least squares), scaled to at most 1 in size;
+    positive entries (a feature the fit would reward) are 0, as rewards are costs here."""
+    from pipeline.core.features import FeatureModel, FeatureParams
+
+    scene, roadmap, cost = planner_cost_on_roadmap(run)
+    m = roadmap.mdp
+    phi = FeatureModel.from_scene(scene, FeatureParams(features=features)).segments(
+        roadmap.positions[m.src], roadmap.positions[m.dst])
+    fitted, *_ = np.linalg.lstsq(phi, cost, rcond=None)
+    return np.minimum(-fitted / np.abs(fitted).max(), 0.0)
+
+
+def planner_fit_row(tmp: Path, name: str, demonstrator: str, seed: int, base: Path,
+                    overrides: list[str]) -> dict:
+    """A PLANNER_FIT ceiling's metrics: the fitted weights (on the learner's features that
+    `overrides` give) deployed with birl=fixed like a learned reward, on the base run's
+    held-out demonstrations or (planner_transfer) on the transfer scenes."""
+    from pipeline.app.config import compose_config, load_settings
+
+    weights = planner_fit_weights(base, load_settings(compose_config(overrides)).learner_features)
+    feature_set = [o for o in overrides if o.startswith("birl.features")]
+    fixed = ["birl=fixed", f"birl.weights=[{','.join(f'{w:.17g}' for w in weights)}]",
+             *feature_set]
+    if demonstrator == "planner_transfer":
+        return over_transfer_scenes(tmp, name, seed, lambda run, scene: run_in_process(
+            run, *scene, *fixed, "evaluate.holdout=all")) | {"time_birl_learn_s": np.nan}
+    run = tmp / f"{demonstrator}-{seed}-{name}"
+    m = run_in_process(run, *overrides, *fixed, learning_stages(name, regrow=bool(feature_set)),
+                       f"from_run={base}")
+    row = {k: m.get(k, np.nan) for k in KEYS if k != "time_birl_learn_s"}
+    return row | (passing_distances(run) if demonstrator == "planner_hallway" else {})
 
 
 def passing_distances(run: Path, paths: list[np.ndarray] | None = None) -> dict:
