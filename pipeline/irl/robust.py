@@ -29,15 +29,15 @@ with β_E = 20 the median loss falls from 0.053 to 0.012 with `walk`).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.optimize import lsq_linear, minimize
+from scipy.optimize import lsq_linear, minimize, minimize_scalar
 from scipy.sparse.linalg import SuperLU, splu
 
-from pipeline.core.graph_mdp import GraphMDP, Path, discounted_counts
+from pipeline.core.graph_mdp import GraphMDP, Path, TrajectoryStats, discounted_counts
 from pipeline.irl.prior import Prior
 
 BASE_MEASURES = ("walk", "uniform")
@@ -124,29 +124,52 @@ class BoltzmannPosterior:
         alternatives; log μ(ξ) is constant in (w, β) and moves no estimate."""
         if not expert_paths:
             raise ValueError("the robust likelihood needs at least one demonstration")
-        if base_measure not in BASE_MEASURES:
-            raise ValueError(f"base_measure must be one of {BASE_MEASURES}, got {base_measure!r}")
-        self.prior, self.beta_range, self.base_measure = prior, beta_range, base_measure
-        self.empirical = np.zeros(prior.dim)  # Σ_k Φ(ξ_k)
-        self.goal_term = 0.0  # Σ_k b(ξ_k): cost per second and γ^{T_k} R_goal [reached]
-        self.base_term = 0.0  # Σ_k log μ(ξ_k), discounted like Φ: constant in (w, β)
-        log_base = self._log_base(mdp)
+        empirical = np.zeros(prior.dim)  # Σ_k Φ(ξ_k)
+        goal_term = 0.0  # Σ_k b(ξ_k): cost per second and γ^{T_k} R_goal [reached]
+        base_term = 0.0  # Σ_k log μ(ξ_k), discounted like Φ: constant in (w, β)
+        log_base = _log_base(mdp, base_measure)
         for p in expert_paths:
             phi, end = discounted_counts(np.column_stack([mdp.features[p.edges],
                                                           mdp.base_reward[p.edges],
                                                           log_base[p.edges]]),
                                          mdp.duration[p.edges], mdp.gamma)
-            self.empirical += phi[:-2]
-            self.base_term += phi[-1]
-            self.goal_term += phi[-2] + (end * mdp.r_goal if p.reached else 0.0)
-        self.starts = np.array([p.nodes[0] for p in expert_paths], dtype=np.int64)
+            empirical += phi[:-2]
+            base_term += phi[-1]
+            goal_term += phi[-2] + (end * mdp.r_goal if p.reached else 0.0)
+        starts = np.array([p.nodes[0] for p in expert_paths], dtype=np.int64)
         if alternatives is not None:
             mdp, starts = alternatives
             if len(starts) != len(expert_paths):
                 raise ValueError("alternatives need one start node per demonstration")
-            self.starts = np.asarray(starts, dtype=np.int64)
-            log_base = self._log_base(mdp)
-        self.mdp, self.log_base = mdp, log_base  # log μ per edge, a step's share (0: uniform)
+        self._set_up(mdp, np.asarray(starts, dtype=np.int64), empirical, goal_term, base_term,
+                     prior, beta_range, base_measure)
+
+    @classmethod
+    def of_sums(cls, alternatives: GraphMDP, starts: np.ndarray,
+                demonstrations: Sequence[TrajectoryStats], prior: Prior,
+                beta_range: tuple[float, float], base_measure: str = "walk"
+                ) -> BoltzmannPosterior:
+        """The posterior of demonstrations given by their sums alone (Φ(ξ), b(ξ): polylines
+        on no graph), compared with the paths of `alternatives` from their start nodes
+        there (K,). log μ(ξ) is left out (0): the log likelihood is relative to the base
+        measure, log dP/dμ, as the base measure of a path on no graph is undefined."""
+        if not demonstrations or len(starts) != len(demonstrations):
+            raise ValueError("one start node per demonstration, and at least one")
+        posterior = cls.__new__(cls)
+        posterior._set_up(alternatives, np.asarray(starts, dtype=np.int64),
+                          np.sum([d.phi for d in demonstrations], axis=0),
+                          float(sum(d.offset for d in demonstrations)), 0.0, prior, beta_range,
+                          base_measure)
+        return posterior
+
+    def _set_up(self, mdp: GraphMDP, starts: np.ndarray, empirical: np.ndarray,
+                goal_term: float, base_term: float, prior: Prior,
+                beta_range: tuple[float, float], base_measure: str) -> None:
+        self.prior, self.beta_range, self.base_measure = prior, beta_range, base_measure
+        self.empirical, self.goal_term, self.base_term = empirical, goal_term, base_term
+        self.starts = starts
+        # log μ per edge, a step's share (0: uniform)
+        self.mdp, self.log_base = mdp, _log_base(mdp, base_measure)
         # Warm start of the next soft policy iteration: the last values, the parameters
         # θ = (βw, β) they belong to, and their derivative dV/dθ (n, d + 1) or None.
         self._values: np.ndarray | None = None
@@ -168,12 +191,6 @@ class BoltzmannPosterior:
         self._indices = np.empty(len(mdp.src) + n, dtype=np.int64)
         self._indices[self._diagonal], self._indices[self._edge_slots] = rows[:-1], mdp.dst
         self._factors = PatternLU(self._indices, self._indptr)
-
-    def _log_base(self, mdp: GraphMDP) -> np.ndarray:
-        """log μ per edge of `mdp` (E,): a step's share of the base measure."""
-        if self.base_measure == "walk":
-            return -np.log(np.diff(mdp.indptr)[mdp.src].astype(float))
-        return np.zeros(len(mdp.src))
 
     def _solve(self, pi: np.ndarray, rhs: np.ndarray, trans: str) -> np.ndarray:
         """x with (I − γ^τ P_π) x = rhs (trans "T": policy evaluation) or its transpose
@@ -579,6 +596,42 @@ class BoltzmannPosterior:
         hess = jacobian.T @ self.count_derivatives(w, beta) @ jacobian - curvature
         hess[:-1, :-1] -= np.diag(self.prior.hess_log_pdf(w))
         return value, gradient, hess
+
+
+def heldout_log_likelihood(alternatives: GraphMDP, w: ArrayLike,
+                           training: tuple[np.ndarray, Sequence[TrajectoryStats]],
+                           heldout: tuple[np.ndarray, Sequence[TrajectoryStats]],
+                           prior: Prior, beta_range: tuple[float, float],
+                           base_measure: str = "walk") -> tuple[float, float]:
+    """How well the reward w·φ predicts demonstrations it was not learned from, under the
+    robust form's model (the Boltzmann policy over the paths of `alternatives`): the mean
+    log likelihood per held-out demonstration, relative to the base measure (log dP/dμ,
+    `of_sums`), at the β that makes the training demonstrations most likely (w fixed; one
+    dimension, concave in β); and that β. training, heldout: (start nodes in `alternatives`
+    (K,), the demonstrations' sums), each at least one demonstration."""
+    w = np.asarray(w, dtype=float)
+    fit = BoltzmannPosterior.of_sums(alternatives, *training, prior, beta_range, base_measure)
+    low, high = np.log(beta_range[0]), np.log(beta_range[1])
+    found = minimize_scalar(lambda t: -fit.log_likelihood(w, float(np.exp(t))),
+                            bounds=(low, high), method="bounded",
+                            options={"xatol": BETA_FIT_TOLERANCE})
+    beta = float(np.exp(found.x))
+    judged = BoltzmannPosterior.of_sums(alternatives, *heldout, prior, beta_range, base_measure)
+    return judged.log_likelihood(w, beta) / len(heldout[1]), beta
+
+
+# heldout_log_likelihood: log β to this (a factor of 1.001: far below what moves the
+# likelihood of a few demonstrations)
+BETA_FIT_TOLERANCE = 1e-3
+
+
+def _log_base(mdp: GraphMDP, base_measure: str) -> np.ndarray:
+    """log μ per edge of `mdp` (E,): a step's share of the base measure."""
+    if base_measure == "walk":
+        return -np.log(np.diff(mdp.indptr)[mdp.src].astype(float))
+    if base_measure == "uniform":
+        return np.zeros(len(mdp.src))
+    raise ValueError(f"base_measure must be one of {BASE_MEASURES}, got {base_measure!r}")
 
 
 def trust_region_newton(terms: Callable[[np.ndarray], tuple[float, np.ndarray, np.ndarray]],

@@ -26,7 +26,8 @@ from pipeline.core.evaluation import (
     frechet,
     policy_loss,
 )
-from pipeline.core.graph_mdp import SpatialGraph
+from pipeline.core.experts import Demonstration
+from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
 from pipeline.core.social import (
     PATH_METRICS,
     combine_path_metrics,
@@ -36,6 +37,7 @@ from pipeline.core.social import (
 from pipeline.core.state_graph import DEMO
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
+from pipeline.irl.robust import heldout_log_likelihood
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +148,40 @@ def heldout_metrics(ref: SpatialGraph, policy: np.ndarray,
     return out
 
 
+def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
+                               demos_art: Artefact) -> dict[str, float]:
+    """DESIGN §9: `heldout_log_likelihood`, the mean log likelihood per held-out demonstration
+    under the robust form's model (the Boltzmann policy over the lattice of alternatives;
+    relative to its base measure), β fitted to the training demonstrations; and as the
+    baseline `heldout_log_likelihood_shortest`, the same for w = 0 (the cost per second
+    alone: the shortest path's reward). For the BIRL-G methods, which have the lattice
+    (birl.alternatives_spacing), and where there are both training and held-out
+    demonstrations."""
+    cfg = ctx.cfg
+    heldout, training = codec.heldout_demos(demos_art), codec.training_demos(demos_art)
+    lattice_factory = build.alternatives_lattice(cfg, scene)
+    if not heldout or not training or lattice_factory is None:
+        return {}
+    lattice = lattice_factory()
+    if lattice is None:  # a start cannot reach the goal on it (the log said so)
+        return {}
+    features = build.learner_feature_model(cfg, scene)
+
+    def sums(demos: list[dict]) -> tuple[np.ndarray, list[TrajectoryStats]]:
+        return (lattice.start_nodes[[d["start_index"] for d in demos]],
+                [Demonstration.from_points(d["start_index"], d["points"], features,
+                                           cfg.mdp.speed, d["reached"]).stats(cfg.mdp)
+                 for d in demos])
+
+    b, seen, judged = cfg.birl, sums(training), sums(heldout)
+    out = {}
+    for suffix, weights in (("", w), ("_shortest", np.zeros_like(w))):
+        out[f"heldout_log_likelihood{suffix}"] = heldout_log_likelihood(
+            lattice.mdp, weights, seen, judged, build.prior(cfg), (b.beta_min, b.beta_max),
+            b.base_measure)[0]
+    return out
+
+
 def contrast_preset(w_true: np.ndarray, names: list[str]) -> str:
     """The behaviour a loss is normalised by: rude, or polite when w* is rude."""
     return "polite" if np.allclose(w_true, preset_weights("rude", names)) else "rude"
@@ -183,6 +219,7 @@ def run(ctx: RunContext) -> None:
     metrics.update(social_ref)
     metrics.update(heldout_metrics(ref.learner, ref_policy, codec.heldout_demos(demos_art),
                                    scene))
+    metrics.update(heldout_likelihood_metrics(ctx, scene, w_final, demos_art))
     for path in cfg.evaluate.transfer_scenes:
         metrics.update(transfer_metrics(ctx, path, w_final, expert["true_weights"]))
     training = codec.training_demos(demos_art)
@@ -327,6 +364,10 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str]) -> str:
                      f"{fmt('heldout_frechet_m_shortest', '.2f')} m), min-distance error "
                      f"{fmt('heldout_min_distance_error_m', '.2f')} m (shortest "
                      f"{fmt('heldout_min_distance_error_m_shortest', '.2f')} m)")
+        if "heldout_log_likelihood" in m:
+            lines.append(f"                   log likelihood per demonstration "
+                         f"{fmt('heldout_log_likelihood', '.2f')} (shortest path's reward "
+                         f"{fmt('heldout_log_likelihood_shortest', '.2f')})")
     lines.append(f"  roadmap paths    {paths('ref_')}")
     lines.append(f"  graph paths      {paths('')}"
                  + (f" ({share:.0%} of its nodes are demonstration waypoints: these say "

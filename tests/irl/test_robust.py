@@ -11,11 +11,17 @@ from scipy.optimize import minimize
 from scipy.special import chdtri, logsumexp
 
 from pipeline.core.experts import BoltzmannParams
-from pipeline.core.graph_mdp import GraphMDP, MDPParams, Path
+from pipeline.core.graph_mdp import GraphMDP, MDPParams, Path, TrajectoryStats
 from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
-from pipeline.irl.robust import BoltzmannPosterior, LogBetaDensity, PatternLU, trust_region_newton
+from pipeline.irl.robust import (
+    BoltzmannPosterior,
+    LogBetaDensity,
+    PatternLU,
+    heldout_log_likelihood,
+    trust_region_newton,
+)
 from tests.conftest import TWO_ROUTES_GAMMA as GAMMA
 from tests.conftest import two_routes
 from tests.irl.conftest import central_difference
@@ -357,6 +363,29 @@ def test_goal_reaching_soft_values_by_hand():
         ll = (math.log(0.5) + beta * (w - c + 1) - v0) \
             + 2 * (math.log(0.5) + beta * (0.2 * w + 0.3 * w - 2 * c + 1) - v0)
         assert post.log_likelihood([w], beta) == pytest.approx(ll, abs=1e-9)
+
+
+@pytest.mark.parametrize("w", [-0.5, 0.0])
+def test_held_out_log_likelihood_by_hand(w):
+    """The two routes without discounting, walk measure: each route has μ = ½ and
+    p(A) = σ(β(Q_A − Q_B)), Q_A − Q_B = 0.5w + c. One training demonstration on A and three on
+    B make β = logit(¼) / (Q_A − Q_B) the most likely, if it lies in the range, else its
+    nearest end; a held-out pair, one on each route, then has the mean log dP/dμ of
+    [log 2p(A) + log 2p(B)] / 2. (w = 0: β would be negative and stops at its lower end.)"""
+    mdp, _, _ = two_routes()
+    goal = GraphMDP(mdp.src, mdp.dst, mdp.duration, mdp.features, mdp.terminal, GOAL)
+    route_a = TrajectoryStats.from_edges(0, [[1.0]], [1.0], GOAL, True)
+    route_b = TrajectoryStats.from_edges(0, [[0.2], [0.3]], [1.0, 1.0], GOAL, True)
+    training = (np.zeros(4, dtype=np.int64), [route_a, route_b, route_b, route_b])
+    heldout = (np.zeros(2, dtype=np.int64), [route_a, route_b])
+    beta_range = (0.1, 100.0)
+    ll, beta = heldout_log_likelihood(goal, [w], training, heldout,
+                                      Prior("uniform", 1.0, [-1.0], [0.0]), beta_range)
+    gap = 0.5 * w + GOAL.time_cost
+    expected_beta = float(np.clip(math.log(1 / 3) / gap, *beta_range))
+    assert beta == pytest.approx(expected_beta, rel=2e-3)  # the β search's tolerance
+    p_a = 1 / (1 + math.exp(-beta * gap))  # at the β found
+    assert ll == pytest.approx((math.log(2 * p_a) + math.log(2 * (1 - p_a))) / 2, abs=1e-9)
 
 
 def random_goal_graph(seed, n=25):
