@@ -117,7 +117,8 @@ TRANSFER_SCENES = (101, 102, 103)  # scene=random scene.seed=...: the deployment
 KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m",
         "ref_min_distance_to_person", "ref_success", "heldout_frechet_m",
         "heldout_frechet_m_shortest", "heldout_min_distance_error_m",
-        "heldout_min_distance_error_m_shortest", "time_birl_learn_s")
+        "heldout_min_distance_error_m_shortest", "heldout_log_likelihood",
+        "heldout_log_likelihood_shortest", "time_birl_learn_s")
 
 
 def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[str]],
@@ -334,6 +335,10 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
             ref_pass_median_m=("ref_pass_median_m", "median"),
             ref_pass_in_range=("ref_pass_in_range", "mean"))
         out = out.join(passes)
+    if "heldout_log_likelihood" in ok:  # tables made before the key: without it
+        out = out.join(ok.groupby(["demonstrator", "learner"], sort=False).agg(
+            heldout_log_likelihood=("heldout_log_likelihood", "median"),
+            heldout_log_likelihood_shortest=("heldout_log_likelihood_shortest", "median")))
     out["heldout_frechet_ratio"] = out["heldout_frechet_m"] / out["heldout_frechet_m_shortest"]
     return out.reset_index()
 
