@@ -25,15 +25,17 @@ stand-in for recorded passes of people): the learned roadmap paths' passing dist
 against the demonstrators' 10-90 % range. The first three stages run once per
 (demonstrator, seed); every learner starts from them. The planner's rows have an anchor,
 `planner_cost`: no learning, the planner's own cost planned on the same roadmap, judged the
-same way (what the roadmap's resolution and the subjects' differences leave to win); and a
-ceiling per feature set, `planner_fit` (the default learner's features) and
-`planner_fit_<set>`: no learning, the planner's cost fitted by least squares to the features
-over the training scene's roadmap edges, deployed like a learned reward (what the best
-weights on those features reach: a learner near it is held back by its features).
+same way (what the roadmap's resolution and the subjects' differences leave to win); and
+per feature set the planner's cost projected onto the features, `planner_fit` (the default
+learner's features) and `planner_fit_<set>`: no learning, the weights whose cost fits the
+planner's own over the training scene's roadmap edges best (least squares), deployed like
+a learned reward. What weights on those features can reach without learning; not a bound
+(least squares weighs every edge alike, a path's choice only the edges it competes on):
 
-    python -m pipeline.tools.bench_learning --table feature_ceiling \
-        --demonstrators planner_heldout planner_transfer planner_hallway \
-        --learners default planner_cost planner_fit gaussian_wall_features \
+    python -m pipeline.tools.bench_learning --table learner_features --merge \
+        --demonstrators planner_heldout planner_transfer planner_hallway --seeds 0 1 2 3 4 \
+        --learners planner_fit planner_fit_paper planner_fit_rich planner_fit_hinge \
+        planner_fit_gaussian planner_fit_squared planner_fit_hinge_squared planner_fit_wall \
         planner_fit_gaussian_wall
 """
 
@@ -96,7 +98,7 @@ PLANNER_COST = "planner_cost"
 LEARNERS[PLANNER_COST] = []
 METHODS = tuple(LEARNERS)  # what runs unless --learners says otherwise
 LEARNERS |= {name: [f"birl.features={features}"] for name, features in FEATURE_SETS.items()}
-# The ceiling of a feature set on the planner's rows (module docstring): planner_fit on the
+# The planner's cost projected onto a feature set (module docstring): planner_fit on the
 # default learner's features, planner_fit_<set> on FEATURE_SETS' <set>_features
 PLANNER_FIT = "planner_fit"
 LEARNERS[PLANNER_FIT] = []
@@ -261,7 +263,7 @@ def planner_fit_weights(run: Path, features: list[str]) -> np.ndarray:
 
 def planner_fit_row(tmp: Path, name: str, demonstrator: str, seed: int, base: Path,
                     overrides: list[str]) -> dict:
-    """A PLANNER_FIT ceiling's metrics: the fitted weights (on the learner's features that
+    """A PLANNER_FIT row's metrics: the fitted weights (on the learner's features that
     `overrides` give) deployed with birl=fixed like a learned reward, on the base run's
     held-out demonstrations or (planner_transfer) on the transfer scenes."""
     from pipeline.app.config import compose_config, load_settings

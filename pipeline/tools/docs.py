@@ -388,8 +388,13 @@ MAX_ROWS = 50  # longer tables are one row per run: the page names them, their s
 
 LEARNER_FEATURES_COMMAND = (
     "python -m pipeline.tools.bench_learning --table learner_features --demonstrators "
-    "handdrawn planner_heldout planner_transfer --seeds 0 1 2 3 4 --learners default "
-    "paper_features rich_features hinge_features gaussian_features")
+    "handdrawn planner_heldout planner_transfer planner_hallway --seeds 0 1 2 3 4 --learners "
+    "default paper_features rich_features hinge_features gaussian_features squared_features "
+    "hinge_squared_features wall_features gaussian_wall_features`, then `python -m "
+    "pipeline.tools.bench_learning --table learner_features --merge --demonstrators "
+    "planner_heldout planner_transfer planner_hallway --seeds 0 1 2 3 4 --learners "
+    "planner_fit planner_fit_paper planner_fit_rich planner_fit_hinge planner_fit_gaussian "
+    "planner_fit_squared planner_fit_hinge_squared planner_fit_wall planner_fit_gaussian_wall")
 ALTERNATIVES_SPACING_COMMAND = (
     "python -m pipeline.tools.bench_learning --table alternatives_spacing --demonstrators "
     "optimal optimal_random boltzmann20 handdrawn planner_hallway --learners default "

@@ -1,7 +1,7 @@
 """The learning benchmark's anchors: the planner's own cost planned on the reference roadmap
 (no learning) must predict the planner's held-out paths better than the shortest path and
 pass the hallway's person within the demonstrators' range; the planner's cost fitted to a
-feature set (the set's ceiling) must say what the cost says where the set can say it."""
+feature set must say what the cost says where the set can say it."""
 
 import numpy as np
 
