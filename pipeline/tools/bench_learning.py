@@ -391,6 +391,16 @@ def plot(learning_csv: Path, path: Path) -> None:
         save_figure(fig, path, [learning_csv])
 
 
+def in_order(table: pd.DataFrame) -> pd.DataFrame:
+    """The runs by demonstrator and learner in the order of DEMONSTRATORS and LEARNERS, then
+    seed (kept rows of --merge and the new ones interleave as a full run would write them)."""
+    rank = {name: k for k, name in enumerate(LEARNERS)}
+    order = table.assign(_d=table.demonstrator.map(list(DEMONSTRATORS).index),
+                         _l=table.learner.map(rank))
+    return order.sort_values(["_d", "_l", "seed"], kind="stable").drop(columns=["_d", "_l"]) \
+        .reset_index(drop=True)
+
+
 def kept_rows(path: Path, demonstrators: list[str], learners: list[str]) -> list[dict]:
     """The rows of an earlier learning.csv whose (demonstrator, learner) is not run now."""
     if not path.exists():
@@ -423,7 +433,7 @@ def main(argv: list[str] | None = None) -> None:
                 rows += one_case(Path(tmp), demonstrator, seed, learners,
                                  set(args.baseline_seeds))
                 pd.DataFrame(kept + rows).to_csv(table_path, index=False)
-    table = pd.DataFrame(kept + rows)
+    table = in_order(pd.DataFrame(kept + rows))
     table.to_csv(table_path, index=False)
     summary(table).to_csv(args.out / f"{args.table}_summary.csv", index=False,
                           float_format="%.4g")

@@ -68,23 +68,29 @@ def read_yaml_and_comments(path: Path) -> tuple[dict, list[str]]:
 
 
 def hand_cost(scene: Scene, weights: dict[str, float], centres: np.ndarray,
-              rho_p: float = 1.2, rho_r: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+              rho_p: float = 1.2, rho_r: float = 0.6
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """−(w_relation · relation + w_social · social) per metre at the points, straight from the
-    feature definitions, and the mask of points inside a body disk."""
+    feature definitions; the mask of points inside a body disk; and the mask of points on
+    an end of a link's band (the relation density jumps there, so which side a point on it
+    falls is round-off, and round-off differs between machines)."""
     xy = scene.person_xy
     d = np.linalg.norm(centres[:, None, :] - xy[None, :, :], axis=2).min(axis=1)
     social = np.maximum(0.0, rho_p - d)
     relation = np.zeros(len(centres))
+    on_end = np.zeros(len(centres), dtype=bool)
     pos = {p.id: np.array([p.x, p.y]) for p in scene.persons}
     for i, j in scene.relations:
         a, b = pos[i], pos[j]
-        u = (b - a) / np.linalg.norm(b - a)
+        length = np.linalg.norm(b - a)
+        u = (b - a) / length
         along = (centres - a) @ u
         across = np.abs((centres - a) @ np.array([-u[1], u[0]]))
-        inside = (along >= 0) & (along <= np.linalg.norm(b - a))
+        inside = (along >= 0) & (along <= length)
         relation += np.where(inside, np.maximum(0.0, rho_r - across), 0.0)
+        on_end |= (np.minimum(np.abs(along), np.abs(along - length)) < 1e-9) & (across < rho_r)
     cost = -(weights["relation"] * relation + weights["social"] * social)
-    return cost, d < scene.body_radius
+    return cost, d < scene.body_radius, on_end
 
 
 def centres_of(shape: tuple[int, int], origin: tuple[float, float], res: float) -> np.ndarray:
@@ -193,15 +199,17 @@ def test_costmap_values_match_a_hand_computation_at_every_cell(exported, learned
     scale = float(re.search(r"occupancy 99 = cost ([0-9.e-]+) per m", "\n".join(comments))
                   .group(1))
     centres = centres_of(grey.shape, (0.0, 0.0), 0.05)
-    cost, body = hand_cost(scene, learned, centres)
+    cost, body, on_end = hand_cost(scene, learned, centres)
     assert learned["relation"] < 0 and learned["social"] < 0  # polite: both cost something
     assert scale == pytest.approx(cost[~body].max(), rel=1e-12)
     expected = np.where(body, 100, np.rint(99 * np.maximum(cost, 0) / scale))
     ratio = 99 * cost / scale
     tie = np.abs(ratio - np.floor(ratio) - 0.5) < 1e-6  # rounding may go either way there
     flat = occupancy.reshape(-1)
-    np.testing.assert_array_equal(flat[~tie], expected[~tie])
-    assert np.abs(flat - expected).max() <= 1
+    judged = ~tie & ~on_end
+    assert on_end.mean() < 0.002  # a few dozen cells; every other one is judged exactly
+    np.testing.assert_array_equal(flat[judged], expected[judged])
+    assert np.abs(flat - expected)[~on_end].max() <= 1
 
     def cell(x: float, y: float) -> int:
         return int(y // 0.05) * 200 + int(x // 0.05)
@@ -269,7 +277,7 @@ def test_polygon_obstacles_and_bodies_are_lethal_and_only_they(tmp_path):
     inside = ((centres >= [7.55, 9.05]) & (centres <= [8.45, 9.75])).all(axis=1)
     lethal = costmap.occupancy.reshape(-1) == 100
     assert lethal[inside].all()
-    _, body = hand_cost(scene, dict(zip(FeatureParams().features, POLITE, strict=True)),
+    _, body, _ = hand_cost(scene, dict(zip(FeatureParams().features, POLITE, strict=True)),
                         centres)
     assert lethal[body].all()
     ring = ((centres >= [7.4, 8.9]) & (centres <= [8.6, 9.9])).all(axis=1)
