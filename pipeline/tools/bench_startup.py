@@ -52,7 +52,7 @@ def variants(root: Path, old: Path | None, jobs: int) -> dict[str, tuple[Path, l
     }
     if old is not None:
         found.update({"run old": (old, ["pipeline"]),
-                      "sweep old (joblib launcher)": (old, ["pipeline", *sweep]),
+                      "sweep old (its default launcher)": (old, ["pipeline", *sweep]),
                       "aggregate old": (old, ["pipeline.tools.aggregate"]),
                       "aggregate old --no-figures": (old, ["pipeline.tools.aggregate",
                                                            "--no-figures"])})
