@@ -54,7 +54,10 @@ def _frechet_by_recursion(p: np.ndarray, q: np.ndarray) -> float:
 
     @functools.cache
     def c(i: int, j: int) -> float:
-        d = float(np.linalg.norm(p[i] - q[j]))
+        # |p_i − q_j| by the same operations as the sweep's distance matrix (square, sum,
+        # root): np.linalg.norm of one vector takes a dot product, which may round the
+        # last bit differently on another CPU
+        d = float(np.sqrt(np.sum((p[i] - q[j]) ** 2)))
         if i == 0 and j == 0:
             return d
         if i == 0:
