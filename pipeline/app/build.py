@@ -244,13 +244,14 @@ def reference_roadmap(cfg: Config, scene: Scene, features: FeatureModel) -> Road
     return roadmap
 
 
-def alternatives_lattice(cfg: Config,
-                         scene: Scene) -> Callable[[], SpatialGraph | None] | None:
+def alternatives_lattice(cfg: Config, scene: Scene, spacing: float | None = None
+                         ) -> Callable[[], SpatialGraph | None] | None:
     """birl.alternatives=lattice: builds, once and on demand, a 16-connected lattice over the
     free space of `scene` on the learner's features, whose paths the demonstrations are
     compared with. The lattice is None (and the adaptive graph's paths serve) when a start
-    cannot reach the goal on it; the factory is None for methods without the setting."""
-    spacing = getattr(cfg.birl, "alternatives_spacing", None)
+    cannot reach the goal on it; the factory is None for methods without the setting
+    (birl.alternatives_spacing), unless `spacing` is given."""
+    spacing = getattr(cfg.birl, "alternatives_spacing", spacing)
     if spacing is None:
         return None
 

@@ -37,6 +37,7 @@ from pipeline.core.social import (
 from pipeline.core.state_graph import DEMO
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
+from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.robust import heldout_log_likelihood
 
 log = logging.getLogger(__name__)
@@ -154,12 +155,13 @@ def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
     under the robust form's model (the Boltzmann policy over the lattice of alternatives;
     relative to its base measure), β fitted to the training demonstrations; and as the
     baseline `heldout_log_likelihood_shortest`, the same for w = 0 (the cost per second
-    alone: the shortest path's reward). For the BIRL-G methods, which have the lattice
-    (birl.alternatives_spacing), and where there are both training and held-out
-    demonstrations."""
+    alone: the shortest path's reward). Where there are both training and held-out
+    demonstrations; for every method alike (one model judges every learned reward), with
+    the BIRL-G settings of the lattice, β's range and the base measure (or their defaults
+    for the other methods)."""
     cfg = ctx.cfg
     heldout, training = codec.heldout_demos(demos_art), codec.training_demos(demos_art)
-    lattice_factory = build.alternatives_lattice(cfg, scene)
+    lattice_factory = build.alternatives_lattice(cfg, scene, BirlMapConfig.alternatives_spacing)
     if not heldout or not training or lattice_factory is None:
         return {}
     lattice = lattice_factory()
@@ -174,11 +176,13 @@ def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
                  for d in demos])
 
     b, seen, judged = cfg.birl, sums(training), sums(heldout)
+    beta_range = (getattr(b, "beta_min", BirlMapConfig.beta_min),
+                  getattr(b, "beta_max", BirlMapConfig.beta_max))
+    base_measure = getattr(b, "base_measure", BirlMapConfig.base_measure)
     out = {}
     for suffix, weights in (("", w), ("_shortest", np.zeros_like(w))):
         out[f"heldout_log_likelihood{suffix}"] = heldout_log_likelihood(
-            lattice.mdp, weights, seen, judged, build.prior(cfg), (b.beta_min, b.beta_max),
-            b.base_measure)[0]
+            lattice.mdp, weights, seen, judged, build.prior(cfg), beta_range, base_measure)[0]
     return out
 
 

@@ -61,6 +61,18 @@ def test_held_out_metrics_compare_with_the_fastest_path(subjects_run):
     assert "held out (7)" in out
 
 
+def test_one_held_out_likelihood_judges_every_method(subjects_run, tmp_path):
+    """PolicyWalk's reward is scored by the same model: on the same demonstrations its
+    baseline (w = 0) is the BIRL-G run's to the bit, and its own score is another."""
+    run_dir, metrics, _ = subjects_run
+    walk, _ = run_in_process(tmp_path, *QUICK, "expert=planner", "expert.n_subjects=3",
+                             "evaluate.holdout=[s2]", "birl=policywalk",
+                             "stages=[birl,evaluate]", f"from_run={run_dir}")
+    assert walk["heldout_log_likelihood_shortest"] == metrics["heldout_log_likelihood_shortest"]
+    assert np.isfinite(walk["heldout_log_likelihood"])
+    assert walk["heldout_log_likelihood"] != metrics["heldout_log_likelihood"]
+
+
 @pytest.mark.parametrize("holdout, expected", [
     (None, [False] * 5),
     ("all", [True] * 5),
