@@ -247,16 +247,18 @@ def planner_cost_on_roadmap(run: Path) -> tuple:
     return scene, roadmap, cost
 
 
-def planner_fit_weights(run: Path, features: list[str]) -> np.ndarray:
-    """The weights (d,) on `features` whose cost −w·φ fits the planner's own cost of every
-    edge of the run's reference roadmap best (least squares), scaled to at most 1 in size;
-    positive entries (a feature the fit would reward) are 0, as rewards are costs here."""
-    from pipeline.core.features import FeatureModel, FeatureParams
+def planner_fit_weights(run: Path, overrides: list[str]) -> np.ndarray:
+    """The weights (d,) on the learner's features (of the config `overrides` compose) whose
+    cost −w·φ fits the planner's own cost of every edge of the run's reference roadmap best
+    (least squares), scaled to at most 1 in size; positive entries (a feature the fit would
+    reward) are 0, as rewards are costs here."""
+    from pipeline.app import build
+    from pipeline.app.config import compose_config, load_settings
 
     scene, roadmap, cost = planner_cost_on_roadmap(run)
     m = roadmap.mdp
-    phi = FeatureModel.from_scene(scene, FeatureParams(features=features)).segments(
-        roadmap.positions[m.src], roadmap.positions[m.dst])
+    features = build.learner_feature_model(load_settings(compose_config(overrides)), scene)
+    phi = features.segments(roadmap.positions[m.src], roadmap.positions[m.dst])
     fitted, *_ = np.linalg.lstsq(phi, cost, rcond=None)
     return np.minimum(-fitted / np.abs(fitted).max(), 0.0)
 
@@ -266,9 +268,7 @@ def planner_fit_row(tmp: Path, name: str, demonstrator: str, seed: int, base: Pa
     """A PLANNER_FIT row's metrics: the fitted weights (on the learner's features that
     `overrides` give) deployed with birl=fixed like a learned reward, on the base run's
     held-out demonstrations or (planner_transfer) on the transfer scenes."""
-    from pipeline.app.config import compose_config, load_settings
-
-    weights = planner_fit_weights(base, load_settings(compose_config(overrides)).learner_features)
+    weights = planner_fit_weights(base, overrides)
     feature_set = [o for o in overrides if o.startswith("birl.features")]
     fixed = ["birl=fixed", f"birl.weights=[{','.join(f'{w:.17g}' for w in weights)}]",
              *feature_set]

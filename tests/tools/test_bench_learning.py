@@ -45,12 +45,13 @@ def test_the_planner_s_cost_fitted_to_features_costs_the_person_the_wall_and_the
                  "evaluate.holdout=[s1]", "roadmap.spacing=0.1"]
     run_in_process(base, *overrides, "stages=[scene,demos,graph]")
     features = ["gaussian", "wall", "length"]
-    weights = planner_fit_weights(base, features)
+    feature_set = f"birl.features=[{','.join(features)}]"
+    weights = planner_fit_weights(base, [*overrides, feature_set])
     # the cost is at least the length and rises near the person and the walls: all three
     # are costs, the largest scaled to 1
     assert np.all((weights >= -1.0) & (weights < 0)) and weights.min() == -1.0
     # deployed like a learned reward (birl=fixed), it predicts the held-out subject better
     # than the shortest path does
     row = planner_fit_row(tmp_path, "planner_fit", "planner_hallway", 0, base,
-                          [*overrides, f"birl.features=[{','.join(features)}]"])
+                          [*overrides, feature_set])
     assert row["heldout_frechet_m"] < 0.8 * row["heldout_frechet_m_shortest"]
