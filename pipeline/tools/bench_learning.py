@@ -16,7 +16,8 @@ learning.png.
         --learners default lattice_0.1 lattice_0.15 lattice_0.25 lattice_0.3
 
 Demonstrators: synthetic experts that share the learner's features (optimal, Boltzmann
-β_E 50/20/5, one walk per start), the hand-drawn-like set, and the independent planner
+β_E 50/20/5, one walk per start), the hand-drawn-like set (also with a third of its paths
+held out, `handdrawn_heldout`), and the independent planner
 (`expert=planner`, its own cost form): learned with subjects held out
 (leave-subjects-out), and learned on metropolis then deployed with `birl=fixed` on three
 random scenes, judged on the planner's own paths there (`evaluate.holdout=all`); and 80
@@ -62,6 +63,9 @@ DEMONSTRATORS: dict[str, list[str]] = {
     "boltzmann20": ["expert=boltzmann", "expert.beta=20"],
     "boltzmann5": ["expert=boltzmann", "expert.beta=5"],
     "handdrawn": ["expert=file", f"expert.path={HANDDRAWN}"],
+    # a third of the paths held out (drawn with the seed): how well a learned reward predicts
+    # drawn paths it did not see (heldout_*), not only how it behaves
+    "handdrawn_heldout": ["expert=file", f"expert.path={HANDDRAWN}", "evaluate.holdout=0.3"],
     "planner_heldout": PLANNER,  # + evaluate.holdout=[s<seed mod 5>]
     "planner_transfer": PLANNER,  # learned here, judged on three random scenes
     # 80 passes of a standing person by 16 planner subjects, 4 subjects held out per seed;
