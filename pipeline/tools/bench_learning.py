@@ -7,7 +7,8 @@ learning.png.
     python -m pipeline.tools.bench_learning --demonstrators optimal boltzmann20 --seeds 0 1
     python -m pipeline.tools.bench_learning --learners policywalk maxent --merge  # add rows
     python -m pipeline.tools.bench_learning --table learner_features \
-        --demonstrators handdrawn planner_heldout planner_transfer planner_hallway \
+        --demonstrators handdrawn handdrawn_heldout planner_heldout planner_transfer \
+        planner_hallway \
         --seeds 0 1 2 3 4 \
         --learners default paper_features rich_features hinge_features gaussian_features \
         squared_features hinge_squared_features wall_features gaussian_wall_features

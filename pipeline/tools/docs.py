@@ -388,7 +388,8 @@ MAX_ROWS = 50  # longer tables are one row per run: the page names them, their s
 
 LEARNER_FEATURES_COMMAND = (
     "python -m pipeline.tools.bench_learning --table learner_features --demonstrators "
-    "handdrawn planner_heldout planner_transfer planner_hallway --seeds 0 1 2 3 4 --learners "
+    "handdrawn handdrawn_heldout planner_heldout planner_transfer planner_hallway --seeds "
+    "0 1 2 3 4 --learners "
     "default paper_features rich_features hinge_features gaussian_features squared_features "
     "hinge_squared_features wall_features gaussian_wall_features`, then `python -m "
     "pipeline.tools.bench_learning --table learner_features --merge --demonstrators "
