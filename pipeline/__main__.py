@@ -76,6 +76,11 @@ def objective_value(run_dir: Path, key: str) -> float:
     """The job's metric for a sweeper that optimises (Optuna); NaN marks a failed trial."""
     metrics_path = run_dir / "metrics.json"
     metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
+    if key not in metrics:
+        # e.g. a held-out fraction that held nothing out (one demonstration per start)
+        logging.getLogger("pipeline").warning(
+            "objective %s: the run wrote no such metric (%s); the sweeper gets NaN, a failed "
+            "trial", key, metrics_path)
     return float(metrics.get(key, float("nan")))
 
 

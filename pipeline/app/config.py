@@ -406,6 +406,10 @@ def load_settings(cfg: DictConfig) -> Config:
         close = difflib.get_close_matches(settings.objective, OBJECTIVE_EXAMPLES, n=1)
         raise config_error("objective", settings.objective,
                            f"a metrics.json key, e.g. {close[0] if close else 'policy_loss_norm'}")
+    if settings.objective.startswith("heldout_") and settings.evaluate.holdout is None:
+        raise config_error("objective", settings.objective,
+                           "a metric this run writes: the heldout_* keys need held-out "
+                           "demonstrations, e.g. evaluate.holdout=0.3")
     _require_matching_kind("scene", settings.scene, SCENES)
     _require_matching_kind("expert", settings.expert, EXPERTS)
     _require_matching_kind("birl", settings.birl, {n: m.config for n, m in methods().items()})

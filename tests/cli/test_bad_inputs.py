@@ -29,7 +29,7 @@ from PIL import Image
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 
-from pipeline.__main__ import cli
+from pipeline.__main__ import cli, objective_value
 from pipeline.app.rundir import RunDir
 from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.store import ArtefactWriter, content_digest, write_json_atomic
@@ -234,6 +234,9 @@ CONFIG_CASES = {
     "unknown sampler": (["birl=mcmc", "birl.sampler=hmc"], ["birl.sampler=hmc", "mala"]),
     "objective that is no metric": (["objective=policy_loss_nrom"],
                                     ["objective=policy_loss_nrom", "e.g. policy_loss_norm"]),
+    "held-out objective with nothing held out": (["objective=heldout_log_likelihood"],
+                                                 ["objective=heldout_log_likelihood",
+                                                  "evaluate.holdout"]),
     "unknown config group option": (["scene=nope"], ["scene/nope"]),
     "unknown expert": (["expert=nope"], ["expert/nope"]),
     "unknown birl method": (["birl=gradient"], ["birl/gradient"]),
@@ -1022,3 +1025,12 @@ def test_hydra_full_error_shows_the_traceback(tmp_path, capfd, monkeypatch):
     with pytest.raises(Exception, match="seed=abc"):
         run_cli(capfd, f"hydra.run.dir={tmp_path}", "seed=abc")
     assert os.environ["HYDRA_FULL_ERROR"] == "1"  # the user's setting is kept
+
+
+def test_an_objective_the_run_did_not_write_is_nan_and_said(tmp_path, caplog):
+    """A held-out fraction that held nothing out writes no heldout_* keys: the trial fails
+    (NaN) and the log says which key was missing, instead of a silent NaN."""
+    (tmp_path / "metrics.json").write_text('{"policy_loss_norm": 0.25}')
+    assert objective_value(tmp_path, "policy_loss_norm") == 0.25
+    assert math.isnan(objective_value(tmp_path, "heldout_log_likelihood"))
+    assert "objective heldout_log_likelihood: the run wrote no such metric" in caplog.text
