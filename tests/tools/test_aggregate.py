@@ -84,3 +84,23 @@ def test_the_markdown_table_is_what_pandas_writes():
     results = pd.DataFrame({"method": ["BIRL-G (MAP)", "PolicyWalk"], "seeds": [3, 10],
                             "normalised policy loss": ["0.0100 ± 0.0020", "0.2"]})
     assert markdown_table(results.to_dict("records")) == results.to_markdown(index=False)
+
+
+def test_held_out_metrics_join_the_results_where_the_sweep_has_them(tmp_path):
+    """Demonstrations without a true reward: no policy loss, but how held-out ones are
+    predicted; a higher log likelihood is the better one (bold)."""
+    columns = ["job", "status", "error", "seed", "birl", "heldout_frechet_m",
+               "heldout_log_likelihood"]
+    rows = [{"job": str(k), "status": "ok", "error": "", "seed": str(k % 2), "birl": method,
+             "heldout_frechet_m": fr, "heldout_log_likelihood": ll}
+            for k, (method, fr, ll) in enumerate([("map", 0.4, 37.5), ("map", 0.6, 39.5),
+                                                  ("policywalk", 0.5, 30.5),
+                                                  ("policywalk", 0.7, 32.5)])]
+    results, _ = results_table(columns, rows)
+    assert [r["method"] for r in results] == ["BIRL-G (MAP)", "PolicyWalk"]
+    assert [r["held-out log likelihood"] for r in results] == ["38.5000 ± 1.4142",
+                                                              "31.5000 ± 1.4142"]
+    write_tables(columns, rows, tmp_path)
+    tex = (tmp_path / "table.tex").read_text().splitlines()
+    birl = next(line for line in tex if line.startswith("BIRL-G"))
+    assert "\\textbf{38.5000" in birl and "\\textbf{0.5000" in birl  # best of both
