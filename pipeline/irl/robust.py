@@ -616,8 +616,11 @@ def heldout_log_likelihood(alternatives: GraphMDP, w: ArrayLike,
                             bounds=(low, high), method="bounded",
                             options={"xatol": BETA_FIT_TOLERANCE})
     beta = float(np.exp(found.x))
+    # the soft values belong to the alternatives, not to the demonstrations: the fit's
+    # (warm from its search) serve the held-out ones
     judged = BoltzmannPosterior.of_sums(alternatives, *heldout, prior, beta_range, base_measure)
-    return judged.log_likelihood(w, beta) / len(heldout[1]), beta
+    values = fit.soft_values(w, beta)
+    return judged.likelihood_given_values(w, beta, values) / len(heldout[1]), beta
 
 
 # heldout_log_likelihood: log β to this (a factor of 1.001: far below what moves the

@@ -175,15 +175,13 @@ def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
                                            cfg.mdp.speed, d["reached"]).stats(cfg.mdp)
                  for d in demos])
 
-    b, seen, judged = cfg.birl, sums(training), sums(heldout)
+    b, seen, judged, prior = cfg.birl, sums(training), sums(heldout), build.prior(cfg)
     beta_range = (getattr(b, "beta_min", BirlMapConfig.beta_min),
                   getattr(b, "beta_max", BirlMapConfig.beta_max))
     base_measure = getattr(b, "base_measure", BirlMapConfig.base_measure)
-    out = {}
-    for suffix, weights in (("", w), ("_shortest", np.zeros_like(w))):
-        out[f"heldout_log_likelihood{suffix}"] = heldout_log_likelihood(
-            lattice.mdp, weights, seen, judged, build.prior(cfg), beta_range, base_measure)[0]
-    return out
+    return {f"heldout_log_likelihood{suffix}": heldout_log_likelihood(
+                lattice.mdp, weights, seen, judged, prior, beta_range, base_measure)[0]
+            for suffix, weights in (("", w), ("_shortest", np.zeros_like(w)))}
 
 
 def contrast_preset(w_true: np.ndarray, names: list[str]) -> str:

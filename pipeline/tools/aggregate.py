@@ -278,8 +278,9 @@ def main(argv=None) -> int:
     from tabulate import tabulate
 
     failed = [r for r in rows if r["status"] != "ok"]
-    swept = [c for c in ("seed", *swept_columns(columns, rows))  # which job is which
-             if c in columns and varies(c, rows)]
+    # which job is which: the seed where it varies, and the swept settings
+    swept = [*(["seed"] if "seed" in columns and varies("seed", rows) else []),
+             *swept_columns(columns, rows)]
     cols = [c for c in ("job", "status", *swept, "policy_loss", "policy_loss_ref",
                         "policy_loss_norm", "relation_crossings", "heldout_frechet_m",
                         "heldout_log_likelihood") if c in columns]
@@ -290,6 +291,7 @@ def main(argv=None) -> int:
     for row in failed:
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
     return 1 if failed else 0
+
 
 if __name__ == "__main__":
     sys.exit(main())

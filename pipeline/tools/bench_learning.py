@@ -399,9 +399,8 @@ def plot(learning_csv: Path, path: Path) -> None:
 def in_order(table: pd.DataFrame) -> pd.DataFrame:
     """The runs by demonstrator and learner in the order of DEMONSTRATORS and LEARNERS, then
     seed (kept rows of --merge and the new ones interleave as a full run would write them)."""
-    rank = {name: k for k, name in enumerate(LEARNERS)}
-    order = table.assign(_d=table.demonstrator.map(list(DEMONSTRATORS).index),
-                         _l=table.learner.map(rank))
+    order = table.assign(_d=table.demonstrator.map({n: k for k, n in enumerate(DEMONSTRATORS)}),
+                         _l=table.learner.map({n: k for k, n in enumerate(LEARNERS)}))
     return order.sort_values(["_d", "_l", "seed"], kind="stable").drop(columns=["_d", "_l"]) \
         .reset_index(drop=True)
 
