@@ -416,7 +416,8 @@ def kept_rows(path: Path, demonstrators: list[str], learners: list[str]) -> list
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--demonstrators", nargs="+", default=list(DEMONSTRATORS))
+    parser.add_argument("--demonstrators", nargs="+", default=list(DEMONSTRATORS),
+                        choices=list(DEMONSTRATORS))
     parser.add_argument("--learners", nargs="+", default=list(METHODS), choices=list(LEARNERS))
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
     parser.add_argument("--baseline-seeds", nargs="+", type=int, default=[0, 1, 2])

@@ -4,9 +4,11 @@ pass the hallway's person within the demonstrators' range; the planner's cost fi
 feature set must say what the cost says where the set can say it."""
 
 import numpy as np
+import pytest
 
 from pipeline.tools.bench import run_in_process
 from pipeline.tools.bench_learning import (
+    main,
     passing_distances,
     planner_cost_metrics,
     planner_fit_row,
@@ -55,3 +57,11 @@ def test_the_planner_s_cost_fitted_to_features_costs_the_person_the_wall_and_the
     row = planner_fit_row(tmp_path, "planner_fit", "planner_hallway", 0, base,
                           [*overrides, feature_set])
     assert row["heldout_frechet_m"] < 0.8 * row["heldout_frechet_m_shortest"]
+
+
+def test_an_unknown_demonstrator_is_refused_in_one_line(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--demonstrators", "handrawn"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "invalid choice: 'handrawn'" in err[-1] and "handdrawn_heldout" in err[-1]
