@@ -11,7 +11,9 @@ from PIL import Image
 from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
 from pipeline.core.roadmap import segments_feasible
 from pipeline.errors import PipelineError
+from pipeline.inputs.map_file import load_map
 from pipeline.inputs.scene_file import load_scene_file
+from tests.conftest import ROOT
 
 
 def _rect(x0, y0, x1, y1):
@@ -179,6 +181,34 @@ def test_blocked_disks_cut_a_corridor():
     expected = np.hypot(*(centres - [4.0, 2.0]).transpose(2, 0, 1)) <= 0.45
     np.testing.assert_array_equal(large, expected)
     assert not obstacles.blocked_disks(np.array([[20.0, 20.0]]), 0.5).any()
+
+
+@pytest.mark.parametrize("map_name", ["office", "warehouse"])
+def test_segments_far_from_walls_are_judged_free_as_sampling_would(map_name, monkeypatch):
+    """segments_free skips sampling the segments whose ends are far enough from every wall;
+    its answer must be sampling's, for segments near walls, across them, off the map, of
+    every length, and with NaN ends; and it must skip most segments in open space."""
+    obstacles = ObstacleMap(load_map(ROOT / "data" / "maps" / f"{map_name}.yaml"))
+    x0, y0, x1, y1 = obstacles.grid.extent()
+    rng = np.random.default_rng(5)
+    n = 20_000
+    a = np.c_[rng.uniform(x0 - 1, x1 + 1, n), rng.uniform(y0 - 1, y1 + 1, n)]
+    b = a + rng.normal(0, 0.5, (n, 2)) * rng.choice([0.1, 1.0, 5.0], (n, 1))
+    a[:10] = np.nan
+    sampled_counts = []
+    sample_all = obstacles.segments_min_clearance
+
+    def counted(p, q):
+        sampled_counts.append(len(p))
+        return sample_all(p, q)
+
+    for radius in (0.0, 0.25, 0.6):
+        expected = (sample_all(a, b) > 0) & (sample_all(a, b) >= radius)
+        monkeypatch.setattr(obstacles, "segments_min_clearance", counted)
+        np.testing.assert_array_equal(obstacles.segments_free(a, b, radius), expected)
+        monkeypatch.undo()
+    # the shortcut has teeth: most segments that are free were not sampled
+    assert max(sampled_counts) < n - 0.5 * expected.sum()
 
 
 # ---------------------------------------------------------------------------- medial axis
