@@ -145,6 +145,7 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench imperfect
 	$(PY) -m pipeline.tools.bench posterior
 	$(PY) -m pipeline.tools.bench bigroom
+	$(PY) -m pipeline.tools.bench mapscenes
 	$(PY) -m pipeline.tools.bench startup
 	$(PY) -m pipeline.tools.bench memory
 	$(PY) -m pipeline.tools.bench_scaling

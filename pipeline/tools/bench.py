@@ -9,6 +9,7 @@
     python -m pipeline.tools.bench imperfect        # noisy and hand-drawn demonstrations
     python -m pipeline.tools.bench bigroom          # scene + demos of 10, 20, 40 m rooms
     python -m pipeline.tools.bench bigroom --old /tmp/old   # ... and of another checkout
+    python -m pipeline.tools.bench mapscenes --old /tmp/old # random scenes on the shipped maps
     python -m pipeline.tools.bench memory           # peak RSS: birl=mcmc against the MAP run
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
@@ -217,17 +218,14 @@ def obstacle_costs(repeats: int) -> pd.DataFrame:
 BIG_ROOM_SIDES = [10.0, 20.0, 40.0]
 
 
-def _big_room_once(code: Path, side: float) -> dict:
-    """scene + demos of a random side × side m room with the default 10 m room's density of
-    persons (3 singles and 3 groups per 100 m²), run by the checkout `code` in a fresh
+def _scene_demos_once(code: Path, overrides: list[str]) -> dict:
+    """The scene and demos stages with `overrides`, run by the checkout `code` in a fresh
     process: the stages' seconds (timings.json) and the process's peak RSS (wait4)."""
     import tempfile
 
-    n = max(1, round(3 * side * side / 100))
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "pipeline", "scene=random", f"scene.width={side:g}",
-               f"scene.height={side:g}", f"scene.n_singles={n}", f"scene.n_groups={n}",
-               "stages=[scene,demos]", f"hydra.run.dir={tmp}"]
+        cmd = [sys.executable, "-m", "pipeline", *overrides, "stages=[scene,demos]",
+               f"hydra.run.dir={tmp}"]
         env = {**os.environ, "PYTHONPATH": str(code)}
         t0 = time.perf_counter()
         child = subprocess.Popen(cmd, cwd=code, env=env, stdout=subprocess.DEVNULL,
@@ -238,38 +236,71 @@ def _big_room_once(code: Path, side: float) -> dict:
         if child.returncode:
             raise RuntimeError(f"{' '.join(cmd)} in {code} failed ({child.returncode})")
         timings = json.loads((Path(tmp) / "timings.json").read_text())
-    return {"side_m": side, "n_singles": n, "n_groups": n, "wall_s": round(wall, 2),
+    return {"wall_s": round(wall, 2),
             "scene_demos_s": round(timings["time_scene_s"] + timings["time_demos_s"], 3),
             "scene_s": timings["time_scene_s"], "demos_s": timings["time_demos_s"],
             "peak_rss_mb": round(usage.ru_maxrss / 1024, 1)}
 
 
-def big_rooms(sides: list[float], repeats: int, old: Path | None) -> pd.DataFrame:
-    """scene + demos of growing rooms (_big_room_once), the best of `repeats` runs each (the
-    run with the fewest stage seconds); with `old` (another checkout, e.g. a `git worktree`
-    of an older commit) its runs alternate with this checkout's, so both see the same load."""
+def _scene_demos_side_by_side(cases: list[tuple[dict, list[str]]], repeats: int,
+                              old: Path | None) -> pd.DataFrame:
+    """scene + demos of each case (its table columns, its overrides), the best of `repeats`
+    runs each (the run with the fewest stage seconds); with `old` (another checkout, e.g. a
+    `git worktree` of an older commit) its runs alternate with this checkout's, so both see
+    the same load, and each row gets its ratio to the old checkout's."""
     codes = {"new": PROJECT_ROOT, **({"old": old} if old is not None else {})}
     rows = []
-    for side in sides:
+    for case, overrides in cases:
         runs: dict[str, list[dict]] = {name: [] for name in codes}
         for _ in range(repeats):
             for name, code in codes.items():
-                runs[name].append(_big_room_once(code, side))
+                runs[name].append(_scene_demos_once(code, overrides))
         for name, found in runs.items():
             best = min(found, key=lambda r: r["scene_demos_s"])
-            rows.append({"code": name, **best,
+            rows.append({"code": name, **case, **best,
                          "scene_demos_s_median": round(float(np.median(
                              [r["scene_demos_s"] for r in found])), 3),
                          "peak_rss_mb_max": max(r["peak_rss_mb"] for r in found)})
             print(f"  {rows[-1]}", flush=True)
     table = pd.DataFrame(rows)
     if old is not None:
-        before = table[table.code == "old"].set_index("side_m")
-        table["time_vs_old"] = [round(r.scene_demos_s / before.scene_demos_s[r.side_m], 3)
-                                for r in table.itertuples()]
-        table["rss_vs_old"] = [round(r.peak_rss_mb / before.peak_rss_mb[r.side_m], 3)
-                               for r in table.itertuples()]
+        keys = list(cases[0][0])
+        before = table[table.code == "old"].set_index(keys)
+        at = [tuple(getattr(r, k) for k in keys) if len(keys) > 1 else getattr(r, keys[0])
+              for r in table.itertuples()]
+        table["time_vs_old"] = [round(r.scene_demos_s / before.scene_demos_s[k], 3)
+                                for r, k in zip(table.itertuples(), at, strict=True)]
+        table["rss_vs_old"] = [round(r.peak_rss_mb / before.peak_rss_mb[k], 3)
+                               for r, k in zip(table.itertuples(), at, strict=True)]
     return table
+
+
+def big_rooms(sides: list[float], repeats: int, old: Path | None) -> pd.DataFrame:
+    """scene + demos of random side × side m rooms with the default 10 m room's density of
+    persons (3 singles and 3 groups per 100 m²), side by side with `old` when given."""
+    cases = []
+    for side in sides:
+        n = max(1, round(3 * side * side / 100))
+        cases.append(({"side_m": side, "n_singles": n, "n_groups": n},
+                      ["scene=random", f"scene.width={side:g}", f"scene.height={side:g}",
+                       f"scene.n_singles={n}", f"scene.n_groups={n}"]))
+    return _scene_demos_side_by_side(cases, repeats, old)
+
+
+# bench mapscenes: the shipped building maps (data/maps)
+MAP_SCENE_MAPS = ["office", "warehouse"]
+
+
+def map_scenes(maps: list[str], seeds: list[int], repeats: int,
+               old: Path | None) -> pd.DataFrame:
+    """scene + demos of random scenes on building maps (persons, starts and goal drawn
+    with the seed: scenes nobody tuned anything for), side by side with `old` when given.
+    The obstacle raster's clearance is checked along every roadmap edge here."""
+    cases = [({"map": name, "seed": seed},
+              ["scene=random", f"scene.map={PROJECT_ROOT / 'data' / 'maps' / name}.yaml",
+               f"seed={seed}"])
+             for name in maps for seed in seeds]
+    return _scene_demos_side_by_side(cases, repeats, old)
 
 
 MEMORY_RUNS = {"map": [], "mcmc": ["birl=mcmc"]}
@@ -632,6 +663,13 @@ def _parser() -> argparse.ArgumentParser:
     big.add_argument("--repeats", type=int, default=3)
     big.add_argument("--old", type=Path, default=None,
                      help="another checkout to measure side by side (code=old rows)")
+    maps = sub.add_parser("mapscenes", help="scene + demos of random scenes on the shipped "
+                          "building maps -> results/bench/map_scenes.csv")
+    maps.add_argument("--maps", nargs="+", default=MAP_SCENE_MAPS, choices=MAP_SCENE_MAPS)
+    maps.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    maps.add_argument("--repeats", type=int, default=3)
+    maps.add_argument("--old", type=Path, default=None,
+                      help="another checkout to measure side by side (code=old rows)")
     mem = sub.add_parser("memory", help="peak RSS of birl=mcmc against the default MAP run "
                          "-> results/bench/memory.csv")
     mem.add_argument("--repeats", type=int, default=3)
@@ -693,6 +731,9 @@ SUITES: dict[str, tuple] = {
                   lambda a: obstacle_costs(a.repeats), "obstacles.csv"),
     "bigroom": (lambda a: f"scene + demos of rooms of {a.sides} m, best of {a.repeats}",
                 lambda a: big_rooms(a.sides, a.repeats, a.old), "big_rooms.csv"),
+    "mapscenes": (lambda a: f"scene + demos of random scenes on maps {a.maps}, seeds {a.seeds}, "
+                  f"best of {a.repeats}",
+                  lambda a: map_scenes(a.maps, a.seeds, a.repeats, a.old), "map_scenes.csv"),
     "memory": (lambda a: f"peak RSS of the MAP and MCMC runs, median of {a.repeats}",
                lambda a: memory(a.repeats), "memory.csv"),
     "graph_io": (lambda a: f"graph.mcap write and read back on metropolis, sizes {a.sizes}",
