@@ -49,11 +49,15 @@ def loss_curve(graph: SpatialGraph, w_true: np.ndarray, weights_per_iteration: n
     `learner`: the same graph with the learner's, default the same), and the final policy."""
     mdp = graph.mdp
     optimal = mdp.solve(w_true).values
-    losses, values, last = [], None, None
+    losses, last, last_w = [], None, None
     for w in weights_per_iteration:
-        last = policy_loss(mdp, w_true, w, graph.start_nodes, optimal, init_values=values,
-                           learner=None if learner is None else learner.mdp)
-        values = last.values_learned
+        # learners keep their weights over many iterations: solved once (a large map's
+        # roadmap takes a tenth of a second per solve)
+        if last is None or not np.array_equal(w, last_w):
+            last = policy_loss(mdp, w_true, w, graph.start_nodes, optimal,
+                               init_values=None if last is None else last.values_learned,
+                               learner=None if learner is None else learner.mdp)
+            last_w = w
         losses.append(last.loss)
     return np.array(losses), last, optimal
 

@@ -23,6 +23,21 @@ def test_policy_loss_is_zero_for_true_weights_and_never_negative(roadmap):
     assert rude.loss > 0.05
 
 
+def test_a_loss_curve_is_each_iterations_own_loss_when_weights_repeat(roadmap):
+    """The evaluate stage solves once per run of equal weights (learners keep theirs over
+    many iterations); every iteration's loss and the final policy stay what solving each
+    iteration alone gives."""
+    from pipeline.stages.evaluate import loss_curve
+
+    graph = roadmap.spatial(roadmap.mdp())
+    weights = np.array([RUDE, RUDE, POLITE, POLITE, POLITE, RUDE, RUDE], dtype=float)
+    losses, last, optimal = loss_curve(graph, np.asarray(POLITE), weights)
+    alone = [policy_loss(graph.mdp, POLITE, w, graph.start_nodes, optimal) for w in weights]
+    assert losses.tolist() == [pl.loss for pl in alone]
+    assert losses[0] > 0.05 and losses[2] == 0.0  # the curve has teeth
+    np.testing.assert_array_equal(last.policy, alone[-1].policy)
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_policy_loss_on_random_graphs(seed):
     rng = np.random.default_rng(seed)
