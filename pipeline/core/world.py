@@ -7,6 +7,7 @@ read by pipeline.inputs and handed in as an OccupancyGrid).
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -111,11 +112,7 @@ class Scene:
         """Clearance queries on the map with the polygons burnt in; None without obstacles."""
         if self.map_grid is None and not self.polygons:
             return None
-        grid = rasterise(list(self.polygons), self.map_grid, self.room.bounds,
-                         OBSTACLE_RESOLUTION)
-        # outside a map is unknown (an obstacle); polygons are rasterised over exactly the
-        # room, whose edge is no obstacle (Room.contains keeps the robot inside)
-        return ObstacleMap(grid, outside_occupied=self.map_grid is not None)
+        return obstacle_map(self.polygons, self.map_grid, self.room.bounds)
 
     @cached_property
     def free_area(self) -> float:
@@ -290,6 +287,34 @@ def _read_polygons(data: dict, room: Room, fail: Any) -> tuple[np.ndarray, ...]:
         if polygon_outside(polygons[-1], room.bounds):
             raise fail(f"obstacle {i} lies wholly outside the room {room.describe()}")
     return tuple(polygons)
+
+
+# obstacle_map: the last few, by content. Every stage decodes the scene anew, and the
+# clearance of a building's map takes the better part of a second (a 120 m x 80 m map: 0.35 s).
+_OBSTACLE_MAPS: dict[bytes, ObstacleMap] = {}
+OBSTACLE_MAPS_KEPT = 2
+
+
+def obstacle_map(polygons: tuple[np.ndarray, ...], map_grid: OccupancyGrid | None,
+                 bounds: tuple[float, float, float, float]) -> ObstacleMap:
+    """The polygons burnt into the map (or into a raster of the room, `bounds`) and its
+    clearance; computed once per content (an ObstacleMap is never changed)."""
+    key = hashlib.blake2b(repr((bounds, [(p.dtype.str, p.shape) for p in polygons],
+                                None if map_grid is None
+                                else (map_grid.origin, map_grid.resolution,
+                                      map_grid.occupied.shape))).encode(), digest_size=16)
+    for part in [*polygons, *([] if map_grid is None else [map_grid.occupied])]:
+        key.update(np.ascontiguousarray(part).tobytes())
+    found = _OBSTACLE_MAPS.pop(key.digest(), None)
+    if found is None:
+        grid = rasterise(list(polygons), map_grid, bounds, OBSTACLE_RESOLUTION)
+        # outside a map is unknown (an obstacle); polygons are rasterised over exactly the
+        # room, whose edge is no obstacle (Room.contains keeps the robot inside)
+        found = ObstacleMap(grid, outside_occupied=map_grid is not None)
+    _OBSTACLE_MAPS[key.digest()] = found  # the most recent last
+    while len(_OBSTACLE_MAPS) > OBSTACLE_MAPS_KEPT:
+        del _OBSTACLE_MAPS[next(iter(_OBSTACLE_MAPS))]
+    return found
 
 
 def _check_placement(scene: Scene, fail: Any) -> None:

@@ -336,3 +336,23 @@ def test_metropolis_with_a_box_keeps_its_starts_by_the_room_edge(tmp_path):
     assert scene.free(scene.starts).all()
     assert scene.obstacles.clearance_at(scene.starts[1:2])[0] == pytest.approx(
         _box_distance(scene.starts[1:2], 8.0, 8.0, 8.5, 8.5)[0], abs=0.05)
+
+
+def test_a_scene_decoded_again_shares_its_obstacle_map_and_another_map_does_not():
+    """Every stage decodes the scene anew; the clearance of the same map and polygons is
+    computed once, and any change of content (one cell, a polygon) gives its own."""
+    from pipeline.core.world import obstacle_map
+
+    grid = OccupancyGrid(np.zeros((80, 100), bool), (0.0, 0.0), 0.05)
+    grid.occupied[40, 10:90] = True
+    box = (0.0, 0.0, 5.0, 4.0)
+    wall = obstacle_map((), grid, box)
+    assert obstacle_map((), OccupancyGrid(grid.occupied.copy(), (0.0, 0.0), 0.05), box) is wall
+    moved = grid.occupied.copy()
+    moved[40, 50] = False  # a door
+    door = obstacle_map((), OccupancyGrid(moved, (0.0, 0.0), 0.05), box)
+    assert door is not wall and door.clearance[40, 50] > wall.clearance[40, 50] == 0
+    polygon = (_rect(1.0, 1.0, 2.0, 2.0),)
+    assert obstacle_map(polygon, grid, box) is not wall
+    np.testing.assert_array_equal(obstacle_map((), grid, box).clearance,
+                                  ObstacleMap(grid).clearance)
