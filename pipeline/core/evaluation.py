@@ -8,12 +8,13 @@ same graph with the learner's features, scored on the true reward's.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pipeline.core.graph_mdp import GraphMDP, Path
+from pipeline.core.graph_mdp import GraphMDP, Path, SpatialGraph
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,28 @@ def policy_loss(mdp: GraphMDP, w_true: ArrayLike, w: ArrayLike, start_nodes: np.
         raise RuntimeError(f"negative policy loss {gap.min():.3g}: V* is not optimal")
     gap = np.maximum(gap, 0.0)  # rounding only
     return PolicyLoss(float(gap.mean()), gap, sol.policy, sol.values)
+
+
+def loss_curve(graph: SpatialGraph, w_true: np.ndarray, weights_per_iteration: np.ndarray,
+               learner: SpatialGraph | None = None) -> tuple[np.ndarray, PolicyLoss, np.ndarray]:
+    """Policy loss of every iteration's weights on one graph (the true reward's features;
+    `learner`: the same graph with the learner's, default the same), and the final policy."""
+    if not len(weights_per_iteration):
+        raise ValueError("loss_curve needs the weights of at least one iteration")
+    mdp = graph.mdp
+    optimal = mdp.solve(w_true).values
+    learner_mdp = None if learner is None else learner.mdp
+    last = policy_loss(mdp, w_true, weights_per_iteration[0], graph.start_nodes, optimal,
+                       learner=learner_mdp)
+    losses = [last.loss]
+    for before, w in itertools.pairwise(weights_per_iteration):
+        # learners keep their weights over many iterations: solved once (a large map's
+        # roadmap takes a tenth of a second per solve)
+        if not np.array_equal(w, before):
+            last = policy_loss(mdp, w_true, w, graph.start_nodes, optimal,
+                               init_values=last.values_learned, learner=learner_mdp)
+        losses.append(last.loss)
+    return np.array(losses), last, optimal
 
 
 def follow_all(mdp: GraphMDP, policy: np.ndarray, start_nodes: np.ndarray) -> list[Path]:

@@ -20,10 +20,10 @@ from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import Artefact, write_json_atomic
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import (
-    PolicyLoss,
     discrete_frechet,
     follow_all,
     frechet,
+    loss_curve,
     policy_loss,
 )
 from pipeline.core.experts import Demonstration
@@ -41,25 +41,6 @@ from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.robust import heldout_log_likelihood
 
 log = logging.getLogger(__name__)
-
-
-def loss_curve(graph: SpatialGraph, w_true: np.ndarray, weights_per_iteration: np.ndarray,
-               learner: SpatialGraph | None = None) -> tuple[np.ndarray, PolicyLoss, np.ndarray]:
-    """Policy loss of every iteration's weights on one graph (the true reward's features;
-    `learner`: the same graph with the learner's, default the same), and the final policy."""
-    mdp = graph.mdp
-    optimal = mdp.solve(w_true).values
-    losses, last, last_w = [], None, None
-    for w in weights_per_iteration:
-        # learners keep their weights over many iterations: solved once (a large map's
-        # roadmap takes a tenth of a second per solve)
-        if last is None or not np.array_equal(w, last_w):
-            last = policy_loss(mdp, w_true, w, graph.start_nodes, optimal,
-                               init_values=None if last is None else last.values_learned,
-                               learner=None if learner is None else learner.mdp)
-            last_w = w
-        losses.append(last.loss)
-    return np.array(losses), last, optimal
 
 
 @dataclass(frozen=True, eq=False)

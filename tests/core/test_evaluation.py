@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.core.evaluation import discrete_frechet, policy_loss
+from pipeline.core.evaluation import discrete_frechet, loss_curve, policy_loss
 from tests.conftest import POLITE, RUDE
 from tests.core.conftest import random_graph
 
@@ -24,11 +24,9 @@ def test_policy_loss_is_zero_for_true_weights_and_never_negative(roadmap):
 
 
 def test_a_loss_curve_is_each_iterations_own_loss_when_weights_repeat(roadmap):
-    """The evaluate stage solves once per run of equal weights (learners keep theirs over
+    """Solved once per run of equal weights (learners keep theirs over
     many iterations); every iteration's loss and the final policy stay what solving each
     iteration alone gives."""
-    from pipeline.stages.evaluate import loss_curve
-
     graph = roadmap.spatial(roadmap.mdp())
     weights = np.array([RUDE, RUDE, POLITE, POLITE, POLITE, RUDE, RUDE], dtype=float)
     losses, last, optimal = loss_curve(graph, np.asarray(POLITE), weights)
