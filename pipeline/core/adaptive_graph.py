@@ -327,12 +327,12 @@ class AdaptiveGraph(StateGraph):
         reach = self.controller.cruise_speed * self.rng.uniform(p.t_min, t_hi, p.n_new)
         targets = np.column_stack([self.pose[v, 0] + reach * np.cos(heading),
                                    self.pose[v, 1] + reach * np.sin(heading), heading])
-        runs, feats = self.steer(np.repeat(self.pose[v:v + 1], p.n_new, 0), targets)
+        runs = self.steer(np.repeat(self.pose[v:v + 1], p.n_new, 0), targets)
         keep = np.flatnonzero(~self.too_close_many(runs.end_poses))
         if not len(keep):
             return None
-        runs = runs.subset(keep)
-        return Candidates(v, runs.end_poses, runs, feats[keep])
+        runs = runs.subset(keep)  # features only of what is kept: late in growth, few are
+        return Candidates(v, runs.end_poses, runs, self.run_features(runs))
 
     def score_candidates(self, c: Candidates) -> Candidates:
         """Step 4a: score candidates like nodes: the value of the best path through them (the

@@ -338,19 +338,21 @@ class StateGraph:
         self.waypoints += [waypoints[i] for i in keep]
         self.edge_is_demo += [is_demo] * len(keep)
 
-    def steer(self, a: np.ndarray, b: np.ndarray) -> tuple[Runs, np.ndarray]:
-        """Controller runs a[i] → b[i] for paired (n, 3) poses, feasible ones only: the
-        runs (controllers.Runs) and the features (m, d) of each run's own path."""
+    def steer(self, a: np.ndarray, b: np.ndarray) -> Runs:
+        """Controller runs a[i] → b[i] for paired (n, 3) poses, feasible ones only
+        (controllers.Runs; `run_features` gives their features)."""
         runs = self.controller.steer_many(a, b)
         seg_a, seg_b, owner = runs.segments()
         infeasible = np.bincount(owner[~segments_feasible(self.scene, seg_a, seg_b)],
                                  minlength=len(runs))
-        if infeasible.any():
-            runs = runs.subset(infeasible == 0)
-            seg_a, seg_b, owner = runs.segments()
+        return runs.subset(infeasible == 0) if infeasible.any() else runs
+
+    def run_features(self, runs: Runs) -> np.ndarray:
+        """The features (m, d) of each run's own path."""
+        seg_a, seg_b, owner = runs.segments()
         feats = np.zeros((len(runs), self.fm.dim))
         np.add.at(feats, owner, self.fm.segments(seg_a, seg_b))
-        return runs, feats
+        return feats
 
     def connect(self, nodes: Iterable[int]) -> None:
         """Edges both ways between each of `nodes` and its nearest neighbours within radius
@@ -365,8 +367,8 @@ class StateGraph:
         if not pairs:
             return
         src, dst = map(np.array, zip(*pairs, strict=True))
-        runs, feats = self.steer(self.pose[src], self.pose[dst])
-        self.add_edges(src[runs.index], dst[runs.index], runs.durations, feats,
+        runs = self.steer(self.pose[src], self.pose[dst])
+        self.add_edges(src[runs.index], dst[runs.index], runs.durations, self.run_features(runs),
                        [runs.waypoints(k) for k in range(len(runs))])
 
     def set_weights(self, weights: np.ndarray) -> None:
