@@ -170,6 +170,7 @@ class AdaptiveGraph(StateGraph):
         self.best_path_values = np.zeros(0)
         self.best_reached = np.zeros(0, dtype=bool)
         self.history: list[dict] = []  # per iteration: best paths and values
+        self._recorded_at = -1  # the solver's changes at the last record
 
     # -- initialisation ------------------------------------------------------------------
     def initialise(self, demos: Sequence[Demonstration] = ()) -> None:
@@ -378,10 +379,15 @@ class AdaptiveGraph(StateGraph):
         self.record()
 
     def record(self) -> None:
-        paths = [self.solver.follow(int(s)) for s in self.start_nodes]
-        self.best_paths = [nodes for nodes, _ in paths]
-        self.best_reached = np.array([reached for _, reached in paths])
-        self.best_path_values = self.values[self.start_nodes].copy()
+        """The best trajectories of this iteration into the history: those of the last
+        record when the solver has not changed since (late in growth most expansions add
+        nothing, and following every start's path again would be wasted)."""
+        if self.solver.changes != self._recorded_at:
+            paths = [self.solver.follow(int(s)) for s in self.start_nodes]
+            self.best_paths = [nodes for nodes, _ in paths]
+            self.best_reached = np.array([reached for _, reached in paths])
+            self.best_path_values = self.values[self.start_nodes].copy()
+            self._recorded_at = self.solver.changes
         self.history.append({"iteration": self.iteration, "n_nodes": self.n_nodes,
                              "paths": [p.copy() for p in self.best_paths],
                              "values": self.best_path_values.copy(),

@@ -84,6 +84,8 @@ class IncrementalGraphMDP:
         self._dirty_nodes: list[int] = []
         self._new_edges: list[int] = []
         self.full_solves = 0
+        # changes of nodes, edges or rewards so far: equal counts, the same solution
+        self.changes = 0
 
     # -- views -----------------------------------------------------------------------------
     @property
@@ -127,6 +129,7 @@ class IncrementalGraphMDP:
 
     # -- growth ----------------------------------------------------------------------------
     def add_node(self, terminal: bool, source: bool = False) -> int:
+        self.changes += 1
         idx = self.n_nodes
         self._terminal.append(terminal)
         self._value.append(self.r_goal if terminal else -self.v_max)  # a dead end until it acts
@@ -143,6 +146,7 @@ class IncrementalGraphMDP:
 
     def add_edges(self, src: ArrayLike, dst: ArrayLike, durations: ArrayLike,
                   rewards: ArrayLike) -> None:
+        self.changes += 1
         first = self._src.n
         src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
         rewards = np.asarray(rewards, float)
@@ -165,6 +169,7 @@ class IncrementalGraphMDP:
     def set_rewards(self, rewards: ArrayLike) -> None:
         """New edge rewards (E,) (new weights): everything may change, so solve from
         scratch."""
+        self.changes += 1
         rewards = np.asarray(rewards, float)
         self._reward.data[: len(rewards)] = rewards
         self._cost.data[: len(rewards)] = np.maximum(-rewards, 0.0)
@@ -179,6 +184,7 @@ class IncrementalGraphMDP:
     def solve_full(self) -> None:
         """Warm-started policy iteration on the whole graph, and a full Dijkstra."""
         self.full_solves += 1
+        self.changes += 1
         mdp = self.mdp()
         sol = mdp.solve([1.0], init_values=self.values.copy())
         self._value.data[: self.n_nodes] = sol.values

@@ -32,7 +32,7 @@ from pipeline.core.state_graph import GOAL, MEDIAL, SAMPLED, START, StateGraph
 from pipeline.core.world import Room, Scene
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.irl.prior import BoxConfig
-from tests.conftest import OFFICE_SCENE, POLITE, compose_config
+from tests.conftest import OFFICE_SCENE, POLITE, RUDE, compose_config
 
 # The default prior's mean, the weights the graph stage grows the graph under before learning
 PRIOR_MEAN = BoxConfig().make_prior(4).box_mean()
@@ -220,6 +220,23 @@ def test_same_seed_same_graph(metropolis, demos):
     g2 = grow(metropolis, demos, PRIOR_MEAN, max_nodes=150, seed=5)
     np.testing.assert_array_equal(g1.pose, g2.pose)
     np.testing.assert_array_equal(g1.src, g2.src)
+
+
+def test_a_record_follows_the_paths_again_only_after_a_change(metropolis, demos):
+    """Iterations that add nothing reuse the last record's paths; new weights (as BIRL-G's
+    growth under the weights being learned sets them) are a change, followed anew."""
+    g = grow(metropolis, demos, PRIOR_MEAN, max_nodes=150, seed=5)
+    before = g.best_paths
+    g.record()
+    assert g.best_paths is before and len(g.history) >= 2
+    assert [h.tolist() for h in g.history[-1]["paths"]] == [p.tolist() for p in before]
+    g.set_weights(np.asarray(RUDE, float))
+    g.solver.update()
+    g.record()
+    assert g.best_paths is not before
+    fresh = [g.solver.follow(int(s))[0].tolist() for s in g.start_nodes]
+    assert [p.tolist() for p in g.best_paths] == fresh
+    assert fresh != [p.tolist() for p in before]  # the rude weights change some path
 
 
 def test_posq_graph_is_feasible_and_reaches_goal(metropolis, demos):
