@@ -70,8 +70,10 @@ class OccupancyGrid:
         col = np.floor((p[:, 0] - self.origin[0]) / self.resolution)
         row = np.floor((p[:, 1] - self.origin[1]) / self.resolution)
         inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)  # False for NaN too
-        rows = np.clip(np.nan_to_num(row), 0, h - 1).astype(np.intp)
-        cols = np.clip(np.nan_to_num(col), 0, w - 1).astype(np.intp)
+        # NaN -> 0, beyond the border (inf too) -> the border: fmax skips NaN (two ufuncs,
+        # a third of nan_to_num and clip's cost on the few points of a growth step)
+        rows = np.minimum(np.fmax(row, 0.0), h - 1).astype(np.intp)
+        cols = np.minimum(np.fmax(col, 0.0), w - 1).astype(np.intp)
         return rows, cols, inside
 
     def cell_centres(self) -> np.ndarray:
@@ -314,12 +316,13 @@ class ObstacleMap:
         sample free: the same answer as sampling it."""
         a = np.asarray(a, dtype=float).reshape(-1, 2)
         b = np.asarray(b, dtype=float).reshape(-1, 2)
-        rows_a, cols_a, inside_a = self.grid.cell_of(a)
-        rows_b, cols_b, inside_b = self.grid.cell_of(b)
-        margin = (0.5 * np.linalg.norm(b - a, axis=1) + math.sqrt(2.0) * self.resolution
-                  + SURELY_FREE_SLACK)
-        lowest = np.minimum(self.clearance[rows_a, cols_a], self.clearance[rows_b, cols_b])
-        free = inside_a & inside_b & _free(lowest - margin, radius)  # NaN ends: sampled
+        rows, cols, inside = self.grid.cell_of(np.concatenate([a, b]))
+        ends = self.clearance[rows, cols].reshape(2, -1)  # of a, of b
+        step = b - a
+        margin = (0.5 * np.sqrt(step[:, 0] ** 2 + step[:, 1] ** 2)
+                  + math.sqrt(2.0) * self.resolution + SURELY_FREE_SLACK)
+        free = inside.reshape(2, -1).all(axis=0) & _free(ends.min(axis=0) - margin, radius)
+        # (NaN ends: sampled)
         near = ~free
         free[near] = _free(self.segments_min_clearance(a[near], b[near]), radius)
         return free
