@@ -505,5 +505,5 @@ def _import_sklearn_gp() -> tuple[Any, Any, Any]:
 
 def _probabilities(scores: np.ndarray) -> np.ndarray:
     """Selection probabilities (k,) ∝ scores (k,) (uniform if all scores are zero)."""
-    s = np.maximum(np.nan_to_num(scores, nan=0.0), 0.0) + 1e-12
+    s = np.fmax(scores, 0.0) + 1e-12  # NaN -> 0 (fmax skips it)
     return s / s.sum()
