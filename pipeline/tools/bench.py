@@ -619,6 +619,17 @@ def plot_imperfect(summary_csv: Path, path: Path) -> None:
         save_figure(fig, path, [summary_csv])
 
 
+def checkout(text: str) -> Path:
+    """argparse type of --old: a checkout of this project (its pipeline package), so that a
+    wrong path fails in one line before anything is measured."""
+    path = Path(text).expanduser().resolve()
+    if not (path / "pipeline" / "__init__.py").is_file():
+        raise argparse.ArgumentTypeError(f"{text}: not a checkout of this project (no "
+                                         "pipeline/__init__.py); e.g. git worktree add "
+                                         "/tmp/old HEAD~5")
+    return path
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m pipeline.tools.bench")
     sub = parser.add_subparsers(dest="suite", required=True)
@@ -636,7 +647,7 @@ def _parser() -> argparse.ArgumentParser:
                         "-> results/bench/startup.csv (pipeline/tools/bench_startup.py)")
     st.add_argument("--repeats", type=int, default=3)
     st.add_argument("--jobs", type=int, default=2, help="sweep workers")
-    st.add_argument("--old", type=Path, default=None,
+    st.add_argument("--old", type=checkout, default=None,
                     help="a checkout of an earlier commit to measure beside this one")
     irl = sub.add_parser("irl", help="IRL methods -> results/bench/irl_methods.csv and .png")
     irl.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -661,14 +672,14 @@ def _parser() -> argparse.ArgumentParser:
                          "results/bench/big_rooms.csv")
     big.add_argument("--sides", type=float, nargs="+", default=BIG_ROOM_SIDES)
     big.add_argument("--repeats", type=int, default=3)
-    big.add_argument("--old", type=Path, default=None,
+    big.add_argument("--old", type=checkout, default=None,
                      help="another checkout to measure side by side (code=old rows)")
     maps = sub.add_parser("mapscenes", help="scene + demos of random scenes on the shipped "
                           "building maps -> results/bench/map_scenes.csv")
     maps.add_argument("--maps", nargs="+", default=MAP_SCENE_MAPS, choices=MAP_SCENE_MAPS)
     maps.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     maps.add_argument("--repeats", type=int, default=3)
-    maps.add_argument("--old", type=Path, default=None,
+    maps.add_argument("--old", type=checkout, default=None,
                       help="another checkout to measure side by side (code=old rows)")
     mem = sub.add_parser("memory", help="peak RSS of birl=mcmc against the default MAP run "
                          "-> results/bench/memory.csv")

@@ -1,0 +1,20 @@
+"""The benchmark command's own input checks (the measurements run in `make bench`)."""
+
+import pytest
+
+from pipeline.app.context import PROJECT_ROOT
+from pipeline.tools.bench import _parser, main
+
+
+@pytest.mark.parametrize("suite", ["startup", "bigroom", "mapscenes"])
+def test_an_old_checkout_that_is_none_is_refused_in_one_line(suite, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([suite, "--old", str(tmp_path / "no-such-checkout")])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "--old" in err[-1] and "no-such-checkout" in err[-1] and "not a checkout" in err[-1]
+
+
+def test_an_old_checkout_is_taken_as_its_resolved_directory():
+    args = _parser().parse_args(["mapscenes", "--old", str(PROJECT_ROOT / "pipeline" / "..")])
+    assert args.old == PROJECT_ROOT.resolve()
