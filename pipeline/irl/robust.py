@@ -66,6 +66,7 @@ class PatternLU:
     def __init__(self, indices: np.ndarray, indptr: np.ndarray) -> None:
         self.indices, self.indptr = indices, indptr
         self.n = len(indptr) - 1
+        self._columns = np.repeat(np.arange(self.n), np.diff(indptr))  # each entry's column
         # set by the first LU: the ordering, and where each entry goes in the permuted
         # matrix (entries of one position, a self-loop's and the diagonal's, are summed)
         self.order: np.ndarray | None = None
@@ -78,8 +79,7 @@ class PatternLU:
                       permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                       options={"SymmetricMode": True})
             self.order = lu.perm_c
-            columns = np.repeat(np.arange(n), np.diff(self.indptr))
-            key = self.order[columns] * n + self.order[self.indices]
+            key = self.order[self._columns] * n + self.order[self.indices]
             unique, self._slot = np.unique(key, return_inverse=True)
             self._permuted_indices = unique % n
             self._permuted_indptr = np.concatenate(
@@ -90,6 +90,18 @@ class PatternLU:
         lu = splu(permuted, permc_spec="NATURAL", diag_pivot_thresh=0.0,
                   options={"SymmetricMode": True})
         return OrderedLU(lu, self.order)
+
+    def triangular(self, data: np.ndarray, rank: np.ndarray) -> OrderedLU:
+        """An LU of the matrix's triangle in the node order `rank` (rank[s]: node s's place):
+        its diagonal and the entries of the edges s → d with rank[d] < rank[s]; the other
+        edges' entries are left out. No fill: about a millisecond where a whole LU takes 20
+        (2546 nodes, 16-connected). Raises RuntimeError on a zero on the diagonal."""
+        keep = rank[self.indices] <= rank[self._columns]
+        triangle = sp.csc_matrix((data[keep], (rank[self.indices[keep]],
+                                               rank[self._columns[keep]])), shape=(self.n, self.n))
+        lu = splu(triangle, permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                  options={"SymmetricMode": True})
+        return OrderedLU(lu, rank)
 
 
 class OrderedLU:
@@ -178,9 +190,10 @@ class BoltzmannPosterior:
         # Tangent planes of the log likelihood in (βw, β): (offset, slope in βw, slope in β)
         self._planes: list[tuple[float, np.ndarray, float]] = []
         # I − γ^τ P_π in CSR, row s = [diagonal, out-edges of s in edge order]: the pattern
-        # is fixed, so each solve only fills in the policy's values; the last LU (_solve).
+        # is fixed, so each solve only fills in the policy's values; the last factor (_solve).
         self._lu: OrderedLU | None = None
         self._lu_data = np.zeros(0)  # the matrix entries it factorises
+        self._lu_exact = False  # a whole LU of them, or only their triangle (`_solve`)
         # Without discounting: the last (θ, V, m, y) of _linear_soft_values
         self._linear: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._last_reference = "hard"  # its reference: "hard", "last" or "sweeps"
@@ -191,40 +204,61 @@ class BoltzmannPosterior:
         self._indices = np.empty(len(mdp.src) + n, dtype=np.int64)
         self._indices[self._diagonal], self._indices[self._edge_slots] = rows[:-1], mdp.dst
         self._factors = PatternLU(self._indices, self._indptr)
+        # for count_derivatives: each edge's derivative of its term a(e) = (φ(e), b(e))
+        # (E, d + 1), and the sums over each node's out-edges and in-edges (n × E)
+        self._slopes = np.column_stack([mdp.features, mdp.base_reward])
+        edges, ones = np.arange(len(mdp.src)), np.ones(len(mdp.src))
+        self._out_edges = sp.csr_matrix((ones, (mdp.src, edges)), shape=(n, len(mdp.src)))
+        self._in_edges = sp.csr_matrix((ones, (mdp.dst, edges)), shape=(n, len(mdp.src)))
 
-    def _solve(self, pi: np.ndarray, rhs: np.ndarray, trans: str) -> np.ndarray:
+    def _solve(self, pi: np.ndarray, rhs: np.ndarray, trans: str,
+               rank: np.ndarray | None = None) -> np.ndarray:
         """x with (I − γ^τ P_π) x = rhs (trans "T": policy evaluation) or its transpose
         (trans "N": discounted visits), for edge probabilities pi; rhs (n,) or (n, k).
 
         A sparse LU (`PatternLU`) costs about n^1.5 on these graphs (26 ms at 5000 nodes,
-        0.33 s at 20 000), but the
-        policies met in a row (Newton steps, nearby parameters of a line search) differ
-        little: iterative refinement on the last LU, x += LU⁻¹(rhs − A x), converges in a
-        few steps of a triangular solve and a product each. Where it converges slowly, π
-        is refactored. The CSR arrays of I − γ^τ P_π read as CSC are (I − γ^τ P_π)^T, so
-        no conversion; a self-loop's entry repeats the diagonal's column, which splu sums."""
+        0.33 s at 20 000), so it is the last resort. Iterative refinement, x += F⁻¹(rhs −
+        A x), converges in a few steps of a triangular solve and a product each where F is
+        near A: F is the last LU if it is of this very matrix; else, given `rank` (an order
+        of the nodes in which most of π's weight goes to earlier nodes: the goal's side
+        first), F is this matrix's triangle in that order (`PatternLU.triangular`, no fill):
+        relative to the hard values the edges that lead away from the goal weigh e^(−β·
+        their extra cost), so at the β of near-optimal demonstrations a few steps suffice;
+        else F is the last LU (the policies met in a row, Newton steps, differ little).
+        Where it converges slowly, π is factorised. The CSR arrays of I − γ^τ P_π read as
+        CSC are (I − γ^τ P_π)^T, so no conversion; a self-loop's entry repeats the
+        diagonal's column, which splu sums."""
         n = self.mdp.n_nodes
         data = np.empty(len(self._indices))
         data[self._diagonal], data[self._edge_slots] = 1.0, -pi * self.mdp.discount
         transposed = sp.csc_matrix((data, self._indices, self._indptr), shape=(n, n))
         matrix = transposed.T if trans == "T" else transposed
-        # with several columns a refinement step costs a triangular solve per column:
-        # factorise this very matrix unless the last LU is of it (`count_derivatives`)
-        if self._lu is not None and (rhs.ndim == 1 or np.array_equal(data, self._lu_data)):
+        same = self._lu is not None and np.array_equal(data, self._lu_data)
+        if not same and rank is not None:
+            try:
+                self._lu, self._lu_data = self._factors.triangular(data, rank), data
+                self._lu_exact, same = False, True
+            except RuntimeError:  # a zero on the triangle's diagonal
+                self._lu = None
+        # with several columns a refinement step costs a triangular solve per column: only
+        # on a factor of this very matrix (`count_derivatives`)
+        if self._lu is not None and (rhs.ndim == 1 or same):
             x = self._lu.solve(rhs, trans=trans)
             last = np.inf
             for _ in range(REFINE_STEPS):
                 residual = rhs - matrix @ x
                 error = float(np.abs(residual).max(initial=0.0))
-                # 1e-11 of the solution's size (‖A‖∞ ≤ 2): far below the soft values'
-                # tolerance, and the gradients' error is far below the planes' slack
-                if error <= 1e-11 * max(1.0, float(np.abs(x).max(initial=0.0))):
+                # 1e-13 of the solution's size (‖A‖∞ ≤ 2): the solution then agrees with a
+                # direct solve's to 1e-10 where A is ill-conditioned (small β)
+                if error <= 1e-13 * max(1.0, float(np.abs(x).max(initial=0.0))):
                     return x
                 if not np.isfinite(error) or error > REFINE_RATE * last:
-                    break  # too far from the factored policy
+                    if same and self._lu_exact and np.isfinite(error):
+                        return x  # round-off: refactoring would give no better
+                    break  # F is too far from A
                 last = error
                 x = x + self._lu.solve(residual, trans=trans)
-        self._lu, self._lu_data = self._factors.factorise(data), data
+        self._lu, self._lu_data, self._lu_exact = self._factors.factorise(data), data, True
         return self._lu.solve(rhs, trans=trans)
 
     def _log_weights(self, theta: np.ndarray) -> np.ndarray:
@@ -325,9 +359,9 @@ class BoltzmannPosterior:
                 return self._keep_linear(theta, reference, *solved, kind)
         reference = self._soft_sweeps(edge_terms, hard)
         for fresh in (False, True):
-            if fresh:  # refinement on the last LU can settle on a huge multiple of the
-                self._lu = None  # near-null vector 1 of I − M when M is nearly stochastic
-            solved = self._relative_solution(edge_terms, reference, clip=False)
+            if fresh:  # refinement can settle on a huge multiple of the near-null vector 1
+                self._lu = None  # of I − M when M is nearly stochastic: a whole LU
+            solved = self._relative_solution(edge_terms, reference, clip=False, ordered=not fresh)
             if solved is not None and (fresh or np.abs(solved[2]).max() <= LOG_Y_KEPT):
                 return self._keep_linear(theta, reference, *solved, "sweeps")
         # Positive but wide: the sweeps found no better reference (they converge slowly
@@ -341,14 +375,16 @@ class BoltzmannPosterior:
         raise RuntimeError("the soft values' linear system has no positive solution")
 
     def _relative_solution(self, edge_terms: np.ndarray, reference: np.ndarray,
-                           clip: bool, near: bool = False) -> tuple[np.ndarray, np.ndarray,
-                                                                     np.ndarray] | None:
+                           clip: bool, near: bool = False,
+                           ordered: bool = True) -> tuple[np.ndarray, np.ndarray,
+                                                          np.ndarray] | None:
         """(m, y, log y) of (I − M) y = 1 at absorbing nodes, M(e) = exp(edge term + R(dst) −
         R(src)) for the reference R (clip: M ≤ 1, which R = H guarantees but for round-off),
         or None where y is not positive and finite or the factor is exactly singular.
         near: R is to be within e^±LOG_Y_KEPT of the soft values V, else None without a
         solve; relative to V itself M(e) ≤ 1, so an M(e) above e^(2·LOG_Y_KEPT) says it is
-        not (the last soft values after a long step of a search)."""
+        not (the last soft values after a long step of a search). ordered: solve on the
+        triangle of the nodes in R's order first (`_solve`), where M weighs little."""
         mdp = self.mdp
         terms = edge_terms + reference[mdp.dst] - reference[mdp.src]
         if clip:
@@ -356,8 +392,12 @@ class BoltzmannPosterior:
         if near and terms.max(initial=0.0) > 2 * LOG_Y_KEPT:
             return None
         m = np.exp(terms)
+        rank = None
+        if ordered:  # the goal's side first: most of M's weight leads to higher R
+            rank = np.empty(mdp.n_nodes, dtype=np.int64)
+            rank[np.argsort(-reference, kind="stable")] = np.arange(mdp.n_nodes)
         try:
-            y = self._solve(m, np.where(mdp.has_out, 0.0, 1.0), "T")
+            y = self._solve(m, np.where(mdp.has_out, 0.0, 1.0), "T", rank)
         except RuntimeError:  # SuperLU: the factor is exactly singular
             self._lu = None
             return None
@@ -441,22 +481,19 @@ class BoltzmannPosterior:
         _, m, y = self._linear_soft_values(np.append(beta * w, beta))
         x0 = np.bincount(self.starts, minlength=n).astype(float)
         u = self._solve(m, x0 / y, "N")
-        slopes = np.column_stack([mdp.features, mdp.base_reward])  # a(e) (E, d + 1)
-        absorbing = ~mdp.has_out
-
-        def per_node(index: np.ndarray, per_edge: np.ndarray) -> np.ndarray:
-            return np.column_stack([np.bincount(index, col, minlength=n) for col in per_edge.T])
-
+        slopes, absorbing = self._slopes, ~mdp.has_out
         forward = m * y[mdp.dst]  # dy = (I − M)⁻¹ (dM y + dy at the absorbing nodes)
-        rhs = per_node(mdp.src, forward[:, None] * slopes)
+        out_sums = self._out_edges @ (forward[:, None] * slopes)  # dM y (n, d + 1)
+        rhs = out_sums.copy()
         rhs[absorbing, -1] = mdp.fixed_values[absorbing] * y[absorbing]
         dy = self._solve(m, rhs, "T")
         backward = m * u[mdp.src]  # du = (I − M)⁻ᵀ (dMᵀ u − d(x0 / y))
-        du = self._solve(m, per_node(mdp.dst, backward[:, None] * slopes)
-                         - (x0 / y**2)[:, None] * dy, "N")
-        dflow = (du[mdp.src] * forward[:, None] + (backward * y[mdp.dst])[:, None] * slopes
-                 + backward[:, None] * dy[mdp.dst])
-        derivative = slopes.T @ dflow
+        in_sums = self._in_edges @ (backward[:, None] * slopes)  # dMᵀ u
+        du = self._solve(m, in_sums - (x0 / y**2)[:, None] * dy, "N")
+        # d(flow)/dθ = du(src)·m·y(dst) + u(src)·dM·y(dst) + u(src)·m·dy(dst), summed
+        # against a(e): the first and last terms are the node sums above against du and dy
+        derivative = (out_sums.T @ du + in_sums.T @ dy
+                      + (slopes * (backward * y[mdp.dst])[:, None]).T @ slopes)
         derivative[-1] += mdp.fixed_values[absorbing] @ (du[absorbing] * y[absorbing, None]
                                                         + u[absorbing, None] * dy[absorbing])
         return (derivative + derivative.T) / 2  # symmetric but for round-off

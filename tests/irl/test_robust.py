@@ -421,9 +421,9 @@ def test_goal_reaching_soft_values_solve_the_soft_bellman_equation(seed):
 
 @pytest.mark.parametrize("seed", range(3))
 def test_goal_reaching_solves_match_dense_solves(seed):
-    """The linear system of the goal-reaching soft values (LU without pivoting on the
-    symmetric pattern's ordering, refined on the last LU for a near policy, refactored for a
-    far one) agrees with dense solves to 1e-10 relative, both orientations."""
+    """The linear system of the goal-reaching soft values (refined on the triangle of the
+    hard values' order, or on an LU without pivoting on the symmetric pattern's ordering)
+    agrees with dense solves to 1e-10 relative, both orientations."""
     mdp = random_goal_graph(seed, n=60)
     post = BoltzmannPosterior(mdp, [mdp.follow(mdp.solve([-0.5, -0.5]).policy, 0)],
                               Prior("uniform", 1.0, -np.ones(2), np.zeros(2)), (0.1, 1000))
@@ -438,6 +438,52 @@ def test_goal_reaching_solves_match_dense_solves(seed):
             np.testing.assert_allclose(post._solve(m, rhs, trans), np.linalg.solve(matrix, rhs),
                                        rtol=1e-10, atol=0)
 
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_triangle_factor_solves_the_triangle_of_the_matrix(seed):
+    """`PatternLU.triangular`: with the nodes in a given order, the factor solves the matrix
+    made of the diagonal and the edges s → d with d earlier than s (the others left out),
+    both orientations, as a dense solve of that matrix does."""
+    mdp = random_goal_graph(seed, n=40)
+    post = BoltzmannPosterior(mdp, [mdp.follow(mdp.solve([-0.5, -0.5]).policy, 0)],
+                              Prior("uniform", 1.0, -np.ones(2), np.zeros(2)), (0.1, 1000))
+    rng = np.random.default_rng(seed)
+    m = rng.uniform(0.0, 1.0, len(mdp.src)) / np.diff(mdp.indptr)[mdp.src]
+    data = np.empty(len(post._indices))
+    data[post._diagonal], data[post._edge_slots] = 1.0, -m
+    rank = rng.permutation(mdp.n_nodes)
+    earlier = rank[mdp.dst] < rank[mdp.src]
+    triangle = np.eye(mdp.n_nodes)  # row s: node s's equation
+    np.add.at(triangle, (mdp.src[earlier], mdp.dst[earlier]), -m[earlier])
+    factor = post._factors.triangular(data, rank)
+    rhs = rng.normal(size=mdp.n_nodes)
+    # the CSC matrix factorised is the transpose of I − M: trans "T" solves (I − M) x = rhs
+    np.testing.assert_allclose(factor.solve(rhs, "T"), np.linalg.solve(triangle, rhs),
+                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(factor.solve(rhs, "N"), np.linalg.solve(triangle.T, rhs),
+                               rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_near_greedy_soft_values_need_no_whole_lu(seed):
+    """At large β the edges that lead away from the goal weigh e^(−β·extra cost) relative
+    to the hard values, so refinement on the triangle in the hard values' order solves the
+    soft values' system without a whole LU, as exactly as a dense solve."""
+    mdp = random_goal_graph(seed, n=60)
+    post = BoltzmannPosterior(mdp, [mdp.follow(mdp.solve([-0.5, -0.5]).policy, 0)],
+                              Prior("uniform", 1.0, -np.ones(2), np.zeros(2)), (0.1, 1000))
+    factorised = []
+    whole_lu = post._factors.factorise
+    post._factors.factorise = lambda data: factorised.append(1) or whole_lu(data)
+    values = post.soft_values(np.array([-0.5, -0.3]), 100.0)
+    assert not factorised and not post._lu_exact
+    _, _, m, y = post._linear
+    dense = np.eye(mdp.n_nodes)
+    np.add.at(dense, (mdp.src, mdp.dst), -m)
+    np.testing.assert_allclose(y, np.linalg.solve(dense, np.where(mdp.has_out, 0.0, 1.0)),
+                               rtol=1e-10)
+    assert np.all(np.isfinite(values))
 
 def three_demo_posterior(seed):
     """The posterior of three greedy demonstrations from starts 0, 3 and 5 of a random goal
