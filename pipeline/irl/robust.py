@@ -196,7 +196,7 @@ class BoltzmannPosterior:
         self._lu_exact = False  # a whole LU of them, or only their triangle (`_solve`)
         # Without discounting: the last (θ, V, m, y) of _linear_soft_values
         self._linear: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
-        self._last_reference = "hard"  # its reference: "hard", "last" or "sweeps"
+        self._last_reference = "hard"  # its reference: "hard", "last", "rescaled", "sweeps"
         n, rows = mdp.n_nodes, np.arange(mdp.n_nodes + 1)
         self._indptr = mdp.indptr + rows
         self._diagonal = mdp.indptr[:-1] + rows[:-1]
@@ -330,18 +330,20 @@ class BoltzmannPosterior:
         and on a lattice their number grows combinatorially with the distance (paths that
         take the same moves in another order tie exactly): y can span tens of decades,
         where its small entries are lost and the factorisation can break down. Then R is
-        the last soft values (those of a near θ in a search), or the soft values themselves
-        to within a small error, by value iteration in log space from H (`_soft_sweeps`):
-        M is nearly the soft policy (a stochastic matrix) and y is nearly 1 everywhere. The
-        sweeps cost a hundred passes over the edges; at small β (noisy demonstrations) they
-        were most of the MAP's time (metropolis, β_E = 5: 1.7 of 3.9 s)."""
+        the last soft values (those of a near θ in a search), or H + log y of that wide
+        solution ("rescaled"): y ≥ 1, its large entries are accurate and where the small
+        ones are lost V is within a few nats of H, so relative to it y is near 1 (a 20 m
+        room: 1.4 → 0.8 s for the MAP). Last, the soft values themselves to within a
+        small error, by value iteration in log space from H (`_soft_sweeps`): M is nearly
+        the soft policy (a stochastic matrix) and y is nearly 1 everywhere; the sweeps cost
+        a hundred passes over the edges."""
         if self._linear is not None and np.array_equal(self._linear[0], theta):
             return self._linear[1:]
         mdp = self.mdp
         edge_terms = self._log_weights(theta)
         hard = theta[-1] * mdp.fixed_values
         hard[mdp.has_out] = theta[-1] * mdp.r_goal - mdp.cost_to_goal(edge_terms)[mdp.has_out]
-        # The common case, cheap: relative to H, refined on the last LU. Relative to the
+        # The common case, cheap: relative to H, refined on its triangle. Relative to the
         # last soft values, which at a near θ are near these: first where the last solution
         # was relative to something else than H (an LU of the system relative to one
         # reference does not serve another).
@@ -357,6 +359,11 @@ class BoltzmannPosterior:
                 wide = solved
             if solved is not None and np.abs(solved[2]).max() <= LOG_Y_KEPT:
                 return self._keep_linear(theta, reference, *solved, kind)
+        if wide is not None:  # y ≥ 1 relative to H: its large entries are accurate, and
+            reference = hard + np.maximum(wide[2], 0.0)  # where it is lost, V is near H
+            solved = self._relative_solution(edge_terms, reference, clip=False)
+            if solved is not None and np.abs(solved[2]).max() <= LOG_Y_KEPT:
+                return self._keep_linear(theta, reference, *solved, "rescaled")
         reference = self._soft_sweeps(edge_terms, hard)
         for fresh in (False, True):
             if fresh:  # refinement can settle on a huge multiple of the near-null vector 1

@@ -419,6 +419,36 @@ def test_goal_reaching_soft_values_solve_the_soft_bellman_equation(seed):
         assert np.all(np.isfinite(values))
 
 
+
+def test_soft_values_with_astronomically_many_tied_paths_need_no_sweeps():
+    """On a 25 × 25 grid every monotone path between opposite corners ties: C(48, 24) ≈ 3e13
+    of them, so relative to the hard values y = e^(V − H) spans more than e^25. The wide
+    solve's large entries still place V, so one more solve relative to them gives the soft
+    values, without value-iteration sweeps; they solve the soft Bellman equation."""
+    n = 25
+    node = np.arange(n * n).reshape(n, n)
+    right, down = (node[:, :-1].ravel(), node[:, 1:].ravel()), (node[:-1].ravel(),
+                                                                node[1:].ravel())
+    src = np.concatenate([right[0], right[1], down[0], down[1]])
+    dst = np.concatenate([right[1], right[0], down[1], down[0]])
+    terminal = np.zeros(n * n, bool)
+    terminal[-1] = True
+    mdp = GraphMDP(src, dst, np.ones(len(src)), np.zeros((len(src), 2)), terminal, GOAL)
+    post = BoltzmannPosterior(mdp, [mdp.follow(mdp.solve([-0.5, -0.5]).policy, 0)],
+                              Prior("uniform", 1.0, -np.ones(2), np.zeros(2)), (0.1, 1000),
+                              base_measure="uniform")
+    swept = []
+    sweeps = post._soft_sweeps
+    post._soft_sweeps = lambda *args: swept.append(1) or sweeps(*args)
+    w, beta = np.array([-0.5, -0.5]), 1000.0
+    values = post.soft_values(w, beta)
+    hard = beta * mdp.r_goal - mdp.cost_to_goal(post._log_weights(np.append(beta * w, beta)))
+    assert values[0] - hard[0] == pytest.approx(math.log(math.comb(48, 24)), rel=1e-9)
+    assert not swept and post._last_reference == "rescaled"
+    q = post.log_base + beta * mdp.base_reward + values[mdp.dst]
+    np.testing.assert_allclose(values[mdp.has_out], mdp.log_sum_exp(q)[mdp.has_out],
+                               rtol=1e-10, atol=1e-9)
+
 @pytest.mark.parametrize("seed", range(3))
 def test_goal_reaching_solves_match_dense_solves(seed):
     """The linear system of the goal-reaching soft values (refined on the triangle of the
@@ -692,7 +722,8 @@ def test_soft_values_where_equal_paths_multiply_by_hand(k):
 def test_soft_values_relative_to_the_last_ones_by_hand():
     """A search's next parameters are near its last: where the solution relative to the
     hard values spans too many decades (k = 200 diamonds: 139 nats), the system is solved
-    relative to the last soft values, and the values are still those by hand. Every edge
+    relative to that wide solution rescaled (the first call) or to the last soft values
+    (near parameters), and the values are still those by hand. Every edge
     has feature 1, so V(3i) = (k − i)(log 2 + 2β(w − c)) + βR_goal; after a long step (β
     1000 → 2 at w = −1: the last values a thousand nats apart per edge) that reference is
     passed over, without overflowing."""
@@ -712,8 +743,22 @@ def test_soft_values_relative_to_the_last_ones_by_hand():
             np.testing.assert_allclose(values[3 * i],
                                        (k - i) * (math.log(2) + 2 * beta * (w - c)) + beta,
                                        rtol=1e-9, atol=1e-8)
-    assert kinds[0] == "sweeps" and "last" in kinds[1:3] and kinds[4] != "last"
+    assert kinds[0] == "rescaled" and "last" in kinds[1:3] and kinds[4] != "last"
 
+
+def test_soft_values_from_sweeps_where_the_hard_solve_fails():
+    """The last resort: where the system relative to the hard values has no usable solution
+    (its factor breaking down, simulated here), value-iteration sweeps from the hard values
+    give the reference, and the values are still the soft Bellman equation's fixed point."""
+    mdp, path = diamond_chain(30, back=True)
+    post = BoltzmannPosterior(mdp, [path], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100),
+                              "uniform")
+    relative = post._relative_solution
+    post._relative_solution = lambda terms, reference, clip, **kw: (
+        None if clip else relative(terms, reference, clip, **kw))
+    np.testing.assert_allclose(post.soft_values([-1.0], 2.0),
+                               soft_values_by_iteration(mdp, 2.0, [-1.0]), rtol=1e-8, atol=1e-7)
+    assert post._last_reference == "sweeps"
 
 @pytest.mark.parametrize("k", [30, 120])
 def test_soft_values_where_equal_paths_multiply_around_cycles(k):
