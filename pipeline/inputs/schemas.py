@@ -4,8 +4,9 @@ The published schemas are `pipeline/schemas/scene.schema.json` and `demos.schema
 (draft 2020-12, shipped as package data). A wrong type, shape or key is refused with one line:
 the file, the JSON path of the culprit (`persons[2].x`) and what was expected. Non-finite
 numbers are refused too: JSON has none, but Python's json module would read `NaN` and
-`Infinity` literals. What a schema cannot say (persons inside the room, relation ids that
-exist, ...) is checked by the readers after this.
+`Infinity` literals; so are integers too large for a float and a key given twice in one object
+(the json module would keep the last silently). What a schema cannot say (persons inside
+the room, relation ids that exist, ...) is checked by the readers after this.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import sys
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -38,6 +40,35 @@ class NonFinite:
         self.literal = literal
 
 
+class TooLarge:
+    """What an integer literal of more digits than any float holds parses to (`_parse_int`):
+    a marker, so `validate` can name the field (Python would make it an int no float holds,
+    or refuse it beyond 4300 digits with a ValueError)."""
+
+    def __init__(self, digits: int) -> None:
+        self.digits = digits
+
+
+def _parse_int(literal: str) -> int | TooLarge:
+    digits = len(literal.lstrip("-"))
+    return TooLarge(digits) if digits > sys.float_info.max_10_exp else int(literal)
+
+
+class RepeatedKey(Exception):
+    """A JSON object names a key twice (Python's json module would keep the last silently)."""
+
+    def __init__(self, key: str) -> None:
+        self.key = key
+
+
+def _object_without_repeats(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) < len(pairs):
+        seen: set[str] = set()
+        raise RepeatedKey(next(k for k, _ in pairs if k in seen or seen.add(k)))
+    return out
+
+
 @functools.cache
 def load_schema(name: str) -> dict[str, Any]:
     """The published schema `name` ("scene" or "demos"), read from the package."""
@@ -55,8 +86,12 @@ def read_json(path: Path, schema_name: str, source: str) -> Any:
     error = ERRORS[schema_name]
     try:
         # utf-8-sig: editors on Windows save JSON with a byte-order mark, which is no JSON
-        data = json.loads(path.read_text(encoding="utf-8-sig"), parse_constant=NonFinite)
+        data = json.loads(path.read_text(encoding="utf-8-sig"), parse_constant=NonFinite,
+                          parse_int=_parse_int, object_pairs_hook=_object_without_repeats)
         validate(data, schema_name, source)
+    except RepeatedKey as e:
+        raise error(f"{source}: key {e.key!r} appears twice in one object; which one is "
+                    f"meant?") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise error(f"{source} is not valid JSON ({e})") from None
     except OSError as e:
@@ -79,8 +114,7 @@ def validate(data: Any, schema_name: str, source: str) -> None:
 
     bad = _first_non_finite(data, "")
     if bad is not None:
-        path, literal = bad
-        raise fail(path, f"{literal} is not a finite number (JSON has no NaN or Infinity)")
+        raise fail(*bad)
     # The shallowest error, and of equals the first found: jsonschema's default key would
     # report the last of several bad siblings (starts[6] before starts[0]).
     found = best_match(_validator(schema_name).iter_errors(data), key=_depth)
@@ -93,11 +127,15 @@ def _depth(error: ValidationError) -> int:
 
 
 def _first_non_finite(value: Any, path: str) -> tuple[str, str] | None:
-    """(JSON path, literal) of the first NaN/Infinity in `value`, or None."""
+    """(JSON path, what is wrong) of the first NaN, Infinity or integer too large for a float
+    in `value`, or None."""
+    no_nan = "is not a finite number (JSON has no NaN or Infinity)"
     if isinstance(value, NonFinite):
-        return path, value.literal
+        return path, f"{value.literal} {no_nan}"
     if isinstance(value, float) and not math.isfinite(value):  # data not read by read_json
-        return path, repr(value)
+        return path, f"{value!r} {no_nan}"
+    if isinstance(value, TooLarge):
+        return path, f"an integer of {value.digits} digits is too large for a number"
     items = value.items() if isinstance(value, dict) else \
         enumerate(value) if isinstance(value, list) else ()
     for key, item in items:
