@@ -224,9 +224,10 @@ def make_msg(ts, msgtype: str, stamp: int, frame: str, data: np.ndarray):
     return t[msgtype](header=h, child_frame_id="base_link", pose=cov, twist=twist)
 
 
-def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]], frame: str = "map",
-              storage: str = "mcap") -> Path:
-    """Write `topics` {name: (msgtype, [data per message])}; storage mcap|sqlite3|ros1."""
+def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]],
+              frame: str | list[str] = "map", storage: str = "mcap") -> Path:
+    """Write `topics` {name: (msgtype, [data per message])}; storage mcap|sqlite3|ros1;
+    `frame` is every message's frame_id, or one per message."""
     ts = ROS1 if storage == "ros1" else ROS2
     if storage == "ros1":
         writer = Writer1(path)
@@ -238,7 +239,8 @@ def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]], frame
             conn = writer.add_connection(name, msgtype, typestore=ts)
             for k, data in enumerate(items):
                 stamp = 10**9 + k * 10**8
-                msg = make_msg(ts, msgtype, stamp, frame, np.asarray(data, dtype=float))
+                frame_id = frame if isinstance(frame, str) else frame[k]
+                msg = make_msg(ts, msgtype, stamp, frame_id, np.asarray(data, dtype=float))
                 raw = ts.serialize_ros1(msg, msgtype) if storage == "ros1" else \
                     ts.serialize_cdr(msg, msgtype)
                 writer.write(conn, stamp, raw)

@@ -60,6 +60,10 @@ SUPPORTED_TYPES = (PATH_TYPE, *STREAM_TYPES)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
+# A CSV track ordered by its t column may be at most this many times longer than its rows in
+# file order (`_csv_recording`): sorting fixes rows exported out of order, it does not turn a
+# walk into a zig-zag.
+T_ORDER_GROWTH = 2.0
 # Positions are rounded to this many decimals of a metre (a nanometre, far below any sensor):
 # formats reach the same polyline by different float arithmetic (an odometry stream's 0.6 is
 # 0.5999999999999999), and learning should not tell them apart.
@@ -163,6 +167,12 @@ def _read_json(path: Path, where: str) -> Recording:
     data = read_json(path, "demos", where)
     tracks = [np.asarray(t, dtype=float) for t in data["trajectories"]]
     subjects = data.get("subjects")
+    if subjects is not None:  # trimmed, as the CSV reader trims: " ann" is subject "ann"
+        subjects = [s.strip() for s in subjects]
+        blank = next((i for i, s in enumerate(subjects) if not s), None)
+        if blank is not None:
+            raise PipelineError(f"{where}: subjects[{blank}] is blank; give every trajectory "
+                                f"a subject id")
     if subjects is not None and len(subjects) != len(tracks):
         raise PipelineError(f"{where}: subjects has {len(subjects)} entries but there are "
                             f"{len(tracks)} trajectories; give one subject id per trajectory")
@@ -214,17 +224,18 @@ def _read_csv(path: Path, where: str) -> Recording:
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
         with path.open(newline="", encoding="utf-8-sig") as f:
-            col, table, ids, subjects = _csv_table(csv.reader(f), where)
+            col, table, lines, ids, subjects = _csv_table(csv.reader(f), where)
     except UnicodeDecodeError:
         raise PipelineError(f"{where} is not UTF-8 text") from None
     except csv.Error as e:
         raise PipelineError(f"{where}: not valid CSV ({e})") from None
-    return _csv_recording(col, table, ids, subjects, where)
+    return _csv_recording(col, table, lines, ids, subjects, where)
 
 
-def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, list[str], list[str]]:
-    """The CSV's columns (name -> index), its rows as (x, y, t) (t 0 without a t column), and
-    its trajectory ids and subjects (empty without those columns)."""
+def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarray, list[str],
+                                            list[str]]:
+    """The CSV's columns (name -> index), its rows as (x, y, t) (t 0 without a t column), the
+    file line of each row, and its trajectory ids and subjects (empty without those columns)."""
     header = next((row for row in reader if any(c.strip() for c in row)), None)
     if header is None:
         raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
@@ -233,6 +244,7 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, list[str
     ids: list[str] = []
     subjects: list[str] = []
     rows: list[tuple[float, ...]] = []
+    lines: list[int] = []
     for row in reader:
         if not row or all(not c.strip() for c in row):
             continue  # blank line
@@ -242,6 +254,7 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, list[str
                                 f"has {len(header)}")
         rows.append(tuple(_csv_number(row, col, name, f"{where}, line {line}")
                           for name in ("x", "y", "t")))
+        lines.append(line)
         for name, out in (("trajectory", ids), ("subject", subjects)):
             if name in col:
                 ident = row[col[name]].strip()
@@ -251,7 +264,7 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, list[str
                 out.append(ident)
     if not rows:
         raise PipelineError(f"{where} has no rows")
-    return col, np.array(rows, dtype=float), ids, subjects
+    return col, np.array(rows, dtype=float), np.array(lines), ids, subjects
 
 
 def _csv_number(row: list[str], col: dict[str, int], name: str, where: str) -> float:
@@ -268,16 +281,34 @@ def _csv_number(row: list[str], col: dict[str, int], name: str, where: str) -> f
     return v
 
 
-def _csv_recording(col: dict[str, int], table: np.ndarray, ids: list[str],
+def _polyline_length(points: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, ids: list[str],
                    subjects: list[str], where: str) -> Recording:
-    """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given."""
-    def ordered(sel: np.ndarray) -> np.ndarray:
-        if "t" in col:
-            sel = sel[np.argsort(table[sel, 2], kind="stable")]
-        return sel
+    """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given.
+
+    Ordering by t must make a track more coherent, never less: rows exported out of order
+    fall into place, but two recordings appended with clocks that both start at 0 would be
+    interleaved into one zig-zag many times longer than either. A track that ordering makes
+    more than T_ORDER_GROWTH times longer than its rows in file order is refused."""
+    def ordered(sel: np.ndarray, what: str) -> np.ndarray:
+        if "t" not in col:
+            return sel
+        by_t = sel[np.argsort(table[sel, 2], kind="stable")]
+        as_filed, as_timed = (_polyline_length(table[k, :2]) for k in (sel, by_t))
+        if as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
+            back = int(np.flatnonzero(np.diff(table[sel, 2]) < 0)[0]) + 1
+            raise PipelineError(
+                f"{where}: ordered by t, {what} is {as_timed:.1f} m long against {as_filed:.1f} m "
+                f"in file order (t goes back from {table[sel[back - 1], 2]:g} to "
+                f"{table[sel[back], 2]:g} at line {lines[sel[back]]}); are several recordings "
+                f"appended? give each its own id in a trajectory column")
+        return by_t
 
     if "trajectory" not in col:
-        order = ordered(np.arange(len(table)))
+        order = ordered(np.arange(len(table)), "the pose stream")
         if len(order) < 2:
             raise PipelineError(f"{where} has 1 row; a pose stream needs at least two")
         stream_subjects: list[str | None] | None = \
@@ -292,7 +323,7 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, ids: list[str],
         if len(members) < 2:
             raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has 1 row; a trajectory "
                                 f"needs at least two")
-        tracks.append(table[ordered(np.array(members)), :2])
+        tracks.append(table[ordered(np.array(members), f"trajectory {i} (id {ident!r})"), :2])
         if subjects:
             names_here = sorted({subjects[k] for k in members})
             if len(names_here) > 1:
@@ -312,6 +343,8 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
             connections = [c for c in reader.connections if c.topic == topic]
             tracks: list[np.ndarray] = []
             stream: list[tuple[float, float]] = []
+            frames: dict[str, int] = {}  # frame_id -> first message with it
+            too_short: list[int] = []  # Path messages with fewer than two poses
             count = 0
             for count, (conn, _, raw) in enumerate(reader.messages(connections=connections), 1):
                 msg: Any = reader.deserialize(raw, conn.msgtype)
@@ -320,9 +353,13 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                 if frame is not None and found != frame:
                     raise PipelineError(f"{what} has frame_id {found!r}, not "
                                         f"expert.frame={frame!r}")
+                frames.setdefault(found, count - 1)
                 if msgtype == PATH_TYPE:
-                    tracks.append(_path_track(msg, f"{where}: topic {topic} path message "
-                                                   f"{count - 1}"))
+                    track = _path_track(msg, f"{where}: topic {topic} path message {count - 1}")
+                    if len(track) < 2:  # a planner publishes an empty path when it has none
+                        too_short.append(count - 1)
+                    else:
+                        tracks.append(track)
                 else:
                     pos = STREAM_TYPES[msgtype](msg)
                     if not (math.isfinite(pos.x) and math.isfinite(pos.y)):
@@ -335,7 +372,18 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
         raise PipelineError(f"{where} cannot be read as a ROS bag ({detail[:200]})") from None
     if count == 0:
         raise PipelineError(f"{where}: topic {topic} has no messages")
+    if len(frames) > 1:
+        log.warning("%s: topic %s mixes frame_ids %s (first in messages %s); positions are "
+                    "read as they are, all in the scene's frame (expert.frame=... keeps one)",
+                    where, topic, ", ".join(repr(f) for f in frames), list(frames.values()))
     if msgtype == PATH_TYPE:
+        if too_short and not tracks:
+            raise PipelineError(f"{where}: every path message of topic {topic} has fewer than "
+                                f"two poses; a trajectory needs at least two")
+        if too_short:
+            log.warning("%s: skipped %d of %d path messages of topic %s with fewer than two "
+                        "poses (messages %s)", where, len(too_short), count, topic,
+                        too_short[:5])
         return Recording(tracks, False)
     if len(stream) < 2:
         raise PipelineError(f"{where}: topic {topic} has 1 message; a pose stream needs at "
@@ -366,11 +414,9 @@ def _bag_topic(reader: Any, where: str, topic: str | None) -> tuple[str, str]:
 
 
 def _path_track(msg: Any, what: str) -> np.ndarray:
-    """A nav_msgs/Path message's positions (K, 2): at least two, all finite."""
+    """A nav_msgs/Path message's positions (K, 2), all finite."""
     track = np.array([[p.pose.position.x, p.pose.position.y] for p in msg.poses],
                      dtype=float).reshape(-1, 2)
-    if len(track) < 2:
-        raise PipelineError(f"{what} has {len(track)} pose(s); a trajectory needs at least two")
     if not np.isfinite(track).all():
         raise PipelineError(f"{what} has a non-finite position")
     return track
@@ -622,7 +668,9 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         if recording.is_stream:  # it ends at the goal: resample what leads there
             cut = np.vstack([clean_track(cut[:-1], spacing), cut[-1:]])
         if room is not None and not room.contains(cut).all():
-            raise PipelineError(f"{where}: trajectory {i} leaves the room {room.describe()}")
+            x, y = cut[int(np.argmin(room.contains(cut)))]
+            raise PipelineError(f"{where}: trajectory {i} leaves the room {room.describe()} at "
+                                f"({x:.2f}, {y:.2f})")
         if len(cut) < 2:
             raise PipelineError(f"{where}: trajectory {i} never moves (all its points are "
                                 f"within {REPEAT_TOLERANCE:g} m of each other)")

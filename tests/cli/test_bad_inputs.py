@@ -671,7 +671,7 @@ BAG_CASES = {
                              ["expert.frame=map"], ["frame_id 'odom'", "expert.frame='map'"]),
     "bag path of one pose": (lambda t: _bag_with(t, {"/plan": ("nav_msgs/msg/Path",
                                                                [DRIVE[:1]])}),
-                             [], ["path message 0", "1 pose(s)"]),
+                             [], ["every path message of topic /plan has fewer than two poses"]),
     "bag pose not finite": (lambda t: _bag_with(t, {"/odom": (
         "nav_msgs/msg/Odometry", [DRIVE[0], np.array([np.nan, 1.0]), DRIVE[-1]])}),
         [], ["message 1", "non-finite"]),
