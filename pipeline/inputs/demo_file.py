@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
+from pipeline.core.nearby import segments_clear_of_disks
+from pipeline.core.social import min_distance_to_person
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.recorded import describe, load_recorded
+
+log = logging.getLogger(__name__)
 
 
 def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed: float, *,
@@ -19,12 +24,15 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     """Read a demonstration file or bag (DESIGN §3, `pipeline.inputs.recorded.load_recorded`).
 
     Every trajectory is cut at the goal disk, must stay in the room, keep robot_radius from
-    every obstacle (its segments become graph edges), begin within `start_radius` of a start
-    (it is matched to the nearest) and end near the goal; `topic` and `frame` select and check
+    every obstacle and out of every person's body disk (its segments become graph edges),
+    begin within `start_radius` of a start (it is matched to the nearest) and end near the
+    goal (one that ends outside the goal disk is a demonstration that does not reach it, with
+    a warning); `topic` and `frame` select and check
     the bag topic (expert.topic, expert.frame). A file's `subjects` become the demonstrations'
     `subject`.
     """
     demos = []
+    unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room)
     for k, (start, points, subject) in enumerate(tracks):
@@ -38,7 +46,39 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                     f"obstacle after ({x:.2f}, {y:.2f}); the robot needs robot_radius="
                     f"{scene.robot_radius:g} m (lower it in the scene file or with "
                     "scene.robot_radius)")
+        check_clear_of_bodies(path, k, points, scene)
+        # cut_at_goal ends a trajectory that entered the goal disk at the goal itself
+        end_gap = float(np.linalg.norm(points[-1] - scene.goal))
+        reached = end_gap <= scene.goal_tolerance
+        if not reached:
+            unreached.append(f"{k} ({end_gap:.2f} m)")
         feats = feature_model.segments(points[:-1], points[1:])
         durations = np.linalg.norm(np.diff(points, axis=0), axis=1) / speed
-        demos.append(Demonstration(start, points, feats, durations, True, subject))
+        demos.append(Demonstration(start, points, feats, durations, reached, subject))
+    if unreached:
+        log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m): they "
+                    "are learned from as demonstrations that do not reach the goal; extend them "
+                    "to the goal or raise scene.goal_tolerance", describe(path),
+                    ", ".join(unreached[:5]) + (", ..." if len(unreached) > 5 else ""),
+                    scene.goal_tolerance)
     return demos
+
+
+def check_clear_of_bodies(path: Path, k: int, points: np.ndarray, scene: Scene) -> None:
+    """Refuse trajectory `k` when it enters a person's body disk: no robot path may (its
+    segments would be graph edges no planned path could take)."""
+    if not len(scene.persons):
+        return
+    clear = segments_clear_of_disks(points[:-1], points[1:], scene.person_xy, scene.body_radius)
+    if clear.all():
+        return
+    seg = int(np.argmin(clear))
+    gaps = [min_distance_to_person(points[seg:seg + 2], xy[None]) for xy in scene.person_xy]
+    who = int(np.argmin(gaps))
+    person = scene.persons[who]
+    x, y = points[seg]
+    raise PipelineError(
+        f"{describe(path)}: trajectory {k} passes {gaps[who]:.2f} m from person {person.id} at "
+        f"({person.x:g}, {person.y:g}) after ({x:.2f}, {y:.2f}), inside the body disk "
+        f"(body_radius={scene.body_radius:g} m) no robot path may enter (lower it with "
+        "scene.body_radius or correct the trajectory)")

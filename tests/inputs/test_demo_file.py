@@ -16,7 +16,7 @@ def test_demo_file_loading(tmp_path, metropolis):
     fm = FeatureModel.from_scene(metropolis)
     path = tmp_path / "demos.json"
     path.write_text(json.dumps({"scene": "metropolis", "trajectories": [
-        [[0.5, 0.5], [0.5, 0.5], [3.0, 8.8], [5.5, 9.0]]]}))
+        [[0.5, 0.5], [0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]]}))
     [d] = load_demo_file(path, metropolis, fm, speed=1.0)
     assert d.start_index == 0 and len(d.points) == 3  # repeated point dropped
     path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [3.0, 3.0]]]}))

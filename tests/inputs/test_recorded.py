@@ -318,7 +318,8 @@ def test_demonstration_far_from_every_start_is_refused(tmp_path):
 
 def test_bag_through_load_demo_file(tmp_path, metropolis):
     fm = FeatureModel.from_scene(metropolis)
-    bag = write_bag(tmp_path / "b", {"/plan": ("nav_msgs/msg/Path", [PATH_A])})
+    clear = np.array([[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]])  # PATH_A grazes a metropolis person
+    bag = write_bag(tmp_path / "b", {"/plan": ("nav_msgs/msg/Path", [clear])})
     [d] = load_demo_file(bag, metropolis, fm, 2.0, topic="/plan", frame="map")
     assert d.start_index == 0 and d.reached
     assert d.durations.sum() == pytest.approx(length(d.points) / 2.0)
