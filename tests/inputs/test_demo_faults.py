@@ -1,0 +1,177 @@
+"""Faults of recorded and hand-made demonstration files that used to pass unnoticed (or as a
+traceback): each is now one line naming the file and the culprit, or a warning where the
+demonstration is still usable. Written as a user's files would be, read by the real readers."""
+
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from pipeline.core.features import FeatureModel
+from pipeline.inputs.demo_file import load_demo_file
+from pipeline.inputs.recorded import read_recording, read_tracks
+from tests.conftest import write_bag
+from tests.inputs.conftest import refused
+from tests.inputs.test_recorded import PATH_A, STARTS, line, load
+
+GOAL = np.array([5.5, 9.0])
+CLEAR = [[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]  # on metropolis: clear of every person
+
+
+def csv_rows(points: np.ndarray, times: np.ndarray) -> str:
+    return "".join(f"{x!r},{y!r},{t!r}\n" for (x, y), t in zip(points.tolist(), times.tolist(),
+                                                             strict=True))
+
+
+# -- CSV time -------------------------------------------------------------------------------
+
+
+def test_two_recordings_appended_with_restarting_clocks_are_refused(tmp_path):
+    # each walks start 0 -> goal at 0.05 m per 0.1 s; the second's clock starts at 0 again, so
+    # ordering by t would interleave two walks into one zig-zag (kilometres where each is 10 m)
+    walk_a = line(STARTS[0], GOAL)
+    walk_b = line(STARTS[2], GOAL)
+    path = tmp_path / "appended.csv"
+    path.write_text("x,y,t\n" + csv_rows(walk_a, np.arange(len(walk_a)) * 0.1)
+                    + csv_rows(walk_b, np.arange(len(walk_b)) * 0.1 + 0.05))
+    first_b = len(walk_a) + 2  # header, then walk_a's rows
+    refused(rf"appended\.csv: ordered by t, the pose stream is \d+\.\d m long against "
+            rf"\d+\.\d m in file order \(t goes back from [\d.]+ to 0\.05 at line {first_b}\); "
+            r"are several recordings appended\? give each its own id in a trajectory column",
+            read_tracks, path)
+    # the same rows with a trajectory id each are two demonstrations, read as they are
+    ids = tmp_path / "two.csv"
+    ids.write_text("x,y,t,trajectory\n" + "".join(
+        f"{r.rstrip()},{k}\n" for k, walk in enumerate((walk_a, walk_b))
+        for r in csv_rows(walk, np.arange(len(walk)) * 0.1).splitlines()))
+    tracks, _ = read_tracks(ids)
+    assert [len(t) for t in tracks] == [len(walk_a), len(walk_b)]
+    # so are trajectories whose own rows are appended twice (a copy-paste): refused by id
+    twice = tmp_path / "twice.csv"
+    twice.write_text("x,y,t,trajectory\n" + "".join(
+        f"{r.rstrip()},w\n" for r in (csv_rows(walk_a, np.arange(len(walk_a)) * 0.1)
+                                      + csv_rows(walk_b, np.arange(len(walk_b)) * 0.1))
+        .splitlines()))
+    refused(r"ordered by t, trajectory 0 \(id 'w'\) is", read_tracks, twice)
+
+
+def test_rows_out_of_order_or_with_a_clock_glitch_are_still_ordered_by_t(tmp_path):
+    walk = line(STARTS[0], GOAL)
+    times = np.arange(len(walk)) * 0.1
+    times[[10, 11]] = times[[11, 10]]  # one pair of stamps swapped: a jitter, not two walks
+    path = tmp_path / "glitch.csv"
+    path.write_text("x,y,t\n" + csv_rows(walk, times))
+    [track], _ = read_tracks(path)
+    assert np.array_equal(track[[10, 11]], walk[[11, 10]])  # ordered by t, as documented
+
+
+# -- JSON numbers, keys and subjects --------------------------------------------------------
+
+
+@pytest.mark.parametrize("digits", [400, 5000])  # 5000: past Python's int-string limit too
+def test_an_integer_too_large_for_a_float_names_its_field(tmp_path, digits):
+    path = tmp_path / "huge.json"
+    path.write_text('{"trajectories": [[[0.5, 0.5], [' + "9" * digits + ', 9.0]]]}')
+    refused(rf"huge\.json: trajectories\[0\]\[1\]\[0\]: an integer of {digits} digits is too "
+            r"large for a number", read_tracks, path)
+    # the largest that fits is a number like any other (then outside the room)
+    path.write_text('{"trajectories": [[[0.5, 0.5], [' + "9" * 308 + ', 9.0]]]}')
+    assert read_tracks(path)[0][0][1, 0] == pytest.approx(1e308)
+
+
+def test_a_key_given_twice_is_refused(tmp_path):
+    path = tmp_path / "twice.json"
+    path.write_text('{"trajectories": [[[0.5, 0.5], [5.5, 9.0]]], '
+                    '"trajectories": [[[2.0, 3.0], [5.5, 9.0]]]}')
+    refused(r"twice\.json: key 'trajectories' appears twice in one object", read_tracks, path)
+
+
+def test_json_subjects_are_trimmed_like_csv_ones(tmp_path):
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({"subjects": [" ann", "bo\t"],
+                                "trajectories": [PATH_A.tolist(), PATH_A.tolist()]}))
+    assert read_recording(path).subjects == ["ann", "bo"]
+    path.write_text(json.dumps({"subjects": ["ann", "  "],
+                                "trajectories": [PATH_A.tolist(), PATH_A.tolist()]}))
+    refused(r"s\.json: subjects\[1\] is blank", read_recording, path)
+
+
+# -- where a demonstration goes -------------------------------------------------------------
+
+
+def demo_file(tmp_path, *trajectories) -> tuple:
+    path = tmp_path / "demos.json"
+    path.write_text(json.dumps({"trajectories": [np.asarray(t).tolist() for t in trajectories]}))
+    return path
+
+
+@pytest.mark.parametrize("trajectory, after", [
+    ([[2.0, 3.0], [2.0, 5.0], [5.5, 9.0]], r"\(2\.00, 3\.00\)"),  # a waypoint on person 1
+    ([[2.0, 3.0], [2.1, 5.6], [5.5, 9.0]], r"\(2\.00, 3\.00\)"),  # a segment through it
+    ([[0.5, 0.5], [2.0, 4.8], [2.2, 5.2], [5.5, 9.0]], r"\(0\.50, 0\.50\)"),  # grazing it
+])
+def test_a_trajectory_through_a_person_is_refused(tmp_path, metropolis, trajectory, after):
+    fm = FeatureModel.from_scene(metropolis)  # person 1 stands at (2, 5), body radius 0.25
+    path = demo_file(tmp_path, CLEAR, trajectory)
+    text = refused(rf"demos\.json: trajectory 1 passes 0\.\d\d m from person 1 at \(2, 5\) after "
+                   rf"{after}, inside the body disk \(body_radius=0\.25 m\)",
+                   load_demo_file, path, metropolis, fm, 1.0)
+    gap = float(text.split(" passes ")[1].split(" m ")[0])
+    assert gap < 0.25
+    # just outside the disk, the same file is read
+    clear = demo_file(tmp_path, CLEAR, [[2.0, 3.0], [2.27, 5.0], [5.5, 9.0]])
+    assert len(load_demo_file(clear, metropolis, fm, 1.0)) == 2
+
+
+def test_a_trajectory_starting_inside_a_person_is_refused(tmp_path, metropolis):
+    fm = FeatureModel.from_scene(metropolis)  # person 2 stands at (5, 3.5), start 6 is (4, 3)
+    path = demo_file(tmp_path, [[4.85, 3.45], [4.0, 5.5], [5.5, 9.0]])
+    refused(r"trajectory 0 passes 0\.16 m from person 2 at \(5, 3\.5\) after \(4\.85, 3\.45\)",
+            load_demo_file, path, metropolis, fm, 1.0)
+
+
+def test_a_trajectory_ending_outside_the_goal_disk_does_not_reach_it(tmp_path, metropolis,
+                                                                    caplog):
+    fm = FeatureModel.from_scene(metropolis)
+    short = [[0.5, 0.5], [1.0, 8.0], [4.6, 9.0]]  # ends 0.9 m from the goal, tolerance 0.3
+    path = demo_file(tmp_path, CLEAR, short)
+    with caplog.at_level(logging.WARNING):
+        reached, stops = load_demo_file(path, metropolis, fm, 1.0)
+    assert reached.reached and np.array_equal(reached.points[-1], GOAL)
+    assert not stops.reached and np.array_equal(stops.points, short)
+    assert "trajectories 1 (0.90 m) end outside the goal disk (goal_tolerance=0.3 m)" \
+        in caplog.text
+
+
+def test_leaving_the_room_names_where(tmp_path):
+    path = tmp_path / "out.json"
+    path.write_text(json.dumps({"trajectories": [[[0.5, 0.5], [-1.5, 4.0], [5.5, 9.0]]]}))
+    from pipeline.core.world import Room
+    from pipeline.inputs.recorded import load_recorded
+    refused(r"trajectory 0 leaves the room \[0, 10\] x \[0, 10\] at \(-1\.50, 4\.00\)",
+            load_recorded, path, STARTS, GOAL, goal_tolerance=0.3, room=Room(0, 0, 10, 10))
+
+
+# -- bags -----------------------------------------------------------------------------------
+
+
+def test_empty_path_messages_are_skipped_with_a_warning(tmp_path, caplog):
+    bag = write_bag(tmp_path / "plans", {"/plan": ("nav_msgs/msg/Path",
+                                                   [PATH_A, np.zeros((0, 2)), PATH_A])})
+    with caplog.at_level(logging.WARNING):
+        tracks, _ = read_tracks(bag)
+    assert len(tracks) == 2
+    assert "skipped 1 of 3 path messages of topic /plan with fewer than two poses " \
+           "(messages [1])" in caplog.text
+    empty = write_bag(tmp_path / "empty", {"/plan": ("nav_msgs/msg/Path", [PATH_A[:1]])})
+    refused(r"every path message of topic /plan has fewer than two poses", read_tracks, empty)
+
+
+def test_a_bag_mixing_frames_warns_unless_one_is_chosen(tmp_path, caplog):
+    bag = write_bag(tmp_path / "mixed", {"/plan": ("nav_msgs/msg/Path", [PATH_A, PATH_A])},
+                    frame=["map", "odom"])
+    with caplog.at_level(logging.WARNING):
+        assert len(load(bag)) == 2
+    assert "mixes frame_ids 'map', 'odom' (first in messages [0, 1])" in caplog.text
+    refused(r"message 1 has frame_id 'odom', not expert\.frame='map'", load, bag, frame="map")
