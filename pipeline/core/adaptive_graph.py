@@ -151,6 +151,33 @@ def medial_axis_points(scene: Scene, spacing: float) -> np.ndarray:
     return scene.obstacles.medial_axis(scene.robot_radius, spacing, scene.room.bounds, blocked)
 
 
+def merged_count(points: np.ndarray, separation: float) -> int:
+    """How many of `points` (n, 2), taken in order, become nodes when each merges into an
+    earlier kept point closer than `separation` (`_add_demo`'s rule, without the walls)."""
+    cells: dict[tuple[int, int], list[np.ndarray]] = {}
+    kept = 0
+    for p in points:
+        i, j = int(math.floor(p[0] / separation)), int(math.floor(p[1] / separation))
+        if any(np.hypot(*(q - p)) < separation for di in (-1, 0, 1) for dj in (-1, 0, 1)
+               for q in cells.get((i + di, j + dj), ())):
+            continue
+        cells.setdefault((i, j), []).append(p)
+        kept += 1
+    return kept
+
+
+def separation_for(points: np.ndarray, count: int, separation: float) -> float:
+    """The smallest separation (to 5 %) ≥ `separation` at which `points` merge into at most
+    `count` nodes (`merged_count`); bisection, as the count falls (nearly) monotonically."""
+    low, high = separation, separation
+    while merged_count(points, high) > count:
+        low, high = high, 2.0 * high
+    while high > 1.05 * low:
+        mid = math.sqrt(low * high)
+        low, high = (mid, high) if merged_count(points, mid) > count else (low, mid)
+    return high
+
+
 class AdaptiveGraph(StateGraph):
     """The adaptive state graph: `initialise`, then `grow` (or `grow_by`) by `step`s."""
 

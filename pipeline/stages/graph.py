@@ -16,10 +16,11 @@ from pipeline.app import build
 from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import ArtefactWriter
-from pipeline.core.adaptive_graph import AdaptiveGraph
+from pipeline.core.adaptive_graph import AdaptiveGraph, separation_for
 from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
+from pipeline.core.state_graph import DEMO
 
 log = logging.getLogger(__name__)
 
@@ -42,10 +43,12 @@ def run(ctx: RunContext) -> None:
     graph = AdaptiveGraph(scene, features, build.controller(cfg), weights, cfg.graph,
                           ctx.rng("graph"), cfg.mdp)
     t0 = time.perf_counter()
-    graph.initialise(demos_for_graph(codec.training_demos(demos_art), features, cfg.mdp.speed))
+    training = demos_for_graph(codec.training_demos(demos_art), features, cfg.mdp.speed)
+    graph.initialise(training)
     log.info("graph initialised: %d nodes, %d edges; growing to %d nodes under %s weights %s",
              graph.n_nodes, len(graph.src), cfg.graph.max_nodes, weights_source,
              np.round(weights, 3).tolist())
+    warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes)
     every = max(1, cfg.graph.max_nodes // 10)
     last = [graph.n_nodes]
 
@@ -66,6 +69,33 @@ def run(ctx: RunContext) -> None:
         log.warning("best trajectories from starts %s do not reach the goal",
                     np.flatnonzero(~graph.best_reached).tolist())
     write_graph(ctx, graph, weights, weights_source)
+
+
+# Demonstration waypoints may take at most this share of graph.max_nodes without a warning:
+# beyond it the graph has little room to grow paths the demonstrations did not take, so
+# learning compares them with little else and learned paths on it say little.
+DEMO_SHARE_WARNING = 0.5
+
+
+def warn_if_demonstrations_fill(graph: AdaptiveGraph, demos: list[Demonstration],
+                                max_nodes: int) -> None:
+    """One warning when the demonstrations' waypoints fill the graph before it grows, with
+    the graph.min_separation at which they would merge into at most that share."""
+    n_demo = graph.node_kind.count(DEMO)
+    budget = int(DEMO_SHARE_WARNING * max_nodes)
+    if n_demo <= budget:
+        return
+    grows = "cannot grow at all" if graph.n_nodes >= max_nodes else \
+        f"can add only {max_nodes - graph.n_nodes} nodes"
+    # Dense or noisy recordings set the count, not max_nodes: a derived min_separation
+    # shrinks as max_nodes grows, so raising max_nodes alone adds waypoints.
+    points = np.concatenate([d.points for d in demos])
+    wanted = separation_for(points, budget, graph.min_separation)
+    log.warning("the demonstrations' waypoints make %d of the %d initial nodes and the graph "
+                "%s (graph.max_nodes=%d): learning sees few paths the demonstrators did not "
+                "take; set graph.min_separation to about %.2f m (now %.3f m) so that "
+                "waypoints closer than that merge into one node", n_demo, graph.n_nodes, grows,
+                max_nodes, wanted, graph.min_separation)
 
 
 def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights: np.ndarray,
