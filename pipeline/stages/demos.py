@@ -104,8 +104,12 @@ def held_out(ctx: RunContext, demos: list[Demonstration]) -> np.ndarray:
         log.info("held out of learning: %d of %d demonstrations (evaluate.holdout=%s)",
                  heldout.sum(), len(demos), holdout)
         if not heldout.any():
-            log.warning("evaluate.holdout=%s holds out nothing: no start has two "
-                        "demonstrations", holdout)
+            nothing = f"evaluate.holdout={holdout} holds out nothing: no start has two " \
+                "demonstrations"
+            if ctx.cfg.objective.startswith("heldout_"):  # the sweep would get no number
+                raise PipelineError(f"{nothing}, so there is no {ctx.cfg.objective} "
+                                    f"(objective) to measure")
+            log.warning("%s", nothing)
         if heldout.all() and holdout != "all":
             raise PipelineError(f"evaluate.holdout={holdout} holds out every demonstration; "
                                 "keep some to learn from")

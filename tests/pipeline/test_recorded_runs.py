@@ -7,6 +7,7 @@ CSV) learn what their clean polylines learn, and densely sampled paths to the go
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -291,3 +292,35 @@ def test_an_odometry_bag_of_the_seven_metropolis_demos(tmp_path, default_dir, me
     assert [d["start_index"] for d in demos] == list(range(7))
     for d, path in zip(demos, driven, strict=True):
         assert discrete_frechet(np.asarray(d["points"]), path) <= 0.3, d["start_index"]
+
+
+def test_demonstrations_that_fill_the_graph_are_one_warning(tmp_path, caplog):
+    """Twenty noisy recordings sampled every 0.07 m leave a graph of 120 nodes no room to grow:
+    one warning says so and names a min_separation that gives it room, which it then has."""
+    rng = np.random.default_rng(0)
+    xs = np.linspace(1.0, 9.0, 115)
+    paths = [np.column_stack([xs, 2.0 + np.r_[0.0, rng.normal(0.0, 0.3, len(xs) - 2), 0.0]])
+             .tolist() for _ in range(20)]
+    demos = write_json(tmp_path / "demos.json", {"trajectories": paths})
+    scene = ("scene=file", f"scene.path={straight_room(tmp_path)}", "expert=file",
+             f"expert.path={demos}", "stages=[scene,demos,graph]", "graph.max_nodes=120")
+    with caplog.at_level("WARNING"):
+        run_in_process(tmp_path / "full", *scene)
+    [warning] = [r.getMessage() for r in caplog.records if "waypoints make" in r.getMessage()]
+    assert "and the graph cannot grow at all (graph.max_nodes=120)" in warning
+    advised = float(re.search(r"set graph\.min_separation to about ([0-9.]+) m", warning)[1])
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        run_in_process(tmp_path / "merged", *scene, f"graph.min_separation={advised}")
+    assert "waypoints make" not in caplog.text
+    nodes = codec.decode_nodes(read_artefact(tmp_path / "merged" / "graph.mcap"))
+    assert (nodes.kind == "demo").sum() <= 60
+
+
+def test_a_held_out_objective_with_nothing_held_out_is_refused(tmp_path):
+    # the optimal expert gives one demonstration per start, so a fraction holds out none
+    with pytest.raises(PipelineError, match=r"evaluate\.holdout=0\.3 holds out nothing: no start "
+                                            r"has two demonstrations, so there is no "
+                                            r"heldout_frechet_m \(objective\) to measure"):
+        run_in_process(tmp_path, "expert=optimal", "evaluate.holdout=0.3",
+                       "objective=heldout_frechet_m", "stages=[scene,demos]")
