@@ -428,6 +428,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="keep the rows of learning.csv for the (demonstrator, learner) "
                              "pairs not run now (e.g. add the baselines to a committed table)")
     args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
     table_path = args.out / f"{args.table}.csv"
     kept = kept_rows(table_path, args.demonstrators, args.learners) if args.merge else []
     learners = {k: LEARNERS[k] for k in args.learners}
