@@ -282,7 +282,10 @@ def write_evaluation(ctx: RunContext, weights: np.ndarray, curves: dict, graph_p
                    for name, c in (("graph", curves.get("graph")), ("ref", curves.get("ref")),
                                    ("norm", curves.get("norm"))) if c is not None}},
                 log_time=k)
-        learned = [{"graph": where, "start": s, "points": pts, **m}
+        # null where a measure has no finite value (no person to keep a distance from)
+        learned = [{"graph": where, "start": s, "points": pts,
+                    **{k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                       for k, v in m.items()}}
                    for where, paths in (("graph", graph_paths), ("ref", ref_paths))
                    for s, (pts, m) in enumerate(paths)]
         for p in learned:
@@ -317,15 +320,15 @@ def print_summary(m: dict, ctx: RunContext) -> None:
 def summary_text(m: dict, run_dir: str, learner_features: list[str]) -> str:
     """The one screen a run ends with, from its metrics (the docs generator prints the same
     for the README's sample output)."""
-    def fmt(key: str, spec: str = ".4f") -> str:
+    def fmt(key: str, spec: str = ".4f", unit: str = "") -> str:
         v = m.get(key)
-        return "n/a" if v is None else format(v, spec)
+        return "n/a" if v is None else format(v, spec) + unit
 
     def paths(prefix: str) -> str:
         return (f"crossings {fmt(prefix + 'relation_crossings', '.0f')}, intimate "
                 f"{fmt(prefix + 'intimate_intrusion_m', '.2f')} m, personal "
                 f"{fmt(prefix + 'personal_intrusion_m', '.2f')} m, min distance "
-                f"{fmt(prefix + 'min_distance_to_person', '.2f')} m, success "
+                f"{fmt(prefix + 'min_distance_to_person', '.2f', ' m')}, success "
                 f"{fmt(prefix + 'success', '.2f')}")
 
     share = m.get("graph_demo_node_share", 0.0)

@@ -2,6 +2,7 @@
 artefacts, the same bytes from the same seed, stage subsets from an earlier run, a subset of
 the features, and bad inputs refused in one line without touching earlier artefacts."""
 
+import json
 import shutil
 import subprocess
 from pathlib import Path
@@ -9,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.artefacts import codec, read_artefact
+from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.errors import PipelineError
 from tests.conftest import POLITE, ROOT, run_app, run_in_process
 
@@ -141,3 +142,16 @@ def test_evaluate_alone_on_a_run_with_a_derived_graph_size(default_run, tmp_path
     run_dir, metrics = default_run[0], default_run[1]
     again, _ = run_in_process(tmp_path, "stages=[evaluate]", f"from_run={run_dir}")
     assert again["policy_loss_norm"] == metrics["policy_loss_norm"]
+
+
+def test_a_scene_without_persons_runs_end_to_end(tmp_path):
+    """Nobody to keep a distance from: the smallest distance to a person has no value, which
+    the artefact stores as null and the summary shows as n/a (it used to fail the run)."""
+    scene = json.loads((ROOT / "data" / "scenes" / "metropolis.json").read_text())
+    scene |= {"persons": [], "relations": []}
+    path = tmp_path / "empty.json"
+    path.write_text(json.dumps(scene))
+    run_in_process(tmp_path / "run", "scene=file", f"scene.path={path}")
+    paths = read_artefact(tmp_path / "run" / "eval.mcap").all(topics.EVAL_PATHS)
+    assert paths and all(p["min_distance_to_person"] is None for p in paths)
+    assert all(p["success"] for p in paths)
