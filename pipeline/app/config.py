@@ -62,6 +62,7 @@ class FileSceneConfig(BodyParams):
     robot_radius: Optional[float] = None
 
     def __post_init__(self) -> None:
+        require(bool(self.path.strip()), "path", self.path, "the path of a scene file")
         require_positive(self, *(k for k in ("body_radius", "goal_tolerance", "robot_radius")
                                  if getattr(self, k) is not None))
 
@@ -142,6 +143,8 @@ class FileExpertConfig(ExpertConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        require(bool(self.path.strip()), "path", self.path,
+                "the path of a demonstration file or ROS bag")
         require_positive(self, "start_radius")
 
 

@@ -79,7 +79,10 @@ class Room:
         return (self.x_max - self.x_min) * (self.y_max - self.y_min)
 
     def describe(self) -> str:
-        return f"[{self.x_min:g}, {self.x_max:g}] x [{self.y_min:g}, {self.y_max:g}]"
+        # to the centimetre: far from the origin (UTM) :g would print both edges alike
+        def m(v: float) -> str:
+            return f"{round(v, 2):.12g}"
+        return f"[{m(self.x_min)}, {m(self.x_max)}] x [{m(self.y_min)}, {m(self.y_max)}]"
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ from __future__ import annotations
 import csv
 import logging
 import math
+import re
 import stat
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -59,6 +60,7 @@ STREAM_TYPES: dict[str, Callable[[Any], Any]] = {
 SUPPORTED_TYPES = (PATH_TYPE, *STREAM_TYPES)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
+CSV_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
 # A CSV track ordered by its t column may be at most this many times longer than its rows in
 # file order (`_csv_recording`): sorting fixes rows exported out of order, it does not turn a
@@ -116,10 +118,14 @@ def read_recording(path: Path, *, topic: str | None = None,
     suffix = path.suffix.lower()
     if path.is_dir() or suffix in BAG_SUFFIXES:
         return _read_bag(path, where, topic, frame)
-    if suffix == ".json":
-        return _read_json(path, where)
-    if suffix == ".csv":
-        return _read_csv(path, where)
+    if suffix in (".json", ".csv"):
+        given = [f"expert.{k}={v}" for k, v in (("topic", topic), ("frame", frame)) if v]
+        if given:  # a user who set them expects a check that does not happen
+            log.warning("%s is no ROS bag: %s %s to bags only and %s not used", where,
+                        " and ".join(given), *(("applies", "is") if len(given) == 1
+                                               else ("apply", "are")))
+        _check_text(path, where)
+        return _read_json(path, where) if suffix == ".json" else _read_csv(path, where)
     raise PipelineError(f"{where}: unknown format {path.suffix or '(no extension)'!r}; expected "
                         f".json, .csv, a ROS 2 bag directory, .mcap, .db3 or a ROS 1 .bag")
 
@@ -130,6 +136,8 @@ def check_readable(path: Path) -> None:
     path = Path(path)
     where = describe(path)
     if not path.exists():
+        if path.is_symlink():
+            raise PipelineError(f"{where} is a symbolic link to nothing (or a loop of links)")
         raise PipelineError(f"{where} not found")
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():
@@ -139,6 +147,22 @@ def check_readable(path: Path) -> None:
     if kind is not None:
         what = "a ROS bag" if path.suffix.lower() in BAG_SUFFIXES else "a demonstration file"
         raise PipelineError(f"{where} is {kind}, not {what}")
+
+
+def _check_text(path: Path, where: str) -> None:
+    """Refuse what is no UTF-8 text before a text reader takes it in whole: a UTF-16 or
+    UTF-32 byte-order mark, or NUL bytes in the first 8 KiB (binary, or UTF-16/32 without
+    a mark; UTF-8 text has none)."""
+    with path.open("rb") as f:
+        head = f.read(8192)
+    save_as = "save it as UTF-8" + (" (Excel: CSV UTF-8)" if path.suffix.lower() == ".csv" else "")
+    if head.startswith((b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff")):
+        raise PipelineError(f"{where} is UTF-32 text; {save_as}")
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise PipelineError(f"{where} is UTF-16 text; {save_as}")
+    if b"\x00" in head:
+        raise PipelineError(f"{where} holds NUL bytes: binary, or UTF-16/32 text without a "
+                            f"byte-order mark; {save_as}")
 
 
 def read_tracks(path: Path, *, topic: str | None = None,
@@ -217,10 +241,6 @@ def _is_number(text: str) -> bool:
 
 
 def _read_csv(path: Path, where: str) -> Recording:
-    with path.open("rb") as f:
-        head = f.read(4)
-    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
-        raise PipelineError(f"{where} is UTF-16 text; save it as UTF-8 (Excel: CSV UTF-8)")
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
         with path.open(newline="", encoding="utf-8-sig") as f:
@@ -272,10 +292,13 @@ def _csv_number(row: list[str], col: dict[str, int], name: str, where: str) -> f
     if name not in col:
         return 0.0
     text = row[col[name]].strip()
-    try:
-        v = float(text)
-    except ValueError:
-        raise PipelineError(f"{where}: {name}={text[:40]!r} is not a number") from None
+    # a plain decimal number: Python's float() would also read "0_5" (as 5), full-width and
+    # Arabic-Indic digits, "nan" and "infinity"
+    if not CSV_NUMBER.fullmatch(text):
+        if text.lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            raise PipelineError(f"{where}: {name}={text!r} is not finite")
+        raise PipelineError(f"{where}: {name}={text[:40]!r} is not a number")
+    v = float(text)
     if not math.isfinite(v):
         raise PipelineError(f"{where}: {name}={text!r} is not finite")
     return v

@@ -207,7 +207,9 @@ def _expected(error: ValidationError, root: dict[str, Any]) -> str:
     if kind == "exclusiveMinimum":
         return f"expected a number > {want}, got {_short(got)}"
     if kind == "minimum":
-        return f"expected a number >= {want}, got {_short(got)}"
+        return f"expected a number >= {want:g}, got {_short(got)}"
+    if kind == "maximum":
+        return f"expected a number <= {want:g}, got {_short(got)}"
     if kind == "minLength":
         return f"expected a string of at least {want} character(s), got {_short(got)}"
     return error.message.splitlines()[0][:200]

@@ -34,6 +34,8 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("scene.robot_radius=-0.1", "scene.robot_radius"),
     ("scene=random scene.robot_radius=0", "scene.robot_radius"),
     ("expert=file expert.path=x.json expert.start_radius=0", "expert.start_radius"),
+    ("expert=file expert.path=", "expert.path"),  # would read the working directory as a bag
+    ("scene=file scene.path=", "scene.path"),
     ("graph.controller.max_speed=-1", "graph.controller.max_speed"),
     ("graph.controller.k_rho=0", "graph.controller.k_rho"),
     ("reward.features=[social,dance]", "reward.features"),

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.core.world import SceneError, scene_from_dict
+from pipeline.core.world import Room, SceneError, scene_from_dict
 from tests.conftest import METROPOLIS
 
 
@@ -56,3 +56,10 @@ def test_scene_dict_round_trip(metropolis):
     again = scene_from_dict(metropolis.to_dict())
     assert again.persons == metropolis.persons and again.relations == metropolis.relations
     np.testing.assert_array_equal(again.starts, metropolis.starts)
+
+
+def test_a_room_far_from_the_origin_is_described_to_the_centimetre():
+    # UTM coordinates: :g would print both x edges as 5e+06
+    assert Room(5e6 + 0.123, 0.0, 5e6 + 10.0, 9.5).describe() == \
+        "[5000000.12, 5000010] x [0, 9.5]"
+    assert Room(0.0, 0.0, 10.0, 10.0).describe() == "[0, 10] x [0, 10]"

@@ -4,6 +4,7 @@ demonstration is still usable. Written as a user's files would be, read by the r
 
 import json
 import logging
+import re
 
 import numpy as np
 import pytest
@@ -75,9 +76,10 @@ def test_an_integer_too_large_for_a_float_names_its_field(tmp_path, digits):
     path.write_text('{"trajectories": [[[0.5, 0.5], [' + "9" * digits + ', 9.0]]]}')
     refused(rf"huge\.json: trajectories\[0\]\[1\]\[0\]: an integer of {digits} digits is too "
             r"large for a number", read_tracks, path)
-    # the largest that fits is a number like any other (then outside the room)
+    # the largest that fits is a number like any other, beyond any position
     path.write_text('{"trajectories": [[[0.5, 0.5], [' + "9" * 308 + ', 9.0]]]}')
-    assert read_tracks(path)[0][0][1, 0] == pytest.approx(1e308)
+    refused(r"huge\.json: trajectories\[0\]\[1\]\[0\]: expected a number <= 1e\+08, got 9999",
+            read_tracks, path)
 
 
 def test_a_key_given_twice_is_refused(tmp_path):
@@ -175,3 +177,50 @@ def test_a_bag_mixing_frames_warns_unless_one_is_chosen(tmp_path, caplog):
         assert len(load(bag)) == 2
     assert "mixes frame_ids 'map', 'odom' (first in messages [0, 1])" in caplog.text
     refused(r"message 1 has frame_id 'odom', not expert\.frame='map'", load, bag, frame="map")
+
+
+# -- what is no demonstration text (found by fuzzing the readers) ---------------------------
+
+
+@pytest.mark.parametrize("number", ["0_5", "０.５", "٠.٥", "0x1", "1.2.3"])
+def test_csv_numbers_are_plain_decimals(tmp_path, number):
+    # Python's float() reads "0_5" as 5 and full-width or Arabic-Indic digits as 0.5
+    path = tmp_path / "odd.csv"
+    path.write_text(f"x,y\n{number},0.5\n5.5,9.0\n", encoding="utf-8")
+    refused(rf"odd\.csv, line 2: x='{number}' is not a number", read_tracks, path)
+
+
+@pytest.mark.parametrize("text", ["nan", "-inf", "Infinity", "1e400"])
+def test_csv_numbers_that_are_not_finite_say_so(tmp_path, text):
+    path = tmp_path / "inf.csv"
+    path.write_text(f"x,y\n0.5,{text}\n5.5,9.0\n")
+    refused(rf"inf\.csv, line 2: y='{text}' is not finite", read_tracks, path)
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".json"])
+@pytest.mark.parametrize("content, says", [
+    (b"\x00" * 4096, "holds NUL bytes: binary, or UTF-16/32 text without a byte-order mark"),
+    ("x,y\n0.5,0.5\n".encode("utf-16-be"), "holds NUL bytes"),
+    ("x,y\n0.5,0.5\n".encode("utf-16"), "is UTF-16 text; save it as UTF-8"),
+    ("x,y\n0.5,0.5\n".encode("utf-32"), "is UTF-32 text; save it as UTF-8"),
+])
+def test_what_is_no_utf8_text_is_refused_before_it_is_read(tmp_path, suffix, content, says):
+    path = tmp_path / f"recording{suffix}"
+    path.write_bytes(content)
+    refused(re.escape(f"recording{suffix} {says}"), read_tracks, path)
+
+
+def test_a_symbolic_link_loop_is_named_as_one(tmp_path):
+    (tmp_path / "a.csv").symlink_to(tmp_path / "b.csv")
+    (tmp_path / "b.csv").symlink_to(tmp_path / "a.csv")
+    refused(r"a\.csv is a symbolic link to nothing \(or a loop of links\)", read_tracks,
+            tmp_path / "a.csv")
+
+
+def test_bag_options_on_a_text_file_are_one_warning(tmp_path, caplog):
+    path = tmp_path / "walk.json"
+    path.write_text(json.dumps({"trajectories": [CLEAR]}))
+    with caplog.at_level(logging.WARNING):
+        read_recording(path, topic="/odom", frame="map")
+    assert "walk.json is no ROS bag: expert.topic=/odom and expert.frame=map apply to bags " \
+           "only and are not used" in caplog.text
