@@ -262,10 +262,13 @@ def exit_with_one_line(e: Exception) -> None:
 
 
 def shorten_values(message: str) -> str:
-    """The message with every very long word (a value echoed whole) cut (`shorten`)."""
+    """The message with every very long word or list of many items (a value echoed whole:
+    thousands of start indices) cut (`shorten`)."""
     if len(message) <= 400:
         return message
-    return re.sub(r"\S{200,}", lambda m: shorten(m.group(0), 120), message)
+    message = re.sub(r"\S{200,}", lambda m: shorten(m.group(0), 120), message)
+    return re.sub(r"(?:[^\s,\[\]]+, ){30,}[^\s,\[\]]+", lambda m: shorten(m.group(0), 120),
+                  message)
 
 
 _show_tracebacks = [False]  # HYDRA_FULL_ERROR=1 as the user set it

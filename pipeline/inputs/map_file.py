@@ -17,7 +17,9 @@ Image row 0 is the map's top (largest y); the grid is flipped so its row 0 is th
 
 from __future__ import annotations
 
+import logging
 import math
+import re
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -32,6 +34,31 @@ from pipeline.core.obstacles import OccupancyGrid
 from pipeline.errors import PipelineError
 
 MODES = ("trinary", "scale", "raw")
+KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode")
+
+log = logging.getLogger(__name__)
+
+
+class _MapLoader(yaml.SafeLoader):
+    """YAML as map_server's yaml-cpp reads a map file: `5e-2` is a number (PyYAML's YAML 1.1
+    reads an exponent without a dot as a string), and a key given twice is refused (PyYAML
+    keeps the last silently)."""
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> dict:
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} appears twice; which one is meant?",
+                    key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+_MapLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$"), list("-+.0123456789"))
 
 
 @dataclass(frozen=True)
@@ -73,7 +100,7 @@ def read_map_header(path: str | Path) -> MapHeader:
     if not path.is_file():
         raise fail("is not a file")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=_MapLoader)  # noqa: S506 (a safe loader)
     except (OSError, UnicodeDecodeError) as e:
         raise fail(f"cannot be read ({e})") from None
     except yaml.YAMLError as e:
@@ -82,6 +109,12 @@ def read_map_header(path: str | Path) -> MapHeader:
         raise fail(f"is not valid YAML{where} ({getattr(e, 'problem', None) or e})") from None
     if not isinstance(data, dict):
         raise fail(f"must be a YAML mapping of map_server keys, got {type(data).__name__}")
+
+    unknown = [k for k in data if k not in KEYS]
+    if unknown:  # other tools add keys of their own; map_server ignores them too
+        log.warning("map %s: %s %s %s not map_server's (%s) and not used", path,
+                    "keys" if len(unknown) > 1 else "key", ", ".join(repr(k) for k in unknown),
+                    "are" if len(unknown) > 1 else "is", ", ".join(KEYS))
 
     def get(key: str) -> Any:
         if key not in data:

@@ -29,7 +29,7 @@ from PIL import Image
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 
-from pipeline.__main__ import cli, objective_value
+from pipeline.__main__ import cli, objective_value, shorten_values
 from pipeline.app.rundir import RunDir
 from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.store import ArtefactWriter, content_digest, write_json_atomic
@@ -366,6 +366,16 @@ def test_a_long_value_is_never_echoed_whole(tmp_path, capfd):
     err = assert_one_line(capfd, [f"hydra.run.dir={tmp_path}",
                                   f"reward.weights=[{','.join(['0.5'] * 20000)}]"], [])
     assert len(err) < 400
+
+
+def test_a_long_list_in_a_message_is_cut_and_says_how_long_it_was():
+    # a scene of 6000 starts on the wrong side of a wall named every one of them
+    indices = ", ".join(str(k) for k in range(234, 6000))
+    message = f"scene 'x': the goal cannot be reached from start(s) [{indices}] on the roadmap"
+    shown = shorten_values(message)
+    assert len(shown) < 300 and "start(s) [234, 235, " in shown
+    assert shown.endswith(f"... ({len(indices):,} characters)] on the roadmap")
+    assert shorten_values("a, b, c") == "a, b, c"
 
 
 # -- scene files -------------------------------------------------------------------------------

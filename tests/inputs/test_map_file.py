@@ -126,6 +126,8 @@ def test_a_malformed_map_is_one_line_naming_file_and_key(tmp_path, fields, needl
     (None, "file not found"),
     ("- just\n- a list\n", "must be a YAML mapping"),
     ("image: [unclosed\n", "is not valid YAML at line"),
+    ("image: m.pgm\nresolution: 0.05\nresolution: 0.1\n",
+     "is not valid YAML at line 3 (key 'resolution' appears twice; which one is meant?)"),
 ])
 def test_an_unreadable_yaml_is_one_line_naming_the_file(tmp_path, text, needle):
     path = tmp_path / "map.yaml"
@@ -135,6 +137,22 @@ def test_an_unreadable_yaml_is_one_line_naming_the_file(tmp_path, text, needle):
         load_map(path)
     message = str(caught.value)
     assert "\n" not in message and str(path) in message and needle in message
+
+
+@pytest.mark.parametrize("written, resolution", [("5e-2", 0.05), ("1E-1", 0.1), ("0.05", 0.05),
+                                                 ("1.5e-1", 0.15)])
+def test_an_exponent_without_a_dot_is_a_number_as_map_server_reads_it(tmp_path, written,
+                                                                       resolution):
+    path = _write_map(tmp_path, GREYS)
+    path.write_text(path.read_text().replace("resolution: 0.1", f"resolution: {written}"))
+    assert load_map(path).resolution == resolution
+
+
+def test_keys_map_server_does_not_know_are_one_warning(tmp_path, caplog):
+    path = _write_map(tmp_path, GREYS, comment="drawn by hand")
+    with caplog.at_level("WARNING"):
+        load_map(path)
+    assert "key 'comment' is not map_server's" in caplog.text
 
 
 # ---------------------------------------------------------------------------- shipped office
