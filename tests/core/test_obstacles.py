@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
+from pipeline.core.obstacles import (
+    ObstacleMap,
+    OccupancyGrid,
+    first_self_crossing,
+    rasterise,
+    segments_intersect,
+)
 from pipeline.core.roadmap import segments_feasible
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import load_map
@@ -356,3 +362,31 @@ def test_a_scene_decoded_again_shares_its_obstacle_map_and_another_map_does_not(
     assert obstacle_map(polygon, grid, box) is not wall
     np.testing.assert_array_equal(obstacle_map((), grid, box).clearance,
                                   ObstacleMap(grid).clearance)
+
+
+def _all_pairs_first_crossing(p):
+    """The first meeting pair of non-adjacent edges, testing all k² pairs (the definition)."""
+    k = len(p)
+    a, b = p, np.roll(p, -1, axis=0)
+    i, j = np.nonzero(segments_intersect(a, b, a, b))
+    apart = (j > i + 1) & ~((i == 0) & (j == k - 1))
+    return None if not apart.any() else (int(i[apart][0]), int(j[apart][0]))
+
+
+def test_the_sweep_finds_the_same_first_crossing_as_all_pairs():
+    # integer vertices: many collinear, touching and repeated points; random ones: crossings
+    rng = np.random.default_rng(0)
+    for trial in range(600):
+        k = int(rng.integers(3, 12))
+        p = rng.integers(0, 5, size=(k, 2)).astype(float) if trial % 2 else rng.random((k, 2))
+        assert first_self_crossing(p) == _all_pairs_first_crossing(p), p.tolist()
+
+
+def test_an_outline_of_many_vertices_is_checked_by_its_neighbours_only():
+    # 20 000 vertices (a map's outline): all pairs took minutes, the sweep tests a few per edge
+    t = np.arange(20_000) / 20_000 * 2 * np.pi
+    oval = np.column_stack([3 + 0.4 * np.cos(t), 1 + 0.25 * np.sin(t)])
+    assert first_self_crossing(oval) is None
+    oval[[10, 20]] = oval[[20, 10]]  # two vertices swapped: edge 9 now crosses later ones
+    # (all pairs on the first 1000 vertices, closed by a chord: the same first crossing)
+    assert first_self_crossing(oval) == _all_pairs_first_crossing(oval[:1000]) == (9, 20)
