@@ -120,8 +120,8 @@ def segments_intersect(a: np.ndarray, b: np.ndarray, c: np.ndarray,
     coordinates)."""
     a, b, c, d = (np.asarray(v, dtype=float).reshape(-1, 2) for v in (a, b, c, d))
     scale = max(1.0, float(np.abs(np.vstack([a, b, c, d])).max(initial=0.0)))
-    return _segments_meet(*np.broadcast_arrays(a[:, None, :], b[:, None, :], c[None, :, :],
-                                               d[None, :, :]), scale)
+    A, B, C, D = np.broadcast_arrays(a[:, None, :], b[:, None, :], c[None, :, :], d[None, :, :])
+    return _segments_meet(A, B, C, D, scale)
 
 
 def _segments_meet(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,

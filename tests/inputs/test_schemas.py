@@ -256,3 +256,21 @@ def test_json_with_a_byte_order_mark_is_read(tmp_path):
         marked = tmp_path / f"bom_{path.name}"
         marked.write_bytes(b"\xef\xbb\xbf" + text.encode())
         assert read_json(marked, kind, "x") == json.loads(text)
+
+
+@pytest.mark.parametrize("bad, says", [
+    ("a", 'expected a number (coordinate), got "a"'),
+    (True, "expected a number (coordinate), got true"),
+    (2e8, "expected a number <= 1e+08, got 200000000.0"),
+    ([1.0], "expected 2 coordinates, got 1 item"),
+])
+def test_a_bad_point_deep_in_a_long_recording_is_named(bad, says):
+    """Long point lists are checked in bulk (`_compacted`); a bad point anywhere in one is
+    still found and named as jsonschema names it."""
+    walk = np.column_stack([np.linspace(0.5, 5.5, 5000), np.linspace(0.5, 9.0, 5000)]).tolist()
+    walk[4321] = [walk[4321][0], bad] if not isinstance(bad, list) else bad
+    with pytest.raises(PipelineError) as err:
+        validate({"trajectories": [walk[:100], walk]}, "demos", "walks.json")
+    assert str(err.value).startswith("walks.json: trajectories[1][4321]")
+    assert says in str(err.value)
+    validate({"trajectories": [walk[:4321] + walk[4322:]]}, "demos", "walks.json")  # no error
