@@ -34,6 +34,7 @@ log = logging.getLogger("pipeline")
 
 LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
 RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "interrupted"
+UNKNOWN = "unknown"
 STATUS_ERROR_CHARS = 500  # status.json's error, cut: it must fit where the file already is
 
 
@@ -85,7 +86,7 @@ def is_locked(run_dir: Path) -> bool:
 
 @dataclass(frozen=True)
 class RunStatus:
-    state: str  # running | complete | failed | interrupted | unknown (no status.json)
+    state: str  # running | complete | failed | interrupted | UNKNOWN (no or no readable status)
     stage: str | None = None  # the running or failing stage
     error: str | None = None
 
@@ -102,12 +103,12 @@ def read_status(run_dir: Path) -> RunStatus:
     """The truth about a run dir: `interrupted` when it says running but nobody holds it."""
     path = Path(run_dir) / STATUS_FILE
     if not path.exists():
-        return RunStatus("unknown")
+        return RunStatus(UNKNOWN)
     try:
         data = json.loads(path.read_text())
         state, stage, error = data["state"], data.get("stage"), data.get("error")
     except (OSError, ValueError, KeyError, TypeError):
-        return RunStatus("unknown", error=f"unreadable {STATUS_FILE}")
+        return RunStatus(UNKNOWN, error=f"an unreadable {STATUS_FILE}")
     if state == RUNNING and not is_locked(Path(run_dir)):
         return RunStatus(INTERRUPTED, stage, "the run was killed or crashed")
     return RunStatus(state, stage, error)
@@ -126,6 +127,10 @@ def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
     if status.state == FAILED:
         log.warning("%s=%s %s; using the artefacts it completed", key, given,
                     status.describe())
+    if status.state == UNKNOWN:  # copied artefacts, or a damaged dir: the reads still check
+        why = status.error or f"no {STATUS_FILE}"
+        log.warning("%s=%s has %s, so whether its run finished is not known; using its "
+                    "artefacts as they are (each is checked as it is read)", key, given, why)
 
 
 _HANDED_OVER: set[Path] = set()  # run dirs whose lock the CLI holds for this process's run

@@ -141,7 +141,9 @@ def check_readable(path: Path) -> None:
         raise PipelineError(f"{where} not found")
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():
-            raise PipelineError(f"{where} is a directory without metadata.yaml, not a ROS 2 bag")
+            what = "whose metadata.yaml is no file" if (path / "metadata.yaml").exists() \
+                else "without metadata.yaml"
+            raise PipelineError(f"{where} is a directory {what}, not a ROS 2 bag")
         return
     kind = file_kind(path)
     if kind is not None:
@@ -360,6 +362,7 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
+    decoding: str | None = None  # the message being decoded, for the error
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
             topic, msgtype = _bag_topic(reader, where, topic)
@@ -369,9 +372,12 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
             frames: dict[str, int] = {}  # frame_id -> first message with it
             too_short: list[int] = []  # Path messages with fewer than two poses
             count = 0
+            decoding = f"{where}: topic {topic} message 0 cannot be read"
             for count, (conn, _, raw) in enumerate(reader.messages(connections=connections), 1):
-                msg: Any = reader.deserialize(raw, conn.msgtype)
                 what = f"{where}: topic {topic} message {count - 1}"
+                decoding = f"{what} cannot be decoded as {conn.msgtype}"
+                msg: Any = reader.deserialize(raw, conn.msgtype)
+                decoding = f"{what} ({conn.msgtype}) is not as ROS defines it"
                 found = msg.header.frame_id
                 if frame is not None and found != frame:
                     raise PipelineError(f"{what} has frame_id {found!r}, not "
@@ -388,11 +394,16 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                     if not (math.isfinite(pos.x) and math.isfinite(pos.y)):
                         raise PipelineError(f"{what} has a non-finite position")
                     stream.append((pos.x, pos.y))
+                decoding = f"{where}: topic {topic} message {count} cannot be read"
     except PipelineError:
         raise
     except Exception as e:  # rosbags raises many kinds on malformed bags; report, never trace
         detail = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise PipelineError(f"{where} cannot be read as a ROS bag ({detail[:200]})") from None
+        if decoding is not None:  # the bag opened; one message is damaged or of another type
+            raise PipelineError(f"{decoding}: damaged, or its type is defined differently in "
+                                f"the bag ({detail[:120]})") from None
+        raise PipelineError(f"{where} cannot be read as a ROS bag: its metadata or index is "
+                            f"damaged or incomplete ({detail[:160]})") from None
     if count == 0:
         raise PipelineError(f"{where}: topic {topic} has no messages")
     if len(frames) > 1:

@@ -24,7 +24,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.app.rundir import RunDir, is_locked, read_status, write_status_if_missing
+from pipeline.app.rundir import (
+    RunDir,
+    check_from_run,
+    is_locked,
+    read_status,
+    write_status_if_missing,
+)
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import STAGES
 from pipeline.errors import PipelineError
@@ -485,3 +491,21 @@ def test_from_run_learning_and_evaluation_keep_this_runs_artefacts(tmp_path):
     run_in_process(d, *QUICK, "stages=[birl,evaluate]", f"from_run={tmp_path / 'base'}")
     assert (d / "birl.mcap").exists() and (d / "metrics.json").exists()
     assert check_run_dir(d) == []
+
+
+@pytest.mark.parametrize("status, says", [
+    (None, "has no status.json"),
+    ("{garbage", "has an unreadable status.json"),
+    ("dir", "has an unreadable status.json"),
+])
+def test_a_from_run_without_a_readable_status_is_one_warning(tmp_path, caplog, status, says):
+    run = tmp_path / "copied"
+    run.mkdir()
+    if status == "dir":
+        (run / "status.json").mkdir()
+    elif status is not None:
+        (run / "status.json").write_text(status)
+    with caplog.at_level(logging.WARNING):
+        check_from_run(run, str(run))
+    [warning] = [r.getMessage() for r in caplog.records]
+    assert f"from_run={run} {says}, so whether its run finished is not known" in warning

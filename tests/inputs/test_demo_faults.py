@@ -224,3 +224,14 @@ def test_bag_options_on_a_text_file_are_one_warning(tmp_path, caplog):
         read_recording(path, topic="/odom", frame="map")
     assert "walk.json is no ROS bag: expert.topic=/odom and expert.frame=map apply to bags " \
            "only and are not used" in caplog.text
+
+
+def test_a_damaged_bag_says_what_is_damaged(tmp_path):
+    magic_only = tmp_path / "walk.mcap"
+    magic_only.write_bytes(b"\x89MCAP0\r\n")  # a recorder killed right after it began
+    refused(r"walk\.mcap cannot be read as a ROS bag: its metadata or index is damaged or "
+            r"incomplete \(", read_tracks, magic_only)
+    odd = tmp_path / "bag"
+    (odd / "metadata.yaml").mkdir(parents=True)
+    refused(r"bag is a directory whose metadata\.yaml is no file, not a ROS 2 bag", read_tracks,
+            odd)
