@@ -160,6 +160,10 @@ def _depth(error: ValidationError) -> int:
     return -len(error.path)
 
 
+def _plain_number(v: Any) -> bool:
+    return type(v) is int or (type(v) is float and math.isfinite(v))
+
+
 def _first_non_finite(value: Any, path: str) -> tuple[str, str] | None:
     """(JSON path, what is wrong) of the first NaN, Infinity or integer too large for a float
     in `value`, or None."""
@@ -170,6 +174,11 @@ def _first_non_finite(value: Any, path: str) -> tuple[str, str] | None:
         return path, f"{value!r} {no_nan}"
     if isinstance(value, TooLarge):
         return path, f"an integer of {value.digits} digits is too large for a number"
+    # fast paths: a list of plain finite numbers, or of such lists (points), holds nothing
+    # to name; a recording's million points would otherwise each be visited with its path
+    if isinstance(value, list) and (all(map(_plain_number, value)) or all(
+            type(q) is list and all(map(_plain_number, q)) for q in value)):
+        return None
     items = value.items() if isinstance(value, dict) else \
         enumerate(value) if isinstance(value, list) else ()
     for key, item in items:
