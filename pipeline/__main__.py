@@ -35,8 +35,8 @@ from pipeline.app.rundir import (
     Interrupted,
     as_interrupted,
     locked,
+    mark_failed_before_stages,
     read_status,
-    write_status_if_missing,
 )
 from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
@@ -56,6 +56,7 @@ def main(cfg: DictConfig) -> float | None:
         try:
             run_pipeline(cfg, run_dir)
         except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
+            mark_failed_before_stages(run_dir, _error_text(e), when_missing=False)
             exit_with_one_line(e)
         return None
     # In a sweep a failing job must not stop the others: its status.json (written by the
@@ -64,12 +65,16 @@ def main(cfg: DictConfig) -> float | None:
     try:
         run_pipeline(cfg, run_dir)
     except Exception as e:  # noqa: BLE001 - any failure of one job, reported per job
-        error = str(e) if isinstance(e, PipelineError) else f"{type(e).__name__}: {e}"
+        error = _error_text(e)
         logging.getLogger("pipeline").error("job failed: %s", error,
                                             exc_info=not isinstance(e, PipelineError))
-        write_status_if_missing(run_dir, error)
+        mark_failed_before_stages(run_dir, error, when_missing=True)
         return float("nan")
     return objective_value(run_dir, cfg.objective)
+
+
+def _error_text(e: Exception) -> str:
+    return str(e) if isinstance(e, PipelineError) else f"{type(e).__name__}: {e}"
 
 
 def objective_value(run_dir: Path, key: str) -> float:
@@ -169,6 +174,11 @@ def explicit_run_dir(parsed: list, multirun: bool) -> Path | None:
     """The run dir given on the command line (hydra.run.dir=, also with + or ++), as Hydra
     reads it (quotes and escapes resolved), for a single run; None for sweeps, default dirs
     (those carry microseconds) and dirs made of interpolations (`${now:...}`)."""
+    for override in parsed:  # an empty dir is the working directory: the repo's own root
+        if override.key_or_group in ("hydra.run.dir", "hydra.sweep.dir") \
+                and not override.is_sweep_override() and override.value() in ("", None):
+            raise PipelineError(f"config error: {override.key_or_group} is empty; give a "
+                                "directory for the artefacts, or leave it out for a new one")
     if multirun:
         return None
     for override in parsed:

@@ -405,6 +405,8 @@ def load_settings(cfg: DictConfig) -> Config:
         raise config_error("stages", list(settings.stages), f"a non-empty subset of {list(STAGES)}")
     if settings.seed < 0:
         raise config_error("seed", settings.seed, "an integer >= 0")
+    if settings.from_run is not None and not settings.from_run.strip():  # the cwd, unsaid
+        raise config_error("from_run", settings.from_run, "a run dir")
     if not is_metric_key(settings.objective):  # else every sweep trial would return NaN
         close = difflib.get_close_matches(settings.objective, OBJECTIVE_EXAMPLES, n=1)
         raise config_error("objective", settings.objective,

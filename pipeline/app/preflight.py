@@ -68,7 +68,13 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
     checked = Checked()
     stages = set(cfg.stages)
     if isinstance(cfg.birl, FixedConfig) and cfg.birl.from_run and stages & {"graph", "birl"}:
-        check_from_run(resolve_path(cfg.birl.from_run), cfg.birl.from_run, "birl.from_run")
+        weights_from = resolve_path(cfg.birl.from_run)
+        if "birl" in stages and weights_from.resolve() == Path(run_dir).resolve():
+            raise PipelineError(f"config error: birl.from_run={cfg.birl.from_run} is this run's "
+                                "own dir: its birl stage would replace the birl.mcap it takes "
+                                "the weights from; write this run to another dir "
+                                "(hydra.run.dir=...)")
+        check_from_run(weights_from, cfg.birl.from_run, "birl.from_run")
     if isinstance(cfg.expert, FileExpertConfig) and "demos" in stages:
         check_readable(resolve_path(cfg.expert.path))
     # evaluate too: its inputs were made with the derived value, which it must match

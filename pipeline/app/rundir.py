@@ -277,9 +277,14 @@ def _overwrite_in_place(path: Path, data: bytes) -> None:
         os.close(fd)
 
 
-def write_status_if_missing(run_dir: Path, error: str) -> None:
-    """A job that failed before its run dir had a status (e.g. a config error in a sweep)."""
-    if not (Path(run_dir) / STATUS_FILE).exists():
+def mark_failed_before_stages(run_dir: Path, error: str, *, when_missing: bool) -> None:
+    """A run that failed before its stages began (a config error). Its status.json says
+    `failed` where it would otherwise lie: where there is none (`when_missing`: a sweep's
+    job, which aggregation must count) or where it is an earlier run's `complete`: Hydra has
+    already replaced .hydra/config.yaml, so the dir's config no longer describes its
+    artefacts. A status this run's stages wrote (failed, interrupted) is left as it is."""
+    state = read_status(run_dir).state
+    if state == COMPLETE or (when_missing and state == UNKNOWN):
         Path(run_dir).mkdir(parents=True, exist_ok=True)
         write_status(run_dir, FAILED, None, error, [], [])
 

@@ -23,6 +23,8 @@ class FixedConfig(IRLConfig):
     def __post_init__(self) -> None:
         if self.n_iterations != 0:
             raise ParameterError("n_iterations", self.n_iterations, "0 (birl=fixed learns nothing)")
+        if self.from_run is not None and not self.from_run.strip():  # would be the cwd
+            raise ParameterError("from_run", self.from_run, "a run dir")
         if (self.weights is None) == (self.from_run is None):
             raise ParameterError("weights", self.weights,
                                  "exactly one of birl.weights=[...] or birl.from_run=RUN_DIR")

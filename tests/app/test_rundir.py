@@ -28,8 +28,8 @@ from pipeline.app.rundir import (
     RunDir,
     check_from_run,
     is_locked,
+    mark_failed_before_stages,
     read_status,
-    write_status_if_missing,
 )
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import STAGES
@@ -444,8 +444,21 @@ def test_from_run_of_a_dir_in_use_is_refused(tmp_path):
 
 
 def test_status_of_a_job_that_failed_before_running(tmp_path):
-    write_status_if_missing(tmp_path, "config error: x")
+    mark_failed_before_stages(tmp_path, "config error: x", when_missing=True)
     assert json.loads((tmp_path / "status.json").read_text())["state"] == "failed"
+
+
+def test_a_config_error_in_a_complete_run_dir_marks_it_failed(tmp_path):
+    # Hydra has replaced .hydra/config.yaml before the config is checked: the old artefacts
+    # are no longer what the dir's config says, so `complete` would be a lie
+    run_in_process(tmp_path, *QUICK)
+    before = snapshot(tmp_path)
+    assert run_app("birl.beta=-1", f"hydra.run.dir={tmp_path}").returncode == 2
+    status = read_status(tmp_path)
+    assert status.state == "failed" and "birl.beta=-1" in status.error
+    # the artefacts themselves are untouched
+    assert {k: v for k, v in snapshot(tmp_path).items() if k.endswith(".mcap")} == \
+        {k: v for k, v in before.items() if k.endswith(".mcap")}
 
 
 # -- 6. damaged side files -------------------------------------------------------------------

@@ -352,6 +352,10 @@ COMMAND_LINE_CASES = {
     "path with # unquoted": (["expert=file", "expert.path=/tmp/a#b.json"], ["expert.path"]),
     "an override of 20,000 numbers": ([f"reward.weights=[{','.join(['0.5'] * 20000)}]"],
                                       ["80,016 characters", "conf/"]),
+    # an empty dir is the working directory: the artefacts would land in the repo's root
+    "an empty run dir": (["hydra.run.dir="], ["config error: hydra.run.dir is empty"]),
+    "an empty sweep dir": (["-m", "seed=0,1", "hydra.sweep.dir="],
+                           ["config error: hydra.sweep.dir is empty"]),
     "an out-of-range list of 300 numbers": (
         [f"reward.weights=[{','.join(['0.5'] * 300)}]"], ["reward.weights", "(1,500 characters)"]),
 }
@@ -366,6 +370,16 @@ def test_a_long_value_is_never_echoed_whole(tmp_path, capfd):
     err = assert_one_line(capfd, [f"hydra.run.dir={tmp_path}",
                                   f"reward.weights=[{','.join(['0.5'] * 20000)}]"], [])
     assert len(err) < 400
+
+
+def test_weights_from_the_run_dir_itself_are_refused_before_they_are_replaced(
+        tmp_path, capfd, default_dir):
+    # the birl stage would replace birl.mcap, the file the weights come from
+    earlier = linked_run(default_dir, tmp_path / "run")
+    assert_one_line(capfd, [f"hydra.run.dir={earlier}", "birl=fixed",
+                            f"birl.from_run={earlier}"],
+                    [f"birl.from_run={earlier} is this run's own dir"], 2, earlier)
+    assert (earlier / "birl.mcap").exists()
 
 
 def test_a_long_list_in_a_message_is_cut_and_says_how_long_it_was():
