@@ -291,8 +291,8 @@ def mark_failed_before_stages(run_dir: Path, error: str, *, when_missing: bool) 
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
     """Every job of a Hydra sweep: the dirs holding Hydra's .hydra/overrides.yaml."""
-    def natural(p: Path):  # job 2 before job 10
-        return len(p.parts), [int(x) if x.isdigit() else x for x in p.parts]
+    def natural(p: Path):  # job 2 before job 10, numbered jobs before others
+        return len(p.parts), [(0, int(x), "") if x.isdigit() else (1, 0, x) for x in p.parts]
 
     return sorted((p.parent.parent for p in Path(sweep_dir).glob("**/.hydra/overrides.yaml")),
                   key=natural)

@@ -21,22 +21,59 @@ if TYPE_CHECKING:
     import pandas as pd
 
 
+class Unreadable(Exception):
+    """A job's side file that cannot be read as what it should be: its row says so."""
+
+
 def parse_overrides(job: Path) -> dict[str, str]:
-    lines = yaml.safe_load((job / ".hydra" / "overrides.yaml").read_text()) or []
-    return dict(line.split("=", 1) for line in lines if "=" in line)
+    path = job / ".hydra" / "overrides.yaml"
+    try:
+        lines = yaml.safe_load(path.read_text()) or []
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        raise Unreadable(f"{path.name} cannot be read ({_first_line(e)})") from None
+    if not isinstance(lines, list):
+        raise Unreadable(f"{path.name} is not a list of overrides")
+    return dict(line.split("=", 1) for line in lines if isinstance(line, str) and "=" in line)
+
+
+def read_metrics(path: Path) -> dict:
+    """A job's metrics.json: an object of numbers (NaN and null included) or lists of them."""
+    try:
+        metrics = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise Unreadable(f"{path.name} cannot be read ({_first_line(e)})") from None
+    if not isinstance(metrics, dict):
+        raise Unreadable(f"{path.name} is not an object of metrics")
+    for key, value in metrics.items():
+        if not (_number(value) or (isinstance(value, list) and all(map(_number, value)))):
+            raise Unreadable(f"{path.name}: {key}={json.dumps(value)[:40]} is not a number")
+    return metrics
+
+
+def _number(v: object) -> bool:
+    return v is None or (isinstance(v, int | float) and not isinstance(v, bool))
+
+
+def _first_line(e: BaseException) -> str:
+    return (str(e).splitlines() or [type(e).__name__])[0][:120]
 
 
 def job_row(job: Path, sweep_dir: Path) -> dict:
-    row = {"job": str(job.relative_to(sweep_dir)), **parse_overrides(job)}
-    status, metrics_file = read_status(job), job / "metrics.json"
-    if not status.complete:  # failed, killed, still running, or made before status.json
-        at = f"stage {status.stage}: " if status.stage else ""
-        row.update(status=status.state, error=at + (status.error or status.state))
-    elif not metrics_file.exists():
-        row.update(status="failed", error="no metrics.json (stage evaluate was not run)")
-    else:
-        row.update(status="ok", error="")
-        row.update(json.loads(metrics_file.read_text()))
+    row: dict = {"job": str(job.relative_to(sweep_dir))}
+    try:
+        row.update(parse_overrides(job))
+        status, metrics_file = read_status(job), job / "metrics.json"
+        if not status.complete:  # failed, killed, still running, or made before status.json
+            at = f"stage {status.stage}: " if status.stage else ""
+            row.update(status=status.state, error=at + (status.error or status.state))
+        elif not metrics_file.exists():
+            row.update(status="failed", error="no metrics.json (stage evaluate was not run)")
+        else:
+            metrics = read_metrics(metrics_file)
+            row.update(status="ok", error="")
+            row.update(metrics)
+    except Unreadable as e:  # one damaged job is one failed row, not a failed table
+        row.update(status="failed", error=str(e))
     return row
 
 

@@ -26,7 +26,8 @@ import numpy as np
 
 from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
 from pipeline.app.summary import is_metric, summary_rows
-from pipeline.errors import PipelineError
+from pipeline.artefacts.store import unique_tmp
+from pipeline.errors import PipelineError, os_error_reason
 
 # A table as the sweep's jobs give it: plain rows (dicts; a row lacks what its job did not
 # write). pandas is left out of the tables' path: its import alone (0.3-0.5 s) would be most
@@ -241,10 +242,16 @@ def write_tables(columns: list[str], rows: list[Row], sweep_dir: Path) -> None:
 
 def write_summary_csv(columns: list[str], rows: list[Row], path: Path) -> None:
     """summary.csv: a missing value is an empty cell (as pandas writes NaN and None)."""
-    with path.open("w", newline="") as f:
-        writer = csv.writer(f, lineterminator="\n")
-        writer.writerow(columns)
-        writer.writerows([["" if _missing(r.get(c)) else r[c] for c in columns] for r in rows])
+    tmp = unique_tmp(path)  # a full disk leaves the old table, never an empty one
+    try:
+        with tmp.open("w", newline="") as f:
+            writer = csv.writer(f, lineterminator="\n")
+            writer.writerow(columns)
+            writer.writerows([["" if _missing(r.get(c)) else r[c] for c in columns]
+                              for r in rows])
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def aggregate(sweep_dir: Path, figures: bool = True) -> tuple[list[str], list[Row]]:
@@ -270,10 +277,15 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         if not args.sweep_dir.is_dir():
-            raise PipelineError(f"sweep dir {args.sweep_dir} not found")
+            what = "is not a directory" if args.sweep_dir.exists() else "not found"
+            raise PipelineError(f"sweep dir {args.sweep_dir} {what}")
         columns, rows = aggregate(args.sweep_dir, figures=args.figures)
     except PipelineError as e:
         print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a full disk, a read-only dir, a dir where a table goes
+        print(f"error: cannot write the tables into {args.sweep_dir}: {os_error_reason(e)}",
+              file=sys.stderr)
         return 2
     from tabulate import tabulate
 

@@ -69,6 +69,46 @@ def test_failing_job_does_not_stop_the_sweep(tmp_path):
     assert list(table.status) == ["ok", "failed"]
     assert table.policy_loss.notna().tolist() == [True, False]
     assert (tmp_path / "policy_loss.png").exists()
+    # The same sweep again, with a demonstration file that is not there: every job fails
+    # before its stages, and job 0's dir no longer says complete beside its old artefacts
+    # (Hydra has replaced its config), so aggregation does not report the old metrics as ok.
+    again = run_app("-m", "experiment=quick", "seed=0", "reward=polite",
+                    "scene.body_radius=0.25,-1", "expert=file", "expert.path=/nowhere.json",
+                    f"hydra.sweep.dir={tmp_path}")
+    assert again.returncode == 1
+    assert {p.parent.name: json.loads(p.read_text())["state"]
+            for p in tmp_path.glob("*/status.json")} == {"0": "failed", "1": "failed"}
+    assert aggregate(tmp_path).stdout.strip().splitlines()[-1].startswith("0 of 2 jobs ok")
+
+
+def _job(sweep, name, overrides, metrics):
+    job = sweep / name
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").write_text(overrides)
+    (job / "status.json").write_text('{"state": "complete"}')
+    (job / "metrics.json").write_text(metrics)
+
+
+def test_a_damaged_job_is_one_failed_row(tmp_path):
+    _job(tmp_path, "0", "- seed=0\n", '{"policy_loss": 0.5, "policy_loss_norm": NaN}')
+    _job(tmp_path, "1", "- seed=1\n", "{bad")
+    _job(tmp_path, "2", "- seed=2\n", '{"policy_loss": "abc"}')
+    _job(tmp_path, "3", "- seed=3\n", "[1, 2]")
+    _job(tmp_path, "extra", "[unclosed\n", '{"policy_loss": 0.1}')  # not numbered, and damaged
+    agg = subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate", str(tmp_path),
+                          "--no-figures"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert agg.returncode == 1 and "Traceback" not in agg.stderr
+    assert agg.stdout.strip().splitlines()[-1].startswith("1 of 5 jobs ok")
+    assert "FAILED 1: metrics.json cannot be read" in agg.stderr
+    assert 'FAILED 2: metrics.json: policy_loss="abc" is not a number' in agg.stderr
+    assert "FAILED 3: metrics.json is not an object of metrics" in agg.stderr
+    assert "FAILED extra: overrides.yaml cannot be read" in agg.stderr
+    assert list(pd.read_csv(tmp_path / "summary.csv").job) == ["0", "1", "2", "3", "extra"]
+    (tmp_path / "table.md").unlink()
+    (tmp_path / "table.md").mkdir()  # where a table goes: one line, and a whole summary.csv
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 2 and agg.stderr.startswith("error: cannot write the tables into")
+    assert len(pd.read_csv(tmp_path / "summary.csv")) == 5
 
 
 def test_aggregate_rejects_a_dir_without_jobs(tmp_path):
