@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from threadpoolctl import threadpool_limits
@@ -156,11 +157,22 @@ def run(overrides: Sequence[str] = (), run_dir: str | Path | None = None) -> Run
     """Run the pipeline with command-line style overrides (as `birlg` takes them) and return
     the run's handle. `run_dir` defaults to a new `outputs/api/<date-time-microseconds>` dir
     under the current directory."""
-    cfg = compose_config(overrides)
+    cfg = _compose(overrides)
     if run_dir is None:
         run_dir = Path("outputs") / "api" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S-%f")
     run_pipeline(cfg, Path(run_dir))
     return Run(Path(run_dir))
+
+
+def _compose(overrides: Sequence[str]) -> DictConfig:
+    """`compose_config`, with Hydra's errors as one-line PipelineErrors (as `birlg` says
+    them) and one string refused: it would be read one character at a time."""
+    try:
+        return compose_config(_overrides_list(overrides))
+    except (HydraException, OmegaConfBaseException) as e:
+        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
+        raise PipelineError(f"config error: {lines[0] if lines else type(e).__name__}") \
+            from None
 
 
 def open_run(run_dir: str | Path) -> Run:
@@ -240,7 +252,13 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
     "mdp=paper", "reward=rude" for the feature constants). The scene settings are unused.
     """
     if method not in methods():
-        raise ValueError(f"unknown method '{method}' (one of {', '.join(methods())})")
+        raise PipelineError(f"unknown method '{method}' (one of {', '.join(methods())})")
+    if not isinstance(scene, Scene):
+        raise PipelineError(f"scene must be a pipeline.core.world.Scene (e.g. Run.scene()), "
+                            f"not {type(scene).__name__}")
+    if isinstance(demos, str | np.ndarray) or not len(demos):
+        raise PipelineError("demos must be a non-empty list of demonstrations (polylines, "
+                            "/demos rows or Demonstration objects)")
     cfg = settings_for_learning(method, seed, overrides, config)
     features = build.learner_feature_model(cfg, scene)
     demonstrations = [as_demonstration(d, scene, features, cfg.mdp.speed) for d in demos]
@@ -270,7 +288,9 @@ def settings_for_learning(method: str, seed: int, overrides: Sequence[str],
                           birl: Mapping[str, Any]) -> Config:
     """The checked settings of `learn`: the app's config with `birl=method`, `seed`, the
     overrides and the method's settings `birl`."""
-    dc = compose_config([f"birl={method}", f"seed={seed}", *overrides])
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise PipelineError(f"seed must be an integer, not {seed!r}")
+    dc = _compose([f"birl={method}", f"seed={seed}", *_overrides_list(overrides)])
     for key, value in birl.items():
         try:
             dc.birl[key] = value.tolist() if isinstance(value, np.ndarray) else value
@@ -278,6 +298,13 @@ def settings_for_learning(method: str, seed: int, overrides: Sequence[str],
             reason = str(e).splitlines()[0]
             raise PipelineError(f"config error: birl.{key}={value!r}: {reason}") from None
     return load_settings(dc)
+
+
+def _overrides_list(overrides: Sequence[str]) -> list[str]:
+    if isinstance(overrides, str):
+        raise PipelineError(f"overrides must be a list of 'key=value' strings, e.g. "
+                            f"[{overrides!r}], not one string")
+    return list(overrides)
 
 
 def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel,
@@ -288,6 +315,9 @@ def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel,
         points: Any = demo.points
         start, reached, subject = demo.start_index, demo.reached, demo.subject
     elif isinstance(demo, Mapping):
+        if "points" not in demo:
+            raise PipelineError(f"a demonstration given as a dict needs 'points' (has "
+                                f"{', '.join(map(repr, demo)) or 'no keys'})")
         points = demo["points"]
         start, reached, subject = (demo.get("start_index"), demo.get("reached"),
                                    demo.get("subject"))
@@ -299,6 +329,10 @@ def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel,
                             f"points, got an array of shape {pts.shape}")
     if start is None:
         start = int(np.argmin(np.linalg.norm(np.asarray(scene.starts) - pts[0], axis=1)))
+    elif isinstance(start, bool) or not isinstance(start, int | np.integer) \
+            or not 0 <= start < len(scene.starts):  # -1 would silently be the last start
+        raise PipelineError(f"start_index={start!r} is not a start of the scene (0 to "
+                            f"{len(scene.starts) - 1})")
     if reached is None:
         reached = bool(np.linalg.norm(pts[-1] - scene.goal) <= scene.goal_tolerance)
     return Demonstration.from_points(int(start), pts, features, speed, bool(reached),

@@ -213,6 +213,8 @@ class EvaluateConfig:
     holdout: Any = None
 
     def __post_init__(self) -> None:
+        require(all(isinstance(p, str) and p.strip() for p in self.transfer_scenes),
+                "transfer_scenes", self.transfer_scenes, "a list of scene file paths")
         h = self.holdout
         require(h is None or h == "all" or (is_number(h) and 0 < h < 1) or (
             isinstance(h, list) and len(h) > 0 and all(isinstance(s, str | int) for s in h)),

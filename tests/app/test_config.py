@@ -37,6 +37,7 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("expert=file expert.path=", "expert.path"),  # would read the working directory as a bag
     ("scene=file scene.path=", "scene.path"),
     ("from_run=", "from_run"),
+    ("evaluate.transfer_scenes=[[a]]", "evaluate.transfer_scenes"),
     ("birl=fixed birl.from_run=", "birl.from_run"),
     ("graph.controller.max_speed=-1", "graph.controller.max_speed"),
     ("graph.controller.k_rho=0", "graph.controller.k_rho"),

@@ -222,9 +222,29 @@ def test_learn_takes_polylines_and_rows_of_an_earlier_run(fast_run):
 
 
 def test_learn_refuses_bad_input(metropolis):
-    with pytest.raises(ValueError, match="unknown method 'nope'"):
-        api.learn(metropolis, [], method="nope")
+    walk = [[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]
+    with pytest.raises(PipelineError, match="unknown method 'nope'"):
+        api.learn(metropolis, [walk], method="nope")
     with pytest.raises(PipelineError, match="config error: birl.nope"):
-        api.learn(metropolis, [], nope=1)
+        api.learn(metropolis, [walk], nope=1)
     with pytest.raises(PipelineError, match="polyline of at least two"):
         api.learn(metropolis, [np.zeros((1, 2))], overrides=["graph=small"])
+    # every mistake is one PipelineError line, not an error from deep inside
+    for demos, says in (([], "non-empty list"), ([{"x": 1}], "needs 'points'"),
+                        ([{"points": walk, "start_index": -1}], "start_index=-1 is not a start"),
+                        ([{"points": walk, "start_index": 99}], "start_index=99 is not a start")):
+        with pytest.raises(PipelineError, match=says):
+            api.learn(metropolis, demos, overrides=["graph=small"])
+    with pytest.raises(PipelineError, match="scene must be a pipeline.core.world.Scene"):
+        api.learn(None, [walk])
+    with pytest.raises(PipelineError, match=r"overrides must be a list .* not one string"):
+        api.learn(metropolis, [walk], overrides="graph=small")
+    with pytest.raises(PipelineError, match="seed must be an integer"):
+        api.learn(metropolis, [walk], seed="x")
+
+
+def test_run_refuses_bad_overrides_in_one_line(tmp_path):
+    with pytest.raises(PipelineError, match=r"\['seed=1'\], not one string"):
+        api.run("seed=1", run_dir=tmp_path)
+    with pytest.raises(PipelineError, match="config error: .*nokey"):
+        api.run(["nokey=1"], run_dir=tmp_path)
