@@ -107,7 +107,9 @@ def read_status(run_dir: Path) -> RunStatus:
     try:
         data = json.loads(path.read_text())
         state, stage, error = data["state"], data.get("stage"), data.get("error")
-    except (OSError, ValueError, KeyError, TypeError):
+        if state not in (RUNNING, COMPLETE, FAILED, INTERRUPTED):
+            raise ValueError(state)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return RunStatus(UNKNOWN, error=f"an unreadable {STATUS_FILE}")
     if state == RUNNING and not is_locked(Path(run_dir)):
         return RunStatus(INTERRUPTED, stage, "the run was killed or crashed")

@@ -53,7 +53,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from pipeline.app.rundir import COMPLETE, acquire_lock, read_status
+from pipeline.app.provenance import check_inputs
+from pipeline.app.rundir import COMPLETE, UNKNOWN, acquire_lock, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.features import FeatureModel, FeatureParams
@@ -381,8 +382,8 @@ def read_run(run_dir: Path) -> RunReward:
     if missing:
         raise PipelineError(f"run dir {run_dir} has no {', '.join(missing)}: the export needs a "
                             "run through the birl and evaluate stages")
-    scene = codec.decode_scene(read_artefact(run_dir / ARTEFACT_FILE["scene"],
-                                             required_topics=[topics.SCENE]))
+    scene_art = read_artefact(run_dir / ARTEFACT_FILE["scene"], required_topics=[topics.SCENE])
+    scene = codec.decode_scene(scene_art)
     birl = read_artefact(run_dir / ARTEFACT_FILE["birl"],
                          required_topics=[topics.BIRL_EXPERT, topics.BIRL_ITERATION])
     iterations = birl.all(topics.BIRL_ITERATION)
@@ -407,6 +408,10 @@ def read_run(run_dir: Path) -> RunReward:
             learned[where].append((start, _points(evaluation, topics.EVAL_PATHS, msg)))
     paths = {k: [p for _, p in sorted(v, key=lambda sp: sp[0])] for k, v in learned.items()}
     demos_art = read_artefact(run_dir / ARTEFACT_FILE["demos"])
+    # artefacts copied in from other runs would give a costmap of one scene with the
+    # weights and paths of another: refused as the stages refuse them
+    check_inputs({"scene": scene_art, "demos": demos_art, "birl": birl,
+                  "evaluate": evaluation})
     demos = [_points(demos_art, topics.DEMOS, m) for m in demos_art.messages.get(topics.DEMOS, [])]
     meta = birl.metadata
     about = [f"run: {run_dir.resolve()}",
@@ -491,7 +496,10 @@ def check_run_dir(run_dir: Path) -> None:
     if not run_dir.is_dir():
         raise PipelineError(f"run dir {run_dir} is not a directory")
     status = read_status(run_dir)
-    if status.state not in (COMPLETE, "unknown"):  # unknown: made before status.json existed
+    if status.state == UNKNOWN and status.error:  # damaged, not merely older than status.json
+        raise PipelineError(f"run dir {run_dir} has {status.error}: whether its run finished is "
+                            "not known; rerun it into this dir")
+    if status.state not in (COMPLETE, UNKNOWN):  # unknown: made before status.json existed
         raise PipelineError(f"run dir {run_dir} is {status.describe()}; export a complete run "
                             "(rerun it into this dir or choose another)")
 

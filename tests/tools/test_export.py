@@ -488,6 +488,22 @@ def test_bad_run_dirs_are_refused_in_one_line(exported, tmp_path, capsys):
     assert str(foreign / "eval.mcap") in line and "points" in line
 
 
+def test_artefacts_of_another_run_or_a_damaged_status_are_refused(exported, tmp_path, capsys):
+    other = tmp_path / "other"  # another scene: other demonstrations, weights and paths
+    run_in_process(other, *QUICK, "scene=random")
+    for stage in ("scene", "birl"):
+        mixed = copy_run(exported, tmp_path / f"mixed_{stage}")
+        shutil.copy(other / f"{stage}.mcap", mixed / f"{stage}.mcap")
+        assert export.main([str(mixed)]) == 2
+        assert "they come from different runs" in _one_error_line(capsys)
+        assert not (mixed / "export").exists()
+    for damaged in ("{garbage", '{"state": 5}', "[]"):
+        run_dir = copy_run(exported, tmp_path / f"status_{len(damaged)}")
+        (run_dir / "status.json").write_text(damaged)
+        assert export.main([str(run_dir)]) == 2
+        assert "has an unreadable status.json" in _one_error_line(capsys)
+
+
 def test_a_run_dir_without_status_json_is_exported(exported, tmp_path):
     run_dir = copy_run(exported, tmp_path)  # made before runs wrote status.json
     (run_dir / "status.json").unlink()
