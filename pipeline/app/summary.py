@@ -81,6 +81,9 @@ def summary_rows(sweep_dir: Path) -> tuple[list[str], list[dict]]:
     """The columns (in `column_order`) and one row per job of `sweep_dir` (jobs in natural
     order; a row lacks the keys its job did not write)."""
     jobs = job_dirs(sweep_dir)
+    if Path(sweep_dir) in jobs:  # `make aggregate SWEEP=` given one run's dir
+        raise PipelineError(f"{sweep_dir} is a run dir (it has .hydra/overrides.yaml), not a "
+                            "sweep dir; give the dir that holds the sweep's numbered jobs")
     if not jobs:
         raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
     rows = [job_row(j, sweep_dir) for j in jobs]

@@ -254,17 +254,26 @@ def write_summary_csv(columns: list[str], rows: list[Row], path: Path) -> None:
         tmp.unlink(missing_ok=True)
 
 
+FIGURES = ("policy_loss", "scene")  # each as .png and .pdf
+
+
 def aggregate(sweep_dir: Path, figures: bool = True) -> tuple[list[str], list[Row]]:
     """Write the sweep's tables (and figures); its columns and rows."""
     columns, rows = summary_rows(sweep_dir)
+    # what an earlier aggregation drew must not outlive it beside the new table (a table or
+    # figure needs jobs that ran; when none did, there is none)
+    stale = ["table.md", "table.tex"] + (
+        [f"{name}.{ext}" for name in FIGURES for ext in ("png", "pdf")] if figures else [])
+    for name in stale:
+        (sweep_dir / name).unlink(missing_ok=True)
     write_summary_csv(columns, rows, sweep_dir / SUMMARY_FILE)
     write_tables(columns, rows, sweep_dir)
     if not figures:  # the tables alone: a fifth of the time (matplotlib, pandas, artefacts)
         return columns, rows
-    plot_policy_loss(sweep_dir / SUMMARY_FILE, sweep_dir / "policy_loss.png")
+    plot_policy_loss(sweep_dir / SUMMARY_FILE, sweep_dir / f"{FIGURES[0]}.png")
     ok = [r for r in rows if r["status"] == "ok"]
     if ok:
-        plot_scene(sweep_dir / ok[0]["job"], sweep_dir / "scene.png")
+        plot_scene(sweep_dir / ok[0]["job"], sweep_dir / f"{FIGURES[1]}.png")
     return columns, rows
 
 
@@ -298,8 +307,9 @@ def main(argv=None) -> int:
                         "heldout_log_likelihood") if c in columns]
     print(tabulate([[r.get(c) for c in cols] for r in rows], headers=cols, tablefmt="plain",
                    missingval="NaN"))
+    drawn = args.figures and len(failed) < len(rows)  # the figures need a job that ran
     print(f"{len(rows) - len(failed)} of {len(rows)} jobs ok; wrote "
-          f"{args.sweep_dir / SUMMARY_FILE}{' and figures' if args.figures else ''}")
+          f"{args.sweep_dir / SUMMARY_FILE}{' and figures' if drawn else ''}")
     for row in failed:
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
     return 1 if failed else 0

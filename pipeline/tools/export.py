@@ -482,9 +482,9 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int]]:
             raise
     finally:
         shutil.rmtree(partial, ignore_errors=True)
-        if old.is_dir():
+        if old.is_dir() and not old.is_symlink():
             shutil.rmtree(old, ignore_errors=True)
-        else:  # `export` was a file
+        else:  # `export` was a file or a link (rmtree refuses links: it would stay for good)
             old.unlink(missing_ok=True)
     return final, costmap, counts
 

@@ -78,7 +78,12 @@ def test_failing_job_does_not_stop_the_sweep(tmp_path):
     assert again.returncode == 1
     assert {p.parent.name: json.loads(p.read_text())["state"]
             for p in tmp_path.glob("*/status.json")} == {"0": "failed", "1": "failed"}
-    assert aggregate(tmp_path).stdout.strip().splitlines()[-1].startswith("0 of 2 jobs ok")
+    agg = aggregate(tmp_path)
+    assert agg.stdout.strip().splitlines()[-1] == f"0 of 2 jobs ok; wrote {tmp_path}/summary.csv"
+    # nothing ran, so nothing is drawn: the earlier table and figures are gone, not stale
+    assert not [p for p in tmp_path.iterdir() if p.suffix in (".png", ".pdf", ".md", ".tex")]
+    agg = aggregate(tmp_path / "0")  # one job's dir is no sweep
+    assert agg.returncode == 2 and "is a run dir (it has .hydra/overrides.yaml)" in agg.stderr
 
 
 def _job(sweep, name, overrides, metrics):

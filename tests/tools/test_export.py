@@ -504,6 +504,15 @@ def test_artefacts_of_another_run_or_a_damaged_status_are_refused(exported, tmp_
         assert "has an unreadable status.json" in _one_error_line(capsys)
 
 
+def test_an_export_that_was_a_link_is_replaced_without_leftovers(exported, tmp_path):
+    run_dir = copy_run(exported, tmp_path)
+    (tmp_path / "elsewhere").mkdir()
+    (run_dir / "export").symlink_to(tmp_path / "elsewhere")
+    assert export.main([str(run_dir)]) == 0
+    assert (run_dir / "export").is_dir() and not (run_dir / "export").is_symlink()
+    assert not list(run_dir.glob(".export*")) and (tmp_path / "elsewhere").is_dir()
+
+
 def test_a_run_dir_without_status_json_is_exported(exported, tmp_path):
     run_dir = copy_run(exported, tmp_path)  # made before runs wrote status.json
     (run_dir / "status.json").unlink()
