@@ -37,13 +37,19 @@ def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
             if not (check and schema is not None and schema.encoding == SchemaEncoding.JSONSchema
                     and channel.message_encoding == MessageEncoding.JSON):
                 continue
-            if schema.id not in validators:
-                validators[schema.id] = Draft202012Validator(json.loads(schema.data))
-            for err in validators[schema.id].iter_errors(json.loads(message.data)):
+            at = f"  INVALID {channel.topic} at log_time {message.log_time}: "
+            try:  # a schema or message that is no JSON, or a schema that loops, is invalid
+                if schema.id not in validators:
+                    validators[schema.id] = Draft202012Validator(json.loads(schema.data))
+                errors = list(validators[schema.id].iter_errors(json.loads(message.data)))
+            except (ValueError, RecursionError, LookupError) as e:
+                bad.append(f"{at}(message): not checkable against schema {schema.name!r} "
+                           f"({' '.join(str(e).split())[:160] or type(e).__name__})")
+                continue
+            for err in errors:
                 where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}"
                                 for p in err.absolute_path)
-                bad.append(f"  INVALID {channel.topic} at log_time {message.log_time}: "
-                           f"{where or '(message)'}: {err.message[:200]}")
+                bad.append(f"{at}{where or '(message)'}: {err.message[:200]}")
         attachments = list(reader.iter_attachments())
         metadata = list(reader.iter_metadata())
     schemas = summary.schemas if summary else {}

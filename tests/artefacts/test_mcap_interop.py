@@ -233,6 +233,20 @@ def test_mcapinfo_lists_topics_counts_and_metadata_and_checks_schemas(runs, caps
     assert "INVALID /scene at log_time 0: .name: 3 is not of type 'string'" in out
     assert "INVALID /scene at log_time 0: (message): 'room' is a required property" in out
 
+    # A message or a stored schema that is no JSON is an invalid message, not an unreadable file
+    for name, schema, data in (("notjson", json.dumps(SCHEMAS["Scene"]).encode(), b"not json"),
+                               ("badschema", b"{not a schema", b'{"name": "x"}')):
+        with open(tmp_path / f"{name}.mcap", "wb") as f:
+            w = Writer(f)
+            w.start()
+            cid = w.register_channel("/scene", "json",
+                                     w.register_schema("birlg.Scene", "jsonschema", schema))
+            w.add_message(cid, log_time=0, data=data, publish_time=0)
+            w.finish()
+        assert mcapinfo.main(["--check", str(tmp_path / f"{name}.mcap")]) == 1
+        assert "INVALID /scene at log_time 0: (message): not checkable against schema " \
+               "'birlg.Scene'" in capsys.readouterr().out
+
     # A file that is not MCAP: one line on stderr, exit status 2.
     (tmp_path / "x.mcap").write_text("hello")
     assert mcapinfo.main([str(tmp_path / "x.mcap")]) == 2
