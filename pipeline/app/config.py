@@ -73,6 +73,11 @@ class RandomSceneConfig(RandomSceneSpec):
     seed: Optional[int] = None  # scene generator seed; null: the run seed
     map: Optional[str] = None  # a map_server YAML: persons, starts and goal on that map
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.seed is not None:
+            require_count(self, "seed", minimum=0)
+
 
 SCENES: dict[str, type] = {"file": FileSceneConfig, "random": RandomSceneConfig}
 

@@ -58,7 +58,12 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.core.obstacles import ObstacleMap
-from pipeline.core.params import ParameterError, is_number, require_positive
+from pipeline.core.params import (
+    ParameterError,
+    is_number,
+    require_length,
+    require_step,
+)
 from pipeline.core.social import (
     INTIMATE_ZONE,  # `intimate` is `social` at this radius
     orientation,
@@ -117,8 +122,9 @@ class FeatureParams:
     rho_obstacle: float = 0.5  # m, ρ_o
 
     def __post_init__(self) -> None:
-        require_positive(self, "rho_relation", "rho_personal", "resolution", "sigma",
-                         "rho_group", "rho_obstacle")
+        require_length(self, "rho_relation", "rho_personal", "sigma", "rho_group",
+                       "rho_obstacle")
+        require_step(self, "resolution")
         self.selected()
 
     def selected(self) -> tuple[Feature, ...]:
@@ -205,8 +211,9 @@ class FeatureModel:
     rho_obstacle: float = FeatureParams.rho_obstacle
 
     def __post_init__(self) -> None:
-        require_positive(self, "rho_relation", "rho_personal", "resolution", "sigma",
-                         "rho_group", "rho_obstacle")
+        require_length(self, "rho_relation", "rho_personal", "sigma", "rho_group",
+                       "rho_obstacle")
+        require_step(self, "resolution")
         _ = self.selected  # parse (and check) the names now
 
     @classmethod

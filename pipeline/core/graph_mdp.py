@@ -45,6 +45,7 @@ NO_EDGE = -1
 # Dead ends' V = −v_max when v_max is not given: the paper's 10 with discounting; far below
 # any path's cost without discounting, where no choice ever compares against it.
 V_MAX_DISCOUNTED, V_MAX_UNDISCOUNTED = 10.0, 1e6
+MAX_SPEED = 100.0  # m/s
 
 
 @dataclass
@@ -65,7 +66,9 @@ class MDPParams:
                 self.time_cost, "a finite number >= 0")
         require(self.gamma < 1 or self.time_cost > 0, "time_cost", self.time_cost,
                 "> 0 when gamma = 1 (undiscounted: without a cost per second a loop is free)")
-        require_positive(self, "speed")
+        # a robot, not light: at 1e12 m/s an edge's duration rounds to nothing
+        require(is_number(self.speed) and 0 < self.speed <= MAX_SPEED, "speed", self.speed,
+                f"a speed in m/s > 0 and <= {MAX_SPEED:g}")
         if self.v_max is not None:
             require_positive(self, "v_max")
         require(is_number(self.r_goal), "r_goal", self.r_goal, "a finite number")

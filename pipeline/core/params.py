@@ -46,6 +46,28 @@ def require_positive(obj: Any, *fields: str) -> None:
         require(is_number(value) and value > 0, name, value, "a finite number > 0")
 
 
+# Lengths a scene can hold (m): far below them an integration step would take petabytes,
+# far above them a decay length makes every cost equal to round-off.
+SHORTEST_STEP = 1e-3
+LONGEST_LENGTH = 1e4
+
+
+def require_step(obj: Any, *fields: str) -> None:
+    """Each named attribute of `obj` is an integration or lattice step of at least 1 mm."""
+    for name in fields:
+        value = getattr(obj, name)
+        require(is_number(value) and SHORTEST_STEP <= value <= LONGEST_LENGTH, name, value,
+                f"a step in metres from {SHORTEST_STEP:g} to {LONGEST_LENGTH:g}")
+
+
+def require_length(obj: Any, *fields: str) -> None:
+    """Each named attribute of `obj` is a length > 0 and at most LONGEST_LENGTH m."""
+    for name in fields:
+        value = getattr(obj, name)
+        require(is_number(value) and 0 < value <= LONGEST_LENGTH, name, value,
+                f"a length in metres > 0 and <= {LONGEST_LENGTH:g}")
+
+
 def require_non_negative(obj: Any, *fields: str) -> None:
     for name in fields:
         value = getattr(obj, name)

@@ -49,6 +49,12 @@ class RandomSceneSpec(BodyParams):
                 f"{self.group_size_min} (max {self.group_size_max})",
                 "2 <= group_size_min <= group_size_max <= 4")
         require_non_negative(self, "border_margin")
+        # persons keep 0.5 m + body_radius from the walls, starts and goal border_margin
+        inset = 2 * max(self.border_margin, 0.5 + self.body_radius)
+        require(min(self.width, self.height) > inset, "width",
+                f"{self.width:g} (height {self.height:g})",
+                f"width and height above {inset:g} m: twice the larger of border_margin and "
+                "0.5 m + body_radius, the walls' margins")
 
 
 def _place_persons(

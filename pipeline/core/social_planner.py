@@ -55,8 +55,9 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.params import (
     require,
     require_count,
+    require_length,
     require_non_negative,
-    require_positive,
+    require_step,
 )
 from pipeline.core.roadmap import lattice_graph, segments_feasible
 from pipeline.core.world import Scene
@@ -86,8 +87,9 @@ class SocialPlannerParams:
     subject_spread: float = 0.25  # log-normal spread of each subject's parameters
 
     def __post_init__(self) -> None:
-        require_positive(self, "sigma_front", "sigma_back", "sigma_side", "sigma_intimate",
-                         "group_width", "sigma_wall", "spacing", "resolution")
+        require_length(self, "sigma_front", "sigma_back", "sigma_side", "sigma_intimate",
+                       "group_width", "sigma_wall")
+        require_step(self, "spacing", "resolution")
         require_non_negative(self, "amplitude_person", "amplitude_intimate", "amplitude_group",
                              "amplitude_wall", "subject_spread")
         require(self.connectivity in (8, 16), "connectivity", self.connectivity, "8 or 16")
