@@ -13,7 +13,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pipeline.core.params import ParameterError, require_positive
+from pipeline.core.params import ParameterError, is_number, require, require_positive
 
 
 def wrap_angle(a: ArrayLike) -> np.ndarray | np.float64:
@@ -166,6 +166,7 @@ class PosqController:
     def __post_init__(self) -> None:
         require_positive(self, "k_v", "k_rho", "k_alpha", "wheel_base", "max_speed", "dt", "eps",
                          "max_time")
+        require(is_number(self.k_beta), "k_beta", self.k_beta, "a finite number")  # often < 0
 
     @property
     def cruise_speed(self) -> float:
