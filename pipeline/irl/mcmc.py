@@ -36,6 +36,9 @@ class LogDensity(Protocol):
     def dispersed_start(self, rng: np.random.Generator) -> np.ndarray: ...
 
 
+MAX_CHAIN_STEPS = 10_000_000  # steps of one chain: ~0.5 GB of states at 6 features
+
+
 @dataclass
 class ChainParams:
     """A Metropolis–Hastings chain: burn_in + n_samples·thin steps, every thin-th kept."""
@@ -46,6 +49,9 @@ class ChainParams:
     def __post_init__(self) -> None:
         require_count(self, "n_samples", "thin")
         require_count(self, "burn_in", minimum=0)
+        # the chain's states are kept in memory (d floats each): bound its length
+        require(self.burn_in + self.n_samples * self.thin <= MAX_CHAIN_STEPS, "thin",
+                self.thin, f"small enough that burn_in + n_samples·thin <= {MAX_CHAIN_STEPS:g}")
 
 
 @dataclass

@@ -42,6 +42,9 @@ class BoxConfig:
         require(bool(np.all(lower < upper)), "lower", list(self.lower),
                 f"below upper ({list(self.upper)}) in every entry")
         mean = None if self.prior.mean is None else broadcast(self.prior.mean, dim, "prior.mean")
+        # a centre far outside the box makes every weight in it improbable to round-off
+        require(mean is None or bool(np.all((mean >= lower) & (mean <= upper))), "prior.mean",
+                self.prior.mean, "within the box [lower, upper] in every entry")
         return Prior(self.prior.kind, self.prior.scale, lower, upper, mean)
 
 

@@ -48,6 +48,8 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("scene=random scene.body_radius=100", "scene.width"),
     ("scene=random scene.seed=-1", "scene.seed"),
     ("graph.controller.kind=posq graph.controller.k_beta=inf", "graph.controller.k_beta"),
+    ("birl=mcmc birl.thin=1000000", "birl.thin"),  # a 45 GB chain
+    ("birl.prior.kind=gaussian birl.prior.mean=[-1e300]", "birl.prior.mean"),
     ("birl=fixed birl.from_run=", "birl.from_run"),
     ("graph.controller.max_speed=-1", "graph.controller.max_speed"),
     ("graph.controller.k_rho=0", "graph.controller.k_rho"),
