@@ -110,6 +110,9 @@ class Controller(Protocol):
         ...
 
 
+MIN_DT = 1e-3  # s, POSQ's shortest integration step
+
+
 @dataclass
 class LinearController:
     speed: float = 1.0  # m/s
@@ -167,6 +170,9 @@ class PosqController:
         require_positive(self, "k_v", "k_rho", "k_alpha", "wheel_base", "max_speed", "dt", "eps",
                          "max_time")
         require(is_number(self.k_beta), "k_beta", self.k_beta, "a finite number")  # often < 0
+        # every run integrates max_time / dt steps: 1e-12 s hung growth at 7 GB
+        require(MIN_DT <= self.dt <= self.max_time, "dt", self.dt,
+                f"a step in seconds from {MIN_DT:g} to max_time ({self.max_time:g})")
 
     @property
     def cruise_speed(self) -> float:

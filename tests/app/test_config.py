@@ -49,6 +49,7 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("scene=random scene.seed=-1", "scene.seed"),
     ("graph.controller.kind=posq graph.controller.k_beta=inf", "graph.controller.k_beta"),
     ("birl=mcmc birl.thin=1000000", "birl.thin"),  # a 45 GB chain
+    ("graph.controller.kind=posq graph.controller.dt=1e-12", "graph.controller.dt"),
     ("birl.prior.kind=gaussian birl.prior.mean=[-1e300]", "birl.prior.mean"),
     ("birl=fixed birl.from_run=", "birl.from_run"),
     ("graph.controller.max_speed=-1", "graph.controller.max_speed"),
