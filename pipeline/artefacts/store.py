@@ -48,12 +48,17 @@ def unique_tmp(path: Path) -> Path:
 
 
 def write_json_atomic(path: Path, obj) -> None:
-    """Write JSON to a unique temp file, fsync, rename: readers see the old or the new file,
+    """`write_text_atomic` of `obj` as JSON."""
+    write_text_atomic(path, json.dumps(to_jsonable(obj), indent=1, sort_keys=True))
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write text to a unique temp file, fsync, rename: readers see the old or the new file,
     never a partial one (also when the disk fills up: the temp file is removed)."""
     tmp = unique_tmp(Path(path))
     try:
-        with open(tmp, "w") as f:
-            f.write(json.dumps(to_jsonable(obj), indent=1, sort_keys=True))
+        with open(tmp, "w", newline="") as f:
+            f.write(text)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import io
 import math
 import re
 import sys
@@ -26,7 +27,7 @@ import numpy as np
 
 from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
 from pipeline.app.summary import is_metric, summary_rows
-from pipeline.artefacts.store import unique_tmp
+from pipeline.artefacts.store import write_text_atomic
 from pipeline.errors import PipelineError, os_error_reason
 
 # A table as the sweep's jobs give it: plain rows (dicts; a row lacks what its job did not
@@ -242,16 +243,11 @@ def write_tables(columns: list[str], rows: list[Row], sweep_dir: Path) -> None:
 
 def write_summary_csv(columns: list[str], rows: list[Row], path: Path) -> None:
     """summary.csv: a missing value is an empty cell (as pandas writes NaN and None)."""
-    tmp = unique_tmp(path)  # a full disk leaves the old table, never an empty one
-    try:
-        with tmp.open("w", newline="") as f:
-            writer = csv.writer(f, lineterminator="\n")
-            writer.writerow(columns)
-            writer.writerows([["" if _missing(r.get(c)) else r[c] for c in columns]
-                              for r in rows])
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(columns)
+    writer.writerows([["" if _missing(r.get(c)) else r[c] for c in columns] for r in rows])
+    write_text_atomic(path, text.getvalue())  # a full disk leaves the old table, not an empty one
 
 
 FIGURES = ("policy_loss", "scene")  # each as .png and .pdf
