@@ -362,7 +362,8 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    decoding: str | None = None  # the message being decoded, for the error
+    # where reading got to, for the error: (message, step); None until the bag is open
+    at: tuple[int, str] | None = None
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
             topic, msgtype = _bag_topic(reader, where, topic)
@@ -372,12 +373,12 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
             frames: dict[str, int] = {}  # frame_id -> first message with it
             too_short: list[int] = []  # Path messages with fewer than two poses
             count = 0
-            decoding = f"{where}: topic {topic} message 0 cannot be read"
+            at = (0, "read")
             for count, (conn, _, raw) in enumerate(reader.messages(connections=connections), 1):
                 what = f"{where}: topic {topic} message {count - 1}"
-                decoding = f"{what} cannot be decoded as {conn.msgtype}"
+                at = (count - 1, "decode")
                 msg: Any = reader.deserialize(raw, conn.msgtype)
-                decoding = f"{what} ({conn.msgtype}) is not as ROS defines it"
+                at = (count - 1, "use")
                 found = msg.header.frame_id
                 if frame is not None and found != frame:
                     raise PipelineError(f"{what} has frame_id {found!r}, not "
@@ -394,14 +395,18 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                     if not (math.isfinite(pos.x) and math.isfinite(pos.y)):
                         raise PipelineError(f"{what} has a non-finite position")
                     stream.append((pos.x, pos.y))
-                decoding = f"{where}: topic {topic} message {count} cannot be read"
+                at = (count, "read")
     except PipelineError:
         raise
     except Exception as e:  # rosbags raises many kinds on malformed bags; report, never trace
         detail = str(e).splitlines()[0] if str(e) else type(e).__name__
-        if decoding is not None:  # the bag opened; one message is damaged or of another type
-            raise PipelineError(f"{decoding}: damaged, or its type is defined differently in "
-                                f"the bag ({detail[:120]})") from None
+        if at is not None:  # the bag opened; one message is damaged or of another type
+            index, step = at
+            failed = {"read": "cannot be read", "decode": f"cannot be decoded as {msgtype}",
+                      "use": f"({msgtype}) is not as ROS defines it"}[step]
+            raise PipelineError(f"{where}: topic {topic} message {index} {failed}: damaged, or "
+                                f"its type is defined differently in the bag ({detail[:120]})") \
+                from None
         raise PipelineError(f"{where} cannot be read as a ROS bag: its metadata or index is "
                             f"damaged or incomplete ({detail[:160]})") from None
     if count == 0:
