@@ -340,7 +340,8 @@ LEARNED_PATH = _message("LearnedPath", "The greedy path from one start under the
                                  minimum=0),
     "personal_intrusion_m": _num("Path length inside personal zones (< 1.2 m), metres.",
                                  minimum=0),
-    "min_distance_to_person": _num("Smallest distance to a person, metres.", minimum=0),
+    "min_distance_to_person": _num("Smallest distance to a person, metres (scenes with "
+                                   "persons only).", minimum=0),
     "path_length": _num("Length, metres.", minimum=0),
     "time_to_goal": _num("Duration at the robot speed, seconds.", minimum=0),
     "success": _num("1 if it reaches the goal, else 0.", minimum=0, maximum=1),
@@ -348,7 +349,7 @@ LEARNED_PATH = _message("LearnedPath", "The greedy path from one start under the
                                      "with obstacles only)."),
     "obstacle_collisions": _num("1 if closer than robot_radius to an obstacle, else 0 "
                                 "(scenes with obstacles only).", minimum=0, maximum=1),
-}, optional=("min_distance_to_obstacle", "obstacle_collisions"))
+}, optional=("min_distance_to_person", "min_distance_to_obstacle", "obstacle_collisions"))
 
 METRICS = {
     **_message("Metrics", "The run's metrics (metrics.json without wall-clock timings): flat "
@@ -366,11 +367,13 @@ METRICS = {
         "relation_crossings": _num("Social links crossed, summed over starts."),
         "intimate_intrusion_m": _num("Intimate-zone intrusion, metres, summed over starts."),
         "personal_intrusion_m": _num("Personal-zone intrusion, metres, summed over starts."),
-        "min_distance_to_person": _num("Smallest distance to a person over all paths, m."),
+        "min_distance_to_person": _num("Smallest distance to a person over all paths, m "
+                                       "(scenes with persons only)."),
         "path_length": _num("Mean path length, metres."),
         "time_to_goal": _num("Mean time to goal, seconds."),
         "success": _num("Share of starts whose path reaches the goal.", minimum=0, maximum=1),
-    }, optional=("policy_loss", "policy_loss_ref", "policy_loss_norm")),
+    }, optional=("policy_loss", "policy_loss_ref", "policy_loss_norm",
+                 "min_distance_to_person")),
     "additionalProperties": {"type": "number"},
 }
 

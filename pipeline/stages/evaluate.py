@@ -282,10 +282,11 @@ def write_evaluation(ctx: RunContext, weights: np.ndarray, curves: dict, graph_p
                    for name, c in (("graph", curves.get("graph")), ("ref", curves.get("ref")),
                                    ("norm", curves.get("norm"))) if c is not None}},
                 log_time=k)
-        # null where a measure has no finite value (no person to keep a distance from)
+        # a measure without a finite value (no person to keep a distance from) is left out,
+        # as metrics that cannot be computed are
         learned = [{"graph": where, "start": s, "points": pts,
-                    **{k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                       for k, v in m.items()}}
+                    **{k: v for k, v in m.items()
+                       if not (isinstance(v, float) and not np.isfinite(v))}}
                    for where, paths in (("graph", graph_paths), ("ref", ref_paths))
                    for s, (pts, m) in enumerate(paths)]
         for p in learned:
