@@ -33,8 +33,8 @@ from pipeline.core.features import FeatureParams
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.params import (
     ParameterError,
-    deprecated,
     is_number,
+    renamed,
     require,
     require_count,
     require_positive,
@@ -104,9 +104,7 @@ class ExpertConfig:
     n_demos: Optional[int] = None  # deprecated spelling of n_starts
 
     def __post_init__(self) -> None:
-        if self.n_demos is not None:
-            deprecated("expert.n_demos", "expert.n_starts")
-            self.n_starts, self.n_demos = self.n_demos, None
+        renamed(self, "n_demos", "n_starts", "expert")
         if self.n_starts is not None:
             require_count(self, "n_starts")
 

@@ -8,6 +8,7 @@ ParameterError naming the field; the app prefixes the config key.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import numbers
@@ -28,10 +29,20 @@ def is_number(value: Any) -> bool:
             and math.isfinite(value))
 
 
-def deprecated(old: str, new: str) -> None:
-    """One warning line for a renamed setting that still works for one release."""
-    logging.getLogger("pipeline").warning("%s is deprecated and will be removed: use %s",
-                                          old, new)
+def renamed(obj: Any, old: str, new: str, section: str) -> None:
+    """A renamed setting that still works for one release: its value moves to the new name,
+    with one warning. Both given (the new one away from its default) is refused: the old
+    spelling used to win silently over the new one."""
+    value = getattr(obj, old)
+    if value is None:
+        return
+    default = next(f.default for f in dataclasses.fields(obj) if f.name == new)
+    require(getattr(obj, new) == default, old, value,
+            f"{section}.{new} alone: {section}.{old} is its old name and both were given")
+    logging.getLogger("pipeline").warning("%s.%s is deprecated and will be removed: use %s.%s",
+                                          section, old, section, new)
+    setattr(obj, new, value)
+    setattr(obj, old, None)
 
 
 def require(ok: bool, field: str, value: Any, allowed: str) -> None:

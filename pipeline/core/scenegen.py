@@ -20,7 +20,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.core.obstacles import ObstacleMap, OccupancyGrid
-from pipeline.core.params import require, require_count, require_non_negative, require_positive
+from pipeline.core.params import require, require_count, require_positive
 from pipeline.core.roadmap import lattice_graph
 from pipeline.core.world import BodyParams, Person, Room, Scene
 from pipeline.errors import PipelineError
@@ -48,13 +48,18 @@ class RandomSceneSpec(BodyParams):
         require(2 <= self.group_size_min <= self.group_size_max <= 4, "group_size_min",
                 f"{self.group_size_min} (max {self.group_size_max})",
                 "2 <= group_size_min <= group_size_max <= 4")
-        require_non_negative(self, "border_margin")
+        # a start on the wall is outside the room's raster: no path leaves it
+        require_positive(self, "border_margin")
         # persons keep 0.5 m + body_radius from the walls, starts and goal border_margin
         inset = 2 * max(self.border_margin, 0.5 + self.body_radius)
         require(min(self.width, self.height) > inset, "width",
                 f"{self.width:g} (height {self.height:g})",
                 f"width and height above {inset:g} m: twice the larger of border_margin and "
                 "0.5 m + body_radius, the walls' margins")
+        # at a smaller radius the members of a pair overlap bodies (at 1e-6 m they stand on
+        # one spot and their social link has no length)
+        require(self.formation_radius >= self.body_radius, "formation_radius",
+                self.formation_radius, f"at least body_radius ({self.body_radius:g} m)")
 
 
 def _place_persons(

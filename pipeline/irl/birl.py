@@ -31,7 +31,7 @@ from scipy.special import chdtri
 
 from pipeline.core.evaluation import frechet
 from pipeline.core.graph_mdp import TrajectoryStats
-from pipeline.core.params import deprecated, require, require_count, require_positive
+from pipeline.core.params import renamed, require, require_count, require_positive
 from pipeline.irl.base import (
     IRLConfig,
     IRLProblem,
@@ -88,9 +88,7 @@ class BirlMapConfig(IRLConfig):
             require_count(self, "grow_nodes", minimum=0)
         require(self.likelihood in LIKELIHOODS, "likelihood", self.likelihood,
                 " or ".join(repr(k) for k in LIKELIHOODS))
-        if self.lr_level is not None:
-            deprecated("birl.lr_level", "birl.test_level")
-            self.test_level, self.lr_level = self.lr_level, None
+        renamed(self, "lr_level", "test_level", "birl")
         require(0 < self.test_level < 1, "test_level", self.test_level, "a number in (0, 1)")
         if self.boltzmann_prior_scale is not None:
             require_positive(self, "boltzmann_prior_scale")

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import solve_triangular
 
-from pipeline.core.params import deprecated, require, require_count, require_positive
+from pipeline.core.params import renamed, require, require_count, require_positive
 from pipeline.irl.base import PosteriorSamples
 from pipeline.irl.diagnostics import convergence
 
@@ -70,9 +70,7 @@ class AdaptiveChainParams(ChainParams):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.step is not None:
-            deprecated("birl.step", "birl.proposal_step")
-            self.proposal_step, self.step = self.step, None
+        renamed(self, "step", "proposal_step", "birl")
         require_positive(self, "proposal_step")
         require_count(self, "n_chains")
         require(self.sampler in SAMPLERS, "sampler", self.sampler, f"one of {SAMPLERS}")

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from pipeline.core.graph_mdp import GraphMDP, Path
-from pipeline.core.params import deprecated, require_positive
+from pipeline.core.params import renamed, require, require_positive
 from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, Trace, register
 from pipeline.irl.mcmc import ChainParams
 from pipeline.irl.prior import Prior
@@ -33,11 +33,18 @@ class PolicyWalkConfig(IRLConfig, ChainParams):
     def __post_init__(self) -> None:
         IRLConfig.__post_init__(self)
         ChainParams.__post_init__(self)
-        if self.step is not None:
-            deprecated("birl.step", "birl.grid_step")
-            self.grid_step, self.step = self.step, None
+        renamed(self, "step", "grid_step", "birl")
         require_positive(self, "grid_step")
         require_positive(self, "alpha")
+
+    def make_prior(self, dim: int) -> Prior:
+        """The box's prior; its narrowest side must hold two grid steps, or a chain started
+        inside it can have no proposal in the box and never moves."""
+        prior = super().make_prior(dim)
+        narrowest = float(np.min(prior.upper - prior.lower))
+        require(self.grid_step <= narrowest / 2, "grid_step", self.grid_step,
+                f"at most half the weight box's narrowest side ({narrowest / 2:g})")
+        return prior
 
 
 @register("policywalk", PolicyWalkConfig)

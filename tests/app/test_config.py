@@ -1,6 +1,8 @@
 """The app's config (pipeline/app/config.py): every config group option composes and
 validates, an out-of-range value names its key, a key of another method is refused."""
 
+import re
+
 import pytest
 from hydra.errors import ConfigCompositionException
 
@@ -47,6 +49,10 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("scene=random scene.width=1 scene.height=1", "scene.width"),
     ("scene=random scene.body_radius=100", "scene.width"),
     ("scene=random scene.seed=-1", "scene.seed"),
+    # scenes the generator made and the validator refused, named against scene.mcap
+    ("scene=random scene.border_margin=0", "scene.border_margin"),  # starts on the wall
+    ("scene=random scene.formation_radius=1e-12", "scene.formation_radius"),  # one spot
+    ("birl=policywalk birl.grid_step=5", "birl.grid_step"),  # no move inside the box
     ("graph.controller.kind=posq graph.controller.k_beta=inf", "graph.controller.k_beta"),
     ("birl=mcmc birl.thin=1000000", "birl.thin"),  # a 45 GB chain
     ("graph.controller.kind=posq graph.controller.dt=1e-12", "graph.controller.dt"),
@@ -114,6 +120,29 @@ def test_the_old_spelling_of_n_starts_still_works_with_a_warning(caplog):
         settings = validate(compose_config("expert.n_demos=3"))
     assert settings.expert.n_starts == 3
     assert "expert.n_demos is deprecated and will be removed: use expert.n_starts" in caplog.text
+
+
+def test_a_policywalk_grid_step_that_leaves_the_chain_no_move_in_the_box_is_refused():
+    """A step of 5 in a box of side 1: every proposal left the box, and the chain stayed at
+    its start with exit 0."""
+    with pytest.raises(PipelineError, match=re.escape(
+            "config error: birl.grid_step=0.6 is not allowed (allowed: at most half the "
+            "weight box's narrowest side (0.5))")):
+        validate(compose_config("birl=policywalk", "birl.grid_step=0.6"))
+    assert validate(compose_config("birl=policywalk", "birl.grid_step=0.5")).birl.grid_step == 0.5
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["expert.n_demos=3", "expert.n_starts=5"], "expert.n_demos=3 is not allowed (allowed: "
+     "expert.n_starts alone: expert.n_demos is its old name and both were given)"),
+    (["birl=mcmc", "birl.step=0.1", "birl.proposal_step=0.2"], "birl.step=0.1 is not allowed"),
+    (["birl=policywalk", "birl.step=0.1", "birl.grid_step=0.2"], "birl.step=0.1 is not allowed"),
+    (["birl.lr_level=0.1", "birl.test_level=0.2"], "birl.lr_level=0.1 is not allowed"),
+])
+def test_an_old_spelling_given_with_its_new_name_is_refused(overrides, message):
+    """The old spelling used to win silently over the new name given beside it."""
+    with pytest.raises(PipelineError, match=re.escape(f"config error: {message}")):
+        validate(compose_config(*overrides))
 
 
 @pytest.mark.parametrize("overrides, expected", [
