@@ -180,6 +180,11 @@ class ControllerConfig(PosqController):
         super().__post_init__()
         require(self.kind in CONTROLLERS, "kind", self.kind,
                 " or ".join(repr(k) for k in CONTROLLERS))
+        if self.kind == "linear":  # POSQ's keys were ignored silently here
+            for f in dataclasses.fields(PosqController):
+                require(getattr(self, f.name) == f.default, f.name, getattr(self, f.name),
+                        "only with graph.controller.kind=posq (the linear controller drives "
+                        "at mdp.speed)")
 
 
 @dataclass

@@ -198,6 +198,9 @@ class AdaptiveGraph(StateGraph):
         self.best_reached = np.zeros(0, dtype=bool)
         self.history: list[dict] = []  # per iteration: best paths and values
         self._recorded_at = -1  # the solver's changes at the last record
+        # Controller runs drawn from graph nodes, and those that arrived clear of obstacles
+        # and bodies: when none did, growth stalls for the controller, not for space.
+        self.runs_drawn = self.runs_feasible = 0
 
     # -- initialisation ------------------------------------------------------------------
     def initialise(self, demos: Sequence[Demonstration] = ()) -> None:
@@ -356,6 +359,8 @@ class AdaptiveGraph(StateGraph):
         targets = np.column_stack([self.pose[v, 0] + reach * np.cos(heading),
                                    self.pose[v, 1] + reach * np.sin(heading), heading])
         runs = self.steer(np.repeat(self.pose[v:v + 1], p.n_new, 0), targets)
+        self.runs_drawn += p.n_new
+        self.runs_feasible += len(runs)
         keep = np.flatnonzero(~self.too_close_many(runs.end_poses))
         if not len(keep):
             return None

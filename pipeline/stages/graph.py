@@ -59,7 +59,12 @@ def run(ctx: RunContext) -> None:
                      g.iteration, g.n_nodes, len(g.src), np.round(g.best_path_values, 3).tolist())
 
     graph.grow(progress)
-    if graph.n_nodes < cfg.graph.max_nodes:
+    if graph.n_nodes < cfg.graph.max_nodes and graph.runs_feasible == 0:
+        log.warning("graph stopped at %d of %d nodes: none of the %d controller runs from its "
+                    "nodes arrived within graph.controller.max_time clear of obstacles and "
+                    "bodies (check graph.controller)", graph.n_nodes, cfg.graph.max_nodes,
+                    graph.runs_drawn)
+    elif graph.n_nodes < cfg.graph.max_nodes:
         log.warning("graph stopped at %d of %d nodes: %d expansions in a row found no free "
                     "place (lower graph.min_separation or graph.max_nodes)", graph.n_nodes,
                     cfg.graph.max_nodes, cfg.graph.max_stalls)

@@ -158,3 +158,17 @@ def test_a_scene_without_persons_runs_end_to_end(tmp_path):
     assert paths and all("min_distance_to_person" not in p for p in paths)
     assert all(p["success"] for p in paths)
     assert mcapinfo.main(["--check", str(tmp_path / "run" / "eval.mcap")]) == 0
+
+
+@pytest.mark.parametrize("overrides, advice", [
+    # POSQ runs of at most 10 ms arrive nowhere: the space advice was wrong for these
+    (["graph.controller.kind=posq", "graph.controller.max_time=0.01",
+      "graph.controller.dt=0.005"], "(check graph.controller)"),
+    (["graph.min_separation=2.5"], "(lower graph.min_separation or graph.max_nodes)"),
+])
+def test_a_graph_that_stops_short_says_whether_space_or_the_controller_stopped_it(
+        tmp_path, caplog, overrides, advice):
+    with caplog.at_level("WARNING"):
+        run_in_process(tmp_path, *overrides, "stages=[scene,demos,graph]")
+    [warning] = [r.getMessage() for r in caplog.records if "graph stopped at" in r.getMessage()]
+    assert warning.endswith(advice)
