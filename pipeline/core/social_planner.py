@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -372,12 +373,16 @@ def plan(scene: Scene, params: SocialPlannerParams,
 
 
 def planner_demos(scene: Scene, feature_model: FeatureModel, params: SocialPlannerParams,
-                  rng: np.random.Generator | None, speed: float) -> list[Demonstration]:
+                  rng: np.random.Generator | None, speed: float,
+                  progress: Callable[[int, int], None] | None = None) -> list[Demonstration]:
     """Demonstrations of every subject ("s0", "s1", ...) from every start, subject by
-    subject; features from the run's FeatureModel, durations = length / speed."""
+    subject; features from the run's FeatureModel, durations = length / speed.
+    `progress(done, n_subjects)` after each subject."""
     graph = planner_graph(scene, params)
     demos = []
     for k, subject in enumerate(subjects(params, rng)):
+        if progress is not None and k:
+            progress(k, params.n_subjects)
         for path in plan(scene, subject, graph):
             p = path.points
             demos.append(Demonstration(

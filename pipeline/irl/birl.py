@@ -152,7 +152,8 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     w_map, beta_map = boltzmann.map(problem.w0, config.beta)
     best = -boltzmann.neg_log_posterior(np.append(w_map, np.log(beta_map)))[0]
     paper = birl_map(problem.expert, problem.environment.rollout, problem.prior,
-                     beta=config.beta, n_iterations=config.n_iterations, w0=w_map)
+                     beta=config.beta, n_iterations=config.n_iterations, w0=w_map,
+                     progress=_tenths(problem, config.n_iterations))
     threshold = chdtri(problem.prior.dim + 1, config.test_level) / 2  # χ² quantile
     # every record's log likelihood is the Boltzmann model's at its weights and the MAP's β
     # (eq. (2)'s loop starts at the MAP, so its iteration 0 is not about w0)
@@ -179,6 +180,24 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     # Graph solves: eq. (2)'s whole loop, then one per recorded iteration (the soft policy
     # iterations of the Boltzmann model are not counted).
     return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))])
+
+
+# Eq. (2)'s loop inside the robust form reports how far it got in tenths from this many
+# iterations on (each is a graph solve; fewer end within seconds).
+REPORTED_LOOP = 100
+
+
+def _tenths(problem: IRLProblem, n_iterations: int) -> Callable[[Iteration], None] | None:
+    """A progress callback that tells problem.status every tenth of a long eq. (2) loop."""
+    status = problem.status
+    if status is None or n_iterations < REPORTED_LOOP:
+        return None
+    every = n_iterations // 10
+
+    def tell(it: Iteration) -> None:
+        if it.index and it.index % every == 0:
+            status(f"eq. (2) loop: iteration {it.index} of {n_iterations}")
+    return tell
 
 
 # `reproduces`: within this many times the graph's resolution (its nodes' minimum

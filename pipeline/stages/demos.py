@@ -65,6 +65,12 @@ def run(ctx: RunContext) -> None:
     write_demos(ctx, demos, heldout, roadmap, mdp, solution)
 
 
+def _planned(done: int, n_subjects: int) -> None:
+    """Many planner subjects take a while (about 0.1 s each on metropolis): tell every tenth."""
+    if done % (n_subjects // 10) == 0:
+        log.info("  planner: %d of %d subjects planned", done, n_subjects)
+
+
 def demonstrations(ctx: RunContext, scene: Scene, features: FeatureModel, roadmap: Roadmap,
                    mdp: GraphMDP, solution: Solution,
                    recorded: list[Demonstration]) -> list[Demonstration]:
@@ -79,7 +85,8 @@ def demonstrations(ctx: RunContext, scene: Scene, features: FeatureModel, roadma
     elif isinstance(expert, FileExpertConfig):
         demos = recorded
     elif isinstance(expert, PlannerExpertConfig):
-        demos = planner_demos(scene, features, expert, ctx.rng("demos"), cfg.mdp.speed)
+        demos = planner_demos(scene, features, expert, ctx.rng("demos"), cfg.mdp.speed,
+                              _planned if expert.n_subjects >= 10 else None)
     elif expert.kind == "none":
         demos = []
     else:

@@ -54,6 +54,7 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("scene=random scene.formation_radius=1e-12", "scene.formation_radius"),  # one spot
     ("birl=policywalk birl.grid_step=5", "birl.grid_step"),  # no move inside the box
     ("graph.controller.k_beta=-3", "graph.controller.k_beta"),  # POSQ's, ignored by linear
+    ("birl.n_iterations=1000000", "birl.n_iterations"),  # hours without a word
     ("graph.controller.kind=posq graph.controller.k_beta=inf", "graph.controller.k_beta"),
     ("birl=mcmc birl.thin=1000000", "birl.thin"),  # a 45 GB chain
     ("graph.controller.kind=posq graph.controller.dt=1e-12", "graph.controller.dt"),

@@ -3,6 +3,7 @@ artefacts, the same bytes from the same seed, stage subsets from an earlier run,
 the features, and bad inputs refused in one line without touching earlier artefacts."""
 
 import json
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -172,3 +173,20 @@ def test_a_graph_that_stops_short_says_whether_space_or_the_controller_stopped_i
         run_in_process(tmp_path, *overrides, "stages=[scene,demos,graph]")
     [warning] = [r.getMessage() for r in caplog.records if "graph stopped at" in r.getMessage()]
     assert warning.endswith(advice)
+
+
+@pytest.mark.parametrize("overrides, pattern, expected", [
+    (["birl.n_iterations=100", "stages=[scene,demos,graph,birl]"],
+     r"eq\. \(2\) loop: iteration (\d+) of 100", list(range(10, 101, 10))),
+    (["expert=planner", "expert.n_subjects=10", "stages=[scene,demos]"],
+     r"planner: (\d+) of 10 subjects planned", list(range(1, 10))),
+    (["expert=planner", "expert.n_subjects=9", "stages=[scene,demos]"],  # short: silent
+     r"planner: (\d+) of 9 subjects planned", []),
+])
+def test_long_work_inside_a_stage_says_how_far_it_got(tmp_path, caplog, overrides, pattern,
+                                                      expected):
+    """Long eq. (2) loops and many planner subjects ran for minutes without a line."""
+    with caplog.at_level("INFO"):
+        run_in_process(tmp_path, *overrides)
+    told = [int(m[1]) for r in caplog.records if (m := re.search(pattern, r.getMessage()))]
+    assert told == expected
