@@ -4,7 +4,11 @@ door without demonstrations (medial-axis nodes, a stuck start's frontier), and (
 many nodes it needs to connect every start through the office map's doors against a uniform
 roadmap."""
 
+import json
 import math
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -32,7 +36,7 @@ from pipeline.core.state_graph import GOAL, MEDIAL, SAMPLED, START, StateGraph
 from pipeline.core.world import Room, Scene
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.irl.prior import BoxConfig
-from tests.conftest import OFFICE_SCENE, POLITE, RUDE, compose_config
+from tests.conftest import OFFICE_SCENE, POLITE, ROOT, RUDE, compose_config
 
 # The default prior's mean, the weights the graph stage grows the graph under before learning
 PRIOR_MEAN = BoxConfig().make_prior(4).box_mean()
@@ -139,6 +143,31 @@ def test_value_gp_skips_only_the_fits_own_log_marginal_likelihood():
     assert np.isfinite(theirs.log_marginal_likelihood_value_)
     assert ours.log_marginal_likelihood(kernel.theta) == theirs.log_marginal_likelihood_value_
     assert ours.log_marginal_likelihood() == theirs.log_marginal_likelihood()
+
+
+def test_the_gp_import_leaves_pandas_and_scipy_stats_unloaded_and_both_work_later():
+    """Growth imports scikit-learn's GP without pandas and scipy.stats (0.55 s of the default
+    run); scikit-learn's own binding of scipy.stats.rankdata, and later imports of both, give
+    the real thing. In a fresh interpreter: this one has them loaded already."""
+    code = textwrap.dedent("""
+        import json, sys
+        from pipeline.core.adaptive_graph import _import_sklearn_gp
+        _, gp, kernels = _import_sklearn_gp()
+        loaded = [m for m in ("pandas", "scipy.stats") if m in sys.modules]
+        fit = gp(kernels.RBF(1.0, "fixed"), optimizer=None).fit([[0.0], [1.0]], [0.0, 1.0])
+        from sklearn.metrics import _ranking
+        import scipy.stats
+        import pandas
+        print(json.dumps({
+            "loaded": loaded, "predicted": round(float(fit.predict([[1.0]])[0]), 6),
+            "sklearn_rankdata": _ranking.rankdata([3, 1, 2]).tolist(),
+            "stats_module": type(scipy.stats).__name__, "cdf": scipy.stats.norm.cdf(0.0),
+            "pandas_sum": int(pandas.Series([1, 2]).sum())}))
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=ROOT).stdout
+    assert json.loads(out) == {"loaded": [], "predicted": 1.0, "sklearn_rankdata": [3, 1, 2],
+                               "stats_module": "module", "cdf": 0.5, "pandas_sum": 3}
 
 
 def test_voronoi_centroids_clipped_to_room():
