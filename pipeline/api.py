@@ -134,6 +134,10 @@ class Run:
         if paths not in PATH_GRAPHS:
             raise ValueError(f"paths='{paths}': one of {', '.join(PATH_GRAPHS)}")
         if ax is not None:
+            from matplotlib.axes import Axes
+
+            if not isinstance(ax, Axes):  # else matplotlib's AttributeError, deep inside
+                raise TypeError(f"ax={ax!r}: a matplotlib Axes, or None for a new figure")
             return draw_scene(ax, self.dir, paths)
         import matplotlib.pyplot as plt
 

@@ -95,6 +95,11 @@ def test_paths_are_the_learned_paths_of_eval_mcap(fast_run):
         fast_run.paths("roadmap")
 
 
+def test_plot_on_something_that_is_not_axes_is_one_clear_error(fast_run):
+    with pytest.raises(TypeError, match=r"ax='x': a matplotlib Axes, or None for a new figure"):
+        fast_run.plot(ax="x")
+
+
 def drawn_lines(ax):
     return [np.column_stack(line.get_data()) for line in ax.lines]
 
