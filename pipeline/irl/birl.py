@@ -65,8 +65,9 @@ class BirlMapConfig(IRLConfig):
     beta_max: float = 1000.0  # `beta` is its starting value
     # robust: level of the likelihood-ratio test that keeps an eq. (2) iterate
     test_level: float = 1e-4
-    # robust: σ of the Boltzmann model's Gaussian prior on w, centred in the box (its β is
-    # learned, so noisy demonstrations leave w weakly identified); null: birl.prior
+    # robust: σ of the Boltzmann model's Gaussian prior on w, centred in the box, as a
+    # fraction of the box's side (its mean over the features) (its β is learned, so noisy
+    # demonstrations leave w weakly identified); null: birl.prior
     boltzmann_prior_scale: Optional[float] = 0.5
     # robust: the paths' base measure, what the demonstrator does at β = 0 (walk: the
     # uniform random walk; uniform: each path once, as MaxEnt); pipeline.irl.robust
@@ -229,8 +230,11 @@ def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> Boltzman
     graph = problem.graph  # as grown so far (birl.grow_nodes)
     prior = problem.prior
     if config.boltzmann_prior_scale is not None:
-        prior = Prior("gaussian", config.boltzmann_prior_scale, prior.lower, prior.upper,
-                      (prior.lower + prior.upper) / 2)
+        # relative to the box: the likelihood sees only βw, so a box k times as large should
+        # give k times the weights; an absolute σ pinned them to the box's centre there
+        side = float(np.mean(prior.upper - prior.lower))
+        prior = Prior("gaussian", config.boltzmann_prior_scale * side, prior.lower,
+                      prior.upper, (prior.lower + prior.upper) / 2)
     alternatives = None
     lattice = problem.lattice() if config.alternatives == "lattice" and problem.lattice else None
     if lattice is not None:

@@ -336,6 +336,44 @@ def test_robust_form_keeps_eq2_for_consistent_demos_and_the_map_for_noisy_ones()
     assert len(result.iterations) == 4
 
 
+def test_the_boltzmann_prior_scales_with_the_weight_box():
+    """The Boltzmann prior's σ is a fraction of the weight box's side, so a box k times as
+    large gives about k times the MAP weights (not exactly: the goal's value is in reward
+    units, not in w). With an absolute σ = 0.5 the weight stayed at the centre of a box of
+    side 1000 (w/k = -0.5), as the demonstrations (5:1 for the cheaper route) said nothing."""
+    import dataclasses
+
+    from pipeline.core.graph_mdp import GraphMDP, SpatialGraph, TrajectoryStats
+    from pipeline.core.graph_mdp import Path as GraphPath
+    from pipeline.irl.base import IRLProblem
+    from pipeline.irl.birl import _boltzmann_posterior
+    from pipeline.irl.environment import GraphEnvironment
+
+    # start 0, goal 2: route A 0→2 (feature 1.0), route B 0→1→2 (0.2 + 0.3), taken 5:1
+    mdp = GraphMDP([0, 0, 1], [2, 1, 2], np.ones(3), [[1.0], [0.2], [0.3]],
+                   [False, False, True], MDPParams(gamma=0.9, time_cost=0.0))
+    positions = np.array([[0, 0], [1, 1], [2, 0]], float)
+    graph = SpatialGraph(positions, mdp, np.array([0]), [positions[[0, 2]], positions[[0, 1]],
+                                                         positions[[1, 2]]])
+    paths = [GraphPath([0, 2], [0], True)] * 10 + [GraphPath([0, 1, 2], [1, 2], True)] * 50
+    expert = [TrajectoryStats.from_edges(0, mdp.features[p.edges], mdp.duration[p.edges],
+                                         mdp.params, True) for p in paths]
+    problem = IRLProblem(expert, [positions[p.nodes] for p in paths],
+                         GraphEnvironment(graph, mdp.params), Prior("uniform", 1.0, [-1.0], [0.0]),
+                         np.array([-0.5]), np.random.default_rng(0), lambda: graph)
+    config = BirlMapConfig(beta_min=1e-3, beta_max=1e3)
+    maps, priors = [], []
+    for k in (1.0, 10.0, 1000.0):
+        scaled = dataclasses.replace(problem, prior=Prior("uniform", 1.0, [-k], [0.0]),
+                                     w0=np.array([-0.5 * k]))
+        posterior = _boltzmann_posterior(scaled, config)
+        priors.append(posterior.prior)
+        maps.append(posterior.map(scaled.w0, config.beta / k))
+    relative = [float(w[0]) / k for k, (w, _) in zip((1.0, 10.0, 1000.0), maps, strict=True)]
+    assert all(-0.9 < r < -0.75 for r in relative), relative  # -0.86, -0.81, -0.81
+    assert [s.scale for s in priors] == [0.5, 5.0, 500.0]
+
+
 # ---------------------------------------------------------------- goal reaching (gamma = 1)
 
 GOAL = MDPParams(time_cost=0.1)
