@@ -28,6 +28,11 @@ class PriorConfig:
         require_positive(self, "scale")
 
 
+# Weights beyond this size leave β·w out of what the learned β (birl.beta_min ..
+# birl.beta_max) can scale back: with a box of ±1e12 the weights never left their start.
+LARGEST_WEIGHT = 1e6
+
+
 @dataclass
 class BoxConfig:
     """The weight box and prior shared by every IRL method; one number applies to every
@@ -41,6 +46,9 @@ class BoxConfig:
         lower, upper = broadcast(self.lower, dim, "lower"), broadcast(self.upper, dim, "upper")
         require(bool(np.all(lower < upper)), "lower", list(self.lower),
                 f"below upper ({list(self.upper)}) in every entry")
+        for name, bound in (("lower", lower), ("upper", upper)):
+            require(bool(np.all(np.abs(bound) <= LARGEST_WEIGHT)), name, list(getattr(self, name)),
+                    f"numbers within ±{LARGEST_WEIGHT:g}")
         mean = None if self.prior.mean is None else broadcast(self.prior.mean, dim, "prior.mean")
         # a centre far outside the box makes every weight in it improbable to round-off
         require(mean is None or bool(np.all((mean >= lower) & (mean <= upper))), "prior.mean",

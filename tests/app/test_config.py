@@ -55,6 +55,7 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("birl=policywalk birl.grid_step=5", "birl.grid_step"),  # no move inside the box
     ("graph.controller.k_beta=-3", "graph.controller.k_beta"),  # POSQ's, ignored by linear
     ("birl.n_iterations=1000000", "birl.n_iterations"),  # hours without a word
+    ("birl.lower=[-1e12]", "birl.lower"),  # the weights never left their start
     ("graph.controller.kind=posq graph.controller.k_beta=inf", "graph.controller.k_beta"),
     ("birl=mcmc birl.thin=1000000", "birl.thin"),  # a 45 GB chain
     ("graph.controller.kind=posq graph.controller.dt=1e-12", "graph.controller.dt"),
