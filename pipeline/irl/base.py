@@ -38,6 +38,10 @@ class IRLConfig(BoxConfig):
     # the features RUN learned on
     features: Optional[list[str]] = None
 
+    def describe_prior(self) -> str:
+        """The prior the method learns under, for the log."""
+        return f"{self.prior.kind} prior"
+
     def __post_init__(self) -> None:
         require_count(self, "n_iterations")
         # every iteration keeps its paths, and eq. (2)'s generated paths join every later

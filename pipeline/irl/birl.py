@@ -82,6 +82,12 @@ class BirlMapConfig(IRLConfig):
     alternatives_spacing: float = 0.2
     lr_level: Optional[float] = None  # deprecated spelling of test_level
 
+    def describe_prior(self) -> str:
+        if self.likelihood == "robust" and self.boltzmann_prior_scale is not None:
+            return (f"{self.prior.kind} prior for eq. (2)'s iterates, gaussian prior (σ "
+                    f"{self.boltzmann_prior_scale:g} of the box's side) for the Boltzmann MAP")
+        return super().describe_prior()
+
     def __post_init__(self) -> None:
         super().__post_init__()
         require_positive(self, "beta", "beta_min", "beta_max")

@@ -91,8 +91,8 @@ def run(ctx: RunContext) -> None:
     problem = IRLProblem(expert, [np.asarray(d["points"], float) for d in demos], env, prior,
                          w0, rng, roadmap, progress, status=lambda msg: log.info("  %s", msg),
                          lattice=build.alternatives_lattice(cfg, scene))
-    log.info("IRL method %s: %d demonstrations, %d-node graph, %s prior, w0 = %s", b.kind,
-             len(expert), env.graph.mdp.n_nodes, b.prior.kind, np.round(w0, 3).tolist())
+    log.info("IRL method %s: %d demonstrations, %d-node graph, %s, w0 = %s", b.kind,
+             len(expert), env.graph.mdp.n_nodes, b.describe_prior(), np.round(w0, 3).tolist())
     t0 = time.perf_counter()
     result = build.irl_method(cfg).fit(problem, b)
     # The learning alone (optimisation and MDP solves), without artefact I/O.
