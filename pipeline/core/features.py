@@ -248,6 +248,19 @@ class FeatureModel:
         return np.column_stack([np.cos(theta), np.sin(theta)])
 
     @cached_property
+    def _link_frames(self) -> tuple[np.ndarray, ...]:
+        """Per link (L,): its vector b − a (L, 2), length, unit vectors along it and across
+        it (L, 2 each), and a's coordinates along and across: the link integrals' frames,
+        computed once (graph growth integrates a few segments at a time, thousands of
+        times)."""
+        ab = self.link_b - self.link_a
+        span = np.linalg.norm(ab, axis=1)
+        along = ab / span[:, None]
+        normal = np.column_stack([-along[:, 1], along[:, 0]])
+        return (ab, span, along, normal, np.einsum("lk,lk->l", self.link_a, along),
+                np.einsum("lk,lk->l", self.link_a, normal))
+
+    @cached_property
     def _group_shape(self) -> tuple[np.ndarray, np.ndarray]:
         """Centres c_g (G, 2) and spreads (G,) of the groups: the spread is the members' mean
         distance to c_g, the o-space radius r_g the spread plus ρ_group."""
@@ -504,12 +517,7 @@ class FeatureModel:
         out = np.zeros(n)
         if n == 0 or n_links == 0:
             return out
-        ab = self.link_b - self.link_a
-        span = np.linalg.norm(ab, axis=1)  # (L,)
-        along = ab / span[:, None]
-        normal = np.column_stack([-along[:, 1], along[:, 0]])
-        along0 = np.einsum("lk,lk->l", self.link_a, along)
-        normal0 = np.einsum("lk,lk->l", self.link_a, normal)
+        _, span, along, normal, along0, normal0 = self._link_frames
         seg = b - a
         length = np.linalg.norm(seg, axis=1)
         chunk = max(1, _CHUNK_POINTS // n_links)
@@ -550,7 +558,7 @@ class FeatureModel:
         out = np.zeros(n)
         if n == 0 or n_links == 0:
             return out
-        ab = self.link_b - self.link_a  # (L, 2)
+        ab = self._link_frames[0]  # (L, 2)
         chunk = max(1, _CHUNK_POINTS // n_links)
         for lo in range(0, n, chunk):
             sl = slice(lo, lo + chunk)
