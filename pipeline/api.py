@@ -25,9 +25,10 @@ nothing.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
-import json
-from collections.abc import Mapping, Sequence
+import os
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -35,18 +36,25 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import yaml
 from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from threadpoolctl import threadpool_limits
 
-from pipeline.app import build
-from pipeline.app.config import Config, compose_config, load_settings, register_configs
+from pipeline.app import build, limits
+from pipeline.app.config import (
+    Config,
+    FileExpertConfig,
+    compose_config,
+    load_settings,
+    register_configs,
+)
 from pipeline.app.context import stage_rng
 from pipeline.app.figure_style import paper_style
 from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
 from pipeline.app.rundir import RunStatus, read_status
-from pipeline.app.summary import summary_table
+from pipeline.app.summary import Unreadable, read_metrics, summary_table
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import Artefact, read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
@@ -54,8 +62,10 @@ from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import SpatialGraph
-from pipeline.core.world import Scene
+from pipeline.core.world import Scene, scene_from_dict
 from pipeline.errors import PipelineError
+from pipeline.inputs.demo_file import checked_demonstration
+from pipeline.inputs.recorded import cut_trajectory, drop_repeats, match_to_starts
 from pipeline.irl import methods
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment, spatial_graph
@@ -74,6 +84,9 @@ class Run:
     on every access, so a handle sees a re-run)."""
     dir: Path
 
+    def __post_init__(self) -> None:  # Run("outputs/x") as the docstrings write it
+        object.__setattr__(self, "dir", _path(self.dir, "run_dir"))
+
     @property
     def config(self) -> DictConfig:
         """The resolved config the run used: the one attached to its latest stage's artefact
@@ -85,8 +98,12 @@ class Run:
                 return cfg
         hydra = self.dir / ".hydra" / "config.yaml"
         if hydra.exists():
-            cfg = OmegaConf.load(hydra)
-            assert isinstance(cfg, DictConfig)
+            try:
+                cfg = OmegaConf.load(hydra)
+            except (OSError, ValueError, yaml.YAMLError) as e:
+                raise PipelineError(f"{hydra} cannot be read: {_first_line(e)}") from None
+            if not isinstance(cfg, DictConfig):
+                raise PipelineError(f"{hydra} is not a config (a mapping of settings)")
             return cfg
         raise PipelineError(f"run dir {self.dir} holds no artefact and no .hydra/config.yaml")
 
@@ -94,7 +111,12 @@ class Run:
     def metrics(self) -> dict[str, float]:
         """metrics.json as a dict; empty when the evaluate stage has not run."""
         path = self.dir / "metrics.json"
-        return json.loads(path.read_text()) if path.exists() else {}
+        if not path.exists():
+            return {}
+        try:
+            return read_metrics(path)
+        except Unreadable as e:
+            raise PipelineError(f"{self.dir}: {e}") from None
 
     @property
     def status(self) -> RunStatus:
@@ -103,8 +125,8 @@ class Run:
 
     def artefact(self, stage: str) -> Artefact:
         """The artefact a stage wrote (checked whole before it is returned)."""
-        if stage not in ARTEFACT_FILE:
-            raise ValueError(f"unknown stage '{stage}' (one of {', '.join(ARTEFACT_FILE)})")
+        if not isinstance(stage, str) or stage not in ARTEFACT_FILE:
+            raise ValueError(f"unknown stage {stage!r} (one of {', '.join(ARTEFACT_FILE)})")
         return read_artefact(self.dir / ARTEFACT_FILE[stage], producer_stage=stage)
 
     def messages(self, stage: str, topic: str) -> pd.DataFrame:
@@ -164,47 +186,71 @@ def run(overrides: Sequence[str] = (), run_dir: str | Path | None = None) -> Run
     cfg = _compose(overrides)
     if run_dir is None:
         run_dir = Path("outputs") / "api" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S-%f")
-    run_pipeline(cfg, Path(run_dir))
-    return Run(Path(run_dir))
+    path = _path(run_dir, "run_dir")
+    run_pipeline(cfg, path)
+    return Run(path)
+
+
+def _path(value: Any, name: str) -> Path:
+    """A dir argument as a Path: a non-empty str or os.PathLike (an empty string would be the
+    working directory, unsaid)."""
+    if isinstance(value, bytes) or not isinstance(value, str | os.PathLike) \
+            or not str(value).strip():
+        raise PipelineError(f"{name}={value!r}: a path to a dir (a non-empty str or Path)")
+    return Path(value)
+
+
+def _first_line(e: BaseException) -> str:
+    return (str(e).splitlines() or [type(e).__name__])[0][:200]
 
 
 def _compose(overrides: Sequence[str]) -> DictConfig:
     """`compose_config`, with Hydra's errors as one-line PipelineErrors (as `birlg` says
     them) and one string refused: it would be read one character at a time."""
+    overrides = _overrides_list(overrides)
+    hydra = [o for o in overrides if o.lstrip("+~").startswith("hydra.")]
+    if hydra:  # the API has no Hydra run: they would be ignored silently
+        raise PipelineError(f"{hydra[0]}: hydra.* settings have no effect in pipeline.api "
+                            "(give the run's dir as run_dir=...)")
     try:
-        return compose_config(_overrides_list(overrides))
+        cfg = compose_config(overrides)
+        # interpolations resolved now, so a bad one is this one line, not a failure later
+        OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
     except (HydraException, OmegaConfBaseException) as e:
         lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
         raise PipelineError(f"config error: {lines[0] if lines else type(e).__name__}") \
             from None
+    return cfg
 
 
 def open_run(run_dir: str | Path) -> Run:
     """The handle of an existing run dir (made by `birlg`, `run` or a sweep job)."""
-    path = Path(run_dir)
+    path = _path(run_dir, "run_dir")
     if not path.is_dir():
-        raise PipelineError(f"run dir {path} not found")
+        raise PipelineError(f"run dir {path} " + ("is not a dir" if path.exists() else
+                                                  "not found"))
     return Run(path)
 
 
 def sweep(sweep_dir: str | Path) -> pd.DataFrame:
     """The table of a Hydra multirun dir, as `make aggregate` writes it to summary.csv: one
     row per job with its overrides, status, error and every metric (writes nothing)."""
-    path = Path(sweep_dir)
+    path = _path(sweep_dir, "sweep_dir")
     if not path.is_dir():
-        raise PipelineError(f"sweep dir {path} not found")
+        raise PipelineError(f"sweep dir {path} " + ("is not a dir" if path.exists() else
+                                                    "not found"))
     return summary_table(path)
 
 
 # Backwards compatible helpers of the first API (a run dir instead of a handle).
 def artefact(run_dir: str | Path, stage: str) -> Artefact:
     """The artefact a stage wrote into `run_dir`: `Run(run_dir).artefact(stage)`."""
-    return Run(Path(run_dir)).artefact(stage)
+    return Run(_path(run_dir, "run_dir")).artefact(stage)
 
 
 def messages(run_dir: str | Path, stage: str, topic: str) -> pd.DataFrame:
     """The messages of one topic as a DataFrame: `Run(run_dir).messages(stage, topic)`."""
-    return Run(Path(run_dir)).messages(stage, topic)
+    return Run(_path(run_dir, "run_dir")).messages(stage, topic)
 
 
 # -- learning in memory --------------------------------------------------------------------
@@ -250,22 +296,28 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
     demos: Demonstration objects, /demos rows (dicts with "points" and optionally
     "start_index", "reached"), or (K, 2) polylines; a missing start index is the nearest
     scene start to the first point, `reached` whether the last point is within the goal
-    tolerance. Their features are computed on the learner's features.
+    tolerance. They are checked and cut as a demonstration file's trajectories are (in the
+    room, clear of bodies and obstacles, beginning within 1 m of a start, cut where they
+    run on past the goal disk); rows marked "heldout" (evaluate.holdout) are left out, as
+    the run left them out. Their features are computed on the learner's features.
     config: the method's settings (birl.* without the prefix, e.g. n_iterations=5, beta=10);
     overrides: any other setting, as command-line overrides (e.g. "graph=small",
     "mdp=paper", "reward=rude" for the feature constants). The scene settings are unused.
     """
-    if method not in methods():
-        raise PipelineError(f"unknown method '{method}' (one of {', '.join(methods())})")
-    if not isinstance(scene, Scene):
-        raise PipelineError(f"scene must be a pipeline.core.world.Scene (e.g. Run.scene()), "
-                            f"not {type(scene).__name__}")
-    if isinstance(demos, str | np.ndarray) or not len(demos):
-        raise PipelineError("demos must be a non-empty list of demonstrations (polylines, "
-                            "/demos rows or Demonstration objects)")
+    if not isinstance(method, str) or method not in methods():
+        raise PipelineError(f"unknown method {method!r} (one of {', '.join(methods())})")
+    scene = checked_scene(scene)
+    given = demo_list(demos)
     cfg = settings_for_learning(method, seed, overrides, config)
+    check_graph_size(cfg, scene)
+    # held-out rows of a run's /demos (evaluate.holdout) never enter learning, as in the run
+    training = [d for d in given if not (isinstance(d, Mapping) and d.get("heldout") is True)]
+    if not training:
+        raise PipelineError(f"all {len(given)} demonstrations are held out (their 'heldout' "
+                            "is true): nothing to learn from")
     features = build.learner_feature_model(cfg, scene)
-    demonstrations = [as_demonstration(d, scene, features, cfg.mdp.speed) for d in demos]
+    demonstrations = [as_demonstration(d, scene, features, cfg.mdp.speed, k)
+                      for k, d in enumerate(training)]
     with threadpool_limits(1):  # as the stages run (and one thread is faster here)
         graph_weights, _ = build.growth_weights(cfg, None)
         graph = AdaptiveGraph(scene, features, build.controller(cfg), graph_weights, cfg.graph,
@@ -288,16 +340,67 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
     return Learned(result, cfg.learner_features, env.graph, cfg)
 
 
+def demo_list(demos: Any) -> list[DemoLike]:
+    """`learn`'s demos as a list, or one line saying what was given instead."""
+    if isinstance(demos, pd.DataFrame):
+        raise PipelineError("demos is a DataFrame: give its rows, "
+                            "run.messages('demos', '/demos').to_dict('records')")
+    if isinstance(demos, str | bytes | np.ndarray | Mapping | Demonstration) \
+            or not isinstance(demos, Iterable):
+        raise PipelineError(f"demos must be a non-empty list of demonstrations (polylines, "
+                            f"/demos rows or Demonstration objects), not "
+                            f"{type(demos).__name__}")
+    listed = list(demos)
+    if not listed:
+        raise PipelineError("demos must be a non-empty list of demonstrations (polylines, "
+                            "/demos rows or Demonstration objects)")
+    return listed
+
+
+def checked_scene(scene: Any) -> Scene:
+    """`scene` validated as a scene file is (a Scene made by hand, e.g. with
+    dataclasses.replace, can hold what no scene file may)."""
+    if not isinstance(scene, Scene):
+        raise PipelineError(f"scene must be a pipeline.core.world.Scene (e.g. Run.scene()), "
+                            f"not {type(scene).__name__}")
+    try:
+        data = scene.to_dict()
+    except (AttributeError, TypeError, ValueError) as e:
+        raise PipelineError(f"scene is not a valid Scene: {_first_line(e)}") from None
+    scene_from_dict(data, source="learn(): scene", map_grid=scene.map_grid)  # SceneError
+    return scene
+
+
+def check_graph_size(cfg: Config, scene: Scene) -> None:
+    """The graph-size checks `run` makes before the graph stage (`pipeline.app.preflight`)."""
+    max_nodes = cfg.graph.max_nodes
+    assert max_nodes is not None  # GraphConfig fills in a derived size
+    limits.check_memory(f"an adaptive graph of {max_nodes} nodes", max_nodes,
+                        limits.BYTES_PER_GRAPH_NODE, "lower graph.max_nodes")
+    limits.check_graph_resolution(max_nodes, scene.free_area, cfg.reward.rho_personal,
+                                  scene.name)
+
+
 def settings_for_learning(method: str, seed: int, overrides: Sequence[str],
                           birl: Mapping[str, Any]) -> Config:
     """The checked settings of `learn`: the app's config with `birl=method`, `seed`, the
     overrides and the method's settings `birl`."""
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise PipelineError(f"seed must be an integer, not {seed!r}")
-    dc = _compose([f"birl={method}", f"seed={seed}", *_overrides_list(overrides)])
-    for key, value in birl.items():
+    listed = _overrides_list(overrides)
+    for key, argument in (("birl", "method"), ("seed", "seed")):
+        clash = [o for o in listed if o.lstrip("+~").split("=")[0] == key]
+        if clash:  # else the override won silently over the argument
+            raise PipelineError(f"override {clash[0]!r}: give it as learn()'s {argument} "
+                                "argument instead")
+    dc = _compose([f"birl={method}", f"seed={seed}", *listed])
+    for key, value in (birl or {}).items():
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        elif isinstance(value, np.generic):  # numpy scalars, as plain numbers
+            value = value.item()
         try:
-            dc.birl[key] = value.tolist() if isinstance(value, np.ndarray) else value
+            dc.birl[key] = value
         except OmegaConfBaseException as e:
             reason = str(e).splitlines()[0]
             raise PipelineError(f"config error: birl.{key}={value!r}: {reason}") from None
@@ -308,12 +411,23 @@ def _overrides_list(overrides: Sequence[str]) -> list[str]:
     if isinstance(overrides, str):
         raise PipelineError(f"overrides must be a list of 'key=value' strings, e.g. "
                             f"[{overrides!r}], not one string")
-    return list(overrides)
+    if overrides is None or isinstance(overrides, Mapping) \
+            or not isinstance(overrides, Iterable):
+        raise PipelineError(f"overrides must be a list of 'key=value' strings, not "
+                            f"{type(overrides).__name__}")
+    listed = list(overrides)
+    bad = [o for o in listed if not isinstance(o, str)]
+    if bad:
+        raise PipelineError(f"overrides must be 'key=value' strings: {bad[0]!r} is a "
+                            f"{type(bad[0]).__name__}")
+    return listed
 
 
-def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel,
-                     speed: float) -> Demonstration:
-    """One demonstration of `learn` with the features of its own segments."""
+def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel, speed: float,
+                     k: int = 0) -> Demonstration:
+    """Demonstration `k` of `learn`, checked and cut at the goal disk as a demonstration file's
+    trajectories are (`pipeline.inputs`), with the features of its own segments."""
+    what = f"demonstration {k}"
     start = reached = subject = None
     if isinstance(demo, Demonstration):
         points: Any = demo.points
@@ -327,20 +441,35 @@ def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel,
                                    demo.get("subject"))
     else:
         points = demo
-    pts = np.asarray(points, float)
+    try:
+        pts = np.asarray(points, float)
+    except (TypeError, ValueError):
+        raise PipelineError(f"{what} must be a polyline of (x, y) numbers, got "
+                            f"{type(points).__name__}") from None
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2 or not np.isfinite(pts).all():
         raise PipelineError(f"a demonstration must be a polyline of at least two finite (x, y) "
-                            f"points, got an array of shape {pts.shape}")
-    if start is None:
-        start = int(np.argmin(np.linalg.norm(np.asarray(scene.starts) - pts[0], axis=1)))
-    elif isinstance(start, bool) or not isinstance(start, int | np.integer) \
-            or not 0 <= start < len(scene.starts):  # -1 would silently be the last start
+                            f"points, got an array of shape {pts.shape} ({what})")
+    if start is not None and (isinstance(start, bool) or not isinstance(start, int | np.integer)
+                              or not 0 <= start < len(scene.starts)):  # -1: the last start
         raise PipelineError(f"start_index={start!r} is not a start of the scene (0 to "
                             f"{len(scene.starts) - 1})")
-    if reached is None:
-        reached = bool(np.linalg.norm(pts[-1] - scene.goal) <= scene.goal_tolerance)
-    return Demonstration.from_points(int(start), pts, features, speed, bool(reached),
-                                     None if subject is None else str(subject))
+    if reached is not None and not isinstance(reached, bool | np.bool_):  # "no" is truthy
+        raise PipelineError(f"{what}: reached={reached!r} must be true or false")
+    cut = cut_trajectory(pts, scene.goal, scene.goal_tolerance, scene.room, what)
+    given = drop_repeats(pts)
+    if not (len(cut) == len(given) and np.array_equal(cut[:-1], given[:-1])):
+        pts = cut  # it ran on past the goal disk: cut there, as a file's trajectory is
+    else:  # it ends at its first point in the disk (a synthetic expert's roadmap node)
+        pts = given
+    nearest = match_to_starts([pts], scene.starts, scene.goal, FileExpertConfig.start_radius,
+                              scene.goal_tolerance, what)[0]
+    if start is not None and start != nearest:
+        raise PipelineError(f"{what} begins at start {nearest}, not at its start_index={start}")
+    demo_ = checked_demonstration(nearest, pts, None if subject is None else str(subject),
+                                  scene, features, speed, what)
+    if reached is not None and bool(reached) != demo_.reached:
+        demo_ = dataclasses.replace(demo_, reached=bool(reached))
+    return demo_
 
 
 def learning_environment(cfg: Config, scene: Scene, graph: AdaptiveGraph,

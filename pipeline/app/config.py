@@ -403,6 +403,10 @@ def load_settings(cfg: DictConfig) -> Config:
     if unknown:
         raise PipelineError(f"config error: {unknown[0]} is not a setting (known: "
                             f"{', '.join(sorted(known))})")
+    deleted = [k for k in known if k not in cfg]  # `~seed`: its default, unrecorded
+    if deleted:
+        raise PipelineError(f"config error: {deleted[0]} is missing (deleted with "
+                            f"~{deleted[0]}?): every run records it; set it instead")
     sections = {}
     for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl", "evaluate"):
         sections[key] = _instantiate(cfg[key], key)

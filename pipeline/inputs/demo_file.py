@@ -36,25 +36,12 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room)
     for k, (start, points, subject) in enumerate(tracks):
-        if scene.obstacles is not None:
-            clearance = scene.obstacles.segments_min_clearance(points[:-1], points[1:])
-            worst = int(np.argmin(clearance))
-            if clearance[worst] < scene.robot_radius:
-                x, y = points[worst]
-                raise PipelineError(
-                    f"{describe(path)}: trajectory {k} comes {clearance[worst]:.2f} m from an "
-                    f"obstacle after ({x:.2f}, {y:.2f}); the robot needs robot_radius="
-                    f"{scene.robot_radius:g} m (lower it in the scene file or with "
-                    "scene.robot_radius)")
-        check_clear_of_bodies(path, k, points, scene)
-        # cut_at_goal ends a trajectory that entered the goal disk at the goal itself
-        end_gap = float(np.linalg.norm(points[-1] - scene.goal))
-        reached = end_gap <= scene.goal_tolerance
-        if not reached:
+        demo = checked_demonstration(start, points, subject, scene, feature_model, speed,
+                                     f"{describe(path)}: trajectory {k}")
+        if not demo.reached:
+            end_gap = float(np.linalg.norm(points[-1] - scene.goal))
             unreached.append(f"{k} ({end_gap:.2f} m)")
-        feats = feature_model.segments(points[:-1], points[1:])
-        durations = np.linalg.norm(np.diff(points, axis=0), axis=1) / speed
-        demos.append(Demonstration(start, points, feats, durations, reached, subject))
+        demos.append(demo)
     if unreached:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m): they "
                     "are learned from as demonstrations that do not reach the goal; extend them "
@@ -64,9 +51,32 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     return demos
 
 
-def check_clear_of_bodies(path: Path, k: int, points: np.ndarray, scene: Scene) -> None:
-    """Refuse trajectory `k` when it enters a person's body disk: no robot path may (its
-    segments would be graph edges no planned path could take)."""
+def checked_demonstration(start: int, points: np.ndarray, subject: str | None, scene: Scene,
+                          feature_model: FeatureModel, speed: float,
+                          what: str) -> Demonstration:
+    """A trajectory (already cut at the goal, `recorded.cut_trajectory`) as a Demonstration,
+    refused (naming `what`) where it comes closer than robot_radius to an obstacle or enters
+    a body disk; it reaches the goal when it ends within goal_tolerance of it."""
+    if scene.obstacles is not None:
+        clearance = scene.obstacles.segments_min_clearance(points[:-1], points[1:])
+        worst = int(np.argmin(clearance))
+        if clearance[worst] < scene.robot_radius:
+            x, y = points[worst]
+            raise PipelineError(
+                f"{what} comes {clearance[worst]:.2f} m from an obstacle after ({x:.2f}, "
+                f"{y:.2f}); the robot needs robot_radius={scene.robot_radius:g} m (lower it "
+                "in the scene file or with scene.robot_radius)")
+    check_clear_of_bodies(what, points, scene)
+    # cut_at_goal ends a trajectory that entered the goal disk at the goal itself
+    reached = bool(np.linalg.norm(points[-1] - scene.goal) <= scene.goal_tolerance)
+    feats = feature_model.segments(points[:-1], points[1:])
+    durations = np.linalg.norm(np.diff(points, axis=0), axis=1) / speed
+    return Demonstration(start, points, feats, durations, reached, subject)
+
+
+def check_clear_of_bodies(what: str, points: np.ndarray, scene: Scene) -> None:
+    """Refuse a trajectory (`what`) when it enters a person's body disk: no robot path may
+    (its segments would be graph edges no planned path could take)."""
     if not len(scene.persons):
         return
     clear = segments_clear_of_disks(points[:-1], points[1:], scene.person_xy, scene.body_radius)
@@ -78,7 +88,7 @@ def check_clear_of_bodies(path: Path, k: int, points: np.ndarray, scene: Scene) 
     person = scene.persons[who]
     x, y = points[seg]
     raise PipelineError(
-        f"{describe(path)}: trajectory {k} passes {gaps[who]:.2f} m from person {person.id} at "
+        f"{what} passes {gaps[who]:.2f} m from person {person.id} at "
         f"({person.x:g}, {person.y:g}) after ({x:.2f}, {y:.2f}), inside the body disk "
         f"(body_radius={scene.body_radius:g} m) no robot path may enter (lower it with "
         "scene.body_radius or correct the trajectory)")

@@ -663,6 +663,29 @@ def _span_subject(subjects: list[str | None] | None, b: int, g: int, where: str,
     return found[0] if found else None
 
 
+def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
+                   room: Room | None, what: str, resample: float | None = None) -> np.ndarray:
+    """A trajectory as it is learned from: repeated points dropped, cut at the goal disk
+    (`cut_at_goal`), with `resample` the part before the goal resampled to that spacing
+    (`clean_track`: a pose stream's dense, noisy poses); refused (naming `what`) when it
+    begins at the goal, leaves `room` or never moves."""
+    goal = np.asarray(goal, dtype=float)
+    cut = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
+    if cut is None:
+        raise PipelineError(f"{what} begins within goal_tolerance={goal_tolerance:g} m of the "
+                            f"goal ({goal[0]:g}, {goal[1]:g})")
+    if resample is not None:  # it ends at the goal: resample what leads there
+        cut = np.vstack([clean_track(cut[:-1], resample), cut[-1:]])
+    if room is not None and not room.contains(cut).all():
+        x, y = cut[int(np.argmin(room.contains(cut)))]
+        where = f"({x:.2f}, {y:.2f})" if max(abs(x), abs(y)) < 1e6 else f"({x:.3g}, {y:.3g})"
+        raise PipelineError(f"{what} leaves the room {room.describe()} at {where}")
+    if len(cut) < 2:
+        raise PipelineError(f"{what} never moves (all its points are within "
+                            f"{REPEAT_TOLERANCE:g} m of each other)")
+    return cut
+
+
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
                   topic: str | None = None, frame: str | None = None, start_radius: float = 1.0,
                   spacing: float = 0.1, room: Room | None = None) -> list[Recorded]:
@@ -698,22 +721,10 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     else:
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
-    cleaned = []
-    for i, t in enumerate(tracks):
-        cut = cut_at_goal(drop_repeats(t), goal, goal_tolerance)
-        if cut is None:
-            raise PipelineError(f"{where}: trajectory {i} begins within goal_tolerance="
-                                f"{goal_tolerance:g} m of the goal ({goal[0]:g}, {goal[1]:g})")
-        if recording.is_stream:  # it ends at the goal: resample what leads there
-            cut = np.vstack([clean_track(cut[:-1], spacing), cut[-1:]])
-        if room is not None and not room.contains(cut).all():
-            x, y = cut[int(np.argmin(room.contains(cut)))]
-            raise PipelineError(f"{where}: trajectory {i} leaves the room {room.describe()} at "
-                                f"({x:.2f}, {y:.2f})")
-        if len(cut) < 2:
-            raise PipelineError(f"{where}: trajectory {i} never moves (all its points are "
-                                f"within {REPEAT_TOLERANCE:g} m of each other)")
-        cleaned.append(np.round(cut, COORDINATE_DECIMALS))
+    cleaned = [cut_trajectory(t, goal, goal_tolerance, room, f"{where}: trajectory {i}",
+                              spacing if recording.is_stream else None)
+               for i, t in enumerate(tracks)]
+    cleaned = [np.round(c, COORDINATE_DECIMALS) for c in cleaned]
     matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
     without = sorted(set(range(len(np.asarray(starts).reshape(-1, 2)))) - set(matched))
     if without:

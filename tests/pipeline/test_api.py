@@ -1,7 +1,9 @@
 """The Python API (pipeline/api.py): runs started from Python and read back through a `Run`
 handle, earlier runs and sweeps opened, and learning from Python objects in memory."""
 
+import dataclasses
 import json
+from pathlib import Path
 
 import matplotlib
 import numpy as np
@@ -253,3 +255,91 @@ def test_run_refuses_bad_overrides_in_one_line(tmp_path):
         api.run("seed=1", run_dir=tmp_path)
     with pytest.raises(PipelineError, match="config error: .*nokey"):
         api.run(["nokey=1"], run_dir=tmp_path)
+
+
+def test_learn_leaves_out_the_rows_a_run_held_out(fast_run):
+    """/demos rows marked heldout (evaluate.holdout) never enter learning, as in the run
+    (they used to: learn() trained on the test demonstrations)."""
+    scene = fast_run.scene()
+    rows = fast_run.messages("demos", topics.DEMOS).to_dict("records")
+    marked = [dict(r, heldout=k in (1, 4)) for k, r in enumerate(rows)]
+    kept = [r for k, r in enumerate(rows) if k not in (1, 4)]
+    settings = {"overrides": ["graph=small"], "n_iterations": 2}
+    from_marked = api.learn(scene, marked, **settings)
+    assert np.array_equal(from_marked.weights, api.learn(scene, kept, **settings).weights)
+    assert not np.array_equal(from_marked.weights, api.learn(scene, rows, **settings).weights)
+    with pytest.raises(PipelineError, match="all 7 demonstrations are held out"):
+        api.learn(scene, [dict(r, heldout=True) for r in rows], **settings)
+
+
+def test_learn_checks_demonstrations_as_a_demonstration_file_is_checked(metropolis, fast_run):
+    """What the file reader refuses or cuts, learn() refuses or cuts (it learned nonsense
+    from them, or failed with 'no edge (48, 7)')."""
+    walk = [[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]
+    o = ["graph=small"]
+    for demos, says in (
+            ([[[0.5, 0.5], [0.5, 0.5]]], "demonstration 0 never moves"),
+            ([[[-50, -50], [-40, -40], [5.5, 9]]], r"demonstration 0 leaves the room .* at "
+                                                   r"\(-50\.00, -50\.00\)"),
+            ([[[1e300, 1e300], [5.5, 9]]], r"leaves the room .* at \(1e\+300, 1e\+300\)"),
+            ([[[3.0, 5.0], [5.5, 9.0]]], r"demonstration 0: trajectory 0 starts 2.24 m from "
+                                         r"the nearest start"),
+            ([{"points": walk, "start_index": 3}], "begins at start 0, not at its "
+                                                   "start_index=3"),
+            ([{"points": walk, "reached": "False"}], "reached='False' must be true or false"),
+            ([[[0.5, 0.5], [1.0]]], "demonstration 0 must be a polyline of"),
+            (fast_run.messages("demos", topics.DEMOS), "demos is a DataFrame"),
+            ({"points": walk}, "not dict"), (None, "not NoneType")):
+        with pytest.raises(PipelineError, match=says):
+            api.learn(metropolis, demos, overrides=o)
+    # a recording that runs on past the goal is cut at the goal disk, as a file's is: its
+    # last roadmap node (inside the disk) is followed by the goal itself
+    rows = fast_run.messages("demos", topics.DEMOS).to_dict("records")
+    ran_on = [np.vstack([r["points"], [[5.52, 9.01], [5.6, 9.2]]]) for r in rows]
+    cut = [np.vstack([r["points"][:-1], metropolis.goal]) for r in rows]
+    assert np.array_equal(api.learn(metropolis, ran_on, overrides=o, n_iterations=2).weights,
+                          api.learn(metropolis, cut, overrides=o, n_iterations=2).weights)
+
+
+def test_learn_refuses_what_run_refuses(metropolis):
+    walk = [[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]
+    for kwargs, says in (
+            ({"scene": dataclasses.replace(metropolis, relations=((1, 99),))},
+             "relation \\[1, 99\\] names unknown person id 99"),
+            ({"overrides": ["graph.max_nodes=3"]}, "graph.max_nodes=3 is too few"),
+            ({"overrides": ["birl=mcmc"]}, "give it as learn\\(\\)'s method argument"),
+            ({"overrides": ["seed=5"]}, "give it as learn\\(\\)'s seed argument")):
+        with pytest.raises(PipelineError, match=says):
+            api.learn(**{"scene": metropolis, "demos": [walk], **kwargs})
+
+
+@pytest.mark.parametrize("call, says", [
+    (lambda d: api.run([3], run_dir=d), "overrides must be 'key=value' strings: 3 is a int"),
+    (lambda d: api.run(["seed=${nope.x}"], run_dir=d), "Interpolation key 'nope.x' not found"),
+    (lambda d: api.run(["~seed"], run_dir=d), "seed is missing \\(deleted with ~seed\\?\\)"),
+    (lambda d: api.run(["hydra.run.dir=/x"], run_dir=d), "hydra.\\* settings have no effect"),
+    (lambda d: api.run([], run_dir=""), "run_dir='': a path to a dir"),
+    (lambda d: api.open_run(None), "run_dir=None: a path to a dir"),
+    (lambda d: api.open_run(Path(__file__)), "is not a dir"),
+])
+def test_bad_api_arguments_are_one_line_naming_them(tmp_path, call, says):
+    with pytest.raises(PipelineError, match=says):
+        call(tmp_path / "run")
+    assert not (tmp_path / "run").exists()  # refused before anything was written
+
+
+def test_a_run_dirs_damaged_config_or_metrics_is_one_line(tmp_path):
+    (tmp_path / ".hydra").mkdir()
+    (tmp_path / ".hydra" / "config.yaml").write_text("seed: [")
+    (tmp_path / "metrics.json").write_text('{"a": 1,')
+    handle = api.Run(str(tmp_path))  # a str, as the docstrings write it
+    with pytest.raises(PipelineError, match="config.yaml cannot be read"):
+        _ = handle.config
+    with pytest.raises(PipelineError, match="metrics.json cannot be read"):
+        _ = handle.metrics
+    (tmp_path / ".hydra" / "config.yaml").write_text("- 1\n- 2\n")
+    (tmp_path / "metrics.json").write_text("[1, 2]")
+    with pytest.raises(PipelineError, match="is not a config"):
+        _ = handle.config
+    with pytest.raises(PipelineError, match="is not an object of metrics"):
+        _ = handle.metrics
