@@ -127,7 +127,9 @@ class Run:
         """The artefact a stage wrote (checked whole before it is returned)."""
         if not isinstance(stage, str) or stage not in ARTEFACT_FILE:
             raise ValueError(f"unknown stage {stage!r} (one of {', '.join(ARTEFACT_FILE)})")
-        return read_artefact(self.dir / ARTEFACT_FILE[stage], producer_stage=stage)
+        # its stage's topic: another stage's file copied in is refused, not read as this one
+        return read_artefact(self.dir / ARTEFACT_FILE[stage], producer_stage=stage,
+                             required_topics=[topics.STAGE_TOPIC[stage]])
 
     def messages(self, stage: str, topic: str) -> pd.DataFrame:
         """The messages of one topic: one row per message (in log-time order), one named

@@ -32,6 +32,10 @@ EVAL_POLICY_LOSS = "/eval/policy_loss"
 EVAL_PATHS = "/eval/paths"
 EVAL_METRICS = "/eval/metrics"
 
+# The topic every artefact of a stage holds: a file of another stage lacks it.
+STAGE_TOPIC: dict[str, str] = {"scene": SCENE, "demos": DEMOS_EXPERT, "graph": GRAPH_NODES,
+                               "birl": BIRL_ITERATION, "evaluate": EVAL_METRICS}
+
 # Foxglove-native views (foxglove.SceneUpdate, pipeline/artefacts/foxglove.py): for other tools,
 # never read back by the pipeline.
 FOXGLOVE_SCENE = "/foxglove/scene"  # in scene.mcap

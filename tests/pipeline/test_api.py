@@ -3,6 +3,7 @@ handle, earlier runs and sweeps opened, and learning from Python objects in memo
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
 import matplotlib
@@ -343,3 +344,13 @@ def test_a_run_dirs_damaged_config_or_metrics_is_one_line(tmp_path):
         _ = handle.config
     with pytest.raises(PipelineError, match="is not an object of metrics"):
         _ = handle.metrics
+
+
+def test_another_stages_artefact_under_a_stages_file_name_is_refused(fast_run, tmp_path):
+    """scene.mcap copied over eval.mcap was read as the evaluate stage's artefact."""
+    shutil.copytree(fast_run.dir, tmp_path / "run")
+    shutil.copy(tmp_path / "run" / "scene.mcap", tmp_path / "run" / "eval.mcap")
+    mixed = api.open_run(tmp_path / "run")
+    with pytest.raises(ArtefactError, match="eval.mcap has no topic '/eval/metrics'"):
+        mixed.paths()
+    assert mixed.artefact("scene").one(topics.SCENE) == fast_run.artefact("scene").one(topics.SCENE)
