@@ -311,7 +311,7 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
     scene = checked_scene(scene)
     given = demo_list(demos)
     cfg = settings_for_learning(method, seed, overrides, config)
-    check_graph_size(cfg, scene)
+    cfg = sized_graph(cfg, scene)
     # held-out rows of a run's /demos (evaluate.holdout) never enter learning, as in the run
     training = [d for d in given if not (isinstance(d, Mapping) and d.get("heldout") is True)]
     if not training:
@@ -373,14 +373,19 @@ def checked_scene(scene: Any) -> Scene:
     return scene
 
 
-def check_graph_size(cfg: Config, scene: Scene) -> None:
-    """The graph-size checks `run` makes before the graph stage (`pipeline.app.preflight`)."""
+def sized_graph(cfg: Config, scene: Scene) -> Config:
+    """`cfg` with graph.max_nodes derived from the scene where it is null, and the size
+    checks, as `run` makes them before the graph stage (`pipeline.app.preflight`)."""
     max_nodes = cfg.graph.max_nodes
-    assert max_nodes is not None  # GraphConfig fills in a derived size
+    if max_nodes is None:  # the default: derived from the scene (it was a TypeError here)
+        max_nodes = limits.graph_size(scene.free_area, cfg.reward.rho_personal, scene.name)[0]
+        cfg = dataclasses.replace(cfg, graph=dataclasses.replace(cfg.graph,
+                                                                 max_nodes=max_nodes))
     limits.check_memory(f"an adaptive graph of {max_nodes} nodes", max_nodes,
                         limits.BYTES_PER_GRAPH_NODE, "lower graph.max_nodes")
     limits.check_graph_resolution(max_nodes, scene.free_area, cfg.reward.rho_personal,
                                   scene.name)
+    return cfg
 
 
 def settings_for_learning(method: str, seed: int, overrides: Sequence[str],

@@ -354,3 +354,13 @@ def test_another_stages_artefact_under_a_stages_file_name_is_refused(fast_run, t
     with pytest.raises(ArtefactError, match="eval.mcap has no topic '/eval/metrics'"):
         mixed.paths()
     assert mixed.artefact("scene").one(topics.SCENE) == fast_run.artefact("scene").one(topics.SCENE)
+
+
+def test_learn_with_the_default_graph_size_gives_the_default_runs_weights(default_run):
+    """graph.max_nodes is null by default (derived from the scene at start-up); learn() took
+    it as given and failed with a TypeError unless an override set a size."""
+    run = api.open_run(default_run[0])
+    rows = run.messages("demos", topics.DEMOS).to_dict("records")
+    learned = api.learn(run.scene(), rows)
+    assert learned.graph.mdp.n_nodes == run.config.graph.max_nodes == 460
+    assert np.array_equal(learned.weights, birl_weights(run.dir)[-1])
