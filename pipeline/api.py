@@ -313,7 +313,9 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
     cfg = settings_for_learning(method, seed, overrides, config)
     cfg = sized_graph(cfg, scene)
     # held-out rows of a run's /demos (evaluate.holdout) never enter learning, as in the run
-    training = [d for d in given if not (isinstance(d, Mapping) and d.get("heldout") is True)]
+    training = [d for d in given if not (isinstance(d, Mapping)
+                                         and isinstance(d.get("heldout"), bool | np.bool_)
+                                         and d["heldout"])]
     if not training:
         raise PipelineError(f"all {len(given)} demonstrations are held out (their 'heldout' "
                             "is true): nothing to learn from")

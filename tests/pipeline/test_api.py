@@ -364,3 +364,13 @@ def test_learn_with_the_default_graph_size_gives_the_default_runs_weights(defaul
     learned = api.learn(run.scene(), rows)
     assert learned.graph.mdp.n_nodes == run.config.graph.max_nodes == 460
     assert np.array_equal(learned.weights, birl_weights(run.dir)[-1])
+
+
+def test_learning_from_a_held_out_runs_rows_gives_its_weights(tmp_path):
+    settings = ["graph=small", "birl.alternatives=graph", "evaluate.holdout=0.5",
+                "expert=boltzmann", "expert.demos_per_start=2"]
+    run = api.run([*settings, "birl.n_iterations=3"], run_dir=tmp_path)
+    rows = run.messages("demos", topics.DEMOS).to_dict("records")
+    assert 0 < sum(r["heldout"] for r in rows) < len(rows)
+    learned = api.learn(run.scene(), rows, overrides=settings, n_iterations=3)
+    assert np.array_equal(learned.weights, birl_weights(run.dir)[-1])
