@@ -27,6 +27,7 @@ from pathlib import Path
 import contourpy  # ships with matplotlib
 import numpy as np
 
+from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.core.world import Scene
@@ -388,7 +389,9 @@ def _log_run(rec: rr.RecordingStream, scene_art: Artefact, arts: dict[str, Artef
     _log_obstacles(rec, obstacle_outlines(codec.decode_scene(scene_art)))
     if "demos" in arts:
         rec.log("demos/trajectories", rr.LineStrips2D(
-            _strips([d["points"] for d in arts["demos"].all(topics.DEMOS)]), radii=0.025,
+            # expert=none writes no /demos topic: nothing to draw
+            _strips([d["points"] for d in arts["demos"].messages.get(topics.DEMOS, [])]),
+            radii=0.025,
             colors=DEMO, draw_order=ORDER["demos"]), static=True, strict=True)
     if "graph" in arts:
         _log_graph(rec, arts["graph"])
@@ -401,10 +404,18 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise PipelineError(f"run dir {run_dir} does not exist or is not a directory")
-    scene_art = read_artefact(run_dir / "scene.mcap")
+    rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
+    if rrd_path.suffix != ".rrd":  # e.g. --out RUN/scene.mcap replaced the run's own input
+        raise PipelineError(f"--out {rrd_path}: the recording's file name must end in .rrd")
+    if rrd_path.is_dir():
+        raise PipelineError(f"--out {rrd_path} is a directory; give the .rrd file to write")
+    scene_art = read_artefact(run_dir / "scene.mcap", required_topics=[topics.SCENE])
+    codec.decode_scene(scene_art)  # a malformed scene is one line, before anything is drawn
     arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
             if (run_dir / f"{n}.mcap").exists()}
-    rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
+    # artefacts of different runs side by side are refused, as the stages and export do
+    check_inputs({"scene": scene_art, **{("evaluate" if n == "eval" else n): a
+                                          for n, a in arts.items()}})
     tmp = unique_tmp(rrd_path)
     # Same run dir -> same recording id: a rebuilt .rrd is the same recording, not a new one.
     rec_id = uuid.uuid5(uuid.NAMESPACE_URL, f"birlg:{run_dir.resolve()}")
@@ -419,7 +430,10 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
             raise PipelineError(f"cannot write {rrd_path}: {e}") from None
         rec.send_recording_name(run_dir.resolve().name)
         _log_run(rec, scene_art, arts)
-        rec.flush()
+        try:
+            rec.flush()
+        except RuntimeError as e:  # its file writer stopped, e.g. on a full disk
+            raise PipelineError(f"cannot write {rrd_path}: {e}") from None
         rec.disconnect()  # closes the file sink, writing the footer
         os.replace(tmp, rrd_path)
     finally:

@@ -373,3 +373,37 @@ def test_curve_range_by_hand():
     np.testing.assert_allclose(curve_range([0.0, 1.0], 3), (-0.05, 1.7))
     np.testing.assert_allclose(curve_range([-2.0, -2.0], 1), (-2.1, -1.4))  # flat: span |v|
     np.testing.assert_allclose(curve_range([], 1), (-0.05, 1.3))  # no values: 0 to 1
+
+
+def test_a_run_without_demonstrations_is_shown(tmp_path):
+    """expert=none writes no /demos topic; the viewer refused every such run."""
+    run_in_process(tmp_path, "graph=small", "expert=none", "birl=fixed",
+                   "birl.weights=[-1,-0.5,-0.5,-0.1,-0.5]")
+    out = build_recording(tmp_path)
+    paths = set(RrdReader(out).store().schema().entity_paths())
+    assert "/eval/paths" in paths and "/graph/nodes" in paths
+
+
+def test_an_output_that_is_not_an_rrd_file_is_refused_and_the_run_kept(run_dir, tmp_path):
+    before = (run_dir / "scene.mcap").read_bytes()
+    for out, says in ((run_dir / "scene.mcap", "must end in .rrd"), (tmp_path, "must end in"),
+                      (tmp_path / "x.rrd", "is a directory")):
+        if out.name == "x.rrd":
+            out.mkdir()
+        with pytest.raises(PipelineError, match=says):
+            build_recording(run_dir, out)
+    assert (run_dir / "scene.mcap").read_bytes() == before
+
+
+def test_artefacts_of_different_runs_are_refused(run_dir, tmp_path):
+    """As the stages and export refuse them; the viewer drew them together silently."""
+    other = tmp_path / "other"
+    run_in_process(other, "graph=small", "birl.n_iterations=4", "seed=1")
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for name in ("scene", "demos", "eval"):
+        (mixed / f"{name}.mcap").write_bytes((run_dir / f"{name}.mcap").read_bytes())
+    for name in ("graph", "birl"):
+        (mixed / f"{name}.mcap").write_bytes((other / f"{name}.mcap").read_bytes())
+    with pytest.raises(PipelineError, match="they come from different runs"):
+        build_recording(mixed)
