@@ -47,6 +47,7 @@ from scipy.sparse import csgraph
 
 from pipeline.app.context import PACKAGE_ROOT
 from pipeline.core.world import Scene
+from pipeline.errors import PipelineError, report
 from pipeline.inputs.scene_file import load_scene_file
 
 RES = 0.05
@@ -189,9 +190,17 @@ def check(plan: FloorPlan, scene_path: Path) -> Scene:
 def write(plan: FloorPlan, root: Path) -> list[Path]:
     """Write maps/NAME.pgm, maps/NAME.yaml and scenes/NAME.json under root, checked first in
     a temporary directory so that a failing plan replaces nothing."""
-    root.mkdir(parents=True, exist_ok=True)
     names = [Path("maps") / f"{plan.name}.pgm", Path("maps") / f"{plan.name}.yaml",
              Path("scenes") / f"{plan.name}.json"]
+    # every place checked before anything is written: a failed rename half-way left a
+    # map without its scene
+    for place in (root, root / "maps", root / "scenes"):
+        if place.exists() and not place.is_dir():
+            raise PipelineError(f"{place} is a file; --out needs a directory there")
+    for name in names:
+        if (root / name).is_dir():
+            raise PipelineError(f"{root / name} is a directory; the map tool writes a file there")
+    root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=root, prefix=f".{plan.name}-") as tmp:
         stage = Path(tmp)
         (stage / "maps").mkdir()
@@ -317,11 +326,16 @@ def main(argv: list[str] | None = None) -> None:
                                      description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("name", choices=[*PLANS, "all"])
-    parser.add_argument("--out", type=Path, default=PACKAGE_ROOT / "data",
+    parser.add_argument("--out", default=str(PACKAGE_ROOT / "data"),
                         help="data directory to write into (default: the package's data/)")
     args = parser.parse_args(argv)
+    if not args.out.strip():  # "" would be the working directory, unsaid
+        parser.error("--out '': give the data directory to write into")
     for name in PLANS if args.name == "all" else [args.name]:
-        paths = write(PLANS[name], args.out)
+        try:
+            paths = write(PLANS[name], Path(args.out))
+        except (PipelineError, OSError) as e:
+            raise SystemExit(report(e, f"the {name} map")) from None
         print("wrote " + ", ".join(str(p) for p in paths))
 
 

@@ -48,6 +48,25 @@ def test_a_plan_failing_its_checks_replaces_nothing(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["maps", "scenes"]
 
 
+def test_an_output_place_that_cannot_take_the_files_replaces_nothing(tmp_path):
+    """A file where scenes/ must go: the maps were replaced, then a traceback."""
+    make_maps.write(make_maps.OFFICE, tmp_path)
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    (tmp_path / "scenes" / "office.json").unlink()
+    (tmp_path / "scenes" / "office.json").mkdir()
+    with pytest.raises(PipelineError, match="office.json is a directory"):
+        make_maps.write(make_maps.OFFICE, tmp_path)
+    (tmp_path / "scenes" / "office.json").rmdir()
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == \
+        {p: b for p, b in before.items() if p.name != "office.json"}
+    result = subprocess.run([sys.executable, "-m", "pipeline.tools.make_maps", "office",
+                             "--out", str(tmp_path / "maps" / "office.yaml")], cwd=ROOT,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2
+    assert result.stderr == f"error: {tmp_path / 'maps' / 'office.yaml'} is a file; --out " \
+                            "needs a directory there\n"
+
+
 def test_the_warehouse_check_refuses_paths_out_of_range(tmp_path):
     # the promised 30-60 m raster paths are checked: a plan promising 10-20 m is refused
     short = dataclasses.replace(make_maps.WAREHOUSE, path_range=(10.0, 20.0))
