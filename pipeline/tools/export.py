@@ -187,6 +187,9 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
                      "are shown as free")
     lines.append(f"# grey value of occupancy k: round(255 * (1 - ({_num(FREE_THRESH)} + k/100 * "
                  f"{_num(OCCUPIED_THRESH - FREE_THRESH)})))")
+    # a comment stays one line whatever it quotes (a run dir or scene name with a line break
+    # became an uncommented second `image:` key, which map_server may take)
+    lines = [" ".join(line.splitlines()) for line in lines]
     lines += [f"image: {COSTMAP_IMAGE}", "mode: scale", f"resolution: {_num(g.resolution)}",
               f"origin: [{_num(g.origin[0])}, {_num(g.origin[1])}, 0.0]", "negate: 0",
               f"occupied_thresh: {_num(OCCUPIED_THRESH)}", f"free_thresh: {_num(FREE_THRESH)}"]
@@ -375,13 +378,18 @@ def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
     return points
 
 
-def read_run(run_dir: Path) -> RunReward:
-    """The scene, learned reward, learned paths and demonstrations of a finished run."""
+def read_run_files(run_dir: Path) -> None:
+    """One line when the run dir lacks an artefact the export reads."""
     missing = [ARTEFACT_FILE[s] for s in ("scene", "demos", "birl", "evaluate")
                if not (run_dir / ARTEFACT_FILE[s]).is_file()]
     if missing:
         raise PipelineError(f"run dir {run_dir} has no {', '.join(missing)}: the export needs a "
                             "run through the birl and evaluate stages")
+
+
+def read_run(run_dir: Path) -> RunReward:
+    """The scene, learned reward, learned paths and demonstrations of a finished run."""
+    read_run_files(run_dir)
     scene_art = read_artefact(run_dir / ARTEFACT_FILE["scene"], required_topics=[topics.SCENE])
     scene = codec.decode_scene(scene_art)
     birl = read_artefact(run_dir / ARTEFACT_FILE["birl"],
@@ -502,6 +510,8 @@ def check_run_dir(run_dir: Path) -> None:
     if status.state not in (COMPLETE, UNKNOWN):  # unknown: made before status.json existed
         raise PipelineError(f"run dir {run_dir} is {status.describe()}; export a complete run "
                             "(rerun it into this dir or choose another)")
+    # before the lock: a dir that is no run (an empty dir, a sweep dir, ~) gets no .lock file
+    read_run_files(run_dir)
 
 
 def main(argv: list[str] | None = None) -> int:

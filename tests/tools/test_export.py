@@ -526,3 +526,19 @@ def test_the_command_line_prints_one_line_and_exits_2(tmp_path):
                           cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [f"error: run dir {tmp_path / 'no'} not found"]
+
+
+def test_a_line_break_in_the_run_dir_stays_inside_a_comment(exported, tmp_path):
+    """A run dir named '...\\nimage: evil.pgm' wrote an uncommented second image key."""
+    run_dir = tmp_path / "run\nimage: evil.pgm"
+    shutil.copytree(exported[0], run_dir, ignore=shutil.ignore_patterns("export"))
+    assert export.main([str(run_dir)]) == 0
+    text = (run_dir / "export" / "costmap.yaml").read_text()
+    assert [ln for ln in text.splitlines() if not ln.startswith("#")][0] == "image: costmap.pgm"
+    assert sum(ln.startswith("image:") for ln in text.splitlines()) == 1
+
+
+def test_a_dir_that_is_no_run_is_refused_without_a_lock_file(tmp_path, capsys):
+    assert export.main([str(tmp_path)]) == 2
+    assert "has no scene.mcap" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
