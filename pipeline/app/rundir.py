@@ -150,8 +150,9 @@ def acquire_lock(run_dir: Path) -> int:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
         os.close(fd)
-        raise PipelineError(f"run dir {run_dir} is in use by another run; wait for it to "
-                            "finish or choose another hydra.run.dir") from None
+        raise PipelineError(f"run dir {run_dir} is in use by another process (a run or an "
+                            "export); wait for it to finish, or for a new run choose "
+                            "another hydra.run.dir") from None
     return fd
 
 

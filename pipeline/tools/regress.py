@@ -23,12 +23,28 @@ import pandas as pd
 import yaml
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.errors import PipelineError
 
 BASELINE = PROJECT_ROOT / "results" / "baseline"
 
 
+def _load(path: Path, kind: type, loads=yaml.safe_load):
+    """A YAML or JSON file that must hold a `kind` (dict or list), or one line saying why not."""
+    try:
+        data = loads(path.read_text())
+    except (OSError, ValueError, yaml.YAMLError) as e:
+        reason = (str(e).splitlines() or [type(e).__name__])[0]
+        raise PipelineError(f"{path} cannot be read ({reason})") from None
+    if not isinstance(data, kind) or not data:
+        raise PipelineError(f"{path} does not hold a non-empty {kind.__name__}")
+    return data
+
+
 def load_tolerances(baseline: Path) -> list[tuple[str, dict | str]]:
-    spec = yaml.safe_load((baseline / "tolerances.yaml").read_text())
+    spec = _load(baseline / "tolerances.yaml", dict)
+    if not isinstance(spec.get("patterns"), dict) or "default" not in spec:
+        raise PipelineError(f"{baseline / 'tolerances.yaml'} needs 'patterns' (a mapping) and "
+                            "'default'")
     return list(spec["patterns"].items()) + [("*", spec["default"])]
 
 
@@ -42,8 +58,14 @@ def run_experiment(name: str, overrides: list[str], work: Path, reuse: bool) -> 
         result = subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}",
                                  *overrides], cwd=PROJECT_ROOT, capture_output=True, text=True)
         if result.returncode != 0:
-            raise RuntimeError(f"reference experiment {name} failed: {result.stderr.strip()}")
-    return json.loads((run_dir / "metrics.json").read_text())
+            last = (result.stderr.strip().splitlines() or ["no message"])[-1]
+            raise PipelineError(f"reference experiment {name} failed: {last}")
+    metrics = _load(run_dir / "metrics.json", dict, json.loads)
+    bad = [k for k, v in metrics.items()
+           if v is not None and (isinstance(v, bool) or not isinstance(v, int | float))]
+    if bad:
+        raise PipelineError(f"{run_dir / 'metrics.json'}: {bad[0]} is not a number")
+    return metrics
 
 
 def compare(name: str, baseline: dict, current: dict, tolerances) -> list[dict]:
@@ -75,8 +97,24 @@ def main(argv=None) -> int:
     parser.add_argument("--all-rows", action="store_true",
                         help="print every metric, not only failures")
     args = parser.parse_args(argv)
+    try:
+        return _regress(args)
+    except PipelineError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
 
-    experiments = yaml.safe_load((args.baseline / "experiments.yaml").read_text())
+
+def _regress(args: argparse.Namespace) -> int:
+    if not args.baseline.is_dir():
+        raise PipelineError(f"--baseline {args.baseline} is not a directory")
+    if args.work is not None and args.work.exists() and not args.work.is_dir():
+        raise PipelineError(f"--work {args.work} is a file, not a directory")
+    experiments = _load(args.baseline / "experiments.yaml", dict)
+    bad = [n for n, o in experiments.items()
+           if not isinstance(o, list) or not all(isinstance(x, str) for x in o)]
+    if bad:
+        raise PipelineError(f"{args.baseline / 'experiments.yaml'}: {bad[0]} must be a list of "
+                            "overrides (strings)")
     names = args.only or list(experiments)
     unknown = [n for n in names if n not in experiments]
     if unknown:
@@ -99,7 +137,7 @@ def main(argv=None) -> int:
             if not path.exists():
                 print(f"error: no baseline {path}; create it with --update", file=sys.stderr)
                 return 2
-            rows += compare(name, json.loads(path.read_text()), current, tolerances)
+            rows += compare(name, _load(path, dict, json.loads), current, tolerances)
     if args.update:
         print(f"baseline updated for {names}")
         return 0

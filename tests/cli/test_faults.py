@@ -188,7 +188,7 @@ def test_a_quoted_run_dir_in_use_is_refused_before_anything_is_made(tmp_path, fo
                                "stages=[scene]"], cwd=cwd, capture_output=True, text=True,
                               timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 2 and lines(proc.stderr) == [
-        f"error: run dir {d} is in use by another run; wait for it to finish or choose another "
-        "hydra.run.dir"], proc.stderr
+        f"error: run dir {d} is in use by another process (a run or an export); wait for it to "
+        "finish, or for a new run choose another hydra.run.dir"], proc.stderr
     assert (d / ".hydra" / "config.yaml").read_text() == "the holder's\n"
     assert list(cwd.iterdir()) == []  # no dir named '"' or "'"

@@ -157,6 +157,25 @@ def test_metric_beyond_tolerance_fails(tmp_path, regress_work):
                    regress_work, "--reuse").returncode == 0
 
 
+def test_a_damaged_baseline_is_one_line(tmp_path):
+    """Each of these was a traceback (yaml, KeyError, TypeError)."""
+    baseline = tmp_path / "baseline"
+    shutil.copytree(ROOT / "results" / "baseline", baseline)
+    cases = [("experiments.yaml", "x: [\n", "experiments.yaml cannot be read"),
+             ("experiments.yaml", "- a\n", "experiments.yaml does not hold a non-empty dict"),
+             ("experiments.yaml", "a: 3\n", "a must be a list of overrides"),
+             ("tolerances.yaml", "default: {abs: 0}\n", "tolerances.yaml needs 'patterns'")]
+    for name, text, says in cases:
+        kept = (baseline / name).read_text()
+        (baseline / name).write_text(text)
+        result = regress("--baseline", baseline)
+        (baseline / name).write_text(kept)
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+        assert says in result.stderr
+    result = regress("--baseline", tmp_path / "nope")
+    assert result.stderr == f"error: --baseline {tmp_path / 'nope'} is not a directory\n"
+
+
 def test_slurm_launcher_preset_composes():
     from hydra import compose, initialize_config_dir
 
