@@ -619,6 +619,29 @@ def plot_imperfect(summary_csv: Path, path: Path) -> None:
         save_figure(fig, path, [summary_csv])
 
 
+def positive_count(text: str) -> int:
+    """argparse type of node counts, sizes and repeats: an integer >= 1 (0 or -5 ended in a
+    traceback, or wrote an empty table over a committed one)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} is not >= 1")
+    return value
+
+
+def seed_number(text: str) -> int:
+    """argparse type of seeds: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} is not >= 0")
+    return value
+
+
 def checkout(text: str) -> Path:
     """argparse type of --old: a checkout of this project (its pipeline package), so that a
     wrong path fails in one line before anything is measured."""
@@ -634,63 +657,63 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m pipeline.tools.bench")
     sub = parser.add_subparsers(dest="suite", required=True)
     g = sub.add_parser("graph", help="adaptive-graph scaling -> results/bench/graph_scaling.csv")
-    g.add_argument("--sizes", type=int, nargs="+", default=GRAPH_SIZES)
-    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--sizes", type=positive_count, nargs="+", default=GRAPH_SIZES)
+    g.add_argument("--seed", type=seed_number, default=0)
     io = sub.add_parser("graph_io", help="graph.mcap write and read-back seconds -> "
                         "results/bench/graph_io.csv")
-    io.add_argument("--sizes", type=int, nargs="+", default=GRAPH_IO_SIZES)
-    io.add_argument("--seed", type=int, default=0)
-    io.add_argument("--repeats", type=int, default=5)
+    io.add_argument("--sizes", type=positive_count, nargs="+", default=GRAPH_IO_SIZES)
+    io.add_argument("--seed", type=seed_number, default=0)
+    io.add_argument("--repeats", type=positive_count, default=5)
     e = sub.add_parser("experiment", help="default experiment -> results/bench/experiment.csv")
-    e.add_argument("--repeats", type=int, default=3)
+    e.add_argument("--repeats", type=positive_count, default=3)
     st = sub.add_parser("startup", help="default run, quick sweep and aggregation wall times "
                         "-> results/bench/startup.csv (pipeline/tools/bench_startup.py)")
-    st.add_argument("--repeats", type=int, default=3)
-    st.add_argument("--jobs", type=int, default=2, help="sweep workers")
+    st.add_argument("--repeats", type=positive_count, default=3)
+    st.add_argument("--jobs", type=positive_count, default=2, help="sweep workers")
     st.add_argument("--old", type=checkout, default=None,
                     help="a checkout of an earlier commit to measure beside this one")
     irl = sub.add_parser("irl", help="IRL methods -> results/bench/irl_methods.csv and .png")
-    irl.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    irl.add_argument("--seeds", type=seed_number, nargs="+", default=[0, 1, 2])
     irl.add_argument("--methods", nargs="+", default=IRL_METHODS)
     irl.add_argument("--scenes", nargs="+", default=list(IRL_SCENES))
     o = sub.add_parser("obstacles", help="office map vs metropolis -> results/bench/obstacles.csv")
-    o.add_argument("--repeats", type=int, default=3)
+    o.add_argument("--repeats", type=positive_count, default=3)
     imp = sub.add_parser("imperfect", help="noisy and hand-drawn demonstrations -> "
                          "results/bench/imperfect.csv, imperfect_summary.csv and .png")
-    imp.add_argument("--seeds", type=int, nargs="+", default=list(range(10)))
-    imp.add_argument("--baseline-seeds", type=int, nargs="+", default=[0, 1, 2])
+    imp.add_argument("--seeds", type=seed_number, nargs="+", default=list(range(10)))
+    imp.add_argument("--baseline-seeds", type=seed_number, nargs="+", default=[0, 1, 2])
     imp.add_argument("--conditions", nargs="+", default=list(IMPERFECT))
     imp.add_argument("--methods", nargs="+", default=None, choices=list(IMPERFECT_METHODS))
     imp.add_argument("--merge", action="store_true",
                      help="keep the rows of imperfect.csv of the methods not run now")
     post = sub.add_parser("posterior", help="birl=mcmc diagnostics -> results/bench/posterior.csv")
-    post.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    post.add_argument("--seeds", type=seed_number, nargs="+", default=[0, 1])
     post.add_argument("--likelihoods", nargs="+", default=["robust", "paper"])
     post.add_argument("--samplers", nargs="+", default=list(SAMPLER_OVERRIDES),
                       choices=list(SAMPLER_OVERRIDES))
     big = sub.add_parser("bigroom", help="scene + demos of 10-40 m random rooms -> "
                          "results/bench/big_rooms.csv")
     big.add_argument("--sides", type=float, nargs="+", default=BIG_ROOM_SIDES)
-    big.add_argument("--repeats", type=int, default=3)
+    big.add_argument("--repeats", type=positive_count, default=3)
     big.add_argument("--old", type=checkout, default=None,
                      help="another checkout to measure side by side (code=old rows)")
     maps = sub.add_parser("mapscenes", help="scene + demos of random scenes on the shipped "
                           "building maps -> results/bench/map_scenes.csv")
     maps.add_argument("--maps", nargs="+", default=MAP_SCENE_MAPS, choices=MAP_SCENE_MAPS)
-    maps.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    maps.add_argument("--repeats", type=int, default=3)
+    maps.add_argument("--seeds", type=seed_number, nargs="+", default=[0, 1, 2])
+    maps.add_argument("--repeats", type=positive_count, default=3)
     maps.add_argument("--old", type=checkout, default=None,
                       help="another checkout to measure side by side (code=old rows)")
     mem = sub.add_parser("memory", help="peak RSS of birl=mcmc against the default MAP run "
                          "-> results/bench/memory.csv")
-    mem.add_argument("--repeats", type=int, default=3)
+    mem.add_argument("--repeats", type=positive_count, default=3)
     once = sub.add_parser("graph-once")
-    once.add_argument("nodes", type=int)
-    once.add_argument("--seed", type=int, default=0)
+    once.add_argument("nodes", type=positive_count)
+    once.add_argument("--seed", type=seed_number, default=0)
     io_once = sub.add_parser("graph-io-once")
-    io_once.add_argument("nodes", type=int)
-    io_once.add_argument("--seed", type=int, default=0)
-    io_once.add_argument("--repeats", type=int, default=5)
+    io_once.add_argument("nodes", type=positive_count)
+    io_once.add_argument("--seed", type=seed_number, default=0)
+    io_once.add_argument("--repeats", type=positive_count, default=5)
     return parser
 
 

@@ -428,9 +428,15 @@ def main(argv: list[str] | None = None) -> None:
                         help="keep the rows of learning.csv for the (demonstrator, learner) "
                              "pairs not run now (e.g. add the baselines to a committed table)")
     args = parser.parse_args(argv)
+    if args.out.exists() and not args.out.is_dir():
+        parser.error(f"--out {args.out} is a file, not a directory")
     args.out.mkdir(parents=True, exist_ok=True)
     table_path = args.out / f"{args.table}.csv"
-    kept = kept_rows(table_path, args.demonstrators, args.learners) if args.merge else []
+    try:  # before any case runs: a damaged table to merge into is one line, not hours later
+        kept = kept_rows(table_path, args.demonstrators, args.learners) if args.merge else []
+    except (OSError, ValueError, KeyError) as e:  # pandas' parser errors are ValueErrors
+        parser.error(f"--merge: {table_path} cannot be read as a learning table "
+                     f"({(str(e).splitlines() or [type(e).__name__])[0]})")
     learners = {k: LEARNERS[k] for k in args.learners}
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:

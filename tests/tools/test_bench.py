@@ -18,3 +18,17 @@ def test_an_old_checkout_that_is_none_is_refused_in_one_line(suite, tmp_path, ca
 def test_an_old_checkout_is_taken_as_its_resolved_directory():
     args = _parser().parse_args(["mapscenes", "--old", str(PROJECT_ROOT / "pipeline" / "..")])
     assert args.old == PROJECT_ROOT.resolve()
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["experiment", "--repeats", "0"], "argument --repeats: 0 is not >= 1"),
+    (["graph-once", "-5"], "argument nodes: -5 is not >= 1"),
+    (["graph", "--sizes", "100", "--seed", "-1"], "argument --seed: -1 is not >= 0"),
+    (["graph-io-once", "10", "--repeats", "x"], "argument --repeats: 'x' is not an integer"),
+])
+def test_bench_counts_and_seeds_are_checked_before_anything_runs(argv, says, capsys):
+    """--repeats 0 wrote an empty table over the committed experiment.csv; -5 nodes and
+    --repeats 0 in the measuring subprocesses were tracebacks."""
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2 and says in capsys.readouterr().err
