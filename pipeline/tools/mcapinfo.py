@@ -31,12 +31,14 @@ def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
         times: list[int] = []
         validators: dict[int, Draft202012Validator] = {}
         bad: list[str] = []
+        checked = 0  # messages with a JSON schema and JSON encoding: the others cannot be
         for schema, channel, message in reader.iter_messages(log_time_order=False):
             counts[channel.id] += 1
             times.append(message.log_time)
             if not (check and schema is not None and schema.encoding == SchemaEncoding.JSONSchema
                     and channel.message_encoding == MessageEncoding.JSON):
                 continue
+            checked += 1
             at = f"  INVALID {channel.topic} at log_time {message.log_time}: "
             try:  # a schema or message that is no JSON, or a schema that loops, is invalid
                 if schema.id not in validators:
@@ -71,7 +73,12 @@ def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
         lines.append(f"  metadata '{m.name}'")
         lines += [f"    {k} = {v}" for k, v in sorted(m.metadata.items())]
     if check:
-        lines += bad or [f"  check: all {sum(counts.values())} messages match their schemas"]
+        unchecked = sum(counts.values()) - checked
+        if bad or checked or not unchecked:
+            lines += bad or [f"  check: all {checked} messages match their schemas"]
+        if unchecked:  # it said "all N match" of messages it never checked
+            lines.append(f"  check: {unchecked} messages have no JSON schema or are not JSON "
+                         "encoded: not checked")
     return lines, len(bad)
 
 

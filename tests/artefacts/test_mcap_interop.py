@@ -247,6 +247,18 @@ def test_mcapinfo_lists_topics_counts_and_metadata_and_checks_schemas(runs, caps
         assert "INVALID /scene at log_time 0: (message): not checkable against schema " \
                "'birlg.Scene'" in capsys.readouterr().out
 
+    # A channel without a schema is not checked, and said so (it was counted as matching)
+    with open(tmp_path / "noschema.mcap", "wb") as f:
+        w = Writer(f)
+        w.start()
+        cid = w.register_channel("/x", "json", 0)
+        w.add_message(cid, log_time=0, data=b"not json", publish_time=0)
+        w.finish()
+    assert mcapinfo.main(["--check", str(tmp_path / "noschema.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "match their schemas" not in out
+    assert "check: 1 messages have no JSON schema or are not JSON encoded: not checked" in out
+
     # A file that is not MCAP: one line on stderr, exit status 2.
     (tmp_path / "x.mcap").write_text("hello")
     assert mcapinfo.main([str(tmp_path / "x.mcap")]) == 2
