@@ -458,7 +458,10 @@ def _has_display() -> bool:
 def warn_if_incomplete(run_dir: Path) -> None:
     """A warning line when the run failed or was interrupted (its artefacts are shown)."""
     status = read_status(run_dir)
-    if status.state not in (COMPLETE, "unknown"):  # unknown: made before status.json existed
+    if status.state == "unknown" and status.error:  # damaged, not merely older than status.json
+        print(f"warning: run dir {run_dir} has {status.error}: whether its run finished is not "
+              "known; showing the artefacts it has", file=sys.stderr)
+    elif status.state not in (COMPLETE, "unknown"):  # unknown: made before status.json existed
         print(f"warning: run dir {run_dir} is {status.describe()}; showing the artefacts "
               "it has", file=sys.stderr)
 

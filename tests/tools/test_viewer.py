@@ -232,6 +232,10 @@ def test_an_interrupted_run_is_shown_with_a_warning(run_dir, tmp_path):
     assert res.stderr.startswith("warning: ") and "interrupted at stage birl" in res.stderr
     clean = _cli(run_dir, "--out", tmp_path / "y.rrd", "--no-open")
     assert "warning" not in clean.stderr
+    (copy / "status.json").write_text("{x")  # damaged: said, not taken as complete
+    res = _cli(copy, "--out", tmp_path / "z.rrd", "--no-open")
+    assert res.returncode == 0 and res.stderr.startswith(
+        f"warning: run dir {copy} has an unreadable status.json"), res.stderr
 
 
 def test_a_viewer_that_dies_is_reported(tmp_path):
