@@ -288,3 +288,14 @@ def test_disk_full_is_one_line_and_leaves_the_old_file_and_no_temp_file(tmp_path
     monkeypatch.undo()
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]
+
+
+def test_an_atomic_write_onto_a_directory_names_the_target_and_leaves_no_temp(tmp_path):
+    """The error named the temp file, which no longer existed when it was read."""
+    from pipeline.artefacts.store import write_text_atomic
+
+    (tmp_path / "summary.csv").mkdir()
+    with pytest.raises(IsADirectoryError) as err:
+        write_text_atomic(tmp_path / "summary.csv", "a,b\n")
+    assert err.value.filename == str(tmp_path / "summary.csv")
+    assert [p.name for p in tmp_path.iterdir()] == ["summary.csv"]
