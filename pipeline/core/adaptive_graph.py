@@ -505,8 +505,8 @@ def _gp_kernel(signal_std: float, length_scale: float, noise: float) -> Any:
 def _import_sklearn_gp() -> tuple[Any, Any, Any]:
     """scikit-learn and its GP, imported here because only graph growth needs them. Two of
     the modules scikit-learn imports on the way are not needed by the GP, and took 0.55 s
-    of a 3.3 s default run; each is kept out of this import in a way scikit-learn supports,
-    and imports as usual later:
+    of a 3.3 s default run; each is kept out of this import, and imports as usual later
+    (a test in a fresh interpreter checks both, and scikit-learn's use of `rankdata`):
     - pandas (0.25 s): sklearn.utils.fixes binds it and never uses the binding; scikit-learn
       recognises DataFrames via sys.modules and imports pandas itself where one is involved.
       When pandas is not loaded yet it is hidden here: the path scikit-learn takes when
