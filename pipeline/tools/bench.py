@@ -619,27 +619,25 @@ def plot_imperfect(summary_csv: Path, path: Path) -> None:
         save_figure(fig, path, [summary_csv])
 
 
-def positive_count(text: str) -> int:
-    """argparse type of node counts, sizes and repeats: an integer >= 1 (0 or -5 ended in a
-    traceback, or wrote an empty table over a committed one)."""
+def _integer_from(text: str, minimum: int) -> int:
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} is not >= 1")
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"{value} is not >= {minimum}")
     return value
+
+
+def positive_count(text: str) -> int:
+    """argparse type of node counts, sizes and repeats: an integer >= 1 (0 or -5 ended in a
+    traceback, or wrote an empty table over a committed one)."""
+    return _integer_from(text, 1)
 
 
 def seed_number(text: str) -> int:
     """argparse type of seeds: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} is not >= 0")
-    return value
+    return _integer_from(text, 0)
 
 
 def checkout(text: str) -> Path:
