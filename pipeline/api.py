@@ -63,7 +63,7 @@ from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.world import Scene, scene_from_dict
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, first_line
 from pipeline.inputs.demo_file import checked_demonstration
 from pipeline.inputs.recorded import cut_trajectory, drop_repeats, match_to_starts
 from pipeline.irl import methods
@@ -101,7 +101,7 @@ class Run:
             try:
                 cfg = OmegaConf.load(hydra)
             except (OSError, ValueError, yaml.YAMLError) as e:
-                raise PipelineError(f"{hydra} cannot be read: {_first_line(e)}") from None
+                raise PipelineError(f"{hydra} cannot be read: {first_line(e)}") from None
             if not isinstance(cfg, DictConfig):
                 raise PipelineError(f"{hydra} is not a config (a mapping of settings)")
             return cfg
@@ -200,10 +200,6 @@ def _path(value: Any, name: str) -> Path:
             or not str(value).strip():
         raise PipelineError(f"{name}={value!r}: a path to a dir (a non-empty str or Path)")
     return Path(value)
-
-
-def _first_line(e: BaseException) -> str:
-    return (str(e).splitlines() or [type(e).__name__])[0][:200]
 
 
 def _compose(overrides: Sequence[str]) -> DictConfig:
@@ -370,7 +366,7 @@ def checked_scene(scene: Any) -> Scene:
     try:
         data = scene.to_dict()
     except (AttributeError, TypeError, ValueError) as e:
-        raise PipelineError(f"scene is not a valid Scene: {_first_line(e)}") from None
+        raise PipelineError(f"scene is not a valid Scene: {first_line(e)}") from None
     scene_from_dict(data, source="learn(): scene", map_grid=scene.map_grid)  # SceneError
     return scene
 

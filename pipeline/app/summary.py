@@ -15,7 +15,7 @@ import yaml
 from pipeline.app.metric_keys import is_metric_key
 from pipeline.app.rundir import job_dirs, read_status
 from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, first_line
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -30,7 +30,7 @@ def parse_overrides(job: Path) -> dict[str, str]:
     try:
         lines = yaml.safe_load(path.read_text()) or []
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise Unreadable(f"{path.name} cannot be read ({_first_line(e)})") from None
+        raise Unreadable(f"{path.name} cannot be read ({first_line(e, 120)})") from None
     if not isinstance(lines, list):
         raise Unreadable(f"{path.name} is not a list of overrides")
     return dict(line.split("=", 1) for line in lines if isinstance(line, str) and "=" in line)
@@ -41,7 +41,7 @@ def read_metrics(path: Path) -> dict:
     try:
         metrics = json.loads(path.read_text())
     except (OSError, ValueError) as e:
-        raise Unreadable(f"{path.name} cannot be read ({_first_line(e)})") from None
+        raise Unreadable(f"{path.name} cannot be read ({first_line(e, 120)})") from None
     if not isinstance(metrics, dict):
         raise Unreadable(f"{path.name} is not an object of metrics")
     for key, value in metrics.items():
@@ -52,10 +52,6 @@ def read_metrics(path: Path) -> dict:
 
 def _number(v: object) -> bool:
     return v is None or (isinstance(v, int | float) and not isinstance(v, bool))
-
-
-def _first_line(e: BaseException) -> str:
-    return (str(e).splitlines() or [type(e).__name__])[0][:120]
 
 
 def job_row(job: Path, sweep_dir: Path) -> dict:

@@ -52,6 +52,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.errors import first_line
 from pipeline.tools.bench import learning_stages, run_in_process
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
@@ -436,7 +437,7 @@ def main(argv: list[str] | None = None) -> None:
         kept = kept_rows(table_path, args.demonstrators, args.learners) if args.merge else []
     except (OSError, ValueError, KeyError) as e:  # pandas' parser errors are ValueErrors
         parser.error(f"--merge: {table_path} cannot be read as a learning table "
-                     f"({(str(e).splitlines() or [type(e).__name__])[0]})")
+                     f"({first_line(e)})")
     learners = {k: LEARNERS[k] for k in args.learners}
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -23,7 +23,8 @@ import pandas as pd
 import yaml
 
 from pipeline.app.context import PROJECT_ROOT
-from pipeline.errors import PipelineError
+from pipeline.app.summary import Unreadable, read_metrics
+from pipeline.errors import PipelineError, first_line
 
 BASELINE = PROJECT_ROOT / "results" / "baseline"
 
@@ -33,8 +34,7 @@ def _load(path: Path, kind: type, loads=yaml.safe_load):
     try:
         data = loads(path.read_text())
     except (OSError, ValueError, yaml.YAMLError) as e:
-        reason = (str(e).splitlines() or [type(e).__name__])[0]
-        raise PipelineError(f"{path} cannot be read ({reason})") from None
+        raise PipelineError(f"{path} cannot be read ({first_line(e)})") from None
     if not isinstance(data, kind) or not data:
         raise PipelineError(f"{path} does not hold a non-empty {kind.__name__}")
     return data
@@ -60,11 +60,12 @@ def run_experiment(name: str, overrides: list[str], work: Path, reuse: bool) -> 
         if result.returncode != 0:
             last = (result.stderr.strip().splitlines() or ["no message"])[-1]
             raise PipelineError(f"reference experiment {name} failed: {last}")
-    metrics = _load(run_dir / "metrics.json", dict, json.loads)
-    bad = [k for k, v in metrics.items()
-           if v is not None and (isinstance(v, bool) or not isinstance(v, int | float))]
-    if bad:
-        raise PipelineError(f"{run_dir / 'metrics.json'}: {bad[0]} is not a number")
+    try:
+        metrics = read_metrics(run_dir / "metrics.json")  # the check aggregate makes
+    except Unreadable as e:
+        raise PipelineError(f"{run_dir}: {e}") from None
+    if not metrics:
+        raise PipelineError(f"{run_dir / 'metrics.json'} holds no metrics")
     return metrics
 
 

@@ -372,8 +372,10 @@ def _blueprint(room: dict, ranges: dict[str, tuple[float, float]],
         collapse_panels=False)
 
 
-def _log_run(rec: rr.RecordingStream, scene_art: Artefact, arts: dict[str, Artefact]) -> None:
-    """The blueprint, the legend and every entity of the run's artefacts."""
+def _log_run(rec: rr.RecordingStream, scene_art: Artefact, decoded: Scene,
+             arts: dict[str, Artefact]) -> None:
+    """The blueprint, the legend and every entity of the run's artefacts (`decoded`: the
+    scene artefact as a checked Scene)."""
     scene = scene_art.one(topics.SCENE)
     names = next((a.messages[t][0]["feature_names"] for a, t in
                   ((arts.get("birl"), topics.BIRL_EXPERT), (arts.get("demos"), topics.DEMOS_EXPERT))
@@ -386,7 +388,7 @@ def _log_run(rec: rr.RecordingStream, scene_art: Artefact, arts: dict[str, Artef
     rec.log("legend", rr.TextDocument(LEGEND, media_type=rr.MediaType.MARKDOWN), static=True,
             strict=True)
     _log_scene(rec, scene)
-    _log_obstacles(rec, obstacle_outlines(codec.decode_scene(scene_art)))
+    _log_obstacles(rec, obstacle_outlines(decoded))
     if "demos" in arts:
         rec.log("demos/trajectories", rr.LineStrips2D(
             # expert=none writes no /demos topic: nothing to draw
@@ -410,7 +412,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     if rrd_path.is_dir():
         raise PipelineError(f"--out {rrd_path} is a directory; give the .rrd file to write")
     scene_art = read_artefact(run_dir / "scene.mcap", required_topics=[topics.SCENE])
-    codec.decode_scene(scene_art)  # a malformed scene is one line, before anything is drawn
+    scene = codec.decode_scene(scene_art)  # a malformed scene: one line, before any drawing
     arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
             if (run_dir / f"{n}.mcap").exists()}
     # artefacts of different runs side by side are refused, as the stages and export do
@@ -429,7 +431,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
         except RuntimeError as e:  # the bindings report an unwritable path this way
             raise PipelineError(f"cannot write {rrd_path}: {e}") from None
         rec.send_recording_name(run_dir.resolve().name)
-        _log_run(rec, scene_art, arts)
+        _log_run(rec, scene_art, scene, arts)
         try:
             rec.flush()
         except RuntimeError as e:  # its file writer stopped, e.g. on a full disk
