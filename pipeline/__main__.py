@@ -32,6 +32,7 @@ from omegaconf import DictConfig
 from pipeline.app.config import register_configs
 from pipeline.app.outcome import SweepOutcome
 from pipeline.app.rundir import (
+    FailedJob,
     Interrupted,
     as_interrupted,
     locked,
@@ -48,7 +49,7 @@ CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ 
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="config")
-def main(cfg: DictConfig) -> float | None:
+def main(cfg: DictConfig) -> float | FailedJob | None:
     guard_log_files()
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
@@ -69,7 +70,7 @@ def main(cfg: DictConfig) -> float | None:
         logging.getLogger("pipeline").error("job failed: %s", error,
                                             exc_info=not isinstance(e, PipelineError))
         mark_failed_before_stages(run_dir, error, when_missing=True)
-        return float("nan")
+        return FailedJob(error)
     return objective_value(run_dir, cfg.objective)
 
 
@@ -77,16 +78,18 @@ def _error_text(e: Exception) -> str:
     return str(e) if isinstance(e, PipelineError) else f"{type(e).__name__}: {e}"
 
 
-def objective_value(run_dir: Path, key: str) -> float:
-    """The job's metric for a sweeper that optimises (Optuna); NaN marks a failed trial."""
+def objective_value(run_dir: Path, key: str) -> float | FailedJob:
+    """The job's metric for a sweeper that optimises (Optuna); a FailedJob when there is
+    none, which such a sweeper records as a failed trial."""
     metrics_path = run_dir / "metrics.json"
     metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
     if key not in metrics:
         # e.g. a held-out fraction that held nothing out (one demonstration per start)
         logging.getLogger("pipeline").warning(
-            "objective %s: the run wrote no such metric (%s); the sweeper gets NaN, a failed "
-            "trial", key, metrics_path)
-    return float(metrics.get(key, float("nan")))
+            "objective %s: the run wrote no such metric (%s); for the sweeper a failed trial",
+            key, metrics_path)
+        return FailedJob(f"objective {key}: the run wrote no such metric")
+    return float(metrics[key])
 
 
 def one_line(e: BaseException) -> str:

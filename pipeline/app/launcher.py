@@ -12,11 +12,17 @@ job's config once, in parallel, all before any job runs (so a batch that does no
 still fails before anything runs, as with Hydra's check), and the job runs on that config.
 Measured on `make sweep EXP=quick` (pipeline/tools/bench.py startup).
 
-The worker processes are forked (POSIX): a job's number goes to a worker, its composed
-config comes back and goes out again pickled, and so does its result (Hydra's JobReturn).
-A failing job fails alone (pipeline.__main__ writes its status.json and returns NaN); a
-signal (Ctrl-C, SIGTERM) stops the sweep: running jobs record `interrupted`, the pool is
-terminated and the command says so in one line.
+The worker processes are forked (POSIX), each serving one job at a time over a pipe: a job's
+number goes out, its composed config comes back and goes out again pickled, and so does its
+result (Hydra's JobReturn). A job goes to a worker only when that worker is free, so no job
+waits in a queue where a stop could not reach it.
+- A failing job fails alone (pipeline.__main__ writes its status.json and returns a
+  FailedJob). A worker that dies (killed, out of memory) fails its job alone too: its
+  status.json says so, a new worker takes its place and the sweep goes on.
+- Ctrl-C or SIGTERM to the sweep's process stops the sweep: no new job starts, the running
+  ones get the signal, record `interrupted` and finish writing, and the command says so in
+  one line. Workers ignore Ctrl-C between jobs, and a worker whose sweep process died
+  (killed with -9) stops by itself within a second.
 """
 
 from __future__ import annotations
@@ -26,17 +32,27 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
+import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
+from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
 from hydra.core.hydra_config import HydraConfig
-from hydra.core.utils import JobReturn, configure_log, filter_overrides, run_job, setup_globals
+from hydra.core.utils import (
+    JobReturn,
+    JobStatus,
+    configure_log,
+    filter_overrides,
+    run_job,
+    setup_globals,
+)
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, open_dict
 
+from pipeline.app.rundir import FailedJob, Interrupted, as_interrupted, mark_died
 from pipeline.artefacts.topics import STAGES
 from pipeline.errors import PipelineError
 
@@ -75,24 +91,44 @@ class PoolLauncher(Launcher):
         for idx, overrides in jobs:
             log.info("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
         _Current.launcher, _Current.jobs = self, dict(jobs)
-        if n_workers == 1:
-            configs = [self.compose(overrides) for _, overrides in jobs]
-            return [self.execute(idx, cfg) for (idx, _), cfg in zip(jobs, configs, strict=True)]
-        for stage in STAGES:  # imported once here, shared by every forked worker
-            importlib.import_module(f"pipeline.stages.{stage}")
-        with ProcessPoolExecutor(n_workers, mp_context=multiprocessing.get_context("fork"),
-                                 initializer=_worker_started) as pool:
+        with stopped_by_sigterm():
+            if n_workers == 1:  # no fork: one job after another in this process
+                configs = [self.compose(overrides) for _, overrides in jobs]
+                return self._one_by_one(list(zip([i for i, _ in jobs], configs, strict=True)))
+            for stage in STAGES:  # imported once here, shared by every forked worker
+                importlib.import_module(f"pipeline.stages.{stage}")
+            pool = _Pool(n_workers)
             try:
-                composed = list(pool.map(_compose, [idx for idx, _ in jobs]))
-                for (_, overrides), cfg in zip(jobs, composed, strict=True):
-                    if cfg is None:  # compose it here: its error, as Hydra's check raises it
+                composed = pool.run("compose", [(idx, None) for idx, _ in jobs])
+                for (idx, overrides) in jobs:
+                    if composed[idx] is None:  # compose it here: its error, as Hydra's raises it
                         self.compose(overrides)
-                futures = [pool.submit(_execute, idx, cfg)
-                           for (idx, _), cfg in zip(jobs, composed, strict=True)]
-                return [f.result() for f in futures]
-            except BaseException:  # Ctrl-C: the running jobs record it; no new one starts
-                pool.shutdown(wait=True, cancel_futures=True)
-                raise
+                runs = [(idx, composed[idx]) for idx, _ in jobs]
+                returns = pool.run("execute", runs, on_death=self._died)
+                return [returns[idx] for idx, _ in jobs]
+            except (KeyboardInterrupt, Interrupted) as e:
+                raise _sweep_stopped(e, pool.completed, len(jobs)) from None
+            finally:
+                pool.close()
+
+    def _one_by_one(self, runs: list[tuple[int, DictConfig]]) -> list[JobReturn]:
+        returns: list[JobReturn] = []
+        try:
+            for idx, cfg in runs:
+                returns.append(self.execute(idx, cfg))
+        except (KeyboardInterrupt, Interrupted) as e:
+            raise _sweep_stopped(e, len(returns), len(runs)) from None
+        return returns
+
+    def _died(self, idx: int, sweep_config: DictConfig, exit_code: int | None) -> JobReturn:
+        """The return of job idx whose worker died: its status.json says so (unless the job
+        had recorded its own end), and the sweep's outcome counts it as failed."""
+        how = f"killed by {signal.Signals(-exit_code).name}" \
+            if exit_code is not None and exit_code < 0 else f"exit status {exit_code}"
+        error = f"the worker process running this job died ({how})"
+        mark_died(job_dir_of(idx, sweep_config), error)
+        log.error("job #%d failed: %s", idx, error)
+        return _failed_return(idx, error)
 
     def compose(self, overrides: list[str]) -> DictConfig:
         """A job's config, as Hydra's launchers compose it."""
@@ -115,6 +151,50 @@ class PoolLauncher(Launcher):
                        job_subdir_key="hydra.sweep.subdir")
 
 
+def job_dir_of(idx: int, sweep_config: DictConfig) -> Path:
+    """Job idx's run dir, as Hydra's run_job makes it (hydra.sweep.dir/subdir, where the
+    subdir may name the job's number)."""
+    cfg = sweep_config.copy()
+    with open_dict(cfg):
+        cfg.hydra.job.id = f"{cfg.hydra.job.name}_{idx}"
+        cfg.hydra.job.num = idx
+    return Path(str(cfg.hydra.sweep.dir)) / str(cfg.hydra.sweep.subdir)
+
+
+def _failed_return(idx: int, error: str) -> JobReturn:
+    """A job's return when its worker could not give one: a failed job, as the sweeper and
+    pipeline.__main__'s own failed jobs give it (COMPLETED, so the sweep goes on)."""
+    return JobReturn(overrides=_Current.jobs[idx], status=JobStatus.COMPLETED,
+                     _return_value=FailedJob(error))
+
+
+def _sweep_stopped(e: BaseException, completed: int, total: int) -> Interrupted:
+    stopped = as_interrupted(e, None)
+    assert stopped is not None
+    return Interrupted(stopped.signum, during=f"during the sweep ({completed} of {total} "
+                       "jobs completed; make aggregate lists them)")
+
+
+class stopped_by_sigterm:
+    """SIGTERM to the sweep's process raises Interrupted, as Ctrl-C raises KeyboardInterrupt,
+    so the sweep stops its workers and says so in one line (the default would end the
+    process at once, without a word, leaving the workers to run on)."""
+
+    def __enter__(self) -> None:
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGTERM, self.previous)
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    signal.signal(signum, signal.SIG_IGN)  # the first one counts: a repeat must not cut short
+    raise Interrupted(signum)  # the writing of what the first one stopped
+
+
 class _Current:
     """The launching launcher and its jobs, for the forked workers (nothing is pickled)."""
 
@@ -122,28 +202,161 @@ class _Current:
     jobs: dict[int, list[str]] = {}
 
 
-def _worker_started() -> None:
-    # Ctrl-C reaches the whole process group: the sweep's process stops the pool, and a
-    # worker between jobs must not die with a traceback of its own. (A running job's stages
-    # install their own handler and record `interrupted`.)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (the fork copied Hydra's singletons)
+class _Worker:
+    """A forked worker process and the sweep's end of its pipe; `job` is what it runs."""
+
+    def __init__(self) -> None:
+        context = multiprocessing.get_context("fork")
+        self.conn, child_end = context.Pipe()
+        self.process = context.Process(target=_serve, args=(child_end, os.getpid()),
+                                       daemon=True)
+        self.process.start()
+        child_end.close()
+        self.job: tuple[int, Any] | None = None
+
+    def send(self, kind: str, idx: int, payload: Any) -> None:
+        self.job = (idx, payload)
+        self.conn.send((kind, idx, payload))
 
 
-def _compose(idx: int) -> DictConfig | None:
-    """Job idx's config, or None if it does not compose (the parent composes it again to
-    raise the error: some of Hydra's exceptions do not survive pickling)."""
-    launcher = _Current.launcher
-    assert launcher is not None
+class _Pool:
+    """`n` workers; `run` hands each the next request when it is free and returns the
+    replies by job number."""
+
+    STOP_WAIT_S = 60  # after a stop, how long running jobs get to record it
+
+    def __init__(self, n: int) -> None:
+        self.workers = [_Worker() for _ in range(n)]
+        self.completed = 0
+
+    def run(self, kind: str, requests: list[tuple[int, Any]], on_death=None) -> dict[int, Any]:
+        todo, replies = list(requests), {}
+        self.completed = 0
+        try:
+            while todo or any(w.job for w in self.workers):
+                for w in self.workers:
+                    if w.job is None and todo:
+                        w.send(kind, *todo.pop(0))
+                busy = [w for w in self.workers if w.job]
+                wait([w.conn for w in busy] + [w.process.sentinel for w in busy])
+                for w in busy:
+                    reply = _receive(w.conn)
+                    if reply is not _NOTHING:
+                        idx = w.job[0]  # type: ignore[index]
+                        w.job = None
+                        if isinstance(reply, Interrupted):  # a signal to this worker
+                            reply = _failed_return(idx, reply.describe())  # alone
+                        replies[idx] = reply
+                        self.completed += 1
+                    elif not w.process.is_alive():
+                        idx, payload = w.job  # type: ignore[misc]
+                        w.process.join()
+                        if on_death is None:
+                            raise PipelineError(f"a sweep worker died while composing job "
+                                                f"#{idx}'s config (exit status "
+                                                f"{w.process.exitcode})")
+                        replies[idx] = on_death(idx, payload, w.process.exitcode)
+                        self.completed += 1
+                        self.workers[self.workers.index(w)] = _Worker()
+        except (KeyboardInterrupt, Interrupted) as e:
+            stopped = as_interrupted(e, None)
+            self._stop(stopped.signum if stopped else signal.SIGINT)
+            raise
+        return replies
+
+    def _stop(self, signum: int) -> None:
+        """The running jobs get the signal (from the terminal they may have had it already:
+        they take the first) and record it; a second Ctrl-C here kills them."""
+        busy = [w for w in self.workers if w.job and w.process.is_alive()]
+        for w in busy:
+            os.kill(w.process.pid, signum)
+        deadline = time.monotonic() + self.STOP_WAIT_S
+        try:
+            while busy and time.monotonic() < deadline:
+                wait([w.conn for w in busy] + [w.process.sentinel for w in busy],
+                     timeout=max(0.0, deadline - time.monotonic()))
+                for w in list(busy):
+                    if _receive(w.conn) is not _NOTHING or not w.process.is_alive():
+                        w.job = None
+                        busy.remove(w)
+        except KeyboardInterrupt:
+            pass
+        for w in busy:
+            w.process.kill()
+
+    def close(self) -> None:
+        for w in self.workers:
+            if w.process.is_alive() and w.job is None:
+                try:
+                    w.conn.send(None)
+                except OSError:
+                    pass
+        for w in self.workers:
+            w.process.join(5)
+            if w.process.is_alive():
+                w.process.kill()
+                w.process.join()
+            w.conn.close()
+
+
+_NOTHING = object()
+
+
+def _receive(conn: Connection) -> Any:
+    """The worker's reply, or _NOTHING when it has none (yet, or ever: it died)."""
     try:
-        return launcher.compose(_Current.jobs[idx])
-    except Exception:
-        return None
+        return conn.recv() if conn.poll() else _NOTHING
+    except (EOFError, OSError):
+        return _NOTHING
 
 
-def _execute(idx: int, sweep_config: DictConfig) -> JobReturn:
+def _serve(conn: Connection, parent_pid: int) -> None:
+    """A worker's life: requests from the pipe until told to stop, or until the sweep's
+    process is gone. Ctrl-C is ignored between jobs (the sweep's process decides and
+    forwards it); during a job it and SIGTERM stop the job, which records it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (the fork copied Hydra's singletons)
+    threading.Thread(target=_stop_when_orphaned, args=(parent_pid,), daemon=True).start()
     launcher = _Current.launcher
     assert launcher is not None
-    return launcher.execute(idx, sweep_config)
+    while True:
+        try:  # other workers hold copies of the sweep's end: its death shows as a new parent
+            while not conn.poll(1.0):
+                if os.getppid() != parent_pid:
+                    return
+            request = conn.recv()
+        except (EOFError, OSError):
+            return
+        if request is None:
+            return
+        kind, idx, payload = request
+        if kind == "compose":
+            try:
+                reply: Any = launcher.compose(_Current.jobs[idx])
+            except Exception:  # the parent composes it again to raise the error: some of
+                reply = None  # Hydra's exceptions do not survive pickling
+            conn.send(reply)
+            continue
+        signal.signal(signal.SIGINT, _raise_interrupted)
+        signal.signal(signal.SIGTERM, _raise_interrupted)
+        try:
+            reply = launcher.execute(idx, payload)
+        except (KeyboardInterrupt, Interrupted) as e:
+            reply = as_interrupted(e, None)
+        finally:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        try:
+            conn.send(reply)
+        except OSError:  # the sweep's process is gone
+            return
+
+
+def _stop_when_orphaned(parent_pid: int) -> None:
+    """SIGTERM to this worker once the sweep's process is gone (killed with -9): a running
+    job records `interrupted`, an idle worker ends."""
+    while os.getppid() == parent_pid:
+        time.sleep(1.0)
+    os.kill(os.getpid(), signal.SIGTERM)
 
 
 def defer_batch_check(hydra_context: HydraContext) -> None:

@@ -35,6 +35,7 @@ log = logging.getLogger("pipeline")
 LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
 RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "interrupted"
 UNKNOWN = "unknown"
+KILLED = "the run was killed or crashed"  # a dir that says running, but nobody holds it
 STATUS_ERROR_CHARS = 500  # status.json's error, cut: it must fit where the file already is
 
 
@@ -42,19 +43,36 @@ class Interrupted(BaseException):
     """The run was stopped by a signal (Ctrl-C is SIGINT): not an error of the run, so a
     BaseException like KeyboardInterrupt, which no `except Exception` swallows."""
 
-    def __init__(self, signum: int, stage: str | None = None):
-        super().__init__(signum, stage)
-        self.signum, self.stage = signum, stage
+    def __init__(self, signum: int, stage: str | None = None, during: str | None = None):
+        super().__init__(signum, stage, during)
+        self.signum, self.stage, self.during = signum, stage, during
 
     @property
     def exit_code(self) -> int:
         return 128 + self.signum  # the shell's convention: 130 for SIGINT
 
     def describe(self) -> str:
-        at = f" at stage {self.stage}" if self.stage else " before the first stage"
+        at = f" at stage {self.stage}" if self.stage else \
+            f" {self.during}" if self.during else " before the first stage"
         if self.signum == signal.SIGINT:
             return f"interrupted by the user{at}"
         return f"stopped by {signal.Signals(self.signum).name}{at}"
+
+
+@dataclass(frozen=True)
+class FailedJob:
+    """What a sweep's failed job returns to Hydra's sweeper instead of a number: the other
+    jobs go on (Hydra's basic sweeper re-raises a job's exception, which would stop the
+    sweep), and a sweeper that optimises (Optuna) records a failed trial, as float() of it
+    raises (NaN would not do: Optuna refuses it as a value)."""
+
+    error: str
+
+    def __float__(self) -> float:
+        raise ValueError(str(self))
+
+    def __str__(self) -> str:
+        return f"the job failed: {self.error}"
 
 
 def as_interrupted(exc: BaseException | None, stage: str | None) -> Interrupted | None:
@@ -112,7 +130,7 @@ def read_status(run_dir: Path) -> RunStatus:
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return RunStatus(UNKNOWN, error=f"an unreadable {STATUS_FILE}")
     if state == RUNNING and not is_locked(Path(run_dir)):
-        return RunStatus(INTERRUPTED, stage, "the run was killed or crashed")
+        return RunStatus(INTERRUPTED, stage, KILLED)
     return RunStatus(state, stage, error)
 
 
@@ -290,6 +308,22 @@ def mark_failed_before_stages(run_dir: Path, error: str, *, when_missing: bool) 
     if state == COMPLETE or (when_missing and state == UNKNOWN):
         Path(run_dir).mkdir(parents=True, exist_ok=True)
         write_status(run_dir, FAILED, None, error, [], [])
+
+
+def mark_died(run_dir: Path, error: str) -> None:
+    """A run whose process died without a word (killed with -9, out of memory, as a sweep's
+    worker sees it): its status.json says failed with `error`, keeping the stage it was at
+    and the stages it had done. A status the run wrote at its end is left as it is."""
+    status = read_status(run_dir)
+    if status.state != UNKNOWN and status.error != KILLED:
+        return
+    try:
+        old = json.loads((Path(run_dir) / STATUS_FILE).read_text())
+        stages, done = list(old["stages"]), list(old["done"])
+    except (OSError, ValueError, KeyError, TypeError):
+        stages, done = [], []
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
+    write_status(run_dir, FAILED, status.stage, error, stages, done)
 
 
 def job_dirs(sweep_dir: Path) -> list[Path]:

@@ -90,6 +90,10 @@ def stopped_by_signals() -> Iterator[None]:
         return
 
     def stop(signum: int, frame: object) -> None:
+        # One signal stops the run; a second one (Ctrl-C reaches a sweep's workers both from
+        # the terminal and from the sweep's process) must not cut short writing status.json.
+        for sig in previous:
+            signal.signal(sig, signal.SIG_IGN)
         raise Interrupted(signum)
 
     previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}

@@ -1051,10 +1051,13 @@ def test_hydra_full_error_shows_the_traceback(tmp_path, capfd, monkeypatch):
     assert os.environ["HYDRA_FULL_ERROR"] == "1"  # the user's setting is kept
 
 
-def test_an_objective_the_run_did_not_write_is_nan_and_said(tmp_path, caplog):
+def test_an_objective_the_run_did_not_write_is_a_failed_trial_and_said(tmp_path, caplog):
     """A held-out fraction that held nothing out writes no heldout_* keys: the trial fails
-    (NaN) and the log says which key was missing, instead of a silent NaN."""
+    (float() of its value raises, as Optuna's sweeper takes a failed trial; NaN it would
+    refuse) and the log says which key was missing."""
     (tmp_path / "metrics.json").write_text('{"policy_loss_norm": 0.25}')
     assert objective_value(tmp_path, "policy_loss_norm") == 0.25
-    assert math.isnan(objective_value(tmp_path, "heldout_log_likelihood"))
+    missing = objective_value(tmp_path, "heldout_log_likelihood")
+    with pytest.raises(ValueError, match="heldout_log_likelihood"):
+        float(missing)
     assert "objective heldout_log_likelihood: the run wrote no such metric" in caplog.text

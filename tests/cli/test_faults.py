@@ -192,3 +192,102 @@ def test_a_quoted_run_dir_in_use_is_refused_before_anything_is_made(tmp_path, fo
         "finish, or for a new run choose another hydra.run.dir"], proc.stderr
     assert (d / ".hydra" / "config.yaml").read_text() == "the holder's\n"
     assert list(cwd.iterdir()) == []  # no dir named '"' or "'"
+
+
+# -- a sweep's pool of workers under signals --------------------------------------------------
+
+# three jobs on two workers, each several seconds long (MCMC), so a signal finds two running
+SLOW_SWEEP = ("-m", "experiment=quick", "seed=0,1,2", "reward=polite", "birl=mcmc",
+              "hydra/launcher=pool", "hydra.launcher.n_jobs=2")
+
+
+def start_sweep(sweep_dir: Path, *, own_group: bool = False) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "pipeline", *SLOW_SWEEP,
+                             f"hydra.sweep.dir={sweep_dir}"], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=own_group)
+
+
+def job_states(sweep_dir: Path) -> dict[str, tuple]:
+    states = {}
+    for job in sorted(sweep_dir.glob("[0-9]*")):
+        try:
+            status = json.loads((job / "status.json").read_text())
+        except (OSError, ValueError):
+            continue
+        states[job.name] = (status["state"], status["stage"], status["error"])
+    return states
+
+
+def wait_for_running_jobs(sweep_dir: Path, proc: subprocess.Popen, n: int = 2) -> None:
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        running = [s for s in job_states(sweep_dir).values() if s[0] == "running"]
+        if len(running) >= n and all(s[1] == "birl" for s in running):
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"the sweep never had {n} jobs learning: {job_states(sweep_dir)}")
+
+
+def worker_pids(proc: subprocess.Popen) -> list[int]:
+    return [int(p) for p in (Path(f"/proc/{proc.pid}/task/{proc.pid}/children")
+                             .read_text().split())]
+
+
+@pytest.mark.parametrize("sig, code, says, whole_group", [
+    (signal.SIGINT, 130, "interrupted by the user", False),
+    (signal.SIGINT, 130, "interrupted by the user", True),  # Ctrl-C at a terminal
+    (signal.SIGTERM, 143, "stopped by SIGTERM", False),
+])
+def test_a_signal_stops_a_sweep_and_its_workers(tmp_path, sig, code, says, whole_group):
+    """The running jobs record the signal once, no queued job starts after it, no worker is
+    left behind, and the command says so in one line."""
+    proc = start_sweep(tmp_path, own_group=whole_group)
+    wait_for_running_jobs(tmp_path, proc)
+    workers = worker_pids(proc)
+    os.killpg(proc.pid, sig) if whole_group else proc.send_signal(sig)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == code, err
+    assert lines(err) == [f"{says} during the sweep (0 of 3 jobs completed; make aggregate "
+                          "lists them)"], err
+    assert job_states(tmp_path) == {j: ("interrupted", "birl", f"{says} at stage birl")
+                                    for j in ("0", "1")}
+    assert not (tmp_path / "2").exists()  # the third job never started
+    assert not [w for w in workers if Path(f"/proc/{w}").exists()
+                and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]
+
+
+def test_a_killed_worker_fails_its_job_alone(tmp_path):
+    """SIGKILL of one worker (the OOM killer's way): its job is one failed job, a new worker
+    takes its place, the others complete, and the sweep exits 1 naming it."""
+    proc = start_sweep(tmp_path)
+    wait_for_running_jobs(tmp_path, proc)
+    victim = worker_pids(proc)[0]
+    os.kill(victim, signal.SIGKILL)
+    err = proc.communicate(timeout=300)[1]
+    assert proc.returncode == 1, err
+    states = job_states(tmp_path)
+    failed = [j for j, s in states.items() if s[0] == "failed"]
+    assert len(failed) == 1 and len(states) == 3, states
+    assert states[failed[0]] == ("failed", "birl", "the worker process running this job died "
+                                 "(killed by SIGKILL)")
+    assert [s[0] for j, s in states.items() if j != failed[0]] == ["complete", "complete"]
+    assert lines(err)[-1].startswith(f"error: 1 sweep job(s) failed, first {tmp_path / failed[0]}")
+
+
+def test_the_workers_of_a_killed_sweep_stop(tmp_path):
+    """SIGKILL of the sweep's process: its workers notice within a second or two; the running
+    jobs record SIGTERM, and none is left running."""
+    proc = start_sweep(tmp_path)
+    wait_for_running_jobs(tmp_path, proc)
+    workers = worker_pids(proc)
+    proc.kill()
+    proc.communicate(timeout=60)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and any(Path(f"/proc/{w}").exists() for w in workers):
+        time.sleep(0.1)
+    alive = [w for w in workers if Path(f"/proc/{w}").exists()
+             and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]
+    assert not alive
+    assert {s[0] for s in job_states(tmp_path).values()} == {"interrupted"}
+    assert all(s[2] == "stopped by SIGTERM at stage birl" for s in job_states(tmp_path).values())
