@@ -30,13 +30,14 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
-from pipeline.app.outcome import SweepOutcome
+from pipeline.app.outcome import SweepOutcome, failed_jobs
 from pipeline.app.rundir import (
     FailedJob,
     Interrupted,
     as_interrupted,
+    current_sweep,
+    error_text,
     locked,
-    mark_failed_before_stages,
     read_status,
 )
 from pipeline.errors import PipelineError, os_error_reason
@@ -57,25 +58,19 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
         try:
             run_pipeline(cfg, run_dir)
         except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
-            mark_failed_before_stages(run_dir, _error_text(e), when_missing=False)
             exit_with_one_line(e)
         return None
-    # In a sweep a failing job must not stop the others: its status.json (written by the
-    # run dir, or here when the job failed before it had one) says failed, and `make
-    # aggregate` reports it in its table and exit status.
+    # In a sweep a failing job must not stop the others: its status.json says failed (with
+    # the sweep's number, as every job's does), and `make aggregate` reports it in its table
+    # and exit status.
     try:
-        run_pipeline(cfg, run_dir)
+        run_pipeline(cfg, run_dir, sweep=current_sweep(Path(hydra_cfg.sweep.dir)))
     except Exception as e:  # noqa: BLE001 - any failure of one job, reported per job
-        error = _error_text(e)
+        error = error_text(e)
         logging.getLogger("pipeline").error("job failed: %s", error,
                                             exc_info=not isinstance(e, PipelineError))
-        mark_failed_before_stages(run_dir, error, when_missing=True)
         return FailedJob(error)
     return objective_value(run_dir, cfg.objective)
-
-
-def _error_text(e: Exception) -> str:
-    return str(e) if isinstance(e, PipelineError) else f"{type(e).__name__}: {e}"
 
 
 def objective_value(run_dir: Path, key: str) -> float | FailedJob:
@@ -292,6 +287,7 @@ def cli() -> None:
     _show_tracebacks[0] = user_setting == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
     SweepOutcome.failed.clear()
+    SweepOutcome.sweep_dir = None
     LogFiles.failed.clear()
     root = logging.getLogger()
     handlers, level = list(root.handlers), root.level
@@ -311,6 +307,12 @@ def cli() -> None:
                 raise
             print(interrupted.describe(), file=sys.stderr)
             sys.exit(interrupted.exit_code)
+        if SweepOutcome.sweep_dir is not None and not _show_tracebacks[0]:
+            # e.g. Optuna's "No trials are completed yet" when every trial failed: the
+            # failed jobs are the news, the sweeper's complaint about them is the aftermath
+            SweepOutcome.failed[:] = failed_jobs(SweepOutcome.sweep_dir)
+            if SweepOutcome.failed:
+                exit_with_failed_jobs(f" (the sweep then stopped: {one_line(e)})")
         exit_with_one_line(e)  # type: ignore[arg-type]
     finally:
         if user_setting is None:
@@ -330,17 +332,21 @@ def cli() -> None:
                 root.addHandler(handler)
         root.setLevel(level)
     if SweepOutcome.failed:
-        first = SweepOutcome.failed[0]
-        why = read_status(Path(first)).error
-        print(f"error: {len(SweepOutcome.failed)} sweep job(s) failed, first {first}"
-              f"{f': {shorten(why, 200)}' if why else ''} (make aggregate lists all)",
-              file=sys.stderr)
-        sys.exit(1)
+        exit_with_failed_jobs()
     if LogFiles.failed:
         print(f"warning: the log could not be written ({shorten(LogFiles.failed[0], 200)}); "
               "the run itself completed", file=sys.stderr)
     if not multirun and is_the_command():
         exit_now()
+
+
+def exit_with_failed_jobs(then: str = "") -> None:
+    first = SweepOutcome.failed[0]
+    why = read_status(Path(first)).error
+    print(f"error: {len(SweepOutcome.failed)} sweep job(s) failed, first {first}"
+          f"{f': {shorten(why, 200)}' if why else ''} (make aggregate lists all){then}",
+          file=sys.stderr)
+    sys.exit(1)
 
 
 def is_the_command() -> bool:

@@ -93,8 +93,9 @@ class PoolLauncher(Launcher):
         _Current.launcher, _Current.jobs = self, dict(jobs)
         with stopped_by_sigterm():
             if n_workers == 1:  # no fork: one job after another in this process
-                configs = [self.compose(overrides) for _, overrides in jobs]
-                return self._one_by_one(list(zip([i for i, _ in jobs], configs, strict=True)))
+                runs = [(idx, self.compose(overrides)) for idx, overrides in jobs]
+                refuse_shared_job_dirs(runs)
+                return self._one_by_one(runs)
             for stage in STAGES:  # imported once here, shared by every forked worker
                 importlib.import_module(f"pipeline.stages.{stage}")
             pool = _Pool(n_workers)
@@ -104,6 +105,7 @@ class PoolLauncher(Launcher):
                     if composed[idx] is None:  # compose it here: its error, as Hydra's raises it
                         self.compose(overrides)
                 runs = [(idx, composed[idx]) for idx, _ in jobs]
+                refuse_shared_job_dirs(runs)
                 returns = pool.run("execute", runs, on_death=self._died)
                 return [returns[idx] for idx, _ in jobs]
             except (KeyboardInterrupt, Interrupted) as e:
@@ -159,6 +161,20 @@ def job_dir_of(idx: int, sweep_config: DictConfig) -> Path:
         cfg.hydra.job.id = f"{cfg.hydra.job.name}_{idx}"
         cfg.hydra.job.num = idx
     return Path(str(cfg.hydra.sweep.dir)) / str(cfg.hydra.sweep.subdir)
+
+
+def refuse_shared_job_dirs(runs: list[tuple[int, DictConfig]]) -> None:
+    """Two jobs into one run dir (a hydra.sweep.subdir without the job's number) would
+    overwrite each other's .hydra/ config before either could lock the dir: refused before
+    any job runs."""
+    seen: dict[Path, int] = {}
+    for idx, cfg in runs:
+        job_dir = job_dir_of(idx, cfg)
+        if job_dir in seen:
+            raise PipelineError(f"config error: jobs #{seen[job_dir]} and #{idx} of the sweep "
+                                f"would share the run dir {job_dir}; give hydra.sweep.subdir "
+                                "a value that differs per job (the default: ${hydra.job.num})")
+        seen[job_dir] = idx
 
 
 def _failed_return(idx: int, error: str) -> JobReturn:

@@ -33,6 +33,7 @@ from pipeline.errors import PipelineError, os_error_reason
 log = logging.getLogger("pipeline")
 
 LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
+SWEEP_FILE = "sweep.json"  # in a sweep dir: the number of the sweep that last ran into it
 RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "interrupted"
 UNKNOWN = "unknown"
 KILLED = "the run was killed or crashed"  # a dir that says running, but nobody holds it
@@ -107,6 +108,7 @@ class RunStatus:
     state: str  # running | complete | failed | interrupted | UNKNOWN (no or no readable status)
     stage: str | None = None  # the running or failing stage
     error: str | None = None
+    sweep: int | None = None  # the number of the sweep (SWEEP_FILE) whose job wrote it
 
     @property
     def complete(self) -> bool:
@@ -125,13 +127,14 @@ def read_status(run_dir: Path) -> RunStatus:
     try:
         data = json.loads(path.read_text())
         state, stage, error = data["state"], data.get("stage"), data.get("error")
+        sweep = data.get("sweep")
         if state not in (RUNNING, COMPLETE, FAILED, INTERRUPTED):
             raise ValueError(state)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return RunStatus(UNKNOWN, error=f"an unreadable {STATUS_FILE}")
     if state == RUNNING and not is_locked(Path(run_dir)):
-        return RunStatus(INTERRUPTED, stage, KILLED)
-    return RunStatus(state, stage, error)
+        return RunStatus(INTERRUPTED, stage, KILLED, sweep)
+    return RunStatus(state, stage, error, sweep)
 
 
 def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
@@ -193,8 +196,8 @@ class RunDir:
     stage, `rd.done(stage)` after, `rd.before_replace` as the artefact writer's hook;
     leaving the block marks the dir complete or failed."""
 
-    def __init__(self, path: Path, stages: list[str]):
-        self.path, self.stages = Path(path), list(stages)
+    def __init__(self, path: Path, stages: list[str], sweep: int | None = None):
+        self.path, self.stages, self.sweep = Path(path), list(stages), sweep
         self.done_stages: list[str] = []
         self.stage: str | None = None
         self._fd: int | None = None  # our own lock, unless the CLI handed its lock over
@@ -216,9 +219,7 @@ class RunDir:
                     exc.stage = interrupted.stage  # the CLI's one line names it
                 self._write(INTERRUPTED, error=interrupted.describe())
             else:
-                error = str(exc) if isinstance(exc, PipelineError) else \
-                    f"{exc_type.__name__}: {exc}"
-                self._write(FAILED, error=error)
+                self._write(FAILED, error=error_text(exc))
         except OSError as e:  # e.g. disk full: the stage's own error matters more
             log.error("cannot write %s: %s", self.path / STATUS_FILE, os_error_reason(e))
         finally:
@@ -262,11 +263,17 @@ class RunDir:
 
     def _write(self, state: str, error: str | None = None) -> None:
         write_status(self.path, state, self.stage if state != COMPLETE else None, error,
-                     self.stages, self.done_stages)
+                     self.stages, self.done_stages, self.sweep)
+
+
+def error_text(e: BaseException) -> str:
+    """A failed run's error as status.json and the sweep's log give it: ours as it is, any
+    other with its type."""
+    return str(e) if isinstance(e, PipelineError) else f"{type(e).__name__}: {e}"
 
 
 def write_status(run_dir: Path, state: str, stage: str | None, error: str | None,
-                 stages: list[str], done: list[str]) -> None:
+                 stages: list[str], done: list[str], sweep: int | None = None) -> None:
     """status.json (atomically); the error on one line, cut to STATUS_ERROR_CHARS. On a full
     disk, where no temp file can be made, the old status.json is overwritten in place."""
     if error is not None:
@@ -274,6 +281,8 @@ def write_status(run_dir: Path, state: str, stage: str | None, error: str | None
         if len(error) > STATUS_ERROR_CHARS:
             error = error[:STATUS_ERROR_CHARS - 3] + "..."
     status = {"state": state, "stage": stage, "error": error, "stages": stages, "done": done}
+    if sweep is not None:
+        status["sweep"] = sweep
     path = Path(run_dir) / STATUS_FILE
     try:
         write_json_atomic(path, status)
@@ -298,16 +307,18 @@ def _overwrite_in_place(path: Path, data: bytes) -> None:
         os.close(fd)
 
 
-def mark_failed_before_stages(run_dir: Path, error: str, *, when_missing: bool) -> None:
-    """A run that failed before its stages began (a config error). Its status.json says
-    `failed` where it would otherwise lie: where there is none (`when_missing`: a sweep's
-    job, which aggregation must count) or where it is an earlier run's `complete`: Hydra has
-    already replaced .hydra/config.yaml, so the dir's config no longer describes its
-    artefacts. A status this run's stages wrote (failed, interrupted) is left as it is."""
-    state = read_status(run_dir).state
-    if state == COMPLETE or (when_missing and state == UNKNOWN):
-        Path(run_dir).mkdir(parents=True, exist_ok=True)
-        write_status(run_dir, FAILED, None, error, [], [])
+def mark_failed_before_stages(run_dir: Path, error: str, sweep: int | None = None) -> None:
+    """A run that failed before its stages began (a config error): any status.json in its dir
+    is an earlier run's, and Hydra has already replaced .hydra/config.yaml, so it says
+    `failed` with this run's error where it says anything else (`complete` would now be a
+    lie, an old failure the wrong error); in a sweep (`sweep`, its number) also where there
+    is none, so aggregation counts the job. A dir another live process holds is left alone."""
+    run_dir = Path(run_dir)
+    if run_dir.resolve() not in _HANDED_OVER and is_locked(run_dir):
+        return
+    if read_status(run_dir).state != UNKNOWN or sweep is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_status(run_dir, FAILED, None, error, [], [], sweep)
 
 
 def mark_died(run_dir: Path, error: str) -> None:
@@ -323,7 +334,7 @@ def mark_died(run_dir: Path, error: str) -> None:
     except (OSError, ValueError, KeyError, TypeError):
         stages, done = [], []
     Path(run_dir).mkdir(parents=True, exist_ok=True)
-    write_status(run_dir, FAILED, status.stage, error, stages, done)
+    write_status(run_dir, FAILED, status.stage, error, stages, done, status.sweep)
 
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
@@ -333,3 +344,53 @@ def job_dirs(sweep_dir: Path) -> list[Path]:
 
     return sorted((p.parent.parent for p in Path(sweep_dir).glob("**/.hydra/overrides.yaml")),
                   key=natural)
+
+
+def begin_sweep(sweep_dir: Path) -> int:
+    """Number a new sweep into `sweep_dir` (one more than the last one there, from 1): its
+    jobs record it in their status.json, so that job dirs an earlier sweep left in the dir
+    (a re-run with fewer jobs) are told apart from this sweep's."""
+    number = (current_sweep(sweep_dir) or 0) + 1
+    Path(sweep_dir).mkdir(parents=True, exist_ok=True)
+    write_json_atomic(Path(sweep_dir) / SWEEP_FILE, {"sweep": number, "finished": False})
+    return number
+
+
+def end_sweep(sweep_dir: Path) -> None:
+    """The sweep's launcher has returned every job (none may be left unstarted)."""
+    number = current_sweep(sweep_dir)
+    if number is not None:
+        write_json_atomic(Path(sweep_dir) / SWEEP_FILE, {"sweep": number, "finished": True})
+
+
+def _sweep_record(sweep_dir: Path) -> dict:
+    try:
+        record = json.loads((Path(sweep_dir) / SWEEP_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def current_sweep(sweep_dir: Path) -> int | None:
+    """The number of the last sweep into `sweep_dir`; None when none was numbered (or the
+    file is damaged: then every job counts)."""
+    number = _sweep_record(sweep_dir).get("sweep")
+    return number if isinstance(number, int) and not isinstance(number, bool) else None
+
+
+def sweep_finished(sweep_dir: Path) -> bool:
+    """False when the last sweep into `sweep_dir` began but its launcher never returned (it
+    was stopped, or runs still): jobs it had not started are in no table."""
+    return _sweep_record(sweep_dir).get("finished") is not False
+
+
+def sweep_jobs(sweep_dir: Path) -> tuple[list[Path], list[Path]]:
+    """(the jobs of the last sweep into `sweep_dir`, job dirs earlier sweeps left there).
+    A job with no readable status.json counts as the last sweep's: it may have been killed
+    before writing one."""
+    jobs, number = job_dirs(sweep_dir), current_sweep(sweep_dir)
+    if number is None:
+        return jobs, []
+    statuses = {j: read_status(j) for j in jobs}
+    stale = [j for j in jobs if statuses[j].state != UNKNOWN and statuses[j].sweep != number]
+    return [j for j in jobs if j not in stale], stale

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import yaml
 
 from pipeline.app.metric_keys import is_metric_key
-from pipeline.app.rundir import job_dirs, read_status
+from pipeline.app.rundir import job_dirs, read_status, sweep_jobs
 from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
 from pipeline.errors import PipelineError, first_line
 
@@ -74,12 +74,13 @@ def job_row(job: Path, sweep_dir: Path) -> dict:
 
 
 def summary_rows(sweep_dir: Path) -> tuple[list[str], list[dict]]:
-    """The columns (in `column_order`) and one row per job of `sweep_dir` (jobs in natural
-    order; a row lacks the keys its job did not write)."""
-    jobs = job_dirs(sweep_dir)
-    if Path(sweep_dir) in jobs:  # `make aggregate SWEEP=` given one run's dir
+    """The columns (in `column_order`) and one row per job of the last sweep into
+    `sweep_dir` (jobs in natural order; a row lacks the keys its job did not write; job dirs
+    an earlier sweep left there are not rows: `sweep_jobs`)."""
+    if Path(sweep_dir) in job_dirs(sweep_dir):  # `make aggregate SWEEP=` given one run's dir
         raise PipelineError(f"{sweep_dir} is a run dir (it has .hydra/overrides.yaml), not a "
                             "sweep dir; give the dir that holds the sweep's numbered jobs")
+    jobs = sweep_jobs(sweep_dir)[0]
     if not jobs:
         raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
     rows = [job_row(j, sweep_dir) for j in jobs]

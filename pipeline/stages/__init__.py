@@ -24,7 +24,13 @@ from threadpoolctl import threadpool_limits
 from pipeline.app.config import Config, load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
 from pipeline.app.preflight import preflight
-from pipeline.app.rundir import Interrupted, RunDir, check_from_run
+from pipeline.app.rundir import (
+    Interrupted,
+    RunDir,
+    check_from_run,
+    error_text,
+    mark_failed_before_stages,
+)
 from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.errors import PipelineError, os_error_reason
@@ -32,25 +38,34 @@ from pipeline.errors import PipelineError, os_error_reason
 log = logging.getLogger("pipeline")
 
 
-def run_pipeline(cfg: DictConfig, run_dir: Path) -> dict[str, float]:
+def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None) -> dict[str, float]:
     """Check the config and run the selected stages in pipeline order; returns timings.
 
     The run dir is locked for the run and says in status.json how far it got (see
-    pipeline.app.rundir); a disk-full or permission error becomes one PipelineError line.
-    Ctrl-C (SIGINT) or SIGTERM stops it as `Interrupted`, with status.json saying so.
+    pipeline.app.rundir; `sweep`: the number of the sweep whose job this is, recorded there);
+    a config error says `failed` there too, over an earlier run's status; a disk-full or
+    permission error becomes one PipelineError line. Ctrl-C (SIGINT) or SIGTERM stops it as
+    `Interrupted`, with status.json saying so.
     """
-    settings = load_settings(cfg)
-    from_run = resolve_path(settings.from_run) if settings.from_run else None
-    if from_run is not None:
-        check_from_run(from_run, settings.from_run)
-    stages = [s for s in STAGES if s in settings.stages]
-    with stopped_by_signals():
-        checked = preflight(settings, run_dir, from_run)  # before the run dir is touched
-    settings, cfg = with_derived(settings, cfg, checked.derived)
-    ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
-                     OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed),
-                     source_digests=checked.source_digests)
-    with stopped_by_signals(), RunDir(run_dir, stages) as rundir:
+    try:
+        settings = load_settings(cfg)
+        from_run = resolve_path(settings.from_run) if settings.from_run else None
+        if from_run is not None:
+            check_from_run(from_run, settings.from_run)
+        stages = [s for s in STAGES if s in settings.stages]
+        with stopped_by_signals():
+            checked = preflight(settings, run_dir, from_run)  # before the run dir is touched
+        settings, cfg = with_derived(settings, cfg, checked.derived)
+        ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
+                         OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed),
+                         source_digests=checked.source_digests)
+    except Exception as e:
+        try:
+            mark_failed_before_stages(run_dir, error_text(e), sweep)
+        except OSError:  # e.g. the run dir's place is a file: the error itself says more
+            pass
+        raise
+    with stopped_by_signals(), RunDir(run_dir, stages, sweep) as rundir:
         ctx.before_replace = rundir.before_replace
         timings = ctx.timings  # stages add their own measurements
         timings.update(read_timings(run_dir / "timings.json"))

@@ -26,8 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
+from pipeline.app.rundir import sweep_finished, sweep_jobs
 from pipeline.app.summary import is_metric, summary_rows
 from pipeline.artefacts.store import write_text_atomic
+from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.errors import PipelineError, os_error_reason
 
 # A table as the sweep's jobs give it: plain rows (dicts; a row lacks what its job did not
@@ -258,8 +260,8 @@ def aggregate(sweep_dir: Path, figures: bool = True) -> tuple[list[str], list[Ro
     columns, rows = summary_rows(sweep_dir)
     # what an earlier aggregation drew must not outlive it beside the new table (a table or
     # figure needs jobs that ran; when none did, there is none)
-    stale = ["table.md", "table.tex"] + (
-        [f"{name}.{ext}" for name in FIGURES for ext in ("png", "pdf")] if figures else [])
+    stale = ["table.md", "table.tex"] + [f"{name}.{ext}" for name in FIGURES
+                                         for ext in ("png", "pdf")]
     for name in stale:
         (sweep_dir / name).unlink(missing_ok=True)
     write_summary_csv(columns, rows, sweep_dir / SUMMARY_FILE)
@@ -267,9 +269,11 @@ def aggregate(sweep_dir: Path, figures: bool = True) -> tuple[list[str], list[Ro
     if not figures:  # the tables alone: a fifth of the time (matplotlib, pandas, artefacts)
         return columns, rows
     plot_policy_loss(sweep_dir / SUMMARY_FILE, sweep_dir / f"{FIGURES[0]}.png")
-    ok = [r for r in rows if r["status"] == "ok"]
-    if ok:
-        plot_scene(sweep_dir / ok[0]["job"], sweep_dir / f"{FIGURES[1]}.png")
+    # the scene of the first job that ran and kept its scene (a copied or pruned job may not)
+    drawn = [sweep_dir / r["job"] for r in rows if r["status"] == "ok"
+             and (sweep_dir / r["job"] / ARTEFACT_FILE["scene"]).is_file()]
+    if drawn:
+        plot_scene(drawn[0], sweep_dir / f"{FIGURES[1]}.png")
     return columns, rows
 
 
@@ -306,8 +310,17 @@ def main(argv=None) -> int:
     drawn = args.figures and len(failed) < len(rows)  # the figures need a job that ran
     print(f"{len(rows) - len(failed)} of {len(rows)} jobs ok; wrote "
           f"{args.sweep_dir / SUMMARY_FILE}{' and figures' if drawn else ''}")
+    earlier = sweep_jobs(args.sweep_dir)[1]
+    if earlier:
+        names = ", ".join(str(j.relative_to(args.sweep_dir)) for j in earlier[:10])
+        print(f"note: left out {len(earlier)} job dir(s) an earlier sweep into this dir left "
+              f"there ({names}{', ...' if len(earlier) > 10 else ''})", file=sys.stderr)
     for row in failed:
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
+    if not sweep_finished(args.sweep_dir):
+        print("error: the sweep did not finish (it was stopped, or still runs): jobs it had "
+              "not started are in no row", file=sys.stderr)
+        return 1
     return 1 if failed else 0
 
 

@@ -444,8 +444,9 @@ def test_from_run_of_a_dir_in_use_is_refused(tmp_path):
 
 
 def test_status_of_a_job_that_failed_before_running(tmp_path):
-    mark_failed_before_stages(tmp_path, "config error: x", when_missing=True)
-    assert json.loads((tmp_path / "status.json").read_text())["state"] == "failed"
+    mark_failed_before_stages(tmp_path, "config error: x", sweep=3)
+    status = json.loads((tmp_path / "status.json").read_text())
+    assert (status["state"], status["error"], status["sweep"]) == ("failed", "config error: x", 3)
 
 
 def test_a_config_error_in_a_complete_run_dir_marks_it_failed(tmp_path):
@@ -459,6 +460,16 @@ def test_a_config_error_in_a_complete_run_dir_marks_it_failed(tmp_path):
     # the artefacts themselves are untouched
     assert {k: v for k, v in snapshot(tmp_path).items() if k.endswith(".mcap")} == \
         {k: v for k, v in before.items() if k.endswith(".mcap")}
+
+
+def test_a_config_error_replaces_an_earlier_failure_in_the_dir(tmp_path):
+    # the dir's status must give this run's error, not the earlier run's (its config is gone)
+    run_in_process(tmp_path, *QUICK)
+    assert run_app("birl.beta=-1", f"hydra.run.dir={tmp_path}").returncode == 2
+    assert "birl.beta=-1" in read_status(tmp_path).error
+    assert run_app("scene.body_radius=-1", f"hydra.run.dir={tmp_path}").returncode == 2
+    status = read_status(tmp_path)
+    assert status.state == "failed" and "scene.body_radius=-1" in status.error
 
 
 # -- 6. damaged side files -------------------------------------------------------------------

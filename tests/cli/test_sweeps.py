@@ -86,6 +86,65 @@ def test_failing_job_does_not_stop_the_sweep(tmp_path):
     assert agg.returncode == 2 and "is a run dir (it has .hydra/overrides.yaml)" in agg.stderr
 
 
+def test_a_sweep_again_into_its_dir_counts_only_its_own_jobs(tmp_path):
+    """A re-run with fewer jobs: the dirs the earlier sweep left (here its failed job 2) are
+    neither in its exit status nor in the table; a job that fails its config check says its
+    own error, not the one the dir held; a job dir another job would share is refused."""
+    first = run_app("-m", "experiment=quick", "seed=0", "reward=polite",
+                    "birl.beta=20,30,-1", f"hydra.sweep.dir={tmp_path}")
+    assert first.returncode == 1 and "birl.beta=-1" in first.stderr, first.stderr[-2000:]
+    again = run_app("-m", "experiment=quick", "seed=0", "reward=polite", "birl.beta=20,-2",
+                    f"hydra.sweep.dir={tmp_path}")
+    assert again.returncode == 1
+    assert lines_of(again.stderr)[-1].startswith(f"error: 1 sweep job(s) failed, first "
+                                                 f"{tmp_path / '1'}: config error: birl.beta=-2")
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 1
+    assert agg.stdout.strip().splitlines()[-1].startswith("1 of 2 jobs ok")
+    assert "note: left out 1 job dir(s) an earlier sweep into this dir left there (2)" \
+        in agg.stderr
+    assert "FAILED 1: config error: birl.beta=-2" in agg.stderr
+    assert list(pd.read_csv(tmp_path / "summary.csv").job) == [0, 1]
+    fine = run_app("-m", "experiment=quick", "seed=0", "reward=polite", "birl.beta=20",
+                   f"hydra.sweep.dir={tmp_path}")
+    assert fine.returncode == 0, fine.stderr[-2000:]
+    assert aggregate(tmp_path).returncode == 0
+    shared = run_app("-m", "experiment=quick", "seed=0,1", "reward=polite",
+                     "hydra.sweep.subdir=same", f"hydra.sweep.dir={tmp_path / 'shared'}")
+    assert shared.returncode == 2
+    assert "jobs #0 and #1 of the sweep would share the run dir" in shared.stderr
+    assert not (tmp_path / "shared" / "same").exists()
+
+
+def test_aggregate_of_a_sweep_that_did_not_finish_says_so(tmp_path):
+    """A stopped sweep's table lacks the jobs it never started: the exit status says so.
+    Figures of an earlier aggregation go with it, also under --no-figures; a job that ran
+    but lost its scene leaves the scene figure to the next job."""
+    assert run_app("-m", "experiment=quick", "seed=0", f"hydra.sweep.dir={tmp_path}",
+                   ).returncode == 0
+    assert aggregate(tmp_path).returncode == 0 and (tmp_path / "scene.png").exists()
+    (tmp_path / "0" / "scene.mcap").unlink()
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 0, agg.stderr
+    assert (tmp_path / "scene.png").exists()  # drawn from job 1
+    no_figures = subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate",
+                                 str(tmp_path), "--no-figures"], cwd=ROOT,
+                                capture_output=True, text=True, timeout=300)
+    assert no_figures.returncode == 0
+    assert not [p for p in tmp_path.iterdir() if p.suffix in (".png", ".pdf")]
+    record = json.loads((tmp_path / "sweep.json").read_text())
+    assert record == {"sweep": 1, "finished": True}
+    (tmp_path / "sweep.json").write_text(json.dumps({"sweep": 1, "finished": False}))
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 1
+    assert lines_of(agg.stderr)[-1] == ("error: the sweep did not finish (it was stopped, or "
+                                        "still runs): jobs it had not started are in no row")
+
+
+def lines_of(text):
+    return [ln for ln in text.splitlines() if ln.strip()]
+
+
 def _job(sweep, name, overrides, metrics):
     job = sweep / name
     (job / ".hydra").mkdir(parents=True)
@@ -205,6 +264,24 @@ def test_optuna_preset_tunes_against_the_metric(tmp_path):
     assert best["best_value"] == pytest.approx(min(trials))  # the trial metric went back
 
 
+def test_a_failing_trial_is_a_failed_trial_not_a_failed_tuning(tmp_path):
+    """Optuna records a failed job as a failed trial and tunes on (NaN it refused, and the
+    whole sweep died); the command still exits 1 naming the failed jobs; when every trial
+    fails, that is the line, not Optuna's complaint."""
+    tune = ("-m", "experiment=tune", "hydra/launcher=pool", "hydra.sweeper.n_trials=4",
+            "birl.n_iterations=3")
+    result = run_app(*tune, "birl.beta=choice(5.0,-1.0)", f"hydra.sweep.dir={tmp_path / 'a'}")
+    assert result.returncode == 1, result.stderr[-2000:]
+    assert "sweep job(s) failed" in result.stderr.strip().splitlines()[-1]
+    best = yaml.safe_load((tmp_path / "a" / "optimization_results.yaml").read_text())
+    assert best["best_params"]["birl.beta"] == 5.0
+    result = run_app(*tune, "birl.beta=choice(-1.0,-2.0)", f"hydra.sweep.dir={tmp_path / 'b'}")
+    assert result.returncode == 1
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: 4 sweep job(s) failed") and "config error: birl.beta=-" \
+        in last and last.endswith("(the sweep then stopped: No trials are completed yet.)")
+
+
 @pytest.mark.slow
 def test_a_submitit_local_sweep_runs_as_on_a_cluster(tmp_path):
     # The same launcher plugin as Slurm, with local processes: jobs are pickled, run in
@@ -267,4 +344,4 @@ def test_a_batch_that_does_not_compose_runs_no_job(tmp_path, workers):
     result = run_app("-m", "experiment=quick", "seed=0,1", "reward=polite,nope",
                      f"hydra.launcher.n_jobs={workers}", f"hydra.sweep.dir={tmp_path}")
     assert result.returncode == 2 and "reward/nope" in result.stderr, result.stderr[-2000:]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["multirun.yaml"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["multirun.yaml", "sweep.json"]
