@@ -56,7 +56,7 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
     run_dir = Path(hydra_cfg.runtime.output_dir)
     if hydra_cfg.mode != RunMode.MULTIRUN:
         try:
-            run_pipeline(cfg, run_dir)
+            run_pipeline(cfg, run_dir, group_choices=hydra_cfg.runtime.choices)
         except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
             exit_with_one_line(e)
         return None
@@ -64,7 +64,8 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
     # the sweep's number, as every job's does), and `make aggregate` reports it in its table
     # and exit status.
     try:
-        run_pipeline(cfg, run_dir, sweep=current_sweep(Path(hydra_cfg.sweep.dir)))
+        run_pipeline(cfg, run_dir, sweep=current_sweep(Path(hydra_cfg.sweep.dir)),
+                     group_choices=hydra_cfg.runtime.choices)
     except Exception as e:  # noqa: BLE001 - any failure of one job, reported per job
         error = error_text(e)
         logging.getLogger("pipeline").error("job failed: %s", error,
@@ -165,7 +166,23 @@ def parse_command_line(argv: list[str]) -> tuple[list[str], list, bool]:
         if not override.key_or_group:
             raise PipelineError(f"override {shorten(text, 80)!r} has no key: write key=value "
                                 "(see birlg --help)")
+        check_range_sweep(text, override)
     return flags + overrides, parsed, bool(args.multirun)
+
+
+def check_range_sweep(text: str, override) -> None:
+    """A `range(start, stop, step)` sweep with step 0 (Python's range error, as a bug line,
+    after the sweep had begun) or over no value (a sweep of no job, exit 0) is refused."""
+    from hydra.core.override_parser.types import RangeSweep
+
+    sweep = override.value() if override.is_sweep_override() else None
+    if not isinstance(sweep, RangeSweep):
+        return
+    if sweep.step == 0:
+        raise PipelineError(f"override {shorten(text, 80)!r}: a range's step must not be 0")
+    if (sweep.stop - sweep.start) / sweep.step <= 0:
+        raise PipelineError(f"override {shorten(text, 80)!r} sweeps over no value (range("
+                            "start, stop) runs from start up to, not including, stop)")
 
 
 def explicit_run_dir(parsed: list, multirun: bool) -> Path | None:
@@ -263,10 +280,31 @@ def exit_with_one_line(e: Exception) -> None:
         message = one_line(e)
     elif isinstance(e, OSError):  # e.g. Hydra creating a run dir where a file is
         message = f"cannot create or write files: {os_error_reason(e)}"
+    elif (plugin := raised_by_a_plugin(e)) is not None:  # a launcher's or sweeper's own check
+        message = (f"{one_line(e)} (said by {plugin} while sweeping: check the hydra.launcher "
+                   "and hydra.sweeper settings)")
     else:  # a bug, not bad input: still one line, with the way to the traceback
         message = f"{type(e).__name__}: {one_line(e)} (HYDRA_FULL_ERROR=1 shows the traceback)"
     print(f"error: {shorten_values(message)}", file=sys.stderr)
     sys.exit(2)
+
+
+# Packages a sweep hands its settings to (Hydra's launcher and sweeper plugins, what they
+# drive): what they raise is their check of those settings (joblib's n_jobs=0, submitit's
+# Slurm launcher where there is no srun), not a bug of this package.
+SWEEP_PLUGINS = ("hydra_plugins", "joblib", "submitit", "optuna")
+
+
+def raised_by_a_plugin(e: BaseException) -> str | None:
+    """The top-level package of the sweep plugin where `e` was raised, or None."""
+    tb = e.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    module = tb.tb_frame.f_globals.get("__name__", "") if tb is not None else ""
+    package = module.split(".")[0]
+    if package in SWEEP_PLUGINS and not module.startswith("hydra_plugins.birlg_"):
+        return module.split(".")[1] if package == "hydra_plugins" else package
+    return None
 
 
 def shorten_values(message: str) -> str:

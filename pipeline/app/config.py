@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
@@ -336,20 +336,35 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
         return compose(config_name="config", overrides=list(overrides))
 
 
+SCHEMA_PREFIX = "base_"  # the typed schemas of a group's options, stored in the group
+
+
+def check_group_choices(choices: Mapping[str, Any]) -> None:
+    """A schema chosen as a group's option (`reward=glob(*)` picks base_reward too) is
+    refused: it is what the options extend, with required values left unset."""
+    for group, choice in choices.items():
+        if isinstance(choice, str) and choice.startswith(SCHEMA_PREFIX) \
+                and not group.startswith("hydra"):
+            raise PipelineError(f"config error: {group}={choice} is the schema the {group} "
+                                f"options extend, not an option of its own (a glob sweep "
+                                f"leaves it out with '{group}=glob(*,exclude={SCHEMA_PREFIX}*)')")
+
+
 def register_configs() -> None:
     if not OmegaConf.has_resolver("birlg_config_groups"):
         OmegaConf.register_new_resolver("birlg_config_groups", config_groups_help)
     cs = ConfigStore.instance()
-    cs.store(name="base_config", node=Config)
+    base = SCHEMA_PREFIX
+    cs.store(name=f"{base}config", node=Config)
     for kind, node in SCENES.items():
-        cs.store(group="scene", name=f"base_{kind}", node=node)
-    cs.store(group="reward", name="base_reward", node=RewardConfig)
+        cs.store(group="scene", name=f"{base}{kind}", node=node)
+    cs.store(group="reward", name=f"{base}reward", node=RewardConfig)
     for kind, node in EXPERTS.items():
-        cs.store(group="expert", name=f"base_{kind}", node=node)
-    cs.store(group="graph", name="base_graph", node=GraphConfig)
-    cs.store(group="mdp", name="base_mdp", node=MDPParams)
+        cs.store(group="expert", name=f"{base}{kind}", node=node)
+    cs.store(group="graph", name=f"{base}graph", node=GraphConfig)
+    cs.store(group="mdp", name=f"{base}mdp", node=MDPParams)
     for name, method in methods().items():
-        cs.store(group="birl", name=f"base_{name}", node=method.config)
+        cs.store(group="birl", name=f"{base}{name}", node=method.config)
 
 
 # -- instantiation and checks --------------------------------------------------------------

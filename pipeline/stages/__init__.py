@@ -14,14 +14,15 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 from threadpoolctl import threadpool_limits
 
-from pipeline.app.config import Config, load_settings
+from pipeline.app.config import Config, check_group_choices, load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
 from pipeline.app.preflight import preflight
 from pipeline.app.rundir import (
@@ -38,16 +39,19 @@ from pipeline.errors import PipelineError, os_error_reason
 log = logging.getLogger("pipeline")
 
 
-def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None) -> dict[str, float]:
+def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
+                 group_choices: Mapping[str, Any] | None = None) -> dict[str, float]:
     """Check the config and run the selected stages in pipeline order; returns timings.
 
     The run dir is locked for the run and says in status.json how far it got (see
-    pipeline.app.rundir; `sweep`: the number of the sweep whose job this is, recorded there);
+    pipeline.app.rundir; `sweep`: the number of the sweep whose job this is, recorded there;
+    `group_choices`: the config group options Hydra chose, checked);
     a config error says `failed` there too, over an earlier run's status; a disk-full or
     permission error becomes one PipelineError line. Ctrl-C (SIGINT) or SIGTERM stops it as
     `Interrupted`, with status.json saying so.
     """
     try:
+        check_group_choices(group_choices or {})
         settings = load_settings(cfg)
         from_run = resolve_path(settings.from_run) if settings.from_run else None
         if from_run is not None:

@@ -31,6 +31,7 @@ from pipeline.app.summary import is_metric, summary_rows
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.errors import PipelineError, os_error_reason
+from pipeline.tools import run_tool
 
 # A table as the sweep's jobs give it: plain rows (dicts; a row lacks what its job did not
 # write). pandas is left out of the tables' path: its import alone (0.3-0.5 s) would be most
@@ -325,4 +326,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main)

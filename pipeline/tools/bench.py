@@ -31,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.tools import run_tool
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 GRAPH_SIZES = [250, 500, 1000, 2000, 5000]
@@ -798,4 +799,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

@@ -23,6 +23,7 @@ import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.artefacts import codec, read_artefact
+from pipeline.tools import run_tool
 from pipeline.tools.bench import run_in_process
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
@@ -89,4 +90,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

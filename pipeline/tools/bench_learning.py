@@ -53,6 +53,7 @@ import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.errors import first_line
+from pipeline.tools import run_tool
 from pipeline.tools.bench import learning_stages, run_in_process
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
@@ -456,4 +457,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.tools import run_tool
 from pipeline.tools.bench import RESULTS, _app, learning_stages, read_artefact_iterations
 
 METHODS = ["map", "robust", "robust_graph", "mcmc", "policywalk", "maxent"]
@@ -214,4 +215,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

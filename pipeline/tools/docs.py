@@ -42,6 +42,7 @@ from pipeline.app.metric_keys import METRIC_KEYS, PATH_METRIC_MEANING
 from pipeline.core.params import ParameterError
 from pipeline.core.social import PATH_METRICS
 from pipeline.errors import PipelineError
+from pipeline.tools import run_tool
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 CONF = PROJECT_ROOT / "conf"
@@ -532,4 +533,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

@@ -33,7 +33,6 @@ import io
 import math
 import os
 import shutil
-import sys
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,6 +61,7 @@ from pipeline.core.obstacles import OccupancyGrid, rasterise
 from pipeline.core.params import ParameterError
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
 from pipeline.errors import PipelineError, report
+from pipeline.tools import run_tool
 
 EXPORT_DIR = "export"
 COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
@@ -540,4 +540,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main)

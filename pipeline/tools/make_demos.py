@@ -29,6 +29,7 @@ from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FEATURE_NAMES, FeatureModel
 from pipeline.core.roadmap import build_roadmap
 from pipeline.inputs.scene_file import load_scene_file
+from pipeline.tools import run_tool
 
 DATA = PACKAGE_ROOT / "data"
 DRAWINGS_PER_START = 3
@@ -96,4 +97,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

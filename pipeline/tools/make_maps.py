@@ -49,6 +49,7 @@ from pipeline.app.context import PACKAGE_ROOT
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError, report
 from pipeline.inputs.scene_file import load_scene_file
+from pipeline.tools import run_tool
 
 RES = 0.05
 WALL = 0.15
@@ -340,4 +341,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_tool(main)

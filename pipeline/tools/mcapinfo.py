@@ -21,6 +21,8 @@ from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
+from pipeline.tools import run_tool
+
 
 def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
     """The report lines for one file and the number of invalid messages (with check)."""
@@ -104,4 +106,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main)

@@ -12,12 +12,11 @@ it (the sweep dir's scene.png), with the table of results/figures/seeds_demos.cs
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
 from pipeline.app.context import PROJECT_ROOT
-from pipeline.tools import aggregate, bench, bench_learning, bench_scaling
+from pipeline.tools import aggregate, bench, bench_learning, bench_scaling, run_tool
 
 # figure -> (its table, the function drawing the figure from the table), under the project root
 FIGURES: dict[str, tuple[str, Callable[[Path, Path], object]]] = {
@@ -54,4 +53,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main)

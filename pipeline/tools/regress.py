@@ -25,6 +25,7 @@ import yaml
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.app.summary import Unreadable, read_metrics
 from pipeline.errors import PipelineError, first_line
+from pipeline.tools import run_tool
 
 BASELINE = PROJECT_ROOT / "results" / "baseline"
 
@@ -153,4 +154,4 @@ def _regress(args: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main)

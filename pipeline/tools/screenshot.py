@@ -35,6 +35,7 @@ from pathlib import Path
 from PIL import Image
 
 from pipeline.errors import PipelineError, os_error_reason
+from pipeline.tools import run_tool
 
 try:
     from pipeline.tools.viewer import build_recording, viewer_command, warn_if_incomplete
@@ -236,4 +237,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main)

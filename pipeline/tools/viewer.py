@@ -32,6 +32,7 @@ from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError, report
+from pipeline.tools import run_tool
 
 # rerun-sdk is the optional `viewer` extra (670 MB with pyarrow), out of the core install.
 RERUN_MISSING = ("the viewer needs rerun-sdk, which is not installed: "
@@ -510,4 +511,4 @@ def open_viewer(cmd: list[str], rrd: Path, grace_s: float = 3.0) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    run_tool(main)

@@ -1017,6 +1017,21 @@ SWEEP_CASES = {
     "pool launcher workers below -1": (
         lambda t: ["-m", "experiment=quick", "hydra.launcher.n_jobs=-3",
                    f"hydra.sweep.dir={t / 'sweep'}"], ["hydra.launcher.n_jobs=-3"], 2),
+    "range sweep of step 0": (
+        lambda t: ["-m", "seed=range(0,4,0)", f"hydra.sweep.dir={t / 'sweep'}"],
+        ["seed=range(0,4,0)", "step must not be 0"], 2),
+    "range sweep of no value": (
+        lambda t: ["-m", "seed=range(3,3)", f"hydra.sweep.dir={t / 'sweep'}"],
+        ["seed=range(3,3)", "sweeps over no value"], 2),
+    "joblib launcher with no workers": (
+        lambda t: ["-m", "seed=0", "hydra/launcher=joblib", "hydra.launcher.n_jobs=0",
+                   f"hydra.sweep.dir={t / 'sweep'}"],
+        ["n_jobs == 0", "said by joblib while sweeping", "hydra.launcher"], 2),
+    "a glob sweep that picks the schema": (
+        lambda t: ["-m", "seed=0", "stages=[scene]", "reward=glob(*)",
+                   f"hydra.sweep.dir={t / 'sweep'}"],
+        ["1 sweep job(s) failed", "reward=base_reward is the schema",
+         "reward=glob(*,exclude=base_*)"], 1),
 }
 
 
