@@ -379,10 +379,7 @@ def sized_graph(cfg: Config, scene: Scene) -> Config:
         max_nodes = limits.graph_size(scene.free_area, cfg.reward.rho_personal, scene.name)[0]
         cfg = dataclasses.replace(cfg, graph=dataclasses.replace(cfg.graph,
                                                                  max_nodes=max_nodes))
-    limits.check_memory(f"an adaptive graph of {max_nodes} nodes", max_nodes,
-                        limits.BYTES_PER_GRAPH_NODE, "lower graph.max_nodes")
-    limits.check_graph_resolution(max_nodes, scene.free_area, cfg.reward.rho_personal,
-                                  scene.name)
+    limits.check_graph_size(max_nodes, scene.free_area, cfg.reward.rho_personal, scene.name)
     return cfg
 
 

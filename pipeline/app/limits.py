@@ -143,3 +143,13 @@ def check_graph_resolution(max_nodes: int, free_area: float, rho_personal: float
             f"config error: graph.max_nodes={max_nodes} is too few for scene '{scene_name}': "
             f"{free_area:.0f} m² of free space at one node per {rho_personal:g} m × "
             f"{rho_personal:g} m (reward.rho_personal) needs graph.max_nodes >= {needed}")
+
+
+def check_graph_size(max_nodes: int, free_area: float | None, rho_personal: float,
+                     scene_name: str) -> None:
+    """The adaptive graph's size checks, before any work: its memory, and (where the scene's
+    free area is known) its resolution of personal space."""
+    check_memory(f"an adaptive graph of {max_nodes} nodes", max_nodes, BYTES_PER_GRAPH_NODE,
+                 "lower graph.max_nodes")
+    if free_area is not None:
+        check_graph_resolution(max_nodes, free_area, rho_personal, scene_name)

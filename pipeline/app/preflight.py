@@ -106,17 +106,14 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         log.info("graph.max_nodes=%d: %s", max_nodes, why)
         checked.derived["graph.max_nodes"] = max_nodes
     if "graph" in stages and max_nodes is not None:
-        limits.check_memory(f"an adaptive graph of {max_nodes} nodes", max_nodes,
-                            limits.BYTES_PER_GRAPH_NODE, "lower graph.max_nodes")
+        limits.check_graph_size(max_nodes, facts.free_area() if facts is not None else None,
+                                cfg.reward.rho_personal, facts.name if facts else "")
     if "evaluate" in stages:
         check_transfer_scenes(cfg)
     if isinstance(cfg.birl, FixedConfig) and stages & {"graph", "birl"}:
         digest = build.fixed_weights_source(cfg)
         if digest is not None:
             checked.source_digests["birl.from_run"] = digest
-    if facts is not None and "graph" in stages and max_nodes is not None:
-        limits.check_graph_resolution(max_nodes, facts.free_area(), cfg.reward.rho_personal,
-                                      facts.name)
     return checked
 
 

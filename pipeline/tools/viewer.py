@@ -85,7 +85,16 @@ Y_UP = np.array([1.0, -1.0])  # rerun 2-D views draw y down: negate y to show th
 
 
 def _xy(points) -> np.ndarray:
-    return np.asarray(points, dtype=float).reshape(-1, 2) * Y_UP
+    try:  # the readers check what they decode; a hand-edited message may still hold anything
+        xy = np.asarray(points, dtype=float)
+        if xy.size == 0:
+            xy = xy.reshape(0, 2)
+        if xy.ndim != 2 or xy.shape[1] != 2 or not np.isfinite(xy).all():
+            raise ValueError
+    except (TypeError, ValueError):
+        raise PipelineError(f"an artefact message holds points that are not finite [x, y] "
+                            f"pairs: {str(points)[:60]}") from None
+    return xy * Y_UP
 
 
 def _strips(polylines) -> list[np.ndarray]:

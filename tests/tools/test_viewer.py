@@ -411,3 +411,26 @@ def test_artefacts_of_different_runs_are_refused(run_dir, tmp_path):
         (mixed / f"{name}.mcap").write_bytes((other / f"{name}.mcap").read_bytes())
     with pytest.raises(PipelineError, match="they come from different runs"):
         build_recording(mixed)
+
+
+def test_a_hand_edited_path_is_a_clear_error(run_dir, tmp_path):
+    """Points that are no [x, y] pairs (a hand-edited artefact of the run's own provenance)
+    are one line naming them, not numpy's reshape error."""
+    import shutil
+
+    from pipeline.artefacts import topics, write_artefact
+
+    for name in ("scene.mcap", "demos.mcap", "graph.mcap", "birl.mcap"):
+        shutil.copy(run_dir / name, tmp_path / name)
+    ev = read_artefact(run_dir / "eval.mcap")
+    records, k = [], 0
+    for n, (topic, messages) in enumerate(ev.messages.items()):
+        for msg in messages:
+            if topic == topics.EVAL_PATHS and msg.get("graph") == "graph":
+                msg = {**msg, "points": [[1.0, 2.0, 3.0]]}
+            records.append((topic, f"Edited{n}", msg, k))
+            k += 1
+    write_artefact(tmp_path / "eval.mcap", records, config_yaml=ev.config_yaml,
+                   metadata=ev.metadata)
+    with pytest.raises(PipelineError, match=r"points that are not finite \[x, y\] pairs"):
+        build_recording(tmp_path)
