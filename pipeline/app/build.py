@@ -228,6 +228,12 @@ def fitting_lattice(cfg: Config, scene: Scene, features: FeatureModel, params: R
                                              params.connectivity),
                         limits.bytes_per_lattice_edge(len(scene.persons),
                                                       scene.obstacles is not None), fix)
+    seconds = limits.lattice_seconds(scene.room.area, params.spacing)
+    if seconds > limits.LONG_WORK_S:
+        points = f"{scene.room.area / params.spacing**2:,.0f}"
+        log.info("building %s of scene '%s': %s lattice points %g m apart over %.0f m², about "
+                 "%.0f s; for less, %s", what, scene.name, points, params.spacing,
+                 scene.room.area, seconds, fix)
     return build_roadmap(scene, features, params, cfg.mdp.speed)
 
 

@@ -12,6 +12,7 @@ status is 1 when a message does not match, 2 when a file cannot be read.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 from collections import Counter
@@ -26,7 +27,9 @@ from pipeline.tools import run_tool
 
 def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
     """The report lines for one file and the number of invalid messages (with check)."""
-    with open(path, "rb") as f:
+    with open(path, "rb") as raw:
+        # a pipe (`<(...)`, /dev/stdin) cannot seek, and the reader reads the summary first
+        f = raw if raw.seekable() else io.BytesIO(raw.read())
         reader = make_reader(f, validate_crcs=True)
         header, summary = reader.get_header(), reader.get_summary()
         counts: Counter[int] = Counter()

@@ -245,3 +245,18 @@ def test_a_run_on_a_map_records_and_reuses_the_derived_growth(tmp_path):
     again, _ = run_in_process(tmp_path / "b", "scene=office", "graph=small",
                               "birl.n_iterations=2", "stages=[evaluate]", f"from_run={run}")
     assert again["policy_loss_norm"] == metrics["policy_loss_norm"]
+
+
+def test_a_lattice_that_takes_long_says_so_before_it_starts(tmp_path, caplog, monkeypatch):
+    """A fine reference roadmap is seconds of work in each stage that builds it: the log
+    says how many lattice points and about how long before building (here the default
+    lattice, with the measured rate made 500x slower, so it says so)."""
+    from pipeline.app import limits
+
+    assert limits.lattice_seconds(100.0, 0.01) == pytest.approx(20.0)
+    assert limits.lattice_seconds(100.0, 0.25) < limits.LONG_WORK_S  # the default: no line
+    monkeypatch.setattr(limits, "LATTICE_SECONDS_PER_POINT", 1e-2)
+    with caplog.at_level(logging.INFO, logger="pipeline.app.build"):
+        run_in_process(tmp_path, "stages=[scene,demos]")
+    assert "building the reference roadmap of scene 'metropolis': 1,600 lattice points 0.25 m " \
+        "apart over 100 m², about 16 s; for less, raise roadmap.spacing" in caplog.text

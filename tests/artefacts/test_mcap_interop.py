@@ -295,3 +295,17 @@ def test_the_python_snippets_of_the_format_doc_run(runs, capsys):
     assert "run {'config_digest." in out and "'config_digest.graph'" in out \
         and "content {'sha256'" in out
     assert "0 0 " in out and " sampled\n" in out
+
+
+def test_mcapinfo_reads_a_pipe(runs):
+    """`mcapinfo /dev/stdin` and `<(...)`: a stream that cannot seek (the reader reads the
+    summary at the end first) is read whole, and reported as the file is."""
+    import subprocess
+    import sys
+
+    path = runs["default"] / "scene.mcap"
+    done = subprocess.run([sys.executable, "-m", "pipeline.tools.mcapinfo", "--check",
+                           "/dev/stdin"], input=path.read_bytes(), cwd=ROOT,
+                          capture_output=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert b"check: all 2 messages match their schemas" in done.stdout
