@@ -12,12 +12,25 @@ says how), and an explicit run dir is locked under the name Hydra will use.
 
 from __future__ import annotations
 
+import signal
+import sys
+import threading
+
+
+def _stopped_while_starting(signum: int, frame: object) -> None:
+    print("interrupted by the user while starting", file=sys.stderr)
+    sys.exit(130)
+
+
+# Ctrl-C during the imports below (most of a second) is one line too, not a traceback from
+# inside numpy; the handler Python had comes back once they are done.
+_SIGINT_BEFORE_IMPORTS = signal.signal(signal.SIGINT, _stopped_while_starting) \
+    if threading.current_thread() is threading.main_thread() else None
+
 import json
 import logging
 import os
 import re
-import sys
-import threading
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
@@ -44,6 +57,8 @@ from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
 
 register_configs()
+if _SIGINT_BEFORE_IMPORTS is not None:
+    signal.signal(signal.SIGINT, _SIGINT_BEFORE_IMPORTS)
 
 
 CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ (see context)

@@ -73,6 +73,17 @@ def test_a_signal_stops_the_run_in_one_line(tmp_path, sig, code, says):
     assert (d / "scene.mcap").exists() and (d / "demos.mcap").exists()
 
 
+def test_ctrl_c_while_starting_is_one_line(tmp_path):
+    """Ctrl-C during the command's imports (most of a second) is one line and exit 130, not
+    a KeyboardInterrupt traceback from inside numpy; nothing is created."""
+    proc = start_run(tmp_path / "run")
+    time.sleep(0.25)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 130, err
+    assert len(lines(err)) == 1 and "interrupted by the user" in err, err
+
+
 # -- a full disk -----------------------------------------------------------------------------
 
 _ON_TMPFS = """
