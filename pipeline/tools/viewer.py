@@ -428,6 +428,10 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     # artefacts of different runs side by side are refused, as the stages and export do
     check_inputs({"scene": scene_art, **{("evaluate" if n == "eval" else n): a
                                           for n, a in arts.items()}})
+    # rerun's own off switch (its accepted values): said before a stream exists, which would
+    # add two warnings of its own when dropped
+    if os.environ.get("RERUN", "").strip().lower() in ("0", "off", "false"):
+        raise PipelineError("rerun logging is disabled (RERUN=off in the environment)")
     tmp = unique_tmp(rrd_path)
     # Same run dir -> same recording id: a rebuilt .rrd is the same recording, not a new one.
     rec_id = uuid.uuid5(uuid.NAMESPACE_URL, f"birlg:{run_dir.resolve()}")

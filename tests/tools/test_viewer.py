@@ -434,3 +434,14 @@ def test_a_hand_edited_path_is_a_clear_error(run_dir, tmp_path):
                    metadata=ev.metadata)
     with pytest.raises(PipelineError, match=r"points that are not finite \[x, y\] pairs"):
         build_recording(tmp_path)
+
+
+def test_rerun_switched_off_is_one_line(run_dir, tmp_path):
+    """RERUN=off (rerun's own switch) gives our one line and nothing of rerun's."""
+    env = {**os.environ, "RERUN": "off"}
+    res = subprocess.run([sys.executable, "-m", "pipeline.tools.viewer", str(run_dir), "--out",
+                          str(tmp_path / "x.rrd"), "--no-open"], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2
+    assert res.stderr.strip().splitlines() == [
+        "error: rerun logging is disabled (RERUN=off in the environment)"]
