@@ -3,7 +3,8 @@
 Errors are one line and exit status 2: our own (PipelineError), Hydra's (a typo, a wrong
 type, a bad override: Hydra's wording, first line only) and anything unexpected.
 `HYDRA_FULL_ERROR=1` shows the full traceback instead. Ctrl-C is one line too
-(`interrupted by the user at stage X`) and exit status 130 (SIGTERM: 143).
+(`interrupted by the user at stage X`) and exit status 130 (SIGTERM: 143, SIGHUP: 129),
+whenever it comes.
 
 The command line is read before anything is created: flags after overrides (`seed=1 -m`)
 are put first, every override is parsed with Hydra's own grammar (a value that needs quoting
@@ -18,14 +19,19 @@ import threading
 
 
 def _stopped_while_starting(signum: int, frame: object) -> None:
-    print("interrupted by the user while starting", file=sys.stderr)
-    sys.exit(130)
+    who = "interrupted by the user" if signum == signal.SIGINT \
+        else f"stopped by {signal.Signals(signum).name}"
+    print(f"{who} while starting", file=sys.stderr)
+    sys.exit(128 + signum)
 
 
-# Ctrl-C during the imports below (most of a second) is one line too, not a traceback from
-# inside numpy; the handler Python had comes back once they are done.
-_SIGINT_BEFORE_IMPORTS = signal.signal(signal.SIGINT, _stopped_while_starting) \
-    if threading.current_thread() is threading.main_thread() else None
+# Ctrl-C, SIGTERM or SIGHUP during the imports below (most of a second) is one line too, not
+# a traceback from inside numpy or a silent end; the handlers Python had come back once they
+# are done (cli() then installs its own).
+_HANDLERS_BEFORE_IMPORTS = {
+    signum: signal.signal(signum, _stopped_while_starting)
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+} if threading.current_thread() is threading.main_thread() else {}
 
 import json
 import logging
@@ -43,8 +49,9 @@ from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from pipeline.app.config import register_configs
-from pipeline.app.outcome import SweepOutcome, failed_jobs
+from pipeline.app.outcome import SweepOutcome, SweepRefused, failed_jobs
 from pipeline.app.rundir import (
+    STOP_SIGNALS,
     FailedJob,
     Interrupted,
     as_interrupted,
@@ -52,13 +59,14 @@ from pipeline.app.rundir import (
     error_text,
     locked,
     read_status,
+    stopped_by_signals,
 )
 from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
 
 register_configs()
-if _SIGINT_BEFORE_IMPORTS is not None:
-    signal.signal(signal.SIGINT, _SIGINT_BEFORE_IMPORTS)
+for _signum, _handler in _HANDLERS_BEFORE_IMPORTS.items():
+    signal.signal(_signum, _handler)
 
 
 CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ (see context)
@@ -74,6 +82,7 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
             run_pipeline(cfg, run_dir, group_choices=hydra_cfg.runtime.choices)
         except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
             exit_with_one_line(e)
+        _Progress.run_ended = True
         return None
     # In a sweep a failing job must not stop the others: its status.json says failed (with
     # the sweep's number, as every job's does), and `make aggregate` reports it in its table
@@ -340,24 +349,35 @@ def cli() -> None:
     _show_tracebacks[0] = user_setting == "1"
     os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises instead of printing; we print one line
     SweepOutcome.failed.clear()
-    SweepOutcome.sweep_dir = None
+    SweepOutcome.sweep_dir, SweepOutcome.ended, _Progress.run_ended = None, False, False
+    multirun = _Progress.multirun = "-m" in sys.argv[1:] or "--multirun" in sys.argv[1:]
+    if is_the_command():  # what a signal does once the work is over (and until it begins)
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, _exit_stopped)
     LogFiles.failed.clear()
     root = logging.getLogger()
     handlers, level = list(root.handlers), root.level
     try:
         argv, parsed, multirun = parse_command_line(sys.argv[1:])
+        _Progress.multirun = multirun
         sys.argv[1:] = argv  # flags first: the order Hydra's parser takes
         run_dir = explicit_run_dir(parsed, multirun)
         # Held from before Hydra writes its .hydra/ files until the run ends: a second run
         # into the dir is refused before it touches anything.
-        with locked(run_dir) if run_dir is not None else nullcontext(), \
+        with stopped_by_signals(), \
+                locked(run_dir) if run_dir is not None else nullcontext(), \
                 mode_from_the_command_line(parsed, argv[:len(argv) - len(parsed)]):
             main()
+    except SweepRefused as e:
+        exit_with_one_line(e.error)
     except (KeyboardInterrupt, Interrupted, Exception) as e:  # noqa: BLE001 - all but exit
+        SweepOutcome.stopped()
         interrupted = as_interrupted(e, None)
         if interrupted is not None:
             if _show_tracebacks[0]:
                 raise
+            if interrupted.stage is None and interrupted.during is None:
+                interrupted.during = phase()
             print(interrupted.describe(), file=sys.stderr)
             sys.exit(interrupted.exit_code)
         if SweepOutcome.sweep_dir is not None and not _show_tracebacks[0]:
@@ -368,6 +388,7 @@ def cli() -> None:
                 exit_with_failed_jobs(f" (the sweep then stopped: {one_line(e)})")
         exit_with_one_line(e)  # type: ignore[arg-type]
     finally:
+        SweepOutcome.release()
         if user_setting is None:
             os.environ.pop("HYDRA_FULL_ERROR", None)
         else:
@@ -389,13 +410,40 @@ def cli() -> None:
     if LogFiles.failed:
         print(f"warning: the log could not be written ({shorten(LogFiles.failed[0], 200)}); "
               "the run itself completed", file=sys.stderr)
-    if not multirun and is_the_command():
+    if is_the_command():
         exit_now()
+
+
+class _Progress:
+    """How far the command got (cli() resets it), for a signal that hits no stage or job."""
+
+    multirun = False  # -m: a sweep
+    run_ended = False  # the single run's stages are over
+
+
+def phase() -> str | None:
+    """Where a signal that hit no stage and no sweep job stopped the command, as
+    Interrupted.describe says it (None: before the first stage)."""
+    if SweepOutcome.ended:
+        return "after the sweep's jobs had all ended"
+    if SweepOutcome.sweep_dir is not None:
+        return "during the sweep"
+    if _Progress.multirun:
+        return "while starting the sweep (no job had begun)"
+    return "after the run had completed" if _Progress.run_ended else None
+
+
+def _exit_stopped(signum: int, frame: object) -> None:
+    """A signal while the command finishes (its runs' files all written: Python's teardown
+    is all that is left, a fraction of a second) or before it began: one line, exit
+    128 + the signal, without the teardown a second signal could cut into a traceback."""
+    print(Interrupted(signum, during=phase()).describe(), file=sys.stderr, flush=True)
+    os._exit(128 + signum)
 
 
 def exit_with_failed_jobs(then: str = "") -> None:
     first = SweepOutcome.failed[0]
-    why = read_status(Path(first)).error
+    why = SweepOutcome.unrecorded.get(first) or read_status(Path(first)).error
     print(f"error: {len(SweepOutcome.failed)} sweep job(s) failed, first {first}"
           f"{f': {shorten(why, 200)}' if why else ''} (make aggregate lists all){then}",
           file=sys.stderr)

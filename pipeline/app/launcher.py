@@ -17,12 +17,14 @@ number goes out, its composed config comes back and goes out again pickled, and 
 result (Hydra's JobReturn). A job goes to a worker only when that worker is free, so no job
 waits in a queue where a stop could not reach it.
 - A failing job fails alone (pipeline.__main__ writes its status.json and returns a
-  FailedJob). A worker that dies (killed, out of memory) fails its job alone too: its
-  status.json says so, a new worker takes its place and the sweep goes on.
-- Ctrl-C or SIGTERM to the sweep's process stops the sweep: no new job starts, the running
-  ones get the signal, record `interrupted` and finish writing, and the command says so in
-  one line. Workers ignore Ctrl-C between jobs, and a worker whose sweep process died
-  (killed with -9) stops by itself within a second.
+  FailedJob); so does one whose run dir Hydra cannot make (noted for the sweep's outcome,
+  as no status.json can say it). A worker that dies (killed, out of memory) fails its job
+  alone too: its status.json says so, a new worker takes its place and the sweep goes on.
+- Ctrl-C, SIGTERM or SIGHUP to the sweep's process (pipeline.__main__ turns each into
+  Interrupted) stops the sweep: no new job starts, the running ones get the signal, record
+  `interrupted` and finish writing, and the command says so in one line. Workers ignore
+  Ctrl-C between jobs (other signals end an idle worker), and a worker whose sweep process
+  died (killed with -9) stops by itself within a second.
 """
 
 from __future__ import annotations
@@ -50,11 +52,22 @@ from hydra.core.utils import (
 )
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
-from omegaconf import DictConfig, open_dict
+from omegaconf import DictConfig, open_dict, read_write
 
-from pipeline.app.rundir import FailedJob, Interrupted, as_interrupted, mark_died
+from pipeline.app.outcome import SweepOutcome
+from pipeline.app.rundir import (
+    STOP_SIGNALS,
+    UNKNOWN,
+    FailedJob,
+    Interrupted,
+    as_interrupted,
+    error_text,
+    mark_died,
+    read_status,
+    stopped_by_signals,
+)
 from pipeline.artefacts.topics import STAGES
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, os_error_reason
 
 log = logging.getLogger(__name__)
 
@@ -91,35 +104,36 @@ class PoolLauncher(Launcher):
         for idx, overrides in jobs:
             log.info("\t#%d : %s", idx, " ".join(filter_overrides(overrides)))
         _Current.launcher, _Current.jobs = self, dict(jobs)
-        with stopped_by_sigterm():
-            if n_workers == 1:  # no fork: one job after another in this process
-                runs = [(idx, self.compose(overrides)) for idx, overrides in jobs]
-                refuse_shared_job_dirs(runs)
-                return self._one_by_one(runs)
-            for stage in STAGES:  # imported once here, shared by every forked worker
-                importlib.import_module(f"pipeline.stages.{stage}")
-            pool = _Pool(n_workers)
-            try:
-                composed = pool.run("compose", [(idx, None) for idx, _ in jobs])
-                for (idx, overrides) in jobs:
-                    if composed[idx] is None:  # compose it here: its error, as Hydra's raises it
-                        self.compose(overrides)
-                runs = [(idx, composed[idx]) for idx, _ in jobs]
-                refuse_shared_job_dirs(runs)
-                returns = pool.run("execute", runs, on_death=self._died)
-                return [returns[idx] for idx, _ in jobs]
-            except (KeyboardInterrupt, Interrupted) as e:
-                raise _sweep_stopped(e, pool.completed, len(jobs)) from None
-            finally:
-                pool.close()
+        if n_workers == 1:  # no fork: one job after another in this process
+            return self._one_by_one(jobs, sweep_dir)
+        for stage in STAGES:  # imported once here, shared by every forked worker
+            importlib.import_module(f"pipeline.stages.{stage}")
+        pool = _Pool(n_workers)
+        try:
+            composed = pool.run("compose", [(idx, None) for idx, _ in jobs],
+                                on_death=lambda idx, payload, exit_code: None)
+            for (idx, overrides) in jobs:
+                if composed[idx] is None:  # compose it here: its error, as Hydra's raises it
+                    composed[idx] = self.compose(overrides)
+            runs = [(idx, composed[idx]) for idx, _ in jobs]
+            refuse_misplaced_job_dirs(runs, sweep_dir)
+            returns = pool.run("execute", runs, on_death=self._died)
+            return [_noted(returns[idx], idx, cfg) for idx, cfg in runs]
+        except (KeyboardInterrupt, Interrupted) as e:
+            raise _sweep_stopped(e, pool.executed, len(jobs)) from None
+        finally:
+            pool.close()
 
-    def _one_by_one(self, runs: list[tuple[int, DictConfig]]) -> list[JobReturn]:
+    def _one_by_one(self, jobs: list[tuple[int, list[str]]],
+                    sweep_dir: Path) -> list[JobReturn]:
         returns: list[JobReturn] = []
         try:
+            runs = [(idx, self.compose(overrides)) for idx, overrides in jobs]
+            refuse_misplaced_job_dirs(runs, sweep_dir)
             for idx, cfg in runs:
-                returns.append(self.execute(idx, cfg))
+                returns.append(_noted(_execute_or_fail(self, idx, cfg), idx, cfg))
         except (KeyboardInterrupt, Interrupted) as e:
-            raise _sweep_stopped(e, len(returns), len(runs)) from None
+            raise _sweep_stopped(e, len(returns), len(jobs)) from None
         return returns
 
     def _died(self, idx: int, sweep_config: DictConfig, exit_code: int | None) -> JobReturn:
@@ -128,7 +142,10 @@ class PoolLauncher(Launcher):
         how = f"killed by {signal.Signals(-exit_code).name}" \
             if exit_code is not None and exit_code < 0 else f"exit status {exit_code}"
         error = f"the worker process running this job died ({how})"
-        mark_died(job_dir_of(idx, sweep_config), error)
+        try:
+            mark_died(job_dir_of(idx, sweep_config), error)
+        except OSError:  # no dir to say it in: the sweep's outcome notes it (_noted)
+            pass
         log.error("job #%d failed: %s", idx, error)
         return _failed_return(idx, error)
 
@@ -157,24 +174,54 @@ def job_dir_of(idx: int, sweep_config: DictConfig) -> Path:
     """Job idx's run dir, as Hydra's run_job makes it (hydra.sweep.dir/subdir, where the
     subdir may name the job's number)."""
     cfg = sweep_config.copy()
-    with open_dict(cfg):
+    with read_write(cfg.hydra), open_dict(cfg):  # (Hydra's run_job leaves it read-only)
         cfg.hydra.job.id = f"{cfg.hydra.job.name}_{idx}"
         cfg.hydra.job.num = idx
     return Path(str(cfg.hydra.sweep.dir)) / str(cfg.hydra.sweep.subdir)
 
 
-def refuse_shared_job_dirs(runs: list[tuple[int, DictConfig]]) -> None:
-    """Two jobs into one run dir (a hydra.sweep.subdir without the job's number) would
-    overwrite each other's .hydra/ config before either could lock the dir: refused before
-    any job runs."""
+def refuse_misplaced_job_dirs(runs: list[tuple[int, DictConfig]], sweep_dir: Path) -> None:
+    """Every job's run dir must lie inside the sweep dir (a hydra.sweep.subdir of `..` or an
+    absolute path would scatter the sweep where no table finds it), and two jobs must not
+    share one (a subdir without the job's number: they would overwrite each other's .hydra/
+    config before either could lock the dir). Refused before any job runs."""
     seen: dict[Path, int] = {}
+    inside = sweep_dir.resolve()
     for idx, cfg in runs:
         job_dir = job_dir_of(idx, cfg)
+        if inside not in job_dir.resolve().parents:
+            raise PipelineError(f"config error: job #{idx}'s run dir {job_dir} is not inside "
+                                f"the sweep dir {sweep_dir}; give hydra.sweep.subdir a "
+                                "relative path below it (the default: ${hydra.job.num})")
         if job_dir in seen:
             raise PipelineError(f"config error: jobs #{seen[job_dir]} and #{idx} of the sweep "
                                 f"would share the run dir {job_dir}; give hydra.sweep.subdir "
                                 "a value that differs per job (the default: ${hydra.job.num})")
         seen[job_dir] = idx
+
+
+def _execute_or_fail(launcher: PoolLauncher, idx: int, cfg: DictConfig) -> JobReturn:
+    """Job idx run by `launcher`; a failure outside the job's own run (Hydra's run_job making
+    its run dir, its log or .hydra/ files: a file where the dir should be, a name too long)
+    fails that job alone."""
+    try:
+        return launcher.execute(idx, cfg)
+    except Exception as e:  # noqa: BLE001 - the job's own errors are returned, not raised
+        error = (f"cannot set up the job's run dir: {os_error_reason(e)}"
+                 if isinstance(e, OSError) else error_text(e))
+        log.error("job #%d failed: %s", idx, error)
+        return _failed_return(idx, error)
+
+
+def _noted(job_return: JobReturn, idx: int, cfg: DictConfig) -> JobReturn:
+    """The job's return; a failed job whose run dir has no status.json to say so (it could
+    not be made) is noted for the sweep's outcome."""
+    value = job_return._return_value
+    if isinstance(value, FailedJob):
+        job_dir = job_dir_of(idx, cfg)
+        if read_status(job_dir).state == UNKNOWN:
+            SweepOutcome.unrecorded[str(job_dir)] = value.error
+    return job_return
 
 
 def _failed_return(idx: int, error: str) -> JobReturn:
@@ -189,26 +236,6 @@ def _sweep_stopped(e: BaseException, completed: int, total: int) -> Interrupted:
     assert stopped is not None
     return Interrupted(stopped.signum, during=f"during the sweep ({completed} of {total} "
                        "jobs completed; make aggregate lists them)")
-
-
-class stopped_by_sigterm:
-    """SIGTERM to the sweep's process raises Interrupted, as Ctrl-C raises KeyboardInterrupt,
-    so the sweep stops its workers and says so in one line (the default would end the
-    process at once, without a word, leaving the workers to run on)."""
-
-    def __enter__(self) -> None:
-        self.previous = None
-        if threading.current_thread() is threading.main_thread():
-            self.previous = signal.signal(signal.SIGTERM, _raise_interrupted)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.previous is not None:
-            signal.signal(signal.SIGTERM, self.previous)
-
-
-def _raise_interrupted(signum: int, frame: object) -> None:
-    signal.signal(signum, signal.SIG_IGN)  # the first one counts: a repeat must not cut short
-    raise Interrupted(signum)  # the writing of what the first one stopped
 
 
 class _Current:
@@ -243,11 +270,10 @@ class _Pool:
 
     def __init__(self, n: int) -> None:
         self.workers = [_Worker() for _ in range(n)]
-        self.completed = 0
+        self.executed = 0  # jobs run to their end (or their worker's)
 
-    def run(self, kind: str, requests: list[tuple[int, Any]], on_death=None) -> dict[int, Any]:
+    def run(self, kind: str, requests: list[tuple[int, Any]], on_death) -> dict[int, Any]:
         todo, replies = list(requests), {}
-        self.completed = 0
         try:
             while todo or any(w.job for w in self.workers):
                 for w in self.workers:
@@ -263,16 +289,13 @@ class _Pool:
                         if isinstance(reply, Interrupted):  # a signal to this worker
                             reply = _failed_return(idx, reply.describe())  # alone
                         replies[idx] = reply
-                        self.completed += 1
+                        self.executed += kind == "execute"
                     elif not w.process.is_alive():
                         idx, payload = w.job  # type: ignore[misc]
+                        w.job = None
                         w.process.join()
-                        if on_death is None:
-                            raise PipelineError(f"a sweep worker died while composing job "
-                                                f"#{idx}'s config (exit status "
-                                                f"{w.process.exitcode})")
                         replies[idx] = on_death(idx, payload, w.process.exitcode)
-                        self.completed += 1
+                        self.executed += kind == "execute"
                         self.workers[self.workers.index(w)] = _Worker()
         except (KeyboardInterrupt, Interrupted) as e:
             stopped = as_interrupted(e, None)
@@ -330,7 +353,10 @@ def _serve(conn: Connection, parent_pid: int) -> None:
     """A worker's life: requests from the pipe until told to stop, or until the sweep's
     process is gone. Ctrl-C is ignored between jobs (the sweep's process decides and
     forwards it); during a job it and SIGTERM stop the job, which records it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # (the fork copied Hydra's singletons)
+    # (the fork copied the sweep's process: Hydra's singletons, and its signal handlers)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for signum in STOP_SIGNALS[1:]:  # between jobs a worker just ends
+        signal.signal(signum, signal.SIG_DFL)
     threading.Thread(target=_stop_when_orphaned, args=(parent_pid,), daemon=True).start()
     launcher = _Current.launcher
     assert launcher is not None
@@ -352,15 +378,11 @@ def _serve(conn: Connection, parent_pid: int) -> None:
                 reply = None  # Hydra's exceptions do not survive pickling
             conn.send(reply)
             continue
-        signal.signal(signal.SIGINT, _raise_interrupted)
-        signal.signal(signal.SIGTERM, _raise_interrupted)
         try:
-            reply = launcher.execute(idx, payload)
+            with stopped_by_signals():
+                reply = _execute_or_fail(launcher, idx, payload)
         except (KeyboardInterrupt, Interrupted) as e:
             reply = as_interrupted(e, None)
-        finally:
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
         try:
             conn.send(reply)
         except OSError:  # the sweep's process is gone

@@ -3,35 +3,85 @@ pipeline.app.rundir, which the sweep's table reads without importing Hydra)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from pipeline.app.rundir import begin_sweep, end_sweep, read_status, sweep_jobs
+from pipeline.app.rundir import (
+    abandon_sweep,
+    acquire_lock,
+    begin_sweep,
+    end_sweep,
+    read_status,
+    sweep_jobs,
+)
+from pipeline.errors import PipelineError
+
+
+class SweepRefused(BaseException):
+    """A sweep refused by the callback: Hydra turns a callback's Exception into a warning and
+    goes on, so the refusal travels as a BaseException; the command says `error` in one line."""
+
+    def __init__(self, error: PipelineError):
+        super().__init__(error)
+        self.error = error
 
 
 class SweepOutcome(Callback):
-    """Hydra callback (conf/config.yaml, hydra.callbacks): numbers the sweep in its dir
-    before any job runs (so its jobs are told apart from an earlier sweep's there), and
-    after it lists this sweep's jobs whose run dir is not complete, so the command exits
-    non-zero when any job failed."""
+    """Hydra callback (conf/config.yaml, hydra.callbacks): locks the sweep dir for the sweep
+    (a second sweep into it is refused) and numbers the sweep there before any job runs (so
+    its jobs are told apart from an earlier sweep's); after it, lists this sweep's jobs
+    whose run dir is not complete, so the command exits non-zero when any job failed."""
 
     sweep_dir: Path | None = None  # of the last sweep begun in this process
     failed: list[str] = []  # job dirs of the last sweep in this process, read by cli()
+    # job dir -> error of jobs that failed where no status.json could say so (their dir could
+    # not be made), as the launcher saw them
+    unrecorded: dict[str, str] = {}
+    ended = False  # on_multirun_end ran: the launcher returned every job
+    _lock_fd: int | None = None
+    _previous: dict = {}  # the sweep dir's record before this sweep
 
     def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
-        SweepOutcome.sweep_dir = Path(config.hydra.sweep.dir)
+        sweep_dir = Path(config.hydra.sweep.dir)
+        SweepOutcome.sweep_dir, SweepOutcome.unrecorded = sweep_dir, {}
         try:
-            begin_sweep(SweepOutcome.sweep_dir)
+            sweep_dir.mkdir(parents=True, exist_ok=True)
         except OSError:  # a sweep dir that cannot be made: the launcher says so in one line
-            pass
+            return
+        try:
+            SweepOutcome._lock_fd = acquire_lock(sweep_dir, in_use=(
+                f"sweep dir {sweep_dir} is in use by another sweep; wait for it to finish, "
+                "or choose another hydra.sweep.dir"))
+        except PipelineError as e:
+            raise SweepRefused(e) from None
+        _, SweepOutcome._previous = begin_sweep(sweep_dir)
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         end_sweep(Path(config.hydra.sweep.dir))
         SweepOutcome.failed[:] = failed_jobs(Path(config.hydra.sweep.dir))
+        SweepOutcome.ended = True
+        SweepOutcome.release()
+
+    @staticmethod
+    def stopped() -> None:
+        """The sweep stopped (an error, a signal): one that ran no job leaves the dir's
+        record as it was; the dir is unlocked."""
+        if SweepOutcome.sweep_dir is not None and SweepOutcome._lock_fd is not None:
+            abandon_sweep(SweepOutcome.sweep_dir, SweepOutcome._previous)
+        SweepOutcome.release()
+
+    @staticmethod
+    def release() -> None:
+        if SweepOutcome._lock_fd is not None:
+            os.close(SweepOutcome._lock_fd)
+            SweepOutcome._lock_fd = None
 
 
 def failed_jobs(sweep_dir: Path) -> list[str]:
-    """The dirs of the last sweep's jobs in `sweep_dir` that did not complete."""
-    return [str(j) for j in sweep_jobs(sweep_dir)[0] if not read_status(j).complete]
+    """The dirs of the last sweep's jobs in `sweep_dir` that did not complete, then those of
+    its jobs that failed where no status.json could say so."""
+    failed = [str(j) for j in sweep_jobs(sweep_dir)[0] if not read_status(j).complete]
+    return failed + [d for d in SweepOutcome.unrecorded if d not in failed]

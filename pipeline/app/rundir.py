@@ -22,6 +22,8 @@ import json
 import logging
 import os
 import signal
+import threading
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +60,35 @@ class Interrupted(BaseException):
         if self.signum == signal.SIGINT:
             return f"interrupted by the user{at}"
         return f"stopped by {signal.Signals(self.signum).name}{at}"
+
+
+# The signals that stop a run or a sweep with a word (Interrupted): Ctrl-C, `kill`, and the
+# terminal closing under it
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+@contextmanager
+def stopped_by_signals() -> Iterator[None]:
+    """STOP_SIGNALS raise Interrupted for the block, so a run dir records the stage that was
+    stopped and the CLI says so in one line; the previous handlers come back after. Python
+    lets only the main thread handle signals: elsewhere nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, frame: object) -> None:
+        # One signal stops the run; a second one (Ctrl-C reaches a sweep's workers both from
+        # the terminal and from the sweep's process) must not cut short writing status.json.
+        for sig in previous:
+            signal.signal(sig, signal.SIG_IGN)
+        raise Interrupted(signum)
+
+    previous = {sig: signal.signal(sig, stop) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 @dataclass(frozen=True)
@@ -122,7 +153,11 @@ class RunStatus:
 def read_status(run_dir: Path) -> RunStatus:
     """The truth about a run dir: `interrupted` when it says running but nobody holds it."""
     path = Path(run_dir) / STATUS_FILE
-    if not path.exists():
+    try:
+        present = path.exists()
+    except OSError:  # e.g. a name too long to be a file's (a sweep's job that could not be)
+        present = False
+    if not present:
         return RunStatus(UNKNOWN)
     try:
         data = json.loads(path.read_text())
@@ -159,9 +194,10 @@ def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
 _HANDED_OVER: set[Path] = set()  # run dirs whose lock the CLI holds for this process's run
 
 
-def acquire_lock(run_dir: Path) -> int:
+def acquire_lock(run_dir: Path, in_use: str | None = None) -> int:
     """Take the run dir's exclusive lock (creating the dir) and return its fd, or refuse in
-    one line when another run holds it."""
+    one line when another process holds it (`in_use`: that line, for a dir that is no run
+    dir: a sweep's)."""
     try:
         Path(run_dir).mkdir(parents=True, exist_ok=True)
         fd = os.open(Path(run_dir) / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
@@ -171,9 +207,9 @@ def acquire_lock(run_dir: Path) -> int:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
         os.close(fd)
-        raise PipelineError(f"run dir {run_dir} is in use by another process (a run or an "
-                            "export); wait for it to finish, or for a new run choose "
-                            "another hydra.run.dir") from None
+        raise PipelineError(in_use or f"run dir {run_dir} is in use by another process (a "
+                            "run or an export); wait for it to finish, or for a new run "
+                            "choose another hydra.run.dir") from None
     return fd
 
 
@@ -346,14 +382,33 @@ def job_dirs(sweep_dir: Path) -> list[Path]:
                   key=natural)
 
 
-def begin_sweep(sweep_dir: Path) -> int:
-    """Number a new sweep into `sweep_dir` (one more than the last one there, from 1): its
-    jobs record it in their status.json, so that job dirs an earlier sweep left in the dir
-    (a re-run with fewer jobs) are told apart from this sweep's."""
-    number = (current_sweep(sweep_dir) or 0) + 1
+def begin_sweep(sweep_dir: Path) -> tuple[int, dict]:
+    """Number a new sweep into `sweep_dir` and return (its number, the record it replaced).
+    Its jobs record the number in their status.json, so that job dirs an earlier sweep left
+    in the dir (a re-run with fewer jobs) are told apart from this sweep's. The number is one
+    more than the last sweep's that ran a job there (from 1; read from the jobs as well, so a
+    damaged SWEEP_FILE does not restart it): a sweep that ran none is numbered again."""
+    recorded = {read_status(j).sweep for j in job_dirs(sweep_dir)}
+    last = max([current_sweep(sweep_dir) or 0] + [n for n in recorded if isinstance(n, int)])
+    number = last if last > 0 and last not in recorded else last + 1
+    previous = _sweep_record(sweep_dir)
     Path(sweep_dir).mkdir(parents=True, exist_ok=True)
     write_json_atomic(Path(sweep_dir) / SWEEP_FILE, {"sweep": number, "finished": False})
-    return number
+    return number, previous
+
+
+def abandon_sweep(sweep_dir: Path, previous: dict) -> None:
+    """A sweep that stopped before any of its jobs began (a launcher's config error, Ctrl-C
+    while composing) leaves the dir's record as it found it: the earlier sweep's jobs stay
+    the ones a table shows."""
+    number = current_sweep(sweep_dir)
+    if number is None or any(read_status(j).sweep == number for j in job_dirs(sweep_dir)):
+        return
+    path = Path(sweep_dir) / SWEEP_FILE
+    if previous:
+        write_json_atomic(path, previous)
+    else:
+        path.unlink(missing_ok=True)
 
 
 def end_sweep(sweep_dir: Path) -> None:

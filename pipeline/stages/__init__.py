@@ -11,11 +11,8 @@ import dataclasses
 import importlib
 import json
 import logging
-import signal
-import threading
 import time
-from collections.abc import Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,11 +23,11 @@ from pipeline.app.config import Config, check_group_choices, load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
 from pipeline.app.preflight import preflight
 from pipeline.app.rundir import (
-    Interrupted,
     RunDir,
     check_from_run,
     error_text,
     mark_failed_before_stages,
+    stopped_by_signals,
 )
 from pipeline.artefacts.store import write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
@@ -47,8 +44,8 @@ def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
     pipeline.app.rundir; `sweep`: the number of the sweep whose job this is, recorded there;
     `group_choices`: the config group options Hydra chose, checked);
     a config error says `failed` there too, over an earlier run's status; a disk-full or
-    permission error becomes one PipelineError line. Ctrl-C (SIGINT) or SIGTERM stops it as
-    `Interrupted`, with status.json saying so.
+    permission error becomes one PipelineError line. Ctrl-C (SIGINT), SIGTERM or SIGHUP
+    stops it as `Interrupted`, with status.json saying so.
     """
     try:
         check_group_choices(group_choices or {})
@@ -97,30 +94,6 @@ def with_derived(settings: Config, cfg: DictConfig,
         settings = dataclasses.replace(settings, **{
             section: dataclasses.replace(getattr(settings, section), **{name: value})})
     return settings, cfg
-
-
-@contextmanager
-def stopped_by_signals() -> Iterator[None]:
-    """SIGINT (Ctrl-C) and SIGTERM raise Interrupted for the block, so the run dir records the
-    stage that was stopped and the CLI says so in one line; the previous handlers come back
-    after. Python lets only the main thread handle signals: elsewhere nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def stop(signum: int, frame: object) -> None:
-        # One signal stops the run; a second one (Ctrl-C reaches a sweep's workers both from
-        # the terminal and from the sweep's process) must not cut short writing status.json.
-        for sig in previous:
-            signal.signal(sig, signal.SIG_IGN)
-        raise Interrupted(signum)
-
-    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def run_stage(stage: str, ctx: RunContext, rundir: RunDir) -> None:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
-from pipeline.app.rundir import sweep_finished, sweep_jobs
+from pipeline.app.rundir import is_locked, sweep_finished, sweep_jobs
 from pipeline.app.summary import is_metric, summary_rows
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE
@@ -319,8 +319,9 @@ def main(argv=None) -> int:
     for row in failed:
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
     if not sweep_finished(args.sweep_dir):
-        print("error: the sweep did not finish (it was stopped, or still runs): jobs it had "
-              "not started are in no row", file=sys.stderr)
+        how = "still runs" if is_locked(args.sweep_dir) else "was stopped"
+        print(f"error: the sweep did not finish (it {how}): jobs it had not started are in "
+              "no row", file=sys.stderr)
         return 1
     return 1 if failed else 0
 

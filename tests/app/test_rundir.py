@@ -25,11 +25,17 @@ import numpy as np
 import pytest
 
 from pipeline.app.rundir import (
+    SWEEP_FILE,
     RunDir,
+    abandon_sweep,
+    begin_sweep,
     check_from_run,
+    current_sweep,
     is_locked,
     mark_failed_before_stages,
     read_status,
+    sweep_jobs,
+    write_status,
 )
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import STAGES
@@ -533,3 +539,45 @@ def test_a_from_run_without_a_readable_status_is_one_warning(tmp_path, caplog, s
         check_from_run(run, str(run))
     [warning] = [r.getMessage() for r in caplog.records]
     assert f"from_run={run} {says}, so whether its run finished is not known" in warning
+
+
+# -- sweeps numbered in their dir -----------------------------------------------------------
+
+
+def _sweep_job(sweep_dir: Path, name: str, sweep: int | None) -> Path:
+    job = sweep_dir / name
+    (job / ".hydra").mkdir(parents=True)
+    (job / ".hydra" / "overrides.yaml").write_text(f"- seed={name}\n")
+    write_status(job, "complete", None, None, ["scene"], ["scene"], sweep)
+    return job
+
+
+def test_a_sweep_is_numbered_after_the_last_one_that_ran_a_job(tmp_path):
+    assert begin_sweep(tmp_path) == (1, {})
+    # it ran no job (a launcher's config error): the next sweep takes its number again
+    assert begin_sweep(tmp_path) == (1, {"sweep": 1, "finished": False})
+    _sweep_job(tmp_path, "0", 1)
+    assert begin_sweep(tmp_path)[0] == 2
+    _sweep_job(tmp_path, "1", 2)
+    # a damaged record: the number goes on from what the jobs recorded, not from 1
+    (tmp_path / SWEEP_FILE).write_text("{bad")
+    assert begin_sweep(tmp_path) == (3, {})
+    assert sweep_jobs(tmp_path) == ([], [tmp_path / "0", tmp_path / "1"])
+
+
+def test_a_sweep_that_ran_no_job_leaves_the_record_as_it_was(tmp_path):
+    number, previous = begin_sweep(tmp_path)
+    job = _sweep_job(tmp_path, "0", number)
+    (tmp_path / SWEEP_FILE).write_text(json.dumps({"sweep": 1, "finished": True}))
+    number, previous = begin_sweep(tmp_path)
+    assert number == 2 and sweep_jobs(tmp_path) == ([], [job])
+    abandon_sweep(tmp_path, previous)  # stopped before any job began
+    assert json.loads((tmp_path / SWEEP_FILE).read_text()) == {"sweep": 1, "finished": True}
+    assert sweep_jobs(tmp_path) == ([job], [])
+    number, previous = begin_sweep(tmp_path)
+    other = _sweep_job(tmp_path, "1", number)
+    abandon_sweep(tmp_path, previous)  # one job had begun: the record stays this sweep's
+    assert current_sweep(tmp_path) == 2 and sweep_jobs(tmp_path) == ([other], [job])
+    fresh = tmp_path / "fresh"
+    abandon_sweep(fresh, begin_sweep(fresh)[1])  # no record before: none after
+    assert not (fresh / SWEEP_FILE).exists()

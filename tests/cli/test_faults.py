@@ -73,15 +73,19 @@ def test_a_signal_stops_the_run_in_one_line(tmp_path, sig, code, says):
     assert (d / "scene.mcap").exists() and (d / "demos.mcap").exists()
 
 
-def test_ctrl_c_while_starting_is_one_line(tmp_path):
-    """Ctrl-C during the command's imports (most of a second) is one line and exit 130, not
-    a KeyboardInterrupt traceback from inside numpy; nothing is created."""
+@pytest.mark.parametrize("sig, says", [(signal.SIGINT, "interrupted by the user"),
+                                        (signal.SIGTERM, "stopped by SIGTERM"),
+                                        (signal.SIGHUP, "stopped by SIGHUP")])
+def test_a_signal_while_starting_is_one_line(tmp_path, sig, says):
+    """Ctrl-C (or SIGTERM, or the terminal closing) during the command's imports (most of a
+    second) is one line and exit 128 + the signal, not a KeyboardInterrupt traceback from
+    inside numpy or a silent end; no run dir is created."""
     proc = start_run(tmp_path / "run")
     time.sleep(0.25)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     err = proc.communicate(timeout=120)[1]
-    assert proc.returncode == 130, err
-    assert len(lines(err)) == 1 and "interrupted by the user" in err, err
+    assert proc.returncode == 128 + sig, err
+    assert len(lines(err)) == 1 and says in err, err
 
 
 # -- a full disk -----------------------------------------------------------------------------
@@ -249,6 +253,7 @@ def worker_pids(proc: subprocess.Popen) -> list[int]:
     (signal.SIGINT, 130, "interrupted by the user", False),
     (signal.SIGINT, 130, "interrupted by the user", True),  # Ctrl-C at a terminal
     (signal.SIGTERM, 143, "stopped by SIGTERM", False),
+    (signal.SIGHUP, 129, "stopped by SIGHUP", True),  # the terminal closed
 ])
 def test_a_signal_stops_a_sweep_and_its_workers(tmp_path, sig, code, says, whole_group):
     """The running jobs record the signal once, no queued job starts after it, no worker is
@@ -302,3 +307,43 @@ def test_the_workers_of_a_killed_sweep_stop(tmp_path):
     assert not alive
     assert {s[0] for s in job_states(tmp_path).values()} == {"interrupted"}
     assert all(s[2] == "stopped by SIGTERM at stage birl" for s in job_states(tmp_path).values())
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_at_any_moment_of_a_short_sweep_is_one_line(tmp_path, sig):
+    """Whenever the signal comes (importing, composing the configs in the workers, running
+    the jobs, after the last one), the command says one line naming it and exits 128 + the
+    signal: no traceback from a worker, no silent end."""
+    for k, delay in enumerate((0.6, 1.0, 1.4, 1.8, 2.4, 3.2)):
+        sweep_dir = tmp_path / str(k)
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline", "-m", "experiment=quick",
+                                 "seed=0,1,2,3", "reward=polite", "hydra.launcher.n_jobs=2",
+                                 f"hydra.sweep.dir={sweep_dir}"], cwd=ROOT,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        time.sleep(delay)
+        proc.send_signal(sig)
+        err = proc.communicate(timeout=120)[1]
+        if proc.returncode == 0:  # the sweep was over before the signal came
+            continue
+        says = "interrupted by the user" if sig == signal.SIGINT else "stopped by SIGTERM"
+        assert proc.returncode == 128 + sig, (delay, err)
+        assert len(lines(err)) == 1 and lines(err)[0].startswith(says), (delay, err)
+        assert "before the first stage" not in err, (delay, err)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_job_whose_run_dir_cannot_be_made_fails_alone(tmp_path, workers):
+    """A file where a job's run dir should be (Hydra's run_job cannot make it, so no
+    status.json can say anything): that job fails alone, the others complete, and the
+    sweep's last line names it with the reason (exit 1)."""
+    (tmp_path / "1").write_text("not a dir")
+    result = subprocess.run([sys.executable, "-m", "pipeline", "-m", "experiment=quick",
+                             "seed=0,1,2", "reward=polite", f"hydra.launcher.n_jobs={workers}",
+                             f"hydra.sweep.dir={tmp_path}"], cwd=ROOT, capture_output=True,
+                            text=True, timeout=300)
+    assert result.returncode == 1, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert lines(result.stderr)[-1].startswith(
+        f"error: 1 sweep job(s) failed, first {tmp_path / '1'}: cannot set up the job's run "
+        "dir: "), result.stderr[-2000:]
+    assert read_status(tmp_path / "0").complete and read_status(tmp_path / "2").complete

@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 import yaml
 
+from pipeline.app import rundir
 from tests.conftest import ROOT, run_app
 
 
@@ -114,6 +115,12 @@ def test_a_sweep_again_into_its_dir_counts_only_its_own_jobs(tmp_path):
     assert shared.returncode == 2
     assert "jobs #0 and #1 of the sweep would share the run dir" in shared.stderr
     assert not (tmp_path / "shared" / "same").exists()
+    for subdir in ("../outside_${hydra.job.num}", f"{tmp_path}/abs_${{hydra.job.num}}", "."):
+        scattered = run_app("-m", "experiment=quick", "seed=0,1", "reward=polite",
+                            f"hydra.sweep.subdir={subdir}", f"hydra.sweep.dir={tmp_path / 'sc'}")
+        assert scattered.returncode == 2, scattered.stderr[-2000:]
+        assert "is not inside the sweep dir" in scattered.stderr
+    assert not list(tmp_path.glob("outside_*")) and not list(tmp_path.glob("abs_*"))
 
 
 def test_aggregate_of_a_sweep_that_did_not_finish_says_so(tmp_path):
@@ -137,8 +144,18 @@ def test_aggregate_of_a_sweep_that_did_not_finish_says_so(tmp_path):
     (tmp_path / "sweep.json").write_text(json.dumps({"sweep": 1, "finished": False}))
     agg = aggregate(tmp_path)
     assert agg.returncode == 1
-    assert lines_of(agg.stderr)[-1] == ("error: the sweep did not finish (it was stopped, or "
-                                        "still runs): jobs it had not started are in no row")
+    assert lines_of(agg.stderr)[-1] == ("error: the sweep did not finish (it was stopped): "
+                                        "jobs it had not started are in no row")
+    with rundir.locked(tmp_path):  # as a running sweep holds its dir
+        agg = aggregate(tmp_path)
+        assert lines_of(agg.stderr)[-1] == ("error: the sweep did not finish (it still runs): "
+                                            "jobs it had not started are in no row")
+        second = run_app("-m", "experiment=quick", "seed=0", f"hydra.sweep.dir={tmp_path}")
+        assert second.returncode == 2
+        assert lines_of(second.stderr) == [f"error: sweep dir {tmp_path} is in use by another "
+                                           "sweep; wait for it to finish, or choose another "
+                                           "hydra.sweep.dir"]
+    assert json.loads((tmp_path / "sweep.json").read_text())["sweep"] == 1
 
 
 def lines_of(text):
@@ -340,8 +357,9 @@ def test_pool_launcher_gives_the_joblib_launchers_jobs(tmp_path):
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_batch_that_does_not_compose_runs_no_job(tmp_path, workers):
     """Every job's config is composed before any job runs (by the pool's workers, in
-    parallel): one option that does not exist stops the sweep before the others run."""
+    parallel): one option that does not exist stops the sweep before the others run, and a
+    sweep that ran no job is not numbered (no sweep.json: the dir had none)."""
     result = run_app("-m", "experiment=quick", "seed=0,1", "reward=polite,nope",
                      f"hydra.launcher.n_jobs={workers}", f"hydra.sweep.dir={tmp_path}")
     assert result.returncode == 2 and "reward/nope" in result.stderr, result.stderr[-2000:]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["multirun.yaml", "sweep.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "multirun.yaml"]
