@@ -13,16 +13,19 @@ says how), and an explicit run dir is locked under the name Hydra will use.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
 
 
 def _stopped_while_starting(signum: int, frame: object) -> None:
+    for repeat in _HANDLERS_BEFORE_IMPORTS:  # the first one counts
+        signal.signal(repeat, signal.SIG_IGN)
     who = "interrupted by the user" if signum == signal.SIGINT \
         else f"stopped by {signal.Signals(signum).name}"
-    print(f"{who} while starting", file=sys.stderr)
-    sys.exit(128 + signum)
+    print(f"{who} while starting", file=sys.stderr, flush=True)
+    os._exit(128 + signum)  # nothing made yet; Python's teardown would let a repeat kill it
 
 
 # Ctrl-C, SIGTERM or SIGHUP during the imports below (most of a second) is one line too, not
@@ -35,7 +38,6 @@ _HANDLERS_BEFORE_IMPORTS = {
 
 import json
 import logging
-import os
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
@@ -371,14 +373,19 @@ def cli() -> None:
     except SweepRefused as e:
         exit_with_one_line(e.error)
     except (KeyboardInterrupt, Interrupted, Exception) as e:  # noqa: BLE001 - all but exit
-        SweepOutcome.stopped()
         interrupted = as_interrupted(e, None)
+        if interrupted is not None and is_the_command():
+            for signum in STOP_SIGNALS:  # the first one counts: a repeat (Ctrl-C pressed
+                signal.signal(signum, signal.SIG_IGN)  # again, a second kill) is ignored
+        SweepOutcome.stopped()
         if interrupted is not None:
             if _show_tracebacks[0]:
                 raise
             if interrupted.stage is None and interrupted.during is None:
                 interrupted.during = phase()
             print(interrupted.describe(), file=sys.stderr)
+            if is_the_command():  # the run dirs say interrupted, the lock is the kernel's
+                exit_now(interrupted.exit_code, wait_for_threads=False)
             sys.exit(interrupted.exit_code)
         if SweepOutcome.sweep_dir is not None and not _show_tracebacks[0]:
             # e.g. Optuna's "No trials are completed yet" when every trial failed: the
@@ -460,14 +467,15 @@ def is_the_command() -> bool:
     return Path(sys.argv[0]).name == "birlg"
 
 
-def exit_now() -> None:
-    """Exit 0 without Python's teardown (freeing every module and object, ~0.15 s of the
-    default run's 2.6 s): the run is over, each artefact closed and renamed and status.json
-    written (RunDir), the run dir's lock released and Hydra's log handlers closed (cli's
-    `finally`); what remains is memory the OS frees. Only on success, only with no other
-    thread alive (one whose work a normal exit would wait for), after flushing the standard
-    streams and the logging handlers left."""
-    if threading.active_count() > 1:
+def exit_now(status: int = 0, wait_for_threads: bool = True) -> None:
+    """Exit without Python's teardown (freeing every module and object, ~0.15 s of the
+    default run's 2.6 s, during which a signal would end the process without a word): the
+    run is over, each artefact closed and renamed and status.json written (RunDir); what
+    remains is memory the OS frees and the run dir's lock, which the kernel releases. On
+    success only with no other thread alive (one whose work a normal exit would wait for);
+    after a stop (`wait_for_threads=False`) no thread is waited for. The standard streams
+    and the logging handlers are flushed first."""
+    if wait_for_threads and threading.active_count() > 1:
         return
     logging.shutdown()  # flushes and closes the handlers still registered
     for stream in (sys.stdout, sys.stderr):
@@ -475,7 +483,7 @@ def exit_now() -> None:
             stream.flush()
         except (OSError, ValueError):  # a closed or broken pipe: the normal exit decides
             return
-    os._exit(0)
+    os._exit(status)
 
 
 if __name__ == "__main__":
