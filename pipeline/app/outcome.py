@@ -52,7 +52,7 @@ class SweepOutcome(Callback):
         except OSError:  # a sweep dir that cannot be made: the launcher says so in one line
             return
         try:
-            SweepOutcome._lock_fd = acquire_lock(sweep_dir, in_use=(
+            SweepOutcome._lock_fd = acquire_lock(sweep_dir, kind="sweep dir", in_use=(
                 f"sweep dir {sweep_dir} is in use by another sweep; wait for it to finish, "
                 "or choose another hydra.sweep.dir"))
         except PipelineError as e:

@@ -140,6 +140,8 @@ class RunStatus:
     stage: str | None = None  # the running or failing stage
     error: str | None = None
     sweep: int | None = None  # the number of the sweep (SWEEP_FILE) whose job wrote it
+    stages: tuple[str, ...] = ()  # the stages the run was to run, and those it completed
+    done: tuple[str, ...] = ()
 
     @property
     def complete(self) -> bool:
@@ -163,13 +165,14 @@ def read_status(run_dir: Path) -> RunStatus:
         data = json.loads(path.read_text())
         state, stage, error = data["state"], data.get("stage"), data.get("error")
         sweep = data.get("sweep")
+        stages, done = tuple(data.get("stages") or ()), tuple(data.get("done") or ())
         if state not in (RUNNING, COMPLETE, FAILED, INTERRUPTED):
             raise ValueError(state)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return RunStatus(UNKNOWN, error=f"an unreadable {STATUS_FILE}")
     if state == RUNNING and not is_locked(Path(run_dir)):
-        return RunStatus(INTERRUPTED, stage, KILLED, sweep)
-    return RunStatus(state, stage, error, sweep)
+        return RunStatus(INTERRUPTED, stage, KILLED, sweep, stages, done)
+    return RunStatus(state, stage, error, sweep, stages, done)
 
 
 def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
@@ -194,15 +197,15 @@ def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
 _HANDED_OVER: set[Path] = set()  # run dirs whose lock the CLI holds for this process's run
 
 
-def acquire_lock(run_dir: Path, in_use: str | None = None) -> int:
-    """Take the run dir's exclusive lock (creating the dir) and return its fd, or refuse in
-    one line when another process holds it (`in_use`: that line, for a dir that is no run
-    dir: a sweep's)."""
+def acquire_lock(run_dir: Path, in_use: str | None = None, kind: str = "run dir") -> int:
+    """Take the dir's exclusive lock (creating the dir) and return its fd, or refuse in one
+    line when another process holds it (`in_use`: that line, and `kind`: the dir's name in
+    the others, for a dir that is no run dir: a sweep's)."""
     try:
         Path(run_dir).mkdir(parents=True, exist_ok=True)
         fd = os.open(Path(run_dir) / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as e:
-        raise PipelineError(f"cannot use run dir {run_dir}: {os_error_reason(e)}") from None
+        raise PipelineError(f"cannot use {kind} {run_dir}: {os_error_reason(e)}") from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -364,13 +367,9 @@ def mark_died(run_dir: Path, error: str) -> None:
     status = read_status(run_dir)
     if status.state != UNKNOWN and status.error != KILLED:
         return
-    try:
-        old = json.loads((Path(run_dir) / STATUS_FILE).read_text())
-        stages, done = list(old["stages"]), list(old["done"])
-    except (OSError, ValueError, KeyError, TypeError):
-        stages, done = [], []
     Path(run_dir).mkdir(parents=True, exist_ok=True)
-    write_status(run_dir, FAILED, status.stage, error, stages, done, status.sweep)
+    write_status(run_dir, FAILED, status.stage, error, list(status.stages), list(status.done),
+                 status.sweep)
 
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
