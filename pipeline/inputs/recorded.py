@@ -670,7 +670,10 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
     (`clean_track`: a pose stream's dense, noisy poses); refused (naming `what`) when it
     begins at the goal, leaves `room` or never moves."""
     goal = np.asarray(goal, dtype=float)
-    cut = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
+    # coordinates far outside any room (1e300) overflow to inf and nan on the way, which never
+    # count as within a tolerance: the room check below refuses them by name
+    with np.errstate(over="ignore", invalid="ignore"):
+        cut = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
     if cut is None:
         raise PipelineError(f"{what} begins within goal_tolerance={goal_tolerance:g} m of the "
                             f"goal ({goal[0]:g}, {goal[1]:g})")
