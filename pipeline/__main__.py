@@ -21,7 +21,7 @@ import threading
 
 def _stopped_while_starting(signum: int, frame: object) -> None:
     for repeat in _HANDLERS_BEFORE_IMPORTS:  # the first one counts
-        signal.signal(repeat, signal.SIG_IGN)
+        signal.signal(repeat, lambda signum, frame: None)
     who = "interrupted by the user" if signum == signal.SIGINT \
         else f"stopped by {signal.Signals(signum).name}"
     print(f"{who} while starting", file=sys.stderr, flush=True)
@@ -59,6 +59,7 @@ from pipeline.app.rundir import (
     as_interrupted,
     current_sweep,
     error_text,
+    ignore_repeat,
     locked,
     read_status,
     stopped_by_signals,
@@ -67,8 +68,9 @@ from pipeline.errors import PipelineError, os_error_reason
 from pipeline.stages import run_pipeline
 
 register_configs()
-for _signum, _handler in _HANDLERS_BEFORE_IMPORTS.items():
-    signal.signal(_signum, _handler)
+if __name__ != "__main__" and Path(sys.argv[0]).name != "birlg":  # imported, not the command:
+    for _signum, _handler in _HANDLERS_BEFORE_IMPORTS.items():  # Python's handlers back (the
+        signal.signal(_signum, _handler)  # command keeps them until cli() sets its own)
 
 
 CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ (see context)
@@ -376,7 +378,7 @@ def cli() -> None:
         interrupted = as_interrupted(e, None)
         if interrupted is not None and is_the_command():
             for signum in STOP_SIGNALS:  # the first one counts: a repeat (Ctrl-C pressed
-                signal.signal(signum, signal.SIG_IGN)  # again, a second kill) is ignored
+                signal.signal(signum, ignore_repeat)  # again, a second kill) is ignored
         SweepOutcome.stopped()
         if interrupted is not None:
             if _show_tracebacks[0]:
@@ -390,7 +392,10 @@ def cli() -> None:
         if SweepOutcome.sweep_dir is not None and not _show_tracebacks[0]:
             # e.g. Optuna's "No trials are completed yet" when every trial failed: the
             # failed jobs are the news, the sweeper's complaint about them is the aftermath
-            SweepOutcome.failed[:] = failed_jobs(SweepOutcome.sweep_dir)
+            try:
+                SweepOutcome.failed[:] = failed_jobs(SweepOutcome.sweep_dir)
+            except OSError:  # e.g. a sweep dir whose name is too long: the error says it
+                pass
             if SweepOutcome.failed:
                 exit_with_failed_jobs(f" (the sweep then stopped: {one_line(e)})")
         exit_with_one_line(e)  # type: ignore[arg-type]

@@ -62,8 +62,10 @@ from pipeline.app.rundir import (
     Interrupted,
     as_interrupted,
     error_text,
+    ignore_repeat,
     mark_died,
     read_status,
+    signals_held,
     stopped_by_signals,
 )
 from pipeline.artefacts.topics import STAGES
@@ -106,10 +108,12 @@ class PoolLauncher(Launcher):
         _Current.launcher, _Current.jobs = self, dict(jobs)
         if n_workers == 1:  # no fork: one job after another in this process
             return self._one_by_one(jobs, sweep_dir)
-        for stage in STAGES:  # imported once here, shared by every forked worker
-            importlib.import_module(f"pipeline.stages.{stage}")
-        pool = _Pool(n_workers)
+        pool: _Pool | None = None
         try:
+            for stage in STAGES:  # imported once here, shared by every forked worker
+                importlib.import_module(f"pipeline.stages.{stage}")
+            with signals_held():  # a signal now comes after the forks, not inside one
+                pool = _Pool(n_workers)
             composed = pool.run("compose", [(idx, None) for idx, _ in jobs],
                                 on_death=lambda idx, payload, exit_code: None)
             for (idx, overrides) in jobs:
@@ -120,9 +124,10 @@ class PoolLauncher(Launcher):
             returns = pool.run("execute", runs, on_death=self._died)
             return [_noted(returns[idx], idx, cfg) for idx, cfg in runs]
         except (KeyboardInterrupt, Interrupted) as e:
-            raise _sweep_stopped(e, pool.executed, len(jobs)) from None
+            raise _sweep_stopped(e, pool.executed if pool else 0, len(jobs)) from None
         finally:
-            pool.close()
+            if pool is not None:
+                pool.close()
 
     def _one_by_one(self, jobs: list[tuple[int, list[str]]],
                     sweep_dir: Path) -> list[JobReturn]:
@@ -296,7 +301,8 @@ class _Pool:
                         w.process.join()
                         replies[idx] = on_death(idx, payload, w.process.exitcode)
                         self.executed += kind == "execute"
-                        self.workers[self.workers.index(w)] = _Worker()
+                        with signals_held():
+                            self.workers[self.workers.index(w)] = _Worker()
         except (KeyboardInterrupt, Interrupted) as e:
             stopped = as_interrupted(e, None)
             self._stop(stopped.signum if stopped else signal.SIGINT)
@@ -354,9 +360,10 @@ def _serve(conn: Connection, parent_pid: int) -> None:
     process is gone. Ctrl-C is ignored between jobs (the sweep's process decides and
     forwards it); during a job it and SIGTERM stop the job, which records it."""
     # (the fork copied the sweep's process: Hydra's singletons, and its signal handlers)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, ignore_repeat)
     for signum in STOP_SIGNALS[1:]:  # between jobs a worker just ends
         signal.signal(signum, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # held while it was forked
     threading.Thread(target=_stop_when_orphaned, args=(parent_pid,), daemon=True).start()
     launcher = _Current.launcher
     assert launcher is not None

@@ -60,10 +60,13 @@ class SweepOutcome(Callback):
         _, SweepOutcome._previous = begin_sweep(sweep_dir)
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
-        end_sweep(Path(config.hydra.sweep.dir))
         SweepOutcome.failed[:] = failed_jobs(Path(config.hydra.sweep.dir))
         SweepOutcome.ended = True
         SweepOutcome.release()
+        try:
+            end_sweep(Path(config.hydra.sweep.dir))
+        except OSError:  # a full disk: the record stays unfinished, the failed jobs say why
+            pass
 
     @staticmethod
     def stopped() -> None:

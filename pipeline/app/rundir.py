@@ -67,6 +67,23 @@ class Interrupted(BaseException):
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
+def ignore_repeat(signum: int, frame: object) -> None:
+    """The handler of a signal already acted on: nothing. (SIG_IGN would make Python raise
+    "Signal N ignored due to race condition" for one that arrived meanwhile.)"""
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """STOP_SIGNALS held back for the block and delivered after it: a fork inside gives no
+    half-made child a signal its parent's handler would raise in (the child lets them
+    through once it has its own handlers)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+
+
 @contextmanager
 def stopped_by_signals() -> Iterator[None]:
     """STOP_SIGNALS raise Interrupted for the block, so a run dir records the stage that was
@@ -80,7 +97,7 @@ def stopped_by_signals() -> Iterator[None]:
         # One signal stops the run; a second one (Ctrl-C reaches a sweep's workers both from
         # the terminal and from the sweep's process) must not cut short writing status.json.
         for sig in previous:
-            signal.signal(sig, signal.SIG_IGN)
+            signal.signal(sig, ignore_repeat)
         raise Interrupted(signum)
 
     previous = {sig: signal.signal(sig, stop) for sig in STOP_SIGNALS}

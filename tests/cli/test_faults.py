@@ -351,3 +351,26 @@ def test_a_job_whose_run_dir_cannot_be_made_fails_alone(tmp_path, workers):
         f"error: 1 sweep job(s) failed, first {tmp_path / '1'}: cannot set up the job's run "
         "dir: "), result.stderr[-2000:]
     assert read_status(tmp_path / "0").complete and read_status(tmp_path / "2").complete
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_the_pool_forks_its_workers_stops_the_sweep(tmp_path, sig):
+    """Ctrl-C reaching the whole group just as the pool forks its workers (within ~15 ms of
+    its first log line): it was swallowed inside the fork (Python's "Exception ignored"),
+    the sweep ran on and exited 0, or a half-made worker printed a traceback. Signals are
+    held during the forks, so the sweep stops, in one line."""
+    for k, delay in enumerate((0.004, 0.008, 0.012, 0.016)):
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline", "-m", "experiment=quick",
+                                 "seed=0,1,2,3", "reward=polite", "hydra.launcher.n_jobs=2",
+                                 f"hydra.sweep.dir={tmp_path / str(k)}"], cwd=ROOT,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if "Pool of 2 worker(s)" in line:
+                time.sleep(delay)
+                os.killpg(proc.pid, sig)
+                break
+        err = proc.communicate(timeout=120)[1]
+        assert proc.returncode == 128 + sig, (delay, err)
+        assert len(lines(err)) == 1 and "during the sweep" in err, (delay, err)
