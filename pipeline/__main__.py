@@ -379,7 +379,7 @@ def cli() -> None:
         if interrupted is not None and is_the_command():
             for signum in STOP_SIGNALS:  # the first one counts: a repeat (Ctrl-C pressed
                 signal.signal(signum, ignore_repeat)  # again, a second kill) is ignored
-        SweepOutcome.stopped()
+        SweepOutcome.stopped(interrupted)
         if interrupted is not None:
             if _show_tracebacks[0]:
                 raise

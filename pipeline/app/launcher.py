@@ -37,6 +37,7 @@ import signal
 import threading
 import time
 from collections.abc import Sequence
+from contextlib import suppress
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
@@ -61,10 +62,13 @@ from pipeline.app.rundir import (
     FailedJob,
     Interrupted,
     as_interrupted,
+    current_sweep,
     error_text,
     ignore_repeat,
     mark_died,
+    mark_started_by_hydra,
     read_status,
+    run_files_version,
     signals_held,
     stopped_by_signals,
 )
@@ -219,12 +223,15 @@ def _execute_or_fail(launcher: PoolLauncher, idx: int, cfg: DictConfig) -> JobRe
 
 
 def _noted(job_return: JobReturn, idx: int, cfg: DictConfig) -> JobReturn:
-    """The job's return; a failed job whose run dir has no status.json to say so (it could
-    not be made) is noted for the sweep's outcome."""
+    """The job's return; a failed job whose run dir has no status.json of this sweep to say
+    so (the dir could not be made; a job that failed while Hydra started it, beside an
+    earlier sweep's status.json) is noted for the sweep's outcome."""
     value = job_return._return_value
     if isinstance(value, FailedJob):
         job_dir = job_dir_of(idx, cfg)
-        if read_status(job_dir).state == UNKNOWN:
+        status = read_status(job_dir)
+        if status.state == UNKNOWN or \
+                status.sweep != current_sweep(Path(str(cfg.hydra.sweep.dir))):
             SweepOutcome.unrecorded[str(job_dir)] = value.error
     return job_return
 
@@ -385,11 +392,16 @@ def _serve(conn: Connection, parent_pid: int) -> None:
                 reply = None  # Hydra's exceptions do not survive pickling
             conn.send(reply)
             continue
+        job_dir = job_dir_of(idx, payload)
+        before = run_files_version(job_dir)
         try:
             with stopped_by_signals():
                 reply = _execute_or_fail(launcher, idx, payload)
         except (KeyboardInterrupt, Interrupted) as e:
             reply = as_interrupted(e, None)
+            with suppress(OSError):  # stopped while Hydra started it: the dir says so
+                mark_started_by_hydra(job_dir, before, reply.describe(),
+                                      current_sweep(Path(str(payload.hydra.sweep.dir))))
         try:
             conn.send(reply)
         except OSError:  # the sweep's process is gone

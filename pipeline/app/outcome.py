@@ -4,17 +4,22 @@ pipeline.app.rundir, which the sweep's table reads without importing Hydra)."""
 from __future__ import annotations
 
 import os
+from contextlib import suppress
 from pathlib import Path
 
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from pipeline.app.rundir import (
+    Interrupted,
     abandon_sweep,
     acquire_lock,
     begin_sweep,
     end_sweep,
+    job_dirs,
+    mark_started_by_hydra,
     read_status,
+    run_files_version,
     sweep_jobs,
 )
 from pipeline.errors import PipelineError
@@ -43,6 +48,8 @@ class SweepOutcome(Callback):
     ended = False  # on_multirun_end ran: the launcher returned every job
     _lock_fd: int | None = None
     _previous: dict = {}  # the sweep dir's record before this sweep
+    _number: int | None = None  # this sweep's
+    _versions: dict[Path, tuple] = {}  # job dir -> its run files' version before the sweep
 
     def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
@@ -57,7 +64,8 @@ class SweepOutcome(Callback):
                 "or choose another hydra.sweep.dir"))
         except PipelineError as e:
             raise SweepRefused(e) from None
-        _, SweepOutcome._previous = begin_sweep(sweep_dir)
+        SweepOutcome._number, SweepOutcome._previous = begin_sweep(sweep_dir)
+        SweepOutcome._versions = {j: run_files_version(j) for j in job_dirs(sweep_dir)}
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         SweepOutcome.failed[:] = failed_jobs(Path(config.hydra.sweep.dir))
@@ -69,11 +77,19 @@ class SweepOutcome(Callback):
             pass
 
     @staticmethod
-    def stopped() -> None:
-        """The sweep stopped (an error, a signal): one that ran no job leaves the dir's
-        record as it was; the dir is unlocked."""
-        if SweepOutcome.sweep_dir is not None and SweepOutcome._lock_fd is not None:
-            abandon_sweep(SweepOutcome.sweep_dir, SweepOutcome._previous)
+    def stopped(interrupted: Interrupted | None = None) -> None:
+        """The sweep stopped (an error, a signal: `interrupted`): a job Hydra had begun
+        (its .hydra/ written) but the signal stopped before it wrote its status says
+        interrupted; one that ran no job leaves the dir's record as it was; the dir is
+        unlocked."""
+        sweep_dir = SweepOutcome.sweep_dir
+        if sweep_dir is not None and SweepOutcome._lock_fd is not None:
+            if interrupted is not None:
+                for job in job_dirs(sweep_dir):
+                    with suppress(OSError):
+                        mark_started_by_hydra(job, SweepOutcome._versions.get(job),
+                                              interrupted.describe(), SweepOutcome._number)
+            abandon_sweep(sweep_dir, SweepOutcome._previous)
         SweepOutcome.release()
 
     @staticmethod

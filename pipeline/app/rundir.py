@@ -24,7 +24,7 @@ import os
 import signal
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +35,8 @@ from pipeline.errors import PipelineError, os_error_reason
 log = logging.getLogger("pipeline")
 
 LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
+# Hydra's record of a run's config (in its default hydra.output_subdir)
+HYDRA_FILES = (".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml")
 SWEEP_FILE = "sweep.json"  # in a sweep dir: the number of the sweep that last ran into it
 RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "interrupted"
 UNKNOWN = "unknown"
@@ -236,15 +238,47 @@ def acquire_lock(run_dir: Path, in_use: str | None = None, kind: str = "run dir"
 @contextmanager
 def locked(run_dir: Path):
     """Hold the run dir's lock for the block and hand it to the RunDir of the run inside
-    (the CLI wraps Hydra in it, so a second run is refused before Hydra writes its files)."""
+    (the CLI wraps Hydra in it, so a second run is refused before Hydra writes its files).
+    A signal in the block marks the dir interrupted if Hydra had started the run in it
+    (`mark_started_by_hydra`)."""
     fd = acquire_lock(run_dir)
     key = Path(run_dir).resolve()
     _HANDED_OVER.add(key)
+    before = run_files_version(run_dir)
     try:
         yield
+    except (KeyboardInterrupt, Interrupted) as e:
+        with suppress(OSError):
+            mark_started_by_hydra(run_dir, before, as_interrupted(e, None).describe())
+        raise
     finally:
         _HANDED_OVER.discard(key)
         os.close(fd)  # releases the lock
+
+
+def run_files_version(run_dir: Path) -> tuple:
+    """What tells the versions of Hydra's files and of status.json (last) in the dir apart."""
+    def version(path: Path) -> tuple | None:
+        try:
+            st = path.stat()
+        except OSError:
+            return None
+        return st.st_ino, st.st_size, st.st_mtime_ns
+
+    return tuple(version(Path(run_dir) / name) for name in (*HYDRA_FILES, STATUS_FILE))
+
+
+def mark_started_by_hydra(run_dir: Path, before: tuple | None, error: str,
+                          sweep: int | None = None) -> None:
+    """A run stopped by a signal after Hydra rewrote its dir's .hydra/ but before the run
+    wrote its status.json (Hydra's start of the job): the dir says interrupted with `error`,
+    or an earlier run's `complete` there would pair its metrics with this run's overrides.
+    `before`: the dir's run_files_version before Hydra began (None: there was no run in
+    it); a dir Hydra had not written is left as the earlier run left it."""
+    before = before or (None,) * (len(HYDRA_FILES) + 1)
+    after = run_files_version(run_dir)
+    if after[:-1] != before[:-1] and after[-1] == before[-1]:
+        mark_ended_before_stages(run_dir, INTERRUPTED, error, sweep)
 
 
 class RunDir:
@@ -363,18 +397,20 @@ def _overwrite_in_place(path: Path, data: bytes) -> None:
         os.close(fd)
 
 
-def mark_failed_before_stages(run_dir: Path, error: str, sweep: int | None = None) -> None:
-    """A run that failed before its stages began (a config error): any status.json in its dir
-    is an earlier run's, and Hydra has already replaced .hydra/config.yaml, so it says
-    `failed` with this run's error where it says anything else (`complete` would now be a
-    lie, an old failure the wrong error); in a sweep (`sweep`, its number) also where there
-    is none, so aggregation counts the job. A dir another live process holds is left alone."""
+def mark_ended_before_stages(run_dir: Path, state: str, error: str,
+                             sweep: int | None = None) -> None:
+    """A run that ended before its stages began (a config error: `failed`; a signal:
+    `interrupted`): any status.json in its dir is an earlier run's, and Hydra has already
+    replaced .hydra/config.yaml, so it says `state` with this run's error where it says
+    anything else (`complete` would now be a lie, an old failure the wrong error); in a
+    sweep (`sweep`, its number) also where there is none, so aggregation counts the job.
+    A dir another live process holds is left alone."""
     run_dir = Path(run_dir)
     if run_dir.resolve() not in _HANDED_OVER and is_locked(run_dir):
         return
     if read_status(run_dir).state != UNKNOWN or sweep is not None:
         run_dir.mkdir(parents=True, exist_ok=True)
-        write_status(run_dir, FAILED, None, error, [], [], sweep)
+        write_status(run_dir, state, None, error, [], [], sweep)
 
 
 def mark_died(run_dir: Path, error: str) -> None:
@@ -394,7 +430,7 @@ def job_dirs(sweep_dir: Path) -> list[Path]:
     def natural(p: Path):  # job 2 before job 10, numbered jobs before others
         return len(p.parts), [(0, int(x), "") if x.isdigit() else (1, 0, x) for x in p.parts]
 
-    return sorted((p.parent.parent for p in Path(sweep_dir).glob("**/.hydra/overrides.yaml")),
+    return sorted((p.parent.parent for p in Path(sweep_dir).glob(f"**/{HYDRA_FILES[-1]}")),
                   key=natural)
 
 

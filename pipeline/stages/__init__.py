@@ -23,10 +23,14 @@ from pipeline.app.config import Config, check_group_choices, load_settings
 from pipeline.app.context import RunContext, resolve_path, run_metadata
 from pipeline.app.preflight import preflight
 from pipeline.app.rundir import (
+    FAILED,
+    INTERRUPTED,
+    Interrupted,
     RunDir,
+    as_interrupted,
     check_from_run,
     error_text,
-    mark_failed_before_stages,
+    mark_ended_before_stages,
     stopped_by_signals,
 )
 from pipeline.artefacts.store import write_json_atomic
@@ -60,9 +64,13 @@ def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
         ctx = RunContext(settings, run_dir, from_run, OmegaConf.to_container(cfg, resolve=True),
                          OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed),
                          source_digests=checked.source_digests)
-    except Exception as e:
+    except (Exception, KeyboardInterrupt, Interrupted) as e:
+        interrupted = as_interrupted(e, None)
         try:
-            mark_failed_before_stages(run_dir, error_text(e), sweep)
+            if interrupted is not None:
+                mark_ended_before_stages(run_dir, INTERRUPTED, interrupted.describe(), sweep)
+            else:
+                mark_ended_before_stages(run_dir, FAILED, error_text(e), sweep)
         except OSError:  # e.g. the run dir's place is a file: the error itself says more
             pass
         raise

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import shutil
 import signal
 import subprocess
@@ -24,15 +25,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import pipeline.stages
 from pipeline.app.rundir import (
+    FAILED,
     SWEEP_FILE,
+    Interrupted,
     RunDir,
     abandon_sweep,
     begin_sweep,
     check_from_run,
     current_sweep,
     is_locked,
-    mark_failed_before_stages,
+    mark_ended_before_stages,
     read_status,
     sweep_jobs,
     write_status,
@@ -450,7 +454,7 @@ def test_from_run_of_a_dir_in_use_is_refused(tmp_path):
 
 
 def test_status_of_a_job_that_failed_before_running(tmp_path):
-    mark_failed_before_stages(tmp_path, "config error: x", sweep=3)
+    mark_ended_before_stages(tmp_path, FAILED, "config error: x", sweep=3)
     status = json.loads((tmp_path / "status.json").read_text())
     assert (status["state"], status["error"], status["sweep"]) == ("failed", "config error: x", 3)
 
@@ -466,6 +470,24 @@ def test_a_config_error_in_a_complete_run_dir_marks_it_failed(tmp_path):
     # the artefacts themselves are untouched
     assert {k: v for k, v in snapshot(tmp_path).items() if k.endswith(".mcap")} == \
         {k: v for k, v in before.items() if k.endswith(".mcap")}
+
+
+def test_a_signal_while_the_config_is_checked_marks_a_complete_run_dir_interrupted(
+        tmp_path, monkeypatch):
+    # as a config error there: Hydra has replaced .hydra/ already, so `complete` would lie
+    run_in_process(tmp_path, *QUICK)
+    checked = pipeline.stages.preflight
+
+    def interrupted_preflight(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)  # a real Ctrl-C, as the run's handler takes it
+        return checked(*args, **kwargs)
+
+    monkeypatch.setattr(pipeline.stages, "preflight", interrupted_preflight)
+    with pytest.raises(Interrupted):
+        run_in_process(tmp_path, *QUICK, "seed=5")
+    status = read_status(tmp_path)
+    assert (status.state, status.stage, status.done) == ("interrupted", None, ())
+    assert status.error == "interrupted by the user before the first stage"
 
 
 def test_a_config_error_replaces_an_earlier_failure_in_the_dir(tmp_path):

@@ -5,6 +5,7 @@ given with quotes (refused by the early lock before anything is created)."""
 
 from __future__ import annotations
 
+import csv
 import errno
 import json
 import logging
@@ -374,3 +375,73 @@ def test_a_signal_while_the_pool_forks_its_workers_stops_the_sweep(tmp_path, sig
         err = proc.communicate(timeout=120)[1]
         assert proc.returncode == 128 + sig, (delay, err)
         assert len(lines(err)) == 1 and "during the sweep" in err, (delay, err)
+
+
+# -- a signal while Hydra starts a run in a dir an earlier run completed ---------------------
+
+STOP_AT_JOB_START = ("+hydra.callbacks.stop._target_=tests.hydra_callbacks.SignalAtJobStart",)
+STOP_AT_RUN_START = ("+hydra.callbacks.stop._target_=tests.hydra_callbacks.SignalAtRunStart",)
+
+
+def by_signal(callback: tuple[str, ...], sig: int) -> tuple[str, ...]:
+    return (*callback, f"+hydra.callbacks.stop.signum={int(sig)}")
+
+
+def run_cmd(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "pipeline", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_after_hydra_rewrote_a_complete_run_dir_marks_it_interrupted(tmp_path, sig):
+    """Hydra writes the new overrides into .hydra/ before the run begins: a signal there
+    must not leave the earlier run's `complete` beside them (a table would pair this run's
+    overrides with the earlier run's metrics). Its artefacts stay as they were."""
+    d = tmp_path / "run"
+    assert run_cmd(*QUICK, f"hydra.run.dir={d}").returncode == 0
+    artefacts = {p.name: p.stat().st_mtime_ns for p in d.glob("*.mcap")}
+    proc = run_cmd(*QUICK, "seed=5", f"hydra.run.dir={d}", *by_signal(STOP_AT_JOB_START, sig))
+    assert proc.returncode == 128 + sig, proc.stderr
+    assert len(lines(proc.stderr)) == 1, proc.stderr
+    assert "seed=5" in (d / ".hydra" / "overrides.yaml").read_text()
+    status = read_status(d)
+    assert status.state == "interrupted" and status.done == () and \
+        "before the first stage" in status.error, status
+    assert {p.name: p.stat().st_mtime_ns for p in d.glob("*.mcap")} == artefacts
+
+
+def test_a_signal_before_hydra_writes_leaves_the_earlier_run_as_it_was(tmp_path):
+    d = tmp_path / "run"
+    assert run_cmd(*QUICK, f"hydra.run.dir={d}").returncode == 0
+    before = {p.name: p.read_bytes() for p in [*d.glob(".hydra/*"), d / "status.json"]}
+    proc = run_cmd(*QUICK, "seed=5", f"hydra.run.dir={d}",
+                   *by_signal(STOP_AT_RUN_START, signal.SIGTERM))
+    assert proc.returncode == 143 and len(lines(proc.stderr)) == 1, proc.stderr
+    assert {p.name: p.read_bytes() for p in [*d.glob(".hydra/*"), d / "status.json"]} == before
+    assert read_status(d).complete
+
+
+@pytest.mark.parametrize("launcher, code", [("basic", 143), ("pool", 1)])
+def test_a_signal_while_hydra_starts_a_rerun_sweeps_job(tmp_path, launcher, code):
+    """A sweep re-run into a dir whose jobs completed: a job stopped after Hydra rewrote
+    its .hydra/ says interrupted, with this sweep's number, and counts. With Hydra's basic
+    launcher the signal stops the sweep; in a pool worker it fails that job alone (each
+    job signals its own worker here: both fail)."""
+    sweep = tmp_path / "sweep"
+    assert run_cmd("-m", *QUICK, "seed=1,2", f"hydra.sweep.dir={sweep}").returncode == 0
+    proc = run_cmd("-m", *QUICK, "seed=3,4", f"hydra.sweep.dir={sweep}",
+                   f"hydra/launcher={launcher}", *by_signal(STOP_AT_JOB_START, signal.SIGTERM))
+    assert proc.returncode == code, proc.stderr
+    err = [ln for ln in lines(proc.stderr) if "[HYDRA]" not in ln]
+    assert len(err) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "seed=3" in (sweep / "0" / ".hydra" / "overrides.yaml").read_text()
+    first = read_status(sweep / "0")
+    assert (first.state, first.sweep) == ("interrupted", 2), first
+    table = subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate", str(sweep)],
+                           cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert table.returncode != 0, table.stdout + table.stderr
+    with open(sweep / "summary.csv", newline="") as f:
+        rows = {row["job"]: row for row in csv.DictReader(f)}
+    # job 0's row: this sweep's overrides, no metric of the earlier sweep's job 0
+    assert (rows["0"]["status"], rows["0"]["seed"]) == ("interrupted", "3"), rows
+    assert "policy_loss" not in rows["0"] or rows["0"]["policy_loss"] == "", rows
