@@ -53,10 +53,11 @@ from hydra.core.utils import (
 )
 from hydra.plugins.launcher import Launcher
 from hydra.types import HydraContext, TaskFunction
-from omegaconf import DictConfig, open_dict, read_write
+from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
 from pipeline.app.outcome import SweepOutcome
 from pipeline.app.rundir import (
+    HYDRA_FILES,
     STOP_SIGNALS,
     UNKNOWN,
     FailedJob,
@@ -151,8 +152,13 @@ class PoolLauncher(Launcher):
         how = f"killed by {signal.Signals(-exit_code).name}" \
             if exit_code is not None and exit_code < 0 else f"exit status {exit_code}"
         error = f"the worker process running this job died ({how})"
+        job_dir = job_dir_of(idx, sweep_config)
         try:
-            mark_died(job_dir_of(idx, sweep_config), error)
+            mark_died(job_dir, error, current_sweep(Path(str(sweep_config.hydra.sweep.dir))))
+            overrides = job_dir / HYDRA_FILES[-1]
+            if not overrides.exists():  # died before Hydra began the job: a row all the same
+                overrides.parent.mkdir(exist_ok=True)
+                OmegaConf.save(sweep_config.hydra.overrides.task, overrides)
         except OSError:  # no dir to say it in: the sweep's outcome notes it (_noted)
             pass
         log.error("job #%d failed: %s", idx, error)
@@ -288,9 +294,15 @@ class _Pool:
         todo, replies = list(requests), {}
         try:
             while todo or any(w.job for w in self.workers):
-                for w in self.workers:
-                    if w.job is None and todo:
-                        w.send(kind, *todo.pop(0))
+                for k in range(len(self.workers)):
+                    while self.workers[k].job is None and todo:
+                        request = todo.pop(0)
+                        try:
+                            self.workers[k].send(kind, *request)
+                        except OSError:  # the worker died since its last reply (a signal
+                            self.workers[k].job = None  # of its own): the job never
+                            todo.insert(0, request)  # reached it; a new worker takes it
+                            self._replace(self.workers[k])
                 busy = [w for w in self.workers if w.job]
                 wait([w.conn for w in busy] + [w.process.sentinel for w in busy])
                 for w in busy:
@@ -308,13 +320,19 @@ class _Pool:
                         w.process.join()
                         replies[idx] = on_death(idx, payload, w.process.exitcode)
                         self.executed += kind == "execute"
-                        with signals_held():
-                            self.workers[self.workers.index(w)] = _Worker()
+                        self._replace(w)
         except (KeyboardInterrupt, Interrupted) as e:
             stopped = as_interrupted(e, None)
             self._stop(stopped.signum if stopped else signal.SIGINT)
             raise
         return replies
+
+    def _replace(self, worker: _Worker) -> None:
+        """A new worker in the place of one that died."""
+        worker.process.join()
+        worker.conn.close()
+        with signals_held():
+            self.workers[self.workers.index(worker)] = _Worker()
 
     def _stop(self, signum: int) -> None:
         """The running jobs get the signal (from the terminal they may have had it already:

@@ -72,7 +72,7 @@ class SweepOutcome(Callback):
         SweepOutcome.ended = True
         SweepOutcome.release()
         try:
-            end_sweep(Path(config.hydra.sweep.dir))
+            end_sweep(Path(config.hydra.sweep.dir), SweepOutcome.unrecorded)
         except OSError:  # a full disk: the record stays unfinished, the failed jobs say why
             pass
 

@@ -413,16 +413,17 @@ def mark_ended_before_stages(run_dir: Path, state: str, error: str,
         write_status(run_dir, state, None, error, [], [], sweep)
 
 
-def mark_died(run_dir: Path, error: str) -> None:
+def mark_died(run_dir: Path, error: str, sweep: int | None = None) -> None:
     """A run whose process died without a word (killed with -9, out of memory, as a sweep's
     worker sees it): its status.json says failed with `error`, keeping the stage it was at
-    and the stages it had done. A status the run wrote at its end is left as it is."""
+    and the stages it had done (and `sweep`, the number of the sweep whose job it is, where
+    the run had recorded none). A status the run wrote at its end is left as it is."""
     status = read_status(run_dir)
     if status.state != UNKNOWN and status.error != KILLED:
         return
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     write_status(run_dir, FAILED, status.stage, error, list(status.stages), list(status.done),
-                 status.sweep)
+                 status.sweep if status.sweep is not None else sweep)
 
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
@@ -463,11 +464,34 @@ def abandon_sweep(sweep_dir: Path, previous: dict) -> None:
         path.unlink(missing_ok=True)
 
 
-def end_sweep(sweep_dir: Path) -> None:
-    """The sweep's launcher has returned every job (none may be left unstarted)."""
+def end_sweep(sweep_dir: Path, unrecorded: dict[str, str] | None = None) -> None:
+    """The sweep's launcher has returned every job (none may be left unstarted).
+    `unrecorded`: job dir -> error of its jobs that failed where no status.json of this
+    sweep says so (the dir could not be made, or holds an earlier sweep's job); the record
+    keeps them, so a table lists them."""
     number = current_sweep(sweep_dir)
     if number is not None:
-        write_json_atomic(Path(sweep_dir) / SWEEP_FILE, {"sweep": number, "finished": True})
+        record: dict = {"sweep": number, "finished": True}
+        if unrecorded:
+            record["unrecorded"] = {_relative(Path(j), sweep_dir): e
+                                    for j, e in unrecorded.items()}
+        write_json_atomic(Path(sweep_dir) / SWEEP_FILE, record)
+
+
+def unrecorded_jobs(sweep_dir: Path) -> dict[str, str]:
+    """The failed jobs of the last sweep that end_sweep recorded beside their dirs (job,
+    relative to the sweep dir -> error)."""
+    jobs = _sweep_record(sweep_dir).get("unrecorded")
+    if not isinstance(jobs, dict):
+        return {}
+    return {str(j): str(e) for j, e in jobs.items()}
+
+
+def _relative(job_dir: Path, sweep_dir: Path) -> str:
+    try:
+        return str(job_dir.relative_to(sweep_dir))
+    except ValueError:
+        return str(job_dir)
 
 
 def _sweep_record(sweep_dir: Path) -> dict:

@@ -311,7 +311,9 @@ def main(argv=None) -> int:
     drawn = args.figures and len(failed) < len(rows)  # the figures need a job that ran
     print(f"{len(rows) - len(failed)} of {len(rows)} jobs ok; wrote "
           f"{args.sweep_dir / SUMMARY_FILE}{' and figures' if drawn else ''}")
-    earlier = sweep_jobs(args.sweep_dir)[1]
+    in_rows = {r["job"] for r in rows}  # (a job of this sweep that failed in such a dir)
+    earlier = [j for j in sweep_jobs(args.sweep_dir)[1]
+               if str(j.relative_to(args.sweep_dir)) not in in_rows]
     if earlier:
         names = ", ".join(str(j.relative_to(args.sweep_dir)) for j in earlier[:10])
         print(f"note: left out {len(earlier)} job dir(s) an earlier sweep into this dir left "

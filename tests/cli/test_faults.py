@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.__main__ import LogFiles, guard_log_files
-from pipeline.app import rundir
+from pipeline.app import launcher, rundir
 from pipeline.app.rundir import RunDir, read_status
 from pipeline.errors import PipelineError
 from tests.conftest import ROOT
@@ -445,3 +445,72 @@ def test_a_signal_while_hydra_starts_a_rerun_sweeps_job(tmp_path, launcher, code
     # job 0's row: this sweep's overrides, no metric of the earlier sweep's job 0
     assert (rows["0"]["status"], rows["0"]["seed"]) == ("interrupted", "3"), rows
     assert "policy_loss" not in rows["0"] or rows["0"]["policy_loss"] == "", rows
+
+
+# A worker that dies after taking a job but before Hydra begins it (made deterministic: the
+# job's worker kills itself with SIGKILL as it starts job #1).
+_DIES_BEFORE_HYDRA = """
+import os, signal, sys
+sys.argv[0] = "birlg"
+from pipeline.app import launcher
+from pipeline.__main__ import cli
+_execute = launcher.PoolLauncher.execute
+def execute(self, idx, cfg):
+    if idx == 1:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return _execute(self, idx, cfg)
+launcher.PoolLauncher.execute = execute
+cli()
+"""
+
+
+def aggregate_rows(sweep: Path) -> tuple[subprocess.CompletedProcess, dict[str, dict]]:
+    table = subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate", str(sweep)],
+                           cwd=ROOT, capture_output=True, text=True, timeout=120)
+    with open(sweep / "summary.csv", newline="") as f:
+        return table, {row["job"]: row for row in csv.DictReader(f)}
+
+
+@pytest.mark.parametrize("rerun", [False, True])
+def test_a_worker_that_dies_before_hydra_begins_its_job_is_a_failed_row(tmp_path, rerun):
+    """The job has no status.json of this sweep (a fresh dir: none at all; a re-run: the
+    earlier sweep's `complete`): the sweep's last line counts it and the table has it as a
+    failed row, never with the earlier sweep's metrics."""
+    sweep = tmp_path / "sweep"
+    if rerun:
+        assert run_cmd("-m", *QUICK, "seed=1,2,3", f"hydra.sweep.dir={sweep}").returncode == 0
+    proc = subprocess.run([sys.executable, "-c", _DIES_BEFORE_HYDRA, "-m", *QUICK, "seed=4,5,6",
+                           "hydra/launcher=pool", "hydra.launcher.n_jobs=2",
+                           f"hydra.sweep.dir={sweep}"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 1, proc.stderr
+    said = lines(proc.stderr)[-1]
+    assert said.startswith(f"error: 1 sweep job(s) failed, first {sweep / '1'}: the worker "
+                           "process running this job died (killed by SIGKILL)"), proc.stderr
+    table, rows = aggregate_rows(sweep)
+    assert table.returncode == 1, table.stderr
+    assert [rows[j]["status"] for j in "012"] == ["ok", "failed", "ok"], rows
+    assert "died" in rows["1"]["error"] and rows["1"].get("policy_loss", "") == "", rows
+    assert rows["1"]["seed"] == ("" if rerun else "5"), rows  # its overrides, where Hydra's
+    assert "earlier sweep" not in table.stderr, table.stderr
+
+
+def test_a_worker_that_died_idle_is_replaced_before_its_next_job(tmp_path):
+    """A signal of its own ends an idle worker (between jobs SIGTERM is the default action):
+    the next job must go to a new worker, not to a broken pipe that stopped the sweep."""
+    class Composer:
+        def compose(self, overrides):
+            return list(reversed(overrides))
+
+    launcher._Current.launcher, launcher._Current.jobs = Composer(), {0: ["a", "b"], 1: ["c"]}
+    pool = launcher._Pool(1)
+    try:
+        assert pool.run("compose", [(0, None)], on_death=None) == {0: ["b", "a"]}
+        dead = pool.workers[0].process
+        os.kill(dead.pid, signal.SIGTERM)
+        dead.join(10)
+        assert pool.run("compose", [(1, None)], on_death=None) == {1: ["c"]}
+        assert pool.workers[0].process is not dead
+    finally:
+        pool.close()
+        launcher._Current.launcher, launcher._Current.jobs = None, {}
