@@ -58,6 +58,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 from pipeline.app.outcome import SweepOutcome
 from pipeline.app.rundir import (
     HYDRA_FILES,
+    INTERRUPTED,
     STOP_SIGNALS,
     UNKNOWN,
     FailedJob,
@@ -67,6 +68,7 @@ from pipeline.app.rundir import (
     error_text,
     ignore_repeat,
     mark_died,
+    mark_ended_before_stages,
     mark_started_by_hydra,
     read_status,
     run_files_version,
@@ -155,10 +157,7 @@ class PoolLauncher(Launcher):
         job_dir = job_dir_of(idx, sweep_config)
         try:
             mark_died(job_dir, error, current_sweep(Path(str(sweep_config.hydra.sweep.dir))))
-            overrides = job_dir / HYDRA_FILES[-1]
-            if not overrides.exists():  # died before Hydra began the job: a row all the same
-                overrides.parent.mkdir(exist_ok=True)
-                OmegaConf.save(sweep_config.hydra.overrides.task, overrides)
+            save_overrides(job_dir, sweep_config)
         except OSError:  # no dir to say it in: the sweep's outcome notes it (_noted)
             pass
         log.error("job #%d failed: %s", idx, error)
@@ -193,6 +192,15 @@ def job_dir_of(idx: int, sweep_config: DictConfig) -> Path:
         cfg.hydra.job.id = f"{cfg.hydra.job.name}_{idx}"
         cfg.hydra.job.num = idx
     return Path(str(cfg.hydra.sweep.dir)) / str(cfg.hydra.sweep.subdir)
+
+
+def save_overrides(job_dir: Path, sweep_config: DictConfig) -> None:
+    """The job's overrides where Hydra writes them, if Hydra had not begun the job: its
+    failed status then makes a row of the sweep's table with the settings it was for."""
+    overrides = job_dir / HYDRA_FILES[-1]
+    if not overrides.exists():
+        overrides.parent.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(sweep_config.hydra.overrides.task, overrides)
 
 
 def refuse_misplaced_job_dirs(runs: list[tuple[int, DictConfig]], sweep_dir: Path) -> None:
@@ -418,8 +426,11 @@ def _serve(conn: Connection, parent_pid: int) -> None:
         except (KeyboardInterrupt, Interrupted) as e:
             reply = as_interrupted(e, None)
             with suppress(OSError):  # stopped while Hydra started it: the dir says so
-                mark_started_by_hydra(job_dir, before, reply.describe(),
-                                      current_sweep(Path(str(payload.hydra.sweep.dir))))
+                number = current_sweep(Path(str(payload.hydra.sweep.dir)))
+                mark_started_by_hydra(job_dir, before, reply.describe(), number)
+                if read_status(job_dir).state == UNKNOWN:  # before Hydra began it
+                    mark_ended_before_stages(job_dir, INTERRUPTED, reply.describe(), number)
+                    save_overrides(job_dir, payload)
         try:
             conn.send(reply)
         except OSError:  # the sweep's process is gone

@@ -22,11 +22,14 @@ import json
 import logging
 import os
 import signal
+import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 from pipeline.artefacts.store import content_digest, write_json_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
@@ -95,19 +98,51 @@ def stopped_by_signals() -> Iterator[None]:
         yield
         return
 
+    stops: list[int] = []
+
     def stop(signum: int, frame: object) -> None:
         # One signal stops the run; a second one (Ctrl-C reaches a sweep's workers both from
         # the terminal and from the sweep's process) must not cut short writing status.json.
-        for sig in previous:
+        for sig in STOP_SIGNALS:
             signal.signal(sig, ignore_repeat)
+        stops.append(signum)
         raise Interrupted(signum)
 
-    previous = {sig: signal.signal(sig, stop) for sig in STOP_SIGNALS}
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, stop)
+    unraisable_hook = sys.unraisablehook
+    sys.unraisablehook = partial(_quiet_about_stops, unraisable_hook)
+    _STOPS.append(stops)
     try:
         yield
+        if stops:  # the Interrupted was raised where Python drops exceptions (a finaliser,
+            raise Interrupted(stops[0])  # a weakref callback) and the block went on
     finally:
+        _STOPS.remove(stops)
+        sys.unraisablehook = unraisable_hook
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+# the signals each open stopped_by_signals block has had (the innermost last)
+_STOPS: list[list[int]] = []
+
+
+def _quiet_about_stops(hook: Callable[[Any], None], unraisable: Any) -> None:
+    """sys.unraisablehook while signals stop the run: an Interrupted that Python drops (it
+    was raised inside a finaliser) says nothing; the block raises it again (`stopped_by_
+    signals`, RunDir.start)."""
+    if not isinstance(unraisable.exc_value, Interrupted):
+        hook(unraisable)
+
+
+def raise_if_stopped() -> None:
+    """Raise the Interrupted of a signal whose exception Python dropped (see
+    `stopped_by_signals`), where the run can stop cleanly: between its stages."""
+    for stops in _STOPS:
+        if stops:
+            raise Interrupted(stops[0])
 
 
 @dataclass(frozen=True)
@@ -318,6 +353,7 @@ class RunDir:
                 self._fd = None
 
     def start(self, stage: str) -> None:
+        raise_if_stopped()
         self.stage = stage
         self._write(RUNNING)
 
@@ -340,6 +376,7 @@ class RunDir:
                      ", ".join(p.name for p in removed), stage)
 
     def done(self, stage: str) -> None:
+        raise_if_stopped()  # (the stage's artefact stays: it is whole)
         self.done_stages.append(stage)
 
     def _remove_stale_temp_files(self) -> None:

@@ -38,6 +38,7 @@ from pipeline.app.rundir import (
     is_locked,
     mark_ended_before_stages,
     read_status,
+    stopped_by_signals,
     sweep_jobs,
     write_status,
 )
@@ -603,3 +604,35 @@ def test_a_sweep_that_ran_no_job_leaves_the_record_as_it_was(tmp_path):
     fresh = tmp_path / "fresh"
     abandon_sweep(fresh, begin_sweep(fresh)[1])  # no record before: none after
     assert not (fresh / SWEEP_FILE).exists()
+
+
+class _SignalledWhileFinalised:
+    """Sends this process SIGINT when it is finalised and lets the handler run there."""
+
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGINT)
+        for _ in range(1000):  # the handler runs at one of these steps, inside __del__
+            pass
+
+
+def test_a_stop_python_drops_in_a_finaliser_is_raised_at_the_end_of_the_block(capfd):
+    # An exception raised inside __del__ is printed ("Exception ignored in") and dropped:
+    # the signal must still stop the block, without the printout
+    reached_the_end = False
+    with pytest.raises(Interrupted) as stopped:
+        with stopped_by_signals():
+            _SignalledWhileFinalised()
+            reached_the_end = True
+    assert reached_the_end and stopped.value.signum == signal.SIGINT
+    assert capfd.readouterr().err == ""
+
+
+def test_a_stop_python_drops_in_a_finaliser_stops_the_run_at_the_next_stage(tmp_path):
+    with pytest.raises(Interrupted), stopped_by_signals(), RunDir(tmp_path, ["scene", "demos"]) \
+            as rundir:
+        rundir.start("scene")
+        _SignalledWhileFinalised()
+        rundir.done("scene")  # the stage's artefact is whole; the next one must not start
+        rundir.start("demos")
+    status = read_status(tmp_path)
+    assert (status.state, status.stage) == ("interrupted", "scene"), status

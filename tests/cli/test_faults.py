@@ -447,17 +447,18 @@ def test_a_signal_while_hydra_starts_a_rerun_sweeps_job(tmp_path, launcher, code
     assert "policy_loss" not in rows["0"] or rows["0"]["policy_loss"] == "", rows
 
 
-# A worker that dies after taking a job but before Hydra begins it (made deterministic: the
-# job's worker kills itself with SIGKILL as it starts job #1).
-_DIES_BEFORE_HYDRA = """
+# A worker stopped after taking a job but before Hydra begins it (made deterministic: the
+# worker sends itself the signal given first as it starts job #1).
+_STOPPED_BEFORE_HYDRA = """
 import os, signal, sys
+signum = int(sys.argv.pop(1))
 sys.argv[0] = "birlg"
 from pipeline.app import launcher
 from pipeline.__main__ import cli
 _execute = launcher.PoolLauncher.execute
 def execute(self, idx, cfg):
     if idx == 1:
-        os.kill(os.getpid(), signal.SIGKILL)
+        os.kill(os.getpid(), signum)
     return _execute(self, idx, cfg)
 launcher.PoolLauncher.execute = execute
 cli()
@@ -472,26 +473,33 @@ def aggregate_rows(sweep: Path) -> tuple[subprocess.CompletedProcess, dict[str, 
 
 
 @pytest.mark.parametrize("rerun", [False, True])
-def test_a_worker_that_dies_before_hydra_begins_its_job_is_a_failed_row(tmp_path, rerun):
+@pytest.mark.parametrize("sig, state, error", [
+    (signal.SIGKILL, "failed", "the worker process running this job died (killed by SIGKILL)"),
+    (signal.SIGTERM, "interrupted", "stopped by SIGTERM before the first stage"),
+])
+def test_a_job_stopped_before_hydra_begins_it_is_a_failed_row(tmp_path, rerun, sig, state,
+                                                              error):
     """The job has no status.json of this sweep (a fresh dir: none at all; a re-run: the
     earlier sweep's `complete`): the sweep's last line counts it and the table has it as a
-    failed row, never with the earlier sweep's metrics."""
+    failed row (with its settings where the dir was fresh), never with the earlier sweep's
+    metrics."""
     sweep = tmp_path / "sweep"
     if rerun:
         assert run_cmd("-m", *QUICK, "seed=1,2,3", f"hydra.sweep.dir={sweep}").returncode == 0
-    proc = subprocess.run([sys.executable, "-c", _DIES_BEFORE_HYDRA, "-m", *QUICK, "seed=4,5,6",
-                           "hydra/launcher=pool", "hydra.launcher.n_jobs=2",
-                           f"hydra.sweep.dir={sweep}"],
+    proc = subprocess.run([sys.executable, "-c", _STOPPED_BEFORE_HYDRA, str(int(sig)), "-m",
+                           *QUICK, "seed=4,5,6", "hydra/launcher=pool",
+                           "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={sweep}"],
                           cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 1, proc.stderr
-    said = lines(proc.stderr)[-1]
-    assert said.startswith(f"error: 1 sweep job(s) failed, first {sweep / '1'}: the worker "
-                           "process running this job died (killed by SIGKILL)"), proc.stderr
+    assert [ln for ln in lines(proc.stderr) if "[HYDRA]" not in ln] == [
+        f"error: 1 sweep job(s) failed, first {sweep / '1'}: {error} (make aggregate lists "
+        "all)"], proc.stderr
     table, rows = aggregate_rows(sweep)
     assert table.returncode == 1, table.stderr
-    assert [rows[j]["status"] for j in "012"] == ["ok", "failed", "ok"], rows
-    assert "died" in rows["1"]["error"] and rows["1"].get("policy_loss", "") == "", rows
-    assert rows["1"]["seed"] == ("" if rerun else "5"), rows  # its overrides, where Hydra's
+    assert [rows[j]["status"] for j in "02"] == ["ok", "ok"], rows
+    assert rows["1"]["status"] == ("failed" if rerun else state), rows
+    assert rows["1"]["error"] == error and rows["1"].get("policy_loss", "") == "", rows
+    assert rows["1"]["seed"] == ("" if rerun else "5"), rows
     assert "earlier sweep" not in table.stderr, table.stderr
 
 
