@@ -478,13 +478,29 @@ def begin_sweep(sweep_dir: Path) -> tuple[int, dict]:
     in the dir (a re-run with fewer jobs) are told apart from this sweep's. The number is one
     more than the last sweep's that ran a job there (from 1; read from the jobs as well, so a
     damaged SWEEP_FILE does not restart it): a sweep that ran none is numbered again."""
-    recorded = {read_status(j).sweep for j in job_dirs(sweep_dir)}
+    statuses = {j: read_status(j) for j in job_dirs(sweep_dir)}
+    recorded = {status.sweep for status in statuses.values()}
     last = max([current_sweep(sweep_dir) or 0] + [n for n in recorded if isinstance(n, int)])
     number = last if last > 0 and last not in recorded else last + 1
     previous = _sweep_record(sweep_dir)
+    record: dict = {"sweep": number, "finished": False}
+    # job dirs whose status.json cannot be read are an earlier sweep's as long as this one
+    # has not begun a job in them (Hydra rewrites their overrides)
+    unreadable = {_relative(j, sweep_dir): _overrides_version(j)
+                  for j, status in statuses.items() if status.state == UNKNOWN}
+    if unreadable:
+        record["unreadable_before"] = unreadable
     Path(sweep_dir).mkdir(parents=True, exist_ok=True)
-    write_json_atomic(Path(sweep_dir) / SWEEP_FILE, {"sweep": number, "finished": False})
+    write_json_atomic(Path(sweep_dir) / SWEEP_FILE, record)
     return number, previous
+
+
+def _overrides_version(job_dir: Path) -> list[int] | None:
+    try:
+        st = (Path(job_dir) / HYDRA_FILES[-1]).stat()
+    except OSError:
+        return None
+    return [st.st_ino, st.st_mtime_ns]
 
 
 def abandon_sweep(sweep_dir: Path, previous: dict) -> None:
@@ -508,7 +524,7 @@ def end_sweep(sweep_dir: Path, unrecorded: dict[str, str] | None = None) -> None
     keeps them, so a table lists them."""
     number = current_sweep(sweep_dir)
     if number is not None:
-        record: dict = {"sweep": number, "finished": True}
+        record = {**_sweep_record(sweep_dir), "finished": True}
         if unrecorded:
             record["unrecorded"] = {_relative(Path(j), sweep_dir): e
                                     for j, e in unrecorded.items()}
@@ -554,11 +570,22 @@ def sweep_finished(sweep_dir: Path) -> bool:
 
 def sweep_jobs(sweep_dir: Path) -> tuple[list[Path], list[Path]]:
     """(the jobs of the last sweep into `sweep_dir`, job dirs earlier sweeps left there).
-    A job with no readable status.json counts as the last sweep's: it may have been killed
-    before writing one."""
+    A job with no readable status.json counts as the last sweep's (it may have been killed
+    before writing one) unless it was so before the sweep began and the sweep has not
+    begun a job in it."""
     jobs, number = job_dirs(sweep_dir), current_sweep(sweep_dir)
     if number is None:
         return jobs, []
     statuses = {j: read_status(j) for j in jobs}
-    stale = [j for j in jobs if statuses[j].state != UNKNOWN and statuses[j].sweep != number]
+    unreadable_before = _sweep_record(sweep_dir).get("unreadable_before")
+    if not isinstance(unreadable_before, dict):
+        unreadable_before = {}
+
+    def left_before(j: Path) -> bool:
+        if statuses[j].state != UNKNOWN:
+            return statuses[j].sweep != number
+        version = unreadable_before.get(_relative(j, sweep_dir))
+        return version is not None and version == _overrides_version(j)
+
+    stale = [j for j in jobs if left_before(j)]
     return [j for j in jobs if j not in stale], stale

@@ -35,6 +35,7 @@ from pipeline.app.rundir import (
     begin_sweep,
     check_from_run,
     current_sweep,
+    end_sweep,
     is_locked,
     mark_ended_before_stages,
     read_status,
@@ -604,6 +605,21 @@ def test_a_sweep_that_ran_no_job_leaves_the_record_as_it_was(tmp_path):
     fresh = tmp_path / "fresh"
     abandon_sweep(fresh, begin_sweep(fresh)[1])  # no record before: none after
     assert not (fresh / SWEEP_FILE).exists()
+
+
+def test_a_job_dir_left_damaged_by_an_earlier_sweep_is_not_this_sweeps(tmp_path):
+    # its status.json unreadable before the sweep began: it is not this sweep's failed job
+    # (a clean re-run exited 1 for it), until this sweep begins a job in it
+    begin_sweep(tmp_path)
+    kept, damaged = _sweep_job(tmp_path, "0", 1), _sweep_job(tmp_path, "1", 1)
+    (damaged / "status.json").write_text("{damaged")
+    number = begin_sweep(tmp_path)[0]
+    assert number == 2 and sweep_jobs(tmp_path) == ([], [kept, damaged])
+    end_sweep(tmp_path)  # the record keeps what it found unreadable
+    assert sweep_jobs(tmp_path) == ([], [kept, damaged])
+    time.sleep(0.01)
+    (damaged / ".hydra" / "overrides.yaml").write_text("- seed=9\n")  # Hydra began a job
+    assert sweep_jobs(tmp_path) == ([damaged], [kept])  # killed before its status.json
 
 
 class _SignalledWhileFinalised:
