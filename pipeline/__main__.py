@@ -91,13 +91,15 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
     # In a sweep a failing job must not stop the others: its status.json says failed (with
     # the sweep's number, as every job's does), and `make aggregate` reports it in its table
     # and exit status.
+    number = current_sweep(Path(hydra_cfg.sweep.dir))
     try:
-        run_pipeline(cfg, run_dir, sweep=current_sweep(Path(hydra_cfg.sweep.dir)),
-                     group_choices=hydra_cfg.runtime.choices)
+        run_pipeline(cfg, run_dir, sweep=number, group_choices=hydra_cfg.runtime.choices)
     except Exception as e:  # noqa: BLE001 - any failure of one job, reported per job
         error = error_text(e)
         logging.getLogger("pipeline").error("job failed: %s", error,
                                             exc_info=not isinstance(e, PipelineError))
+        if read_status(run_dir).sweep != number:  # no status.json of this sweep says so
+            SweepOutcome.unrecorded[str(run_dir)] = error  # (e.g. a read-only job dir)
         return FailedJob(error)
     return objective_value(run_dir, cfg.objective)
 

@@ -22,7 +22,7 @@ from pipeline.app.rundir import (
     run_files_version,
     sweep_jobs,
 )
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, os_error_reason
 
 
 class SweepRefused(BaseException):
@@ -64,7 +64,12 @@ class SweepOutcome(Callback):
                 "or choose another hydra.sweep.dir"))
         except PipelineError as e:
             raise SweepRefused(e) from None
-        SweepOutcome._number, SweepOutcome._previous = begin_sweep(sweep_dir)
+        try:
+            SweepOutcome._number, SweepOutcome._previous = begin_sweep(sweep_dir)
+        except OSError as e:  # e.g. a read-only sweep dir: its jobs could not be told apart
+            SweepOutcome.release()
+            raise SweepRefused(PipelineError(
+                f"cannot use sweep dir {sweep_dir}: {os_error_reason(e)}")) from None
         SweepOutcome._versions = {j: run_files_version(j) for j in job_dirs(sweep_dir)}
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:

@@ -23,6 +23,7 @@ import logging
 import os
 import signal
 import sys
+import tempfile
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
@@ -281,6 +282,7 @@ def locked(run_dir: Path):
     _HANDED_OVER.add(key)
     before = run_files_version(run_dir)
     try:
+        check_writable(run_dir)
         yield
     except (KeyboardInterrupt, Interrupted) as e:
         with suppress(OSError):
@@ -289,6 +291,18 @@ def locked(run_dir: Path):
     finally:
         _HANDED_OVER.discard(key)
         os.close(fd)  # releases the lock
+
+
+def check_writable(run_dir: Path) -> None:
+    """Refuse a run dir where no new file can be made (e.g. read-only) before Hydra
+    rewrites its .hydra/ (a writable subdir): the dir would be left with this run's
+    overrides beside the earlier run's status and metrics."""
+    try:
+        fd, probe = tempfile.mkstemp(dir=run_dir, suffix=".tmp")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise PipelineError(f"cannot use run dir {run_dir}: {os_error_reason(e)}") from None
 
 
 def run_files_version(run_dir: Path) -> tuple:

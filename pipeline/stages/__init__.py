@@ -74,17 +74,20 @@ def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
         except OSError:  # e.g. the run dir's place is a file: the error itself says more
             pass
         raise
-    with stopped_by_signals(), RunDir(run_dir, stages, sweep) as rundir:
-        ctx.before_replace = rundir.before_replace
-        timings = ctx.timings  # stages add their own measurements
-        timings.update(read_timings(run_dir / "timings.json"))
-        for stage in STAGES[STAGES.index(stages[0]):]:  # derived: re-measured or removed
-            timings.pop(f"time_{stage}_s", None)
-        for stage in stages:
-            try:
-                run_stage(stage, ctx, rundir)
-            except OSError as e:  # disk full, read-only dir, ...: one line, no traceback
-                raise PipelineError(f"stage {stage}: {os_error_reason(e)}") from None
+    try:
+        with stopped_by_signals(), RunDir(run_dir, stages, sweep) as rundir:
+            ctx.before_replace = rundir.before_replace
+            timings = ctx.timings  # stages add their own measurements
+            timings.update(read_timings(run_dir / "timings.json"))
+            for stage in STAGES[STAGES.index(stages[0]):]:  # derived: re-measured or removed
+                timings.pop(f"time_{stage}_s", None)
+            for stage in stages:
+                try:
+                    run_stage(stage, ctx, rundir)
+                except OSError as e:  # disk full, read-only dir, ...: one line, no traceback
+                    raise PipelineError(f"stage {stage}: {os_error_reason(e)}") from None
+    except OSError as e:  # the run dir's own files (status.json, the lock): e.g. read-only
+        raise PipelineError(f"cannot use run dir {run_dir}: {os_error_reason(e)}") from None
     return timings
 
 

@@ -522,3 +522,74 @@ def test_a_worker_that_died_idle_is_replaced_before_its_next_job(tmp_path):
     finally:
         pool.close()
         launcher._Current.launcher, launcher._Current.jobs = None, {}
+
+
+# -- a read-only run dir or sweep dir (as a user without root's override of permissions) -----
+
+DROP_ROOTS_OVERRIDE = ["setpriv", "--bounding-set=-dac_override,-dac_read_search",
+                       "--inh-caps=-dac_override,-dac_read_search", "--"]
+
+
+def run_as_user(*args: str) -> subprocess.CompletedProcess:
+    """The command as a user for whom permissions hold (root passes over them: here root
+    drops that power with setpriv)."""
+    prefix = DROP_ROOTS_OVERRIDE if os.geteuid() == 0 else []
+    if prefix and shutil.which("setpriv") is None:
+        pytest.skip("running as root without setpriv: permissions cannot be made to hold")
+    return subprocess.run([*prefix, sys.executable, "-m", "pipeline", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)
+
+
+def contents(d: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(d)): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_a_read_only_run_dir_is_refused_before_hydra_writes_into_it(tmp_path):
+    d = tmp_path / "run"
+    assert run_cmd(*QUICK, f"hydra.run.dir={d}").returncode == 0
+    before = contents(d)
+    d.chmod(0o555)
+    try:
+        proc = run_as_user(*QUICK, "seed=4", f"hydra.run.dir={d}")
+    finally:
+        d.chmod(0o755)
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines(proc.stderr)) == 1 and \
+        proc.stderr.startswith(f"error: cannot use run dir {d}: Permission denied"), proc.stderr
+    assert contents(d) == before  # not this run's overrides beside the earlier run's metrics
+
+
+def test_a_read_only_sweep_dir_is_refused_in_one_line(tmp_path):
+    sweep = tmp_path / "sweep"
+    assert run_cmd("-m", *QUICK, "seed=1,2", f"hydra.sweep.dir={sweep}").returncode == 0
+    before = contents(sweep)
+    sweep.chmod(0o555)
+    try:
+        proc = run_as_user("-m", *QUICK, "seed=3,4", f"hydra.sweep.dir={sweep}")
+    finally:
+        sweep.chmod(0o755)
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines(proc.stderr)) == 1 and proc.stderr.startswith(
+        f"error: cannot use sweep dir {sweep}: Permission denied"), proc.stderr
+    assert contents(sweep) == before
+
+
+@pytest.mark.parametrize("launcher", ["basic", "pool"])
+def test_a_read_only_job_dir_fails_its_job_alone(tmp_path, launcher):
+    sweep = tmp_path / "sweep"
+    assert run_cmd("-m", *QUICK, "seed=1,2", f"hydra.sweep.dir={sweep}").returncode == 0
+    (sweep / "1").chmod(0o555)
+    try:
+        proc = run_as_user("-m", *QUICK, "seed=3,4", f"hydra.sweep.dir={sweep}",
+                           f"hydra/launcher={launcher}")
+    finally:
+        (sweep / "1").chmod(0o755)
+    assert proc.returncode == 1, proc.stderr
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert lines(proc.stderr)[-1].startswith(
+        f"error: 1 sweep job(s) failed, first {sweep / '1'}: cannot use run dir {sweep / '1'}: "
+        "Permission denied"), proc.stderr
+    table, rows = aggregate_rows(sweep)
+    assert table.returncode == 1, table.stderr
+    assert (rows["0"]["status"], rows["0"]["seed"]) == ("ok", "3"), rows
+    assert rows["1"]["status"] == "failed" and rows["1"].get("policy_loss", "") == "", rows
