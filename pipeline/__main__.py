@@ -381,12 +381,12 @@ def cli() -> None:
         if interrupted is not None and is_the_command():
             for signum in STOP_SIGNALS:  # the first one counts: a repeat (Ctrl-C pressed
                 signal.signal(signum, ignore_repeat)  # again, a second kill) is ignored
-        SweepOutcome.stopped(interrupted)
+        if interrupted is not None and interrupted.stage is None and interrupted.during is None:
+            interrupted.during = phase()
+        SweepOutcome.stopped(interrupted, why=None if interrupted is not None else one_line(e))
         if interrupted is not None:
             if _show_tracebacks[0]:
                 raise
-            if interrupted.stage is None and interrupted.during is None:
-                interrupted.during = phase()
             print(interrupted.describe(), file=sys.stderr)
             if is_the_command():  # the run dirs say interrupted, the lock is the kernel's
                 exit_now(interrupted.exit_code, wait_for_threads=False)

@@ -20,6 +20,7 @@ from pipeline.app.rundir import (
     mark_started_by_hydra,
     read_status,
     run_files_version,
+    stop_sweep,
     sweep_jobs,
 )
 from pipeline.errors import PipelineError, os_error_reason
@@ -82,11 +83,11 @@ class SweepOutcome(Callback):
             pass
 
     @staticmethod
-    def stopped(interrupted: Interrupted | None = None) -> None:
-        """The sweep stopped (an error, a signal: `interrupted`): a job Hydra had begun
-        (its .hydra/ written) but the signal stopped before it wrote its status says
-        interrupted; one that ran no job leaves the dir's record as it was; the dir is
-        unlocked."""
+    def stopped(interrupted: Interrupted | None = None, why: str | None = None) -> None:
+        """The sweep stopped (a signal: `interrupted`; an error, e.g. the sweeper's: `why`):
+        a job Hydra had begun (its .hydra/ written) but the signal stopped before it wrote
+        its status says interrupted; the dir's record says why it stopped, and one that
+        ran no job leaves it as it was; the dir is unlocked."""
         sweep_dir = SweepOutcome.sweep_dir
         if sweep_dir is not None and SweepOutcome._lock_fd is not None:
             if interrupted is not None:
@@ -94,6 +95,8 @@ class SweepOutcome(Callback):
                     with suppress(OSError):
                         mark_started_by_hydra(job, SweepOutcome._versions.get(job),
                                               interrupted.describe(), SweepOutcome._number)
+            with suppress(OSError):
+                stop_sweep(sweep_dir, interrupted.describe() if interrupted else why)
             abandon_sweep(sweep_dir, SweepOutcome._previous)
         SweepOutcome.release()
 

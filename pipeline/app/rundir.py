@@ -545,6 +545,20 @@ def end_sweep(sweep_dir: Path, unrecorded: dict[str, str] | None = None) -> None
         write_json_atomic(Path(sweep_dir) / SWEEP_FILE, record)
 
 
+def stop_sweep(sweep_dir: Path, why: str | None) -> None:
+    """The last sweep into `sweep_dir` stopped before its launcher returned every job: its
+    record says `why` (the signal, the sweeper's error), which tables repeat."""
+    record = _sweep_record(sweep_dir)
+    if why and record.get("finished") is False:
+        write_json_atomic(Path(sweep_dir) / SWEEP_FILE, {**record, "stopped": why})
+
+
+def sweep_stopped_why(sweep_dir: Path) -> str | None:
+    """Why the last sweep into `sweep_dir` stopped, as recorded (None: not recorded)."""
+    why = _sweep_record(sweep_dir).get("stopped")
+    return why if isinstance(why, str) else None
+
+
 def unrecorded_jobs(sweep_dir: Path) -> dict[str, str]:
     """The failed jobs of the last sweep that end_sweep recorded beside their dirs (job,
     relative to the sweep dir -> error)."""

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
-from pipeline.app.rundir import is_locked, sweep_finished, sweep_jobs
+from pipeline.app.rundir import is_locked, sweep_finished, sweep_jobs, sweep_stopped_why
 from pipeline.app.summary import is_metric, summary_rows
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE
@@ -321,7 +321,9 @@ def main(argv=None) -> int:
     for row in failed:
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
     if not sweep_finished(args.sweep_dir):
-        how = "still runs" if is_locked(args.sweep_dir) else "was stopped"
+        why = sweep_stopped_why(args.sweep_dir)
+        how = "still runs" if is_locked(args.sweep_dir) else \
+            f"was stopped{f': {why}' if why else ''}"
         print(f"error: the sweep did not finish (it {how}): jobs it had not started are in "
               "no row", file=sys.stderr)
         return 1

@@ -297,6 +297,13 @@ def test_a_failing_trial_is_a_failed_trial_not_a_failed_tuning(tmp_path):
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("error: 4 sweep job(s) failed") and "config error: birl.beta=-" \
         in last and last.endswith("(the sweep then stopped: No trials are completed yet.)")
+    # the table says why the sweep did not finish (it was "was stopped", as after a Ctrl-C)
+    table = subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate",
+                            str(tmp_path / "b"), "--no-figures"], cwd=ROOT, capture_output=True,
+                           text=True, timeout=120)
+    assert table.returncode == 1 and table.stderr.strip().splitlines()[-1].startswith(
+        "error: the sweep did not finish (it was stopped: No trials are completed yet.)"), \
+        table.stderr
 
 
 @pytest.mark.slow
