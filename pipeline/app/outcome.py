@@ -4,6 +4,7 @@ pipeline.app.rundir, which the sweep's table reads without importing Hydra)."""
 from __future__ import annotations
 
 import os
+import signal
 from contextlib import suppress
 from pathlib import Path
 
@@ -72,6 +73,8 @@ class SweepOutcome(Callback):
             raise SweepRefused(PipelineError(
                 f"cannot use sweep dir {sweep_dir}: {os_error_reason(e)}")) from None
         SweepOutcome._versions = {j: run_files_version(j) for j in job_dirs(sweep_dir)}
+        if "joblib" in str(config.hydra.launcher.get("_target_", "")):
+            start_resource_tracker_deaf_to_hangups()
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         SweepOutcome.failed[:] = failed_jobs(Path(config.hydra.sweep.dir))
@@ -112,3 +115,25 @@ def failed_jobs(sweep_dir: Path) -> list[str]:
     its jobs that failed where no status.json could say so."""
     failed = [str(j) for j in sweep_jobs(sweep_dir)[0] if not read_status(j).complete]
     return failed + [d for d in SweepOutcome.unrecorded if d not in failed]
+
+
+def start_resource_tracker_deaf_to_hangups() -> None:
+    """Start the joblib launcher's resource tracker (loky's) ignoring SIGHUP, as it ignores
+    SIGINT and SIGTERM: the terminal closing would end it mid-sweep (the signal goes to the
+    whole process group), and its relaunched successor prints tracebacks about resources
+    it never knew. An ignored signal stays ignored across the tracker's exec. Its warning
+    about the semaphores of workers a signal ended, which it then removes, is silenced
+    (after Ctrl-C it came below the command's one line)."""
+    from joblib.externals.loky.backend import resource_tracker
+
+    hangup = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    warnings = os.environ.get("PYTHONWARNINGS")
+    os.environ["PYTHONWARNINGS"] = f"ignore::UserWarning:{resource_tracker.__name__}"
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.signal(signal.SIGHUP, hangup)
+        if warnings is None:
+            del os.environ["PYTHONWARNINGS"]
+        else:
+            os.environ["PYTHONWARNINGS"] = warnings

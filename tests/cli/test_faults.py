@@ -593,3 +593,22 @@ def test_a_read_only_job_dir_fails_its_job_alone(tmp_path, launcher):
     assert table.returncode == 1, table.stderr
     assert (rows["0"]["status"], rows["0"]["seed"]) == ("ok", "3"), rows
     assert rows["1"]["status"] == "failed" and rows["1"].get("policy_loss", "") == "", rows
+
+
+def test_the_terminal_closing_on_a_joblib_sweep_is_one_line(tmp_path):
+    """SIGHUP to the whole process group (the terminal closing) also reached the joblib
+    launcher's resource tracker, which died: warnings and tracebacks from its successor
+    below the one line, and semaphores left in /dev/shm."""
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline", "-m", "experiment=quick",
+                             "seed=0,1,2", "reward=polite", "birl=mcmc", "hydra/launcher=joblib",
+                             f"hydra.sweep.dir={tmp_path}"], cwd=ROOT,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    wait_for_running_jobs(tmp_path, proc)
+    os.killpg(proc.pid, signal.SIGHUP)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 129, err
+    time.sleep(1.0)  # the tracker removes what the workers left as it ends
+    assert [ln for ln in lines(err) if "[HYDRA]" not in ln] == [
+        "stopped by SIGHUP during the sweep"], err
+    assert not list(Path("/dev/shm").glob(f"*loky-{proc.pid}-*"))  # (none where no such dir)
