@@ -64,6 +64,7 @@ from pipeline.app.rundir import (
     FailedJob,
     Interrupted,
     as_interrupted,
+    check_writable,
     current_sweep,
     error_text,
     ignore_repeat,
@@ -179,6 +180,9 @@ class PoolLauncher(Launcher):
             sweep_config.hydra.job.num = idx
         HydraConfig.instance().set_config(sweep_config)
         assert self.task_function is not None
+        job_dir = job_dir_of(idx, sweep_config)
+        if job_dir.is_dir():  # e.g. read-only: refused before Hydra rewrites its .hydra/
+            check_writable(job_dir)
         return run_job(hydra_context=self.hydra_context, config=sweep_config,
                        task_function=self.task_function, job_dir_key="hydra.sweep.dir",
                        job_subdir_key="hydra.sweep.subdir")

@@ -593,6 +593,8 @@ def test_a_read_only_job_dir_fails_its_job_alone(tmp_path, launcher):
     assert table.returncode == 1, table.stderr
     assert (rows["0"]["status"], rows["0"]["seed"]) == ("ok", "3"), rows
     assert rows["1"]["status"] == "failed" and rows["1"].get("policy_loss", "") == "", rows
+    if launcher == "pool":  # (Hydra's basic launcher rewrites .hydra/, which stays writable)
+        assert "seed=2" in (sweep / "1" / ".hydra" / "overrides.yaml").read_text()
 
 
 def test_the_terminal_closing_on_a_joblib_sweep_is_one_line(tmp_path):
