@@ -307,14 +307,16 @@ def check_writable(run_dir: Path) -> None:
 
 def run_files_version(run_dir: Path) -> tuple:
     """What tells the versions of Hydra's files and of status.json (last) in the dir apart."""
-    def version(path: Path) -> tuple | None:
-        try:
-            st = path.stat()
-        except OSError:
-            return None
-        return st.st_ino, st.st_size, st.st_mtime_ns
+    return tuple(_file_version(Path(run_dir) / name) for name in (*HYDRA_FILES, STATUS_FILE))
 
-    return tuple(version(Path(run_dir) / name) for name in (*HYDRA_FILES, STATUS_FILE))
+
+def _file_version(path: Path) -> list[int] | None:
+    """(inode, size, mtime) of a file, as a list (it is kept in sweep.json); None: none."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return [st.st_ino, st.st_size, st.st_mtime_ns]
 
 
 def mark_started_by_hydra(run_dir: Path, before: tuple | None, error: str,
@@ -500,21 +502,13 @@ def begin_sweep(sweep_dir: Path) -> tuple[int, dict]:
     record: dict = {"sweep": number, "finished": False}
     # job dirs whose status.json cannot be read are an earlier sweep's as long as this one
     # has not begun a job in them (Hydra rewrites their overrides)
-    unreadable = {_relative(j, sweep_dir): _overrides_version(j)
+    unreadable = {_relative(j, sweep_dir): _file_version(Path(j) / HYDRA_FILES[-1])
                   for j, status in statuses.items() if status.state == UNKNOWN}
     if unreadable:
         record["unreadable_before"] = unreadable
     Path(sweep_dir).mkdir(parents=True, exist_ok=True)
     write_json_atomic(Path(sweep_dir) / SWEEP_FILE, record)
     return number, previous
-
-
-def _overrides_version(job_dir: Path) -> list[int] | None:
-    try:
-        st = (Path(job_dir) / HYDRA_FILES[-1]).stat()
-    except OSError:
-        return None
-    return [st.st_ino, st.st_mtime_ns]
 
 
 def abandon_sweep(sweep_dir: Path, previous: dict) -> None:
@@ -613,7 +607,7 @@ def sweep_jobs(sweep_dir: Path) -> tuple[list[Path], list[Path]]:
         if statuses[j].state != UNKNOWN:
             return statuses[j].sweep != number
         version = unreadable_before.get(_relative(j, sweep_dir))
-        return version is not None and version == _overrides_version(j)
+        return version is not None and version == _file_version(Path(j) / HYDRA_FILES[-1])
 
     stale = [j for j in jobs if left_before(j)]
     return [j for j in jobs if j not in stale], stale
