@@ -75,6 +75,8 @@ class SweepOutcome(Callback):
         SweepOutcome._versions = {j: run_files_version(j) for j in job_dirs(sweep_dir)}
         if "joblib" in str(config.hydra.launcher.get("_target_", "")):
             start_resource_tracker_deaf_to_hangups()
+        if "optuna" in str(config.hydra.sweeper.get("_target_", "")):
+            log_optuna_like_hydra()
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         SweepOutcome.failed[:] = failed_jobs(Path(config.hydra.sweep.dir))
@@ -137,3 +139,15 @@ def start_resource_tracker_deaf_to_hangups() -> None:
             del os.environ["PYTHONWARNINGS"]
         else:
             os.environ["PYTHONWARNINGS"] = warnings
+
+
+def log_optuna_like_hydra() -> None:
+    """Optuna (the tune preset's sweeper) prints its messages on stderr in a format of its
+    own; they go through Python's logging instead, formatted and filed like every other line
+    of the sweep (stdout and the sweep's log)."""
+    try:
+        import optuna
+    except ImportError:  # the sweeper says so itself, in a moment
+        return
+    optuna.logging.disable_default_handler()
+    optuna.logging.enable_propagation()

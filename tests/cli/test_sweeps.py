@@ -290,6 +290,9 @@ def test_a_failing_trial_is_a_failed_trial_not_a_failed_tuning(tmp_path):
     result = run_app(*tune, "birl.beta=choice(5.0,-1.0)", f"hydra.sweep.dir={tmp_path / 'a'}")
     assert result.returncode == 1, result.stderr[-2000:]
     assert "sweep job(s) failed" in result.stderr.strip().splitlines()[-1]
+    # Optuna's own messages are logged like the sweep's other lines, not on stderr
+    assert "A new study created" not in result.stderr
+    assert "][HYDRA] A new study created in memory with name: birlg_tune" in result.stdout
     best = yaml.safe_load((tmp_path / "a" / "optimization_results.yaml").read_text())
     assert best["best_params"]["birl.beta"] == 5.0
     result = run_app(*tune, "birl.beta=choice(-1.0,-2.0)", f"hydra.sweep.dir={tmp_path / 'b'}")
