@@ -68,17 +68,35 @@ def _grow(max_nodes: int, seed: int, before_growth=None):
 
 
 def _graph_once(max_nodes: int, seed: int) -> dict:
-    """Grow one graph (as _grow); time only the graph stage's own work."""
+    """Grow one graph (as _grow); time only the graph stage's own work, and of it the time
+    spent in scikit-learn's GP (fit and predict, its import on first use included): the
+    floor of growth while DESIGN §7 fixes the GP to scikit-learn's."""
+    import pipeline.core.adaptive_graph as adaptive_graph
+
     start: dict[str, float] = {}
+    gp = {"s": 0.0, "calls": 0}
+    estimate = adaptive_graph.gp_value_estimate
+
+    def timed_estimate(*args):
+        t0 = time.perf_counter()
+        try:
+            return estimate(*args)
+        finally:
+            gp["s"] += time.perf_counter() - t0
+            gp["calls"] += 1
 
     def mark() -> None:
         start["rss"] = _reset_peak_rss()
         start["t"] = time.perf_counter()
 
-    graph, _ = _grow(max_nodes, seed, mark)
+    adaptive_graph.gp_value_estimate = timed_estimate
+    try:
+        graph, _ = _grow(max_nodes, seed, mark)
+    finally:
+        adaptive_graph.gp_value_estimate = estimate
     rss_before, seconds = start["rss"], time.perf_counter() - start["t"]
     return {"nodes": graph.n_nodes, "edges": len(graph.src), "iterations": graph.iteration,
-            "seconds": round(seconds, 3),
+            "seconds": round(seconds, 3), "gp_s": round(gp["s"], 3), "gp_calls": gp["calls"],
             "peak_memory_mb": round(_peak_rss_mb(), 1),
             "growth_memory_mb": round(_peak_rss_mb() - rss_before, 1),
             "all_reach_goal": bool(graph.best_reached.all())}

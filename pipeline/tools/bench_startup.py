@@ -1,5 +1,6 @@
 """Start-up and sweep benchmark (`python -m pipeline.tools.bench startup`): wall seconds of
-the default run beside the floor `python -c "import numpy, scipy.sparse"`, jobs per minute of
+the default run beside two floors, `python -c "import numpy, scipy.sparse"` and the libraries a
+run imports (Hydra, numpy, scipy, mcap, scikit-learn's GP), jobs per minute of
 the `quick` preset swept over 8 seeds x 2 rewards (16 jobs) with 2 workers, and seconds of
 aggregating that sweep. Measurements are interleaved (floor, run, old run, ... in each
 repetition) and reported as medians, so a machine's changing load hits every variant alike;
@@ -28,6 +29,15 @@ import pandas as pd
 SWEEP = ["-m", "experiment=quick", "seed=range(8)", "reward=polite,rude"]
 N_SWEEP_JOBS = 16
 FLOOR = [sys.executable, "-c", "import numpy, scipy.sparse"]
+# What a run cannot do without: the libraries it imports (Hydra, numpy, scipy, mcap and
+# scikit-learn's GP, which DESIGN §7 names), imported as the run imports them (scikit-learn
+# through pipeline.core.adaptive_graph, which keeps pandas and scipy.stats out of it).
+LIBRARIES = [sys.executable, "-c",
+             "import hydra.main, hydra.compose, omegaconf, numpy, scipy.sparse, scipy.spatial, "
+             "scipy.optimize, mcap.reader, mcap.writer; "
+             "from pipeline.core.adaptive_graph import _import_sklearn_gp; _import_sklearn_gp()"]
+FLOORS = {"floor (import numpy, scipy.sparse)": FLOOR,
+          "floor (the libraries a run imports)": LIBRARIES}
 
 
 def timed(cmd: list[str], cwd: Path) -> float:
@@ -75,18 +85,19 @@ def startup_table(root: Path, old: Path | None, repeats: int, jobs: int) -> pd.D
     for checkout in [root] + ([old] if old else []):
         compileall.compile_dir(checkout / "pipeline", quiet=2)
     work = Path(tempfile.mkdtemp(prefix="bench-startup-"))
-    measured: dict[str, list[float]] = {"floor (import numpy, scipy.sparse)": []}
+    measured: dict[str, list[float]] = {name: [] for name in FLOORS}
     todo = variants(root, old, jobs)
     try:
         for rep in range(repeats):
-            measured["floor (import numpy, scipy.sparse)"].append(timed(FLOOR, root))
+            for name, cmd in FLOORS.items():
+                measured[name].append(timed(cmd, root))
             for name, (checkout, args) in todo.items():
                 seconds = measure_once(name, checkout, args, work, rep)
                 measured.setdefault(name, []).append(seconds)
                 print(f"  {name}: {seconds:.2f} s", flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    floor = statistics.median(measured["floor (import numpy, scipy.sparse)"])
+    floor = statistics.median(measured[next(iter(FLOORS))])  # x_floor: numpy + scipy.sparse
     rows = []
     for name, times in measured.items():
         median = statistics.median(times)

@@ -32,3 +32,16 @@ def test_bench_counts_and_seeds_are_checked_before_anything_runs(argv, says, cap
     with pytest.raises(SystemExit) as exit_:
         main(argv)
     assert exit_.value.code == 2 and says in capsys.readouterr().err
+
+
+def test_graph_growth_times_its_gaussian_process_apart():
+    """graph_scaling's gp_s: the share of growth spent in scikit-learn's GP, one call per
+    expansion that kept a candidate; the GP is restored afterwards."""
+    import pipeline.core.adaptive_graph as adaptive_graph
+    from pipeline.tools.bench import _graph_once
+
+    estimate = adaptive_graph.gp_value_estimate
+    row = _graph_once(300, 0)
+    assert adaptive_graph.gp_value_estimate is estimate
+    assert row["nodes"] == 300 and 0 < row["gp_calls"] <= row["iterations"]
+    assert 0 < row["gp_s"] < row["seconds"]
