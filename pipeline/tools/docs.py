@@ -8,6 +8,8 @@ drift from them (tests/tools/test_docs.py regenerates them in memory and compare
   checks of the parameter classes (probed, see `allowed_values`) and their field comments;
 - docs/reference/metrics.md: the metrics.json keys (pipeline.app.metric_keys);
 - docs/benchmarks/tables.md: the tables of results/bench/*.csv with the command that made each;
+- docs/benchmarks/targets.md: the project's open targets beside their measured values in those
+  tables (pipeline.tools.targets);
 - the sample output in README.md, between its sample-output markers: the summary the default
   experiment prints, from a fresh in-process run (`--no-run` leaves it as it is).
 
@@ -462,6 +464,33 @@ def benchmark_tables() -> str:
     return "\n".join(out)
 
 
+TARGETS_INTRO = """\
+# Targets
+
+{note}
+
+The targets the project has set itself for learning and for speed, each beside its value in
+the committed tables under `results/bench/` (the [tables page](tables.md) shows them whole,
+with the command that made each) and, where a table holds one, the floor or anchor it is
+measured against: a floor is what the machine takes for the work no implementation can skip
+(importing the libraries a run needs, scikit-learn's GP in graph growth), an anchor what the
+planner's own cost reaches where a learned reward is judged. What the benchmarks measure is
+on the [benchmarks page](index.md); timings were taken on 2 shared cores.
+"""
+
+
+def targets_page() -> str:
+    """The targets page: pipeline.tools.targets' table, one section per area."""
+    from pipeline.tools.targets import targets_table
+
+    table = targets_table(BENCH)
+    out = [TARGETS_INTRO.format(note=GENERATED_NOTE.format(source="results/bench/*.csv"))]
+    for area, rows in table.groupby("area", sort=False):
+        out += [f"## {str(area).capitalize()}", "",
+                rows.drop(columns="area").to_markdown(index=False), ""]
+    return "\n".join(out)
+
+
 # -- the README's sample output ------------------------------------------------------------
 
 SAMPLE_START, SAMPLE_END = "<!-- sample-output:start -->", "<!-- sample-output:end -->"
@@ -510,6 +539,7 @@ PAGES: dict[str, Callable[[], str]] = {
     "docs/reference/config.md": config_reference,
     "docs/reference/metrics.md": metrics_reference,
     "docs/benchmarks/tables.md": benchmark_tables,
+    "docs/benchmarks/targets.md": targets_page,
 }
 README = PROJECT_ROOT / "README.md"
 
