@@ -1,6 +1,7 @@
 """Start-up and sweep benchmark (`python -m pipeline.tools.bench startup`): wall seconds of
 the default run beside two floors, `python -c "import numpy, scipy.sparse"` and the libraries a
-run imports (Hydra, numpy, scipy, mcap, scikit-learn's GP), jobs per minute of
+run imports (Hydra, numpy, scipy, mcap, scikit-learn's GP), a 40 m room refused for too few
+graph nodes (the refusal must come before the room's work), jobs per minute of
 the `quick` preset swept over 8 seeds x 2 rewards (16 jobs) with 2 workers, and seconds of
 aggregating that sweep. Measurements are interleaved (floor, run, old run, ... in each
 repetition) and reported as medians, so a machine's changing load hits every variant alike;
@@ -40,13 +41,24 @@ FLOORS = {"floor (import numpy, scipy.sparse)": FLOOR,
           "floor (the libraries a run imports)": LIBRARIES}
 
 
-def timed(cmd: list[str], cwd: Path) -> float:
+# A 40 m room (the density of persons of big_rooms) with the default room's graph size:
+# refused for too few nodes, which must come before any of the room's work.
+REFUSED = ["scene=random", "scene.width=40", "scene.height=40", "scene.n_singles=48",
+           "scene.n_groups=48", "graph.max_nodes=460"]
+REFUSAL = "too few for scene"  # what its one line says
+
+
+def timed(cmd: list[str], cwd: Path, refused: str | None = None) -> float:
+    """Wall seconds of `cmd`, which must succeed, or (`refused`) exit 2 with that text in
+    its last line."""
     t0 = time.perf_counter()
     done = subprocess.run(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                           text=True)
     seconds = time.perf_counter() - t0
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed in {cwd}: {done.stderr[-500:]}")
+    last = (done.stderr.strip().splitlines() or [""])[-1]
+    if done.returncode != (0 if refused is None else 2) or (refused or "") not in last:
+        raise RuntimeError(f"{' '.join(cmd)} ended with {done.returncode} in {cwd}: "
+                           f"{done.stderr[-500:]}")
     return seconds
 
 
@@ -55,6 +67,7 @@ def variants(root: Path, old: Path | None, jobs: int) -> dict[str, tuple[Path, l
     sweep = [*SWEEP, f"hydra.launcher.n_jobs={jobs}"]
     found: dict[str, tuple[Path, list]] = {
         "run new": (root, ["pipeline"]),
+        "run new, 40 m room refused for too few nodes": (root, ["pipeline", *REFUSED]),
         "sweep new (pool launcher)": (root, ["pipeline", *sweep]),
         "sweep new (joblib launcher)": (root, ["pipeline", *sweep, "hydra/launcher=joblib"]),
         "aggregate new": (root, ["pipeline.tools.aggregate"]),
@@ -72,7 +85,8 @@ def variants(root: Path, old: Path | None, jobs: int) -> dict[str, tuple[Path, l
 def measure_once(name: str, checkout: Path, args: list, work: Path, rep: int) -> float:
     out = work / f"{re.sub(r'[^a-z-]+', '_', name)}-{rep}"  # a value Hydra takes unquoted
     if name.startswith("run"):
-        return timed([sys.executable, "-m", *args, f"hydra.run.dir={out}"], checkout)
+        return timed([sys.executable, "-m", *args, f"hydra.run.dir={out}"], checkout,
+                     REFUSAL if "refused" in name else None)
     if name.startswith("sweep"):
         return timed([sys.executable, "-m", *args, f"hydra.sweep.dir={out}"], checkout)
     sweep = work / "sweep-for-aggregation"  # one sweep (made once), aggregated each time
