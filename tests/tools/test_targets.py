@@ -1,6 +1,7 @@
 """The targets page's rows: read from the tables the right way round (hand-made tables)."""
 
 import pandas as pd
+import pytest
 
 from pipeline.tools import targets
 from pipeline.tools.targets import Tables, targets_table
@@ -18,10 +19,11 @@ def test_speed_up_is_policywalk_over_the_default_per_room_and_the_worst_room_dec
         {"room_m": 20, "graph_nodes": 5000, "method": "robust", "learn_s": 1.0},
         {"room_m": 20, "graph_nodes": 2000, "method": "robust", "learn_s": 100.0},
     ])
-    outcome = targets._speedup(5000, 20.0)(Tables(tmp_path))
-    assert outcome.measured == "10 m room: 40×, 20 m room: 3×"
-    assert outcome.met is False  # 3× in the 20 m room
-    assert targets._speedup(5000, 3.0)(Tables(tmp_path)).met is True
+    reading = targets._speedup(5000)(Tables(tmp_path))
+    assert reading.text == "10 m room: 40×, 20 m room: 3×"
+    assert reading.value == 3.0  # the worst room decides
+    target = targets.Target("speed", "x", "≥", 20, "×", "scaling", targets._speedup(5000))
+    assert target.goal == "≥ 20×" and not target.met(reading)
 
 
 def test_transfer_row_is_the_default_learner_beside_the_planner_cost_anchor(tmp_path):
@@ -33,16 +35,27 @@ def test_transfer_row_is_the_default_learner_beside_the_planner_cost_anchor(tmp_
          "heldout_frechet_ratio": 0.125},
         {"demonstrator": "planner_heldout", "learner": "default", "heldout_frechet_ratio": 0.01},
     ])
-    outcome = targets._transfer_frechet(Tables(tmp_path))
-    assert (outcome.measured, outcome.met) == ("0.25 × the shortest path's", False)
-    assert outcome.beside == "the planner's own cost: 0.125"
+    reading = targets._against_planner("heldout_frechet_ratio", " ×")(Tables(tmp_path))
+    assert (reading.value, reading.text) == (0.25, "0.25 ×")
+    assert reading.beside == "the planner's own cost: 0.125"
 
 
 def test_growth_exponent_is_the_log_log_slope(tmp_path):
     write(tmp_path, "graph_scaling", [{"nodes": n, "seconds": 0.002 * n ** 1.5, "gp_s": 0.0}
                                       for n in (100, 1000, 10000)])
-    outcome = targets._growth_exponent(Tables(tmp_path))
-    assert outcome.measured.startswith("1.5 ") and outcome.met is False
+    reading = targets._growth_exponent(Tables(tmp_path))
+    assert reading.value == pytest.approx(1.5) and reading.text.startswith("1.5 ")
+
+
+def test_hallway_reading_is_how_far_the_median_lies_outside_the_people_range(tmp_path):
+    def reading(median):
+        write(tmp_path, "learning_summary", [
+            {"demonstrator": "planner_hallway", "learner": "default", "people_pass_p10_m": 1.0,
+             "people_pass_p90_m": 1.2, "ref_pass_median_m": median, "ref_pass_in_range": 0.5}])
+        return targets._hallway_outside_range(Tables(tmp_path)).value
+
+    assert reading(1.1) == 0 and reading(1.0) == 0
+    assert reading(0.75) == pytest.approx(0.25) and reading(1.5) == pytest.approx(0.3)
 
 
 def test_every_target_is_read_from_a_committed_table():
