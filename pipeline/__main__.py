@@ -100,6 +100,7 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
                                             exc_info=not isinstance(e, PipelineError))
         if read_status(run_dir).sweep != number:  # no status.json of this sweep says so
             SweepOutcome.unrecorded[str(run_dir)] = error  # (e.g. a read-only job dir)
+            SweepOutcome.restore_hydra_files(run_dir)
         return FailedJob(error)
     return objective_value(run_dir, cfg.objective)
 

@@ -12,6 +12,7 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from pipeline.app.rundir import (
+    HYDRA_FILES,
     Interrupted,
     abandon_sweep,
     acquire_lock,
@@ -52,6 +53,9 @@ class SweepOutcome(Callback):
     _previous: dict = {}  # the sweep dir's record before this sweep
     _number: int | None = None  # this sweep's
     _versions: dict[Path, tuple] = {}  # job dir -> its run files' version before the sweep
+    # job dir this process cannot write in -> its .hydra/ files' bytes before the sweep
+    # (Hydra's basic launcher only: `restore_hydra_files`)
+    _read_only: dict[Path, dict[str, bytes]] = {}
 
     def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
@@ -72,11 +76,25 @@ class SweepOutcome(Callback):
             SweepOutcome.release()
             raise SweepRefused(PipelineError(
                 f"cannot use sweep dir {sweep_dir}: {os_error_reason(e)}")) from None
-        SweepOutcome._versions = {j: run_files_version(j) for j in job_dirs(sweep_dir)}
+        jobs = job_dirs(sweep_dir)
+        SweepOutcome._versions = {j: run_files_version(j) for j in jobs}
+        SweepOutcome._read_only = hydra_files_of_read_only_dirs(jobs) if "BasicLauncher" in \
+            str(config.hydra.launcher.get("_target_", "")) else {}
         if "joblib" in str(config.hydra.launcher.get("_target_", "")):
             start_resource_tracker_deaf_to_hangups()
         if "optuna" in str(config.hydra.sweeper.get("_target_", "")):
             log_optuna_like_hydra()
+
+    @classmethod
+    def restore_hydra_files(cls, job_dir: Path) -> None:
+        """Put back the .hydra/ files of a job dir this process could not write in as they
+        were before the sweep. Hydra's basic launcher rewrites them before the job starts
+        (a read-only dir may hold a writable .hydra/), and the job then fails on its dir:
+        without this the dir would pair this sweep's overrides with an earlier run's
+        metrics. (The pool launcher refuses such a dir before Hydra writes anything.)"""
+        for name, content in cls._read_only.get(job_dir, {}).items():
+            with suppress(OSError):
+                (job_dir / name).write_bytes(content)
 
     def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
         SweepOutcome.failed[:] = failed_jobs(Path(config.hydra.sweep.dir))
@@ -139,6 +157,20 @@ def start_resource_tracker_deaf_to_hangups() -> None:
             del os.environ["PYTHONWARNINGS"]
         else:
             os.environ["PYTHONWARNINGS"] = warnings
+
+
+def hydra_files_of_read_only_dirs(dirs: list[Path]) -> dict[Path, dict[str, bytes]]:
+    """The .hydra/ files (HYDRA_FILES) of each of `dirs` this process cannot write in."""
+    saved: dict[Path, dict[str, bytes]] = {}
+    effective = os.access in os.supports_effective_ids
+    for job_dir in dirs:
+        if os.access(job_dir, os.W_OK, effective_ids=effective):
+            continue
+        saved[job_dir] = {}
+        for name in HYDRA_FILES:
+            with suppress(OSError):
+                saved[job_dir][name] = (job_dir / name).read_bytes()
+    return saved
 
 
 def log_optuna_like_hydra() -> None:

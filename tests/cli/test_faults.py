@@ -578,6 +578,8 @@ def test_a_read_only_sweep_dir_is_refused_in_one_line(tmp_path):
 def test_a_read_only_job_dir_fails_its_job_alone(tmp_path, launcher):
     sweep = tmp_path / "sweep"
     assert run_cmd("-m", *QUICK, "seed=1,2", f"hydra.sweep.dir={sweep}").returncode == 0
+    hydra_files = {f"{p.parent.name}/{p.name}": p.read_bytes()
+                   for p in (sweep / "1" / ".hydra").glob("*.yaml")}
     (sweep / "1").chmod(0o555)
     try:
         proc = run_as_user("-m", *QUICK, "seed=3,4", f"hydra.sweep.dir={sweep}",
@@ -593,8 +595,10 @@ def test_a_read_only_job_dir_fails_its_job_alone(tmp_path, launcher):
     assert table.returncode == 1, table.stderr
     assert (rows["0"]["status"], rows["0"]["seed"]) == ("ok", "3"), rows
     assert rows["1"]["status"] == "failed" and rows["1"].get("policy_loss", "") == "", rows
-    if launcher == "pool":  # (Hydra's basic launcher rewrites .hydra/, which stays writable)
-        assert "seed=2" in (sweep / "1" / ".hydra" / "overrides.yaml").read_text()
+    # the dir still pairs the earlier run's overrides with its metrics (Hydra's basic
+    # launcher rewrites .hydra/, which stays writable, and the sweep puts it back)
+    assert "seed=2" in (sweep / "1" / ".hydra" / "overrides.yaml").read_text()
+    assert hydra_files == {f: (sweep / "1" / f).read_bytes() for f in hydra_files}
 
 
 def test_the_terminal_closing_on_a_joblib_sweep_is_one_line(tmp_path):
