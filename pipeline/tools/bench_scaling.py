@@ -8,13 +8,15 @@ Per (room, graph size) the first three stages run once (random scene, persons sc
 the area, polite optimal demos, adaptive graph of N nodes), then every method learns from
 that run: BIRL-G MAP and MCMC and PolicyWalk on the graph, MaxEnt on the reference roadmap.
 Writes results/bench/scaling.csv (one row per run), scaling_exponents.csv (the fitted
-exponent of learning time against state-space size per method) and scaling.png/.pdf.
-One BLAS thread everywhere (the stages set it), runs one at a time.
+exponent of learning time against state-space size per method), scaling.png/.pdf and
+scaling_growth.csv (the graph stage's seconds per room and graph size: how growth scales in
+rooms of 10, 20 and 40 m). One BLAS thread everywhere (the stages set it), runs one at a time.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import tempfile
 from pathlib import Path
@@ -60,16 +62,23 @@ def time_to_loss(curve: list[float], learn_s: float, target: float) -> float:
 
 
 def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str],
-             policywalk_loss: dict[tuple[int, int], float] | None = None) -> pd.DataFrame:
-    """One row per (room, graph size, method). `policywalk_loss` (room, nodes) -> PolicyWalk's
-    final roadmap loss, from an earlier run when PolicyWalk is not among `methods`."""
-    rows = []
+             policywalk_loss: dict[tuple[int, int], float] | None = None
+             ) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """One row per (room, graph size, method), and one per (room, graph size) with the graph
+    stage's seconds. `policywalk_loss` (room, nodes) -> PolicyWalk's final roadmap loss, from
+    an earlier run when PolicyWalk is not among `methods`."""
+    rows, growth = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for side, sizes in grid.items():
             for nodes in sizes:
                 base = Path(tmp) / f"{side}m-{nodes}"
                 _app(base, *scene_overrides(side), f"seed={seed}", f"graph.max_nodes={nodes}",
                      "stages=[scene,demos,graph]")
+                timings = json.loads((base / "timings.json").read_text())
+                growth.append({"room_m": side, "graph_nodes": nodes,
+                               "graph_s": timings["time_graph_s"]})
+                print(f"  {side} m, {nodes} nodes: graph {growth[-1]['graph_s']:.2f} s",
+                      flush=True)
                 for method in methods:
                     run = Path(tmp) / f"{side}m-{nodes}-{method}"
                     try:
@@ -106,7 +115,7 @@ def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str],
         time_to_loss(r.curve, r.learn_s, pw[(r.room_m, r.graph_nodes)])
         if (r.room_m, r.graph_nodes) in pw and not r.error else float("nan")
         for r in table.itertuples()]
-    return table.drop(columns="curve")
+    return table.drop(columns="curve"), pd.DataFrame(growth)
 
 
 def _states(run: Path, method: str) -> int:
@@ -202,16 +211,24 @@ def main(argv=None) -> None:
     earlier = {} if old is None else {
         (r.room_m, r.graph_nodes): float(r.policy_loss_ref)
         for r in old[old.method == "policywalk"].itertuples()}
-    table = run_grid(grid, args.seed, args.methods, earlier)
+    table, growth = run_grid(grid, args.seed, args.methods, earlier)
     if old is not None:
         table = pd.concat([old[~old.method.isin(args.methods)], table], ignore_index=True)
     table.to_csv(RESULTS / "scaling.csv", index=False)
+    growth_csv = RESULTS / "scaling_growth.csv"
+    if growth_csv.exists():  # the grid's (room, size) rows replace their earlier ones
+        kept = pd.read_csv(growth_csv).merge(growth[["room_m", "graph_nodes"]], how="left",
+                                             indicator=True)
+        growth = pd.concat([kept[kept._merge == "left_only"].drop(columns="_merge"), growth],
+                           ignore_index=True).sort_values(["room_m", "graph_nodes"])
+    growth.to_csv(growth_csv, index=False)
     fits = exponents(table)
     fits.to_csv(RESULTS / "scaling_exponents.csv", index=False)
     plot(RESULTS / "scaling.csv", RESULTS / "scaling.png")
     print(table.to_string(index=False))
     print(fits.to_string(index=False))
-    print(f"wrote {RESULTS / 'scaling.csv'}, scaling_exponents.csv and scaling.png")
+    print(f"wrote {RESULTS / 'scaling.csv'}, scaling_exponents.csv, scaling.png and "
+          "scaling_growth.csv")
 
 
 if __name__ == "__main__":

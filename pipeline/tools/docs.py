@@ -409,6 +409,7 @@ OTHER_MAKERS = {
     "buildings.csv": "python -m pipeline.tools.bench_buildings",
     "scaling.csv": "python -m pipeline.tools.bench_scaling",
     "scaling_exponents.csv": "python -m pipeline.tools.bench_scaling",
+    "scaling_growth.csv": "python -m pipeline.tools.bench_scaling",
     "learning.csv": "python -m pipeline.tools.bench_learning",
     "learning_summary.csv": "python -m pipeline.tools.bench_learning",
     "learner_features.csv": LEARNER_FEATURES_COMMAND,

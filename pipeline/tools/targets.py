@@ -182,11 +182,18 @@ def _growth(t: Tables) -> Reading:
                    f"in scikit-learn's GP: {_num(row.gp_s)} s")
 
 
+def _slope(nodes: pd.Series, seconds: pd.Series) -> float:
+    """Least-squares slope of log seconds against log nodes."""
+    return float(np.polyfit(np.log(nodes), np.log(seconds), 1)[0])
+
+
 def _growth_exponent(t: Tables) -> Reading:
-    graphs = t["graph_scaling"]
-    slope = float(np.polyfit(np.log(graphs.nodes), np.log(graphs.seconds), 1)[0])
-    return Reading(slope, f"{_num(slope)} (metropolis, {graphs.nodes.min()}-"
-                          f"{graphs.nodes.max()} nodes)")
+    """Per room side, the exponent of the graph stage's seconds in the graph's size."""
+    growth = t["scaling_growth"]
+    slopes = {int(room): _slope(rows.graph_nodes, rows.graph_s)
+              for room, rows in growth.groupby("room_m")}
+    return Reading(max(slopes.values()), ", ".join(
+        f"{room} m room: {_num(slope)}" for room, slope in slopes.items()))
 
 
 FLOOR = "floor (import numpy, scipy.sparse)"
@@ -271,7 +278,8 @@ TARGETS = [
     Target("speed", "graph.mcap read back, 20 000 nodes", "≤", 0.4, " s", "graph_io",
            _graph_read(20000)),
     Target("speed", "graph growth, 5000 nodes", "≤", 3, " s", "graph_scaling", _growth),
-    Target("speed", "graph growth exponent", "≤", 1.1, "", "graph_scaling", _growth_exponent),
+    Target("speed", "graph growth exponent (graph stage, 460 to 20 000 nodes)", "≤", 1.1, "",
+           "scaling_growth", _growth_exponent),
     Target("speed", "default run, wall", "≤", 1.6, " s", "startup",
            _wall("run new", with_libraries=True)),
     Target("speed", "sweep of 16 `quick` jobs, 2 workers", "≥", 150, " jobs per minute",

@@ -40,11 +40,13 @@ def test_transfer_row_is_the_default_learner_beside_the_planner_cost_anchor(tmp_
     assert reading.beside == "the planner's own cost: 0.125"
 
 
-def test_growth_exponent_is_the_log_log_slope(tmp_path):
-    write(tmp_path, "graph_scaling", [{"nodes": n, "seconds": 0.002 * n ** 1.5, "gp_s": 0.0}
-                                      for n in (100, 1000, 10000)])
+def test_growth_exponent_is_the_log_log_slope_per_room_and_the_worst_room_decides(tmp_path):
+    write(tmp_path, "scaling_growth",
+          [{"room_m": 10, "graph_nodes": n, "graph_s": 0.002 * n ** 1.5} for n in (100, 1000)]
+          + [{"room_m": 20, "graph_nodes": n, "graph_s": 0.01 * n} for n in (100, 1000, 10000)])
     reading = targets._growth_exponent(Tables(tmp_path))
-    assert reading.value == pytest.approx(1.5) and reading.text.startswith("1.5 ")
+    assert reading.value == pytest.approx(1.5)
+    assert reading.text == "10 m room: 1.5, 20 m room: 1"
 
 
 def test_hallway_reading_is_how_far_the_median_lies_outside_the_people_range(tmp_path):
