@@ -92,7 +92,7 @@ class SweepOutcome(Callback):
         (a read-only dir may hold a writable .hydra/), and the job then fails on its dir:
         without this the dir would pair this sweep's overrides with an earlier run's
         metrics. (The pool launcher refuses such a dir before Hydra writes anything.)"""
-        for name, content in cls._read_only.get(job_dir, {}).items():
+        for name, content in cls._read_only.get(Path(os.path.abspath(job_dir)), {}).items():
             with suppress(OSError):
                 (job_dir / name).write_bytes(content)
 
@@ -160,16 +160,17 @@ def start_resource_tracker_deaf_to_hangups() -> None:
 
 
 def hydra_files_of_read_only_dirs(dirs: list[Path]) -> dict[Path, dict[str, bytes]]:
-    """The .hydra/ files (HYDRA_FILES) of each of `dirs` this process cannot write in."""
+    """The .hydra/ files (HYDRA_FILES) of each of `dirs` this process cannot write in, by
+    the dir's absolute path (as Hydra names a job's output dir)."""
     saved: dict[Path, dict[str, bytes]] = {}
     effective = os.access in os.supports_effective_ids
     for job_dir in dirs:
         if os.access(job_dir, os.W_OK, effective_ids=effective):
             continue
-        saved[job_dir] = {}
+        files = saved.setdefault(Path(os.path.abspath(job_dir)), {})
         for name in HYDRA_FILES:
             with suppress(OSError):
-                saved[job_dir][name] = (job_dir / name).read_bytes()
+                files[name] = (job_dir / name).read_bytes()
     return saved
 
 

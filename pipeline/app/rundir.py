@@ -563,8 +563,10 @@ def unrecorded_jobs(sweep_dir: Path) -> dict[str, str]:
 
 
 def _relative(job_dir: Path, sweep_dir: Path) -> str:
+    """job_dir relative to sweep_dir; either may be relative to the working dir (Hydra
+    makes a job's dir absolute, a user's sweep dir often is not)."""
     try:
-        return str(job_dir.relative_to(sweep_dir))
+        return str(Path(os.path.abspath(job_dir)).relative_to(os.path.abspath(sweep_dir)))
     except ValueError:
         return str(job_dir)
 
