@@ -62,6 +62,7 @@ from pipeline.app.rundir import (
     ignore_repeat,
     locked,
     read_status,
+    recorded_in_sweep,
     stopped_by_signals,
 )
 from pipeline.errors import PipelineError, os_error_reason
@@ -98,8 +99,8 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
         error = error_text(e)
         logging.getLogger("pipeline").error("job failed: %s", error,
                                             exc_info=not isinstance(e, PipelineError))
-        if read_status(run_dir).sweep != number:  # no status.json of this sweep says so
-            SweepOutcome.unrecorded[str(run_dir)] = error  # (e.g. a read-only job dir)
+        if not recorded_in_sweep(run_dir, number):  # (e.g. a read-only job dir)
+            SweepOutcome.unrecorded[str(run_dir)] = error
             SweepOutcome.restore_hydra_files(run_dir)
         return FailedJob(error)
     return objective_value(run_dir, cfg.objective)

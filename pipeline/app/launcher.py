@@ -72,6 +72,7 @@ from pipeline.app.rundir import (
     mark_ended_before_stages,
     mark_started_by_hydra,
     read_status,
+    recorded_in_sweep,
     run_files_version,
     signals_held,
     stopped_by_signals,
@@ -245,9 +246,7 @@ def _noted(job_return: JobReturn, idx: int, cfg: DictConfig) -> JobReturn:
     value = job_return._return_value
     if isinstance(value, FailedJob):
         job_dir = numbered_job_dir(idx, cfg)
-        status = read_status(job_dir)
-        if status.state == UNKNOWN or \
-                status.sweep != current_sweep(Path(str(cfg.hydra.sweep.dir))):
+        if not recorded_in_sweep(job_dir, current_sweep(Path(str(cfg.hydra.sweep.dir)))):
             SweepOutcome.unrecorded[str(job_dir)] = value.error
     return job_return
 

@@ -78,9 +78,10 @@ class SweepOutcome(Callback):
                 f"cannot use sweep dir {sweep_dir}: {os_error_reason(e)}")) from None
         jobs = job_dirs(sweep_dir)
         SweepOutcome._versions = {j: run_files_version(j) for j in jobs}
-        SweepOutcome._read_only = hydra_files_of_read_only_dirs(jobs) if "BasicLauncher" in \
-            str(config.hydra.launcher.get("_target_", "")) else {}
-        if "joblib" in str(config.hydra.launcher.get("_target_", "")):
+        launcher = str(config.hydra.launcher.get("_target_", ""))
+        SweepOutcome._read_only = \
+            hydra_files_of_read_only_dirs(jobs) if "BasicLauncher" in launcher else {}
+        if "joblib" in launcher:
             start_resource_tracker_deaf_to_hangups()
         if "optuna" in str(config.hydra.sweeper.get("_target_", "")):
             log_optuna_like_hydra()

@@ -579,6 +579,14 @@ def _sweep_record(sweep_dir: Path) -> dict:
     return record if isinstance(record, dict) else {}
 
 
+def recorded_in_sweep(job_dir: Path, sweep: int | None) -> bool:
+    """Whether the job dir's status.json says it is a job of sweep number `sweep`; a failed
+    job whose dir does not (it could not be made, or holds an earlier sweep's status) is
+    kept in the sweep's record instead (`end_sweep`'s `unrecorded`)."""
+    status = read_status(job_dir)
+    return status.state != UNKNOWN and status.sweep == sweep
+
+
 def current_sweep(sweep_dir: Path) -> int | None:
     """The number of the last sweep into `sweep_dir`; None when none was numbered (or the
     file is damaged: then every job counts)."""
