@@ -37,8 +37,13 @@ LIBRARIES = [sys.executable, "-c",
              "import hydra.main, hydra.compose, omegaconf, numpy, scipy.sparse, scipy.spatial, "
              "scipy.optimize, mcap.reader, mcap.writer; "
              "from pipeline.core.adaptive_graph import _import_sklearn_gp; _import_sklearn_gp()"]
-FLOORS = {"floor (import numpy, scipy.sparse)": FLOOR,
-          "floor (the libraries a run imports)": LIBRARIES}
+# The rows of startup.csv that pipeline.tools.targets reads, by their `measurement`
+FLOOR_ROW = "floor (import numpy, scipy.sparse)"
+LIBRARIES_ROW = "floor (the libraries a run imports)"
+RUN_ROW, REFUSED_ROW = "run new", "run new, 40 m room refused for too few nodes"
+POOL_SWEEP_ROW = "sweep new (pool launcher)"
+AGGREGATE_ROW, TABLES_ONLY_ROW = "aggregate new", "aggregate new --no-figures"
+FLOORS = {FLOOR_ROW: FLOOR, LIBRARIES_ROW: LIBRARIES}
 
 
 # A 40 m room (the density of persons of big_rooms) with the default room's graph size:
@@ -66,12 +71,12 @@ def variants(root: Path, old: Path | None, jobs: int) -> dict[str, tuple[Path, l
     """name -> (checkout, the measurement's arguments after `python -m`)."""
     sweep = [*SWEEP, f"hydra.launcher.n_jobs={jobs}"]
     found: dict[str, tuple[Path, list]] = {
-        "run new": (root, ["pipeline"]),
-        "run new, 40 m room refused for too few nodes": (root, ["pipeline", *REFUSED]),
-        "sweep new (pool launcher)": (root, ["pipeline", *sweep]),
+        RUN_ROW: (root, ["pipeline"]),
+        REFUSED_ROW: (root, ["pipeline", *REFUSED]),
+        POOL_SWEEP_ROW: (root, ["pipeline", *sweep]),
         "sweep new (joblib launcher)": (root, ["pipeline", *sweep, "hydra/launcher=joblib"]),
-        "aggregate new": (root, ["pipeline.tools.aggregate"]),
-        "aggregate new --no-figures": (root, ["pipeline.tools.aggregate", "--no-figures"]),
+        AGGREGATE_ROW: (root, ["pipeline.tools.aggregate"]),
+        TABLES_ONLY_ROW: (root, ["pipeline.tools.aggregate", "--no-figures"]),
     }
     if old is not None:
         found.update({"run old": (old, ["pipeline"]),
@@ -86,7 +91,7 @@ def measure_once(name: str, checkout: Path, args: list, work: Path, rep: int) ->
     out = work / f"{re.sub(r'[^a-z-]+', '_', name)}-{rep}"  # a value Hydra takes unquoted
     if name.startswith("run"):
         return timed([sys.executable, "-m", *args, f"hydra.run.dir={out}"], checkout,
-                     REFUSAL if "refused" in name else None)
+                     REFUSAL if name == REFUSED_ROW else None)
     if name.startswith("sweep"):
         return timed([sys.executable, "-m", *args, f"hydra.sweep.dir={out}"], checkout)
     sweep = work / "sweep-for-aggregation"  # one sweep (made once), aggregated each time
@@ -111,7 +116,7 @@ def startup_table(root: Path, old: Path | None, repeats: int, jobs: int) -> pd.D
                 print(f"  {name}: {seconds:.2f} s", flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    floor = statistics.median(measured[next(iter(FLOORS))])  # x_floor: numpy + scipy.sparse
+    floor = statistics.median(measured[FLOOR_ROW])
     rows = []
     for name, times in measured.items():
         median = statistics.median(times)

@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.tools import bench_startup as startup
+
 
 class Tables:
     """The CSVs of a results dir, each read once, by file stem."""
@@ -196,29 +198,26 @@ def _growth_exponent(t: Tables) -> Reading:
         f"{room} m room: {_num(slope)}" for room, slope in slopes.items()))
 
 
-FLOOR = "floor (import numpy, scipy.sparse)"
-LIBRARIES = "floor (the libraries a run imports)"
-
-
 def _wall(measurement: str, with_libraries: bool) -> Callable[[Tables], Reading]:
     def read(t: Tables) -> Reading:
         seconds = t.startup(measurement)
-        beside = f"import numpy, scipy.sparse: {_num(t.startup(FLOOR))} s"
+        beside = f"import numpy, scipy.sparse: {_num(t.startup(startup.FLOOR_ROW))} s"
         if with_libraries:
-            beside += f"; the libraries a run imports: {_num(t.startup(LIBRARIES))} s"
+            beside += (f"; the libraries a run imports: "
+                       f"{_num(t.startup(startup.LIBRARIES_ROW))} s")
         return Reading(seconds, f"{_num(seconds)} s", beside)
     return read
 
 
 def _sweep(t: Tables) -> Reading:
-    per_min = t.startup("sweep new (pool launcher)", "jobs_per_min")
+    per_min = t.startup(startup.POOL_SWEEP_ROW, "jobs_per_min")
     return Reading(per_min, f"{_num(per_min)} jobs per minute")
 
 
 def _aggregation(t: Tables) -> Reading:
-    tables_only = t.startup("aggregate new --no-figures")
+    tables_only = t.startup(startup.TABLES_ONLY_ROW)
     return Reading(tables_only, f"{_num(tables_only)} s (tables)",
-                   f"with the figures: {_num(t.startup('aggregate new'))} s")
+                   f"with the figures: {_num(t.startup(startup.AGGREGATE_ROW))} s")
 
 
 def _mcmc_memory(t: Tables) -> Reading:
@@ -272,7 +271,7 @@ TARGETS = [
     Target("speed", "40 m room: peak memory", "≤", 600, " MB", "big_rooms",
            _big_room("peak_rss_mb_max", " MB")),
     Target("speed", "40 m room refused for too few nodes, wall", "≤", 1, " s", "startup",
-           _wall("run new, 40 m room refused for too few nodes", with_libraries=False)),
+           _wall(startup.REFUSED_ROW, with_libraries=False)),
     Target("speed", "graph.mcap read back, 5000 nodes", "≤", 0.1, " s", "graph_io",
            _graph_read(5000)),
     Target("speed", "graph.mcap read back, 20 000 nodes", "≤", 0.4, " s", "graph_io",
@@ -281,7 +280,7 @@ TARGETS = [
     Target("speed", "graph growth exponent (graph stage, 460 to 20 000 nodes)", "≤", 1.1, "",
            "scaling_growth", _growth_exponent),
     Target("speed", "default run, wall", "≤", 1.6, " s", "startup",
-           _wall("run new", with_libraries=True)),
+           _wall(startup.RUN_ROW, with_libraries=True)),
     Target("speed", "sweep of 16 `quick` jobs, 2 workers", "≥", 150, " jobs per minute",
            "startup", _sweep),
     Target("speed", "aggregating that sweep", "≤", 0.5, " s", "startup", _aggregation),
