@@ -254,17 +254,26 @@ class AdaptiveGraph(StateGraph):
                 continue
             nxt = demo.points[min(k + 1, len(demo.points) - 1)] - demo.points[max(k - 1, 0)]
             nodes.append(self.add_node([*pt, math.atan2(nxt[1], nxt[0])], DEMO))
-        # The driven polyline of a demo edge runs from its node to the demonstration's
-        # waypoint, along the demonstration's segment and on to the next node (hops of at
-        # most min_separation where waypoints merged); the features stay the
-        # demonstration's own, as the likelihood compares against them.
+        # One edge per change of node. Its driven polyline runs from its node to the first
+        # waypoint merged into it, along the demonstration to the first waypoint of the next
+        # node and on to that node; its features and duration are the demonstration's own
+        # segments along that stretch (the likelihood compares against them), so a densely
+        # sampled demonstration, whose waypoints merge several into one node, keeps every
+        # segment. The segments after the last change go to the last edge.
+        changes = [k for k in range(len(nodes) - 1) if nodes[k + 1] != nodes[k]]
+        ends = [*changes[:-1], len(nodes) - 2] if changes else []
+        starts = [0, *[k + 1 for k in changes[:-1]]]
         waypoints = []
-        for k in range(len(nodes) - 1):
-            ways = np.array([self.positions[nodes[k]], demo.points[k], demo.points[k + 1],
-                             self.positions[nodes[k + 1]]])
+        for first, change, last in zip(starts, changes, ends, strict=True):
+            ways = np.vstack([self.positions[nodes[change]], demo.points[first:last + 2],
+                              self.positions[nodes[change + 1]]])
             keep = np.concatenate([[True], np.any(np.diff(ways, axis=0) != 0, axis=1)])
             waypoints.append(ways[keep])
-        self.add_edges(nodes[:-1], nodes[1:], demo.durations, demo.edge_features,
+        self.add_edges([nodes[k] for k in changes], [nodes[k + 1] for k in changes],
+                       [demo.durations[a:b + 1].sum() for a, b in zip(starts, ends, strict=True)],
+                       np.array([demo.edge_features[a:b + 1].sum(axis=0)
+                                 for a, b in zip(starts, ends, strict=True)]).reshape(
+                           len(changes), demo.edge_features.shape[1]),
                        waypoints, is_demo=True)
 
     def restore(self, nodes: NodeTable, edges: EdgeTable,

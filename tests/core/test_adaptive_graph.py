@@ -28,7 +28,7 @@ from pipeline.core.adaptive_graph import (
     voronoi_centroids,
 )
 from pipeline.core.controllers import LinearController, PosqController
-from pipeline.core.experts import optimal_demos
+from pipeline.core.experts import Demonstration, optimal_demos
 from pipeline.core.features import FeatureModel
 from pipeline.core.roadmap import build_roadmap, segments_feasible
 from pipeline.core.social import relation_crossings
@@ -207,6 +207,27 @@ def test_every_demonstration_is_a_path_of_the_graph(graph, demos):
         nodes = [int(graph.neighbours(p, graph.p.min_separation)[0]) for p in d.points]
         np.testing.assert_allclose(graph.positions[nodes], d.points, atol=1e-12)
         assert all((a, b) in edges for a, b in zip(nodes[:-1], nodes[1:], strict=True))
+
+
+def test_a_densely_sampled_demonstration_keeps_all_its_features_on_the_graph(metropolis, demos):
+    """Waypoints 0.04 m apart merge several into one node (nodes are ≥ 0.16 m apart): the
+    demonstration's edges on the graph still add up to its own features and duration, each
+    edge spanning the stretch of it between two nodes (not one 0.04 m segment of it)."""
+    route = demos[3].points
+    fine = np.vstack([np.linspace(a, b, max(2, int(np.ceil(np.linalg.norm(b - a) / 0.04))),
+                                  endpoint=False) for a, b in zip(route[:-1], route[1:],
+                                                                  strict=True)] + [route[-1:]])
+    fm = FeatureModel.from_scene(metropolis)
+    dense = Demonstration.from_points(3, fine, fm, speed=1.0)
+    g = AdaptiveGraph(metropolis, fm, LinearController(), PRIOR_MEAN, GraphParams(),
+                      np.random.default_rng(0))
+    g.initialise([dense])
+    on_demo = np.asarray(g.edge_is_demo)
+    assert (np.asarray(g.node_kind) == "demo").sum() < len(fine) / 3  # they did merge
+    np.testing.assert_allclose(g.features[on_demo].sum(axis=0), dense.features, atol=1e-9)
+    np.testing.assert_allclose(g.duration[on_demo].sum(), dense.durations.sum(), atol=1e-9)
+    hops = np.linalg.norm(g.positions[g.dst[on_demo]] - g.positions[g.src[on_demo]], axis=1)
+    assert np.all(g.duration[on_demo] >= hops - 2 * g.min_separation)
 
 
 def _distance_to_paths(points, paths):
