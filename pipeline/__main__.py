@@ -125,7 +125,11 @@ def one_line(e: BaseException) -> str:
     a hint); the first line of the error and of its cause say what went wrong."""
     def first(x: BaseException) -> str:
         lines = [ln.strip() for ln in str(x).splitlines() if ln.strip()]
-        return lines[0] if lines else type(x).__name__
+        if not lines:
+            return type(x).__name__
+        # "... raised while composing config:" says what follows on the next line
+        return f"{lines[0]} {lines[1]}" if lines[0].endswith(":") and len(lines) > 1 \
+            else lines[0]
 
     line = first(e)
     if isinstance(getattr(e, "override", None), str):  # Hydra's override parse errors

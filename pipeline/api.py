@@ -325,7 +325,7 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
         graph.initialise(list(demonstrations))
         graph.grow()
         rng = stage_rng(cfg.seed, "birl")
-        w0 = build.initial_weights(cfg, rng)
+        w0, _ = build.initial_weights(cfg, rng)
         env = learning_environment(cfg, scene, graph, graph_weights)
 
         @functools.cache

@@ -297,15 +297,15 @@ def prior(cfg: Config) -> Prior:
     return cfg.birl.make_prior(cfg.n_features)
 
 
-def initial_weights(cfg: Config, rng: np.random.Generator) -> np.ndarray:
+def initial_weights(cfg: Config, rng: np.random.Generator) -> tuple[np.ndarray, str]:
     """The weights learning starts from: birl=fixed's, else birl.init_weights, else a draw
-    from the prior with `rng` (the birl stage's generator)."""
+    from the prior with `rng` (the birl stage's generator); and which of them it is."""
     fixed = fixed_weights(cfg)
     if fixed is not None:
-        return fixed
+        return fixed, "the fixed weights"
     if cfg.birl.init_weights is not None:
-        return np.asarray(cfg.birl.init_weights, float)
-    return prior(cfg).sample(rng)
+        return np.asarray(cfg.birl.init_weights, float), "birl.init_weights"
+    return prior(cfg).sample(rng), "a draw from the prior"
 
 
 def regrowable_graph(cfg: Config, scene: Scene, weights: np.ndarray, min_separation: float,

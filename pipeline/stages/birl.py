@@ -62,7 +62,7 @@ def run(ctx: RunContext) -> None:
     expert = expert_stats(ctx, demos, scene)
     prior = build.prior(cfg)
     rng = ctx.rng("birl")
-    w0 = build.initial_weights(cfg, rng)  # birl=fixed: the given or transferred weights
+    w0, w0_source = build.initial_weights(cfg, rng)  # birl=fixed: given or transferred
     grow_nodes = build.learning_growth(cfg, scene)
     env: GraphEnvironment
     if grow_nodes > 0:
@@ -91,8 +91,9 @@ def run(ctx: RunContext) -> None:
     problem = IRLProblem(expert, [np.asarray(d["points"], float) for d in demos], env, prior,
                          w0, rng, roadmap, progress, status=lambda msg: log.info("  %s", msg),
                          lattice=build.alternatives_lattice(cfg, scene))
-    log.info("IRL method %s: %d demonstrations, %d-node graph, %s, w0 = %s", b.kind,
-             len(expert), env.graph.mdp.n_nodes, b.describe_prior(), np.round(w0, 3).tolist())
+    log.info("IRL method %s: %d demonstrations, %d-node graph, %s; starts from w0 = %s (%s)",
+             b.kind, len(expert), env.graph.mdp.n_nodes, b.describe_prior(),
+             np.round(w0, 3).tolist(), w0_source)
     t0 = time.perf_counter()
     result = build.irl_method(cfg).fit(problem, b)
     # The learning alone (optimisation and MDP solves), without artefact I/O.

@@ -326,6 +326,10 @@ CONFIG_CASES = {
     "expert file not set": (["expert=file"], ["expert.path"]),
     "from_run not a directory": (["from_run=/nonexistent/run"], ["from_run"]),
     "transfer scenes not a list": (["evaluate.transfer_scenes=5"], ["evaluate.transfer_scenes"]),
+    # Hydra's message ends its first line with a colon and names the key on the next
+    "a preset's setting the method lacks": (["experiment=quick", "birl=fixed"],
+                                            ["experiment/quick", "alternatives",
+                                             "FixedConfig"]),
 }
 
 
