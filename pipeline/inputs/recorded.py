@@ -62,6 +62,9 @@ BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 CSV_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
+# A pose stream's trajectory resampled into more points than this (1000 km at 0.1 m) is
+# refused: no walk is that long, a pose far off is (without a room to refuse it by)
+MAX_RESAMPLED_POINTS = 10_000_000
 # A CSV track ordered by its t column may be at most this many times longer than its rows in
 # file order (`_csv_recording`): sorting fixes rows exported out of order, it does not turn a
 # walk into a zig-zag.
@@ -677,12 +680,29 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
     if cut is None:
         raise PipelineError(f"{what} begins within goal_tolerance={goal_tolerance:g} m of the "
                             f"goal ({goal[0]:g}, {goal[1]:g})")
+
+    def refuse_outside(area: Room, points: np.ndarray, margin: float = 0.0) -> None:
+        inside = area.contains(points, margin)
+        if not inside.all():
+            x, y = points[int(np.argmin(inside))]
+            where = f"({x:.2f}, {y:.2f})" if max(abs(x), abs(y)) < 1e6 else f"({x:.3g}, {y:.3g})"
+            raise PipelineError(f"{what} leaves the room {area.describe()} at {where}")
+
     if resample is not None:  # it ends at the goal: resample what leads there
+        if room is not None:
+            # Every vertex lies within half a step of a resampled point, so a vertex outside
+            # the room grown by a step would be refused after resampling too: refused now,
+            # a glitched pose 10⁷ m away does not first fill memory with points towards it.
+            refuse_outside(room, cut, -resample)
+        with np.errstate(over="ignore"):  # 1e300: an infinite length, refused below
+            length = _polyline_length(cut)
+        if not length <= MAX_RESAMPLED_POINTS * resample:
+            raise PipelineError(f"{what} is {length:.3g} m long: more than "
+                                f"{MAX_RESAMPLED_POINTS:,} points at {resample:g} m apart "
+                                "(a pose far off, e.g. a glitch in the recording?)")
         cut = np.vstack([clean_track(cut[:-1], resample), cut[-1:]])
-    if room is not None and not room.contains(cut).all():
-        x, y = cut[int(np.argmin(room.contains(cut)))]
-        where = f"({x:.2f}, {y:.2f})" if max(abs(x), abs(y)) < 1e6 else f"({x:.3g}, {y:.3g})"
-        raise PipelineError(f"{what} leaves the room {room.describe()} at {where}")
+    if room is not None:
+        refuse_outside(room, cut)
     if len(cut) < 2:
         raise PipelineError(f"{what} never moves (all its points are within "
                             f"{REPEAT_TOLERANCE:g} m of each other)")

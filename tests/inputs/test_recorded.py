@@ -10,12 +10,14 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 
 from pipeline.core.features import FeatureModel
+from pipeline.core.world import Room
 from pipeline.inputs.demo_file import load_demo_file
 from pipeline.inputs.recorded import (
     COORDINATE_DECIMALS,
     STOP_TOLERANCE,
     clean_track,
     cut_stream,
+    cut_trajectory,
     load_recorded,
     match_to_starts,
     read_tracks,
@@ -327,3 +329,32 @@ def test_bag_through_load_demo_file(tmp_path, metropolis):
     out = write_bag(tmp_path / "out", {"/plan": ("nav_msgs/msg/Path", [PATH_A + [0.0, 1.2]])})
     refused(r"demonstration bag .*out: trajectory 0 leaves the room", load_demo_file, out,
             metropolis, fm, 1.0)
+
+
+@pytest.mark.parametrize("far", [1e7, 1e9, 1e300])
+def test_a_glitched_pose_far_off_is_refused_before_resampling(far):
+    """A 100 Hz walk with one pose `far` metres off: resampled every 0.1 m first, the jump
+    there and back would be 2·far/0.1 points (10⁹ m: 149 GiB); the vertex is refused by name
+    instead, and without a room by the trajectory's length."""
+    walk = np.column_stack([np.linspace(1.0, 9.0, 801), np.full(801, 5.0)])
+    walk[400, 1] = far  # straight up: the jump passes nowhere near the goal
+    room = Room(0.0, 0.0, 10.0, 10.0)
+    refused(r"trajectory 0 leaves the room \[0, 10\] x \[0, 10\] at \(", cut_trajectory, walk,
+            np.array([9.0, 5.0]), 0.3, room, "trajectory 0", resample=0.1)
+    refused(r"trajectory 0 is .* m long: more than 10,000,000 points at 0\.1 m apart",
+            cut_trajectory, walk, np.array([9.0, 5.0]), 0.3, None, "trajectory 0",
+            resample=0.1)
+
+
+def test_a_stream_vertex_just_outside_the_room_is_judged_after_resampling():
+    """The early check on the vertices allows a step's margin: a noisy corner pose 1 cm
+    outside whose resampled polyline stays inside is refused exactly as before (by the
+    resampled points), and one that resampling cuts off inside is kept."""
+    room = Room(0.0, 0.0, 10.0, 10.0)
+    corner = np.array([[1.0, 9.0], [9.0, 9.0], [9.0, 10.01], [9.06, 9.0], [9.0, 5.0]])
+    cut = cut_trajectory(corner, np.array([9.0, 5.0]), 0.3, room, "trajectory 0", resample=0.1)
+    assert room.contains(cut).all()
+    outside = corner.copy()
+    outside[2] = [9.0, 10.5]  # half a metre out: resampled points lie outside too
+    refused(r"trajectory 0 leaves the room", cut_trajectory, outside, np.array([9.0, 5.0]),
+            0.3, room, "trajectory 0", resample=0.1)
