@@ -62,12 +62,17 @@ class RandomSceneSpec(BodyParams):
                 self.formation_radius, f"at least body_radius ({self.body_radius:g} m)")
 
 
+def person_margin(spec: RandomSceneSpec) -> float:
+    """How far (m) every person stands from the room's edges."""
+    return 0.5 + spec.body_radius
+
+
 def _place_persons(
     spec: RandomSceneSpec, rng: np.random.Generator, room: Room,
     obstacles: ObstacleMap | None = None,
 ) -> tuple[tuple[Person, ...], tuple[tuple[int, int], ...]] | None:
     """Persons and relations, or None if they do not fit without overlapping."""
-    margin = 0.5 + spec.body_radius
+    margin = person_margin(spec)
     lo = np.array([room.x_min + margin, room.y_min + margin])
     hi = np.array([room.x_max - margin, room.y_max - margin])
     placed: list[tuple[float, float, float]] = []
@@ -182,6 +187,17 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
                   spec.goal_tolerance, spec.robot_radius, map_grid=map_grid,
                   map_source=map_source)
     obstacles = empty.obstacles
+    if map_grid is not None:  # a plain room's size is checked with the config
+        smaller = min(room.x_max - room.x_min, room.y_max - room.y_min)
+        if smaller <= 2 * person_margin(spec):
+            raise PipelineError(
+                f"random scene: the map {map_source} is {room.x_max - room.x_min:g} x "
+                f"{room.y_max - room.y_min:g} m; persons stand {person_margin(spec):g} m from "
+                f"its edges, so both sides must be longer than {2 * person_margin(spec):g} m")
+        if empty.free_area <= 0:
+            raise PipelineError(f"random scene: the map {map_source} has no free cell "
+                                f"{spec.robot_radius:g} m (scene.robot_radius) from every "
+                                "obstacle and unknown cell")
     for _ in range(spec.max_tries):
         placed = _place_persons(spec, rng, room, obstacles)
         if placed is None:

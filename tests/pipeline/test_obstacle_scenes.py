@@ -11,7 +11,7 @@ import pytest
 from pipeline.app import build
 from pipeline.artefacts import codec, read_artefact
 from pipeline.core.graph_mdp import MDPParams
-from pipeline.core.obstacles import ObstacleMap
+from pipeline.core.obstacles import ObstacleMap, OccupancyGrid
 from pipeline.core.roadmap import RoadmapParams, segments_feasible
 from pipeline.core.scenegen import RandomSceneSpec, random_scene
 from pipeline.core.world import scene_from_dict
@@ -222,3 +222,17 @@ def test_the_generator_draws_until_the_extra_test_passes():
     assert not np.array_equal(calls[0].person_xy, calls[1].person_xy)
     with pytest.raises(PipelineError, match="no valid scene in scene.max_tries"):
         random_scene(spec, np.random.default_rng(0), accept=lambda s: False)
+
+
+@pytest.mark.parametrize("occupied, message", [
+    (np.zeros((20, 20), bool), r"the map tiny\.yaml is 1 x 1 m; persons stand 0\.75 m from its "
+                               r"edges, so both sides must be longer than 1\.5 m"),
+    (np.ones((200, 200), bool), r"the map tiny\.yaml has no free cell 0\.25 m "
+                                r"\(scene\.robot_radius\) from every obstacle"),
+])
+def test_a_map_too_small_or_without_free_space_is_named(occupied, message):
+    """Said before any draw (a 1 m map had failed inside numpy's uniform, high < low)."""
+    grid = OccupancyGrid(occupied, (0.0, 0.0), 0.05)
+    with pytest.raises(PipelineError, match=message):
+        random_scene(RandomSceneSpec(), np.random.default_rng(0), map_grid=grid,
+                     map_source="tiny.yaml")
