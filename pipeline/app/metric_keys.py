@@ -45,8 +45,9 @@ METRIC_KEYS: dict[str, str] = {
                                      "its posterior std, split R-hat and bulk ESS",
     r"mcmc_(acceptance_rate|ess_min|rhat_max)": "sampling methods: acceptance rate, smallest "
                                                 "ESS and largest R-hat over the weights",
-    r"frechet_to_demos(_max)?": "demonstrations without a true reward: mean (max) discrete "
-                                "Fréchet distance of the learned paths to them, m",
+    r"frechet_to_demos(_max)?": "demonstrations without a true reward: mean (max) Fréchet "
+                                "distance of the learned paths to them (both resampled every "
+                                "0.1 m, however densely either is sampled), m",
     r"time_\w+_s": "wall-clock seconds of a stage (or a part of one); never in an artefact",
     r"graph_demo_node_share": "share of the adaptive graph's nodes that are demonstration "
                               "waypoints",

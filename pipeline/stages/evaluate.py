@@ -20,7 +20,6 @@ from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import Artefact, write_json_atomic
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import (
-    discrete_frechet,
     follow_all,
     frechet,
     loss_curve,
@@ -211,8 +210,9 @@ def run(ctx: RunContext) -> None:
         metrics.update(transfer_metrics(ctx, path, w_final, expert["true_weights"]))
     training = codec.training_demos(demos_art)
     if expert["true_weights"] is None and training:  # file or planner demonstrations
-        dists = [discrete_frechet(graph_paths[d["start_index"]][0], d["points"])
-                 for d in training]
+        # both resampled (as the held-out distances are): the raw vertices would make a
+        # densely sampled demonstration look farther from the same path than a sparse one
+        dists = [frechet(graph_paths[d["start_index"]][0], d["points"]) for d in training]
         metrics["frechet_to_demos"] = float(np.mean(dists))
         metrics["frechet_to_demos_max"] = float(np.max(dists))
     kinds = codec.decode_nodes(graph_art).kind

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.core.evaluation import discrete_frechet, loss_curve, policy_loss
+from pipeline.core.evaluation import discrete_frechet, frechet, loss_curve, policy_loss
 from tests.conftest import POLITE, RUDE
 from tests.core.conftest import random_graph
 
@@ -90,3 +90,15 @@ def test_discrete_frechet_equals_the_recursion_to_the_bit():
         p = rng.normal(size=(n, 2)).cumsum(axis=0)
         q = rng.normal(size=(m, 2)).cumsum(axis=0)
         assert discrete_frechet(p, q) == _frechet_by_recursion(p, q), (n, m)
+
+
+def test_frechet_does_not_depend_on_how_densely_a_polyline_is_sampled():
+    """A straight path given as its 2 ends or as 400 points, against a path with a 1 m
+    bump: the raw vertices' discrete distance differs by about a metre (from the ends,
+    the bump's top is √5 m away), `frechet` by < 0.1 m and is the bump's height."""
+    bump = np.array([[0.0, 0.0], [2.0, 1.0], [4.0, 0.0]])
+    sparse = np.array([[0.0, 0.0], [4.0, 0.0]])
+    dense = np.column_stack([np.linspace(0.0, 4.0, 400), np.zeros(400)])
+    assert discrete_frechet(sparse, bump) - discrete_frechet(dense, bump) > 0.9
+    assert abs(frechet(sparse, bump) - frechet(dense, bump)) < 0.1
+    assert frechet(dense, bump) == pytest.approx(1.0, abs=0.1)

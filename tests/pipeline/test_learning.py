@@ -5,7 +5,7 @@ import pytest
 
 from pipeline.app.metric_keys import is_metric_key
 from pipeline.artefacts import codec, read_artefact
-from pipeline.core.evaluation import discrete_frechet
+from pipeline.core.evaluation import discrete_frechet, resample
 from tests.conftest import ROOT, run_in_process
 
 
@@ -105,8 +105,8 @@ def test_file_demos_report_similarity(tmp_path_factory):
     demos = read_artefact(run_dir / "demos.mcap").all("/demos")
     paths = {p["start"]: p["points"] for p in read_artefact(run_dir / "eval.mcap").all(
         "/eval/paths") if p["graph"] == "graph"}
-    dists = [discrete_frechet(np.asarray(paths[d["start_index"]]), np.asarray(d["points"]))
-             for d in demos]
+    dists = [discrete_frechet(resample(paths[d["start_index"]], 0.1),
+                              resample(d["points"], 0.1)) for d in demos]
     assert m["frechet_to_demos"] == pytest.approx(np.mean(dists), abs=1e-12)
     assert m["frechet_to_demos_max"] == pytest.approx(np.max(dists), abs=1e-12)
     # most learned paths follow their demonstration (a graph of the demonstrations' own
