@@ -35,6 +35,7 @@ from pipeline.errors import PipelineError
 
 MODES = ("trinary", "scale", "raw")
 KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode")
+_WARNED: set[tuple[str, tuple[str, ...]]] = set()  # (map, its unknown keys) warned about
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +112,10 @@ def read_map_header(path: str | Path) -> MapHeader:
         raise fail(f"must be a YAML mapping of map_server keys, got {type(data).__name__}")
 
     unknown = [k for k in data if k not in KEYS]
-    if unknown:  # other tools add keys of their own; map_server ignores them too
+    # other tools add keys of their own; map_server ignores them too. Said once: a run reads
+    # the header in its checks, and again with the image
+    if unknown and (str(path), tuple(unknown)) not in _WARNED:
+        _WARNED.add((str(path), tuple(unknown)))
         log.warning("map %s: %s %s %s not map_server's (%s) and not used", path,
                     "keys" if len(unknown) > 1 else "key", ", ".join(repr(k) for k in unknown),
                     "are" if len(unknown) > 1 else "is", ", ".join(KEYS))

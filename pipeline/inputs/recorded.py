@@ -649,7 +649,8 @@ def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.n
         end_gap = float(np.linalg.norm(t[-1] - goal))
         if end_gap > goal_limit:
             raise PipelineError(f"{source}: trajectory {i} ends {end_gap:.2f} m from the goal "
-                                f"({goal[0]:g}, {goal[1]:g}); at most {goal_limit:g} m")
+                                f"({goal[0]:g}, {goal[1]:g}); at most {goal_limit:g} m (extend "
+                                "it to the goal, or check that it belongs to this scene)")
         matched.append(k)
     return matched
 
