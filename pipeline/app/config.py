@@ -231,11 +231,12 @@ class EvaluateConfig:
 
 # -- the whole run -------------------------------------------------------------------------
 
-# The features the learner has beyond the reward's, for every demonstrator (chosen by
-# measurement: results/bench/learner_features.csv and learning.csv): `crossing` tells
-# cutting through a link from passing near it. People and synthetic experts graze links
-# (relation > 0) but do not cut through them; with relation alone the two are one cost, and
-# a learned reward that tolerates grazing also cuts through.
+# The features the learner has beyond the reward's, for every demonstrator: `crossing`
+# tells cutting through a link from passing near it. People and synthetic experts graze
+# links (relation > 0) but do not cut through them; with relation alone the two are one
+# cost, and a learned reward that tolerates grazing can also cut through. No row of
+# results/bench/learner_features.csv shows it costing anything (nor, since demonstration
+# edges are costed whole, the hand-drawn rows its benefit).
 LEARNER_EXTRA_FEATURES = ("crossing",)
 
 

@@ -102,7 +102,10 @@ def read_map_header(path: str | Path) -> MapHeader:
         raise fail("is not a file")
     try:
         data = yaml.load(path.read_text(), Loader=_MapLoader)  # noqa: S506 (a safe loader)
-    except (OSError, UnicodeDecodeError) as e:
+    except UnicodeDecodeError:
+        raise fail("is not a text file: give the map's YAML file (the one whose `image:` "
+                   "names the picture), not the picture") from None
+    except OSError as e:
         raise fail(f"cannot be read ({e})") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)

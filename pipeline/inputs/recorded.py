@@ -732,6 +732,13 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     recording = read_recording(path, topic=topic, frame=frame)
     goal = np.asarray(goal, dtype=float)
     if recording.is_stream:
+        reach = np.linalg.norm(np.asarray(starts, float).reshape(-1, 2) - goal, axis=1)
+        if len(reach) and start_radius + goal_tolerance >= reach.min():
+            k = int(np.argmin(reach))
+            raise PipelineError(
+                f"{where}: expert.start_radius={start_radius:g} m reaches the goal's disk from "
+                f"start {k} ({reach[k]:.2f} m from the goal): a pose stream's trajectories would "
+                f"begin at the goal; give a radius below {reach[k] - goal_tolerance:.2f} m")
         stream = recording.tracks[0]
         spans = stream_spans(stream, starts, goal, start_radius, goal_tolerance)
         if not spans:

@@ -175,3 +175,10 @@ def test_the_office_scene_has_free_connected_starts_and_goal():
     assert not obstacles.reachable(points[-1], points[:-1], 0.55).any()
     ids = {p["id"] for p in scene["persons"]}
     assert all(a in ids and b in ids for a, b in scene["relations"])
+
+
+def test_the_picture_given_for_the_yaml_is_named_as_such(tmp_path):
+    _write_map(tmp_path, GREYS)
+    with pytest.raises(PipelineError, match=r"map .*map\.pgm: is not a text file: give the "
+                                            r"map's YAML file .* not the picture"):
+        load_map(tmp_path / "map.pgm")

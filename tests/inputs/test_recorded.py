@@ -204,6 +204,18 @@ def test_stream_that_never_goes_from_start_to_goal_is_refused(tmp_path):
             load, bag)
 
 
+def test_a_start_radius_that_reaches_the_goal_is_named(tmp_path):
+    """Every pose near the goal would also be near a start: trajectories cut from the stream
+    would begin at the goal. Said with the setting to change, not as a trajectory's fault."""
+    run = line(STARTS[0], GOAL)
+    bag = write_bag(tmp_path / "b", {"/odom": ("nav_msgs/msg/Odometry", list(run))})
+    reach = np.linalg.norm(np.asarray(STARTS) - GOAL, axis=1).min()
+    refused(r"expert\.start_radius=20 m reaches the goal's disk from start \d \(.* m from the "
+            r"goal\): a pose stream's trajectories would begin at the goal; give a radius below",
+            load, bag, start_radius=20.0)
+    assert load(bag, start_radius=float(reach - TOL - 0.01))  # just inside: read as before
+
+
 def test_non_finite_bag_positions_are_refused(tmp_path):
     run = line(STARTS[0], GOAL)
     run[5, 1] = np.nan
