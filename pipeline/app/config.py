@@ -351,6 +351,15 @@ def check_group_choices(choices: Mapping[str, Any]) -> None:
                                 f"leaves it out with '{group}=glob(*,exclude={SCHEMA_PREFIX}*)')")
 
 
+def check_objective_name(objective: str) -> None:
+    """The objective must name a metrics.json key (else every sweep trial would return NaN);
+    checked by each run and, before any job, by a sweep."""
+    if not is_metric_key(objective):
+        close = difflib.get_close_matches(objective, OBJECTIVE_EXAMPLES, n=1)
+        raise config_error("objective", objective,
+                           f"a metrics.json key, e.g. {close[0] if close else 'policy_loss_norm'}")
+
+
 def register_configs() -> None:
     if not OmegaConf.has_resolver("birlg_config_groups"):
         OmegaConf.register_new_resolver("birlg_config_groups", config_groups_help)
@@ -437,10 +446,7 @@ def load_settings(cfg: DictConfig) -> Config:
         raise config_error("seed", settings.seed, "an integer >= 0")
     if settings.from_run is not None and not settings.from_run.strip():  # the cwd, unsaid
         raise config_error("from_run", settings.from_run, "a run dir")
-    if not is_metric_key(settings.objective):  # else every sweep trial would return NaN
-        close = difflib.get_close_matches(settings.objective, OBJECTIVE_EXAMPLES, n=1)
-        raise config_error("objective", settings.objective,
-                           f"a metrics.json key, e.g. {close[0] if close else 'policy_loss_norm'}")
+    check_objective_name(settings.objective)
     if settings.objective.startswith("heldout_") and settings.evaluate.holdout is None:
         raise config_error("objective", settings.objective,
                            "a metric this run writes: the heldout_* keys need held-out "

@@ -11,6 +11,7 @@ from pathlib import Path
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
+from pipeline.app.config import check_objective_name
 from pipeline.app.rundir import (
     HYDRA_FILES,
     Interrupted,
@@ -58,6 +59,10 @@ class SweepOutcome(Callback):
     _read_only: dict[Path, dict[str, bytes]] = {}
 
     def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
+        try:  # before any job: a misspelt objective would fail every one of them
+            check_objective_name(str(config.objective))
+        except PipelineError as e:
+            raise SweepRefused(e) from None
         sweep_dir = Path(config.hydra.sweep.dir)
         SweepOutcome.sweep_dir, SweepOutcome.unrecorded = sweep_dir, {}
         try:

@@ -15,6 +15,10 @@ from scipy import fft, special
 
 MIN_DRAWS = 4  # per chain; fewer give no diagnostics (NaN), as in ArviZ
 BLOM_OFFSET = 3 / 8  # the fractional offset of the rank normalisation (Blom 1958)
+# The chains agree when every weight's split R-hat is at most this and its bulk ESS at least
+# AGREED_ESS (Vehtari et al. 2021 ask R-hat < 1.01 of long runs; 4 short chains reach 1.05)
+AGREED_RHAT = 1.05
+AGREED_ESS = 100
 
 
 def convergence(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

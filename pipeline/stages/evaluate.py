@@ -37,6 +37,7 @@ from pipeline.core.state_graph import DEMO
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.irl.birl import BirlMapConfig
+from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT
 from pipeline.irl.robust import heldout_log_likelihood
 
 log = logging.getLogger(__name__)
@@ -340,10 +341,13 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str]) -> str:
     lines = [f"BIRL-G run: {run_dir}",
              "  learned weights  " + ", ".join(weight(n) for n in learner_features)]
     if "mcmc_acceptance_rate" in m:
+        agree = m["mcmc_rhat_max"] <= AGREED_RHAT and m["mcmc_ess_min"] >= AGREED_ESS
+        verdict = "the chains agree" if agree else (
+            f"the chains do not agree yet: R-hat above {AGREED_RHAT:g} or ESS below "
+            f"{AGREED_ESS}; take more samples, birl.n_samples")
         lines.append(f"  posterior        R-hat max {fmt('mcmc_rhat_max', '.3f')}, ESS min "
                      f"{fmt('mcmc_ess_min', '.0f')}, acceptance "
-                     f"{fmt('mcmc_acceptance_rate', '.2f')} (R-hat near 1 and ESS in the "
-                     "hundreds: the chains agree)")
+                     f"{fmt('mcmc_acceptance_rate', '.2f')} ({verdict})")
     if "policy_loss" in m:
         lines.append(f"  policy loss      roadmap {fmt('policy_loss_ref')}, normalised "
                      f"{fmt('policy_loss_norm')}, graph {fmt('policy_loss')} (initial "

@@ -373,3 +373,17 @@ def test_a_batch_that_does_not_compose_runs_no_job(tmp_path, workers):
                      f"hydra.launcher.n_jobs={workers}", f"hydra.sweep.dir={tmp_path}")
     assert result.returncode == 2 and "reward/nope" in result.stderr, result.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "multirun.yaml"]
+
+
+@pytest.mark.parametrize("experiment", ["quick", "tune"])
+def test_a_misspelt_objective_stops_the_sweep_before_any_job(tmp_path, experiment):
+    """Each job would refuse it (and Optuna would log every trial's refusal as a failed,
+    non-float return): one line instead, before the sweep dir is made."""
+    sweep_dir = tmp_path / "sweep"
+    result = run_app("-m", f"experiment={experiment}", "objective=policy_loss_nrom",
+                     f"hydra.sweep.dir={sweep_dir}")
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert result.stderr.strip().splitlines() == [
+        "error: config error: objective=policy_loss_nrom is not allowed (allowed: a "
+        "metrics.json key, e.g. policy_loss_norm)"]
+    assert not sweep_dir.exists() and "Failed experiment" not in result.stdout

@@ -94,6 +94,9 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
     # the summary gives the posterior mean ± std and the chains' diagnostics
     assert f"relation {m['weight_relation']:.3f} ± {m['weight_std_relation']:.3f}" in out
     assert f"R-hat max {m['mcmc_rhat_max']:.3f}, ESS min {m['mcmc_ess_min']:.0f}" in out
+    agree = m["mcmc_rhat_max"] <= 1.05 and m["mcmc_ess_min"] >= 100  # the verdict follows them
+    assert ("the chains agree" in out) == agree
+    assert ("the chains do not agree yet" in out) == (not agree)
     assert all(is_metric_key(k) for k in m)  # every key can be a sweep's objective
 
 
