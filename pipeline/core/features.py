@@ -82,6 +82,11 @@ _PARAMETER_FIELD: dict[str, str | None] = {
     "crossing": None,
 }
 FEATURE_KINDS: tuple[str, ...] = tuple(_PARAMETER_FIELD)
+# The kinds that are no per-metre density of position (`densities` gives NaN), and why.
+NOT_A_DENSITY: dict[str, str] = {
+    "goal_deviation": "depends on the direction of travel",
+    "crossing": "counts cuts through a link, not metres near one",
+}
 
 # Gaussian terms below this fraction of their peak are dropped, which gives the sum a finite
 # reach, σ·√(2 ln 10¹²) ≈ 7.43 σ, so that a tile only looks at the persons within it.
@@ -414,8 +419,8 @@ class FeatureModel:
     def densities(self, points: np.ndarray) -> np.ndarray:
         """Per-metre density (n, d) of each selected feature at the points (n, 2): the
         integrand f(p) of a feature that is ∫ f(p) ds along the path (`length`: 1), NaN for
-        a feature that is not a density of position alone (`goal_deviation` depends on the
-        direction of travel). A costmap of the reward holds the finite columns."""
+        a feature that is not a density of position alone (NOT_A_DENSITY says why). A
+        costmap of the reward holds the finite columns."""
         p = np.asarray(points, float).reshape(-1, 2)
         out = np.full((len(p), self.dim), np.nan)
         tiled = [col for col, f in enumerate(self.selected) if f.kind in _TILED_KINDS]

@@ -56,7 +56,7 @@ from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, UNKNOWN, acquire_lock, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
-from pipeline.core.features import FeatureModel, FeatureParams
+from pipeline.core.features import NOT_A_DENSITY, FeatureModel, FeatureParams
 from pipeline.core.obstacles import OccupancyGrid, rasterise
 from pipeline.core.params import ParameterError
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
@@ -135,7 +135,9 @@ def build_costmap(scene: Scene, params: FeatureParams, weights: np.ndarray) -> C
     for j, name in enumerate(names):
         column = density[:, j]
         if not np.isfinite(column).all():
-            left_out[name] = "not a density of position (depends on the direction of travel)"
+            kind = name.split("@")[0]
+            left_out[name] = "not a density of position" + (
+                f" ({NOT_A_DENSITY[kind]})" if kind in NOT_A_DENSITY else "")
         elif len(column) and column.min() == column.max() and column[0] != 0:
             left_out[name] = "uniform (the same cost per metre everywhere)"
         else:
