@@ -92,7 +92,7 @@ OFFSET = _num("The part of the path's return no weight changes: −c·Σ_t γ^{T
 
 SCENE = _message("Scene", "The scene: room, persons, relations, starts, goal, "
                  "obstacles. Written once, log_time 0.", {
-    "name": _str("Name of the scene (its file stem, or 'random_<seed>')."),
+    "name": _str("Name of the scene (its file stem, or 'random-<seed>')."),
     "room": _obj("The room, an axis-aligned rectangle (metres).", {
         k: _num(f"{desc} of the room, metres.") for k, desc in (
             ("x_min", "Left edge"), ("y_min", "Bottom edge"), ("x_max", "Right edge"),
