@@ -126,7 +126,7 @@ class Run:
     def artefact(self, stage: str) -> Artefact:
         """The artefact a stage wrote (checked whole before it is returned)."""
         if not isinstance(stage, str) or stage not in ARTEFACT_FILE:
-            raise ValueError(f"unknown stage {stage!r} (one of {', '.join(ARTEFACT_FILE)})")
+            raise PipelineError(f"unknown stage {stage!r} (one of {', '.join(ARTEFACT_FILE)})")
         # its stage's topic: another stage's file copied in is refused, not read as this one
         return read_artefact(self.dir / ARTEFACT_FILE[stage], producer_stage=stage,
                              required_topics=[topics.STAGE_TOPIC[stage]])
@@ -142,7 +142,7 @@ class Run:
         """The greedy paths under the final learned weights (eval.mcap /eval/paths): start
         index -> (K, 2) points; `graph="ref"`: those planned on the reference roadmap."""
         if graph not in PATH_GRAPHS:
-            raise ValueError(f"graph='{graph}': one of {', '.join(PATH_GRAPHS)}")
+            raise PipelineError(f"graph='{graph}': one of {', '.join(PATH_GRAPHS)}")
         return {int(p["start"]): np.asarray(p["points"], float)
                 for p in self.artefact("evaluate").all(topics.EVAL_PATHS) if p["graph"] == graph}
 
@@ -156,7 +156,7 @@ class Run:
         run has them, drawn on `ax` (a new figure when None); returns the Axes. The backend
         is the caller's (inline in a notebook; `matplotlib.use("Agg")` in scripts)."""
         if paths not in PATH_GRAPHS:
-            raise ValueError(f"paths='{paths}': one of {', '.join(PATH_GRAPHS)}")
+            raise PipelineError(f"paths='{paths}': one of {', '.join(PATH_GRAPHS)}")
         if ax is not None:
             from matplotlib.axes import Axes
 
@@ -308,10 +308,13 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
     given = demo_list(demos)
     cfg = settings_for_learning(method, seed, overrides, config)
     cfg = sized_graph(cfg, scene)
-    # held-out rows of a run's /demos (evaluate.holdout) never enter learning, as in the run
-    training = [d for d in given if not (isinstance(d, Mapping)
-                                         and isinstance(d.get("heldout"), bool | np.bool_)
-                                         and d["heldout"])]
+    # held-out rows of a run's /demos (evaluate.holdout) never enter learning, as in the run;
+    # a flag that is no bool (1, "yes") is refused rather than read as "not held out"
+    for k, d in enumerate(given):
+        flag = d.get("heldout", False) if isinstance(d, Mapping) else False
+        if not isinstance(flag, bool | np.bool_):
+            raise PipelineError(f"demonstration {k}: heldout={flag!r} must be true or false")
+    training = [d for d in given if not (isinstance(d, Mapping) and d.get("heldout", False))]
     if not training:
         raise PipelineError(f"all {len(given)} demonstrations are held out (their 'heldout' "
                             "is true): nothing to learn from")

@@ -47,12 +47,12 @@ def test_python_api_runs_and_reads_tables(tmp_path):
     assert list(curve["iteration"]) == [0, 1, 2, 3]
     persons = run.messages("scene", "/scene")["persons"].iloc[0]
     assert len(persons) == 12  # metropolis
-    with pytest.raises(ValueError, match="unknown stage"):
+    with pytest.raises(PipelineError, match="unknown stage"):
         run.artefact("nope")
     # the run-dir helpers of the first API still answer
     assert api.messages(tmp_path, "evaluate", "/eval/policy_loss")["iteration"].tolist() == \
         [0, 1, 2, 3]
-    with pytest.raises(ValueError, match="unknown stage"):
+    with pytest.raises(PipelineError, match="unknown stage"):
         api.artefact(tmp_path, "nope")
 
 
@@ -94,7 +94,7 @@ def test_paths_are_the_learned_paths_of_eval_mcap(fast_run):
             assert isinstance(pts, np.ndarray) and pts.shape[1] == 2
             assert pts.tolist() == expected[start]
     assert not np.array_equal(fast_run.paths("graph")[0], fast_run.paths("ref")[0])
-    with pytest.raises(ValueError, match="one of graph, ref"):
+    with pytest.raises(PipelineError, match="one of graph, ref"):
         fast_run.paths("roadmap")
 
 
@@ -271,6 +271,12 @@ def test_learn_leaves_out_the_rows_a_run_held_out(fast_run):
     assert not np.array_equal(from_marked.weights, api.learn(scene, rows, **settings).weights)
     with pytest.raises(PipelineError, match="all 7 demonstrations are held out"):
         api.learn(scene, [dict(r, heldout=True) for r in rows], **settings)
+    # a flag that is no bool is refused, not read as "not held out" (1 and "yes" were)
+    for flag in (1, "yes"):
+        with pytest.raises(PipelineError, match=rf"demonstration 1: heldout={flag!r} must be "
+                                                r"true or false"):
+            api.learn(scene, [dict(r, heldout=flag if k == 1 else False)
+                              for k, r in enumerate(rows)], **settings)
 
 
 def test_learn_checks_demonstrations_as_a_demonstration_file_is_checked(metropolis, fast_run):
