@@ -132,12 +132,11 @@ def build_costmap(scene: Scene, params: FeatureParams, weights: np.ndarray) -> C
     centres = grid.cell_centres().reshape(-1, 2)
     density = FeatureModel.from_scene(scene, params).densities(centres)
     in_mask, left_out = [], {}
-    for j, name in enumerate(names):
+    for j, (name, feature) in enumerate(zip(names, params.selected(), strict=True)):
         column = density[:, j]
         if not np.isfinite(column).all():
-            kind = name.split("@")[0]
             left_out[name] = "not a density of position" + (
-                f" ({NOT_A_DENSITY[kind]})" if kind in NOT_A_DENSITY else "")
+                f" ({NOT_A_DENSITY[feature.kind]})" if feature.kind in NOT_A_DENSITY else "")
         elif len(column) and column.min() == column.max() and column[0] != 0:
             left_out[name] = "uniform (the same cost per metre everywhere)"
         else:
