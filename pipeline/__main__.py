@@ -65,7 +65,7 @@ from pipeline.app.rundir import (
     recorded_in_sweep,
     stopped_by_signals,
 )
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import PipelineError, one_line, os_error_reason
 from pipeline.stages import run_pipeline
 
 register_configs()
@@ -118,25 +118,6 @@ def objective_value(run_dir: Path, key: str) -> float | FailedJob:
             key, metrics_path)
         return FailedJob(f"objective {key}: the run wrote no such metric")
     return float(metrics[key])
-
-
-def one_line(e: BaseException) -> str:
-    """Hydra's and OmegaConf's messages run over several lines (the key, the object type,
-    a hint); the first line of the error and of its cause say what went wrong."""
-    def first(x: BaseException) -> str:
-        lines = [ln.strip() for ln in str(x).splitlines() if ln.strip()]
-        if not lines:
-            return type(x).__name__
-        # "... raised while composing config:" says what follows on the next line
-        return f"{lines[0]} {lines[1]}" if lines[0].endswith(":") and len(lines) > 1 \
-            else lines[0]
-
-    line = first(e)
-    if isinstance(getattr(e, "override", None), str):  # Hydra's override parse errors
-        line = f"cannot parse override '{e.override}': {line}"  # type: ignore[attr-defined]
-    if e.__cause__ is not None and first(e.__cause__) not in line:
-        line += f" ({first(e.__cause__)})"
-    return line
 
 
 MAX_OVERRIDE_CHARS = 5000  # Hydra's parser needs ~4 s for 20,000 characters (a long list)

@@ -53,7 +53,7 @@ from pipeline.app.config import (
 from pipeline.app.context import stage_rng
 from pipeline.app.figure_style import paper_style
 from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
-from pipeline.app.rundir import RunStatus, read_status
+from pipeline.app.rundir import SWEEP_FILE, RunStatus, read_status
 from pipeline.app.summary import Unreadable, read_metrics, summary_table
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import Artefact, read_artefact
@@ -63,7 +63,7 @@ from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.world import Scene, scene_from_dict
-from pipeline.errors import PipelineError, first_line
+from pipeline.errors import PipelineError, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
 from pipeline.inputs.recorded import cut_trajectory, drop_repeats, match_to_starts
 from pipeline.irl import methods
@@ -112,6 +112,9 @@ class Run:
         """metrics.json as a dict; empty when the evaluate stage has not run."""
         path = self.dir / "metrics.json"
         if not path.exists():
+            status = self.status  # deleted since: {} would read as "not evaluated yet"
+            if status.complete and "evaluate" in status.done:
+                raise PipelineError(f"{self.dir}: its run completed but metrics.json is gone")
             return {}
         try:
             return read_metrics(path)
@@ -199,7 +202,7 @@ def _path(value: Any, name: str) -> Path:
     if isinstance(value, bytes) or not isinstance(value, str | os.PathLike) \
             or not str(value).strip():
         raise PipelineError(f"{name}={value!r}: a path to a dir (a non-empty str or Path)")
-    return Path(value)
+    return Path(value).expanduser()  # "~/runs/x" as a shell would read it
 
 
 def _compose(overrides: Sequence[str]) -> DictConfig:
@@ -214,10 +217,8 @@ def _compose(overrides: Sequence[str]) -> DictConfig:
         cfg = compose_config(overrides)
         # interpolations resolved now, so a bad one is this one line, not a failure later
         OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
-    except (HydraException, OmegaConfBaseException) as e:
-        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
-        raise PipelineError(f"config error: {lines[0] if lines else type(e).__name__}") \
-            from None
+    except (HydraException, OmegaConfBaseException) as e:  # said as `birlg` says it
+        raise PipelineError(f"config error: {one_line(e)}") from None
     return cfg
 
 
@@ -227,6 +228,9 @@ def open_run(run_dir: str | Path) -> Run:
     if not path.is_dir():
         raise PipelineError(f"run dir {path} " + ("is not a dir" if path.exists() else
                                                   "not found"))
+    if (path / SWEEP_FILE).exists() or (path / "multirun.yaml").exists():
+        raise PipelineError(f"{path} is a sweep dir, not a run dir: read it with "
+                            "pipeline.api.sweep(), or open one of its jobs (e.g. its 0/)")
     return Run(path)
 
 
@@ -398,6 +402,11 @@ def settings_for_learning(method: str, seed: int, overrides: Sequence[str],
         if clash:  # else the override won silently over the argument
             raise PipelineError(f"override {clash[0]!r}: give it as learn()'s {argument} "
                                 "argument instead")
+    given = {o.lstrip("+~").split("=")[0] for o in listed}
+    twice = [key for key in birl or {} if f"birl.{key}" in given]
+    if twice:  # else the keyword won silently over the override
+        raise PipelineError(f"birl.{twice[0]} is given twice, as learn()'s keyword {twice[0]}= "
+                            "and in overrides: give it once")
     dc = _compose([f"birl={method}", f"seed={seed}", *listed])
     for key, value in (birl or {}).items():
         if isinstance(value, np.ndarray):
@@ -454,8 +463,10 @@ def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel, speed
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2 or not np.isfinite(pts).all():
         raise PipelineError(f"a demonstration must be a polyline of at least two finite (x, y) "
                             f"points, got an array of shape {pts.shape} ({what})")
-    if start is not None and (isinstance(start, bool) or not isinstance(start, int | np.integer)
-                              or not 0 <= start < len(scene.starts)):  # -1: the last start
+    if start is not None and (isinstance(start, bool) or not isinstance(start, int | np.integer)):
+        raise PipelineError(f"{what}: start_index={start!r} must be an integer, not "
+                            f"{type(start).__name__}")
+    if start is not None and not 0 <= start < len(scene.starts):  # -1: the last start
         raise PipelineError(f"start_index={start!r} is not a start of the scene (0 to "
                             f"{len(scene.starts) - 1})")
     if reached is not None and not isinstance(reached, bool | np.bool_):  # "no" is truthy

@@ -14,6 +14,25 @@ def first_line(e: BaseException, limit: int = 200) -> str:
     return (str(e).splitlines() or [type(e).__name__])[0][:limit]
 
 
+def one_line(e: BaseException) -> str:
+    """Hydra's and OmegaConf's messages run over several lines (the key, the object type,
+    a hint); the first line of the error and of its cause say what went wrong."""
+    def first(x: BaseException) -> str:
+        lines = [ln.strip() for ln in str(x).splitlines() if ln.strip()]
+        if not lines:
+            return type(x).__name__
+        # "... raised while composing config:" says what follows on the next line
+        return f"{lines[0]} {lines[1]}" if lines[0].endswith(":") and len(lines) > 1 \
+            else lines[0]
+
+    line = first(e)
+    if isinstance(getattr(e, "override", None), str):  # Hydra's override parse errors
+        line = f"cannot parse override '{e.override}': {line}"  # type: ignore[attr-defined]
+    if e.__cause__ is not None and first(e.__cause__) not in line:
+        line += f" ({first(e.__cause__)})"
+    return line
+
+
 def os_error_reason(e: OSError) -> str:
     """Why an OSError happened, in words (disk full said plainly), with the file if known."""
     reason = "the disk is full" if e.errno == errno.ENOSPC else (e.strerror or str(e))

@@ -532,7 +532,9 @@ def end_sweep(sweep_dir: Path, unrecorded: dict[str, str] | None = None) -> None
     keeps them, so a table lists them."""
     number = current_sweep(sweep_dir)
     if number is not None:
-        record = {**_sweep_record(sweep_dir), "finished": True}
+        # its jobs listed, so that a table can tell a job dir deleted since
+        record = {**_sweep_record(sweep_dir), "finished": True,
+                  "jobs": [_relative(j, sweep_dir) for j in sweep_jobs(sweep_dir)[0]]}
         if unrecorded:
             record["unrecorded"] = {_relative(Path(j), sweep_dir): e
                                     for j, e in unrecorded.items()}
@@ -560,6 +562,15 @@ def unrecorded_jobs(sweep_dir: Path) -> dict[str, str]:
     if not isinstance(jobs, dict):
         return {}
     return {str(j): str(e) for j, e in jobs.items()}
+
+
+def missing_jobs(sweep_dir: Path) -> list[str]:
+    """The jobs end_sweep recorded for the last sweep whose dirs are gone (relative to the
+    sweep dir): deleted or moved after the sweep."""
+    jobs = _sweep_record(sweep_dir).get("jobs")
+    if not isinstance(jobs, list):
+        return []
+    return [str(j) for j in jobs if not (Path(sweep_dir) / str(j) / HYDRA_FILES[-1]).exists()]
 
 
 def _relative(job_dir: Path, sweep_dir: Path) -> str:

@@ -13,7 +13,13 @@ from typing import TYPE_CHECKING
 import yaml
 
 from pipeline.app.metric_keys import is_metric_key
-from pipeline.app.rundir import job_dirs, read_status, sweep_jobs, unrecorded_jobs
+from pipeline.app.rundir import (
+    job_dirs,
+    missing_jobs,
+    read_status,
+    sweep_jobs,
+    unrecorded_jobs,
+)
 from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
 from pipeline.errors import PipelineError, first_line
 
@@ -85,6 +91,9 @@ def summary_rows(sweep_dir: Path) -> tuple[list[str], list[dict]]:
     listed = {row["job"] for row in rows}
     rows += [{"job": job, "status": "failed", "error": error}  # no status.json could say it
              for job, error in unrecorded_jobs(sweep_dir).items() if job not in listed]
+    listed = {row["job"] for row in rows}
+    rows += [{"job": job, "status": "failed", "error": "its job dir is gone (deleted or moved "
+              "after the sweep)"} for job in missing_jobs(sweep_dir) if job not in listed]
     if not rows:
         raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
     return column_order(list(dict.fromkeys(key for row in rows for key in row))), rows

@@ -140,7 +140,7 @@ def test_aggregate_of_a_sweep_that_did_not_finish_says_so(tmp_path):
     assert no_figures.returncode == 0
     assert not [p for p in tmp_path.iterdir() if p.suffix in (".png", ".pdf")]
     record = json.loads((tmp_path / "sweep.json").read_text())
-    assert record == {"sweep": 1, "finished": True}
+    assert record == {"sweep": 1, "finished": True, "jobs": ["0", "1"]}
     (tmp_path / "sweep.json").write_text(json.dumps({"sweep": 1, "finished": False}))
     agg = aggregate(tmp_path)
     assert agg.returncode == 1

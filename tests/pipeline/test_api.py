@@ -149,6 +149,14 @@ def test_open_run_reads_an_existing_dir(fast_run, tmp_path):
         plt.close("all")
 
 
+def test_a_run_dir_under_home_is_read_as_a_shell_reads_it(fast_run, tmp_path, monkeypatch):
+    """"~/runs/x" was a dir named "~" in the working directory."""
+    monkeypatch.setenv("HOME", str(fast_run.dir.parent))
+    monkeypatch.chdir(tmp_path)
+    assert api.open_run(f"~/{fast_run.dir.name}").dir == fast_run.dir
+    assert api.Run(f"~/{fast_run.dir.name}").metrics == fast_run.metrics
+
+
 def test_sweep_reads_a_multirun_with_a_failed_job(tmp_path):
     result = run_app("-m", "graph=small", "birl.n_iterations=2", "scene.body_radius=0.25,-1",
                      f"hydra.sweep.dir={tmp_path}")
@@ -169,6 +177,19 @@ def test_sweep_reads_a_multirun_with_a_failed_job(tmp_path):
         api.sweep(tmp_path / "0" / ".hydra")
     with pytest.raises(PipelineError, match="not found"):
         api.sweep(tmp_path / "missing")
+    # the sweep dir is no run (its metrics read as {}, "not evaluated yet")
+    with pytest.raises(PipelineError, match="is a sweep dir, not a run dir"):
+        api.open_run(tmp_path)
+    # a job whose metrics.json went missing since it completed, and a job dir deleted after
+    # the sweep, are failed rows (the deleted one was no row at all)
+    (tmp_path / "0" / "metrics.json").rename(tmp_path / "metrics.json.kept")
+    with pytest.raises(PipelineError, match="its run completed but metrics.json is gone"):
+        _ = api.open_run(tmp_path / "0").metrics
+    shutil.rmtree(tmp_path / "1")
+    table = api.sweep(tmp_path)
+    assert table["job"].tolist() == ["0", "1"] and table.status.tolist() == ["failed", "failed"]
+    assert table.error.tolist() == ["no metrics.json (stage evaluate was not run)",
+                                    "its job dir is gone (deleted or moved after the sweep)"]
 
 
 def optimal_expert(scene, overrides=()):
@@ -240,7 +261,9 @@ def test_learn_refuses_bad_input(metropolis):
     # every mistake is one PipelineError line, not an error from deep inside
     for demos, says in (([], "non-empty list"), ([{"x": 1}], "needs 'points'"),
                         ([{"points": walk, "start_index": -1}], "start_index=-1 is not a start"),
-                        ([{"points": walk, "start_index": 99}], "start_index=99 is not a start")):
+                        ([{"points": walk, "start_index": 99}], "start_index=99 is not a start"),
+                        ([{"points": walk, "start_index": 0.0}],  # a wrong type, not a range
+                         "demonstration 0: start_index=0.0 must be an integer, not float")):
         with pytest.raises(PipelineError, match=says):
             api.learn(metropolis, demos, overrides=["graph=small"])
     with pytest.raises(PipelineError, match="scene must be a pipeline.core.world.Scene"):
@@ -315,7 +338,11 @@ def test_learn_refuses_what_run_refuses(metropolis):
              "relation \\[1, 99\\] names unknown person id 99"),
             ({"overrides": ["graph.max_nodes=3"]}, "graph.max_nodes=3 is too few"),
             ({"overrides": ["birl=mcmc"]}, "give it as learn\\(\\)'s method argument"),
-            ({"overrides": ["seed=5"]}, "give it as learn\\(\\)'s seed argument")):
+            ({"overrides": ["seed=5"]}, "give it as learn\\(\\)'s seed argument"),
+            # the keyword won silently over the override
+            ({"overrides": ["birl.n_iterations=5"], "n_iterations": 2},
+             "birl.n_iterations is given twice, as learn\\(\\)'s keyword n_iterations= and "
+             "in overrides")):
         with pytest.raises(PipelineError, match=says):
             api.learn(**{"scene": metropolis, "demos": [walk], **kwargs})
 
@@ -325,6 +352,9 @@ def test_learn_refuses_what_run_refuses(metropolis):
     (lambda d: api.run(["seed=${nope.x}"], run_dir=d), "Interpolation key 'nope.x' not found"),
     (lambda d: api.run(["~seed"], run_dir=d), "seed is missing \\(deleted with ~seed\\?\\)"),
     (lambda d: api.run(["hydra.run.dir=/x"], run_dir=d), "hydra.\\* settings have no effect"),
+    # said as birlg says it: what was wrong with the value too (its cause), not only where
+    (lambda d: api.run(["birl.beta=abc"], run_dir=d), "config error: Error merging override "
+     "birl.beta=abc \\(Value 'abc' of type 'str' could not be converted to Float\\)"),
     (lambda d: api.run([], run_dir=""), "run_dir='': a path to a dir"),
     (lambda d: api.open_run(None), "run_dir=None: a path to a dir"),
     (lambda d: api.open_run(Path(__file__)), "is not a dir"),
