@@ -66,9 +66,11 @@ experiment: $(STAMP)
 ## launcher; ARGS=hydra/launcher=joblib for joblib's), then aggregate.
 ## A failing job does not stop the others; the exit status says whether any failed.
 sweep: $(STAMP) $(if $(filter tune,$(EXP)),$(VENV)/.installed-tune)
-	@# Aggregate also when jobs failed (the table lists them); exit non-zero if any did.
+	@# Aggregate also when jobs failed (the table lists them); exit with the sweep's status
+	@# when it failed or was stopped (1, or 130/143/129 after a signal), else aggregate's.
 	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) hydra.sweep.dir=$(SWEEP_DIR) $(ARGS); \
-	  sweep=$$?; $(PY) -m pipeline.tools.aggregate $(SWEEP_DIR) || exit $$?; exit $$sweep
+	  sweep=$$?; $(PY) -m pipeline.tools.aggregate $(SWEEP_DIR); aggregated=$$?; \
+	  if [ $$sweep -ne 0 ]; then exit $$sweep; fi; exit $$aggregated
 
 ## Table (summary.csv) and figures of a sweep dir: make aggregate SWEEP=multirun/...
 aggregate: $(STAMP)

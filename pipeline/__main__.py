@@ -57,6 +57,7 @@ from pipeline.app.rundir import (
     FailedJob,
     Interrupted,
     as_interrupted,
+    check_not_a_sweep_dir,
     current_sweep,
     error_text,
     ignore_repeat,
@@ -355,6 +356,8 @@ def cli() -> None:
         _Progress.multirun = multirun
         sys.argv[1:] = argv  # flags first: the order Hydra's parser takes
         run_dir = explicit_run_dir(parsed, multirun)
+        if run_dir is not None:  # before Hydra writes its .hydra/ there
+            check_not_a_sweep_dir(run_dir)
         # Held from before Hydra writes its .hydra/ files until the run ends: a second run
         # into the dir is refused before it touches anything.
         with stopped_by_signals(), \

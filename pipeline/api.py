@@ -202,7 +202,8 @@ def _path(value: Any, name: str) -> Path:
     if isinstance(value, bytes) or not isinstance(value, str | os.PathLike) \
             or not str(value).strip():
         raise PipelineError(f"{name}={value!r}: a path to a dir (a non-empty str or Path)")
-    return Path(value).expanduser()  # "~/runs/x" as a shell would read it
+    # "~/runs/x" as a shell reads it; absolute, so that a handle outlives a change of dir
+    return Path(value).expanduser().absolute()
 
 
 def _compose(overrides: Sequence[str]) -> DictConfig:

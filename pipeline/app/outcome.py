@@ -18,6 +18,7 @@ from pipeline.app.rundir import (
     abandon_sweep,
     acquire_lock,
     begin_sweep,
+    check_not_a_run_dir,
     end_sweep,
     job_dirs,
     mark_started_by_hydra,
@@ -64,6 +65,10 @@ class SweepOutcome(Callback):
         except PipelineError as e:
             raise SweepRefused(e) from None
         sweep_dir = Path(config.hydra.sweep.dir)
+        try:
+            check_not_a_run_dir(sweep_dir)
+        except PipelineError as e:
+            raise SweepRefused(e) from None
         SweepOutcome.sweep_dir, SweepOutcome.unrecorded = sweep_dir, {}
         try:
             sweep_dir.mkdir(parents=True, exist_ok=True)

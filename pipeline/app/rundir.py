@@ -293,6 +293,22 @@ def locked(run_dir: Path):
         os.close(fd)  # releases the lock
 
 
+def check_not_a_sweep_dir(run_dir: Path) -> None:
+    """Refuse a run into a sweep's dir: its .hydra/ and artefacts at the top would make the
+    dir a run dir, whose sweep's jobs no table could list any more."""
+    if (Path(run_dir) / SWEEP_FILE).exists() or (Path(run_dir) / "multirun.yaml").exists():
+        raise PipelineError(f"{run_dir} is a sweep's dir (it has {SWEEP_FILE} or "
+                            "multirun.yaml): give the run a dir of its own")
+
+
+def check_not_a_run_dir(sweep_dir: Path) -> None:
+    """Refuse a sweep into a single run's dir (the reverse of check_not_a_sweep_dir)."""
+    made = [name for name in (HYDRA_FILES[-1], STATUS_FILE) if (Path(sweep_dir) / name).exists()]
+    if made:
+        raise PipelineError(f"{sweep_dir} is a run dir (it has {made[0]}): give the sweep a "
+                            "dir of its own")
+
+
 def check_writable(run_dir: Path) -> None:
     """Refuse a run dir where no new file can be made (e.g. read-only) before Hydra
     rewrites its .hydra/ (a writable subdir): the dir would be left with this run's
@@ -345,6 +361,7 @@ class RunDir:
 
     def __enter__(self) -> RunDir:
         if Path(self.path).resolve() not in _HANDED_OVER:
+            check_not_a_sweep_dir(self.path)
             self._fd = acquire_lock(self.path)
         self._remove_stale_temp_files()
         self._write(RUNNING)
@@ -564,13 +581,19 @@ def unrecorded_jobs(sweep_dir: Path) -> dict[str, str]:
     return {str(j): str(e) for j, e in jobs.items()}
 
 
-def missing_jobs(sweep_dir: Path) -> list[str]:
-    """The jobs end_sweep recorded for the last sweep whose dirs are gone (relative to the
-    sweep dir): deleted or moved after the sweep."""
+def missing_jobs(sweep_dir: Path) -> dict[str, str]:
+    """The jobs end_sweep recorded for the last sweep that are no longer found as jobs
+    (relative to the sweep dir -> what is gone): deleted or moved after the sweep."""
     jobs = _sweep_record(sweep_dir).get("jobs")
     if not isinstance(jobs, list):
-        return []
-    return [str(j) for j in jobs if not (Path(sweep_dir) / str(j) / HYDRA_FILES[-1]).exists()]
+        return {}
+    gone = {}
+    for job in map(str, jobs):
+        if not (Path(sweep_dir) / job).is_dir():
+            gone[job] = "its job dir is gone (deleted or moved after the sweep)"
+        elif not (Path(sweep_dir) / job / HYDRA_FILES[-1]).exists():
+            gone[job] = f"its {HYDRA_FILES[-1]} is gone (deleted after the sweep)"
+    return gone
 
 
 def _relative(job_dir: Path, sweep_dir: Path) -> str:

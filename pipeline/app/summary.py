@@ -6,7 +6,10 @@ most of its time; `api.sweep` makes them a DataFrame.
 
 from __future__ import annotations
 
+import csv
+import io
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -89,22 +92,34 @@ def summary_rows(sweep_dir: Path) -> tuple[list[str], list[dict]]:
     jobs = sweep_jobs(sweep_dir)[0]
     rows = [job_row(j, sweep_dir) for j in jobs]
     listed = {row["job"] for row in rows}
-    rows += [{"job": job, "status": "failed", "error": error}  # no status.json could say it
-             for job, error in unrecorded_jobs(sweep_dir).items() if job not in listed]
-    listed = {row["job"] for row in rows}
-    rows += [{"job": job, "status": "failed", "error": "its job dir is gone (deleted or moved "
-              "after the sweep)"} for job in missing_jobs(sweep_dir) if job not in listed]
+    # jobs no status.json could say failed, and jobs whose dirs went missing since
+    rows += [{"job": job, "status": "failed", "error": error} for job, error in
+             {**missing_jobs(sweep_dir), **unrecorded_jobs(sweep_dir)}.items()
+             if job not in listed]
     if not rows:
         raise PipelineError(f"sweep dir {sweep_dir} holds no Hydra jobs (.hydra/overrides.yaml)")
     return column_order(list(dict.fromkeys(key for row in rows for key in row))), rows
 
 
 def summary_table(sweep_dir: Path) -> pd.DataFrame:
-    """`summary_rows` as a DataFrame (missing values NaN)."""
+    """`summary_rows` as a DataFrame, read as `pd.read_csv` reads summary.csv (numbers as
+    numbers, the swept settings' values included; missing values NaN)."""
     import pandas as pd
 
-    columns, rows = summary_rows(sweep_dir)
-    return pd.DataFrame(rows, columns=columns)
+    return pd.read_csv(io.StringIO(summary_csv(*summary_rows(sweep_dir))))
+
+
+def summary_csv(columns: list[str], rows: list[dict]) -> str:
+    """summary.csv's text: a missing value is an empty cell (as pandas writes NaN and None)."""
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(columns)
+    writer.writerows([["" if missing_value(r.get(c)) else r[c] for c in columns] for r in rows])
+    return text.getvalue()
+
+
+def missing_value(value: object) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
 
 
 # summary.csv column order (docs/outputs.md, "Sweeps"): the job and its outcome,

@@ -291,13 +291,13 @@ def write_artefact(path, records: Iterable[tuple[str, str, dict, int]], *, confi
     return w.path
 
 
-def _read_records(f) -> list:
+def read_records(f) -> list:
     """The top-level records of a complete MCAP, chunks still compressed; raises on
     truncation, a bad data-section or summary CRC, or trailing bytes. The data-section CRC
     covers every byte of every chunk, so a chunk that is never decompressed is checked too."""
     records = list(StreamReader(f, validate_crcs=True, emit_chunks=True).records)
     footer, end = records[-1], f.tell()
-    if end != os.fstat(f.fileno()).st_size:
+    if end != f.seek(0, os.SEEK_END):  # the file's size (a file in memory has no fstat)
         raise ValueError("trailing bytes after the MCAP end magic")
     if footer.summary_crc:  # the stream reader does not check the summary/footer CRC
         footer_start = end - len(_MAGIC) - _FOOTER_PREFIX_LEN - 4
@@ -434,7 +434,7 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
                        if _MAGIC.startswith(head) else "is not an MCAP file")
         f.seek(0)
         try:
-            records = _read_records(f)
+            records = read_records(f)
         except Exception as e:  # mcap raises many types here (struct.error, EndOfFile, CRC, zstd)
             raise _corrupt(path, e) from e
     schemas = {r.id: r for r in records if isinstance(r, Schema)}

@@ -16,9 +16,6 @@ that failed, or never wrote metrics, stay in the table with their error; the exi
 from __future__ import annotations
 
 import argparse
-import csv
-import io
-import math
 import re
 import sys
 from pathlib import Path
@@ -27,7 +24,7 @@ import numpy as np
 
 from pipeline.app.figure_style import COLOURS, PAGE_IN, new_figure, paper_style, save_figure
 from pipeline.app.rundir import is_locked, sweep_finished, sweep_jobs, sweep_stopped_why
-from pipeline.app.summary import is_metric, summary_rows
+from pipeline.app.summary import is_metric, missing_value, summary_csv, summary_rows
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.errors import PipelineError, os_error_reason
@@ -39,13 +36,9 @@ from pipeline.tools import run_tool
 Row = dict
 
 
-def _missing(value) -> bool:
-    return value is None or (isinstance(value, float) and math.isnan(value))
-
-
 def varies(column: str, rows: list[Row]) -> bool:
     """Whether the column's value (or its absence) differs between rows."""
-    return len({None if _missing(r.get(column)) else r[column] for r in rows}) > 1
+    return len({None if missing_value(r.get(column)) else r[column] for r in rows}) > 1
 
 
 def swept_columns(columns: list[str], rows: list[Row]) -> list[str]:
@@ -61,7 +54,7 @@ def group_rows(rows: list[Row], groups: list[str]) -> list[tuple[tuple, list[Row
     when there are no groups."""
     parts: dict[tuple, list[Row]] = {}
     for row in rows:
-        key = tuple(None if _missing(row.get(g)) else row[g] for g in groups)
+        key = tuple(None if missing_value(row.get(g)) else row[g] for g in groups)
         parts.setdefault(key, []).append(row)
     return sorted(parts.items(), key=lambda item: [(v is None, v) for v in item[0]])
 
@@ -149,21 +142,31 @@ def plot_scene(job: Path, path: Path) -> None:
 
 def results_table(columns: list[str], rows: list[Row]) -> tuple[list[Row], list[Row]]:
     """Main results, one row per swept setting: mean ± std over seeds of the headline
-    metrics (the table a paper or a README shows); and the means, for marking the best."""
-    ok = [r for r in rows if r.get("status") == "ok"]
-    groups = swept_columns(columns, ok)
+    metrics (the table a paper or a README shows); and the means, for marking the best.
+    Settings whose jobs failed are rows too: with a `failed` column counting them, and
+    without values where no job of the setting ran (none when no job of the sweep ran)."""
+    if not any(r.get("status") == "ok" for r in rows):
+        return [], []
+    # the jobs whose settings are known (a job whose dir is gone has none)
+    known = [r for r in rows if any(k not in ("job", "status", "error") and not is_metric(k)
+                                    for k in r)]
+    groups = swept_columns(columns, known)
     metrics = [m for m in TABLE_METRICS if m in columns]
+    any_failed = any(r.get("status") != "ok" for r in known)
     results, means = [], []
-    for key, part in (group_rows(ok, groups) if ok else []):
+    for key, part in group_rows(known, groups):
+        ok = [r for r in part if r.get("status") == "ok"]
         row: Row = {SETTING_NAMES.get(g, g): (METHOD_NAMES.get(str(v), v) if g == "birl" else v)
                     for g, v in zip(groups, key, strict=True)}
-        row["seeds"] = len(part)
+        row["seeds"] = len(ok)
+        if any_failed:
+            row["failed"] = len(part) - len(ok)
         means.append({})
         for m in metrics:
-            values = np.array([np.nan if _missing(r.get(m)) else r[m] for r in part],
+            values = np.array([np.nan if missing_value(r.get(m)) else r[m] for r in ok],
                               dtype=float)
-            row[METRIC_NAMES.get(m, m)] = mean_std(values)
-            means[-1][METRIC_NAMES.get(m, m)] = float(np.mean(values))
+            row[METRIC_NAMES.get(m, m)] = mean_std(values) if ok else ""
+            means[-1][METRIC_NAMES.get(m, m)] = float(np.mean(values)) if ok else np.nan
         results.append(row)
     return results, means
 
@@ -191,8 +194,10 @@ def best_rows(means: list[Row]) -> dict[str, set[int]]:
     """Per metric column, the rows with the best mean (ties: all of them)."""
     best = {}
     for col in means[0] if means else ():
-        values = np.array([m[col] for m in means])
-        target = values.max() if col in HIGHER_IS_BETTER else values.min()
+        values = np.array([m[col] for m in means])  # NaN: a setting none of whose jobs ran
+        if np.isnan(values).all():
+            continue
+        target = np.nanmax(values) if col in HIGHER_IS_BETTER else np.nanmin(values)
         best[col] = set(np.flatnonzero(np.isclose(values, target, rtol=0, atol=1e-12)))
     return best
 
@@ -245,12 +250,8 @@ def write_tables(columns: list[str], rows: list[Row], sweep_dir: Path) -> None:
 
 
 def write_summary_csv(columns: list[str], rows: list[Row], path: Path) -> None:
-    """summary.csv: a missing value is an empty cell (as pandas writes NaN and None)."""
-    text = io.StringIO()
-    writer = csv.writer(text, lineterminator="\n")
-    writer.writerow(columns)
-    writer.writerows([["" if _missing(r.get(c)) else r[c] for c in columns] for r in rows])
-    write_text_atomic(path, text.getvalue())  # a full disk leaves the old table, not an empty one
+    # a full disk leaves the old table, not an empty one
+    write_text_atomic(path, summary_csv(columns, rows))
 
 
 FIGURES = ("policy_loss", "scene")  # each as .png and .pdf
@@ -271,10 +272,16 @@ def aggregate(sweep_dir: Path, figures: bool = True) -> tuple[list[str], list[Ro
         return columns, rows
     plot_policy_loss(sweep_dir / SUMMARY_FILE, sweep_dir / f"{FIGURES[0]}.png")
     # the scene of the first job that ran and kept its scene (a copied or pruned job may not)
+    from pipeline.artefacts.store import ArtefactError  # the artefact readers: figures only
+
     drawn = [sweep_dir / r["job"] for r in rows if r["status"] == "ok"
              and (sweep_dir / r["job"] / ARTEFACT_FILE["scene"]).is_file()]
-    if drawn:
-        plot_scene(drawn[0], sweep_dir / f"{FIGURES[1]}.png")
+    for job in drawn:
+        try:  # a damaged artefact of one job leaves the figure to the next
+            plot_scene(job, sweep_dir / f"{FIGURES[1]}.png")
+            break
+        except ArtefactError as e:
+            print(f"note: no scene figure from job {job.name}: {e}", file=sys.stderr)
     return columns, rows
 
 

@@ -22,6 +22,7 @@ from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
+from pipeline.artefacts.store import read_records
 from pipeline.tools import run_tool
 
 
@@ -59,6 +60,13 @@ def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
                 bad.append(f"{at}{where or '(message)'}: {err.message[:200]}")
         attachments = list(reader.iter_attachments())
         metadata = list(reader.iter_metadata())
+        if check:  # every byte, as the pipeline reads it: the data-section and summary CRCs
+            f.seek(0)
+            try:
+                read_records(f)
+            except Exception as e:  # noqa: BLE001 - mcap raises many types (struct, CRC, EOF)
+                why = " ".join(str(e).split())[:200] or type(e).__name__
+                bad.insert(0, f"  INVALID file: {why}")
     schemas = summary.schemas if summary else {}
     span = f", log_time {min(times) / 1e9:g} .. {max(times) / 1e9:g} s" \
         if times else ""

@@ -259,6 +259,21 @@ def test_mcapinfo_lists_topics_counts_and_metadata_and_checks_schemas(runs, caps
     assert "match their schemas" not in out
     assert "check: 1 messages have no JSON schema or are not JSON encoded: not checked" in out
 
+    # A flipped byte that the lenient MCAP reader reads past is caught by --check's CRCs (it
+    # said "all N messages match" of a file the pipeline refuses)
+    data, caught = (runs["default"] / "scene.mcap").read_bytes(), 0
+    for at in range(len(data) // 8, len(data) - 8, len(data) // 8):
+        flipped = tmp_path / "flipped.mcap"
+        flipped.write_bytes(data[:at] + bytes([data[at] ^ 0x01]) + data[at + 1:])
+        if mcapinfo.main([str(flipped)]) != 0:
+            capsys.readouterr()
+            continue  # the flip broke the file's structure: "cannot be read", exit 2
+        capsys.readouterr()
+        assert mcapinfo.main(["--check", str(flipped)]) == 1
+        assert "  INVALID file: " in capsys.readouterr().out
+        caught += 1
+    assert caught >= 1
+
     # A file that is not MCAP: one line on stderr, exit status 2.
     (tmp_path / "x.mcap").write_text("hello")
     assert mcapinfo.main([str(tmp_path / "x.mcap")]) == 2

@@ -134,6 +134,15 @@ def test_aggregate_of_a_sweep_that_did_not_finish_says_so(tmp_path):
     agg = aggregate(tmp_path)
     assert agg.returncode == 0, agg.stderr
     assert (tmp_path / "scene.png").exists()  # drawn from job 1
+    # a damaged scene artefact is no figure and a note, not a failed aggregation (it ended
+    # it, before any table line)
+    scene_1 = (tmp_path / "1" / "scene.mcap").read_bytes()
+    (tmp_path / "1" / "scene.mcap").write_bytes(scene_1[:len(scene_1) // 2])
+    agg = aggregate(tmp_path)
+    assert agg.returncode == 0, agg.stderr
+    assert "note: no scene figure from job 1: artefact " in agg.stderr
+    assert not (tmp_path / "scene.png").exists() and (tmp_path / "summary.csv").exists()
+    (tmp_path / "1" / "scene.mcap").write_bytes(scene_1)
     no_figures = subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate",
                                  str(tmp_path), "--no-figures"], cwd=ROOT,
                                 capture_output=True, text=True, timeout=300)

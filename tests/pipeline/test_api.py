@@ -165,9 +165,12 @@ def test_sweep_reads_a_multirun_with_a_failed_job(tmp_path):
     # the job, its outcome, the overrides alphabetically, then the metrics
     assert list(table.columns[:6]) == ["job", "status", "error", "birl.n_iterations", "graph",
                                        "scene.body_radius"]
-    assert table["scene.body_radius"].tolist() == ["0.25", "-1"]
+    # as pd.read_csv reads summary.csv: numbers as numbers (strings made `seed == 0` match
+    # no row), a missing value NaN
+    assert table["scene.body_radius"].tolist() == [0.25, -1.0]
     assert table.columns[6] == "policy_loss_norm"  # every metric after the settings
-    assert table["job"].tolist() == ["0", "1"] and table.status.tolist() == ["ok", "failed"]
+    assert table["job"].tolist() == [0, 1] and table.status.tolist() == ["ok", "failed"]
+    assert np.isnan(table.error.iloc[0])
     assert "scene.body_radius=-1" in table.error.iloc[1]
     metrics = api.open_run(tmp_path / "0").metrics
     row = table.iloc[0]
@@ -185,11 +188,28 @@ def test_sweep_reads_a_multirun_with_a_failed_job(tmp_path):
     (tmp_path / "0" / "metrics.json").rename(tmp_path / "metrics.json.kept")
     with pytest.raises(PipelineError, match="its run completed but metrics.json is gone"):
         _ = api.open_run(tmp_path / "0").metrics
+    (tmp_path / "1" / ".hydra" / "overrides.yaml").unlink()
+    assert api.sweep(tmp_path).error.tolist() == [
+        "no metrics.json (stage evaluate was not run)",
+        "its .hydra/overrides.yaml is gone (deleted after the sweep)"]
     shutil.rmtree(tmp_path / "1")
     table = api.sweep(tmp_path)
-    assert table["job"].tolist() == ["0", "1"] and table.status.tolist() == ["failed", "failed"]
+    assert table["job"].tolist() == [0, 1] and table.status.tolist() == ["failed", "failed"]
     assert table.error.tolist() == ["no metrics.json (stage evaluate was not run)",
                                     "its job dir is gone (deleted or moved after the sweep)"]
+    # a run into the sweep's dir would make it a run dir, whose jobs no table could list
+    result = run_app("graph=small", "stages=[scene]", f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 2
+    assert f"{tmp_path} is a sweep's dir (it has sweep.json" in result.stderr.splitlines()[-1]
+    with pytest.raises(PipelineError, match="is a sweep's dir"):
+        api.run(["graph=small", "stages=[scene]"], run_dir=tmp_path)
+    assert not (tmp_path / ".hydra").exists() and not (tmp_path / "scene.mcap").exists()
+    # and a sweep into a run's dir is refused too (an API run: no .hydra/)
+    single = api.run(["graph=small", "stages=[scene]"], run_dir=tmp_path / "single")
+    result = run_app("-m", "graph=small", "seed=0,1", f"hydra.sweep.dir={single.dir}")
+    assert result.returncode == 2
+    assert f"{single.dir} is a run dir (it has status.json)" in result.stderr.splitlines()[-1]
+    assert not (single.dir / "0").exists()
 
 
 def optimal_expert(scene, overrides=()):

@@ -47,13 +47,36 @@ def test_a_failed_job_is_left_out_of_the_results_and_is_an_empty_cell_in_the_csv
     rows[3] = {"job": 3, "status": "failed", "error": "stage birl: boom", "seed": 1,
                "reward": "rude"}  # no metrics
     results, _ = results_table(columns, rows)
-    assert [r["seeds"] for r in results] == [2, 1]
+    assert [r["seeds"] for r in results] == [2, 1] and [r["failed"] for r in results] == [0, 1]
     write_summary_csv(columns, rows, tmp_path / "summary.csv")
     table = pd.read_csv(tmp_path / "summary.csv")
     assert list(table.columns) == columns
     assert table.policy_loss_norm.isna().tolist() == [False, False, False, True]
     assert table.error.isna().tolist() == [True, True, True, False]
     assert table.policy_loss_norm[1] == 0.01  # floats written in full
+
+
+def test_a_setting_whose_jobs_all_failed_is_a_row_without_values(tmp_path):
+    """It was no row at all: the table hid that graph.max_nodes=20 failed. A job whose dir
+    is gone (no settings known) makes no setting of its own."""
+    columns, rows = sweep_table()
+    columns.insert(4, "graph.max_nodes")
+    rows = [dict(r, **{"graph.max_nodes": "200"}) for r in rows] + \
+        [{"job": 4 + k, "status": "failed", "error": "too few", "seed": k, "reward": "rude",
+          "graph.max_nodes": "20"} for k in (0, 1)] + \
+        [{"job": 6, "status": "failed", "error": "its job dir is gone"}]
+    results, means = results_table(columns, rows)
+    table = pd.DataFrame(results)
+    assert table[["graph.max_nodes", "reward", "seeds", "failed"]].values.tolist() == [
+        ["20", "rude", 0, 2], ["200", "polite", 2, 0], ["200", "rude", 2, 0]]
+    assert table["normalised policy loss"].tolist() == ["", "0.0200 ± 0.0141",
+                                                       "0.3000 ± 0.1414"]
+    write_tables(columns, rows, tmp_path)  # the best of the settings that ran is bold
+    polite = next(line for line in (tmp_path / "table.tex").read_text().splitlines()
+                  if line.startswith("200 & polite"))
+    assert polite.count("\\textbf{") == 3 and np.isnan(means[0]["normalised policy loss"])
+    # no job ran: no table
+    assert results_table(columns, [dict(r, status="failed") for r in rows]) == ([], [])
 
 
 def test_the_best_value_of_each_metric_is_bold_in_latex(tmp_path):
