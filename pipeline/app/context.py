@@ -59,13 +59,19 @@ def git_tree_state() -> str:
 
 
 def run_metadata(seed: int) -> dict[str, str]:
-    meta = {"seed": str(seed), "git_revision": git_revision(), "git_tree": git_tree_state()}
+    return {"seed": str(seed), "git_revision": git_revision(), "git_tree": git_tree_state(),
+            **_versions()}
+
+
+@functools.cache  # read once per process (5 ms a run: a sweep's worker runs many)
+def _versions() -> dict[str, str]:
+    versions = {}
     for dist in ["birlg-pipeline"] + _VERSIONED:
         try:
-            meta[f"version.{dist}"] = importlib_metadata.version(dist)
+            versions[f"version.{dist}"] = importlib_metadata.version(dist)
         except importlib_metadata.PackageNotFoundError:
-            meta[f"version.{dist}"] = "not installed"
-    return meta
+            versions[f"version.{dist}"] = "not installed"
+    return versions
 
 
 def stage_rng(seed: int, stage: str, *stream: int) -> np.random.Generator:
