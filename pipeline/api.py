@@ -53,7 +53,7 @@ from pipeline.app.config import (
 from pipeline.app.context import stage_rng
 from pipeline.app.figure_style import paper_style
 from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
-from pipeline.app.rundir import SWEEP_FILE, RunStatus, read_status
+from pipeline.app.rundir import RunStatus, is_sweep_dir, read_status
 from pipeline.app.summary import Unreadable, read_metrics, summary_table
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import Artefact, read_artefact
@@ -229,7 +229,7 @@ def open_run(run_dir: str | Path) -> Run:
     if not path.is_dir():
         raise PipelineError(f"run dir {path} " + ("is not a dir" if path.exists() else
                                                   "not found"))
-    if (path / SWEEP_FILE).exists() or (path / "multirun.yaml").exists():
+    if is_sweep_dir(path):
         raise PipelineError(f"{path} is a sweep dir, not a run dir: read it with "
                             "pipeline.api.sweep(), or open one of its jobs (e.g. its 0/)")
     return Run(path)
@@ -398,12 +398,11 @@ def settings_for_learning(method: str, seed: int, overrides: Sequence[str],
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise PipelineError(f"seed must be an integer, not {seed!r}")
     listed = _overrides_list(overrides)
+    given = {o.lstrip("+~").split("=")[0]: o for o in listed}  # key -> its override
     for key, argument in (("birl", "method"), ("seed", "seed")):
-        clash = [o for o in listed if o.lstrip("+~").split("=")[0] == key]
-        if clash:  # else the override won silently over the argument
-            raise PipelineError(f"override {clash[0]!r}: give it as learn()'s {argument} "
+        if key in given:  # else the override won silently over the argument
+            raise PipelineError(f"override {given[key]!r}: give it as learn()'s {argument} "
                                 "argument instead")
-    given = {o.lstrip("+~").split("=")[0] for o in listed}
     twice = [key for key in birl or {} if f"birl.{key}" in given]
     if twice:  # else the keyword won silently over the override
         raise PipelineError(f"birl.{twice[0]} is given twice, as learn()'s keyword {twice[0]}= "

@@ -42,6 +42,7 @@ LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
 # Hydra's record of a run's config (in its default hydra.output_subdir)
 HYDRA_FILES = (".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml")
 SWEEP_FILE = "sweep.json"  # in a sweep dir: the number of the sweep that last ran into it
+MULTIRUN_FILE = "multirun.yaml"  # Hydra's, at the top of a sweep dir
 RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "interrupted"
 UNKNOWN = "unknown"
 KILLED = "the run was killed or crashed"  # a dir that says running, but nobody holds it
@@ -293,12 +294,17 @@ def locked(run_dir: Path):
         os.close(fd)  # releases the lock
 
 
+def is_sweep_dir(path: Path) -> bool:
+    """Whether a sweep ran into `path` (our record or Hydra's is at its top)."""
+    return (Path(path) / SWEEP_FILE).exists() or (Path(path) / MULTIRUN_FILE).exists()
+
+
 def check_not_a_sweep_dir(run_dir: Path) -> None:
     """Refuse a run into a sweep's dir: its .hydra/ and artefacts at the top would make the
     dir a run dir, whose sweep's jobs no table could list any more."""
-    if (Path(run_dir) / SWEEP_FILE).exists() or (Path(run_dir) / "multirun.yaml").exists():
+    if is_sweep_dir(run_dir):
         raise PipelineError(f"{run_dir} is a sweep's dir (it has {SWEEP_FILE} or "
-                            "multirun.yaml): give the run a dir of its own")
+                            f"{MULTIRUN_FILE}): give the run a dir of its own")
 
 
 def check_not_a_run_dir(sweep_dir: Path) -> None:
