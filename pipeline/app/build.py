@@ -10,18 +10,20 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import yaml
 from omegaconf import OmegaConf
 
 from pipeline.app import limits
 from pipeline.app.config import Config, RandomSceneConfig
 from pipeline.app.context import PACKAGE_ROOT, resolve_path
-from pipeline.artefacts import read_artefact, topics
+from pipeline.artefacts import Artefact, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.controllers import Controller, PosqController, make_controller
-from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
+from pipeline.core.features import FEATURE_NAMES, PARAMETER_FIELD, FeatureModel, FeatureParams
 from pipeline.core.graph_mdp import Polylines, SpatialGraph
 from pipeline.core.obstacles import OccupancyGrid
+from pipeline.core.params import ParameterError
 from pipeline.core.roadmap import Roadmap, RoadmapParams, build_roadmap, lattice_graph
 from pipeline.core.scenegen import REACHABILITY_SPACING, RandomSceneSpec, random_scene
 from pipeline.core.state_graph import EdgeTable, NodeTable
@@ -155,10 +157,15 @@ def learner_feature_model(cfg: Config, scene: Scene,
                           names: list[str] | None = None) -> FeatureModel:
     """The features the reward is learned on (Config.learner_features), or `names`, with the
     reward's constants (ρ_r, ρ_p, σ, ...)."""
+    chosen = cfg.learner_features if names is None else names
+    return FeatureModel.from_scene(scene, feature_params(cfg, chosen))
+
+
+def feature_params(cfg: Config, names: list[str]) -> FeatureParams:
+    """The features `names` with the reward's constants."""
     params = FeatureParams(**{f.name: getattr(cfg.reward, f.name)
                               for f in dataclasses.fields(FeatureParams)})
-    chosen = cfg.learner_features if names is None else names
-    return FeatureModel.from_scene(scene, dataclasses.replace(params, features=chosen))
+    return dataclasses.replace(params, features=list(names))
 
 
 def with_named_features(cfg: Config, scene: Scene, graph: SpatialGraph, have: list[str],
@@ -356,6 +363,7 @@ def _fixed(cfg: Config) -> tuple[np.ndarray, str | None] | None:
         if list(names) != cfg.learner_features:
             raise PipelineError(f"config error: birl.from_run={b.from_run} learned weights on "
                                 f"{names}; set birl.features={list(names)}")
+        check_feature_constants(cfg, learned_feature_params(art, names), b.from_run)
         w = np.asarray(art.all(topics.BIRL_ITERATION)[-1]["weights"], float)
         source = f"{run / ARTEFACT_FILE['birl']}"
         digest = art.digest
@@ -366,6 +374,41 @@ def _fixed(cfg: Config) -> tuple[np.ndarray, str | None] | None:
         raise PipelineError(f"config error: the weights from {source} {w.tolist()} lie outside "
                             "[birl.lower, birl.upper]; widen them (e.g. birl.lower=[-100])")
     return w, digest
+
+
+def learned_feature_params(birl: Artefact, names: list[str]) -> FeatureParams:
+    """The learner's FeatureParams: the features the weights belong to (`names`, from
+    /birl/expert) with the constants (ρ_r, ρ_p, σ, ...) of the `reward` section of
+    birl.mcap's resolved config."""
+    where = f"artefact {birl.path} (attachment config.yaml)"
+    try:
+        config = yaml.safe_load(birl.config_yaml) or {}
+    except yaml.YAMLError as e:
+        raise PipelineError(f"{where} is not valid YAML ({' '.join(str(e).split())})") from None
+    reward = config.get("reward") if isinstance(config, dict) else None
+    if not isinstance(reward, dict):
+        raise PipelineError(f"{where} has no 'reward' section")
+    known = {f.name for f in dataclasses.fields(FeatureParams)}
+    values = {k: v for k, v in reward.items() if k in known}
+    values["features"] = list(names)
+    try:
+        return FeatureParams(**values)
+    except (ParameterError, TypeError) as e:
+        raise PipelineError(f"{where}: reward features: {e}") from None
+
+
+def check_feature_constants(cfg: Config, learned: FeatureParams, from_run: str) -> None:
+    """Weights mean what they meant only under the constants they were learned with (a
+    social weight learned at ρ_p = 1.2 m is another reward at 0.8 m): refuse a deployment
+    whose reward.* constants change one of the learner's features."""
+    here = feature_params(cfg, learned.features)
+    for then, now in zip(learned.selected(), here.selected(), strict=True):
+        if then.value != now.value and not (np.isnan(then.value) and np.isnan(now.value)):
+            key = f"reward.{PARAMETER_FIELD[then.kind]}"
+            raise PipelineError(f"config error: birl.from_run={from_run} learned its weights "
+                                f"with {key}={then.value:g}, this run has {now.value:g}: the "
+                                f"{then.name} weight would mean another reward; set "
+                                f"{key}={then.value:g}")
 
 
 def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.ndarray, str]:

@@ -74,7 +74,7 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
                                 "own dir: its birl stage would replace the birl.mcap it takes "
                                 "the weights from; write this run to another dir "
                                 "(hydra.run.dir=...)")
-        check_from_run(weights_from, cfg.birl.from_run, "birl.from_run")
+        check_from_run(weights_from, cfg.birl.from_run, "birl.from_run", needs="birl")
     if isinstance(cfg.expert, FileExpertConfig) and "demos" in stages:
         check_readable(resolve_path(cfg.expert.path))
     # evaluate too: its inputs were made with the derived value, which it must match

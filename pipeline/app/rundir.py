@@ -231,9 +231,12 @@ def read_status(run_dir: Path) -> RunStatus:
     return RunStatus(state, stage, error, sweep, stages, done)
 
 
-def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
+def check_from_run(from_run: Path, given: str, key: str = "from_run",
+                   needs: str | None = None) -> None:
     """A run dir whose artefacts this run reads (`key`=`given`) must be a dir whose run is
-    over: not running now, not killed half-way; a failed one is used with a warning."""
+    over: not running now, not killed half-way; a failed one is used with a warning. When
+    the run says which stages it completed, stage `needs` must be one of them (a failed
+    re-run's dir may hold the artefact of an earlier run, made with another config)."""
     if not from_run.is_dir():
         what = "does not exist" if not from_run.exists() else "is not a directory"
         raise PipelineError(f"config error: {key}={given} {what}")
@@ -241,6 +244,10 @@ def check_from_run(from_run: Path, given: str, key: str = "from_run") -> None:
     if status.state in (RUNNING, INTERRUPTED):
         raise PipelineError(f"{key}={given} is {status.describe()}: its artefacts may be "
                             "half-made; let it finish, or re-run it (hydra.run.dir=...)")
+    if needs is not None and status.stages and needs not in status.done:
+        raise PipelineError(f"{key}={given} did not complete its {needs} stage (it is "
+                            f"{status.describe()}; completed: {', '.join(status.done) or 'none'})"
+                            f"; run that stage into it, or choose another run")
     if status.state == FAILED:
         log.warning("%s=%s %s; using the artefacts it completed", key, given,
                     status.describe())

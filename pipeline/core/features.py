@@ -74,14 +74,14 @@ FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "lengt
 
 # Every feature kind, and the FeatureParams field that holds its parameter when the name
 # carries no `@value` (None: the kind takes no parameter).
-_PARAMETER_FIELD: dict[str, str | None] = {
+PARAMETER_FIELD: dict[str, str | None] = {
     "relation": "rho_relation", "social": "rho_personal", "social_squared": "rho_personal",
     "intimate": None,
     "gaussian": "sigma", "front": "rho_personal", "group_space": "rho_group",
     "obstacle": "rho_obstacle", "wall": "rho_obstacle", "goal_deviation": None, "length": None,
     "crossing": None,
 }
-FEATURE_KINDS: tuple[str, ...] = tuple(_PARAMETER_FIELD)
+FEATURE_KINDS: tuple[str, ...] = tuple(PARAMETER_FIELD)
 # The kinds that are no per-metre density of position (`densities` gives NaN), and why.
 NOT_A_DENSITY: dict[str, str] = {
     "goal_deviation": "depends on the direction of travel",
@@ -110,7 +110,7 @@ class Feature(NamedTuple):
 
 
 def _allowed_names() -> str:
-    with_value = [k for k, f in _PARAMETER_FIELD.items() if f is not None]
+    with_value = [k for k, f in PARAMETER_FIELD.items() if f is not None]
     return (f"distinct names from {list(FEATURE_KINDS)}, each of {with_value} optionally "
             "as NAME@VALUE with VALUE a finite number > 0 (m)")
 
@@ -160,9 +160,9 @@ class FeatureParams:
         if not isinstance(name, str):
             raise refuse(f"{name!r} is not a name")
         kind, sep, text = name.partition("@")
-        if kind not in _PARAMETER_FIELD:
+        if kind not in PARAMETER_FIELD:
             raise refuse(f"{kind!r} is not a feature")
-        parameter = _PARAMETER_FIELD[kind]
+        parameter = PARAMETER_FIELD[kind]
         if sep and parameter is None:
             raise refuse(f"{kind} takes no @VALUE ({name!r})")
         if kind == "intimate":

@@ -52,6 +52,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pipeline.app.build import learned_feature_params
 from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, UNKNOWN, acquire_lock, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics
@@ -345,27 +346,6 @@ class RunReward:
     about: list[str]  # lines naming the run
 
 
-def feature_params(birl: Artefact, names: list[str]) -> FeatureParams:
-    """The learner's FeatureParams: the features the weights belong to (`names`, from
-    /birl/expert) with the constants (ρ_r, ρ_p, σ, ...) of the `reward` section of
-    birl.mcap's resolved config."""
-    where = f"artefact {birl.path} (attachment config.yaml)"
-    try:
-        config = yaml.safe_load(birl.config_yaml) or {}
-    except yaml.YAMLError as e:
-        raise PipelineError(f"{where} is not valid YAML ({' '.join(str(e).split())})") from None
-    reward = config.get("reward") if isinstance(config, dict) else None
-    if not isinstance(reward, dict):
-        raise PipelineError(f"{where} has no 'reward' section")
-    known = {f.name for f in dataclasses.fields(FeatureParams)}
-    values = {k: v for k, v in reward.items() if k in known}
-    values["features"] = list(names)
-    try:
-        return FeatureParams(**values)
-    except (ParameterError, TypeError) as e:
-        raise PipelineError(f"{where}: reward features: {e}") from None
-
-
 def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
     """A message's `points` as (K, 2) floats, or one line naming the artefact and topic."""
     try:
@@ -407,7 +387,7 @@ def read_run(run_dir: Path) -> RunReward:
         raise PipelineError(f"artefact {birl.path}: the last '{topics.BIRL_ITERATION}' weights "
                             f"{last} do not match the feature names {names} of "
                             f"'{topics.BIRL_EXPERT}'")
-    params = feature_params(birl, names)
+    params = learned_feature_params(birl, names)
     evaluation = read_artefact(run_dir / ARTEFACT_FILE["evaluate"],
                                required_topics=[topics.EVAL_PATHS])
     learned: dict[str, list[tuple[int, np.ndarray]]] = {"graph": [], "ref": []}

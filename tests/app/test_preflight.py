@@ -134,6 +134,11 @@ def test_birl_from_run_is_checked_and_its_weights_recorded(tmp_path, caplog):
                for r in caplog.records)
     write_json_atomic(source / "status.json", {**status, "state": "running", "stage": "birl"})
     refused_before_any_stage(tmp_path / "d", r"birl\.from_run=.* is interrupted", *again)
+    # failed *at* its birl stage: the birl.mcap there is an earlier run's, refused
+    write_json_atomic(source / "status.json", {**status, "state": "failed", "stage": "birl",
+                                               "error": "boom", "done": status["done"][:3]})
+    refused_before_any_stage(tmp_path / "e", r"birl\.from_run=.* did not complete its birl "
+                             r"stage", *again)
 
 
 def test_a_robot_radius_without_obstacles_is_a_warning_and_one_too_wide_refused(tmp_path,

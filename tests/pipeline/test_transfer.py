@@ -37,6 +37,16 @@ def test_fixed_from_run_reuses_the_final_weights(tmp_path, default_run):
     assert m["policy_loss_ref"] == pytest.approx(learned["policy_loss_ref"], rel=0.02)
 
 
+def test_fixed_from_run_refuses_other_feature_constants(tmp_path, default_run):
+    """Weights learned with ρ_p = 1.2 m are another reward at 0.8 m: refused, naming the value
+    to set."""
+    run_dir, _, _ = default_run
+    with pytest.raises(PipelineError, match=r"learned its weights with reward\.rho_personal=1\.2"
+                                            r", this run has 0\.8.*set reward\.rho_personal=1\.2"):
+        run_in_process(tmp_path, "birl=fixed", f"birl.from_run={run_dir}",
+                       "reward.rho_personal=0.8", *SMALL)
+
+
 def test_transfer_to_the_same_scene_repeats_the_run_metrics(tmp_path):
     m, _ = run_in_process(tmp_path, *SMALL, "birl.n_iterations=3",
                           f"evaluate.transfer_scenes=[{METROPOLIS}]")
