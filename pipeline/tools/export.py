@@ -28,7 +28,6 @@ round(254 k / 100): 99 is 251, below the inscribed cost 253.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import io
 import math
 import os
@@ -38,7 +37,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 from PIL import Image
 from rosbags.interfaces import (
     Qos,
@@ -59,7 +57,6 @@ from pipeline.artefacts import Artefact, codec, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.features import NOT_A_DENSITY, FeatureModel, FeatureParams
 from pipeline.core.obstacles import OccupancyGrid, rasterise
-from pipeline.core.params import ParameterError
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
 from pipeline.errors import PipelineError, report
 from pipeline.tools import run_tool
