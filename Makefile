@@ -68,25 +68,25 @@ experiment: $(STAMP)
 sweep: $(STAMP) $(if $(filter tune,$(EXP)),$(VENV)/.installed-tune)
 	@# Aggregate also when jobs failed (the table lists them); exit with the sweep's status
 	@# when it failed or was stopped (1, or 130/143/129 after a signal), else aggregate's.
-	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) hydra.sweep.dir=$(SWEEP_DIR) $(ARGS); \
-	  sweep=$$?; $(PY) -m pipeline.tools.aggregate $(SWEEP_DIR); aggregated=$$?; \
+	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) "hydra.sweep.dir=$(SWEEP_DIR)" $(ARGS); \
+	  sweep=$$?; $(PY) -m pipeline.tools.aggregate "$(SWEEP_DIR)"; aggregated=$$?; \
 	  if [ $$sweep -ne 0 ]; then exit $$sweep; fi; exit $$aggregated
 
 ## Table (summary.csv) and figures of a sweep dir: make aggregate SWEEP=multirun/...
 aggregate: $(STAMP)
 	@test -n "$(SWEEP)" || { echo "usage: make aggregate SWEEP=<sweep dir>"; exit 2; }
-	$(PY) -m pipeline.tools.aggregate $(SWEEP)
+	$(PY) -m pipeline.tools.aggregate "$(SWEEP)"
 
 ## Rerun recording of a run dir (opens the viewer when there is a display): make view RUN=outputs/...
 view: $(VENV)/.installed-viewer
 	@test -n "$(RUN)" || { echo "usage: make view RUN=<run dir>"; exit 2; }
-	$(PY) -m pipeline.tools.viewer $(RUN)
+	$(PY) -m pipeline.tools.viewer "$(RUN)"
 
 ## A run's learned reward for ROS (docs/deploy.md): a Nav2 costmap mask and a ROS 2 bag of
 ## learned paths and people in RUN/export/: make export RUN=outputs/...
 export: $(STAMP)
 	@test -n "$(RUN)" || { echo "usage: make export RUN=<run dir>"; exit 2; }
-	$(PY) -m pipeline.tools.export $(RUN)
+	$(PY) -m pipeline.tools.export "$(RUN)"
 
 ## The viewer showing a run, rendered headless under Xvfb, as a 256-colour PNG (default
 ## outputs/screenshot.png; the README's picture only when asked: SHOT=docs/viewer.png):
@@ -94,7 +94,7 @@ export: $(STAMP)
 ## (apt-get install xvfb imagemagick mesa-vulkan-drivers)
 screenshot: $(VENV)/.installed-viewer
 	@test -n "$(RUN)" || { echo "usage: make screenshot RUN=<run dir> [SHOT=<png>]"; exit 2; }
-	$(PY) -m pipeline.tools.screenshot $(RUN) $(if $(SHOT),--out $(SHOT)) --colors 256
+	$(PY) -m pipeline.tools.screenshot "$(RUN)" $(if $(SHOT),--out "$(SHOT)") --colors 256
 
 ## Re-run the reference experiments and compare with results/baseline/.
 regress: $(STAMP)

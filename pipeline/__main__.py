@@ -18,23 +18,11 @@ import signal
 import sys
 import threading
 
+from pipeline.errors import restore_handlers, stop_quietly_while_starting
 
-def _stopped_while_starting(signum: int, frame: object) -> None:
-    for repeat in _HANDLERS_BEFORE_IMPORTS:  # the first one counts
-        signal.signal(repeat, lambda signum, frame: None)
-    who = "interrupted by the user" if signum == signal.SIGINT \
-        else f"stopped by {signal.Signals(signum).name}"
-    print(f"{who} while starting", file=sys.stderr, flush=True)
-    os._exit(128 + signum)  # nothing made yet; Python's teardown would let a repeat kill it
-
-
-# Ctrl-C, SIGTERM or SIGHUP during the imports below (most of a second) is one line too, not
-# a traceback from inside numpy or a silent end; the handlers Python had come back once they
-# are done (cli() then installs its own).
-_HANDLERS_BEFORE_IMPORTS = {
-    signum: signal.signal(signum, _stopped_while_starting)
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-} if threading.current_thread() is threading.main_thread() else {}
+# The handlers Python had come back once the imports below are done (cli() then installs
+# its own).
+_HANDLERS_BEFORE_IMPORTS = stop_quietly_while_starting()
 
 import json
 import logging
@@ -71,8 +59,7 @@ from pipeline.stages import run_pipeline
 
 register_configs()
 if __name__ != "__main__" and Path(sys.argv[0]).name != "birlg":  # imported, not the command:
-    for _signum, _handler in _HANDLERS_BEFORE_IMPORTS.items():  # Python's handlers back (the
-        signal.signal(_signum, _handler)  # command keeps them until cli() sets its own)
+    restore_handlers(_HANDLERS_BEFORE_IMPORTS)  # (the command keeps them until cli() sets its own)
 
 
 CONF_DIR = str(Path(__file__).resolve().parent / "conf")  # the package's conf/ (see context)
@@ -289,13 +276,26 @@ def guard_log_files(root: logging.Logger | None = None) -> None:
         handler.handleError = handle_error  # type: ignore[method-assign]
 
 
+def preset_key_error(text: str) -> str | None:
+    """A preset (`experiment=quick`) setting a key the chosen option has not (quick's
+    birl.alternatives with birl=fixed): Hydra names the file and the key on separate lines."""
+    found = re.match(r"In '(\w+)/([\w.-]+)': ConfigKeyError.*?full_key: ([\w.]+).*?"
+                     r"object_type=(\w+)", text, re.S)
+    if found is None:
+        return None
+    group, option, key, schema = found.groups()
+    section = key.split(".")[0]
+    return (f"config error: {group}={option} sets {key}, which the chosen {section} option "
+            f"({schema}) does not have; leave out {group}={option} or choose another {section}")
+
+
 def exit_with_one_line(e: Exception) -> None:
     if _show_tracebacks[0]:
         raise e
     if isinstance(e, PipelineError):
         message = str(e)
     elif type(e).__module__.startswith(("hydra", "omegaconf")):
-        message = one_line(e)
+        message = preset_key_error(str(e)) or one_line(e)
     elif isinstance(e, OSError):  # e.g. Hydra creating a run dir where a file is
         message = f"cannot create or write files: {os_error_reason(e)}"
     elif (plugin := raised_by_a_plugin(e)) is not None:  # a launcher's or sweeper's own check

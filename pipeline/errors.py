@@ -1,7 +1,10 @@
 """The one exception type that the app turns into a single clear line and a non-zero exit."""
 
 import errno
+import os
+import signal
 import sys
+import threading
 
 
 class PipelineError(Exception):
@@ -47,3 +50,29 @@ def report(e: PipelineError | OSError, writing: str) -> int:
     else:
         print(f"error: {e}", file=sys.stderr)
     return 2
+
+
+_START_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def _stopped_while_starting(signum: int, frame: object) -> None:
+    for repeat in _START_SIGNALS:  # the first one counts
+        signal.signal(repeat, lambda signum, frame: None)
+    who = "interrupted by the user" if signum == signal.SIGINT \
+        else f"stopped by {signal.Signals(signum).name}"
+    print(f"{who} while starting", file=sys.stderr, flush=True)
+    os._exit(128 + signum)  # nothing made yet; Python's teardown would let a repeat kill it
+
+
+def stop_quietly_while_starting() -> dict:
+    """A command's Ctrl-C, SIGTERM or SIGHUP during its imports (most of a second) is one
+    line and exit status 128 + signal, not a traceback from inside numpy or a silent end.
+    Returns the handlers it replaced, for `restore_handlers` once the imports are done."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {signum: signal.signal(signum, _stopped_while_starting) for signum in _START_SIGNALS}
+
+
+def restore_handlers(handlers: dict) -> None:
+    for signum, handler in handlers.items():
+        signal.signal(signum, handler)

@@ -27,11 +27,16 @@ round(254 k / 100): 99 is 251, below the inscribed cost 253.
 
 from __future__ import annotations
 
+from pipeline.errors import restore_handlers, stop_quietly_while_starting
+
+_HANDLERS_BEFORE_IMPORTS = stop_quietly_while_starting()  # rosbags, PIL, scipy: ~1 s
+
 import argparse
 import io
 import math
 import os
 import shutil
+import sys
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,7 +57,7 @@ from rosbags.typesys.store import Typestore
 
 from pipeline.app.build import learned_feature_params
 from pipeline.app.provenance import check_inputs
-from pipeline.app.rundir import COMPLETE, UNKNOWN, acquire_lock, read_status
+from pipeline.app.rundir import COMPLETE, STATUS_FILE, UNKNOWN, acquire_lock, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.features import NOT_A_DENSITY, FeatureModel, FeatureParams
@@ -60,6 +65,8 @@ from pipeline.core.obstacles import OccupancyGrid, rasterise
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
 from pipeline.errors import PipelineError, report
 from pipeline.tools import run_tool
+
+restore_handlers(_HANDLERS_BEFORE_IMPORTS)
 
 EXPORT_DIR = "export"
 COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
@@ -109,6 +116,13 @@ class Costmap:
     in_mask: tuple[str, ...]  # features whose densities make up the cost
     left_out: dict[str, str]  # feature -> why it is not in the mask
     n_negative: int  # free cells whose cost was negative (a rewarding feature), shown as 0
+
+    def no_cost(self) -> str:
+        """Why a costmap without scale (`scale` 0) is free outside obstacles and bodies."""
+        if self.n_negative:
+            return (f"the learned cost is nowhere positive: it is negative (the reward attracts "
+                    f"the robot) in {self.n_negative} cells, shown as free, and 0 elsewhere")
+        return "the learned cost is 0 everywhere"
 
 
 def export_grid(scene: Scene) -> OccupancyGrid:
@@ -178,8 +192,8 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
                      f"{_num(costmap.scale)}; occupancy {MAX_LEARNED} = cost "
                      f"{_num(costmap.scale)} per m (the largest outside obstacles and bodies)")
     else:
-        lines.append("# scale: the learned cost is 0 everywhere (occupancy 0 outside obstacles "
-                     "and bodies)")
+        lines.append(f"# scale: {costmap.no_cost()} (occupancy 0 outside obstacles and "
+                     "bodies)")
     lines.append(f"# occupancy 0 = free (white); {LETHAL} = obstacle or person body disk (black)")
     if costmap.n_negative:
         lines.append(f"# {costmap.n_negative} cells with a negative cost (a rewarding feature) "
@@ -488,6 +502,10 @@ def check_run_dir(run_dir: Path) -> None:
     if status.state not in (COMPLETE, UNKNOWN):  # unknown: made before status.json existed
         raise PipelineError(f"run dir {run_dir} is {status.describe()}; export a complete run "
                             "(rerun it into this dir or choose another)")
+    if status.state == UNKNOWN:  # said as birl.from_run says it
+        print(f"warning: run dir {run_dir} has no {STATUS_FILE}, so whether its run finished "
+              "is not known; exporting its artefacts as they are (each is checked as it is "
+              "read)", file=sys.stderr)
     # before the lock: a dir that is no run (an empty dir, a sweep dir, ~) gets no .lock file
     read_run_files(run_dir)
 
@@ -510,12 +528,17 @@ def main(argv: list[str] | None = None) -> int:
         return report(e, f"the export of {run_dir}")
     h, w = costmap.grid.shape
     scale = f"occupancy {MAX_LEARNED} = cost {costmap.scale:.4g} per m" if costmap.scale > 0 \
-        else "the learned cost is 0 everywhere"
+        else costmap.no_cost()
     print(f"wrote {final / COSTMAP_YAML} ({w} x {h} cells at {costmap.grid.resolution:g} m; "
           f"features {', '.join(costmap.in_mask) or 'none'}; {scale})")
     print(f"wrote {final / BAG_DIR} (" + ", ".join(f"{t} {n}" for t, n in counts.items()) + ")")
     return 0
 
 
-if __name__ == "__main__":
+def cli() -> None:
+    """The `birlg-export` command."""
     run_tool(main)
+
+
+if __name__ == "__main__":
+    cli()

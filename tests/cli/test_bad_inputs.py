@@ -326,10 +326,10 @@ CONFIG_CASES = {
     "expert file not set": (["expert=file"], ["expert.path"]),
     "from_run not a directory": (["from_run=/nonexistent/run"], ["from_run"]),
     "transfer scenes not a list": (["evaluate.transfer_scenes=5"], ["evaluate.transfer_scenes"]),
-    # Hydra's message ends its first line with a colon and names the key on the next
+    # Hydra names the preset, the key and the option's schema on separate lines
     "a preset's setting the method lacks": (["experiment=quick", "birl=fixed"],
-                                            ["experiment/quick", "alternatives",
-                                             "FixedConfig"]),
+                                            ["experiment=quick sets birl.alternatives",
+                                             "(FixedConfig)", "leave out experiment=quick"]),
 }
 
 

@@ -5,7 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.conftest import run_app
+from tests.conftest import ROOT, run_app
 
 
 def _fails_with_one_line(result, *fragments):
@@ -65,3 +65,15 @@ def test_no_config_sets_hydra_mode():
             overrides = [] if preset is None else [f"experiment={preset}"]
             cfg = compose(config_name="config", overrides=overrides, return_hydra_config=True)
             assert cfg.hydra.mode is None, preset
+
+
+def test_make_targets_pass_a_path_with_spaces_whole(tmp_path):
+    """`make export RUN="my runs/a"`: the tools get one argument, not two."""
+    for target, variable, tool_says in (("export", "RUN", "run dir {} not found"),
+                                        ("aggregate", "SWEEP", "{}")):
+        where = tmp_path / "my runs" / "a"
+        result = subprocess.run(["make", "-s", target, f"{variable}={where}"], cwd=ROOT,
+                                capture_output=True, text=True, timeout=120)
+        assert result.returncode != 0
+        assert tool_says.format(where) in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr

@@ -89,6 +89,21 @@ def test_a_signal_while_starting_is_one_line(tmp_path, sig, says):
     assert len(lines(err)) == 1 and says in err, err
 
 
+@pytest.mark.parametrize("command", [[sys.executable, "-m", "pipeline.tools.export"],
+                                     [str(Path(sys.executable).parent / "birlg-export")]],
+                         ids=["module", "script"])
+def test_ctrl_c_while_the_export_starts_is_one_line(tmp_path, command):
+    """The export's imports (rosbags, PIL, scipy) take most of a second: Ctrl-C then is one
+    line and exit 130, as for birlg."""
+    proc = subprocess.Popen([*command, str(tmp_path)], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    time.sleep(0.25)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 130, err
+    assert lines(err) == ["interrupted by the user while starting"], err
+
+
 # -- a full disk -----------------------------------------------------------------------------
 
 _ON_TMPFS = """

@@ -293,6 +293,16 @@ def test_zero_weights_give_an_all_free_mask_with_the_bodies_lethal(scene):
     assert yaml.safe_load(text)["mode"] == "scale"
 
 
+def test_a_reward_that_attracts_everywhere_is_said_so_not_zero(scene):
+    """Positive weights on person features make the cost negative near people: free in the
+    mask, and said to be negative there, not 0."""
+    costmap = export.build_costmap(scene, FeatureParams(), -POLITE)
+    assert costmap.scale == 0 and costmap.n_negative > 0
+    text = export.costmap_yaml(costmap, tuple(FeatureParams().features), -POLITE, [])
+    assert "0 everywhere" not in text
+    assert f"negative (the reward attracts the robot) in {costmap.n_negative} cells" in text
+
+
 # -- the bag -----------------------------------------------------------------------------------
 
 
@@ -513,10 +523,12 @@ def test_an_export_that_was_a_link_is_replaced_without_leftovers(exported, tmp_p
     assert not list(run_dir.glob(".export*")) and (tmp_path / "elsewhere").is_dir()
 
 
-def test_a_run_dir_without_status_json_is_exported(exported, tmp_path):
+def test_a_run_dir_without_status_json_is_exported_with_a_warning(exported, tmp_path, capsys):
     run_dir = copy_run(exported, tmp_path)  # made before runs wrote status.json
     (run_dir / "status.json").unlink()
     assert export.main([str(run_dir)]) == 0
+    assert f"warning: run dir {run_dir} has no status.json, so whether its run finished is " \
+        "not known" in capsys.readouterr().err
     assert (run_dir / "export" / "costmap.pgm").read_bytes() == \
         (exported[1] / "costmap.pgm").read_bytes()
 
