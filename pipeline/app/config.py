@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import MissingMandatoryValue
@@ -384,6 +385,8 @@ _HINTS = {"scene.path": "scene=file scene.path=PATH", "expert.path": "expert=fil
 
 
 def config_error(key: str, value: Any, allowed: str) -> PipelineError:
+    if isinstance(value, (list, tuple, np.ndarray)):  # numbers as typed, not np.float64(1.0)
+        value = [v.item() if isinstance(v, np.generic) else v for v in value]
     shown = str(value)
     if len(shown) > 100:  # a list can be thousands of numbers long: never echo it whole
         shown = f"{shown[:80]}... ({len(shown):,} characters)"
@@ -471,7 +474,7 @@ def load_settings(cfg: DictConfig) -> Config:
         raise config_error("graph.weights", w, f"null (prior mean), true (oracle) or {d} numbers")
     if settings.mdp.undiscounted:  # every edge must cost, or a loop could pay
         why = "<= 0 with mdp.gamma=1 (features are costs; a positive weight can make a loop pay)"
-        for key, values in (("birl.upper", list(prior.upper)),
+        for key, values in (("birl.upper", prior.upper.tolist()),
                             ("reward.weights", list(settings.reward.weights)),
                             ("graph.weights", w if isinstance(w, list) else [])):
             if any(v > 0 for v in values):

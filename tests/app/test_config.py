@@ -156,3 +156,11 @@ def test_an_old_spelling_given_with_its_new_name_is_refused(overrides, message):
 ])
 def test_the_learners_default_features_are_the_rewards_and_crossing(overrides, expected):
     assert validate(compose_config(*overrides)).learner_features == expected
+
+
+def test_config_errors_show_numbers_as_typed_not_numpy_reprs():
+    """birl.upper=[1] with mdp.gamma=1 is checked on the prior's numpy bounds."""
+    with pytest.raises(PipelineError) as err:
+        validate(compose_config("mdp.gamma=1", "birl.upper=[1]"))
+    assert "birl.upper=[1.0, 1.0, 1.0, 1.0, 1.0] is not allowed" in str(err.value)
+    assert "np." not in str(err.value)
