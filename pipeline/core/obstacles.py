@@ -317,6 +317,17 @@ class ObstacleMap:
             inside = np.isfinite(np.asarray(points, dtype=float).reshape(-1, 2)).all(axis=1)
         return np.where(inside, self.clearance[rows, cols], 0.0)
 
+    def off_map(self, points: np.ndarray) -> np.ndarray:
+        """(n, 2) -> (n,) bool: beyond the edge of a map (unknown, so occupied), not merely
+        in an occupied cell of it; never for a raster of polygons."""
+        if not self.outside_occupied:
+            return np.zeros(len(np.asarray(points).reshape(-1, 2)), dtype=bool)
+        return ~self.grid.cell_of(points)[2]
+
+    def describe_extent(self) -> str:
+        x0, y0, x1, y1 = self.grid.extent()
+        return f"x {x0:g}..{x1:g} m, y {y0:g}..{y1:g} m"
+
     def free_area(self, radius: float, bounds: Bounds | None = None) -> float:
         """m² of the cells that are free with clearance >= radius, within `bounds` (x_min,
         y_min, x_max, y_max; by cell centre) when given: what a graph must cover."""

@@ -323,8 +323,16 @@ def obstacle_map(polygons: tuple[np.ndarray, ...], map_grid: OccupancyGrid | Non
 def _check_placement(scene: Scene, fail: Any) -> None:
     """Starts and goal in free space, persons off obstacles, the goal reachable."""
     room, obstacles = scene.room, scene.obstacles
+    def off_map(pt: np.ndarray) -> str | None:
+        if obstacles is None or not obstacles.off_map(pt)[0]:
+            return None
+        return f"outside the map, which covers {obstacles.describe_extent()}"
+
     for p in scene.persons:
-        if obstacles is not None and obstacles.clearance_at(np.array([[p.x, p.y]]))[0] <= 0:
+        at = np.array([[p.x, p.y]])
+        if (off := off_map(at)) is not None:
+            raise fail(f"person {p.id} at ({p.x:g}, {p.y:g}) stands {off}")
+        if obstacles is not None and obstacles.clearance_at(at)[0] <= 0:
             raise fail(f"person {p.id} at ({p.x:g}, {p.y:g}) stands inside an obstacle")
     for k, pt in enumerate(np.vstack([scene.starts, scene.goal[None, :]])):
         name = f"start {k}" if k < len(scene.starts) else "goal"
@@ -336,6 +344,8 @@ def _check_placement(scene: Scene, fail: Any) -> None:
         if k < len(scene.starts) and np.linalg.norm(pt - scene.goal) <= scene.goal_tolerance:
             raise fail(f"{where} is within goal_tolerance={scene.goal_tolerance:g} m of the "
                        "goal: a demonstration from it would end where it begins")
+        if (off := off_map(pt[None, :])) is not None:
+            raise fail(f"{where} is {off}")
         if obstacles is not None and not obstacles.points_free(pt[None, :], scene.robot_radius)[0]:
             clearance = obstacles.clearance_at(pt[None, :])[0]
             raise fail(f"{where} is {clearance:.2f} m from an obstacle; the robot needs "

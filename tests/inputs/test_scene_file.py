@@ -1,15 +1,18 @@
 """Scene files (pipeline/inputs/scene_file.py): a file that is no JSON or is missing, bad
 obstacles, persons, starts and maps, each one line naming the file and the culprit."""
 
+import json
 from pathlib import Path
 
 import pytest
 
 from pipeline.core.world import SceneError
 from pipeline.errors import PipelineError
+from pipeline.inputs.map_file import load_map
 from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import (
     OFFICE_MAP,
+    ROOT,
     WALL_Y,
     one_line,
     run_in_process,
@@ -123,3 +126,23 @@ def test_points_with_three_coordinates_are_refused(tmp_path, mutate, needle):
     with pytest.raises(PipelineError) as err:
         load_scene_file(write_json(tmp_path / "bad.json", data))
     assert needle in one_line(err)
+
+
+def test_a_person_off_the_map_is_said_to_be_off_the_map(tmp_path):
+    """Beyond a map's edge is unknown (occupied for planning), but a person placed there (in
+    a room larger than the map) is told as off the map, not as inside an obstacle."""
+    data = json.loads((ROOT / "pipeline/data/scenes/office.json").read_text())
+    data["map"] = str(OFFICE_MAP)
+    data["room"] = {"x_min": -5.0, "y_min": 0.0, "x_max": 20.0, "y_max": 14.0}  # beyond it
+    data["persons"][0].update(x=-3.0)
+    path = write_json(tmp_path / "office.json", data)
+    with pytest.raises(PipelineError) as err:
+        load_scene_file(path)
+    x1 = load_map(OFFICE_MAP).extent()[2]
+    assert f"person 1 at (-3, 7.55) stands outside the map, which covers x 0..{x1:g} m" \
+        in one_line(err)
+    data["persons"][0].update(x=9.6)
+    data["starts"][0] = [-3.0, 2.7]
+    with pytest.raises(PipelineError) as err:
+        load_scene_file(write_json(tmp_path / "office.json", data))
+    assert "start 0 (-3, 2.7) is outside the map, which covers" in one_line(err)
