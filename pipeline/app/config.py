@@ -72,12 +72,20 @@ class FileSceneConfig(BodyParams):
 class RandomSceneConfig(RandomSceneSpec):
     kind: str = "random"
     seed: Optional[int] = None  # scene generator seed; null: the run seed
-    map: Optional[str] = None  # a map_server YAML: persons, starts and goal on that map
+    # a map_server YAML: persons, starts and goal on that map, whose extent is the room
+    # (width and height stay unset)
+    map: Optional[str] = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.seed is not None:
             require_count(self, "seed", minimum=0)
+        if self.map is not None:  # said, not silently ignored
+            for name in ("width", "height"):
+                unset = RandomSceneSpec.__dataclass_fields__[name].default
+                require(getattr(self, name) == unset, name, getattr(self, name),
+                        f"unset ({unset:g}) with scene.map: the room is the map's extent (a "
+                        "part of a building: a scene file's \"room\" over the map)")
 
 
 SCENES: dict[str, type] = {"file": FileSceneConfig, "random": RandomSceneConfig}

@@ -322,6 +322,8 @@ CONFIG_CASES = {
     "random without starts": (["scene=random", "scene.n_starts=0"], ["scene.n_starts"]),
     "random map missing": (["scene=random", "scene.map=/nonexistent/m.yaml"],
                            ["/nonexistent/m.yaml", "not found"]),
+    "random map with a width": (["scene=random", "scene.map=data/maps/office.yaml",
+                                 "scene.width=30"], ["scene.width=30", "the map's extent"]),
     "scene file not set": (["scene=file"], ["scene.path"]),
     "expert file not set": (["expert=file"], ["expert.path"]),
     "from_run not a directory": (["from_run=/nonexistent/run"], ["from_run"]),
