@@ -5,13 +5,18 @@ The YAML holds `image` (relative to the YAML's directory unless absolute), `reso
 `occupied_thresh`, `free_thresh` and optional `mode` (trinary | scale | raw), as read by
 ROS 1 map_server and Nav2's map_server:
 
-- trinary, scale: p = (255 − v)/255 (negate 0) or v/255 (negate 1), v the grey value;
-  occupied if p > occupied_thresh, free if p < free_thresh, otherwise unknown (in scale
-  mode an intermediate occupancy, or a pixel that is not fully opaque);
-- raw: v is the occupancy in percent (negate is ignored, as in map_server); 0..100 are
-  compared with the thresholds as p = v/100, anything above 100 (255 = -1) is unknown.
+- a pixel's shade s in [0, 1] is the mean of its red, green and blue values over their
+  largest value (a grey pixel v: v/255, or v/65535 in a 16-bit image); in trinary mode an
+  image with an alpha channel averages its alpha in as a fourth channel (opaque = 1), so
+  even an opaque pixel of such an image reads lighter than its colour;
+- trinary, scale: p = 1 − s (negate 0) or s (negate 1); free if p < free_thresh, occupied
+  if p > occupied_thresh, otherwise unknown (in scale mode an intermediate occupancy, and a
+  pixel that is not fully opaque is unknown);
+- raw: round(255 s) is the occupancy in percent (negate and the thresholds are ignored, as
+  in map_server): 0 is free, 1..100 occupied to that degree, anything above 100 unknown.
 
-Only free cells are free: occupied and unknown (and intermediate) cells are obstacles.
+Only free cells (occupancy 0 in map_server's grid) are free: occupied, intermediate and
+unknown cells are obstacles.
 Image row 0 is the map's top (largest y); the grid is flipped so its row 0 is the bottom.
 """
 
@@ -170,14 +175,15 @@ def load_map(path: str | Path,
     header = read_map_header(path)
     if check_cells is not None:
         check_cells(header)
-    value, opaque = _read_image(header.image, _fail(header.path))
+    shade, opaque = _read_image(header.image, _fail(header.path),
+                                alpha_is_a_channel=header.mode == "trinary")
     if header.mode == "raw":
-        p = value / 100.0  # above 100 (255 = -1 = unknown): p > 1, never free
+        free = np.rint(shade * 255.0) == 0
     else:
-        p = value / 255.0 if header.negate else (255.0 - value) / 255.0
+        p = shade if header.negate else 1.0 - shade
+        free = p < header.free_thresh
         if header.mode == "scale":
-            p = np.where(opaque, p, np.nan)
-    free = p < header.free_thresh  # NaN (unknown) compares False
+            free &= opaque
     return OccupancyGrid(np.ascontiguousarray(~free[::-1]), header.origin, header.resolution)
 
 
@@ -212,23 +218,36 @@ def _is_number(value: Any) -> bool:
         and math.isfinite(value)
 
 
-def _read_image(path: Path, fail: Callable[[str], PipelineError]) -> tuple[np.ndarray, np.ndarray]:
-    """Grey values (H, W) uint8 (image row 0 first) and opaque (H, W) bool of an image."""
+def _read_image(path: Path, fail: Callable[[str], PipelineError],
+                alpha_is_a_channel: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Shade (H, W) in [0, 1] (image row 0 first) and opaque (H, W) bool of an image, as
+    map_server reads them (the module docstring)."""
     try:
         with _no_bomb_check(), Image.open(path) as img:
             img.load()
-            if img.mode.startswith(("I", "F")):
+            has_alpha = "A" in img.getbands() or "transparency" in img.info
+            top = 255  # the largest channel value
+            if img.mode.startswith("I;16"):  # 16-bit grey (PNG)
+                total, top = 3 * np.asarray(img, dtype=np.uint32), 65535
+            elif img.mode.startswith(("I", "F")):
                 raise fail(f"image {path} (key 'image') has {img.mode} pixels; "
-                           "save it as 8-bit grey (PGM/PNG)")
-            value = np.asarray(img.convert("L"))
-            if "A" in img.getbands() or "transparency" in img.info:
-                opaque = np.asarray(img.convert("RGBA"))[..., 3] == 255
-            else:
-                opaque = np.ones(value.shape, dtype=bool)
+                           "save it as 8- or 16-bit grey or 8-bit colour (PGM/PNG)")
+            elif img.mode in ("1", "L", "LA"):  # grey: red = green = blue
+                total = 3 * np.asarray(img.convert("L"), dtype=np.uint16)
+            else:  # colour (a palette too): the channels' mean, not a weighted luma
+                total = np.asarray(img.convert("RGB")).sum(axis=-1, dtype=np.uint16)
+            alpha = np.asarray(img.convert("RGBA"))[..., 3] if has_alpha else None
+            opaque = np.ones(total.shape, dtype=bool) if alpha is None else alpha == 255
+            channels = 3
+            if alpha is not None and alpha_is_a_channel:
+                total, channels = total + alpha, 4
+            # in map_server's order of operations: the same doubles at a threshold
+            shade = total / float(channels) / float(top)
     except FileNotFoundError:
         raise fail(f"image {path} (key 'image') not found") from None
     except (OSError, UnidentifiedImageError, ValueError) as e:
         raise fail(f"image {path} (key 'image') cannot be read ({e})") from None
-    if value.size == 0:
+    if shade.size == 0:
         raise fail(f"image {path} (key 'image') is empty")
-    return value, opaque
+    return shade, opaque
+

@@ -14,6 +14,7 @@ files, polygons and maps, demonstration files (JSON, CSV, bags), artefacts and r
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -203,6 +204,12 @@ def png_header_only(width: int, height: int) -> bytes:
 
 MAP_YAML = ("image: {image}\nresolution: {resolution}\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
             "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+
+
+def _float_tiff() -> bytes:
+    out = io.BytesIO()
+    Image.fromarray(np.full((50, 50), 0.5, np.float32)).save(out, format="TIFF")
+    return out.getvalue()
 
 
 def map_scene(tmp: Path, yaml_text: str | None = None, image: bytes | np.ndarray | None = None,
@@ -566,8 +573,8 @@ MAP_CASES = {
                           ["none.png", "not found"]),
     "map image not an image": (lambda t: map_scene(t, image=b"not a png"),
                                ["m.png", "cannot be read"]),
-    "map image 16-bit": (lambda t: map_scene(t, image=np.full((50, 50), 1000, np.uint16)),
-                         ["m.png", "8-bit"]),
+    "map image of floats": (lambda t: map_scene(t, image=_float_tiff()),
+                            ["m.png", "F pixels", "8- or 16-bit grey"]),
     "map all occupied": (lambda t: map_scene(t, image=_grey(0)), ["start 0", "obstacle"]),
     "map too large for memory": (lambda t: map_scene(t, image=png_header_only(10**6, 10**6)),
                                  ["m.yaml", "1,000,000 × 1,000,000 px", "TB"]),

@@ -48,16 +48,51 @@ def test_negate_inverts_the_grey_values(tmp_path):
     assert _free_in_image_order(grid).tolist() == [[True, False, False, False], [False] * 4]
 
 
-def test_raw_mode_reads_percentages_and_ignores_negate(tmp_path):
-    pixels = [[0, 10, 19, 20], [50, 100, 101, 255]]
-    for negate in (0, 1):
-        grid = load_map(_write_map(tmp_path, pixels, mode="raw", negate=negate))
-        assert _free_in_image_order(grid).tolist() == [[True, True, True, False], [False] * 4]
-    # free means strictly below free_thresh, as in map_server: 20 -> p = 0.2
-    grid = load_map(_write_map(tmp_path, pixels, mode="raw", free_thresh=0.2))
-    assert _free_in_image_order(grid).tolist() == [[True, True, True, False], [False] * 4]
-    grid = load_map(_write_map(tmp_path, pixels, mode="raw", free_thresh=0.21))
-    assert _free_in_image_order(grid).tolist() == [[True] * 4, [False] * 4]
+def test_raw_mode_reads_percentages_and_ignores_negate_and_thresholds(tmp_path):
+    """map_server's raw mode: the grey value is the occupancy (0..100, above: unknown), with
+    no thresholds; only occupancy 0 is free."""
+    pixels = [[0, 1, 19, 20], [50, 100, 101, 255]]
+    for negate, free_thresh in ((0, 0.196), (1, 0.196), (0, 0.5)):
+        grid = load_map(_write_map(tmp_path, pixels, mode="raw", negate=negate,
+                                   free_thresh=free_thresh))
+        assert _free_in_image_order(grid).tolist() == [[True, False, False, False],
+                                                       [False] * 4]
+
+
+def test_colour_pixels_are_the_mean_of_their_channels_not_a_luma(tmp_path):
+    """map_server averages red, green and blue. (0, 255, 255): mean 170, p = 0.333, unknown
+    with the default thresholds; its luma (179) would give p = 0.298, unknown too, so the
+    thresholds are set between: free_thresh 0.32 frees the luma only."""
+    rgb = np.array([[[0, 255, 255], [255, 255, 255], [0, 0, 0]]], dtype=np.uint8)
+    Image.fromarray(rgb, "RGB").save(tmp_path / "map.png")
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map.png", free_thresh=0.32)
+    assert _free_in_image_order(load_map(path)).tolist() == [[False, True, False]]
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map.png", free_thresh=0.34)
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, True, False]]
+
+
+def test_trinary_mode_averages_alpha_in_as_a_fourth_channel(tmp_path):
+    """map_server (trinary, an image with alpha): shade = (r + g + b + a) / 4 / 255. An opaque
+    unknown grey 205 then reads (615 + 255) / 4 = 217.5: p = 0.147 < 0.196, free; and opaque
+    black (0 + 255) / 4: p = 0.75, occupied; a transparent white pixel p = 0.25, unknown."""
+    grey = np.array([[205, 0, 255]], dtype=np.uint8)
+    alpha = np.array([[255, 255, 0]], dtype=np.uint8)
+    Image.fromarray(np.stack([grey, alpha], axis=-1), "LA").save(tmp_path / "map.png")
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map.png")
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, False, False]]
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map.png", mode="raw")
+    # raw: the colour's mean only (205, 0, 255): occupancy 205, 0, 255 -> only 0 free
+    assert _free_in_image_order(load_map(path)).tolist() == [[False, True, False]]
+
+
+def test_16_bit_grey_images_are_read_at_their_depth(tmp_path):
+    """A 16-bit PNG: shade v / 65535. 52000 -> p = 0.2065 (not free at 0.196, free at 0.21)."""
+    values = np.array([[65535, 52000, 0]], dtype=np.uint16)
+    Image.fromarray(values).save(tmp_path / "map.png")  # mode I;16
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map.png")
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, False, False]]
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map.png", free_thresh=0.21)
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, True, False]]
 
 
 def test_scale_mode_treats_translucent_pixels_as_unknown(tmp_path):
