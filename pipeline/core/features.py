@@ -180,6 +180,21 @@ class FeatureParams:
         return Feature(name, kind, value)
 
 
+def _tiles_reached(boxes: list[tuple[np.ndarray, np.ndarray]], origin: np.ndarray,
+                   shape: np.ndarray) -> np.ndarray:
+    """(shape) bool: the _TILE tiles from `origin` that some box (lo, hi), (m, 2) each,
+    overlaps, with a tile's margin for the rounding of floor()."""
+    reached = np.zeros(tuple(int(n) for n in shape), dtype=bool)
+    for lo, hi in boxes:
+        first = np.floor((lo - origin) / _TILE).astype(np.int64) - 1
+        last = np.floor((hi - origin) / _TILE).astype(np.int64) + 1
+        first, last = np.maximum(first, 0), np.minimum(last, shape - 1)
+        for (x0, y0), (x1, y1) in zip(first, last, strict=True):
+            if x0 <= x1 and y0 <= y1:
+                reached[x0:x1 + 1, y0:y1 + 1] = True
+    return reached
+
+
 def social_groups(n_persons: int, pairs: np.ndarray) -> tuple[tuple[int, ...], ...]:
     """Groups: the connected components with at least two members of the graph whose
     edges are the relations `pairs` (m, 2) of person indices; members ascending, groups in
@@ -370,10 +385,24 @@ class FeatureModel:
         link_lo = np.minimum(self.link_a, self.link_b)  # the links' bounding boxes
         link_hi = np.maximum(self.link_a, self.link_b)
         centres, spreads = self._group_shape
-        cell = np.floor((p - p.min(axis=0)) / _TILE).astype(np.int64)
+        origin = p.min(axis=0)
+        cell = np.floor((p - origin) / _TILE).astype(np.int64)
         key = cell[:, 0] * (cell[:, 1].max() + 1) + cell[:, 1]
-        order = np.argsort(key, kind="stable")
-        for tile in np.split(order, np.flatnonzero(np.diff(key[order])) + 1):
+        # Tiles no link, person or group reaches get no `_evaluate` (which would add nothing
+        # there): on a building's costmap most of millions of cells are such.
+        boxes = []
+        if link_reach is not None:
+            boxes.append((link_lo - link_reach, link_hi + link_reach))
+        if person_reach is not None:
+            boxes.append((self.persons - person_reach, self.persons + person_reach))
+        if group_rho is not None:
+            r_g = (spreads + group_rho)[:, None]
+            boxes.append((centres - r_g, centres + r_g))
+        reached = _tiles_reached(boxes, origin, cell.max(axis=0) + 1)
+        out[~reached[cell[:, 0], cell[:, 1]]] = 0.0
+        active = np.flatnonzero(reached[cell[:, 0], cell[:, 1]])
+        order = active[np.argsort(key[active], kind="stable")]
+        for tile in np.split(order, np.flatnonzero(np.diff(key[order])) + 1) if len(order) else []:
             q = p[tile]
             lo, hi = q.min(axis=0), q.max(axis=0)
             links = persons = groups = None

@@ -76,11 +76,11 @@ class OccupancyGrid:
         cols = np.minimum(np.fmax(col, 0.0), w - 1).astype(np.intp)
         return rows, cols, inside
 
-    def cell_centres(self) -> np.ndarray:
-        """(H, W, 2) x, y of every cell centre."""
+    def cell_centres(self, rows: slice = slice(None)) -> np.ndarray:
+        """(H, W, 2) x, y of every cell centre (of the rows `rows` only: (h, W, 2))."""
         h, w = self.shape
         xs = self.origin[0] + (np.arange(w) + 0.5) * self.resolution
-        ys = self.origin[1] + (np.arange(h) + 0.5) * self.resolution
+        ys = self.origin[1] + (np.arange(h)[rows] + 0.5) * self.resolution
         return np.stack(np.meshgrid(xs, ys), axis=-1)
 
     def window(self, lo: np.ndarray, hi: np.ndarray) -> tuple[tuple[slice, slice], np.ndarray]:

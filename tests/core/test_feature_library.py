@@ -619,6 +619,11 @@ def test_tiled_densities_equal_the_sums_over_everything():
     tiled = fm._tiled(points, fm.selected)
     assert ((tiled > 0).sum(axis=0) > 100).all()
     np.testing.assert_array_equal(tiled, fm._evaluate(points, fm.selected))
+    # a building's map round the room: the tiles nothing reaches are skipped, and are 0
+    far = np.random.default_rng(2).random((40000, 2)) * 110 - 40
+    tiled = fm._tiled(far, fm.selected)
+    assert ((tiled > 0).sum(axis=0) > 100).all() and (tiled == 0).all(axis=1).mean() > 0.7
+    np.testing.assert_array_equal(tiled, fm._evaluate(far, fm.selected))
 
 
 def test_columns_follow_the_selected_order(metropolis):

@@ -284,6 +284,16 @@ def test_polygon_obstacles_and_bodies_are_lethal_and_only_they(tmp_path):
     assert not lethal[~ring & ~body].any()  # nothing else: the learned cost stays below 100
 
 
+def test_a_costmap_in_row_blocks_is_the_costmap_at_once(scene, monkeypatch):
+    """A building's costmap is computed a few rows at a time: the same bits."""
+    at_once = export.build_costmap(scene, FeatureParams(), POLITE)
+    monkeypatch.setattr(export, "COSTMAP_CHUNK_CELLS", 1000)  # 5 rows of 200 cells
+    in_blocks = export.build_costmap(scene, FeatureParams(), POLITE)
+    np.testing.assert_array_equal(in_blocks.cost, at_once.cost)
+    np.testing.assert_array_equal(in_blocks.occupancy, at_once.occupancy)
+    assert (in_blocks.cost != 0).mean() > 0.05
+
+
 def test_zero_weights_give_an_all_free_mask_with_the_bodies_lethal(scene):
     costmap = export.build_costmap(scene, FeatureParams(), np.zeros(4))
     assert costmap.scale == 0
