@@ -42,7 +42,11 @@ def parse_overrides(job: Path) -> dict[str, str]:
         raise Unreadable(f"{path.name} cannot be read ({first_line(e, 120)})") from None
     if not isinstance(lines, list):
         raise Unreadable(f"{path.name} is not a list of overrides")
-    return dict(line.split("=", 1) for line in lines if isinstance(line, str) and "=" in line)
+    for line in lines:  # a damaged line dropped would make the row another setting
+        if not (isinstance(line, str) and "=" in line):
+            raise Unreadable(f"{path.name}: {json.dumps(line)[:40]} is not an override "
+                             "(key=value)")
+    return dict(line.split("=", 1) for line in lines)
 
 
 def read_metrics(path: Path) -> dict:

@@ -185,20 +185,23 @@ def test_a_damaged_job_is_one_failed_row(tmp_path):
     _job(tmp_path, "2", "- seed=2\n", '{"policy_loss": "abc"}')
     _job(tmp_path, "3", "- seed=3\n", "[1, 2]")
     _job(tmp_path, "extra", "[unclosed\n", '{"policy_loss": 0.1}')  # not numbered, and damaged
+    # cut short: its setting would read as seed=4 alone, another setting
+    _job(tmp_path, "4", "- seed=4\n- rew\n", '{"policy_loss": 0.1}')
     agg = subprocess.run([sys.executable, "-m", "pipeline.tools.aggregate", str(tmp_path),
                           "--no-figures"], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert agg.returncode == 1 and "Traceback" not in agg.stderr
-    assert agg.stdout.strip().splitlines()[-1].startswith("1 of 5 jobs ok")
+    assert agg.stdout.strip().splitlines()[-1].startswith("1 of 6 jobs ok")
+    assert 'FAILED 4: overrides.yaml: "rew" is not an override (key=value)' in agg.stderr
     assert "FAILED 1: metrics.json cannot be read" in agg.stderr
     assert 'FAILED 2: metrics.json: policy_loss="abc" is not a number' in agg.stderr
     assert "FAILED 3: metrics.json is not an object of metrics" in agg.stderr
     assert "FAILED extra: overrides.yaml cannot be read" in agg.stderr
-    assert list(pd.read_csv(tmp_path / "summary.csv").job) == ["0", "1", "2", "3", "extra"]
+    assert list(pd.read_csv(tmp_path / "summary.csv").job) == ["0", "1", "2", "3", "4", "extra"]
     (tmp_path / "table.md").unlink()
     (tmp_path / "table.md").mkdir()  # where a table goes: one line, and a whole summary.csv
     agg = aggregate(tmp_path)
     assert agg.returncode == 2 and agg.stderr.startswith("error: cannot write the tables into")
-    assert len(pd.read_csv(tmp_path / "summary.csv")) == 5
+    assert len(pd.read_csv(tmp_path / "summary.csv")) == 6
 
 
 def test_aggregate_rejects_a_dir_without_jobs(tmp_path):
