@@ -192,7 +192,7 @@ def run(overrides: Sequence[str] = (), run_dir: str | Path | None = None) -> Run
     if run_dir is None:
         run_dir = Path("outputs") / "api" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S-%f")
     path = _path(run_dir, "run_dir")
-    run_pipeline(cfg, path)
+    run_pipeline(cfg, path, config_files_replaced=False)
     return Run(path)
 
 

@@ -41,7 +41,8 @@ log = logging.getLogger("pipeline")
 
 
 def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
-                 group_choices: Mapping[str, Any] | None = None) -> dict[str, float]:
+                 group_choices: Mapping[str, Any] | None = None,
+                 config_files_replaced: bool = True) -> dict[str, float]:
     """Check the config and run the selected stages in pipeline order; returns timings.
 
     The run dir is locked for the run and says in status.json how far it got (see
@@ -49,7 +50,10 @@ def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
     `group_choices`: the config group options Hydra chose, checked);
     a config error says `failed` there too, over an earlier run's status; a disk-full or
     permission error becomes one PipelineError line. Ctrl-C (SIGINT), SIGTERM or SIGHUP
-    stops it as `Interrupted`, with status.json saying so.
+    stops it as `Interrupted`, with status.json saying so. `config_files_replaced`: whether
+    the dir's .hydra/ files already say this run's config (Hydra's runs), so that an earlier
+    run's `complete` there must go even when this one ends before its stages; an API run
+    that ends so leaves the dir as it was.
     """
     try:
         check_group_choices(group_choices or {})
@@ -66,6 +70,8 @@ def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
                          source_digests=checked.source_digests)
     except (Exception, KeyboardInterrupt, Interrupted) as e:
         interrupted = as_interrupted(e, None)
+        if not config_files_replaced:
+            raise
         try:
             if interrupted is not None:
                 mark_ended_before_stages(run_dir, INTERRUPTED, interrupted.describe(), sweep)

@@ -130,6 +130,16 @@ def test_plot_draws_scene_demonstrations_and_learned_paths(fast_run, paths):
         plt.close("all")
 
 
+def test_a_refused_api_run_leaves_a_complete_dir_as_it_was(fast_run, tmp_path):
+    """Nothing of an API run reached the dir (unlike Hydra's .hydra/ files), so a config
+    error says so and the complete run there stays complete."""
+    before = (fast_run.dir / "status.json").read_bytes()
+    with pytest.raises(PipelineError, match="scene.body_radius"):
+        api.run(["scene.body_radius=-1"], run_dir=fast_run.dir)
+    assert (fast_run.dir / "status.json").read_bytes() == before
+    assert api.open_run(fast_run.dir).status.complete
+
+
 def test_open_run_reads_an_existing_dir(fast_run, tmp_path):
     again = api.open_run(str(fast_run.dir))
     assert again == fast_run and again.metrics == fast_run.metrics
