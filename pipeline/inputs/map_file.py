@@ -39,6 +39,7 @@ from pipeline.core.obstacles import OccupancyGrid
 from pipeline.errors import PipelineError
 
 MODES = ("trinary", "scale", "raw")
+YAW_NONE = 1e-6  # rad: an origin yaw this small is read as none
 KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode")
 _WARNED: set[tuple[str, tuple[str, ...]]] = set()  # (map, its unknown keys) warned about
 
@@ -135,27 +136,33 @@ def read_map_header(path: str | Path) -> MapHeader:
 
     def number(key: str, ok: Callable[[float], bool], allowed: str) -> float:
         value = get(key)
-        if not _is_number(value) or not ok(float(value)):
+        as_number = _as_number(value)
+        if as_number is None or not ok(as_number):
             raise fail(f"key '{key}'={value!r} is not allowed (allowed: {allowed})")
-        return float(value)
+        return as_number
 
     image = get("image")
     if not isinstance(image, str) or not image.strip():
         raise fail(f"key 'image'={image!r} must be an image file name")
     resolution = number("resolution", lambda v: v > 0, "a finite number > 0")
-    origin = get("origin")
-    if not (isinstance(origin, list | tuple) and len(origin) == 3
-            and all(_is_number(v) for v in origin)):
-        raise fail(f"key 'origin'={origin!r} must be 3 finite numbers [x, y, yaw]")
-    if float(origin[2]) != 0.0:
-        raise fail(f"origin yaw {origin[2]} is not supported; rotate the image instead")
+    given_origin = get("origin")
+    origin = [_as_number(v) for v in given_origin] \
+        if isinstance(given_origin, list | tuple) else []
+    if not (len(origin) == 3 and all(v is not None for v in origin)):
+        raise fail(f"key 'origin'={given_origin!r} must be 3 finite numbers [x, y, yaw]")
+    # map_saver writes the yaw it computes, e.g. -3.14e-16 for none: over 1 km, a yaw of
+    # 1e-6 rad moves a cell by a millimetre
+    if abs(origin[2]) > YAW_NONE:
+        raise fail(f"origin yaw {given_origin[2]} is not supported; rotate the image instead")
     negate = get("negate")
+    if isinstance(negate, str) and negate.strip() in ("0", "1"):  # yaml-cpp reads "1" as 1
+        negate = int(negate)
     if negate not in (0, 1) or isinstance(negate, float):
         raise fail(f"key 'negate'={negate!r} must be 0 or 1")
     occupied_thresh = number("occupied_thresh", lambda v: 0 <= v <= 1, "0..1")
     free_thresh = number("free_thresh", lambda v: 0 <= v <= 1, "0..1")
-    if free_thresh >= occupied_thresh:
-        raise fail(f"key 'free_thresh'={free_thresh} must be below "
+    if free_thresh > occupied_thresh:  # equal: no unknown band, as map_server reads it
+        raise fail(f"key 'free_thresh'={free_thresh} must not be above "
                    f"occupied_thresh={occupied_thresh}")
     mode = data.get("mode", "trinary")
     if mode not in MODES:
@@ -213,9 +220,18 @@ def _no_bomb_check() -> Iterator[None]:
         Image.MAX_IMAGE_PIXELS = limit
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) \
-        and math.isfinite(value)
+def _as_number(value: Any) -> float | None:
+    """A finite number, also given as a quoted string (yaml-cpp, map_server's reader, converts
+    "0.65" to a double as it converts 0.65); None otherwise."""
+    if isinstance(value, str):
+        try:
+            value = float(value.strip())
+        except ValueError:
+            return None
+    if not isinstance(value, int | float) or isinstance(value, bool) \
+            or not math.isfinite(value):
+        return None
+    return float(value)
 
 
 def _read_image(path: Path, fail: Callable[[str], PipelineError],

@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import re
 import sys
 from importlib import resources
 from pathlib import Path
@@ -81,6 +82,18 @@ def _validator(name: str) -> Draft202012Validator:
     return Draft202012Validator(load_schema(name))
 
 
+def _map_yaml_hint(path: Path) -> str:
+    """What to do with a map_server map's YAML given where a JSON file belongs."""
+    try:
+        text = path.read_text(errors="replace")[:10_000]
+    except OSError:
+        return ""
+    if re.search(r"^\s*image\s*:", text, re.M) and re.search(r"^\s*resolution\s*:", text, re.M):
+        return ("; it is a map_server map's YAML: name it in a scene file's \"map\" key, or "
+                "place random people on it with scene=random scene.map=PATH")
+    return ""
+
+
 def read_json(path: Path, schema_name: str, source: str) -> Any:
     """Parse the JSON file `path` and `validate` it; errors name `source`."""
     error = ERRORS[schema_name]
@@ -93,7 +106,7 @@ def read_json(path: Path, schema_name: str, source: str) -> Any:
         raise error(f"{source}: key {e.key!r} appears twice in one object; which one is "
                     f"meant?") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise error(f"{source} is not valid JSON ({e})") from None
+        raise error(f"{source} is not valid JSON ({e}){_map_yaml_hint(path)}") from None
     except OSError as e:
         raise error(f"{source} cannot be read ({e.strerror or e})") from None
     except RecursionError:  # parsing and checking recurse; no valid file is this deep

@@ -124,6 +124,20 @@ def test_image_row_zero_is_the_top_and_the_origin_shifts_the_map(tmp_path, monke
     assert (load_map(path).occupied == grid.occupied).all()
 
 
+def test_what_map_server_reads_is_read_quoted_numbers_no_yaw_and_no_unknown_band(tmp_path):
+    """yaml-cpp converts "0.65" as it converts 0.65; map_saver writes yaws like -3.14e-16 for
+    none; free_thresh = occupied_thresh leaves no unknown band. map_server loads all three."""
+    plain = load_map(_write_map(tmp_path, GREYS))
+    quoted = load_map(_write_map(tmp_path, GREYS, resolution="0.1", free_thresh="0.196",
+                                 occupied_thresh=" 0.65", origin=["0", 0.0, "-3.14e-16"],
+                                 negate="0"))
+    assert (quoted.origin, quoted.resolution) == (plain.origin, plain.resolution)
+    np.testing.assert_array_equal(quoted.occupied, plain.occupied)
+    no_band = load_map(_write_map(tmp_path, GREYS, free_thresh=0.5, occupied_thresh=0.5))
+    # p = (255 - v)/255 < 0.5 is free: 150 (0.41), 205, 206, 254, 255
+    assert _free_in_image_order(no_band).tolist() == [[False, False, False, True], [True] * 4]
+
+
 @pytest.mark.parametrize("fields, needle", [
     ({"resolution": None}, "missing key 'resolution'"),
     ({"image": None}, "missing key 'image'"),
@@ -140,7 +154,8 @@ def test_image_row_zero_is_the_top_and_the_origin_shifts_the_map(tmp_path, monke
     ({"negate": 2}, "key 'negate'=2"),
     ({"occupied_thresh": 1.5}, "key 'occupied_thresh'=1.5"),
     ({"free_thresh": -0.1}, "key 'free_thresh'=-0.1"),
-    ({"free_thresh": 0.7}, "key 'free_thresh'=0.7 must be below occupied_thresh=0.65"),
+    ({"free_thresh": 0.7}, "key 'free_thresh'=0.7 must not be above occupied_thresh=0.65"),
+    ({"origin": [0.0, 0.0, 2e-6]}, "origin yaw 2e-06 is not supported"),
     ({"mode": "fancy"}, "key 'mode'='fancy' is not one of trinary, scale, raw"),
     ({"image": "missing.pgm"}, "missing.pgm (key 'image') not found"),
     ({"image": "."}, "(key 'image') cannot be read"),
