@@ -100,6 +100,9 @@ _TILED_KINDS = _PERSON_KINDS | {"relation", "group_space"}
 # Keeps the (points x persons) distance matrices of a batch to a few tens of MB.
 _CHUNK_POINTS = 200_000
 _TILE = 2.0  # m, side of the tiles whose nearby links and persons are looked up
+# Points from which tiles nothing reaches are skipped (a costmap's cells); the few points of
+# a growth step's segments are cheaper without the test.
+_SKIP_TILES_FROM = 10_000
 
 
 class Feature(NamedTuple):
@@ -388,19 +391,21 @@ class FeatureModel:
         origin = p.min(axis=0)
         cell = np.floor((p - origin) / _TILE).astype(np.int64)
         key = cell[:, 0] * (cell[:, 1].max() + 1) + cell[:, 1]
-        # Tiles no link, person or group reaches get no `_evaluate` (which would add nothing
-        # there): on a building's costmap most of millions of cells are such.
-        boxes = []
-        if link_reach is not None:
-            boxes.append((link_lo - link_reach, link_hi + link_reach))
-        if person_reach is not None:
-            boxes.append((self.persons - person_reach, self.persons + person_reach))
-        if group_rho is not None:
-            r_g = (spreads + group_rho)[:, None]
-            boxes.append((centres - r_g, centres + r_g))
-        reached = _tiles_reached(boxes, origin, cell.max(axis=0) + 1)
-        out[~reached[cell[:, 0], cell[:, 1]]] = 0.0
-        active = np.flatnonzero(reached[cell[:, 0], cell[:, 1]])
+        active = np.arange(len(p))
+        if len(p) >= _SKIP_TILES_FROM:
+            # Tiles no link, person or group reaches get no `_evaluate` (which would add
+            # nothing there): on a building's costmap most of millions of cells are such.
+            boxes = []
+            if link_reach is not None:
+                boxes.append((link_lo - link_reach, link_hi + link_reach))
+            if person_reach is not None:
+                boxes.append((self.persons - person_reach, self.persons + person_reach))
+            if group_rho is not None:
+                r_g = (spreads + group_rho)[:, None]
+                boxes.append((centres - r_g, centres + r_g))
+            reached = _tiles_reached(boxes, origin, cell.max(axis=0) + 1)[cell[:, 0], cell[:, 1]]
+            out[~reached] = 0.0
+            active = np.flatnonzero(reached)
         order = active[np.argsort(key[active], kind="stable")]
         for tile in np.split(order, np.flatnonzero(np.diff(key[order])) + 1) if len(order) else []:
             q = p[tile]
