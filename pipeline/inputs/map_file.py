@@ -266,4 +266,3 @@ def _read_image(path: Path, fail: Callable[[str], PipelineError],
     if shade.size == 0:
         raise fail(f"image {path} (key 'image') is empty")
     return shade, opaque
-

@@ -69,9 +69,9 @@ def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
                          OmegaConf.to_yaml(cfg, resolve=True), run_metadata(settings.seed),
                          source_digests=checked.source_digests)
     except (Exception, KeyboardInterrupt, Interrupted) as e:
-        interrupted = as_interrupted(e, None)
         if not config_files_replaced:
             raise
+        interrupted = as_interrupted(e, None)
         try:
             if interrupted is not None:
                 mark_ended_before_stages(run_dir, INTERRUPTED, interrupted.describe(), sweep)
