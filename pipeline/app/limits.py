@@ -36,6 +36,8 @@ BYTES_PER_LATTICE_EDGE_PERSON = 1.0  # ... and per person in the room (not measu
 # for crowded feature tiles)
 BYTES_PER_LATTICE_EDGE_OBSTACLES = 150.0  # ... and the clearance samples with obstacles
 BYTES_PER_GRAPH_NODE = 30e3  # nodes, edges, GP data, per-iteration history
+# a Boltzmann walk on metropolis, its points, features and artefact rows (2000 walks: 36 MB)
+BYTES_PER_WALK = 20e3
 MEMORY_SHARE = 0.8  # of the memory available now
 
 

@@ -24,14 +24,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.app import build, limits
-from pipeline.app.config import Config, FileExpertConfig, FileSceneConfig, RandomSceneConfig
+from pipeline.app.config import (
+    BoltzmannExpertConfig,
+    Config,
+    FileExpertConfig,
+    FileSceneConfig,
+    RandomSceneConfig,
+)
 from pipeline.app.context import resolve_path
 from pipeline.app.rundir import check_from_run
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE
+from pipeline.core import scenegen
 from pipeline.core.obstacles import ObstacleMap
-from pipeline.core.world import BodyParams, Scene
+from pipeline.core.world import BodyParams, Room, Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import read_map_header
 from pipeline.inputs.recorded import check_readable
@@ -94,6 +101,14 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         check_roadmap_size(cfg, facts)
     if facts is not None:
         scene = facts.load()  # sizes are fine: the scene file is validated now, not at its stage
+        if scene is not None and "demos" in stages and \
+                isinstance(cfg.expert, BoltzmannExpertConfig):
+            # walks from every start (expert.n_starts keeps some of them afterwards)
+            limits.check_memory(
+                f"{len(scene.starts)} starts × expert.demos_per_start="
+                f"{cfg.expert.demos_per_start} walks",
+                len(scene.starts) * cfg.expert.demos_per_start, limits.BYTES_PER_WALK,
+                "lower expert.demos_per_start")
         if scene is not None and scene.obstacles is None \
                 and scene.robot_radius != BodyParams.robot_radius:
             log.warning("scene '%s' has no obstacles: robot_radius=%g m has no effect (it is "
@@ -144,6 +159,7 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
     assert isinstance(sc, RandomSceneConfig)
     n_persons = sc.n_singles + sc.n_groups * sc.group_size_max
     if not sc.map:
+        scenegen.check_fits(sc, Room(0.0, 0.0, sc.width, sc.height), on_map=False)
         build.check_reachability_lattice(sc.width * sc.height, n_persons, sc.width, sc.height)
         area = sc.width * sc.height
         return SceneFacts(f"random-{cfg.seed if sc.seed is None else sc.seed}", area,
@@ -151,6 +167,7 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
     header = read_map_header(resolve_path(sc.map))
     build.check_map_size(header)
     x0, y0, x1, y1 = header.extent()
+    scenegen.check_fits(sc, Room(x0, y0, x1, y1), on_map=True)
 
     def free_area() -> float:
         grid = build.map_grid_of(sc.map)

@@ -67,6 +67,50 @@ def person_margin(spec: RandomSceneSpec) -> float:
     return 0.5 + spec.body_radius
 
 
+# Starts on a map keep this far apart (a plain room spreads them along one wall instead).
+MAP_START_GAP = 1.0  # m
+
+
+def most_points_apart(width: float, height: float, gap: float) -> int:
+    """An upper bound on how many points at least `gap` apart fit in a width × height
+    rectangle: Oler's inequality (N ≤ 2/√3 · A/gap² + P/(2 gap) + 1 in a convex region of
+    area A and perimeter P), rounded up to 2/√3 · (width + gap)(height + gap)/gap²."""
+    return math.floor((width + gap) * (height + gap) / (math.sqrt(3) / 2 * gap**2))
+
+
+def check_fits(spec: RandomSceneSpec, room: Room, on_map: bool) -> None:
+    """Refuse counts of persons or starts that cannot fit in `room` whatever is drawn (else
+    the draws would run to scene.max_tries, or allocate their candidates first)."""
+    margin = person_margin(spec)
+    inner_w, inner_h = room.x_max - room.x_min - 2 * margin, room.y_max - room.y_min - 2 * margin
+    # every single and at least one member of every group keep min_person_gap from the others
+    placed = spec.n_singles + spec.n_groups
+    most = most_points_apart(max(inner_w, 0.0), max(inner_h, 0.0), spec.min_person_gap)
+    if placed > most:
+        raise PipelineError(
+            f"random scene: scene.n_singles={spec.n_singles} and scene.n_groups="
+            f"{spec.n_groups}: {placed:,} singles and groups do not fit in a "
+            f"{room.x_max - room.x_min:g} x "
+            f"{room.y_max - room.y_min:g} m room: persons keep scene.min_person_gap="
+            f"{spec.min_person_gap:g} m apart and {margin:g} m from its edges, which leaves "
+            f"room for at most {most:,} singles and groups; use fewer or a larger room")
+    if on_map:
+        most = most_points_apart(room.x_max - room.x_min, room.y_max - room.y_min,
+                                 MAP_START_GAP)
+        why = f"starts keep {MAP_START_GAP:g} m apart"
+    else:  # one start per cell of the reachability lattice along the shorter wall
+        wall = min(room.x_max - room.x_min, room.y_max - room.y_min) - 2 * spec.border_margin
+        most = max(1, math.floor(wall / REACHABILITY_SPACING))
+        why = (f"starts are spread along a wall, at most one per {REACHABILITY_SPACING:g} m "
+               "(closer starts are one start to the reachability check)")
+    if spec.n_starts > most:
+        raise PipelineError(
+            f"random scene: scene.n_starts={spec.n_starts}: {spec.n_starts:,} starts do not "
+            f"fit in a "
+            f"{room.x_max - room.x_min:g} x {room.y_max - room.y_min:g} m room: {why}, so at "
+            f"most {most:,}; use fewer or a larger room")
+
+
 def _place_persons(
     spec: RandomSceneSpec, rng: np.random.Generator, room: Room,
     obstacles: ObstacleMap | None = None,
@@ -187,6 +231,7 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
                   spec.goal_tolerance, spec.robot_radius, map_grid=map_grid,
                   map_source=map_source)
     obstacles = empty.obstacles
+    check_fits(spec, room, on_map=map_grid is not None)
     if map_grid is not None:  # a plain room's size is checked with the config
         smaller = min(room.x_max - room.x_min, room.y_max - room.y_min)
         if smaller <= 2 * person_margin(spec):

@@ -48,6 +48,13 @@ def refused_before_any_stage(run: Path, match: str, *overrides: str) -> float:
     (("expert=file", "expert.path=/dev/zero"), r"/dev/zero is a character device"),
     (("expert=file", "expert.path=data/demos/metropolis_handdrawn.json", "graph.weights=true"),
      r"graph\.weights=true needs true weights"),
+    (("scene=random", "scene.n_singles=500"),
+     r"scene\.n_singles=500 and scene\.n_groups=3: 503 singles and groups do not fit"),
+    (("scene=random", "scene.n_starts=100"), r"scene\.n_starts=100: 100 starts do not fit"),
+    (("scene=random", "scene.map=data/maps/office.yaml", "scene.n_starts=400"),
+     r"400 starts do not fit in a 20 x 14 m room: starts keep 1 m apart"),
+    (("expert=boltzmann", "expert.demos_per_start=99999999999"),
+     r"expert\.demos_per_start=99999999999 walks would need about"),
 ])
 def test_refused_before_the_first_stage(tmp_path, overrides, match):
     refused_before_any_stage(tmp_path / "run", match, *overrides)

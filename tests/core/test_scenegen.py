@@ -4,7 +4,12 @@ reproducible from the seed, and a clear error when no scene fits."""
 import numpy as np
 import pytest
 
-from pipeline.core.scenegen import RandomSceneSpec, all_starts_reach_goal, random_scene
+from pipeline.core.scenegen import (
+    RandomSceneSpec,
+    all_starts_reach_goal,
+    most_points_apart,
+    random_scene,
+)
 from pipeline.core.world import scene_from_dict
 from pipeline.errors import PipelineError
 
@@ -40,6 +45,25 @@ def test_random_scene_is_valid_and_seeded(seed):
 
 
 def test_random_scene_that_cannot_fit_fails_clearly():
-    spec = RandomSceneSpec(width=2.0, height=2.0, n_singles=20, n_groups=0, max_tries=3)
+    # 9 singles 0.7 m apart fit in the 1.5 m square left inside the walls (a 0.75 m grid),
+    # but random draws rarely find it
+    spec = RandomSceneSpec(width=3.0, height=3.0, n_singles=9, n_groups=0, max_tries=3)
     with pytest.raises(PipelineError, match="no valid scene in scene.max_tries=3"):
         random_scene(spec, np.random.default_rng(0))
+
+
+def test_persons_that_can_never_fit_are_refused_before_drawing():
+    # the 0.5 m square inside the walls holds at most 3 points 0.7 m apart (the bound's 3:
+    # (0.5 + 0.7)² / (√3/2 · 0.7²) = 3.39)
+    spec = RandomSceneSpec(width=2.0, height=2.0, n_singles=20, n_groups=0, max_tries=3)
+    with pytest.raises(PipelineError, match="20 singles and groups do not fit .* at most 3 "):
+        random_scene(spec, np.random.default_rng(0))
+
+
+def test_the_packing_bound_is_exact_on_a_unit_square_and_never_below_a_hexagonal_packing():
+    assert most_points_apart(1.0, 1.0, 1.0) == 4  # the corners; a fifth point is < 1 apart
+    for width, height, gap in [(10, 10, 0.7), (3, 17, 1.0), (0.0, 5.0, 0.5), (40, 2.5, 0.3)]:
+        rows = np.arange(0.0, height + 1e-9, gap * np.sqrt(3) / 2)
+        hexagonal = sum(len(np.arange(gap / 2 * (k % 2), width + 1e-9, gap))
+                        for k in range(len(rows)))
+        assert hexagonal <= most_points_apart(width, height, gap)
