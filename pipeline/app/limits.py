@@ -36,8 +36,11 @@ BYTES_PER_LATTICE_EDGE_PERSON = 1.0  # ... and per person in the room (not measu
 # for crowded feature tiles)
 BYTES_PER_LATTICE_EDGE_OBSTACLES = 150.0  # ... and the clearance samples with obstacles
 BYTES_PER_GRAPH_NODE = 30e3  # nodes, edges, GP data, per-iteration history
-# a Boltzmann walk on metropolis, its points, features and artefact rows (2000 walks: 36 MB)
-BYTES_PER_WALK = 20e3
+# a synthetic demonstration, its points, features and artefact rows (2000 Boltzmann walks
+# on metropolis: 36 MB)
+BYTES_PER_DEMONSTRATION = 20e3
+# a candidate controller run of the graph's expansion (graph.n_new=2000 on metropolis: 10 MB)
+BYTES_PER_CANDIDATE = 10e3
 MEMORY_SHARE = 0.8  # of the memory available now
 
 

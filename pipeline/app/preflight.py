@@ -29,6 +29,7 @@ from pipeline.app.config import (
     Config,
     FileExpertConfig,
     FileSceneConfig,
+    PlannerExpertConfig,
     RandomSceneConfig,
 )
 from pipeline.app.context import resolve_path
@@ -101,14 +102,8 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         check_roadmap_size(cfg, facts)
     if facts is not None:
         scene = facts.load()  # sizes are fine: the scene file is validated now, not at its stage
-        if scene is not None and "demos" in stages and \
-                isinstance(cfg.expert, BoltzmannExpertConfig):
-            # walks from every start (expert.n_starts keeps some of them afterwards)
-            limits.check_memory(
-                f"{len(scene.starts)} starts × expert.demos_per_start="
-                f"{cfg.expert.demos_per_start} walks",
-                len(scene.starts) * cfg.expert.demos_per_start, limits.BYTES_PER_WALK,
-                "lower expert.demos_per_start")
+        if scene is not None and "demos" in stages:
+            check_demonstrations_size(cfg, len(scene.starts))
         if scene is not None and scene.obstacles is None \
                 and scene.robot_radius != BodyParams.robot_radius:
             log.warning("scene '%s' has no obstacles: robot_radius=%g m has no effect (it is "
@@ -120,6 +115,8 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
                                            facts.name)
         log.info("graph.max_nodes=%d: %s", max_nodes, why)
         checked.derived["graph.max_nodes"] = max_nodes
+    if stages & {"graph", "birl"}:  # the birl stage grows the graph on maps
+        check_graph_candidates(cfg)
     if "graph" in stages and max_nodes is not None:
         limits.check_graph_size(max_nodes, facts.free_area() if facts is not None else None,
                                 cfg.reward.rho_personal, facts.name if facts else "")
@@ -188,6 +185,24 @@ def check_roadmap_size(cfg: Config, facts: SceneFacts) -> None:
                         limits.lattice_edges(facts.area, rp.spacing, rp.connectivity),
                         limits.bytes_per_lattice_edge(facts.n_persons, facts.obstacles),
                         f"raise roadmap.spacing (now {rp.spacing:g} m) or use a smaller scene")
+
+
+def check_demonstrations_size(cfg: Config, n_starts: int) -> None:
+    """A synthetic expert's demonstrations, from every start (expert.n_starts keeps some of
+    them afterwards), must fit in memory."""
+    key = "demos_per_start" if isinstance(cfg.expert, BoltzmannExpertConfig) else \
+        "n_subjects" if isinstance(cfg.expert, PlannerExpertConfig) else None
+    if key is not None:
+        per_start = getattr(cfg.expert, key)
+        limits.check_memory(f"{n_starts} starts × expert.{key}={per_start} demonstrations",
+                            n_starts * per_start, limits.BYTES_PER_DEMONSTRATION,
+                            f"lower expert.{key}")
+
+
+def check_graph_candidates(cfg: Config) -> None:
+    """One expansion's candidate runs (graph.n_new) must fit in memory."""
+    limits.check_memory(f"graph.n_new={cfg.graph.n_new} candidates per expansion",
+                        cfg.graph.n_new, limits.BYTES_PER_CANDIDATE, "lower graph.n_new")
 
 
 # -- transfer scenes -----------------------------------------------------------------------

@@ -54,7 +54,10 @@ def refused_before_any_stage(run: Path, match: str, *overrides: str) -> float:
     (("scene=random", "scene.map=data/maps/office.yaml", "scene.n_starts=400"),
      r"400 starts do not fit in a 20 x 14 m room: starts keep 1 m apart"),
     (("expert=boltzmann", "expert.demos_per_start=99999999999"),
-     r"expert\.demos_per_start=99999999999 walks would need about"),
+     r"expert\.demos_per_start=99999999999 demonstrations would need about"),
+    (("expert=planner", "expert.n_subjects=99999999999"),
+     r"expert\.n_subjects=99999999999 demonstrations would need about"),
+    (("graph.n_new=99999999999",), r"graph\.n_new=99999999999 candidates per expansion"),
 ])
 def test_refused_before_the_first_stage(tmp_path, overrides, match):
     refused_before_any_stage(tmp_path / "run", match, *overrides)
