@@ -79,10 +79,23 @@ def most_points_apart(width: float, height: float, gap: float) -> int:
 
 
 def check_fits(spec: RandomSceneSpec, room: Room, on_map: bool) -> None:
-    """Refuse counts of persons or starts that cannot fit in `room` whatever is drawn (else
-    the draws would run to scene.max_tries, or allocate their candidates first)."""
+    """Refuse a robot, a goal disk, or counts of persons or starts that cannot fit in `room`
+    whatever is drawn (else the draws would run to scene.max_tries, or allocate their
+    candidates first)."""
+    width, height = room.x_max - room.x_min, room.y_max - room.y_min
+    if 2 * spec.robot_radius >= min(width, height):  # a unit mistake, not a robot
+        raise PipelineError(
+            f"random scene: scene.robot_radius={spec.robot_radius:g} m: a robot "
+            f"{2 * spec.robot_radius:g} m across does not fit in the {width:g} x {height:g} m "
+            "room (robot_radius is the robot's radius in metres)")
+    across = min(width, height) - 2 * spec.border_margin  # the goal's wall to the starts'
+    if not on_map and spec.goal_tolerance >= across:
+        raise PipelineError(
+            f"random scene: scene.goal_tolerance={spec.goal_tolerance:g} m reaches across the "
+            f"{width:g} x {height:g} m room: the goal and the starts are on opposite walls, "
+            f"{across:g} m apart or more, and a start within it would be at the goal already")
     margin = person_margin(spec)
-    inner_w, inner_h = room.x_max - room.x_min - 2 * margin, room.y_max - room.y_min - 2 * margin
+    inner_w, inner_h = width - 2 * margin, height - 2 * margin
     # every single and at least one member of every group keep min_person_gap from the others
     placed = spec.n_singles + spec.n_groups
     most = most_points_apart(max(inner_w, 0.0), max(inner_h, 0.0), spec.min_person_gap)
@@ -90,24 +103,20 @@ def check_fits(spec: RandomSceneSpec, room: Room, on_map: bool) -> None:
         raise PipelineError(
             f"random scene: scene.n_singles={spec.n_singles} and scene.n_groups="
             f"{spec.n_groups}: {placed:,} singles and groups do not fit in a "
-            f"{room.x_max - room.x_min:g} x "
-            f"{room.y_max - room.y_min:g} m room: persons keep scene.min_person_gap="
+            f"{width:g} x {height:g} m room: persons keep scene.min_person_gap="
             f"{spec.min_person_gap:g} m apart and {margin:g} m from its edges, which leaves "
             f"room for at most {most:,} singles and groups; use fewer or a larger room")
     if on_map:
-        most = most_points_apart(room.x_max - room.x_min, room.y_max - room.y_min,
-                                 MAP_START_GAP)
+        most = most_points_apart(width, height, MAP_START_GAP)
         why = f"starts keep {MAP_START_GAP:g} m apart"
     else:  # one start per cell of the reachability lattice along the shorter wall
-        wall = min(room.x_max - room.x_min, room.y_max - room.y_min) - 2 * spec.border_margin
-        most = max(1, math.floor(wall / REACHABILITY_SPACING))
+        most = max(1, math.floor(across / REACHABILITY_SPACING))
         why = (f"starts are spread along a wall, at most one per {REACHABILITY_SPACING:g} m "
                "(closer starts are one start to the reachability check)")
     if spec.n_starts > most:
         raise PipelineError(
             f"random scene: scene.n_starts={spec.n_starts}: {spec.n_starts:,} starts do not "
-            f"fit in a "
-            f"{room.x_max - room.x_min:g} x {room.y_max - room.y_min:g} m room: {why}, so at "
+            f"fit in a {width:g} x {height:g} m room: {why}, so at "
             f"most {most:,}; use fewer or a larger room")
 
 
@@ -192,8 +201,9 @@ def _starts_and_goal_on_map(spec: RandomSceneSpec, rng: np.random.Generator,
     if len(candidates) < spec.n_starts + 1:
         return None
     goal = candidates[0]
-    far = candidates[1:][np.linalg.norm(candidates[1:] - goal, axis=1)
-                         >= np.linalg.norm(hi - lo) / 3]
+    to_goal = np.linalg.norm(candidates[1:] - goal, axis=1)
+    far = candidates[1:][(to_goal >= np.linalg.norm(hi - lo) / 3)
+                         & (to_goal > spec.goal_tolerance)]
     starts: list[np.ndarray] = []
     for p in far:  # spread out: at least 1 m apart
         if all(np.linalg.norm(p - q) >= 1.0 for q in starts):

@@ -49,9 +49,14 @@ class ChainParams:
     def __post_init__(self) -> None:
         require_count(self, "n_samples", "thin")
         require_count(self, "burn_in", minimum=0)
-        # the chain's states are kept in memory (d floats each): bound its length
-        require(self.burn_in + self.n_samples * self.thin <= MAX_CHAIN_STEPS, "thin",
-                self.thin, f"small enough that burn_in + n_samples·thin <= {MAX_CHAIN_STEPS:g}")
+        # the chain's states are kept in memory (d floats each): bound its length, naming
+        # the key that makes it long
+        length = self.burn_in + self.n_samples * self.thin
+        longest = "burn_in" if self.burn_in >= self.n_samples * self.thin else \
+            "n_samples" if self.n_samples >= self.thin else "thin"
+        require(length <= MAX_CHAIN_STEPS, longest, getattr(self, longest),
+                f"small enough that burn_in + n_samples·thin <= {MAX_CHAIN_STEPS:g} "
+                f"(now {length:,})")
 
 
 @dataclass
@@ -73,6 +78,10 @@ class AdaptiveChainParams(ChainParams):
         renamed(self, "step", "proposal_step", "birl")
         require_positive(self, "proposal_step")
         require_count(self, "n_chains")
+        # every chain's kept samples are held together (the diagnostics compare the chains)
+        require(self.n_chains * self.n_samples <= MAX_CHAIN_STEPS, "n_chains", self.n_chains,
+                f"small enough that n_chains·n_samples (the samples kept) <= "
+                f"{MAX_CHAIN_STEPS:g}")
         require(self.sampler in SAMPLERS, "sampler", self.sampler, f"one of {SAMPLERS}")
         require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
                 "a number in (0, 1)")

@@ -292,6 +292,12 @@ CONFIG_CASES = {
     "mcmc without samples": (["birl=mcmc", "birl.n_samples=0"], ["birl.n_samples"]),
     "mcmc negative burn-in": (["birl=mcmc", "birl.burn_in=-5"], ["birl.burn_in"]),
     "mcmc zero chains": (["birl=mcmc", "birl.n_chains=0"], ["birl.n_chains"]),
+    # the key that makes the chain too long is named, not thin
+    "mcmc too many samples": (["birl=mcmc", "birl.n_samples=99999999999"],
+                              ["birl.n_samples=99999999999", "<= 1e+07"]),
+    "mcmc too long a burn-in": (["birl=mcmc", "birl.burn_in=20000000"], ["birl.burn_in"]),
+    "mcmc too many chains": (["birl=mcmc", "birl.n_chains=99999999999"],
+                             ["birl.n_chains=99999999999", "samples kept"]),
     "policywalk zero step": (["birl=policywalk", "birl.grid_step=0"], ["birl.grid_step"]),
     "policywalk zero step, old spelling": (["birl=policywalk", "birl.step=0"], ["birl.grid_step"]),
     "maxent zero learning rate": (["birl=maxent", "birl.learning_rate=0"],
