@@ -70,6 +70,19 @@ class Room:
                             np.minimum(p[:, 1] - self.y_min, self.y_max - p[:, 1]))
         return np.maximum(border, 0.0)
 
+    def outside_distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance (n,) from the points (n, 2) to the room; 0 inside it."""
+        p = np.atleast_2d(points)
+        dx = np.maximum(np.maximum(self.x_min - p[:, 0], p[:, 0] - self.x_max), 0.0)
+        dy = np.maximum(np.maximum(self.y_min - p[:, 1], p[:, 1] - self.y_max), 0.0)
+        return np.hypot(dx, dy)
+
+    def clip(self, points: np.ndarray) -> np.ndarray:
+        """The points (n, 2), each outside the room moved to the nearest point of its edge."""
+        p = np.atleast_2d(points)
+        return np.column_stack([np.clip(p[:, 0], self.x_min, self.x_max),
+                                np.clip(p[:, 1], self.y_min, self.y_max)])
+
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         return self.x_min, self.y_min, self.x_max, self.y_max

@@ -62,6 +62,10 @@ BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 CSV_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
+# m: how far outside the room a recorded point may stray and be moved onto its edge (with a
+# warning) rather than refused: tracking noise (laser trackers err by a few centimetres,
+# camera trackers by about ten) of a person walking along a wall the room was drawn at
+ROOM_EDGE_TOLERANCE = 0.1
 # A pose stream's trajectory resampled into more points than this (1000 km at 0.1 m) is
 # refused: no walk is that long, a pose far off is (without a room to refuse it by)
 MAX_RESAMPLED_POINTS = 10_000_000
@@ -710,6 +714,28 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
     return cut
 
 
+def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list[np.ndarray]:
+    """The tracks, those that stray at most ROOM_EDGE_TOLERANCE outside `room` moved onto its
+    edge there (one warning for all of them); farther out, left for cut_trajectory to
+    refuse."""
+    moved, farthest, out = [], 0.0, []
+    for i, t in enumerate(tracks):
+        with np.errstate(invalid="ignore", over="ignore"):  # inf, nan: refused later
+            stray = float(room.outside_distance(t).max(initial=0.0))
+        if 0.0 < stray <= ROOM_EDGE_TOLERANCE:
+            t = room.clip(t)
+            moved.append(i)
+            farthest = max(farthest, stray)
+        out.append(t)
+    if moved:
+        listed = ", ".join(map(str, moved[:5])) + (", ..." if len(moved) > 5 else "")
+        log.warning("%s: %d trajectories (%s) stray up to %.3f m outside the room %s, as "
+                    "tracking noise along a wall does; those points are moved onto its edge "
+                    "(farther than %g m out is refused)", where, len(moved), listed, farthest,
+                    room.describe(), ROOM_EDGE_TOLERANCE)
+    return out
+
+
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
                   topic: str | None = None, frame: str | None = None, start_radius: float = 1.0,
                   spacing: float = 0.1, room: Room | None = None) -> list[Recorded]:
@@ -752,6 +778,8 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     else:
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
+    if room is not None:
+        tracks = onto_room_edge(tracks, room, where)
     cleaned = [cut_trajectory(t, goal, goal_tolerance, room, f"{where}: trajectory {i}",
                               spacing if recording.is_stream else None)
                for i, t in enumerate(tracks)]

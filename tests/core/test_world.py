@@ -63,3 +63,12 @@ def test_a_room_far_from_the_origin_is_described_to_the_centimetre():
     assert Room(5e6 + 0.123, 0.0, 5e6 + 10.0, 9.5).describe() == \
         "[5000000.12, 5000010] x [0, 9.5]"
     assert Room(0.0, 0.0, 10.0, 10.0).describe() == "[0, 10] x [0, 10]"
+
+
+def test_distance_outside_a_room_and_clipping_onto_it_by_hand():
+    room = Room(0.0, 0.0, 10.0, 4.0)
+    points = np.array([[5.0, 2.0], [-3.0, 2.0], [13.0, 8.0], [5.0, 4.0], [-1.0, -1.0]])
+    np.testing.assert_allclose(room.outside_distance(points), [0, 3, 5, 0, np.sqrt(2)])
+    np.testing.assert_array_equal(room.clip(points),
+                                  [[5, 2], [0, 2], [10, 4], [5, 4], [0, 0]])
+    assert room.contains(room.clip(points)).all()

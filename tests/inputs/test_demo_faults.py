@@ -155,6 +155,35 @@ def test_leaving_the_room_names_where(tmp_path):
             load_recorded, path, STARTS, GOAL, goal_tolerance=0.3, room=Room(0, 0, 10, 10))
 
 
+def test_points_a_little_outside_the_room_are_moved_onto_its_edge(tmp_path, caplog):
+    """Tracking noise along a wall: a CSV recording (a pose stream) and a JSON polyline
+    that stray 4 cm out are kept, those points on the edge, with one warning; 15 cm out
+    (beyond ROOM_EDGE_TOLERANCE) is refused as before."""
+    from pipeline.core.world import Room
+    from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, load_recorded
+    room = Room(0, 0, 10, 10)
+    polyline = [[0.5, 0.5], [-0.04, 3.0], [-0.03, 6.0], [5.5, 9.0]]
+    path = tmp_path / "wall.json"
+    path.write_text(json.dumps({"trajectories": [polyline]}))
+    with caplog.at_level(logging.WARNING):
+        [(start, points, _)] = load_recorded(path, STARTS, GOAL, goal_tolerance=0.3, room=room)
+    assert start == 0 and np.array_equal(points, [[0.5, 0.5], [0, 3.0], [0, 6.0], [5.5, 9.0]])
+    assert "1 trajectories (0) stray up to 0.040 m outside the room [0, 10] x [0, 10]" \
+        in caplog.text
+    stream = tmp_path / "wall.csv"
+    walk = np.vstack([np.column_stack([np.full(30, 0.5), np.linspace(0.5, 3.0, 30)]),
+                      np.column_stack([np.full(30, -0.04), np.linspace(3.0, 6.0, 30)]),
+                      [[5.5, 9.0]]])
+    stream.write_text("x,y\n" + "".join(f"{x},{y}\n" for x, y in walk))
+    [(_, points, _)] = load_recorded(stream, STARTS, GOAL, goal_tolerance=0.3, room=room)
+    assert room.contains(points).all() and points[:, 0].min() == 0.0
+    assert ROOM_EDGE_TOLERANCE < 0.15
+    polyline[1] = [-0.15, 3.0]
+    path.write_text(json.dumps({"trajectories": [polyline]}))
+    refused(r"trajectory 0 leaves the room \[0, 10\] x \[0, 10\] at \(-0\.15, 3\.00\)",
+            load_recorded, path, STARTS, GOAL, goal_tolerance=0.3, room=room)
+
+
 # -- bags -----------------------------------------------------------------------------------
 
 
