@@ -39,6 +39,13 @@ a learned reward. What weights on those features can reach without learning; not
         --learners planner_fit planner_fit_paper planner_fit_rich planner_fit_hinge \
         planner_fit_gaussian planner_fit_squared planner_fit_hinge_squared planner_fit_wall \
         planner_fit_gaussian_wall
+
+and the wall sets on the synthetic experts, which share the default set's features (what a
+richer set costs where the default's features suffice):
+
+    python -m pipeline.tools.bench_learning --table learner_features --merge \
+        --demonstrators optimal optimal_random boltzmann50 boltzmann20 boltzmann5 \
+        --seeds 0 1 2 3 4 5 6 7 8 9 --learners default wall_features gaussian_wall_features
 """
 
 from __future__ import annotations

@@ -398,7 +398,10 @@ LEARNER_FEATURES_COMMAND = (
     "pipeline.tools.bench_learning --table learner_features --merge --demonstrators "
     "planner_heldout planner_transfer planner_hallway --seeds 0 1 2 3 4 --learners "
     "planner_fit planner_fit_paper planner_fit_rich planner_fit_hinge planner_fit_gaussian "
-    "planner_fit_squared planner_fit_hinge_squared planner_fit_wall planner_fit_gaussian_wall")
+    "planner_fit_squared planner_fit_hinge_squared planner_fit_wall planner_fit_gaussian_wall`, "
+    "then `python -m pipeline.tools.bench_learning --table learner_features --merge "
+    "--demonstrators optimal optimal_random boltzmann50 boltzmann20 boltzmann5 --seeds 0 1 2 3 "
+    "4 5 6 7 8 9 --learners default wall_features gaussian_wall_features")
 ALTERNATIVES_SPACING_COMMAND = (
     "python -m pipeline.tools.bench_learning --table alternatives_spacing --demonstrators "
     "optimal optimal_random boltzmann20 handdrawn planner_hallway --learners default "
