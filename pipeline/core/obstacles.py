@@ -328,6 +328,17 @@ class ObstacleMap:
         x0, y0, x1, y1 = self.grid.extent()
         return f"x {x0:g}..{x1:g} m, y {y0:g}..{y1:g} m"
 
+    def free_bounds(self) -> Bounds | None:
+        """(x_min, y_min, x_max, y_max) of the cells that are not occupied, by their edges
+        (a building in a SLAM map wide with unknown space round it); None when none is."""
+        free = ~self.grid.occupied
+        rows, cols = np.flatnonzero(free.any(axis=1)), np.flatnonzero(free.any(axis=0))
+        if len(rows) == 0:
+            return None
+        (x0, y0), r = self.grid.origin, self.resolution
+        return (x0 + cols[0] * r, y0 + rows[0] * r, x0 + (cols[-1] + 1) * r,
+                y0 + (rows[-1] + 1) * r)
+
     def free_area(self, radius: float, bounds: Bounds | None = None) -> float:
         """m² of the cells that are free with clearance >= radius, within `bounds` (x_min,
         y_min, x_max, y_max; by cell centre) when given: what a graph must cover."""

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from pipeline.core.obstacles import ObstacleMap, OccupancyGrid
+from pipeline.core.obstacles import Bounds, ObstacleMap, OccupancyGrid
 from pipeline.core.params import require, require_count, require_positive
 from pipeline.core.roadmap import lattice_graph
 from pipeline.core.world import BodyParams, Person, Room, Scene
@@ -120,14 +120,27 @@ def check_fits(spec: RandomSceneSpec, room: Room, on_map: bool) -> None:
             f"most {most:,}; use fewer or a larger room")
 
 
+def _draw_box(room: Room, margin: float,
+              free_bounds: Bounds | None) -> tuple[np.ndarray, np.ndarray]:
+    """Where positions are drawn: the room shrunk by `margin`, and within the map's free
+    cells' bounds when given (on a SLAM map the building may be a few per cent of the
+    extent: draws over all of it would almost never land inside)."""
+    lo = np.array([room.x_min + margin, room.y_min + margin])
+    hi = np.array([room.x_max - margin, room.y_max - margin])
+    if free_bounds is not None:
+        lo, hi = np.maximum(lo, free_bounds[:2]), np.minimum(hi, free_bounds[2:])
+    return lo, hi
+
+
 def _place_persons(
     spec: RandomSceneSpec, rng: np.random.Generator, room: Room,
-    obstacles: ObstacleMap | None = None,
+    obstacles: ObstacleMap | None = None, free_bounds: Bounds | None = None,
 ) -> tuple[tuple[Person, ...], tuple[tuple[int, int], ...]] | None:
     """Persons and relations, or None if they do not fit without overlapping."""
     margin = person_margin(spec)
-    lo = np.array([room.x_min + margin, room.y_min + margin])
-    hi = np.array([room.x_max - margin, room.y_max - margin])
+    lo, hi = _draw_box(room, margin, free_bounds)
+    if (lo > hi).any():
+        return None
     placed: list[tuple[float, float, float]] = []
     relations: list[tuple[int, int]] = []
 
@@ -191,11 +204,11 @@ def _starts_and_goal(spec: RandomSceneSpec,
 
 
 def _starts_and_goal_on_map(spec: RandomSceneSpec, rng: np.random.Generator,
-                            scene_free: Callable[[np.ndarray], np.ndarray],
-                            room: Room) -> tuple[np.ndarray, np.ndarray] | None:
+                            scene_free: Callable[[np.ndarray], np.ndarray], room: Room,
+                            free_bounds: Bounds | None) -> tuple[np.ndarray, np.ndarray] | None:
     """Goal (2,) and starts (n_starts, 2) in free space, starts far from the goal; None when
     free space is too scarce."""
-    lo, hi = np.array([room.x_min, room.y_min]), np.array([room.x_max, room.y_max])
+    lo, hi = _draw_box(room, 0.0, free_bounds)
     candidates = rng.uniform(lo, hi, (50 * (spec.n_starts + 1), 2))
     candidates = candidates[scene_free(candidates)]
     if len(candidates) < spec.n_starts + 1:
@@ -241,7 +254,6 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
                   spec.goal_tolerance, spec.robot_radius, map_grid=map_grid,
                   map_source=map_source)
     obstacles = empty.obstacles
-    check_fits(spec, room, on_map=map_grid is not None)
     if map_grid is not None:  # a plain room's size is checked with the config
         smaller = min(room.x_max - room.x_min, room.y_max - room.y_min)
         if smaller <= 2 * person_margin(spec):
@@ -253,8 +265,11 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
             raise PipelineError(f"random scene: the map {map_source} has no free cell "
                                 f"{spec.robot_radius:g} m (scene.robot_radius) from every "
                                 "obstacle and unknown cell")
+    check_fits(spec, room, on_map=map_grid is not None)
+    free_bounds = obstacles.free_bounds() if map_grid is not None and obstacles is not None \
+        else None
     for _ in range(spec.max_tries):
-        placed = _place_persons(spec, rng, room, obstacles)
+        placed = _place_persons(spec, rng, room, obstacles, free_bounds)
         if placed is None:
             continue
         persons, relations = placed
@@ -266,7 +281,7 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
             def free(p: np.ndarray, s: Scene = with_persons) -> np.ndarray:
                 # clear of bodies by 0.1 m more, like the starts of a plain room below
                 return s.free(p) & ~s.in_body(p, 0.1)
-            ends = _starts_and_goal_on_map(spec, rng, free, room)
+            ends = _starts_and_goal_on_map(spec, rng, free, room, free_bounds)
             if ends is None:
                 continue
             starts, goal = ends

@@ -390,3 +390,12 @@ def test_an_outline_of_many_vertices_is_checked_by_its_neighbours_only():
     oval[[10, 20]] = oval[[20, 10]]  # two vertices swapped: edge 9 now crosses later ones
     # (all pairs on the first 1000 vertices, closed by a chord: the same first crossing)
     assert first_self_crossing(oval) == _all_pairs_first_crossing(oval[:1000]) == (9, 20)
+
+
+def test_free_bounds_are_the_free_cells_edges_by_hand():
+    occupied = np.ones((6, 8), dtype=bool)  # row 0 = lowest y
+    occupied[2:4, 3:6] = False  # rows 2-3, columns 3-5
+    grid = OccupancyGrid(occupied, (-1.0, 10.0), 0.5)
+    assert ObstacleMap(grid).free_bounds() == (-1.0 + 1.5, 10.0 + 1.0, -1.0 + 3.0, 10.0 + 2.0)
+    assert ObstacleMap(OccupancyGrid(np.ones((2, 2), dtype=bool), (0.0, 0.0), 1.0)) \
+        .free_bounds() is None

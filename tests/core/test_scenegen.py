@@ -4,6 +4,7 @@ reproducible from the seed, and a clear error when no scene fits."""
 import numpy as np
 import pytest
 
+from pipeline.core.obstacles import OccupancyGrid
 from pipeline.core.scenegen import (
     RandomSceneSpec,
     all_starts_reach_goal,
@@ -67,3 +68,17 @@ def test_the_packing_bound_is_exact_on_a_unit_square_and_never_below_a_hexagonal
         hexagonal = sum(len(np.arange(gap / 2 * (k % 2), width + 1e-9, gap))
                         for k in range(len(rows)))
         assert hexagonal <= most_points_apart(width, height, gap)
+
+
+def test_a_random_scene_on_a_slam_map_lands_in_its_building():
+    """A 60 m × 60 m SLAM map that is unknown but for a 12 m × 8 m room (2.7 % of it): draws
+    over the whole extent would land in the room 2.7 % of the time and the scene fail; drawn
+    within the free cells' bounds, persons, starts and goal all stand in the room."""
+    occupied = np.ones((600, 600), dtype=bool)  # 0.1 m cells
+    occupied[300:380, 200:320] = False  # the room: x 20..32 m, y 30..38 m
+    grid = OccupancyGrid(occupied, (0.0, 0.0), 0.1)
+    spec = RandomSceneSpec(n_groups=2, n_singles=2, n_starts=3)
+    scene = random_scene(spec, np.random.default_rng(0), map_grid=grid, map_source="slam")
+    points = np.vstack([[[p.x, p.y] for p in scene.persons], scene.starts, scene.goal[None]])
+    assert ((points >= [20, 30]) & (points <= [32, 38])).all()
+    assert len(scene.persons) >= 6 and len(scene.starts) == 3
