@@ -729,10 +729,12 @@ def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list
         out.append(t)
     if moved:
         listed = ", ".join(map(str, moved[:5])) + (", ..." if len(moved) > 5 else "")
-        log.warning("%s: %d trajectories (%s) stray up to %.3f m outside the room %s, as "
-                    "tracking noise along a wall does; those points are moved onto its edge "
-                    "(farther than %g m out is refused)", where, len(moved), listed, farthest,
-                    room.describe(), ROOM_EDGE_TOLERANCE)
+        log.warning("%s: %s (%s) stray%s up to %.3f m outside the room %s, as tracking noise "
+                    "along a wall does; those points are moved onto its edge (farther than %g m "
+                    "out is refused)", where,
+                    "1 trajectory" if len(moved) == 1 else f"{len(moved)} trajectories", listed,
+                    "s" if len(moved) == 1 else "", farthest, room.describe(),
+                    ROOM_EDGE_TOLERANCE)
     return out
 
 

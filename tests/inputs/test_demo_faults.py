@@ -168,7 +168,7 @@ def test_points_a_little_outside_the_room_are_moved_onto_its_edge(tmp_path, capl
     with caplog.at_level(logging.WARNING):
         [(start, points, _)] = load_recorded(path, STARTS, GOAL, goal_tolerance=0.3, room=room)
     assert start == 0 and np.array_equal(points, [[0.5, 0.5], [0, 3.0], [0, 6.0], [5.5, 9.0]])
-    assert "1 trajectories (0) stray up to 0.040 m outside the room [0, 10] x [0, 10]" \
+    assert "1 trajectory (0) strays up to 0.040 m outside the room [0, 10] x [0, 10]" \
         in caplog.text
     stream = tmp_path / "wall.csv"
     walk = np.vstack([np.column_stack([np.full(30, 0.5), np.linspace(0.5, 3.0, 30)]),
