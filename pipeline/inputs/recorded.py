@@ -33,6 +33,7 @@ Every problem with the input is a `PipelineError` with one line naming the file.
 from __future__ import annotations
 
 import csv
+import difflib
 import logging
 import math
 import re
@@ -60,6 +61,13 @@ STREAM_TYPES: dict[str, Callable[[Any], Any]] = {
 SUPPORTED_TYPES = (PATH_TYPE, *STREAM_TYPES)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
+# other usual names of those columns: refused with the name to use rather than left unread
+# (an unread time column would leave the rows in file order, an unread id one stream)
+CSV_COLUMN_ALIASES = {"time": "t", "timestamp": "t", "stamp": "t", "time_s": "t",
+                      "traj": "trajectory", "track": "trajectory", "track_id": "trajectory",
+                      "trajectory_id": "trajectory", "id": "trajectory",
+                      "person": "subject", "person_id": "subject", "subject_id": "subject",
+                      "pos_x": "x", "pos_y": "y"}
 CSV_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
 # m: how far outside the room a recorded point may stray and be moved onto its edge (with a
@@ -213,29 +221,45 @@ def _read_json(path: Path, where: str) -> Recording:
 
 
 def _csv_header(header: list[str], where: str) -> list[str]:
-    """The header's column names (trimmed, lower case), refusing what the reader does not know."""
+    """The header's column names (trimmed, lower case). Other columns (a pose log's theta,
+    vx, ...) are not read, with one warning; one that looks meant as a column the reader
+    knows (misspelt, or another usual name for it) is refused with the name to use, as is a
+    header that is no header."""
     names = [h.strip().lower() for h in header]
+    shown = ",".join(h.strip() for h in header)
+    ignored = []
     for i, name in enumerate(names):
         if name in CSV_COLUMNS:
             continue
-        shown = ",".join(h.strip() for h in header)
-        if not name:
-            problem = f"column {i + 1} of the header has no name"
-        else:
-            problem = f"unknown column {header[i].strip()!r}"
+        meant = CSV_COLUMN_ALIASES.get(name) or next(
+            iter(difflib.get_close_matches(name, CSV_COLUMNS, n=1, cutoff=0.75)), None)
         hint = ""
         if any(sep in name for sep in (";", "\t")):
             hint = "; the columns must be separated by commas"
         elif all(_is_number(h) for h in header if h.strip()):
             hint = "; the first line must be a header naming the columns"
+        elif meant is not None:
+            hint = f"; name it {meant!r} if it is meant as that column, or rename it"
+        elif not name.isprintable():  # e.g. a second byte-order mark: shown, not unread
+            hint = "; the name holds characters that do not print"
+        elif name:
+            ignored.append(header[i].strip())
+            continue
+        problem = f"unknown column {header[i].strip()!r}" if name else \
+            f"column {i + 1} of the header has no name"
         raise PipelineError(f"{where}: {problem} (header: {shown[:80]}); expected x,y and "
                             f"optionally trajectory,t,subject{hint}")
+    if ignored:
+        log.warning("%s: column%s %s not read (the reader reads x, y, trajectory, t and "
+                    "subject)", where, "s" if len(ignored) > 1 else "",
+                    ", ".join(repr(c) for c in ignored[:5]) + (" ..." if len(ignored) > 5
+                                                              else ""))
     missing = [c for c in ("x", "y") if c not in names]
     if missing:
         raise PipelineError(f"{where} has no column {' or '.join(missing)} (columns: "
                             f"{','.join(h.strip() for h in header)}); expected x,y and "
                             f"optionally trajectory,t,subject")
-    dupes = sorted({n for n in names if names.count(n) > 1})
+    dupes = sorted({n for n in names if n in CSV_COLUMNS and names.count(n) > 1})
     if dupes:
         raise PipelineError(f"{where}: column {dupes[0]} appears more than once")
     return names

@@ -305,7 +305,7 @@ def test_csv_without_trajectory_is_a_stream(tmp_path):
 
 
 @pytest.mark.parametrize("text, match", [
-    ("x,z\n1,2\n", r"unknown column 'z' \(header: x,z\)"),
+    ("x,z\n1,2\n", r"has no column y \(columns: x,z\)"),  # z: not read
     ("x,t\n1,2\n", r"has no column y \(columns: x,t\)"),
     ("x,y\n0.5,0.5\nabc,3\n", r"line 3: x='abc' is not a number"),
     ("x,y\n0.5,0.5\n1,nan\n", r"line 3: y='nan' is not finite"),

@@ -25,6 +25,7 @@ from pipeline.inputs.recorded import (
     cut_at_goal,
     load_recorded,
     read_recording,
+    read_tracks,
     stream_spans,
 )
 from tests.conftest import CLEAN_DRIVES as CLEAN
@@ -174,8 +175,21 @@ def test_a_bom_csv_is_read_as_its_header_says(tmp_path):
     check_clean(load(path))
 
 
+def test_other_csv_columns_are_not_read_with_one_warning(tmp_path, caplog):
+    """A pose log's extra columns (theta, vx) are left unread: the same walk as without."""
+    plain, extra = tmp_path / "plain.csv", tmp_path / "extra.csv"
+    walk = [(0.5, 0.5), (1.0, 8.0), (5.5, 9.0)]
+    plain.write_text("x,y\n" + "".join(f"{x},{y}\n" for x, y in walk))
+    extra.write_text("theta,x,y,vx\n" + "".join(f"0.3,{x},{y},1.0\n" for x, y in walk))
+    with caplog.at_level(logging.WARNING):
+        assert np.array_equal(read_tracks(extra)[0][0], read_tracks(plain)[0][0])
+    assert "columns 'theta', 'vx' not read" in caplog.text
+
+
 @pytest.mark.parametrize("head, says", [
-    ("x,y,theta", r"unknown column 'theta' \(header: x,y,theta\)"),
+    ("x,y,subjet", r"unknown column 'subjet' \(header: x,y,subjet\).*name it 'subject'"),
+    ("time,x,y", r"unknown column 'time' .*name it 't' if it is meant as that column"),
+    ("track_id,x,y", r"unknown column 'track_id' .*name it 'trajectory'"),
     ("trajectory,x,y,", r"column 4 of the header has no name"),
     ("x;y", r"unknown column 'x;y' .*the columns must be separated by commas"),
     ("0.5,0.5", r"unknown column '0\.5' .*the first line must be a header"),
