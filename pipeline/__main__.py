@@ -18,7 +18,11 @@ import signal
 import sys
 import threading
 
-from pipeline.errors import restore_handlers, stop_quietly_while_starting
+from pipeline.errors import (
+    restore_handlers,
+    stop_quietly_while_starting,
+    survive_closed_stdout,
+)
 
 # The handlers Python had come back once the imports below are done (cli() then installs
 # its own).
@@ -348,6 +352,7 @@ def cli() -> None:
     if is_the_command():  # what a signal does once the work is over (and until it begins)
         for signum in STOP_SIGNALS:
             signal.signal(signum, _exit_stopped)
+        survive_closed_stdout()  # before Hydra's log handlers take sys.stdout
     LogFiles.failed.clear()
     root = logging.getLogger()
     handlers, level = list(root.handlers), root.level

@@ -5,6 +5,7 @@ import os
 import signal
 import sys
 import threading
+from typing import Any, TextIO
 
 
 class PipelineError(Exception):
@@ -76,3 +77,42 @@ def stop_quietly_while_starting() -> dict:
 def restore_handlers(handlers: dict) -> None:
     for signum, handler in handlers.items():
         signal.signal(signum, handler)
+
+
+class _ClosedPipeSafe:
+    """A command's stdout that outlives its reader: once a pipe's reader has gone
+    (`birlg | head -1`, a pager closed), what is written goes to /dev/null instead of raising
+    BrokenPipeError inside a stage or a logging handler, which failed the run."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._to_devnull()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._to_devnull()
+
+    def _to_devnull(self) -> None:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, self._stream.fileno())
+        finally:
+            os.close(devnull)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
+def survive_closed_stdout() -> None:
+    """Make the command's sys.stdout a _ClosedPipeSafe (once; commands only: tests and
+    notebooks keep theirs)."""
+    if sys.stdout is not None and not isinstance(sys.stdout, _ClosedPipeSafe):
+        sys.stdout = _ClosedPipeSafe(sys.stdout)

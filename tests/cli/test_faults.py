@@ -104,6 +104,35 @@ def test_ctrl_c_while_the_export_starts_is_one_line(tmp_path, command):
     assert lines(err) == ["interrupted by the user while starting"], err
 
 
+# -- a closed pipe ---------------------------------------------------------------------------
+
+
+def piped_into_a_closed_reader(command: list[str]) -> tuple[int, str]:
+    """`command | head -0`: stdout is a pipe whose reader has gone before anything is read."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    proc = subprocess.Popen(command, cwd=ROOT, stdout=write_end, stderr=subprocess.PIPE,
+                            text=True)
+    os.close(write_end)
+    err = proc.communicate(timeout=300)[1]
+    return proc.returncode, err
+
+
+def test_a_run_piped_into_a_closed_reader_completes(tmp_path):
+    """`birlg | head -1` failed the run at stage evaluate (its summary's print raised
+    BrokenPipeError) and the export and viewer ended in a traceback: now what goes to stdout
+    is dropped, the run completes and the tools exit 0, with nothing on stderr."""
+    run = tmp_path / "run"
+    code, err = piped_into_a_closed_reader(
+        [sys.executable, "-m", "pipeline", f"hydra.run.dir={run}", *QUICK])
+    assert code == 0 and "Traceback" not in err and "Logging error" not in err, err
+    assert read_status(run).state == "complete"
+    code, err = piped_into_a_closed_reader(
+        [sys.executable, "-m", "pipeline.tools.export", str(run)])
+    assert (code, lines(err)) == (0, []), err
+    assert (run / "export" / "costmap.yaml").is_file()
+
+
 # -- a full disk -----------------------------------------------------------------------------
 
 _ON_TMPFS = """
