@@ -56,7 +56,18 @@ def group_rows(rows: list[Row], groups: list[str]) -> list[tuple[tuple, list[Row
     for row in rows:
         key = tuple(None if missing_value(row.get(g)) else row[g] for g in groups)
         parts.setdefault(key, []).append(row)
-    return sorted(parts.items(), key=lambda item: [(v is None, v) for v in item[0]])
+    return sorted(parts.items(), key=lambda item: [_in_order(v) for v in item[0]])
+
+
+def _in_order(value: object) -> tuple:
+    """Sort key of a setting's value: numbers by value (an override's 12.5 after 2.3, not
+    before it as text), then other values as text, missing last."""
+    if value is None:
+        return (2, 0.0, "")
+    try:
+        return (0, float(str(value)), "")
+    except ValueError:
+        return (1, 0.0, str(value))
 
 
 SUMMARY_FILE = "summary.csv"

@@ -127,3 +127,11 @@ def test_held_out_metrics_join_the_results_where_the_sweep_has_them(tmp_path):
     tex = (tmp_path / "table.tex").read_text().splitlines()
     birl = next(line for line in tex if line.startswith("BIRL-G"))
     assert "\\textbf{38.5000" in birl and "\\textbf{0.5000" in birl  # best of both
+
+
+def test_swept_numbers_are_ordered_by_value_not_as_text():
+    """Overrides are read as text: β = 12.5 came before 2.26 in the sweep's table."""
+    rows = [{"job": k, "status": "ok", "error": None, "seed": 0, "birl.beta": beta,
+             "policy_loss_norm": 0.1} for k, beta in enumerate(["12.5", "2.26", "84.6", "1.1"])]
+    results, _ = results_table(list(rows[0]), rows)
+    assert [r["β"] for r in results] == ["1.1", "2.26", "12.5", "84.6"]
