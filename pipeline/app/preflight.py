@@ -70,11 +70,22 @@ class Checked:
     derived: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
+# the experts whose demonstrations are paths of the reference roadmap (they act on it)
+ROADMAP_EXPERTS = ("optimal", "boltzmann")
+
+
 def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
     """Run every start-up check for the stages `cfg.stages`; raises PipelineError."""
     build.forget_scene_files()
     checked = Checked()
     stages = set(cfg.stages)
+    if cfg.birl.kind == "maxent" and "birl" in stages and \
+            cfg.expert.kind not in ROADMAP_EXPERTS:
+        raise PipelineError(
+            f"config error: birl=maxent learns on the reference roadmap, from demonstrations "
+            f"that are its paths (expert={' or expert='.join(ROADMAP_EXPERTS)}); "
+            f"expert={cfg.expert.kind} demonstrations are not: learn from them with the "
+            "default birl=map (or birl=policywalk)")
     if isinstance(cfg.birl, FixedConfig) and cfg.birl.from_run and stages & {"graph", "birl"}:
         weights_from = resolve_path(cfg.birl.from_run)
         if "birl" in stages and weights_from.resolve() == Path(run_dir).resolve():

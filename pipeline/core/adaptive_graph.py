@@ -246,8 +246,14 @@ class AdaptiveGraph(StateGraph):
         """Demonstration waypoints become nodes (or merge into a node closer than min_separation);
         demo edges carry the features of the demo's own polyline segments."""
         nodes: list[int] = []
+        last = len(demo.points) - 1
         for k, pt in enumerate(demo.points):
-            near = self.neighbours(pt, self.min_separation, k=1)
+            near = self.neighbours(pt, self.min_separation, k=2)
+            # the goal node is terminal: only a demonstration's end at the goal merges into
+            # it (one that passes within min_separation but outside goal_tolerance and goes
+            # on, or ends there without reaching it, would leave the goal by no edge)
+            if not (k == last and demo.reached):
+                near = near[near != self.goal_node]
             # merge into a close node only when the robot can drive from it to the waypoint
             if len(near) and segments_feasible(self.scene, self.positions[near[:1]], pt[None])[0]:
                 nodes.append(int(near[0]))

@@ -84,12 +84,20 @@ def choose_heldout(start_index: Sequence[int], subjects: Sequence[str | None],
         return held
     known = sorted({str(s) for s in subjects if s is not None})
     assert not isinstance(holdout, str)  # "all" is handled above
-    for sid in holdout:
-        if str(sid) not in known:
-            raise PipelineError(f"evaluate.holdout names subject {sid!r}, which demonstrated "
-                                f"nothing (subjects: {', '.join(known) or 'none'})")
-    wanted = {str(s) for s in holdout}
+    wanted = {_subject_id(sid) for sid in holdout}
+    for sid in sorted(wanted - set(known)):
+        raise PipelineError(f"evaluate.holdout names subject {sid!r}, which demonstrated "
+                            f"nothing (subjects: {', '.join(known) or 'none'})")
     return np.array([s is not None and str(s) in wanted for s in subjects], dtype=bool)
+
+
+def _subject_id(value: object) -> str:
+    """A subject id as the override gave it, spelt as in the file: trimmed as the files'
+    ids are, and a bare word the command line read as a boolean or null (`[true]`) as that
+    word."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return "null" if value is None else str(value).strip()
 
 
 def _from_edges(mdp: GraphMDP, positions: np.ndarray, start_index: int,

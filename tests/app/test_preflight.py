@@ -61,6 +61,8 @@ def refused_before_any_stage(run: Path, match: str, *overrides: str) -> float:
     (("expert=planner", "expert.n_subjects=99999999999"),
      r"expert\.n_subjects=99999999999 demonstrations would need about"),
     (("graph.n_new=99999999999",), r"graph\.n_new=99999999999 candidates per expansion"),
+    (("birl=maxent", "expert=file", "expert.path=data/demos/metropolis_handdrawn.json"),
+     r"birl=maxent learns on the reference roadmap.*expert=file demonstrations are not"),
 ])
 def test_refused_before_the_first_stage(tmp_path, overrides, match):
     refused_before_any_stage(tmp_path / "run", match, *overrides)

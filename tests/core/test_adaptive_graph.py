@@ -4,6 +4,7 @@ door without demonstrations (medial-axis nodes, a stuck start's frontier), and (
 many nodes it needs to connect every start through the office map's doors against a uniform
 roadmap."""
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -478,3 +479,24 @@ def test_adaptive_graph_connects_every_start_through_doors_with_no_more_nodes_th
     uniform = nodes_to_connect_all(door_measurements["uniform"], 5)
     assert max(adaptive) < math.inf
     assert all(a <= u for a, u in zip(adaptive, uniform, strict=True)), door_measurements
+
+
+def test_a_demonstration_passing_near_the_goal_does_not_go_through_its_node(metropolis):
+    """goal_tolerance 0.05 m, nodes ≥ 0.16 m apart: a demonstration that passes 0.1 m from
+    the goal, outside its disk, and ends 0.25 m beyond used to merge that waypoint into the
+    goal node, which is terminal, and learning failed ("no edge (goal, ...)"). Only a
+    demonstration's end at the goal merges into it."""
+    scene = dataclasses.replace(metropolis, goal_tolerance=0.05)
+    fm = FeatureModel.from_scene(scene)
+    points = np.array([[0.5, 0.5], [1.0, 8.0], [5.4, 9.0], [5.75, 9.0]])
+    demo = Demonstration.from_points(0, points, fm, speed=1.0, reached=False)
+    g = AdaptiveGraph(scene, fm, LinearController(), PRIOR_MEAN, GraphParams(),
+                      np.random.default_rng(0))
+    g.initialise([demo])
+    assert g.min_separation > 0.1
+    nodes = [int(g.neighbours(p, g.min_separation, k=1)[0]) for p in points]
+    assert g.goal_node not in nodes
+    on_demo = np.asarray(g.edge_is_demo)
+    assert g.goal_node not in g.src[on_demo].tolist()
+    edges = set(zip(g.src.tolist(), g.dst.tolist(), strict=True))
+    assert all((a, b) in edges for a, b in zip(nodes[:-1], nodes[1:], strict=True))

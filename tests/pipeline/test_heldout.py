@@ -147,3 +147,14 @@ def test_a_deployment_plans_on_the_features_its_reward_was_learned_on(tmp_path):
     for name in names:
         assert deployed[f"weight_{name}"] == metrics[f"weight_{name}"]
     assert deployed["ref_success"] == 1.0
+
+
+def test_held_out_subject_ids_are_read_as_the_files_ids_are():
+    """Ids in the file are trimmed, so ' b ' on the command line is subject b; a subject
+    named true, given bare ([true]), is read by the command line as a boolean: still true."""
+    starts, subjects = [0, 0, 1], ["a", "true", "b"]
+    rng = np.random.default_rng(0)
+    assert choose_heldout(starts, subjects, [" b "], rng).tolist() == [False, False, True]
+    assert choose_heldout(starts, subjects, [True], rng).tolist() == [False, True, False]
+    with pytest.raises(PipelineError, match="subject 'false', which demonstrated nothing"):
+        choose_heldout(starts, subjects, [False], rng)
