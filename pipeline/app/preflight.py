@@ -33,6 +33,7 @@ from pipeline.app.config import (
     RandomSceneConfig,
 )
 from pipeline.app.context import resolve_path
+from pipeline.app.provenance import check_source, file_digest
 from pipeline.app.rundir import check_from_run
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import read_artefact
@@ -96,6 +97,13 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         check_from_run(weights_from, cfg.birl.from_run, "birl.from_run", needs="birl")
     if isinstance(cfg.expert, FileExpertConfig) and "demos" in stages:
         check_readable(resolve_path(cfg.expert.path))
+        checked.source_digests["expert.path"] = file_digest(resolve_path(cfg.expert.path))
+    elif isinstance(cfg.expert, FileExpertConfig) and stages & {"graph", "birl", "evaluate"}:
+        # the demonstrations come from an earlier run: from the file as it is now?
+        made = (from_run or Path(run_dir)) / ARTEFACT_FILE["demos"]
+        demos_file = resolve_path(cfg.expert.path)
+        if made.is_file() and demos_file.exists():
+            check_source(read_artefact(made, lazy=True), "expert.path", file_digest(demos_file))
     # evaluate too: its inputs were made with the derived value, which it must match
     derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl", "evaluate"})
     # evaluate checks birl.mcap against the birl section, derived value included

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Mapping
+from pathlib import Path
 
 import yaml
 
@@ -32,7 +33,31 @@ STAGE_CONFIG: dict[str, tuple[str, ...]] = {
 }
 CONFIG_KEY, INPUT_KEY = "config_digest.", "input_digest."
 # Inputs from outside the run and the stages whose artefacts depend on them.
-SOURCE_STAGES: dict[str, tuple[str, ...]] = {"birl.from_run": ("graph", "birl")}
+SOURCE_STAGES: dict[str, tuple[str, ...]] = {"birl.from_run": ("graph", "birl"),
+                                             "expert.path": ("demos",)}
+
+
+def file_digest(path: Path) -> str:
+    """The content digest of a file, or of every file of a directory (a ROS 2 bag) by their
+    relative paths: what `expert.path` held when the demonstrations were read from it."""
+    h = hashlib.sha256()
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    for f in files:
+        h.update(str(f.relative_to(path) if f != path else "").encode() + b"\0")
+        with f.open("rb") as stream:
+            for block in iter(lambda: stream.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()[:16]
+
+
+def check_source(artefact: Artefact, name: str, digest: str) -> None:
+    """Refuse `artefact` when it was made from another version of the outside input `name`
+    (e.g. demonstrations read from a file edited since). Artefacts without it pass."""
+    recorded = artefact.metadata.get(INPUT_KEY + name)
+    if recorded is not None and recorded != digest:
+        stage = next(s for s, f in ARTEFACT_FILE.items() if f == artefact.path.name)
+        raise PipelineError(f"{artefact.path} was made from another version of {name} (the "
+                            f"file changed since): add '{stage}' to stages to read it again")
 
 
 def _lookup(config: Mapping, key: str):

@@ -9,7 +9,7 @@ import pytest
 from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.core.experts import choose_heldout
 from pipeline.errors import PipelineError
-from tests.conftest import run_in_process
+from tests.conftest import ROOT, run_in_process
 
 QUICK = ("graph=small", "birl.n_iterations=3")
 
@@ -158,3 +158,22 @@ def test_held_out_subject_ids_are_read_as_the_files_ids_are():
     assert choose_heldout(starts, subjects, [True], rng).tolist() == [False, True, False]
     with pytest.raises(PipelineError, match="subject 'false', which demonstrated nothing"):
         choose_heldout(starts, subjects, [False], rng)
+
+
+def test_a_demonstration_file_edited_since_its_run_is_not_reused(tmp_path):
+    """Re-running later stages from a run whose demonstrations came from a file: the file
+    as it is now must be the one that was read (the path alone was compared, so a file cut
+    from 21 to 10 drawings went on being learned from as 21)."""
+    drawn = json.loads((ROOT / "data" / "demos" / "metropolis_handdrawn.json").read_text())
+    path = tmp_path / "walks.json"
+    path.write_text(json.dumps(drawn))
+    first = tmp_path / "first"
+    run_in_process(first, *QUICK, "expert=file", f"expert.path={path}")
+    again = ("stages=[graph,birl,evaluate]", f"from_run={first}", "expert=file",
+             f"expert.path={path}")
+    run_in_process(tmp_path / "same", *QUICK, *again)  # unchanged: reused
+    path.write_text(json.dumps({"trajectories": drawn["trajectories"][:10]}))
+    with pytest.raises(PipelineError, match=r"demos\.mcap was made from another version of "
+                                            r"expert\.path \(the file changed since\): add "
+                                            r"'demos' to stages"):
+        run_in_process(tmp_path / "edited", *QUICK, *again)
