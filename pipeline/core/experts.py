@@ -85,9 +85,10 @@ def choose_heldout(start_index: Sequence[int], subjects: Sequence[str | None],
     known = sorted({str(s) for s in subjects if s is not None})
     assert not isinstance(holdout, str)  # "all" is handled above
     wanted = {_subject_id(sid) for sid in holdout}
-    for sid in sorted(wanted - set(known)):
-        raise PipelineError(f"evaluate.holdout names subject {sid!r}, which demonstrated "
-                            f"nothing (subjects: {', '.join(known) or 'none'})")
+    unknown = sorted(wanted - set(known))
+    if unknown:
+        raise PipelineError(f"evaluate.holdout names subject {unknown[0]!r}, which "
+                            f"demonstrated nothing (subjects: {', '.join(known) or 'none'})")
     return np.array([s is not None and str(s) in wanted for s in subjects], dtype=bool)
 
 

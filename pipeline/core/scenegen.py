@@ -82,12 +82,9 @@ def check_fits(spec: RandomSceneSpec, room: Room, on_map: bool) -> None:
     """Refuse a robot, a goal disk, or counts of persons or starts that cannot fit in `room`
     whatever is drawn (else the draws would run to scene.max_tries, or allocate their
     candidates first)."""
+    if (too_wide := room.robot_too_wide(spec.robot_radius, "scene.robot_radius")) is not None:
+        raise PipelineError(f"random scene: {too_wide}")
     width, height = room.x_max - room.x_min, room.y_max - room.y_min
-    if 2 * spec.robot_radius >= min(width, height):  # a unit mistake, not a robot
-        raise PipelineError(
-            f"random scene: scene.robot_radius={spec.robot_radius:g} m: a robot "
-            f"{2 * spec.robot_radius:g} m across does not fit in the {width:g} x {height:g} m "
-            "room (robot_radius is the robot's radius in metres)")
     across = min(width, height) - 2 * spec.border_margin  # the goal's wall to the starts'
     if not on_map and spec.goal_tolerance >= across:
         raise PipelineError(

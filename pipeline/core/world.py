@@ -83,6 +83,16 @@ class Room:
         return np.column_stack([np.clip(p[:, 0], self.x_min, self.x_max),
                                 np.clip(p[:, 1], self.y_min, self.y_max)])
 
+    def robot_too_wide(self, robot_radius: float, key: str = "robot_radius") -> str | None:
+        """Why a robot of `robot_radius` (the setting `key`) cannot fit in the room, or None
+        when it can: a unit mistake, not a robot."""
+        width, height = self.x_max - self.x_min, self.y_max - self.y_min
+        if 2 * robot_radius < min(width, height):
+            return None
+        return (f"{key}={robot_radius:g} m: a robot {2 * robot_radius:g} m across does not fit "
+                f"in the {width:g} m × {height:g} m room (robot_radius is the robot's radius "
+                "in metres)")
+
     @property
     def bounds(self) -> tuple[float, float, float, float]:
         return self.x_min, self.y_min, self.x_max, self.y_max
@@ -407,12 +417,8 @@ def scene_from_dict(data: dict, source: str = "scene", body_radius: float | None
             raise fail(f"'{key}' must be a finite number") from None
         if sizes[key] <= 0:
             raise fail(f"'{key}' must be > 0, got {sizes[key]:g}")
-    width, height = room.x_max - room.x_min, room.y_max - room.y_min
-    if 2 * sizes["robot_radius"] >= min(width, height):  # a unit mistake, not a robot
-        raise fail(f"robot_radius={sizes['robot_radius']:g} m: a robot "
-                   f"{2 * sizes['robot_radius']:g} m across does not fit in the "
-                   f"{width:g} m × {height:g} m room (robot_radius is the robot's radius in "
-                   "metres)")
+    if (too_wide := room.robot_too_wide(sizes["robot_radius"])) is not None:
+        raise fail(too_wide)
     scene = Scene(name=str(data.get("name", Path(source).stem)), room=room,
                   persons=tuple(persons), relations=tuple(relations), starts=starts, goal=goal,
                   polygons=_read_polygons(data, room, fail), map_grid=map_grid,

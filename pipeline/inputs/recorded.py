@@ -257,8 +257,7 @@ def _csv_header(header: list[str], where: str) -> list[str]:
     missing = [c for c in ("x", "y") if c not in names]
     if missing:
         raise PipelineError(f"{where} has no column {' or '.join(missing)} (columns: "
-                            f"{','.join(h.strip() for h in header)}); expected x,y and "
-                            f"optionally trajectory,t,subject")
+                            f"{shown}); expected x,y and optionally trajectory,t,subject")
     dupes = sorted({n for n in names if n in CSV_COLUMNS and names.count(n) > 1})
     if dupes:
         raise PipelineError(f"{where}: column {dupes[0]} appears more than once")
