@@ -152,6 +152,7 @@ class FileExpertConfig(ExpertConfig):
     topic: Optional[str] = None  # bag topic; null: the only usable one
     frame: Optional[str] = None  # required header.frame_id of bag messages; null: any
     start_radius: float = 1.0  # m, a demonstration begins this close to a start
+    denoise: bool = True  # smooth tracking noise that makes trajectories >3 % longer
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 
 def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed: float, *,
                    topic: str | None = None, frame: str | None = None,
-                   start_radius: float = 1.0) -> list[Demonstration]:
+                   start_radius: float = 1.0, denoise: bool = True) -> list[Demonstration]:
     """Read a demonstration file or bag (DESIGN §3, `pipeline.inputs.recorded.load_recorded`).
 
     Every trajectory is cut at the goal disk, must stay in the room, keep robot_radius from
@@ -28,13 +28,15 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     begin within `start_radius` of a start (it is matched to the nearest) and end near the
     goal (one that ends outside the goal disk is a demonstration that does not reach it, with
     a warning); `topic` and `frame` select and check
-    the bag topic (expert.topic, expert.frame). A file's `subjects` become the demonstrations'
+    the bag topic (expert.topic, expert.frame); `denoise` smooths tracking noise
+    (expert.denoise, `recorded.smooth_jitter`). A file's `subjects` become the demonstrations'
     `subject`.
     """
     demos = []
     unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
-                           topic=topic, frame=frame, start_radius=start_radius, room=scene.room)
+                           topic=topic, frame=frame, start_radius=start_radius, room=scene.room,
+                           denoise=denoise)
     for k, (start, points, subject) in enumerate(tracks):
         demo = checked_demonstration(start, points, subject, scene, feature_model, speed,
                                      f"{describe(path)}: trajectory {k}")

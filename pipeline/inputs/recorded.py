@@ -27,7 +27,8 @@ Path forms read by `read_recording`:
 Then, whatever the format (`load_recorded`): a pose stream is cut into trajectories, every
 trajectory is cut at the goal disk (`cut_at_goal`: the goal becomes its last point, what follows
 is dropped), pose streams are resampled (`clean_track`), polylines only lose repeated points.
-Every problem with the input is a `PipelineError` with one line naming the file.
+Tracking noise that makes the trajectories zig-zag from point to point is smoothed out first
+(`smooth_jitter`). Every problem with the input is a `PipelineError` with one line naming the file.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import scipy.linalg
 
 from pipeline.core.world import Room
 from pipeline.errors import PipelineError
@@ -91,6 +93,20 @@ COORDINATE_DECIMALS = 9
 # the stretch are candidates (passing another start 0.5 m away on the way is no stop there).
 STOP_TOLERANCE = 0.05  # m
 VISIT_SLACK = 0.25  # m
+# Tracking noise (`smooth_jitter`): a tracker's centimetres of noise at a few centimetres
+# between poses zig-zag a straight walk into one two or three times as long, and learning then
+# reads a long, winding walk (measured on hand-drawn paths with 2-3 cm of noise: the learned
+# weights fell to about zero). Trajectories whose length the noise inflates by more than
+# JITTER_INFLATION (3 %) are smoothed; the shipped hand-drawn paths (1 cm tremor at 10 cm) are
+# inflated by 1 % and kept as they are.
+JITTER_INFLATION = 1.03
+# `noise_sigma`: the ratio measured 1.0-1.06 on noisy tracks, 1.24 hand-drawn, 4-9 clean
+NOISE_SPAN_RATIO = 1.5
+# A step between consecutive poses longer than JUMP_STEPS times the trajectory's usual step
+# (the 75th percentile of its steps: pauses do not shrink it) and than JUMP_MIN is a jump: the
+# tracker lost the person and found them, or someone else, again (`largest_jump`, one warning).
+JUMP_STEPS = 10.0
+JUMP_MIN = 1.0  # m
 
 
 def describe(path: Path) -> str:
@@ -541,6 +557,117 @@ def clean_track(points: np.ndarray, spacing: float) -> np.ndarray:
     return out
 
 
+def noise_sigma(tracks: Sequence[np.ndarray]) -> float:
+    """The standard deviation of the tracking noise on each coordinate of the points, estimated
+    from all the tracks' second differences p[i-1] - 2 p[i] + p[i+1] (of independent noise
+    their variance is 6 sigma^2; the median, scaled by 1.4826, ignores the few at sharp turns).
+    0 when they are not noise: second differences over twice the span, p[i-2] - 2 p[i] +
+    p[i+2], are as large as those of noise (the same variance) and NOISE_SPAN_RATIO times
+    larger or more where they measure the route's turns (4 times for a smooth curve), as in
+    a sparse polyline of a few corners; 0 without tracks of five points."""
+    dense = [t for t in tracks if len(t) >= 5]
+    if not dense:
+        return 0.0
+    near = np.median(np.abs(np.concatenate([(t[2:] - 2 * t[1:-1] + t[:-2]).ravel()
+                                            for t in dense])))
+    wide = np.median(np.abs(np.concatenate([(t[4:] - 2 * t[2:-2] + t[:-4]).ravel()
+                                            for t in dense])))
+    if not near > 0 or wide > NOISE_SPAN_RATIO * near:
+        return 0.0
+    return float(1.4826 * near / math.sqrt(6.0))
+
+
+def largest_jump(track: np.ndarray) -> tuple[int, float, float] | None:
+    """The largest jump of a trajectory (see JUMP_STEPS) as (i, its length, the usual step):
+    poses i and i + 1 are that far apart; None without one or with fewer than three steps."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = np.linalg.norm(np.diff(track, axis=0), axis=1)
+    moving = steps[steps >= REPEAT_TOLERANCE]
+    if len(moving) < 3 or not np.isfinite(moving).all():
+        return None
+    usual = float(np.percentile(moving, 75))
+    i = int(np.argmax(steps))
+    return (i, float(steps[i]), usual) if steps[i] > max(JUMP_MIN, JUMP_STEPS * usual) else None
+
+
+def warn_jumps(tracks: Sequence[np.ndarray], where: str,
+               offsets: Sequence[int] | None = None) -> None:
+    """One warning naming the trajectories with a jump (`largest_jump`), at their pose numbers
+    in the file (`offsets`: where each begins in a pose stream). They are kept, the jump a
+    straight segment: a polyline may be drawn with long straight segments, and a short loss
+    of tracking is bridged well enough by one; a long one the user should see."""
+    found = []
+    for k, track in enumerate(tracks):
+        jump = largest_jump(track)
+        if jump is not None:
+            i, size, usual = jump
+            i += offsets[k] if offsets is not None else 0
+            found.append(f"{k} ({size:.2f} m from pose {i} to {i + 1}, usually {usual:.2f} m)")
+    if found:
+        log.warning("%s: %d of %d trajectories jump, each kept with a straight segment there "
+                    "(was tracking lost?): %s", where, len(found), len(tracks),
+                    "; ".join(found[:3]) + ("; ..." if len(found) > 3 else ""))
+
+
+def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
+    """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 3: z minimising
+    |points - z|^2 + penalty |D z|^2 with D the second differences, one banded solve."""
+    n = len(points)
+    diagonal = np.full(n, 6.0)
+    diagonal[[0, -1]], diagonal[[1, -2]] = 1.0, 5.0
+    first = np.full(n - 1, -4.0)
+    first[[0, -1]] = -2.0
+    banded = np.zeros((3, n))  # (I + penalty D'D), upper form for solveh_banded
+    banded[0, 2:] = penalty
+    banded[1, 1:] = penalty * first
+    banded[2] = 1.0 + penalty * diagonal
+    return scipy.linalg.solveh_banded(banded, points)
+
+
+def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
+    """The Whittaker-smoothed polyline that departs from `points` by `sigma` (root mean square
+    per coordinate), the noise's own size (the discrepancy principle: the penalty is found by
+    bisection over 10^-4..10^12, the departure growing with it); first and last point kept."""
+    p = np.asarray(points, dtype=float)
+    if len(p) < 3 or not sigma > 0:
+        return p.copy()
+    origin = p[0].copy()  # map coordinates (UTM: 10^6 m) lose no precision in the solve
+    p = p - origin
+    low, high = -4.0, 12.0
+    for _ in range(30):
+        mid = (low + high) / 2
+        if np.mean((whittaker(p, 10.0 ** mid) - p) ** 2) > sigma ** 2:
+            high = mid
+        else:
+            low = mid
+    out = whittaker(p, 10.0 ** low)
+    out[0], out[-1] = p[0], p[-1]
+    return out + origin
+
+
+def smooth_jitter(tracks: Sequence[np.ndarray], where: str) -> tuple[list[np.ndarray], bool]:
+    """The tracks smoothed of their tracking noise when it inflates their length by more than
+    JITTER_INFLATION, with one warning; else as they are. One noise level for the file (one
+    tracker), `noise_sigma`; each track `smooth_to_noise`. Tracks with non-finite or far-off
+    points are left as they are for the checks that refuse them. Returns (tracks, smoothed)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        usable = [np.isfinite(t).all() and np.abs(t).max(initial=0.0) < 1e9 for t in tracks]
+    kept = [drop_repeats(t) if u else t for t, u in zip(tracks, usable, strict=True)]
+    sigma = noise_sigma([t for t, u in zip(kept, usable, strict=True) if u])
+    if not sigma > 0:
+        return list(tracks), False
+    smoothed = [smooth_to_noise(t, sigma) if u else t for t, u in zip(kept, usable, strict=True)]
+    raw = sum(_polyline_length(t) for t, u in zip(kept, usable, strict=True) if u)
+    smooth = sum(_polyline_length(t) for t, u in zip(smoothed, usable, strict=True) if u)
+    if not raw > JITTER_INFLATION * smooth:
+        return list(tracks), False
+    log.warning("%s: the trajectories zig-zag by about %.1f cm from point to point (tracking "
+                "noise) and are %.2f times as long as the paths they follow: smoothed to that "
+                "noise and resampled (expert.denoise=false keeps them as recorded)",
+                where, 100 * sigma, raw / smooth)
+    return smoothed, True
+
+
 def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> np.ndarray | None:
     """DESIGN §3: the trajectory up to its first point within `goal_tolerance` of the goal, with
     the goal itself as its last point; what follows is not part of the demonstration.
@@ -763,7 +890,8 @@ def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list
 
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
                   topic: str | None = None, frame: str | None = None, start_radius: float = 1.0,
-                  spacing: float = 0.1, room: Room | None = None) -> list[Recorded]:
+                  spacing: float = 0.1, room: Room | None = None,
+                  denoise: bool = True) -> list[Recorded]:
     """Read a recorded demonstration into its demonstrations (matched start, polyline, subject).
 
     Whatever the format, every trajectory is cut at the goal disk (`cut_at_goal`): recordings
@@ -774,7 +902,9 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     noisy and repeated poses become an evenly spaced polyline. Trajectories given as polylines
     (JSON, CSV with ids, nav_msgs/Path) keep their points, only repeated points dropped, so the
     same polylines learn the same reward whatever the file format (positions rounded to the
-    nanometre, COORDINATE_DECIMALS). With `room`, every
+    nanometre, COORDINATE_DECIMALS). With `denoise`, tracking noise that inflates the
+    trajectories' length by more than JITTER_INFLATION is smoothed out first (`smooth_jitter`)
+    and the smoothed polylines are resampled like a pose stream. With `room`, every
     trajectory must stay inside it. Each is then matched with `match_to_starts`; a start no
     demonstration begins at is named in one warning line.
     """
@@ -800,13 +930,18 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         tracks = [stream[b:g + 1] for b, g in spans]
         subjects = [_span_subject(recording.subjects, b, g, where, i)
                     for i, (b, g) in enumerate(spans)]
+        warn_jumps(tracks, where, [b for b, _ in spans])
     else:
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
+        warn_jumps(tracks, where)
+    smoothed = False
+    if denoise:
+        tracks, smoothed = smooth_jitter(tracks, where)
     if room is not None:
         tracks = onto_room_edge(tracks, room, where)
     cleaned = [cut_trajectory(t, goal, goal_tolerance, room, f"{where}: trajectory {i}",
-                              spacing if recording.is_stream else None)
+                              spacing if recording.is_stream or smoothed else None)
                for i, t in enumerate(tracks)]
     cleaned = [np.round(c, COORDINATE_DECIMALS) for c in cleaned]
     matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)

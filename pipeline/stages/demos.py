@@ -44,7 +44,7 @@ def run(ctx: RunContext) -> None:
     if isinstance(expert, FileExpertConfig):  # read first: a bad file fails before the roadmap
         recorded = load_demo_file(resolve_path(expert.path), scene, features, md.speed,
                                   topic=expert.topic, frame=expert.frame,
-                                  start_radius=expert.start_radius)
+                                  start_radius=expert.start_radius, denoise=expert.denoise)
 
     t0 = time.perf_counter()
     roadmap = build.reference_roadmap(cfg, scene, features)

@@ -1,0 +1,135 @@
+"""Trackers' faults in recorded demonstrations (pipeline/inputs/recorded.py). Noise that
+zig-zags a walk into a much longer one is estimated, smoothed to its own size and resampled
+(`smooth_jitter`); clean polylines (the shipped hand-drawn paths among them) are kept point
+for point. A jump where tracking was lost is named (`largest_jump`)."""
+
+import json
+import logging
+import re
+
+import numpy as np
+import pytest
+
+from pipeline.app.context import PACKAGE_ROOT
+from pipeline.inputs.recorded import (
+    JITTER_INFLATION,
+    largest_jump,
+    load_recorded,
+    noise_sigma,
+    read_tracks,
+    smooth_jitter,
+    smooth_to_noise,
+    whittaker,
+)
+
+START, GOAL = np.array([0.5, 0.5]), np.array([6.0, 5.0])
+
+
+def length(p: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+def walk(step: float) -> np.ndarray:
+    """3.5 m east, a quarter circle of 2 m radius to the north, then straight to the goal,
+    sampled every `step` metres or a little less."""
+    def leg(a, b):
+        n = int(np.ceil(np.linalg.norm(b - a) / step))
+        return a + np.linspace(0.0, 1.0, n + 1)[:-1, None] * (b - a)
+    corner = START + [3.5, 0.0]
+    angle = np.linspace(0.0, np.pi / 2, int(np.ceil(np.pi / step)) + 1)[:-1]
+    bend = corner + 2.0 * np.column_stack([np.sin(angle), 1.0 - np.cos(angle)])
+    return np.vstack([leg(START, corner), bend, leg(corner + [2.0, 2.0], GOAL), GOAL[None]])
+
+
+def noisy(points: np.ndarray, sigma: float, seed: int) -> np.ndarray:
+    out = points + np.random.default_rng(seed).normal(0.0, sigma, points.shape)
+    out[0], out[-1] = points[0], points[-1]
+    return out
+
+
+def test_noise_sigma_recovers_the_noise_of_a_dense_walk():
+    tracks = [noisy(walk(0.02), 0.03, seed) for seed in range(3)]
+    assert noise_sigma(tracks) == pytest.approx(0.03, rel=0.05)
+    assert noise_sigma([walk(0.02)]) < 1e-3  # the bend alone is no noise
+    assert noise_sigma([START[None]]) == 0.0
+    corners = np.array([[0.5, 0.5], [0.5, 4.0], [3.0, 8.5], [5.5, 9.0], [7.0, 5.0], [9.0, 9.0]])
+    assert noise_sigma([corners]) == 0.0  # a sparse polyline turns; it does not zig-zag
+
+
+def test_whittaker_keeps_a_straight_line_at_any_penalty():
+    # second differences of points evenly spaced on a line are zero: nothing to penalise
+    line = START + np.linspace(0, 1, 50)[:, None] * (GOAL - START)
+    for penalty in (1e-3, 1.0, 1e6):
+        assert np.allclose(whittaker(line, penalty), line, atol=1e-9)
+
+
+def test_smooth_to_noise_departs_by_the_noise_and_recovers_the_length():
+    true = walk(0.03)
+    raw = noisy(true, 0.03, 7)
+    out = smooth_to_noise(raw, 0.03)
+    assert np.sqrt(np.mean((out - raw) ** 2)) == pytest.approx(0.03, rel=0.02)
+    assert length(raw) > 1.8 * length(true)  # what learning would read without smoothing
+    assert length(out) == pytest.approx(length(true), rel=0.03)
+    assert np.array_equal(out[[0, -1]], raw[[0, -1]])
+    far = raw + np.array([5.0e5, 5.6e6])  # UTM-sized coordinates: the same polyline
+    assert np.allclose(smooth_to_noise(far, 0.03) - [5.0e5, 5.6e6], out, atol=1e-6)
+
+
+def test_clean_polylines_are_kept_point_for_point():
+    clean = [walk(0.1), walk(0.02)]
+    kept, smoothed = smooth_jitter(clean, "x")
+    assert not smoothed and all(a is b for a, b in zip(kept, clean, strict=True))
+    shipped = PACKAGE_ROOT / "data" / "demos" / "metropolis_handdrawn.json"
+    tracks, _ = read_tracks(shipped)  # 1 cm tremor at 10 cm: below JITTER_INFLATION
+    kept, smoothed = smooth_jitter(tracks, "x")
+    assert not smoothed and all(a is b for a, b in zip(kept, tracks, strict=True))
+
+
+def test_a_noisy_file_is_smoothed_with_a_warning_and_can_be_kept(tmp_path, caplog):
+    true = walk(0.02)
+    path = tmp_path / "tracked.json"
+    path.write_text(json.dumps({"trajectories": [noisy(true, 0.03, s).tolist()
+                                                 for s in range(4)]}))
+    with caplog.at_level(logging.WARNING):
+        demos = load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    assert re.search(r"zig-zag by about 3\.\d cm", caplog.text)
+    assert "expert.denoise=false" in caplog.text
+    cut_length = length(true) - 0.2  # cut at the goal disk
+    for d in demos:
+        assert length(d.points) == pytest.approx(cut_length, rel=0.03)
+        steps = np.linalg.norm(np.diff(d.points, axis=0), axis=1)
+        assert steps[:-1].max() <= 0.1 + 1e-9  # resampled; the last step jumps to the goal
+    kept = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, denoise=False)
+    assert all(length(d.points) > JITTER_INFLATION * 2 * cut_length for d in kept)
+
+
+def test_a_noisy_pose_stream_is_smoothed_before_resampling(tmp_path, caplog):
+    true = walk(0.02)
+    raw = noisy(true, 0.02, 3)
+    path = tmp_path / "stream.csv"
+    path.write_text("x,y\n" + "".join(f"{x!r},{y!r}\n" for x, y in raw.tolist()))
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    assert "tracking noise" in caplog.text
+    assert length(demo.points) == pytest.approx(length(true) - 0.2, rel=0.03)
+    [raw_demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, denoise=False)
+    # resampled at 0.1 m along the zig-zag, the raw stream is still 10 % longer or more
+    assert length(raw_demo.points) > 1.1 * length(demo.points)
+
+
+def test_a_jump_where_tracking_was_lost_is_found_and_named(tmp_path, caplog):
+    true = walk(0.1)
+    gap = np.vstack([true[:40], true[90:]])  # 5 m of the walk missing
+    i, size, usual = largest_jump(gap)
+    assert i == 39 and size == pytest.approx(np.linalg.norm(true[90] - true[39]))
+    assert usual == pytest.approx(0.1, rel=0.05)
+    paused = np.vstack([np.repeat(gap[:1], 200, axis=0), gap])  # a long wait at the start
+    assert largest_jump(paused)[0] == 239
+    assert largest_jump(true) is None
+    assert largest_jump(np.array([[0.0, 0], [3, 0], [3, 4], [6, 4], [6, 9]])) is None  # sparse
+    path = tmp_path / "stream.csv"
+    path.write_text("x,y\n" + "".join(f"{x!r},{y!r}\n" for x, y in paused.tolist()))
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    assert re.search(r"1 of 1 trajectories jump.*0 \(\d\.\d\d m from pose 239 to 240, "
+                     r"usually 0\.10 m\)", caplog.text)
