@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -116,6 +116,9 @@ class Person:
     theta: float = 0.0
     vx: float = 0.0
     vy: float = 0.0
+    # False: a scene file gave neither theta nor a velocity, theta = 0 is a guess (only the
+    # `front` feature reads it); not part of the person's identity or of the artefact
+    heading_given: bool = field(default=True, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -259,7 +262,7 @@ def _read_persons(data: dict, room: Room, fail: Any) -> list[Person]:
             vx, vy = _finite_number(p.get("vx", 0.0)), _finite_number(p.get("vy", 0.0))
             theta = _finite_number(p["theta"]) if "theta" in p else math.atan2(vy, vx)
             persons.append(Person(int(p["id"]), _finite_number(p["x"]), _finite_number(p["y"]),
-                                  theta, vx, vy))
+                                  theta, vx, vy, "theta" in p or (vx, vy) != (0.0, 0.0)))
         except (KeyError, TypeError, ValueError, AttributeError):
             raise fail(f"person #{i} needs numbers id, x, y (and optional theta, vx, vy)") from None
     ids = [p.id for p in persons]

@@ -15,6 +15,13 @@ def run(ctx: RunContext) -> None:
     scene = build.scene(ctx.cfg, lambda seed: ctx.rng("scene", seed))
     log.info("scene '%s': %d persons, %d relations, %d starts, goal (%g, %g)", scene.name,
              len(scene.persons), len(scene.relations), len(scene.starts), *scene.goal)
+    guessed = [p.id for p in scene.persons if not p.heading_given]
+    front = [f for f in (*ctx.cfg.reward.features, *ctx.cfg.learner_features)
+             if f.split("@")[0] == "front"]
+    if guessed and front:
+        log.warning("persons %s give neither theta nor a velocity: %s takes them to face +x "
+                    "(theta 0); give each its theta", ", ".join(map(str, guessed[:8]))
+                    + (", ..." if len(guessed) > 8 else ""), front[0])
     if scene.obstacles is not None:
         log.info("obstacles: %d polygons%s, robot_radius %g m", len(scene.polygons),
                  f", map {scene.map_source}" if scene.map_grid is not None else "",

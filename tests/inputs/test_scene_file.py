@@ -2,6 +2,7 @@
 obstacles, persons, starts and maps, each one line naming the file and the culprit."""
 
 import json
+import logging
 from pathlib import Path
 
 import pytest
@@ -146,3 +147,26 @@ def test_a_person_off_the_map_is_said_to_be_off_the_map(tmp_path):
     with pytest.raises(PipelineError) as err:
         load_scene_file(write_json(tmp_path / "office.json", data))
     assert "start 0 (-3, 2.7) is outside the map, which covers" in one_line(err)
+
+
+def test_a_person_without_a_heading_is_named_when_front_reads_it(tmp_path, caplog):
+    """theta defaults to the velocity's direction; a standing person with neither faces +x, a
+    guess that only `front` reads: a run with front says so, naming the person."""
+    data = {"name": "hall", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 4},
+            "persons": [{"id": 1, "x": 5.0, "y": 3.2},
+                        {"id": 2, "x": 3.0, "y": 0.8, "vx": 0.0, "vy": 1.0},
+                        {"id": 3, "x": 7.0, "y": 0.8, "theta": 0.0}],
+            "relations": [], "starts": [[1.0, 2.0]], "goal": [9.0, 2.0]}
+    scene = write_json(tmp_path / "hall.json", data)
+    persons = load_scene_file(scene).persons
+    assert [p.heading_given for p in persons] == [False, True, True]
+    assert persons[1].theta == pytest.approx(1.5707963, abs=1e-6)
+    runs = {"front": "birl.features=[relation,social,front,goal_deviation,length]",
+            "without": "birl.features=[relation,social,goal_deviation,length]"}
+    for name, features in runs.items():
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            run_in_process(tmp_path / name, "scene=file", f"scene.path={scene}", features,
+                           "stages=[scene]")
+        said = "persons 1 give neither theta nor a velocity: front takes them" in caplog.text
+        assert said == (name == "front"), caplog.text
