@@ -23,6 +23,11 @@ from pipeline.core.graph_mdp import NO_EDGE
 from pipeline.core.state_graph import DEMO
 
 log = logging.getLogger(__name__)
+PROGRESS_SECONDS = 10.0  # growth of many thousand nodes logs its progress at least this often
+
+
+def seconds(t: float) -> str:
+    return f"{t:.1f}" if t < 10 else f"{t:.0f}"
 
 
 def demos_for_graph(demo_msgs: list[dict], features: FeatureModel,
@@ -50,13 +55,22 @@ def run(ctx: RunContext) -> None:
              np.round(weights, 3).tolist())
     warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes)
     every = max(1, cfg.graph.max_nodes // 10)
-    last = [graph.n_nodes]
+    first, last = graph.n_nodes, [graph.n_nodes, t0]
 
     def progress(g: AdaptiveGraph) -> None:
-        if g.n_nodes >= last[0] + every or g.n_nodes >= g.p.max_nodes:
-            last[0] = g.n_nodes
-            log.info("  iteration %4d: %4d nodes, %5d edges, best value per start %s",
-                     g.iteration, g.n_nodes, len(g.src), np.round(g.best_path_values, 3).tolist())
+        # a line every tenth of the nodes, and at least every PROGRESS_SECONDS on long growth
+        now = time.perf_counter()
+        if g.n_nodes >= last[0] + every or g.n_nodes >= g.p.max_nodes \
+                or now - last[1] >= PROGRESS_SECONDS:
+            last[:] = [g.n_nodes, now]
+            added, left = g.n_nodes - first, g.p.max_nodes - g.n_nodes
+            # growth slows a little as the graph grows (time exponent about 1.1): the
+            # estimate from the rate so far is a lower bound
+            eta = f", about {seconds((now - t0) * left / added)} s left" if added and left \
+                else ""
+            log.info("  iteration %4d: %4d of %d nodes, %5d edges, %s s%s; best value per "
+                     "start %s", g.iteration, g.n_nodes, g.p.max_nodes, len(g.src),
+                     seconds(now - t0), eta, np.round(g.best_path_values, 3).tolist())
 
     graph.grow(progress)
     if graph.n_nodes < cfg.graph.max_nodes and graph.runs_feasible == 0:

@@ -182,6 +182,9 @@ def test_a_graph_that_stops_short_says_whether_space_or_the_controller_stopped_i
      r"planner: (\d+) of 10 subjects planned", list(range(1, 10))),
     (["expert=planner", "expert.n_subjects=9", "stages=[scene,demos]"],  # short: silent
      r"planner: (\d+) of 9 subjects planned", []),
+    (["graph=small", "stages=[scene,demos,graph]"],  # nodes so far, seconds left
+     r"iteration +\d+: +(\d+) of 200 nodes, +\d+ edges, [\d.]+ s(, about [\d.]+ s left)?;",
+     [139, 160, 181, 200]),
 ])
 def test_long_work_inside_a_stage_says_how_far_it_got(tmp_path, caplog, overrides, pattern,
                                                       expected):
