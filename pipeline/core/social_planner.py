@@ -61,7 +61,7 @@ from pipeline.core.params import (
     require_step,
 )
 from pipeline.core.roadmap import lattice_graph, segments_feasible
-from pipeline.core.world import Scene
+from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError
 
 
@@ -354,7 +354,7 @@ def plan(scene: Scene, params: SocialPlannerParams,
         if not np.isfinite(to_go[s]):
             x, y = scene.starts[k]
             raise PipelineError(
-                f"planner expert: no path from start {k} ({x:g}, {y:g}) to the goal on its "
+                f"planner expert: no path from start {k} {point(x, y)} to the goal on its "
                 f"{graph.spacing:g} m lattice (blocked by body disks or obstacles); lower "
                 "expert.spacing or move the start")
         nodes = [int(s)]

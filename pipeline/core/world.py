@@ -102,10 +102,19 @@ class Room:
         return (self.x_max - self.x_min) * (self.y_max - self.y_min)
 
     def describe(self) -> str:
-        # to the centimetre: far from the origin (UTM) :g would print both edges alike
-        def m(v: float) -> str:
-            return f"{round(v, 2):.12g}"
+        m = metres
         return f"[{m(self.x_min)}, {m(self.x_max)}] x [{m(self.y_min)}, {m(self.y_max)}]"
+
+
+def metres(v: float) -> str:
+    """A coordinate in a message, to the centimetre: far from the origin (UTM, 10^6 m) :g
+    would print 5.6e+06 for places metres apart."""
+    return f"{round(v, 2):.12g}"
+
+
+def point(x: float, y: float) -> str:
+    """A point in a message, "(x, y)" to the centimetre (`metres`)."""
+    return f"({metres(x)}, {metres(y)})"
 
 
 @dataclass(frozen=True)
@@ -270,7 +279,7 @@ def _read_persons(data: dict, room: Room, fail: Any) -> list[Person]:
         raise fail(f"duplicate person ids in {sorted(ids)}")
     for p in persons:
         if not room.contains(np.array([p.x, p.y]))[0]:
-            raise fail(f"person {p.id} at ({p.x:g}, {p.y:g}) is outside the room {room.describe()}")
+            raise fail(f"person {p.id} at {point(p.x, p.y)} is outside the room {room.describe()}")
     return persons
 
 
@@ -357,12 +366,12 @@ def _check_placement(scene: Scene, fail: Any) -> None:
     for p in scene.persons:
         at = np.array([[p.x, p.y]])
         if (off := off_map(at)) is not None:
-            raise fail(f"person {p.id} at ({p.x:g}, {p.y:g}) stands {off}")
+            raise fail(f"person {p.id} at {point(p.x, p.y)} stands {off}")
         if obstacles is not None and obstacles.clearance_at(at)[0] <= 0:
-            raise fail(f"person {p.id} at ({p.x:g}, {p.y:g}) stands inside an obstacle")
+            raise fail(f"person {p.id} at {point(p.x, p.y)} stands inside an obstacle")
     for k, pt in enumerate(np.vstack([scene.starts, scene.goal[None, :]])):
         name = f"start {k}" if k < len(scene.starts) else "goal"
-        where = f"{name} ({pt[0]:g}, {pt[1]:g})"
+        where = f"{name} {point(pt[0], pt[1])}"
         if not room.contains(pt)[0]:
             raise fail(f"{where} is outside the room {room.describe()}")
         if scene.in_body(pt)[0]:

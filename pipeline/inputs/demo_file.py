@@ -11,7 +11,7 @@ from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.social import min_distance_to_person
-from pipeline.core.world import Scene
+from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError
 from pipeline.inputs.recorded import describe, load_recorded
 
@@ -91,6 +91,6 @@ def check_clear_of_bodies(what: str, points: np.ndarray, scene: Scene) -> None:
     x, y = points[seg]
     raise PipelineError(
         f"{what} passes {gaps[who]:.2f} m from person {person.id} at "
-        f"({person.x:g}, {person.y:g}) after ({x:.2f}, {y:.2f}), inside the body disk "
+        f"{point(person.x, person.y)} after ({x:.2f}, {y:.2f}), inside the body disk "
         f"(body_radius={scene.body_radius:g} m) no robot path may enter (lower it with "
         "scene.body_radius or correct the trajectory)")

@@ -47,7 +47,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.linalg
 
-from pipeline.core.world import Room
+from pipeline.core.world import Room, point
 from pipeline.errors import PipelineError
 from pipeline.inputs.schemas import read_json
 
@@ -798,12 +798,12 @@ def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.n
         if gaps[k] > start_radius:
             raise PipelineError(
                 f"{source}: trajectory {i} starts {gaps[k]:.2f} m from the nearest start "
-                f"({starts[k, 0]:g}, {starts[k, 1]:g}); at most {start_radius:g} m "
+                f"{point(*starts[k])}; at most {start_radius:g} m "
                 f"(expert.start_radius)")
         end_gap = float(np.linalg.norm(t[-1] - goal))
         if end_gap > goal_limit:
             raise PipelineError(f"{source}: trajectory {i} ends {end_gap:.2f} m from the goal "
-                                f"({goal[0]:g}, {goal[1]:g}); at most {goal_limit:g} m (extend "
+                                f"{point(*goal)}; at most {goal_limit:g} m (extend "
                                 "it to the goal, or check that it belongs to this scene)")
         matched.append(k)
     return matched
@@ -834,7 +834,7 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
         cut = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
     if cut is None:
         raise PipelineError(f"{what} begins within goal_tolerance={goal_tolerance:g} m of the "
-                            f"goal ({goal[0]:g}, {goal[1]:g})")
+                            f"goal {point(*goal)}")
 
     def refuse_outside(area: Room, points: np.ndarray, margin: float = 0.0) -> None:
         inside = area.contains(points, margin)

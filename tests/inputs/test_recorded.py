@@ -131,6 +131,10 @@ def test_match_to_starts_names_source_trajectory_and_distance():
             match_to_starts, [good, far], STARTS, GOAL, 1.0, TOL, "demo X")
     refused(r"trajectory 0 ends 2\.50 m from the goal", match_to_starts,
             [line(STARTS[0], GOAL - [0.0, 2.5])], STARTS, GOAL, 1.0, TOL, "demo X")
+    # in map coordinates far from the origin (UTM) the places are told apart to the cm
+    utm = np.array([512345.67, 5612345.0])
+    refused(r"starts 3\.13 m from the nearest start \(512349\.67, 5612345\.1\);",
+            match_to_starts, [far + utm], STARTS + utm, GOAL + utm, 1.0, TOL, "demo X")
 
 
 # ---------------------------------------------------------------------------------------------
