@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
@@ -287,8 +287,14 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
         records.append(problem.record(len(records), w, post.log_likelihood(w, beta)))
         return IRLResult(records, list(range(1, len(records) + 1)), posteriors)
 
+    # eq. (2) samples a posterior every iteration, each only to move the estimate: only the
+    # last, the one reported, is sampled until its chains agree
+    moving = replace(config, max_samples=config.n_samples)
+
     def posterior_mean(posterior: Posterior, w_prev: np.ndarray) -> np.ndarray:
-        posteriors.append(mcmc(posterior, w_prev, problem.rng, config, problem.status))
+        last = len(posteriors) == config.n_iterations - 1
+        posteriors.append(mcmc(posterior, w_prev, problem.rng, config if last else moving,
+                               problem.status))
         return posteriors[-1].mean
 
     records = birl_map(problem.expert, problem.environment.rollout, problem.prior,

@@ -21,6 +21,14 @@ AGREED_RHAT = 1.05
 AGREED_ESS = 100
 
 
+def chains_agree(rhat: np.ndarray, ess: np.ndarray) -> bool:
+    """Every R-hat at most AGREED_RHAT and every ESS at least AGREED_ESS, NaN (a constant
+    parameter, one chain) not counted."""
+    rhat, ess = np.asarray(rhat, float), np.asarray(ess, float)
+    return bool((rhat[np.isfinite(rhat)] <= AGREED_RHAT).all()
+                and (ess[np.isfinite(ess)] >= AGREED_ESS).all())
+
+
 def convergence(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """R-hat and bulk ESS per parameter (each (d,)) of draws (chains, samples, d). R-hat
     needs two chains or more (NaN otherwise); constant draws give R-hat NaN."""

@@ -19,7 +19,7 @@ from scipy.linalg import solve_triangular
 
 from pipeline.core.params import renamed, require, require_count, require_positive
 from pipeline.irl.base import PosteriorSamples
-from pipeline.irl.diagnostics import convergence
+from pipeline.irl.diagnostics import chains_agree, convergence
 
 SAMPLERS = ("rw", "mala")
 BURN_IN_PHASES = 4  # adaptive burn-in: the proposal shape is re-estimated after each
@@ -36,6 +36,9 @@ class LogDensity(Protocol):
     def dispersed_start(self, rng: np.random.Generator) -> np.ndarray: ...
 
 
+# unconverged chains go on up to this many times n_samples (`mcmc`): on metropolis the default
+# 1000 per chain left R-hat at 1.07-1.12; 2000-4000 brought it to 1.02-1.03
+EXTENSIONS = 4
 MAX_CHAIN_STEPS = 10_000_000  # steps of one chain: ~0.5 GB of states at 6 features
 
 
@@ -72,17 +75,31 @@ class AdaptiveChainParams(ChainParams):
     # (target_acceptance 0.57 is optimal for it)
     sampler: str = "rw"
     step: Optional[float] = None  # deprecated spelling of proposal_step
+    # kept states per chain at most: while the chains do not agree (R-hat above AGREED_RHAT
+    # or ESS below AGREED_ESS) sampling goes on, n_samples more per chain each time;
+    # null: EXTENSIONS·n_samples; max_samples = n_samples samples a fixed length
+    max_samples: Optional[int] = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
         renamed(self, "step", "proposal_step", "birl")
         require_positive(self, "proposal_step")
         require_count(self, "n_chains")
+        if self.max_samples is not None:
+            require_count(self, "max_samples")
+            require(self.max_samples >= self.n_samples, "max_samples", self.max_samples,
+                    f"at least n_samples ({self.n_samples}), or null ({EXTENSIONS}·n_samples)")
         # every chain's kept samples are held together (the diagnostics compare the chains)
-        require(self.n_chains * self.n_samples <= MAX_CHAIN_STEPS, "n_chains", self.n_chains,
-                f"small enough that n_chains·n_samples (the samples kept) <= "
+        require(self.n_chains * self.most_samples <= MAX_CHAIN_STEPS, "n_chains", self.n_chains,
+                f"small enough that n_chains·max_samples (the samples kept) <= "
                 f"{MAX_CHAIN_STEPS:g}")
         require(self.sampler in SAMPLERS, "sampler", self.sampler, f"one of {SAMPLERS}")
+
+    @property
+    def most_samples(self) -> int:
+        """The kept states per chain at most (max_samples, or EXTENSIONS·n_samples)."""
+        return self.max_samples if self.max_samples is not None else \
+            EXTENSIONS * self.n_samples
         require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
                 "a number in (0, 1)")
 
@@ -114,9 +131,11 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
     n_samples·thin steps keeping every thin-th state after burn-in. During burn-in the step
     size adapts (Robbins–Monro on its logarithm) towards the target acceptance rate and the
     proposals are reshaped by the states' covariance (`_adaptive_burn_in`); the kept step
-    is the chains' median, frozen for the sampling phase. Chain 0 starts at w0 (d,), the
-    others at prior draws. R-hat and ESS by pipeline.irl.diagnostics. `status` hears how far
-    the sampling got (each burn-in phase, each chain)."""
+    is the chains' median, frozen for the sampling phase. Until the chains agree
+    (`chains_agree`) each goes on from its last state by n_samples more kept states, up to
+    max_samples. Chain 0 starts at w0 (d,), the others at prior draws. R-hat and ESS by
+    pipeline.irl.diagnostics. `status` hears how far the sampling got (each burn-in phase,
+    each chain, each extension)."""
     say = status or (lambda _: None)
     n_chains, adapt = chain.n_chains, chain.adapt
     proposal = Proposal(np.eye(len(w0)), chain.sampler == "mala")
@@ -130,18 +149,26 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
         proposal, steps = _adaptive_burn_in(posterior, starts, steps, rng, chain, proposal,
                                             say)
         burn_in = 0
-    kept, accepted = [], 0
-    for c in range(n_chains):
-        say(f"sampling chain {c + 1} of {n_chains} ({burn_in + chain.n_samples * chain.thin} "
-            "steps)")
-        run = run_chain(posterior, starts[c], rng, proposal, steps[c],
-                        burn_in + chain.n_samples * chain.thin, thin=chain.thin, skip=burn_in)
-        kept.append(run.samples)
-        accepted += run.accepted
-    draws = np.stack(kept)  # (chains, n_samples, d)
+    kept: list[list[np.ndarray]] = [[] for _ in range(n_chains)]
+    accepted, n_steps, block, skip = 0, 0, chain.n_samples, burn_in
+    while True:
+        for c in range(n_chains):
+            say(f"sampling chain {c + 1} of {n_chains} ({skip + block * chain.thin} steps)")
+            run = run_chain(posterior, starts[c], rng, proposal, steps[c],
+                            skip + block * chain.thin, thin=chain.thin, skip=skip)
+            kept[c].append(run.samples)
+            starts[c] = run.samples[-1]  # the chain's last state: it goes on from there
+            accepted += run.accepted
+            n_steps += skip + block * chain.thin
+        draws = np.stack([np.concatenate(k) for k in kept])  # (chains, samples, d)
+        rhat, ess = convergence(draws)
+        have = draws.shape[1]
+        if have >= chain.most_samples or n_chains < 2 or chains_agree(rhat, ess):
+            break
+        block, skip = min(chain.n_samples, chain.most_samples - have), 0
+        say(f"the chains do not agree yet after {have} samples each (R-hat max "
+            f"{np.nanmax(rhat):.3f}, ESS min {np.nanmin(ess):.0f}): {block} more each")
     flat = draws.reshape(-1, draws.shape[-1])
-    n_steps = n_chains * (burn_in + chain.n_samples * chain.thin)
-    rhat, ess = convergence(draws)
     return PosteriorSamples(flat, flat.mean(axis=0), flat.std(axis=0), accepted / n_steps,
                             n_chains=n_chains, step=float(steps[0]), rhat=rhat, ess=ess)
 

@@ -344,7 +344,7 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str]) -> str:
         agree = m["mcmc_rhat_max"] <= AGREED_RHAT and m["mcmc_ess_min"] >= AGREED_ESS
         verdict = "the chains agree" if agree else (
             f"the chains do not agree yet: R-hat above {AGREED_RHAT:g} or ESS below "
-            f"{AGREED_ESS}; take more samples, birl.n_samples")
+            f"{AGREED_ESS} after birl.max_samples samples per chain; raise it")
         lines.append(f"  posterior        R-hat max {fmt('mcmc_rhat_max', '.3f')}, ESS min "
                      f"{fmt('mcmc_ess_min', '.0f')}, acceptance "
                      f"{fmt('mcmc_acceptance_rate', '.2f')} ({verdict})")

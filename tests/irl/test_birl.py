@@ -1,6 +1,7 @@
 """BIRL-G (pipeline/irl/birl.py, DESIGN §8): the likelihood and its gradient, MAP, the
 learning loop, and MCMC, one chain and adaptive chains with ArviZ diagnostics."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -8,8 +9,9 @@ import pytest
 
 from pipeline.core.graph_mdp import MDPParams, TrajectoryStats
 from pipeline.irl.birl import Posterior, birl_map
+from pipeline.irl.diagnostics import chains_agree
 from pipeline.irl.environment import Rollout
-from pipeline.irl.mcmc import AdaptiveChainParams, ChainParams, mcmc
+from pipeline.irl.mcmc import EXTENSIONS, AdaptiveChainParams, ChainParams, mcmc
 from pipeline.irl.prior import Prior
 from tests.irl.conftest import BOX, D, central_difference
 
@@ -293,3 +295,25 @@ def test_rhat_flags_chains_that_have_not_mixed():
                                 adapt=False)
     result = mcmc(post, [-0.95], np.random.default_rng(1), chain)
     assert result.rhat[0] > 1.5
+    # unconverged, the chains go on up to EXTENSIONS·n_samples each; max_samples caps them
+    assert len(result.samples) == 4 * EXTENSIONS * 300
+    fixed = dataclasses.replace(chain, max_samples=300)
+    assert len(mcmc(post, [-0.95], np.random.default_rng(1), fixed).samples) == 4 * 300
+
+
+def test_chains_that_agree_stop_and_those_that_do_not_go_on_from_where_they_were():
+    post = one_weight_posterior()
+    chain = AdaptiveChainParams(n_samples=400, burn_in=300, n_chains=4)
+    easy = mcmc(post, [-0.5], np.random.default_rng(2), chain)
+    assert chains_agree(easy.rhat, easy.ess) and len(easy.samples) == 4 * 400
+    # too short to agree: extended block by block, the same samples on every run
+    short = dataclasses.replace(chain, n_samples=20, burn_in=0, adapt=False,
+                                proposal_step=0.02)
+    told: list[str] = []
+    run = mcmc(post, [-0.5], np.random.default_rng(2), short, told.append)
+    assert len(run.samples) == 4 * EXTENSIONS * 20
+    assert sum("do not agree yet after" in t for t in told) == EXTENSIONS - 1
+    again = mcmc(post, [-0.5], np.random.default_rng(2), short)
+    np.testing.assert_array_equal(run.samples, again.samples)
+    with pytest.raises(ValueError, match="max_samples=10 is not allowed"):
+        AdaptiveChainParams(n_samples=20, max_samples=10)

@@ -246,7 +246,7 @@ def test_noisy_demos_do_not_collapse_the_weights():
 def test_joint_sampler_over_w_and_log_beta_is_reproducible():
     mdp, a, b = two_routes()
     post = BoltzmannPosterior(mdp, [a, b, b], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
-    chain = AdaptiveChainParams(n_samples=200, burn_in=100, n_chains=2)
+    chain = AdaptiveChainParams(n_samples=200, burn_in=100, n_chains=2, max_samples=200)
     x0 = np.array([-0.5, 0.0])
     r1 = mcmc(LogBetaDensity(post, 1.0), x0, np.random.default_rng(3), chain)
     r2 = mcmc(LogBetaDensity(post, 1.0), x0, np.random.default_rng(3), chain)
