@@ -94,14 +94,14 @@ class AdaptiveChainParams(ChainParams):
                 f"small enough that n_chains·max_samples (the samples kept) <= "
                 f"{MAX_CHAIN_STEPS:g}")
         require(self.sampler in SAMPLERS, "sampler", self.sampler, f"one of {SAMPLERS}")
+        require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
+                "a number in (0, 1)")
 
     @property
     def most_samples(self) -> int:
         """The kept states per chain at most (max_samples, or EXTENSIONS·n_samples)."""
         return self.max_samples if self.max_samples is not None else \
             EXTENSIONS * self.n_samples
-        require(0 < self.target_acceptance < 1, "target_acceptance", self.target_acceptance,
-                "a number in (0, 1)")
 
 
 @dataclass(frozen=True, eq=False)
