@@ -18,6 +18,7 @@ Plain numpy/scipy; no I/O.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -316,6 +317,41 @@ class ObstacleMap:
         if not self.outside_occupied:
             inside = np.isfinite(np.asarray(points, dtype=float).reshape(-1, 2)).all(axis=1)
         return np.where(inside, self.clearance[rows, cols], 0.0)
+
+    @functools.cached_property
+    def _nearest_occupied(self) -> np.ndarray:
+        """(2, H, W) row and column of the occupied cell nearest each cell (-1 or H, W: the
+        ring outside a map); computed on first use."""
+        if self.outside_occupied:
+            free = np.pad(~self.grid.occupied, 1, constant_values=False)
+            _, index = ndimage.distance_transform_edt(free, return_indices=True)
+            return index[:, 1:-1, 1:-1] - 1
+        _, index = ndimage.distance_transform_edt(~self.grid.occupied, return_indices=True)
+        return index
+
+    def push_clear(self, points: np.ndarray, radius: float, reach: float) -> np.ndarray:
+        """The points, those closer than `radius` to an obstacle by at most `reach` moved
+        straight away from the nearest occupied cell until their clearance is `radius` (a
+        few tries, each a cell farther); the others as they are."""
+        p = np.array(points, dtype=float).reshape(-1, 2)
+        if not np.isfinite(self.clearance).any() or not self.grid.occupied.any() \
+                and not self.outside_occupied:
+            return p
+        res = self.resolution
+        for extra in (1.0, 2.0, 3.0):
+            c = self.clearance_at(p)
+            near = np.flatnonzero((c < radius) & (c >= radius - reach))
+            if len(near) == 0:
+                break
+            rows, cols, _ = self.grid.cell_of(p[near])
+            wall = self._nearest_occupied[:, rows, cols]  # (2, n) row, col
+            centre = np.asarray(self.grid.origin) + (wall[::-1].T + 0.5) * res
+            away = p[near] - centre
+            length = np.linalg.norm(away, axis=1)
+            ok = length > 0
+            # the clearance is measured from the occupied cell's edge, in whole cells
+            p[near[ok]] = centre[ok] + away[ok] / length[ok, None] * (radius + extra * res)
+        return p
 
     def off_map(self, points: np.ndarray) -> np.ndarray:
         """(n, 2) -> (n,) bool: beyond the edge of a map (unknown, so occupied), not merely

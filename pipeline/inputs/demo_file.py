@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.social import min_distance_to_person
 from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError
-from pipeline.inputs.recorded import describe, load_recorded
+from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, describe, load_recorded
 
 log = logging.getLogger(__name__)
 
@@ -37,13 +38,25 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room,
                            denoise=denoise)
+    pushed: list[str] = []
     for k, (start, points, subject) in enumerate(tracks):
+        if scene.obstacles is not None:  # tracking noise along a wall, as at the room's edge
+            clear = clear_of_walls(points, scene)
+            if clear is not points:
+                pushed.append(str(k))
+                points = clear
         demo = checked_demonstration(start, points, subject, scene, feature_model, speed,
                                      f"{describe(path)}: trajectory {k}")
         if not demo.reached:
             end_gap = float(np.linalg.norm(points[-1] - scene.goal))
             unreached.append(f"{k} ({end_gap:.2f} m)")
         demos.append(demo)
+    if pushed:
+        log.warning("%s: trajectories %s come closer to an obstacle than robot_radius=%g m by "
+                    "at most %g m, as tracking noise along a wall does: there they are moved "
+                    "away from it to robot_radius (closer is refused)", describe(path),
+                    ", ".join(pushed[:5]) + (", ..." if len(pushed) > 5 else ""),
+                    scene.robot_radius, ROOM_EDGE_TOLERANCE)
     if unreached:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m): they "
                     "are learned from as demonstrations that do not reach the goal; extend them "
@@ -51,6 +64,28 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                     ", ".join(unreached[:5]) + (", ..." if len(unreached) > 5 else ""),
                     scene.goal_tolerance)
     return demos
+
+
+def clear_of_walls(points: np.ndarray, scene: Scene) -> np.ndarray:
+    """The trajectory with its stretches that come closer than robot_radius to an obstacle,
+    by at most ROOM_EDGE_TOLERANCE, moved away from it to robot_radius
+    (`ObstacleMap.push_clear`): first its points, then, where a segment between them still
+    dips in, that segment's points half a map cell apart. `points` itself when nothing
+    needed moving; deeper intrusions stay for `checked_demonstration` to refuse."""
+    walls, radius = scene.obstacles, scene.robot_radius
+    assert walls is not None
+    if (walls.segments_min_clearance(points[:-1], points[1:]) >= radius).all():
+        return points
+    p = walls.push_clear(points, radius, ROOM_EDGE_TOLERANCE)
+    dips = walls.segments_min_clearance(p[:-1], p[1:]) < radius
+    if dips.any():
+        step = walls.resolution / 2
+        pieces = []
+        for a, b, dip in zip(p[:-1], p[1:], dips, strict=True):
+            n = max(1, math.ceil(np.linalg.norm(b - a) / step)) if dip else 1
+            pieces.append(a + np.arange(n)[:, None] / n * (b - a))
+        p = walls.push_clear(np.vstack(pieces + [p[-1:]]), radius, ROOM_EDGE_TOLERANCE)
+    return p
 
 
 def checked_demonstration(start: int, points: np.ndarray, subject: str | None, scene: Scene,

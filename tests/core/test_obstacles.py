@@ -141,6 +141,22 @@ def test_half_cell_sampling_catches_a_wall_that_coarse_sampling_misses():
                for p, q in zip(a, b, strict=True))
 
 
+def test_push_clear_moves_points_a_little_too_close_away_from_the_wall():
+    """Tracking noise along a wall: points 0.05-0.1 m inside the robot's clearance are moved
+    straight away from the wall to it; deeper ones and clear ones stay where they are."""
+    obstacles = _thin_wall_map()  # the wall's west face at x = 5.0
+    points = np.array([[4.85, 4.0],   # clearance 0.15 < 0.2 by 0.05: moved west
+                       [5.17, 6.0],   # 0.12 on the east side: moved east
+                       [4.95, 5.0],   # 0.05: 0.15 too close, beyond the reach: kept
+                       [3.0, 5.0]])   # clear: kept
+    moved = obstacles.push_clear(points, 0.2, 0.1)
+    assert (obstacles.clearance_at(moved[:2]) >= 0.2).all()
+    assert moved[0, 0] < 4.85 and moved[1, 0] > 5.17
+    np.testing.assert_allclose(moved[:2, 1], points[:2, 1], atol=0.051)  # straight away
+    assert np.linalg.norm(moved[:2] - points[:2], axis=1).max() <= 0.1 + 3 * 0.05
+    np.testing.assert_array_equal(moved[2:], points[2:])
+
+
 def test_points_free_needs_the_radius_and_a_free_cell():
     obstacles = _thin_wall_map()
     points = np.array([[4.0, 5.0], [4.8, 5.0], [5.02, 5.0], [-1.0, 5.0]])

@@ -264,3 +264,33 @@ def test_a_damaged_bag_says_what_is_damaged(tmp_path):
     (odd / "metadata.yaml").mkdir(parents=True)
     refused(r"bag is a directory whose metadata\.yaml is no file, not a ROS 2 bag", read_tracks,
             odd)
+
+
+def test_a_trajectory_a_little_too_close_to_a_wall_is_moved_off_it(tmp_path, caplog):
+    """Tracking noise along a wall, as at the room's edge: a walk 0.15 m from the wall (the
+    robot needs 0.2 m) is kept, moved off the wall to 0.2 m there, with one warning; 0.05 m
+    from it (beyond ROOM_EDGE_TOLERANCE) is refused as before."""
+    from pipeline.core.obstacles import ObstacleMap
+    from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE
+    from pipeline.inputs.scene_file import load_scene_file
+    from tests.conftest import ROBOT_RADIUS, WALL_Y, walled_metropolis, write_json
+    scene = load_scene_file(write_json(tmp_path / "walled.json", walled_metropolis()))
+    fm = FeatureModel.from_scene(scene)
+    face = WALL_Y - 0.05  # the wall's south face
+    along = [[0.5, 0.5], [0.5, 6.0], [1.5, 6.5], [3.0, face - 0.15], [4.0, face - 0.15],
+             [4.8, 7.6], [4.8, 8.5], GOAL]
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_demo_file(demo_file(tmp_path, along), scene, fm, 1.0)
+    assert "trajectories 0 come closer to an obstacle than robot_radius=0.2 m" in caplog.text
+    assert isinstance(scene.obstacles, ObstacleMap)
+    clearance = scene.obstacles.segments_min_clearance(demo.points[:-1], demo.points[1:])
+    assert clearance.min() >= ROBOT_RADIUS
+    moved = np.asarray(along, float)
+    moved[3:5, 1] = demo.points[3:5, 1]  # only the two points along the wall, and south
+    np.testing.assert_allclose(demo.points, moved, rtol=0, atol=0.025)  # (to half a cell)
+    assert (face - 0.2 - 0.06 <= demo.points[3:5, 1]).all() and \
+        (demo.points[3:5, 1] <= face - 0.2).all()  # by what they lacked, to a map cell
+    assert ROOM_EDGE_TOLERANCE < 0.15
+    along[3:5] = [[3.0, face - 0.05], [4.0, face - 0.05]]
+    refused(r"trajectory 0 comes 0\.0\d m from an obstacle", load_demo_file,
+            demo_file(tmp_path, along), scene, fm, 1.0)
