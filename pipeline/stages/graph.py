@@ -53,7 +53,13 @@ def run(ctx: RunContext) -> None:
     log.info("graph initialised: %d nodes, %d edges; growing to %d nodes under %s weights %s",
              graph.n_nodes, len(graph.src), cfg.graph.max_nodes, weights_source,
              np.round(weights, 3).tolist())
-    warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes)
+    # the robust learner compares the demonstrations with a lattice's paths and reads them by
+    # their polylines' sums: how full of their waypoints the graph is changes its estimate
+    # little (hallway, metropolis: the same weights at any graph.min_separation)
+    learns_on_graph = cfg.birl.kind in ("map", "mcmc") and (
+        getattr(cfg.birl, "likelihood", None) == "paper"
+        or getattr(cfg.birl, "alternatives", None) == "graph") or cfg.birl.kind == "policywalk"
+    warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes, learns_on_graph)
     every = max(1, cfg.graph.max_nodes // 10)
     first, last = graph.n_nodes, [graph.n_nodes, t0]
 
@@ -97,9 +103,10 @@ DEMO_SHARE_WARNING = 0.5
 
 
 def warn_if_demonstrations_fill(graph: AdaptiveGraph, demos: list[Demonstration],
-                                max_nodes: int) -> None:
-    """One warning when the demonstrations' waypoints fill the graph before it grows, with
-    the graph.min_separation at which they would merge into at most that share."""
+                                max_nodes: int, learns_on_graph: bool = True) -> None:
+    """One warning when the demonstrations' waypoints fill the graph before it grows and the
+    learner compares them with the graph's paths, with the graph.min_separation at which
+    they would merge into at most that share; one info line for other learners."""
     n_demo = graph.node_kind.count(DEMO)
     budget = int(DEMO_SHARE_WARNING * max_nodes)
     if n_demo <= budget:
@@ -110,6 +117,12 @@ def warn_if_demonstrations_fill(graph: AdaptiveGraph, demos: list[Demonstration]
     # shrinks as max_nodes grows, so raising max_nodes alone adds waypoints.
     points = np.concatenate([d.points for d in demos])
     wanted = separation_for(points, budget, graph.min_separation)
+    if not learns_on_graph:
+        log.info("the demonstrations' waypoints make %d of the %d initial nodes: the graph's "
+                 "own paths say little of the learned reward (the learner compares the "
+                 "demonstrations with a lattice's paths); graph.min_separation=%.2f m would "
+                 "merge them", n_demo, graph.n_nodes, wanted)
+        return
     log.warning("the demonstrations' waypoints make %d of the %d initial nodes and the graph "
                 "%s (graph.max_nodes=%d): learning sees few paths the demonstrators did not "
                 "take; set graph.min_separation to about %.2f m (now %.3f m) so that "

@@ -296,7 +296,9 @@ def test_an_odometry_bag_of_the_seven_metropolis_demos(tmp_path, default_dir, me
 
 def test_demonstrations_that_fill_the_graph_are_one_warning(tmp_path, caplog):
     """Twenty noisy recordings sampled every 0.07 m leave a graph of 120 nodes no room to grow:
-    one warning says so and names a min_separation that gives it room, which it then has."""
+    for a learner that compares them with the graph's paths one warning says so and names a
+    min_separation that gives it room, which it then has; the default learner, which compares
+    them with a lattice's, is told in an info line only."""
     rng = np.random.default_rng(0)
     xs = np.linspace(1.0, 9.0, 115)
     paths = [np.column_stack([xs, 2.0 + np.r_[0.0, rng.normal(0.0, 0.3, len(xs) - 2), 0.0]])
@@ -304,6 +306,13 @@ def test_demonstrations_that_fill_the_graph_are_one_warning(tmp_path, caplog):
     demos = write_json(tmp_path / "demos.json", {"trajectories": paths})
     scene = ("scene=file", f"scene.path={straight_room(tmp_path)}", "expert=file",
              f"expert.path={demos}", "stages=[scene,demos,graph]", "graph.max_nodes=120")
+    with caplog.at_level("INFO"):
+        run_in_process(tmp_path / "default", *scene)
+    [told] = [r for r in caplog.records if "waypoints make" in r.getMessage()]
+    assert told.levelname == "INFO" and "compares the demonstrations with a lattice" in \
+        told.getMessage()
+    caplog.clear()
+    scene = (*scene, "birl.alternatives=graph")
     with caplog.at_level("WARNING"):
         run_in_process(tmp_path / "full", *scene)
     [warning] = [r.getMessage() for r in caplog.records if "waypoints make" in r.getMessage()]
