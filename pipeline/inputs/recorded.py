@@ -93,13 +93,17 @@ COORDINATE_DECIMALS = 9
 # the stretch are candidates (passing another start 0.5 m away on the way is no stop there).
 STOP_TOLERANCE = 0.05  # m
 VISIT_SLACK = 0.25  # m
-# Tracking noise (`smooth_jitter`): a tracker's centimetres of noise at a few centimetres
-# between poses zig-zag a straight walk into one two or three times as long, and learning then
-# reads a long, winding walk (measured on hand-drawn paths with 2-3 cm of noise: the learned
-# weights fell to about zero). Trajectories whose length the noise inflates by more than
-# JITTER_INFLATION (3 %) are smoothed; the shipped hand-drawn paths (1 cm tremor at 10 cm) are
-# inflated by 1 % and kept as they are.
+# Tracking noise (`smooth_jitter`, per trajectory): a tracker's centimetres of noise at a
+# few centimetres between poses zig-zag a straight walk into one two or three times as long,
+# and learning then reads a long, winding walk (measured on hand-drawn paths with 2-3 cm of
+# noise: the learned weights fell to about zero). Trajectories whose length the noise
+# inflates by more than JITTER_INFLATION (3 %) are smoothed; the shipped hand-drawn paths
+# (1 cm tremor at 10 cm) are inflated by 1 % and kept as they are.
 JITTER_INFLATION = 1.03
+# `smooth_to_noise` departs from the points by this many times the estimated noise (Morozov's
+# discrepancy principle takes a factor above 1: an estimate a little low, as one trajectory's
+# few hundred points give, must not leave some of the noise in)
+DISCREPANCY = 1.25
 # `noise_sigma`: the ratio measured 1.0-1.06 on noisy tracks, 1.24 hand-drawn, 4-9 clean
 NOISE_SPAN_RATIO = 1.5
 # A step between consecutive poses longer than JUMP_STEPS times the trajectory's usual step
@@ -625,9 +629,10 @@ def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
 
 
 def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
-    """The Whittaker-smoothed polyline that departs from `points` by `sigma` (root mean square
-    per coordinate), the noise's own size (the discrepancy principle: the penalty is found by
-    bisection over 10^-4..10^12, the departure growing with it); first and last point kept."""
+    """The Whittaker-smoothed polyline that departs from `points` by DISCREPANCY·`sigma`
+    (root mean square per coordinate), about the noise's own size (the discrepancy principle:
+    the penalty is found by bisection over 10^-4..10^12, the departure growing with it);
+    first and last point kept."""
     p = np.asarray(points, dtype=float)
     if len(p) < 3 or not sigma > 0:
         return p.copy()
@@ -636,7 +641,7 @@ def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
     low, high = -4.0, 12.0
     for _ in range(30):
         mid = (low + high) / 2
-        if np.mean((whittaker(p, 10.0 ** mid) - p) ** 2) > sigma ** 2:
+        if np.mean((whittaker(p, 10.0 ** mid) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
             high = mid
         else:
             low = mid
@@ -645,27 +650,34 @@ def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
     return out + origin
 
 
-def smooth_jitter(tracks: Sequence[np.ndarray], where: str) -> tuple[list[np.ndarray], bool]:
-    """The tracks smoothed of their tracking noise when it inflates their length by more than
-    JITTER_INFLATION, with one warning; else as they are. One noise level for the file (one
-    tracker), `noise_sigma`; each track `smooth_to_noise`. Tracks with non-finite or far-off
-    points are left as they are for the checks that refuse them. Returns (tracks, smoothed)."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        usable = [np.isfinite(t).all() and np.abs(t).max(initial=0.0) < 1e9 for t in tracks]
-    kept = [drop_repeats(t) if u else t for t, u in zip(tracks, usable, strict=True)]
-    sigma = noise_sigma([t for t, u in zip(kept, usable, strict=True) if u])
-    if not sigma > 0:
-        return list(tracks), False
-    smoothed = [smooth_to_noise(t, sigma) if u else t for t, u in zip(kept, usable, strict=True)]
-    raw = sum(_polyline_length(t) for t, u in zip(kept, usable, strict=True) if u)
-    smooth = sum(_polyline_length(t) for t, u in zip(smoothed, usable, strict=True) if u)
-    if not raw > JITTER_INFLATION * smooth:
-        return list(tracks), False
-    log.warning("%s: the trajectories zig-zag by about %.1f cm from point to point (tracking "
-                "noise) and are %.2f times as long as the paths they follow: smoothed to that "
-                "noise and resampled (expert.denoise=false keeps them as recorded)",
-                where, 100 * sigma, raw / smooth)
-    return smoothed, True
+def smooth_jitter(tracks: Sequence[np.ndarray],
+                  where: str) -> tuple[list[np.ndarray], list[bool]]:
+    """The tracks, each smoothed of its tracking noise (`noise_sigma`, `smooth_to_noise`)
+    when that inflates its length by more than JITTER_INFLATION, with one warning; the
+    others as they are. Each track is judged on its own points, so a held-out one
+    (evaluate.holdout) changes nothing in those learned from. Tracks with non-finite or
+    far-off points are left for the checks that refuse them. Returns (tracks, smoothed)."""
+    out, smoothed, sigmas, inflation = [], [], [], []
+    for t in tracks:
+        with np.errstate(over="ignore", invalid="ignore"):
+            usable = np.isfinite(t).all() and np.abs(t).max(initial=0.0) < 1e9
+        p = drop_repeats(t) if usable else t
+        sigma = noise_sigma([p]) if usable else 0.0
+        smooth = smooth_to_noise(p, sigma) if sigma > 0 else p
+        ratio = _polyline_length(p) / _polyline_length(smooth) if sigma > 0 else 1.0
+        changed = bool(ratio > JITTER_INFLATION)
+        out.append(smooth if changed else t)
+        smoothed.append(changed)
+        if changed:
+            sigmas.append(sigma)
+            inflation.append(ratio)
+    if sigmas:
+        log.warning("%s: %d of %d trajectories zig-zag by about %.1f cm from point to point "
+                    "(tracking noise, the median) and are up to %.2f times as long as the "
+                    "paths they follow: smoothed to that noise and resampled (expert.denoise="
+                    "false keeps them as recorded)", where, len(sigmas), len(tracks),
+                    100 * float(np.median(sigmas)), max(inflation))
+    return out, smoothed
 
 
 def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> np.ndarray | None:
@@ -935,13 +947,13 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
         warn_jumps(tracks, where)
-    smoothed = False
+    smoothed = [False] * len(tracks)
     if denoise:
         tracks, smoothed = smooth_jitter(tracks, where)
     if room is not None:
         tracks = onto_room_edge(tracks, room, where)
     cleaned = [cut_trajectory(t, goal, goal_tolerance, room, f"{where}: trajectory {i}",
-                              spacing if recording.is_stream or smoothed else None)
+                              spacing if recording.is_stream or smoothed[i] else None)
                for i, t in enumerate(tracks)]
     cleaned = [np.round(c, COORDINATE_DECIMALS) for c in cleaned]
     matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)

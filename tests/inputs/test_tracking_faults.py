@@ -12,6 +12,7 @@ import pytest
 
 from pipeline.app.context import PACKAGE_ROOT
 from pipeline.inputs.recorded import (
+    DISCREPANCY,
     JITTER_INFLATION,
     largest_jump,
     load_recorded,
@@ -67,7 +68,7 @@ def test_smooth_to_noise_departs_by_the_noise_and_recovers_the_length():
     true = walk(0.03)
     raw = noisy(true, 0.03, 7)
     out = smooth_to_noise(raw, 0.03)
-    assert np.sqrt(np.mean((out - raw) ** 2)) == pytest.approx(0.03, rel=0.02)
+    assert np.sqrt(np.mean((out - raw) ** 2)) == pytest.approx(DISCREPANCY * 0.03, rel=0.02)
     assert length(raw) > 1.8 * length(true)  # what learning would read without smoothing
     assert length(out) == pytest.approx(length(true), rel=0.03)
     assert np.array_equal(out[[0, -1]], raw[[0, -1]])
@@ -78,11 +79,17 @@ def test_smooth_to_noise_departs_by_the_noise_and_recovers_the_length():
 def test_clean_polylines_are_kept_point_for_point():
     clean = [walk(0.1), walk(0.02)]
     kept, smoothed = smooth_jitter(clean, "x")
-    assert not smoothed and all(a is b for a, b in zip(kept, clean, strict=True))
+    assert not any(smoothed) and all(a is b for a, b in zip(kept, clean, strict=True))
     shipped = PACKAGE_ROOT / "data" / "demos" / "metropolis_handdrawn.json"
     tracks, _ = read_tracks(shipped)  # 1 cm tremor at 10 cm: below JITTER_INFLATION
     kept, smoothed = smooth_jitter(tracks, "x")
-    assert not smoothed and all(a is b for a, b in zip(kept, tracks, strict=True))
+    assert not any(smoothed) and all(a is b for a, b in zip(kept, tracks, strict=True))
+    # each track on its own: a noisy one beside clean ones is smoothed, they are not
+    noisy_walk = noisy(walk(0.02), 0.03, 5)
+    kept, smoothed = smooth_jitter([clean[0], noisy_walk, clean[1]], "x")
+    assert smoothed == [False, True, False] and kept[0] is clean[0] and kept[2] is clean[1]
+    alone, _ = smooth_jitter([noisy_walk], "x")  # judged on its own points: no other track
+    np.testing.assert_array_equal(kept[1], alone[0])  # (a held-out one) changes it
 
 
 def test_a_noisy_file_is_smoothed_with_a_warning_and_can_be_kept(tmp_path, caplog):
