@@ -338,7 +338,7 @@ class ObstacleMap:
                 and not self.outside_occupied:
             return p
         res = self.resolution
-        for extra in (1.0, 2.0, 3.0):
+        for extra in (1.0, 2.0, 3.0, 4.0, 5.0):  # in a corner the other wall may be met
             c = self.clearance_at(p)
             near = np.flatnonzero((c < radius) & (c >= radius - reach))
             if len(near) == 0:

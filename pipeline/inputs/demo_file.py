@@ -49,7 +49,10 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                                      f"{describe(path)}: trajectory {k}")
         if not demo.reached:
             end_gap = float(np.linalg.norm(points[-1] - scene.goal))
-            unreached.append(f"{k} ({end_gap:.2f} m)")
+            shown = f"{end_gap:.2f}"  # 0.304 is no "0.30 m" beside a 0.3 m tolerance
+            if float(shown) <= scene.goal_tolerance:
+                shown = f"{end_gap:.4f}"
+            unreached.append(f"{k} ({shown} m)")
         demos.append(demo)
     if pushed:
         log.warning("%s: trajectories %s come closer to an obstacle than robot_radius=%g m by "
@@ -77,8 +80,10 @@ def clear_of_walls(points: np.ndarray, scene: Scene) -> np.ndarray:
     if (walls.segments_min_clearance(points[:-1], points[1:]) >= radius).all():
         return points
     p = walls.push_clear(points, radius, ROOM_EDGE_TOLERANCE)
-    dips = walls.segments_min_clearance(p[:-1], p[1:]) < radius
-    if dips.any():
+    for _ in range(3):  # a corner may need its pushed points pushed again
+        dips = walls.segments_min_clearance(p[:-1], p[1:]) < radius
+        if not dips.any():
+            break
         step = walls.resolution / 2
         pieces = []
         for a, b, dip in zip(p[:-1], p[1:], dips, strict=True):
@@ -99,8 +104,11 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
         worst = int(np.argmin(clearance))
         if clearance[worst] < scene.robot_radius:
             x, y = points[worst]
+            gap = f"{clearance[worst]:.2f}"
+            if float(gap) >= scene.robot_radius:  # 0.1986 is no "0.20 m" beside 0.2 m
+                gap = f"{clearance[worst]:.4f}"
             raise PipelineError(
-                f"{what} comes {clearance[worst]:.2f} m from an obstacle after ({x:.2f}, "
+                f"{what} comes {gap} m from an obstacle after ({x:.2f}, "
                 f"{y:.2f}); the robot needs robot_radius={scene.robot_radius:g} m (lower it "
                 "in the scene file or with scene.robot_radius)")
     check_clear_of_bodies(what, points, scene)

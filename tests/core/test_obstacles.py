@@ -157,6 +157,18 @@ def test_push_clear_moves_points_a_little_too_close_away_from_the_wall():
     np.testing.assert_array_equal(moved[2:], points[2:])
 
 
+def test_push_clear_gets_out_of_a_corner():
+    res = 0.05
+    occupied = np.zeros((200, 200), dtype=bool)
+    occupied[20:181, 100] = True  # x = 5.0..5.05, y 1..9
+    occupied[180, 20:101] = True  # y = 9.0..9.05, x 1..5.05: an inner corner at (5, 9)
+    obstacles = ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), res))
+    corner = np.array([[4.86, 8.86], [4.83, 8.88]])  # 0.14 and 0.12 m from both walls
+    moved = obstacles.push_clear(corner, 0.2, 0.1)
+    assert (obstacles.clearance_at(moved) >= 0.2).all()
+    assert (moved < corner).all()  # away from both walls, south-west
+
+
 def test_points_free_needs_the_radius_and_a_free_cell():
     obstacles = _thin_wall_map()
     points = np.array([[4.0, 5.0], [4.8, 5.0], [5.02, 5.0], [-1.0, 5.0]])
