@@ -47,7 +47,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.linalg
 
-from pipeline.core.world import Room, point
+from pipeline.core.world import Room, metres, point
 from pipeline.errors import PipelineError
 from pipeline.inputs.schemas import read_json
 
@@ -853,6 +853,10 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
         if not inside.all():
             x, y = points[int(np.argmin(inside))]
             where = f"({x:.2f}, {y:.2f})" if max(abs(x), abs(y)) < 1e6 else f"({x:.3g}, {y:.3g})"
+            if not inside.any():  # never inside: not a stray pose but another frame
+                raise PipelineError(f"{what} lies wholly outside the room {area.describe()}, "
+                                    f"from {where}: recorded in another frame or with another "
+                                    "origin than the scene's?")
             raise PipelineError(f"{what} leaves the room {area.describe()} at {where}")
 
     if resample is not None:  # it ends at the goal: resample what leads there
@@ -935,10 +939,15 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         stream = recording.tracks[0]
         spans = stream_spans(stream, starts, goal, start_radius, goal_tolerance)
         if not spans:
+            with np.errstate(invalid="ignore"):
+                lo, hi = np.nanmin(stream, axis=0), np.nanmax(stream, axis=0)
+            span = f"x {metres(lo[0])}..{metres(hi[0])}, y {metres(lo[1])}..{metres(hi[1])}"
+            outside = "" if room is None or room.contains(stream).any() else \
+                f", all outside the room {room.describe()}: another frame or origin?"
             raise PipelineError(
                 f"{where}: found no trajectory from a start (within {start_radius:g} m, "
                 f"expert.start_radius) to the goal (within {goal_tolerance:g} m) in the "
-                f"{len(stream)} poses read")
+                f"{len(stream)} poses read ({span}{outside})")
         tracks = [stream[b:g + 1] for b, g in spans]
         subjects = [_span_subject(recording.subjects, b, g, where, i)
                     for i, (b, g) in enumerate(spans)]

@@ -140,3 +140,24 @@ def test_a_jump_where_tracking_was_lost_is_found_and_named(tmp_path, caplog):
         [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
     assert re.search(r"1 of 1 trajectories jump.*0 \(\d\.\d\d m from pose 239 to 240, "
                      r"usually 0\.10 m\)", caplog.text)
+
+
+def test_a_recording_in_another_frame_is_said_to_be_one(tmp_path):
+    """Every pose 100 m off (another frame or origin): named as such, not as a pose that
+    leaves the room, nor only as no trajectory found."""
+    from pipeline.core.world import Room
+    from pipeline.errors import PipelineError
+    room = Room(0, 0, 10, 10)
+    shifted = walk(0.1) + 100.0
+    path = tmp_path / "far.json"
+    path.write_text(json.dumps({"trajectories": [shifted.tolist()]}))
+    with pytest.raises(PipelineError, match=r"trajectory 0 lies wholly outside the room "
+                       r"\[0, 10\] x \[0, 10\], from \(100\.50, 100\.50\): recorded in "
+                       r"another frame"):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2, room=room)
+    stream = tmp_path / "far.csv"
+    stream.write_text("x,y\n" + "".join(f"{x!r},{y!r}\n" for x, y in shifted.tolist()))
+    with pytest.raises(PipelineError, match=r"found no trajectory .* \(x 100\.5\.\.106, "
+                       r"y 100\.5\.\.105, all outside the room \[0, 10\] x \[0, 10\]: another "
+                       r"frame or origin\?\)"):
+        load_recorded(stream, START[None], GOAL, goal_tolerance=0.2, room=room)
