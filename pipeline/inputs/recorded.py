@@ -46,6 +46,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.linalg
+from scipy.spatial import cKDTree
 
 from pipeline.core.world import Room, metres, point
 from pipeline.errors import PipelineError
@@ -111,6 +112,15 @@ NOISE_SPAN_RATIO = 1.5
 # tracker lost the person and found them, or someone else, again (`largest_jump`, one warning).
 JUMP_STEPS = 10.0
 JUMP_MIN = 1.0  # m
+# `revisit`: a trajectory is back on its own route where it comes within REVISIT_RADIUS of
+# where it was more than REVISIT_ARC metres of walking before (no walk to a goal does that;
+# a loop of 0.5 m radius does after 3 m)
+# `match_to_starts` warns of a trajectory whose second-nearest start is less than this much
+# farther than its nearest: which start it is learned from is then a coin toss
+START_TIE = 0.2  # m
+REVISIT_RADIUS = 0.25  # m
+REVISIT_ARC = 2.0  # m
+REVISIT_STEP = 0.1  # m
 
 
 def describe(path: Path) -> str:
@@ -613,6 +623,42 @@ def warn_jumps(tracks: Sequence[np.ndarray], where: str,
                     "; ".join(found[:3]) + ("; ..." if len(found) > 3 else ""))
 
 
+def revisit(track: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Where a trajectory comes back to its own route: the first point (on the polyline,
+    sampled every REVISIT_STEP) within REVISIT_RADIUS of a point more than REVISIT_ARC metres
+    of walking earlier, with that walk; None when it never does (a loop, a walk out and
+    back, a U-turn do)."""
+    p = clean_track(track, REVISIT_STEP)
+    if len(p) < 3 or not np.isfinite(p).all():
+        return None
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    pairs = cKDTree(p).query_pairs(REVISIT_RADIUS, output_type="ndarray")
+    if len(pairs) == 0:
+        return None
+    walked = np.abs(arc[pairs[:, 1]] - arc[pairs[:, 0]])
+    back = pairs[walked > REVISIT_ARC]
+    if len(back) == 0:
+        return None
+    later = back.max(axis=1)
+    k = int(np.argmin(later))
+    return p[later[k]], float(walked[walked > REVISIT_ARC][k])
+
+
+def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
+    """One warning naming the trajectories that come back to their own route (`revisit`):
+    learned as they are, a loop reads as a longer, more winding walk."""
+    found = []
+    for k, track in enumerate(tracks):
+        hit = revisit(track)
+        if hit is not None:
+            found.append(f"{k} (back at {point(*hit[0])} after {hit[1]:.1f} m)")
+    if found:
+        log.warning("%s: %d of %d trajectories come back to their own route (a loop, a walk out "
+                    "and back): %s; they are learned as they are, so cut out what is not part "
+                    "of the walk to the goal", where, len(found), len(tracks),
+                    "; ".join(found[:3]) + ("; ..." if len(found) > 3 else ""))
+
+
 def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
     """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 3: z minimising
     |points - z|^2 + penalty |D z|^2 with D the second differences, one banded solve."""
@@ -798,12 +844,14 @@ def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.n
 
     Each track must begin within `start_radius` of its nearest start and end within
     max(1 m, `goal_tolerance`) of the goal; otherwise one line naming `source`, the trajectory
-    (numbered from 0) and the distance is raised.
+    (numbered from 0) and the distance is raised. One warning names the tracks that begin
+    more than half `start_radius` from their start, or within START_TIE as near another.
     """
     starts = np.asarray(starts, dtype=float).reshape(-1, 2)
     goal = np.asarray(goal, dtype=float)
     goal_limit = max(1.0, goal_tolerance)
-    matched = []
+    matched: list[int] = []
+    doubtful: list[str] = []
     for i, t in enumerate(tracks):
         gaps = np.linalg.norm(starts - t[0], axis=1)
         k = int(np.argmin(gaps))
@@ -818,6 +866,17 @@ def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.n
                                 f"{point(*goal)}; at most {goal_limit:g} m (extend "
                                 "it to the goal, or check that it belongs to this scene)")
         matched.append(k)
+        second = int(np.argsort(gaps, kind="stable")[1]) if len(gaps) > 1 else k
+        if second != k and gaps[second] - gaps[k] < START_TIE:
+            doubtful.append(f"{i} ({gaps[k]:.2f} m from start {k}, {gaps[second]:.2f} m from "
+                            f"start {second})")
+        elif gaps[k] > start_radius / 2:
+            doubtful.append(f"{i} ({gaps[k]:.2f} m from start {k})")
+    if doubtful:
+        log.warning("%s: trajectories %s begin far from the start they are assigned to, or as "
+                    "near another: check that they begin where the scene's starts are "
+                    "(the part before them is not learned from)", source,
+                    "; ".join(doubtful[:3]) + ("; ..." if len(doubtful) > 3 else ""))
     return matched
 
 
@@ -965,6 +1024,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
                               spacing if recording.is_stream or smoothed[i] else None)
                for i, t in enumerate(tracks)]
     cleaned = [np.round(c, COORDINATE_DECIMALS) for c in cleaned]
+    warn_revisits(cleaned, where)
     matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
     without = sorted(set(range(len(np.asarray(starts).reshape(-1, 2)))) - set(matched))
     if without:

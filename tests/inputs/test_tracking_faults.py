@@ -161,3 +161,36 @@ def test_a_recording_in_another_frame_is_said_to_be_one(tmp_path):
                        r"y 100\.5\.\.105, all outside the room \[0, 10\] x \[0, 10\]: another "
                        r"frame or origin\?\)"):
         load_recorded(stream, START[None], GOAL, goal_tolerance=0.2, room=room)
+
+
+def test_a_walk_that_comes_back_to_its_own_route_is_named(tmp_path, caplog):
+    from pipeline.inputs.recorded import revisit
+    straight = walk(0.1)
+    assert revisit(straight) is None  # the bend of 2 m radius never comes back
+    ring = np.array([2.0, 0.5]) + 0.5 * np.column_stack(
+        [np.sin(np.linspace(0, 2 * np.pi, 40)), 1 - np.cos(np.linspace(0, 2 * np.pi, 40))])
+    looped = np.vstack([straight[straight[:, 0] < 2.0], ring, straight[straight[:, 0] > 2.0]])
+    where, walked = revisit(looped)
+    assert np.linalg.norm(where - [2.0, 0.5]) <= 0.5 and 2.0 < walked <= np.pi + 0.5
+    out_and_back = np.vstack([straight[:20], straight[:20][::-1], straight])
+    assert revisit(out_and_back) is not None
+    path = tmp_path / "loop.json"
+    path.write_text(json.dumps({"trajectories": [straight.tolist(), looped.tolist()]}))
+    with caplog.at_level(logging.WARNING):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    assert re.search(r"1 of 2 trajectories come back to their own route .*: 1 \(back at "
+                     r"\(\d\.\d+, 0\.\d+\) after \d\.\d m\)", caplog.text)
+
+
+def test_a_walk_beginning_far_from_its_start_or_between_two_is_named(caplog):
+    from pipeline.inputs.recorded import match_to_starts
+    starts = np.array([[2.0, 3.0], [4.0, 3.0], [0.5, 0.5]])
+    goal = np.array([5.5, 9.0])
+    ways = [np.array([[3.0, 3.0], goal]),    # 1 m from both starts 0 and 1
+            np.array([[2.95, 3.0], goal]),   # nearer start 0 by 0.1 m only
+            np.array([[0.5, 1.3], goal]),    # 0.8 m from start 2, over half the radius
+            np.array([[0.6, 0.5], goal])]    # at its start
+    with caplog.at_level(logging.WARNING):
+        assert match_to_starts(ways, starts, goal, 1.0, 0.3, "demo X") == [0, 0, 2, 2]
+    assert "trajectories 0 (1.00 m from start 0, 1.00 m from start 1); 1 (0.95 m from " \
+           "start 0, 1.05 m from start 1); 2 (0.80 m from start 2) begin far" in caplog.text
