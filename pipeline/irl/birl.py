@@ -169,7 +169,7 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     # trajectory decides (the last iterate is not the best: eq. (2)'s iterates oscillate).
     pool = [t for it in paper for t in it.generated]
     eq2 = Posterior(problem.expert, pool, problem.prior, config.beta)
-    chosen, chosen_score = w_map, -np.inf
+    chosen, chosen_score, chosen_from = w_map, -np.inf, 0
     admissible: dict[tuple[float, ...], bool] = {}  # iterates often repeat
     distances: dict[tuple[int, tuple[int, ...]], float] = {}  # and their paths more often
     chosen_ll = boltzmann.log_likelihood(chosen, beta_map)
@@ -181,9 +181,16 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
             admissible[key] = reproduces(paper[n].rollout, problem, distances) and \
                 boltzmann.admissible(paper[n].weights, best - threshold, beta_map)
         if score > chosen_score and admissible[key]:
-            chosen, chosen_score = paper[n].weights, score
+            chosen, chosen_score, chosen_from = paper[n].weights, score, n
             chosen_ll = boltzmann.log_likelihood(chosen, beta_map)
         records.append(problem.record(n, chosen, chosen_ll))
+    if problem.status is not None:  # which candidate won, and why the log likelihood fell
+        problem.status(
+            f"estimate: eq. (2)'s iterate {chosen_from}, admissible against the Boltzmann MAP "
+            f"(β = {beta_map:.3g}) and of higher eq. (2) posterior; the log likelihood above is "
+            "the Boltzmann model's, highest at its MAP" if chosen_from else
+            f"estimate: the Boltzmann MAP (β = {beta_map:.3g}); no eq. (2) iterate was "
+            "admissible")
     # Graph solves: eq. (2)'s whole loop, then one per recorded iteration (the soft policy
     # iterations of the Boltzmann model are not counted).
     return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))])

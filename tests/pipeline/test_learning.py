@@ -1,5 +1,7 @@
 """End to end through the real app: BIRL-G learns socially compliant rewards."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -241,3 +243,18 @@ def test_hand_drawn_paths_are_learned_with_every_segment_costed(tmp_path):
                           "expert.path=data/demos/metropolis_handdrawn.json", "seed=1")
     assert m["ref_relation_crossings"] == 0 and m["ref_intimate_intrusion_m"] <= 0.9
     assert m["time_to_goal"] >= 0.8 * m["path_length"]
+
+
+def test_the_log_says_which_candidate_the_robust_learner_chose(tmp_path, caplog):
+    """A user reading iteration lines whose log likelihood falls is told why: the estimate is
+    an admissible eq. (2) iterate (by number) or the Boltzmann MAP, with its β."""
+    with caplog.at_level("INFO"):
+        run_in_process(tmp_path, "graph=small", "stages=[scene,demos,graph,birl]")
+    [said] = [r.getMessage() for r in caplog.records if "estimate: " in r.getMessage()]
+    chosen = re.search(r"estimate: (eq\. \(2\)'s iterate (\d+), admissible against the "
+                       r"Boltzmann MAP \(β = [0-9.e+]+\)|the Boltzmann MAP \(β = [0-9.e+]+\); "
+                       r"no eq\. \(2\) iterate was admissible)", said)
+    assert chosen is not None, said
+    birl = read_artefact(tmp_path / "birl.mcap").all("/birl/iteration")
+    if chosen[2] is not None:  # iteration n records the choice among the MAP and iterates
+        assert birl[-1]["weights"] == birl[int(chosen[2])]["weights"]  # 1..n: it won there
