@@ -236,7 +236,9 @@ class EvaluateConfig:
         h = self.holdout
         require(h is None or h == "all" or (is_number(h) and 0 < h < 1) or (
             isinstance(h, list) and len(h) > 0 and all(isinstance(s, str | int) for s in h)),
-            "holdout", h, "null, a fraction in (0, 1), a list of subject ids, or all")
+            "holdout", h, "null, a fraction in (0, 1), a list of subject ids, or all"
+            + (f" (one subject: 'evaluate.holdout=[{h}]')" if isinstance(h, str | int)
+               and not isinstance(h, bool) and h != "all" and not is_number(h) else ""))
 
 
 # -- the whole run -------------------------------------------------------------------------

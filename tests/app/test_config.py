@@ -164,3 +164,12 @@ def test_config_errors_show_numbers_as_typed_not_numpy_reprs():
         validate(compose_config("mdp.gamma=1", "birl.upper=[1]"))
     assert "birl.upper=[1.0, 1.0, 1.0, 1.0, 1.0] is not allowed" in str(err.value)
     assert "np." not in str(err.value)
+
+
+def test_a_single_held_out_subject_without_brackets_is_shown_the_list_form():
+    with pytest.raises(PipelineError) as err:
+        validate(compose_config("evaluate.holdout=sub3"))
+    assert str(err.value).endswith("(one subject: 'evaluate.holdout=[sub3]'))")
+    with pytest.raises(PipelineError) as err:  # a number is not taken for an id
+        validate(compose_config("evaluate.holdout=7"))
+    assert "one subject" not in str(err.value)
