@@ -112,12 +112,12 @@ NOISE_SPAN_RATIO = 1.5
 # tracker lost the person and found them, or someone else, again (`largest_jump`, one warning).
 JUMP_STEPS = 10.0
 JUMP_MIN = 1.0  # m
-# `revisit`: a trajectory is back on its own route where it comes within REVISIT_RADIUS of
-# where it was more than REVISIT_ARC metres of walking before (no walk to a goal does that;
-# a loop of 0.5 m radius does after 3 m)
 # `match_to_starts` warns of a trajectory whose second-nearest start is less than this much
 # farther than its nearest: which start it is learned from is then a coin toss
 START_TIE = 0.2  # m
+# `revisit`: a trajectory is back on its own route where it comes within REVISIT_RADIUS of
+# where it was more than REVISIT_ARC metres of walking before (no walk to a goal does that;
+# a loop of 0.5 m radius does after 3 m)
 REVISIT_RADIUS = 0.25  # m
 REVISIT_ARC = 2.0  # m
 REVISIT_STEP = 0.1  # m
