@@ -5,6 +5,7 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Sequence
 from typing import Any, TextIO
 
 
@@ -16,6 +17,12 @@ def first_line(e: BaseException, limit: int = 200) -> str:
     """The first line of an error's message (its type's name when it has none), cut to
     `limit` characters: a parser's or a library's message can run over many lines."""
     return (str(e).splitlines() or [type(e).__name__])[0][:limit]
+
+
+def listed(items: Sequence[object], most: int, sep: str = ", ") -> str:
+    """The first `most` items joined by `sep`, then "..." when there are more: a message
+    names a few culprits on one line, not every one of thousands."""
+    return sep.join(map(str, items[:most])) + (f"{sep}..." if len(items) > most else "")
 
 
 def one_line(e: BaseException) -> str:

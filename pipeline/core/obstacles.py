@@ -334,8 +334,7 @@ class ObstacleMap:
         straight away from the nearest occupied cell until their clearance is `radius` (a
         few tries, each a cell farther); the others as they are."""
         p = np.array(points, dtype=float).reshape(-1, 2)
-        if not np.isfinite(self.clearance).any() or not self.grid.occupied.any() \
-                and not self.outside_occupied:
+        if not np.isfinite(self.clearance).any():  # nothing occupied, no map edge
             return p
         res = self.resolution
         for extra in (1.0, 2.0, 3.0, 4.0, 5.0):  # in a corner the other wall may be met

@@ -13,7 +13,7 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.social import min_distance_to_person
 from pipeline.core.world import Scene, point
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, listed
 from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, describe, load_recorded
 
 log = logging.getLogger(__name__)
@@ -49,24 +49,30 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                                      f"{describe(path)}: trajectory {k}")
         if not demo.reached:
             end_gap = float(np.linalg.norm(points[-1] - scene.goal))
-            shown = f"{end_gap:.2f}"  # 0.304 is no "0.30 m" beside a 0.3 m tolerance
-            if float(shown) <= scene.goal_tolerance:
-                shown = f"{end_gap:.4f}"
-            unreached.append(f"{k} ({shown} m)")
+            unreached.append(f"{k} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
         demos.append(demo)
     if pushed:
         log.warning("%s: trajectories %s come closer to an obstacle than robot_radius=%g m by "
                     "at most %g m, as tracking noise along a wall does: there they are moved "
                     "away from it to robot_radius (closer is refused)", describe(path),
-                    ", ".join(pushed[:5]) + (", ..." if len(pushed) > 5 else ""),
+                    listed(pushed, 5),
                     scene.robot_radius, ROOM_EDGE_TOLERANCE)
     if unreached:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m): they "
                     "are learned from as demonstrations that do not reach the goal; extend them "
                     "to the goal or raise scene.goal_tolerance", describe(path),
-                    ", ".join(unreached[:5]) + (", ..." if len(unreached) > 5 else ""),
+                    listed(unreached, 5),
                     scene.goal_tolerance)
     return demos
+
+
+def metres_beside(value: float, limit: float) -> str:
+    """`value` to the centimetre, or to 0.1 mm where the centimetre would hide on which side
+    of `limit` it lies: 0.1986 m is no "0.20 m" beside 0.2 m, nor 0.304 m "0.30 m" beside
+    0.3 m."""
+    shown = f"{value:.2f}"
+    return shown if (float(shown) < limit) == (value < limit) and float(shown) != limit \
+        else f"{value:.4f}"
 
 
 def clear_of_walls(points: np.ndarray, scene: Scene) -> np.ndarray:
@@ -104,11 +110,9 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
         worst = int(np.argmin(clearance))
         if clearance[worst] < scene.robot_radius:
             x, y = points[worst]
-            gap = f"{clearance[worst]:.2f}"
-            if float(gap) >= scene.robot_radius:  # 0.1986 is no "0.20 m" beside 0.2 m
-                gap = f"{clearance[worst]:.4f}"
             raise PipelineError(
-                f"{what} comes {gap} m from an obstacle after ({x:.2f}, "
+                f"{what} comes {metres_beside(clearance[worst], scene.robot_radius)} m from "
+                f"an obstacle after ({x:.2f}, "
                 f"{y:.2f}); the robot needs robot_radius={scene.robot_radius:g} m (lower it "
                 "in the scene file or with scene.robot_radius)")
     check_clear_of_bodies(what, points, scene)

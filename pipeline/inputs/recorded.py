@@ -49,7 +49,7 @@ import scipy.linalg
 from scipy.spatial import cKDTree
 
 from pipeline.core.world import Room, metres, point
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, listed
 from pipeline.inputs.schemas import read_json
 
 log = logging.getLogger(__name__)
@@ -620,7 +620,7 @@ def warn_jumps(tracks: Sequence[np.ndarray], where: str,
     if found:
         log.warning("%s: %d of %d trajectories jump, each kept with a straight segment there "
                     "(was tracking lost?): %s", where, len(found), len(tracks),
-                    "; ".join(found[:3]) + ("; ..." if len(found) > 3 else ""))
+                    listed(found, 3, "; "))
 
 
 def revisit(track: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -636,12 +636,12 @@ def revisit(track: np.ndarray) -> tuple[np.ndarray, float] | None:
     if len(pairs) == 0:
         return None
     walked = np.abs(arc[pairs[:, 1]] - arc[pairs[:, 0]])
-    back = pairs[walked > REVISIT_ARC]
-    if len(back) == 0:
+    far = walked > REVISIT_ARC
+    if not far.any():
         return None
-    later = back.max(axis=1)
+    later = pairs[far].max(axis=1)
     k = int(np.argmin(later))
-    return p[later[k]], float(walked[walked > REVISIT_ARC][k])
+    return p[later[k]], float(walked[far][k])
 
 
 def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
@@ -656,7 +656,7 @@ def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
         log.warning("%s: %d of %d trajectories come back to their own route (a loop, a walk out "
                     "and back): %s; they are learned as they are, so cut out what is not part "
                     "of the walk to the goal", where, len(found), len(tracks),
-                    "; ".join(found[:3]) + ("; ..." if len(found) > 3 else ""))
+                    listed(found, 3, "; "))
 
 
 def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
@@ -876,7 +876,7 @@ def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.n
         log.warning("%s: trajectories %s begin far from the start they are assigned to, or as "
                     "near another: check that they begin where the scene's starts are "
                     "(the part before them is not learned from)", source,
-                    "; ".join(doubtful[:3]) + ("; ..." if len(doubtful) > 3 else ""))
+                    listed(doubtful, 3, "; "))
     return matched
 
 
@@ -953,11 +953,11 @@ def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list
             farthest = max(farthest, stray)
         out.append(t)
     if moved:
-        listed = ", ".join(map(str, moved[:5])) + (", ..." if len(moved) > 5 else "")
         log.warning("%s: %s (%s) stray%s up to %.3f m outside the room %s, as tracking noise "
                     "along a wall does; those points are moved onto its edge (farther than %g m "
                     "out is refused)", where,
-                    "1 trajectory" if len(moved) == 1 else f"{len(moved)} trajectories", listed,
+                    "1 trajectory" if len(moved) == 1 else f"{len(moved)} trajectories",
+                    listed(moved, 5),
                     "s" if len(moved) == 1 else "", farthest, room.describe(),
                     ROOM_EDGE_TOLERANCE)
     return out

@@ -7,6 +7,7 @@ import logging
 from pipeline.app import build
 from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, foxglove, topics
+from pipeline.errors import listed
 
 log = logging.getLogger(__name__)
 
@@ -20,8 +21,7 @@ def run(ctx: RunContext) -> None:
              if f.split("@")[0] == "front"]
     if guessed and front:
         log.warning("persons %s give neither theta nor a velocity: %s takes them to face +x "
-                    "(theta 0); give each its theta", ", ".join(map(str, guessed[:8]))
-                    + (", ..." if len(guessed) > 8 else ""), front[0])
+                    "(theta 0); give each its theta", listed(guessed, 8), front[0])
     if scene.obstacles is not None:
         log.info("obstacles: %d polygons%s, robot_radius %g m", len(scene.polygons),
                  f", map {scene.map_source}" if scene.map_grid is not None else "",
