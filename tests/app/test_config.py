@@ -8,7 +8,7 @@ from hydra.errors import ConfigCompositionException
 
 from pipeline.app.config import load_settings as validate
 from pipeline.errors import PipelineError
-from tests.conftest import compose_config
+from tests.conftest import compose_config, run_app
 
 
 @pytest.mark.parametrize("overrides", [
@@ -40,6 +40,7 @@ def test_every_config_group_option_composes_and_validates(overrides):
     ("scene=file scene.path=", "scene.path"),
     ("from_run=", "from_run"),
     ("evaluate.transfer_scenes=[[a]]", "evaluate.transfer_scenes"),
+    ("birl=mcmc birl.max_samples=10", "birl.max_samples"),  # fewer than n_samples
     # bounds that keep the arithmetic sane (found by fuzzing: petabyte arrays, zero durations,
     # a policy loss below 0 from round-off, an empty interval to sample persons from)
     ("reward.resolution=1e-12", "reward.resolution"),
@@ -173,3 +174,12 @@ def test_a_single_held_out_subject_without_brackets_is_shown_the_list_form():
     with pytest.raises(PipelineError) as err:  # a number is not taken for an id
         validate(compose_config("evaluate.holdout=7"))
     assert "one subject" not in str(err.value)
+
+
+def test_a_denoise_that_is_no_bool_is_one_line_naming_it():
+    result = run_app("expert=file", "expert.path=x.json", "expert.denoise=maybe",
+                     "stages=[scene]")
+    assert result.returncode != 0
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "expert.denoise=maybe" in lines[0] and "not a valid bool" \
+        in lines[0]
