@@ -121,7 +121,10 @@ def stopped_by_signals() -> Iterator[None]:
         if stops:  # the Interrupted was raised where Python drops exceptions (a finaliser,
             raise Interrupted(stops[0])  # a weakref callback) and the block went on
     finally:
-        _STOPS.remove(stops)
+        # by identity: list.remove compares by value, and an inner block's [] equals this
+        # one's, so it took the outer's list out and a later signal made the outer's
+        # removal fail ("x not in list" from a sweep worker stopped by SIGTERM)
+        del _STOPS[next(i for i, s in enumerate(_STOPS) if s is stops)]
         sys.unraisablehook = unraisable_hook
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -652,3 +652,18 @@ def test_a_stop_python_drops_in_a_finaliser_stops_the_run_at_the_next_stage(tmp_
         rundir.start("demos")
     status = read_status(tmp_path)
     assert (status.state, status.stage) == ("interrupted", "scene"), status
+
+
+def test_a_signal_after_an_inner_block_ended_stops_the_outer_one():
+    """A sweep worker's block holds a run's block; after the run's block ends, a SIGTERM
+    must stop the worker's block with Interrupted. The inner block used to take the
+    outer's (equal, empty) list of stops off the stack, and the outer then failed with
+    "list.remove(x): x not in list", a traceback instead of one line."""
+    with pytest.raises(Interrupted) as stopped:
+        with stopped_by_signals():
+            with stopped_by_signals():
+                pass
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):  # the handler runs at one of these steps
+                pass
+    assert stopped.value.signum == signal.SIGTERM
