@@ -38,6 +38,8 @@ from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT
+from pipeline.irl.fixed import FixedConfig
+from pipeline.irl.prior import Prior
 from pipeline.irl.robust import heldout_log_likelihood
 
 log = logging.getLogger(__name__)
@@ -315,13 +317,42 @@ def worse_than_initial(m: dict) -> list[str]:
             "demonstrations before reading this run's weights"]
 
 
+def weights_at_box(m: dict, learner_features: list[str], box: Prior) -> list[str]:
+    """A line naming the learned weights at a bound of the weight box (the demonstrations
+    would have them further out: their size is the box's, not learned) or at its middle
+    (where the default learner leaves what the demonstrations say nothing about, e.g. a
+    feature that never differs between their paths and the alternatives)."""
+    w = np.array([m.get(f"weight_{n}", np.nan) for n in learner_features], dtype=float)
+
+    def near(target: np.ndarray) -> np.ndarray:
+        return np.abs(w - target) <= BOX_TOLERANCE * (box.upper - box.lower)
+
+    names = np.array(learner_features)
+    parts = [f"{', '.join(names[hit])} at its {where} ({meaning})"
+             for where, hit, meaning in (
+                 ("lower bound", near(box.lower), BOUND_MEANS),
+                 ("upper bound", near(box.upper), BOUND_MEANS),
+                 ("middle", near((box.lower + box.upper) / 2), "nothing moved it: unknown"))
+             if hit.any()]
+    return [f"  weight box       {'; '.join(parts)}"] if parts else []
+
+
+BOUND_MEANS = "birl.lower/upper, not the demonstrations, set its size"
+# weights_at_box: a weight this close to a bound or the middle, relative to the box's width
+BOX_TOLERANCE = 1e-6
+
+
 def print_summary(m: dict, ctx: RunContext) -> None:
-    print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features), flush=True)
+    learned = not isinstance(ctx.cfg.birl, FixedConfig)
+    print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features,
+                       build.prior(ctx.cfg) if learned else None), flush=True)
 
 
-def summary_text(m: dict, run_dir: str, learner_features: list[str]) -> str:
+def summary_text(m: dict, run_dir: str, learner_features: list[str],
+                 box: Prior | None = None) -> str:
     """The one screen a run ends with, from its metrics (the docs generator prints the same
-    for the README's sample output)."""
+    for the README's sample output). box: the learner's weight box, to say which learned
+    weights lie at its bounds or its middle (None: the weights were given, not learned)."""
     def fmt(key: str, spec: str = ".4f", unit: str = "") -> str:
         v = m.get(key)
         return "n/a" if v is None else format(v, spec) + unit
@@ -340,6 +371,8 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str]) -> str:
 
     lines = [f"BIRL-G run: {run_dir}",
              "  learned weights  " + ", ".join(weight(n) for n in learner_features)]
+    if box is not None:
+        lines += weights_at_box(m, learner_features, box)
     if "mcmc_acceptance_rate" in m:
         agree = m["mcmc_rhat_max"] <= AGREED_RHAT and m["mcmc_ess_min"] >= AGREED_ESS
         verdict = "the chains agree" if agree else (

@@ -515,10 +515,11 @@ def default_run_metrics() -> dict[str, float]:
 def sample_output(metrics: dict[str, float]) -> str:
     """The summary `make experiment` prints for these metrics, with the run dir's line
     made a placeholder."""
+    from pipeline.app.build import prior
     from pipeline.stages.evaluate import summary_text
 
-    features = load_settings(compose_config()).learner_features
-    return summary_text(metrics, SAMPLE_RUN_DIR, features)
+    settings = load_settings(compose_config())
+    return summary_text(metrics, SAMPLE_RUN_DIR, settings.learner_features, prior(settings))
 
 
 def readme_with_sample(readme: str, sample: str) -> str:

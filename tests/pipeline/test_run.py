@@ -193,3 +193,23 @@ def test_long_work_inside_a_stage_says_how_far_it_got(tmp_path, caplog, override
         run_in_process(tmp_path, *overrides)
     told = [int(m[1]) for r in caplog.records if (m := re.search(pattern, r.getMessage()))]
     assert told == expected
+
+
+
+def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run, tmp_path):
+    _, metrics, stdout = default_run
+    names = ["relation", "social", "goal_deviation", "length", "crossing"]
+    weights = {n: metrics[f"weight_{n}"] for n in names}
+    # the default box is [-1, 0] for every weight: say which learned weights lie where
+    at = {where: [n for n in names if abs(weights[n] - value) <= 1e-6]
+          for where, value in (("lower bound", -1.0), ("upper bound", 0.0), ("middle", -0.5))}
+    assert any(at.values())  # the default run has some (relation at -1), else nothing to test
+    line = next(x for x in stdout.splitlines() if x.startswith("  weight box"))
+    for where, hit in at.items():
+        assert (f"{', '.join(hit)} at its {where}" in line) == bool(hit), (where, line)
+    for n in names:  # and only those
+        assert (n in line) == any(n in hit for hit in at.values()), (n, line)
+    # given weights (birl=fixed, all at a bound) are not described as learned
+    fixed = run_in_process(tmp_path, "birl=fixed", "birl.weights=[-1,-1,-1,-1,-1]",
+                           "stages=[birl,evaluate]", f"from_run={default_run[0]}")[1]
+    assert "learned weights  relation -1.000" in fixed and "weight box" not in fixed
