@@ -37,7 +37,7 @@ from pipeline.core.state_graph import DEMO
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.irl.birl import BirlMapConfig
-from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT
+from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT, chains_agree
 from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import heldout_log_likelihood
@@ -374,10 +374,13 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
     if box is not None:
         lines += weights_at_box(m, learner_features, box)
     if "mcmc_acceptance_rate" in m:
-        agree = m["mcmc_rhat_max"] <= AGREED_RHAT and m["mcmc_ess_min"] >= AGREED_ESS
-        verdict = "the chains agree" if agree else (
-            f"the chains do not agree yet: R-hat above {AGREED_RHAT:g} or ESS below "
-            f"{AGREED_ESS} after birl.max_samples samples per chain; raise it")
+        if m.get("mcmc_rhat_max") is None:  # R-hat compares chains
+            verdict = "one chain: convergence untested; R-hat needs birl.n_chains ≥ 2"
+        elif chains_agree([m["mcmc_rhat_max"]], [m.get("mcmc_ess_min", np.nan)]):
+            verdict = "the chains agree"
+        else:
+            verdict = (f"the chains do not agree yet: R-hat above {AGREED_RHAT:g} or ESS below "
+                       f"{AGREED_ESS} after birl.max_samples samples per chain; raise it")
         lines.append(f"  posterior        R-hat max {fmt('mcmc_rhat_max', '.3f')}, ESS min "
                      f"{fmt('mcmc_ess_min', '.0f')}, acceptance "
                      f"{fmt('mcmc_acceptance_rate', '.2f')} ({verdict})")

@@ -107,6 +107,16 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
     assert all(is_metric_key(k) for k in m)  # every key can be a sweep's objective
 
 
+
+def test_one_chain_mcmc_says_convergence_is_untested(tmp_path_factory):
+    """One chain has no R-hat (it compares chains): the summary says so (it ended the run
+    with a KeyError before)."""
+    _, m, out = run_experiment(tmp_path_factory, "birl=mcmc", "birl.n_chains=1",
+                               "birl.n_iterations=2", "graph=small", "birl.n_samples=200")
+    assert "mcmc_rhat_max" not in m and m["mcmc_acceptance_rate"] > 0
+    assert "R-hat max n/a" in out and "one chain: convergence untested" in out
+    assert "the chains agree" not in out
+
 def test_file_demos_report_similarity(tmp_path_factory):
     run_dir, m, _ = run_experiment(tmp_path_factory, "expert=file",
                                    f"expert.path={ROOT}/data/demos/metropolis_polite_smoothed.json")
