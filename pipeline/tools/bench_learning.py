@@ -88,6 +88,8 @@ HALLWAY_SUBJECTS, HALLWAY_HELD_OUT = 16, 4
 LEARNERS: dict[str, list[str]] = {
     "default": [],
     "paper": ["birl.likelihood=paper"],
+    # the robust form's Boltzmann MAP alone, without eq. (2)'s iterates as candidates
+    "boltzmann_map": ["birl.likelihood=boltzmann"],
     "policywalk": ["birl=policywalk"],
     "maxent": ["birl=maxent"],
 }

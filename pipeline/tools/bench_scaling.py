@@ -27,13 +27,15 @@ import pandas as pd
 from pipeline.tools import run_tool
 from pipeline.tools.bench import RESULTS, _app, learning_stages, read_artefact_iterations
 
-METHODS = ["map", "robust", "robust_graph", "mcmc", "policywalk", "maxent"]
-NAMES = {"map": "BIRL-G (MAP, paper eq. 2)", "robust": "BIRL-G (MAP, robust)",
+METHODS = ["map", "boltzmann", "robust", "robust_graph", "mcmc", "policywalk", "maxent"]
+NAMES = {"map": "BIRL-G (MAP, paper eq. 2)", "boltzmann": "BIRL-G (MAP, Boltzmann)",
+         "robust": "BIRL-G (MAP, robust)",
          "robust_graph": "BIRL-G (MAP, robust, the graph's paths as alternatives)",
          "mcmc": "BIRL-G (MCMC, paper eq. 2)", "policywalk": "PolicyWalk",
          "maxent": "MaxEnt (roadmap)"}
 # method -> overrides; BIRL-G's paper form and robust form side by side
 METHOD_OVERRIDES = {"map": ["birl=map", "birl.likelihood=paper"],
+                    "boltzmann": ["birl=map", "birl.likelihood=boltzmann"],
                     "robust": ["birl=map", "birl.likelihood=robust"],
                     "robust_graph": ["birl=map", "birl.likelihood=robust",
                                      "birl.alternatives=graph"],
