@@ -55,8 +55,8 @@ METRIC_KEYS: dict[str, str] = {
         "the held-out demonstrations, their median Fréchet distance to the learned paths and "
         "median error of the smallest distance to a person (`_shortest`: of the fastest path)",
     r"heldout_log_likelihood(_shortest)?": "`evaluate.holdout`: mean log likelihood per "
-        "held-out demonstration under the robust form's model (Boltzmann policy "
-        "over the lattice of alternatives, relative to its base measure), β fitted to the "
+        "held-out demonstration under the default learner's Boltzmann model (Boltzmann "
+        "policy over the lattice of alternatives, relative to its base measure), β fitted to the "
         "training demonstrations (`_shortest`: of the cost per second alone); higher predicts "
         "better",
 }

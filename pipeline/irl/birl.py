@@ -45,7 +45,8 @@ from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import BASE_MEASURES, BoltzmannPosterior, LogBetaDensity
 
-LIKELIHOODS = ("paper", "robust", "boltzmann")
+LIKELIHOODS = ("boltzmann", "paper", "robust")
+BOLTZMANN_FORMS = ("boltzmann", "robust")  # the likelihoods whose estimate is a Boltzmann model's
 ALTERNATIVES = ("lattice", "graph")
 
 
@@ -57,35 +58,37 @@ class BirlMapConfig(IRLConfig):
     # derived from the scene at start-up, some on a scene with obstacles (a map), none in an
     # open room (the log says how many; pipeline.app.limits.learning_growth)
     grow_nodes: Optional[int] = None
-    # paper: eq. (2) against the greedy generated trajectories; robust: against every
-    # trajectory of the graph under the Boltzmann policy, β learned (pipeline.irl.robust;
-    # README "Imperfect demonstrations")
-    likelihood: str = "robust"
-    beta_min: float = 0.1  # robust: β is learned, log-uniform on [beta_min, beta_max];
-    beta_max: float = 1000.0  # `beta` is its starting value
+    # boltzmann: the MAP of a Boltzmann model, each demonstration against every path from
+    # its start under the soft policy, β learned (pipeline.irl.robust; docs/methods.md);
+    # paper: eq. (2) against the greedy generated trajectories; robust: that MAP or an
+    # eq. (2) iterate it admits
+    likelihood: str = "boltzmann"
+    beta_min: float = 0.1  # boltzmann, robust: β is learned, log-uniform on
+    beta_max: float = 1000.0  # [beta_min, beta_max]; `beta` is its starting value
     # robust: level of the likelihood-ratio test that keeps an eq. (2) iterate
     test_level: float = 1e-4
-    # robust: σ of the Boltzmann model's Gaussian prior on w, centred in the box, as a
-    # fraction of the box's side (its mean over the features) (its β is learned, so noisy
-    # demonstrations leave w weakly identified); null: birl.prior
+    # boltzmann, robust: σ of the Boltzmann model's Gaussian prior on w, centred in the box,
+    # as a fraction of the box's side (its mean over the features) (its β is learned, so
+    # noisy demonstrations leave w weakly identified); null: birl.prior
     boltzmann_prior_scale: Optional[float] = 0.5
-    # robust: the paths' base measure, what the demonstrator does at β = 0 (walk: the
-    # uniform random walk; uniform: each path once, as MaxEnt); pipeline.irl.robust
+    # boltzmann, robust: the paths' base measure, what the demonstrator does at β = 0 (walk:
+    # the uniform random walk; uniform: each path once, as MaxEnt); pipeline.irl.robust
     base_measure: str = "walk"
-    # robust: the paths each demonstration is compared with, the model's alternatives
-    # (lattice: every path of a 16-connected lattice over the room's free space; graph: the
-    # adaptive graph's, which crowd where the demonstrations are, so a weight that only an
-    # untaken route would reveal stays unidentified); pipeline.irl.robust
+    # boltzmann, robust: the paths each demonstration is compared with, the model's
+    # alternatives (lattice: every path of a 16-connected lattice over the room's free
+    # space; graph: the adaptive graph's, which crowd where the demonstrations are, so a
+    # weight that only an untaken route would reveal stays unidentified)
     alternatives: str = "lattice"
-    # robust, alternatives=lattice: its spacing in m (coarsened on large floors, the log
-    # says so)
+    # alternatives=lattice: its spacing in m (coarsened on large floors, the log says so)
     alternatives_spacing: float = 0.2
     lr_level: Optional[float] = None  # deprecated spelling of test_level
 
     def describe_prior(self) -> str:
-        if self.likelihood == "robust" and self.boltzmann_prior_scale is not None:
-            return (f"{self.prior.kind} prior for eq. (2)'s iterates, gaussian prior (σ "
-                    f"{self.boltzmann_prior_scale:g} of the box's side) for the Boltzmann MAP")
+        if self.boltzmann_prior_scale is not None and self.likelihood in BOLTZMANN_FORMS:
+            scale = f"gaussian prior (σ {self.boltzmann_prior_scale:g} of the box's side)"
+            if self.likelihood == "boltzmann":
+                return scale
+            return f"{self.prior.kind} prior for eq. (2)'s iterates, {scale} for the Boltzmann MAP"
         return super().describe_prior()
 
     def __post_init__(self) -> None:
@@ -128,12 +131,15 @@ class BirlMcmcConfig(BirlMapConfig, AdaptiveChainParams):
 
 @register("map", BirlMapConfig)
 def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:
-    """BIRL-G: one MAP step and one graph solve per iteration."""
+    """BIRL-G's MAP: of the Boltzmann model (the default), of the paper's eq. (2) (one MAP
+    step and one graph solve per iteration), or the robust form's choice between them."""
     assert isinstance(config, BirlMapConfig)
     if config.likelihood == "robust":
         return fit_robust(problem, config)
     if config.likelihood == "boltzmann":
-        records = _robust_loop(problem, config)[0]
+        records, _, beta = _boltzmann_loop(problem, config)
+        if problem.status is not None:
+            problem.status(f"estimate: the Boltzmann MAP (β = {beta:.3g})")
         return IRLResult(records, list(range(1, len(records) + 1)))
     records = birl_map(problem.expert, problem.environment.rollout, problem.prior,
                        beta=config.beta, n_iterations=config.n_iterations, w0=problem.w0,
@@ -142,7 +148,7 @@ def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:
 
 
 def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
-    """The robust form (README "Imperfect demonstrations"). Candidates: the MAP (w, β) of
+    """The robust form (docs/methods.md). Candidates: the MAP (w, β) of
     the Boltzmann posterior (pipeline.irl.robust), and every iterate of the paper's loop.
     Eq. (2) models its demonstrations as optimal, so an iterate is admissible only where
     that holds: its greedy paths reproduce the demonstrations to the graph's resolution
@@ -260,17 +266,19 @@ def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> Boltzman
                                       (config.beta_min, config.beta_max), config.base_measure)
 
 
-def _robust_loop(problem: IRLProblem,
-                 config: BirlMapConfig) -> tuple[list[Iteration], BoltzmannPosterior, float]:
+def _boltzmann_loop(problem: IRLProblem,
+                    config: BirlMapConfig) -> tuple[list[Iteration], BoltzmannPosterior, float]:
     """The iterations, the last posterior and the last β. The posterior is concave in
-    (βw, β), so its MAP is found in iteration 1; later iterations change it only when the
-    graph grows (birl.grow_nodes)."""
+    (βw, β), so its MAP is found in iteration 1; later iterations change it only where its
+    alternatives are the graph's paths and the graph grows (birl.grow_nodes)."""
     w, beta = problem.w0, config.beta  # β starts at birl.beta
     post = _boltzmann_posterior(problem, config)
     records = [problem.record(0, w, post.log_likelihood(w, beta))]
+    on_lattice = config.alternatives == "lattice" and problem.lattice is not None \
+        and problem.lattice() is not None  # cached: built by the posterior above
     solved_on = None  # the graph's size when the MAP was last found: the same graph, the same MAP
     for n in range(1, config.n_iterations + 1):
-        size = (problem.graph.mdp.n_nodes, problem.graph.mdp.n_edges)
+        size = "lattice" if on_lattice else (problem.graph.mdp.n_nodes, problem.graph.mdp.n_edges)
         if size != solved_on:
             post = _boltzmann_posterior(problem, config)
             w, beta = post.map(w, beta)
@@ -284,10 +292,10 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     """BIRL-G with the MAP step replaced by the mean of a posterior sample."""
     assert isinstance(config, BirlMcmcConfig)
     posteriors: list[PosteriorSamples] = []
-    if config.likelihood == "robust":
-        # The robust posterior changes only when the graph grows: sample it once, at the
+    if config.likelihood in BOLTZMANN_FORMS:
+        # The Boltzmann posterior changes only when the graph grows: sample it once, at the
         # end, around the MAP; its mean over w is one more iteration.
-        records, post, beta = _robust_loop(problem, config)
+        records, post, beta = _boltzmann_loop(problem, config)
         w = records[-1].weights
         joint = mcmc(LogBetaDensity(post, beta), np.append(w, np.log(beta)), problem.rng,
                      config, problem.status)

@@ -1,5 +1,5 @@
-"""The robust form of BIRL-G (`birl.likelihood=robust`, the default; README "Imperfect
-demonstrations").
+"""The Boltzmann model of BIRL-G (`birl.likelihood=boltzmann`, the default; and
+`birl.likelihood=robust`, which chooses between its MAP and eq. (2)'s iterates; docs/methods.md).
 
 Eq. (2) scores each demonstration against the trajectories generated so far, the greedy ones
 under earlier weights. A noisy or hand-drawn demonstration is worse than every greedy path

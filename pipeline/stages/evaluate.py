@@ -139,9 +139,9 @@ def heldout_metrics(ref: SpatialGraph, policy: np.ndarray,
 def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
                                demos_art: Artefact) -> dict[str, float]:
     """DESIGN §9: `heldout_log_likelihood`, the mean log likelihood per held-out demonstration
-    under the robust form's model (the Boltzmann policy over the lattice of alternatives;
-    relative to its base measure), β fitted to the training demonstrations; and as the
-    baseline `heldout_log_likelihood_shortest`, the same for w = 0 (the cost per second
+    under the Boltzmann model (the default learner's: the Boltzmann policy over the lattice
+    of alternatives, relative to its base measure), β fitted to the training demonstrations;
+    and as the baseline `heldout_log_likelihood_shortest`, the same for w = 0 (the cost per second
     alone: the shortest path's reward). Where there are both training and held-out
     demonstrations; for every method alike (one model judges every learned reward), with
     the BIRL-G settings of the lattice, β's range and the base measure (or their defaults

@@ -136,13 +136,18 @@ def _birl_stage(t: Tables) -> Reading:
 
 # -- speed --------------------------------------------------------------------------------
 
+# the default learner's method in scaling.csv (birl.likelihood's default)
+DEFAULT_LEARNER = "boltzmann"
+
+
 def _speedup(nodes: int) -> Callable[[Tables], Reading]:
-    """PolicyWalk's learning time over the default's (robust) at `nodes`, per room side."""
+    """PolicyWalk's learning time over the default's at `nodes`, per room side."""
     def read(t: Tables) -> Reading:
         scaling = t["scaling"]
         at = scaling[scaling.graph_nodes == nodes].pivot_table(
             index="room_m", columns="method", values="learn_s")
-        ratios = {int(room): float(r.policywalk / r.robust) for room, r in at.iterrows()}
+        ratios = {int(room): float(r.policywalk / r[DEFAULT_LEARNER])
+                  for room, r in at.iterrows()}
         return Reading(min(ratios.values()), ", ".join(
             f"{room} m room: {_num(r, 2)}×" for room, r in ratios.items()))
     return read
@@ -150,13 +155,13 @@ def _speedup(nodes: int) -> Callable[[Tables], Reading]:
 
 def _learning_exponent(t: Tables) -> Reading:
     exponents = t["scaling_exponents"].set_index("method").exponent
-    return Reading(float(exponents["robust"]), _num(exponents["robust"]),
+    return Reading(float(exponents[DEFAULT_LEARNER]), _num(exponents[DEFAULT_LEARNER]),
                    f"PolicyWalk: {_num(exponents['policywalk'])}")
 
 
 def _largest_learning(t: Tables) -> Reading:
     scaling = t["scaling"]
-    worst = float(scaling[(scaling.method == "robust")
+    worst = float(scaling[(scaling.method == DEFAULT_LEARNER)
                           & (scaling.graph_nodes == 20000)].learn_s.max())
     return Reading(worst, f"{_num(worst)} s")
 

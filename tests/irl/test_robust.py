@@ -813,8 +813,9 @@ def test_soft_values_where_equal_paths_multiply_around_cycles(k):
 
 def test_the_log_names_the_prior_each_part_of_the_robust_form_learns_under():
     """It named birl.prior alone, which the Boltzmann MAP does not use."""
-    assert BirlMapConfig().describe_prior() == (
+    assert BirlMapConfig(likelihood="robust").describe_prior() == (
         "uniform prior for eq. (2)'s iterates, gaussian prior (σ 0.5 of the box's side) for "
         "the Boltzmann MAP")
+    assert BirlMapConfig().describe_prior() == "gaussian prior (σ 0.5 of the box's side)"
     assert BirlMapConfig(likelihood="paper").describe_prior() == "uniform prior"
     assert BirlMapConfig(boltzmann_prior_scale=None).describe_prior() == "uniform prior"

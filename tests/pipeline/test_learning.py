@@ -62,9 +62,8 @@ def test_rude_expert_learns_to_cross_links(tmp_path_factory):
 @pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.slow),
                                   pytest.param(3, marks=pytest.mark.slow)])
 def test_random_scenes(tmp_path_factory, seed):
-    # Both forms learn optimal demonstrations on random scenes (docs/methods.md, "The robust
-    # form": it keeps an admissible eq. (2) iterate here).
-    for likelihood, bound in (("paper", 0.02), ("robust", 0.02)):
+    # Every form learns optimal demonstrations on random scenes (docs/methods.md)
+    for likelihood, bound in (("paper", 0.02), ("boltzmann", 0.02), ("robust", 0.02)):
         _, m, _ = run_experiment(tmp_path_factory, "scene=random", f"seed={seed}",
                                  f"birl.likelihood={likelihood}")
         print(seed, likelihood,
@@ -77,10 +76,11 @@ def test_boltzmann_expert_beats_initial_weights(tmp_path_factory):
     assert m["policy_loss_ref"] < 0.5 * m["policy_loss_ref_initial"]
 
 
-@pytest.mark.parametrize("likelihood, n_posteriors", [("paper", 5), ("robust", 1)])
+@pytest.mark.parametrize("likelihood, n_posteriors", [("paper", 5), ("boltzmann", 1),
+                                                       ("robust", 1)])
 def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posteriors):
-    """paper: a posterior sample every iteration; robust: one sample of the Boltzmann
-    posterior at the end, its mean one more iteration."""
+    """paper: a posterior sample every iteration; boltzmann and robust: one sample of the
+    Boltzmann posterior at the end, its mean one more iteration."""
     run_dir, m, out = run_experiment(tmp_path_factory, "birl=mcmc", "birl.n_iterations=5",
                                      f"birl.likelihood={likelihood}", "graph=small",
                                      "birl.n_samples=300", "birl.burn_in=200")
@@ -88,7 +88,7 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
     post = birl.all("/birl/posterior")
     names = ("relation", "social", "goal_deviation", "length", "crossing")
     assert len(post) == n_posteriors and post[-1]["n_chains"] == 4
-    assert post[-1]["mean"] == [m[f"weight_{n}"] for n in names] or likelihood == "robust"
+    assert post[-1]["mean"] == [m[f"weight_{n}"] for n in names] or likelihood != "paper"
     assert all(m[f"weight_std_{n}"] > 0 for n in names)
     assert 0.2 <= m["mcmc_acceptance_rate"] <= 0.5  # the adapted step
     assert m["mcmc_rhat_max"] == max(post[-1]["rhat"]) and m["mcmc_ess_min"] > 0
@@ -259,7 +259,8 @@ def test_the_log_says_which_candidate_the_robust_learner_chose(tmp_path, caplog)
     """A user reading iteration lines whose log likelihood falls is told why: the estimate is
     an admissible eq. (2) iterate (by number) or the Boltzmann MAP, with its β."""
     with caplog.at_level("INFO"):
-        run_in_process(tmp_path, "graph=small", "stages=[scene,demos,graph,birl]")
+        run_in_process(tmp_path, "graph=small", "stages=[scene,demos,graph,birl]",
+                       "birl.likelihood=robust")
     [said] = [r.getMessage() for r in caplog.records if "estimate: " in r.getMessage()]
     chosen = re.search(r"estimate: (eq\. \(2\)'s iterate (\d+), admissible against the "
                        r"Boltzmann MAP \(β = [0-9.e+]+\)|the Boltzmann MAP \(β = [0-9.e+]+\); "
@@ -268,3 +269,17 @@ def test_the_log_says_which_candidate_the_robust_learner_chose(tmp_path, caplog)
     birl = read_artefact(tmp_path / "birl.mcap").all("/birl/iteration")
     if chosen[2] is not None:  # iteration n records the choice among the MAP and iterates
         assert birl[-1]["weights"] == birl[int(chosen[2])]["weights"]  # 1..n: it won there
+
+
+def test_the_default_learner_is_the_boltzmann_map(tmp_path, caplog):
+    """birl.likelihood=boltzmann (the default): the MAP is found in iteration 1 and kept (on
+    the lattice of alternatives the graph's growth does not change it), and the log says
+    which estimate it is, with its β."""
+    with caplog.at_level("INFO"):
+        run_in_process(tmp_path, "graph=small", "stages=[scene,demos,graph,birl]",
+                       "birl.n_iterations=3")
+    [said] = [r.getMessage() for r in caplog.records if "estimate: " in r.getMessage()]
+    assert re.fullmatch(r"\s*estimate: the Boltzmann MAP \(β = [0-9.e+]+\)", said), said
+    birl = read_artefact(tmp_path / "birl.mcap").all("/birl/iteration")
+    assert len(birl) == 4 and birl[0]["weights"] != birl[1]["weights"]
+    assert birl[1]["weights"] == birl[2]["weights"] == birl[3]["weights"]

@@ -176,7 +176,7 @@ def test_a_graph_that_stops_short_says_whether_space_or_the_controller_stopped_i
 
 
 @pytest.mark.parametrize("overrides, pattern, expected", [
-    (["birl.n_iterations=100", "stages=[scene,demos,graph,birl]"],
+    (["birl.n_iterations=100", "birl.likelihood=robust", "stages=[scene,demos,graph,birl]"],
      r"eq\. \(2\) loop: iteration (\d+) of 100", list(range(10, 101, 10))),
     (["expert=planner", "expert.n_subjects=10", "stages=[scene,demos]"],
      r"planner: (\d+) of 10 subjects planned", list(range(1, 10))),

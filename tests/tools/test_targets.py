@@ -14,11 +14,15 @@ def write(tmp_path, stem, rows):
 def test_speed_up_is_policywalk_over_the_default_per_room_and_the_worst_room_decides(tmp_path):
     write(tmp_path, "scaling", [
         {"room_m": 10, "graph_nodes": 5000, "method": "policywalk", "learn_s": 4.0},
-        {"room_m": 10, "graph_nodes": 5000, "method": "robust", "learn_s": 0.1},
+        {"room_m": 10, "graph_nodes": 5000, "method": "boltzmann", "learn_s": 0.1},
+        {"room_m": 10, "graph_nodes": 5000, "method": "robust", "learn_s": 1000.0},  # not it
         {"room_m": 20, "graph_nodes": 5000, "method": "policywalk", "learn_s": 3.0},
-        {"room_m": 20, "graph_nodes": 5000, "method": "robust", "learn_s": 1.0},
-        {"room_m": 20, "graph_nodes": 2000, "method": "robust", "learn_s": 100.0},
+        {"room_m": 20, "graph_nodes": 5000, "method": "boltzmann", "learn_s": 1.0},
+        {"room_m": 20, "graph_nodes": 2000, "method": "boltzmann", "learn_s": 100.0},
     ])
+    # the default's rows are those of the configured default likelihood
+    from pipeline.irl.birl import BirlMapConfig
+    assert targets.DEFAULT_LEARNER == BirlMapConfig().likelihood
     reading = targets._speedup(5000)(Tables(tmp_path))
     assert reading.text == "10 m room: 40×, 20 m room: 3×"
     assert reading.value == 3.0  # the worst room decides
