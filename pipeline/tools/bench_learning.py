@@ -88,8 +88,8 @@ HALLWAY_SUBJECTS, HALLWAY_HELD_OUT = 16, 4
 LEARNERS: dict[str, list[str]] = {
     "default": [],
     "paper": ["birl.likelihood=paper"],
-    # the robust form's Boltzmann MAP alone, without eq. (2)'s iterates as candidates
-    "boltzmann_map": ["birl.likelihood=boltzmann"],
+    # the Boltzmann MAP or an eq. (2) iterate it admits (the default before the MAP alone)
+    "robust": ["birl.likelihood=robust"],
     "policywalk": ["birl=policywalk"],
     "maxent": ["birl=maxent"],
 }
@@ -126,7 +126,8 @@ ANCHORS = (PLANNER_COST, PLANNER_FIT)  # no learning; the planner's rows only
 ALTERNATIVES_SPACINGS = (0.1, 0.15, 0.25, 0.3)
 LEARNERS |= {f"lattice_{s:g}": [f"birl.alternatives_spacing={s}"] for s in ALTERNATIVES_SPACINGS}
 BASELINES = ("policywalk", "maxent")  # slower: fewer seeds
-LEARNER_NAMES = {"default": "BIRL-G (robust, default)", "paper": "BIRL-G (paper, eq. 2)",
+LEARNER_NAMES = {"default": "BIRL-G (Boltzmann MAP, default)",
+                 "robust": "BIRL-G (robust)", "paper": "BIRL-G (paper, eq. 2)",
                  "policywalk": "PolicyWalk", "maxent": "MaxEnt",
                  PLANNER_COST: "the planner's own cost (anchor)"}
 LEARNED_WELL = 0.005  # normalised policy loss: runs at or below it count as learned
