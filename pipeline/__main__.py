@@ -300,6 +300,9 @@ def exit_with_one_line(e: Exception) -> None:
         message = str(e)
     elif type(e).__module__.startswith(("hydra", "omegaconf")):
         message = preset_key_error(str(e)) or one_line(e)
+    elif isinstance(e, ValueError) and raised_in(e).startswith("hydra."):
+        # Hydra's own check of its flags (--cfg with -m, --shell-completion without a verb)
+        message = f"command line: {one_line(e)} (birlg --help)"
     elif isinstance(e, OSError):  # e.g. Hydra creating a run dir where a file is
         message = f"cannot create or write files: {os_error_reason(e)}"
     elif (plugin := raised_by_a_plugin(e)) is not None:  # a launcher's or sweeper's own check
@@ -317,12 +320,17 @@ def exit_with_one_line(e: Exception) -> None:
 SWEEP_PLUGINS = ("hydra_plugins", "joblib", "submitit", "optuna")
 
 
-def raised_by_a_plugin(e: BaseException) -> str | None:
-    """The top-level package of the sweep plugin where `e` was raised, or None."""
+def raised_in(e: BaseException) -> str:
+    """The module where `e` was raised (its innermost frame's), or ''."""
     tb = e.__traceback__
     while tb is not None and tb.tb_next is not None:
         tb = tb.tb_next
-    module = tb.tb_frame.f_globals.get("__name__", "") if tb is not None else ""
+    return tb.tb_frame.f_globals.get("__name__", "") if tb is not None else ""
+
+
+def raised_by_a_plugin(e: BaseException) -> str | None:
+    """The top-level package of the sweep plugin where `e` was raised, or None."""
+    module = raised_in(e)
     package = module.split(".")[0]
     if package in SWEEP_PLUGINS and not module.startswith("hydra_plugins.birlg_"):
         return module.split(".")[1] if package == "hydra_plugins" else package

@@ -94,11 +94,20 @@ def _flatten(value, prefix: str) -> dict[str, object]:
 
 
 def _first_difference(key: str, made_with, now) -> tuple[str, object, object]:
+    """The first key (dotted) whose value differs, and its two values (UNSET where a side
+    has no such key); for a config group whose `kind` differs (another method or expert
+    kind, whose other keys differ as a consequence), the group itself and the two kinds."""
     old, new = _flatten(made_with, key), _flatten(now, key)
+    kind = f"{key}.kind"
+    if kind in old and kind in new and old[kind] != new[kind]:
+        return key, old[kind], new[kind]  # e.g. birl=policywalk, set as the group's option
     for k in sorted(set(old) | set(new)):
-        if old.get(k, "<unset>") != new.get(k, "<unset>"):
-            return k, old.get(k, "<unset>"), new.get(k, "<unset>")
+        if old.get(k, UNSET) != new.get(k, UNSET):
+            return k, old.get(k, UNSET), new.get(k, UNSET)
     return key, made_with, now  # same values, different digest: say so plainly
+
+
+UNSET = "<unset>"  # _first_difference: a key one of the two configs does not have
 
 
 def check_config(stage: str, artefact: Artefact, config: Mapping) -> None:
@@ -115,10 +124,12 @@ def check_config(stage: str, artefact: Artefact, config: Mapping) -> None:
         except yaml.YAMLError:
             made_with = "<unreadable>"
         path, old, new = _first_difference(key, made_with, _lookup(config, key))
+        # a key the run's settings do not have cannot be set to match: re-making is the way
+        settable = old != UNSET and new != UNSET and not isinstance(old, Mapping)
         raise PipelineError(
             f"{artefact.path} was made with {path}={_show(old)} but this run has "
-            f"{path}={_show(new)}: add '{stage}' to stages to re-make it, or run with "
-            f"{path}={_show(old)}")
+            f"{path}={_show(new)}: add '{stage}' to stages to re-make it"
+            + (f", or run with {path}={_show(old)}" if settable else ""))
 
 
 def check_inputs(read: Mapping[str, Artefact]) -> None:

@@ -38,6 +38,7 @@ from scipy.optimize import lsq_linear, minimize, minimize_scalar
 from scipy.sparse.linalg import SuperLU, splu
 
 from pipeline.core.graph_mdp import GraphMDP, Path, TrajectoryStats, discounted_counts
+from pipeline.errors import PipelineError
 from pipeline.irl.prior import Prior
 
 BASE_MEASURES = ("walk", "uniform")
@@ -376,9 +377,10 @@ class BoltzmannPosterior:
         if wide is not None:
             return self._keep_linear(theta, hard, *wide, "hard")
         if self.base_measure == "uniform":
-            raise RuntimeError(f"the paths' total weight diverges at β = {theta[-1]:.3g}: "
-                               "with birl.base_measure=uniform every path of a graph with "
-                               "cycles counts once; use birl.base_measure=walk")
+            # a setting's consequence, not a fault: one line for the user
+            raise PipelineError(f"the paths' total weight diverges at β = {theta[-1]:.3g}: "
+                                "with birl.base_measure=uniform every path of a graph with "
+                                "cycles counts once; use birl.base_measure=walk")
         raise RuntimeError("the soft values' linear system has no positive solution")
 
     def _relative_solution(self, edge_terms: np.ndarray, reference: np.ndarray,

@@ -59,8 +59,16 @@ def feature_views(ctx: RunContext, scene: Scene, roadmap: SpatialGraph,
     with the learner's), each also with the other feature set (`with_named_features`)."""
     cfg = ctx.cfg
     true, learner = list(cfg.reward.features), cfg.learner_features
-    return (Views(roadmap, build.with_named_features(cfg, scene, roadmap, true, learner)),
+    return (roadmap_views(ctx, scene, roadmap),
             Views(build.with_named_features(cfg, scene, graph, learner, true), graph))
+
+
+def roadmap_views(ctx: RunContext, scene: Scene, roadmap: SpatialGraph) -> Views:
+    """A reference roadmap (stored with the true features) also with the learner's."""
+    cfg = ctx.cfg
+    return Views(roadmap, build.with_named_features(cfg, scene, roadmap,
+                                                    list(cfg.reward.features),
+                                                    cfg.learner_features))
 
 
 def summed_path_metrics(graph: SpatialGraph, policy: np.ndarray, scene: Scene,
@@ -90,7 +98,7 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
     scene = build.scene_file(path)  # checked and loaded at start-up
     roadmap = build.reference_roadmap(cfg, scene, build.feature_model(cfg, scene))
     graph = roadmap.spatial(roadmap.mdp(md))
-    ref = feature_views(ctx, scene, graph, graph)[0]
+    ref = roadmap_views(ctx, scene, graph)
     out: dict[str, float] = {}
     if true_weights is not None:
         w_true = np.asarray(true_weights, float)

@@ -119,7 +119,9 @@ def plot_policy_loss(summary_csv: Path, path: Path) -> bool:
                                    for row in part], dtype=float)
                 if curves.size == 0 or np.isnan(curves).all():
                     continue
-                x = np.arange(curves.shape[1])
+                # iterations some job of the group has (methods of other lengths: NaN)
+                x = np.flatnonzero(~np.isnan(curves).all(axis=0))
+                curves = curves[:, x]
                 # Median and the full range over seeds: never below 0, honest with 2-3 seeds.
                 ax.plot(x, np.nanmedian(curves, axis=0), color=colour)
                 for bound in (np.nanmin(curves, axis=0), np.nanmax(curves, axis=0)):
@@ -176,8 +178,10 @@ def results_table(columns: list[str], rows: list[Row]) -> tuple[list[Row], list[
         for m in metrics:
             values = np.array([np.nan if missing_value(r.get(m)) else r[m] for r in ok],
                               dtype=float)
-            row[METRIC_NAMES.get(m, m)] = mean_std(values) if ok else ""
-            means[-1][METRIC_NAMES.get(m, m)] = float(np.mean(values)) if ok else np.nan
+            # over the jobs that report it (no policy loss without true weights, say)
+            values = values[~np.isnan(values)]
+            row[METRIC_NAMES.get(m, m)] = mean_std(values)
+            means[-1][METRIC_NAMES.get(m, m)] = float(np.mean(values)) if len(values) else np.nan
         results.append(row)
     return results, means
 
@@ -188,7 +192,10 @@ HIGHER_IS_BETTER = {METRIC_NAMES["success"], METRIC_NAMES["heldout_log_likelihoo
 
 def mean_std(values: np.ndarray) -> str:
     """'mean ± std' over seeds, the sample std (ddof = 1; only the mean for one seed); counts
-    (every value a whole number) as whole numbers where the mean is one, else to 0.1."""
+    (every value a whole number) as whole numbers where the mean is one, else to 0.1; empty
+    for no values."""
+    if len(values) == 0:
+        return ""
     counts = bool(np.all(values == np.round(values)))
     mean = float(np.mean(values))
     if counts:

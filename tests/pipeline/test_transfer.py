@@ -47,8 +47,13 @@ def test_fixed_from_run_refuses_other_feature_constants(tmp_path, default_run):
                        "reward.rho_personal=0.8", *SMALL)
 
 
-def test_transfer_to_the_same_scene_repeats_the_run_metrics(tmp_path):
-    m, _ = run_in_process(tmp_path, *SMALL, "birl.n_iterations=3",
+@pytest.mark.parametrize("features", [
+    (),
+    # a learner feature before the reward's (the README's wall set): the transfer roadmap's
+    # learner view was built from the wrong columns, an IndexError
+    ("birl.features=[relation,social,wall,goal_deviation,length,crossing]",)])
+def test_transfer_to_the_same_scene_repeats_the_run_metrics(tmp_path, features):
+    m, _ = run_in_process(tmp_path, *SMALL, "birl.n_iterations=3", *features,
                           f"evaluate.transfer_scenes=[{METROPOLIS}]")
     assert m["transfer_metropolis_policy_loss"] == m["policy_loss_ref"]
     assert all(is_metric_key(k) for k in m)  # every key can be a sweep's objective

@@ -42,6 +42,21 @@ def test_the_results_table_groups_seeds_per_setting():
     assert list(table["success rate"]) == ["1 ± 0.0", "0.7500 ± 0.3536"]
 
 
+def test_a_metric_some_jobs_do_not_report_is_averaged_over_those_that_do():
+    """Jobs without true weights write no policy loss: their cells said `nan ± nan`."""
+    columns, rows = sweep_table()
+    for row in rows:
+        if row["reward"] == "rude":
+            del row["policy_loss_norm"]  # e.g. expert=file: no policy loss
+    rows[1]["success"] = float("nan")  # one polite job without it
+    results, means = results_table(columns, rows)
+    table = pd.DataFrame(results)
+    assert list(table["normalised policy loss"]) == ["0.0200 ± 0.0141", ""]
+    assert list(table["success rate"]) == ["1", "0.7500 ± 0.3536"]  # over the one that has it
+    assert np.isnan(means[1]["normalised policy loss"]) and means[0]["success rate"] == 1.0
+    assert mean_std(np.array([])) == ""
+
+
 def test_a_failed_job_is_left_out_of_the_results_and_is_an_empty_cell_in_the_csv(tmp_path):
     columns, rows = sweep_table()
     rows[3] = {"job": 3, "status": "failed", "error": "stage birl: boom", "seed": 1,
