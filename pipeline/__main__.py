@@ -306,8 +306,14 @@ def exit_with_one_line(e: Exception) -> None:
     elif isinstance(e, OSError):  # e.g. Hydra creating a run dir where a file is
         message = f"cannot create or write files: {os_error_reason(e)}"
     elif (plugin := raised_by_a_plugin(e)) is not None:  # a launcher's or sweeper's own check
-        message = (f"{one_line(e)} (said by {plugin} while sweeping: check the hydra.launcher "
-                   "and hydra.sweeper settings)")
+        if plugin == "optuna" and "No trials are completed" in str(e):
+            message = (f"{one_line(e)} (said by optuna: every trial failed or wrote no "
+                       "`objective` metric, the log names which; there is no policy loss "
+                       "without true weights (expert=file, planner or none): e.g. "
+                       "objective=heldout_log_likelihood with evaluate.holdout=0.3)")
+        else:
+            message = (f"{one_line(e)} (said by {plugin} while sweeping: check the "
+                       "hydra.launcher and hydra.sweeper settings)")
     else:  # a bug, not bad input: still one line, with the way to the traceback
         message = f"{type(e).__name__}: {one_line(e)} (HYDRA_FULL_ERROR=1 shows the traceback)"
     print(f"error: {shorten_values(message)}", file=sys.stderr)

@@ -36,7 +36,7 @@ from pipeline.app.context import resolve_path
 from pipeline.app.provenance import check_source, file_digest
 from pipeline.app.rundir import check_from_run
 from pipeline.artefacts import codec, topics
-from pipeline.artefacts.store import read_artefact
+from pipeline.artefacts.store import content_digest, read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core import scenegen
 from pipeline.core.obstacles import ObstacleMap
@@ -96,6 +96,11 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
                                 "(hydra.run.dir=...)")
         check_from_run(weights_from, cfg.birl.from_run, "birl.from_run", needs="birl")
     if isinstance(cfg.expert, FileExpertConfig) and "demos" in stages:
+        if content_digest(resolve_path(cfg.expert.path)) is not None:  # ours, not a bag
+            raise PipelineError(
+                f"config error: expert.path={cfg.expert.path} is an artefact of this pipeline "
+                "(a run's demos.mcap), not a recording: give the demonstrations' own file, or "
+                "reuse the run's with from_run=RUN_DIR and stages without demos")
         check_readable(resolve_path(cfg.expert.path))
         checked.source_digests["expert.path"] = file_digest(resolve_path(cfg.expert.path))
     elif isinstance(cfg.expert, FileExpertConfig) and stages & {"graph", "birl", "evaluate"}:

@@ -197,9 +197,12 @@ def _adaptive_burn_in(posterior: LogDensity, starts: list[np.ndarray], steps: np
             steps[c] = run.step
             starts[c] = run.samples[-1] if len(run.samples) else starts[c]
             states.append(run.samples[len(run.samples) // 2:])
-        cov = np.cov(np.concatenate(states).T).reshape(d, d)
+        kept = np.concatenate(states)
         shape = phase < len(phases) - 1  # the last phase only adapts the step
-        if shape and np.all(np.isfinite(cov)) and np.linalg.matrix_rank(cov) == d:
+        # a covariance needs more states than dimensions (a short burn-in has fewer)
+        cov = np.cov(kept.T).reshape(d, d) if len(kept) > d else None
+        if shape and cov is not None and np.all(np.isfinite(cov)) \
+                and np.linalg.matrix_rank(cov) == d:
             proposal = Proposal(np.linalg.cholesky(cov + 1e-10 * np.eye(d)), proposal.mala)
             # the optimal scales for a Gaussian target (Roberts & Rosenthal 2001)
             steps[:] = 1.65 * d ** (-1 / 6) if proposal.mala else 2.38 / np.sqrt(d)

@@ -346,6 +346,8 @@ def weights_at_box(m: dict, learner_features: list[str], box: Prior) -> list[str
 
 
 BOUND_MEANS = "birl.lower/upper, not the demonstrations, set its size"
+# below this acceptance rate a chain's samples are its few states, whatever R-hat says
+STUCK_ACCEPTANCE = 0.01
 # weights_at_box: a weight this close to a bound or the middle, relative to the box's width
 BOX_TOLERANCE = 1e-6
 
@@ -374,15 +376,19 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
 
     share = m.get("graph_demo_node_share", 0.0)
     def weight(n: str) -> str:  # sampling methods: the posterior mean ± its std
-        std = m.get(f"weight_std_{n}")
-        return f"{n} {fmt('weight_' + n, '.3f')}" + ("" if std is None else f" ± {std:.3f}")
+        std, w = m.get(f"weight_std_{n}"), m.get(f"weight_{n}")
+        shown = "n/a" if w is None else f"{round(w, 3) + 0.0:.3f}"  # + 0.0: never "-0.000"
+        return f"{n} {shown}" + ("" if std is None else f" ± {std:.3f}")
 
     lines = [f"BIRL-G run: {run_dir}",
              "  learned weights  " + ", ".join(weight(n) for n in learner_features)]
     if box is not None:
         lines += weights_at_box(m, learner_features, box)
     if "mcmc_acceptance_rate" in m:
-        if m.get("mcmc_rhat_max") is None:  # R-hat compares chains
+        if m["mcmc_acceptance_rate"] < STUCK_ACCEPTANCE:  # the samples are the starts
+            verdict = ("the chains barely moved: lower birl.proposal_step, or leave "
+                       "birl.adapt=true to size the proposals")
+        elif m.get("mcmc_rhat_max") is None:  # R-hat compares chains
             verdict = "one chain: convergence untested; R-hat needs birl.n_chains ≥ 2"
         elif chains_agree([m["mcmc_rhat_max"]], [m.get("mcmc_ess_min", np.nan)]):
             verdict = "the chains agree"
@@ -407,6 +413,13 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
             lines.append(f"                   log likelihood per demonstration "
                          f"{fmt('heldout_log_likelihood', '.2f')} (shortest path's reward "
                          f"{fmt('heldout_log_likelihood_shortest', '.2f')})")
+    short = {where: m[key] for where, key in (("roadmap", "ref_success"), ("graph", "success"))
+             if m.get(key) is not None and m[key] < 1}
+    if short:
+        lines.append("  warning          learned paths stop short of the goal (success "
+                     + ", ".join(f"{where} {v:.2f}" for where, v in short.items())
+                     + "): the distances below include paths that never arrive; see the "
+                     "log's warnings and the paths (make view)")
     lines.append(f"  roadmap paths    {paths('ref_')}")
     lines.append(f"  graph paths      {paths('')}"
                  + (f" ({share:.0%} of its nodes are demonstration waypoints: these say "

@@ -830,6 +830,12 @@ def _other_expert_kind(tmp, default_dir):
         ["made with expert=optimal but this run has expert=boltzmann", "run with expert=optimal"]
 
 
+def _demos_artefact_as_recording(tmp, default_dir):
+    """A run's own demos.mcap given as the recording: it was called a damaged ROS bag."""
+    return ["expert=file", f"expert.path={default_dir}/demos.mcap"], \
+        ["is an artefact of this pipeline", "from_run=RUN_DIR"]
+
+
 def _other_features(tmp, default_dir):
     return [f"from_run={default_dir}", "stages=[evaluate]",
             "reward.features=[relation,social,length]", "reward.weights=[0,0,0]"], \
@@ -905,6 +911,7 @@ ARTEFACT_CASES = {
     "input artefact missing": _missing_artefact,
     "input made with another config value": _changed_config,
     "input made with another expert kind": _other_expert_kind,
+    "a run's demos.mcap as the recording": _demos_artefact_as_recording,
     "input learned on other features": _other_features,
     "inputs from two different runs": _mixed_runs,
     "from_run of an interrupted run": _interrupted,

@@ -322,6 +322,19 @@ def test_a_failing_trial_is_a_failed_trial_not_a_failed_tuning(tmp_path):
         table.stderr
 
 
+def test_tuning_an_objective_no_job_writes_says_so(tmp_path):
+    """Every trial completes without the objective (no policy loss from demonstrations
+    without true weights): Optuna's 'No trials are completed yet' was blamed on the launcher
+    and sweeper settings."""
+    result = run_app("-m", "experiment=tune", "objective=policy_loss_norm",
+                     "hydra.sweeper.n_trials=2", "hydra.sweeper.n_jobs=1",
+                     "hydra.launcher.n_jobs=1", "birl.n_iterations=2",
+                     f"hydra.sweep.dir={tmp_path}")
+    last = result.stderr.strip().splitlines()[-1]
+    assert result.returncode == 2 and "no policy loss without true weights" in last, last
+    assert "objective=heldout_log_likelihood" in last and "hydra.launcher" not in last
+
+
 @pytest.mark.slow
 def test_a_submitit_local_sweep_runs_as_on_a_cluster(tmp_path):
     # The same launcher plugin as Slurm, with local processes: jobs are pickled, run in

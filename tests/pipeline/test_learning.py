@@ -1,6 +1,7 @@
 """End to end through the real app: BIRL-G learns socially compliant rewards."""
 
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -116,6 +117,27 @@ def test_one_chain_mcmc_says_convergence_is_untested(tmp_path_factory):
     assert "mcmc_rhat_max" not in m and m["mcmc_acceptance_rate"] > 0
     assert "R-hat max n/a" in out and "one chain: convergence untested" in out
     assert "the chains agree" not in out
+
+
+def test_chains_that_never_move_are_called_stuck_not_unconverged(tmp_path_factory):
+    """A proposal far too large, kept (adapt=false): nothing is accepted and R-hat is huge;
+    raising birl.max_samples (what it said) would not help."""
+    _, m, out = run_experiment(tmp_path_factory, "birl=mcmc", "birl.adapt=false",
+                               "birl.proposal_step=3", "birl.n_iterations=2", "graph=small",
+                               "birl.n_samples=100")
+    assert m["mcmc_acceptance_rate"] < 0.01
+    assert "the chains barely moved: lower birl.proposal_step" in out
+    assert "raise it" not in out
+
+
+def test_a_short_burn_in_warns_of_nothing(tmp_path_factory):
+    """Fewer burn-in states than weights: no proposal shape is estimated, and numpy's
+    'Degrees of freedom <= 0' warnings no longer reach the terminal."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        _, m, _ = run_experiment(tmp_path_factory, "birl=mcmc", "birl.burn_in=3",
+                                 "birl.n_samples=20", "birl.n_iterations=2", "graph=small")
+    assert m["mcmc_acceptance_rate"] > 0
 
 def test_file_demos_report_similarity(tmp_path_factory):
     run_dir, m, _ = run_experiment(tmp_path_factory, "expert=file",

@@ -213,3 +213,13 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
     fixed = run_in_process(tmp_path, "birl=fixed", "birl.weights=[-1,-1,-1,-1,-1]",
                            "stages=[birl,evaluate]", f"from_run={default_run[0]}")[1]
     assert "learned weights  relation -1.000" in fixed and "weight box" not in fixed
+
+
+def test_the_summary_warns_when_learned_paths_stop_short(tmp_path, default_run):
+    """A deployment whose graph paths never arrive printed their distances to people
+    without a word on the summary (the log's warning only)."""
+    m, out = run_in_process(tmp_path, "graph=small", "scene=random", "expert=none",
+                            "birl=fixed", "birl.weights=[-1,-0.7,-0.85,-0.1,-0.5]", "seed=0")
+    assert m["success"] < 1 <= m["ref_success"]  # the case: the graph's paths stop short
+    assert f"learned paths stop short of the goal (success graph {m['success']:.2f})" in out
+    assert "stop short" not in default_run[2]  # every default path arrives: no warning
