@@ -17,7 +17,7 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, Polylines, SpatialGraph
 from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.params import require, require_positive
-from pipeline.core.world import Scene
+from pipeline.core.world import TIE, Scene
 
 # Lattice offsets (di, dj): 8 king moves plus 8 knight moves = 16-connected.
 _OFFSETS_8 = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
@@ -71,7 +71,7 @@ def segments_feasible(scene: Scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if scene.obstacles is not None and len(a):
         ok &= scene.obstacles.segments_free(a, b, scene.robot_radius)
     if len(scene.persons) and len(a):
-        ok &= segments_clear_of_disks(a, b, scene.person_xy, scene.body_radius)
+        ok &= segments_clear_of_disks(a, b, scene.person_xy, scene.body_radius - TIE)
     return ok
 
 
@@ -92,7 +92,7 @@ def lattice_graph(scene: Scene, spacing: float = 0.25,
     gi, gj = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
     lattice = np.column_stack([xs[gi.ravel()], ys[gj.ravel()]])
     special = np.vstack([scene.starts, scene.goal[None, :]])
-    near_special = cKDTree(special).query(lattice)[0] < spacing / 2
+    near_special = cKDTree(special).query(lattice)[0] < spacing / 2 - TIE
     usable = scene.free(lattice) & ~near_special
     index: np.ndarray = np.full(len(lattice), -1)
     index[usable] = np.arange(usable.sum())
@@ -112,7 +112,7 @@ def lattice_graph(scene: Scene, spacing: float = 0.25,
     src, dst = np.concatenate(src_l), np.concatenate(dst_l)
 
     # Starts and goal connect both ways to lattice nodes within the longest lattice edge.
-    reach = spacing * (np.sqrt(5.0) if connectivity == 16 else np.sqrt(2.0)) + 1e-9
+    reach = spacing * (np.sqrt(5.0) if connectivity == 16 else np.sqrt(2.0)) + TIE
     tree = cKDTree(positions[:n_lattice])
     extra_src, extra_dst = [], []
     for k, p in enumerate(special):

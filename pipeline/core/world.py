@@ -33,6 +33,11 @@ class SceneError(PipelineError):
 
 
 OBSTACLE_RESOLUTION = 0.05  # m, raster of polygon obstacles when the scene has no map
+# m: the geometric tests of the lattices (in the room, outside a body disk, near a start)
+# decide an exact tie the same way wherever the room lies. Round numbers make ties common (a
+# lattice point 0.1 m from a goal at x.5), and coordinates far from 0 carry their rounding
+# (1e-9 m at UTM magnitudes): metropolis moved by (10, 20) m learned other weights.
+TIE = 1e-6
 
 
 @dataclass
@@ -57,10 +62,10 @@ class Room:
         """Mask (n,) of points (n, 2) inside the room shrunk by `margin`."""
         p = np.atleast_2d(points)
         return (
-            (p[:, 0] >= self.x_min + margin)
-            & (p[:, 0] <= self.x_max - margin)
-            & (p[:, 1] >= self.y_min + margin)
-            & (p[:, 1] <= self.y_max - margin)
+            (p[:, 0] >= self.x_min + margin - TIE)
+            & (p[:, 0] <= self.x_max - margin + TIE)
+            & (p[:, 1] >= self.y_min + margin - TIE)
+            & (p[:, 1] <= self.y_max - margin + TIE)
         )
 
     def border_distance(self, points: np.ndarray) -> np.ndarray:
@@ -178,7 +183,7 @@ class Scene:
         p = np.atleast_2d(points)
         if not self.persons:
             return np.zeros(len(p), dtype=bool)
-        return points_in_disks(p, self.person_xy, self.body_radius + clearance)
+        return points_in_disks(p, self.person_xy, self.body_radius + clearance - TIE)
 
     def free(self, points: np.ndarray) -> np.ndarray:
         """Mask (n,) of points (n, 2) inside the room, outside every body disk and at least

@@ -113,3 +113,34 @@ def test_lattice_edges_equal_the_dense_computation(metropolis, connectivity, mon
     assert len(dense[1]) > 1000
     for x, y in zip(new, dense, strict=True):
         np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("shift", [(10.0, 20.0), (-51.225, -51.225), (500_000.0, 5_600_000.0)])
+@pytest.mark.parametrize("spacing", [0.2, 0.25])
+def test_a_lattice_is_the_same_wherever_the_room_lies(spacing, shift):
+    """The lattices (the reference roadmap, 0.25 m; the alternatives, 0.2 m) of metropolis
+    moved by (10, 20) m, a ROS map's origin and a UTM offset: the same nodes and edges. Its
+    round numbers put lattice points exactly 0.1 m from the goal and exactly on body disks'
+    edges, ties that the moved coordinates' rounding decided differently (a node kept here,
+    its neighbour there)."""
+    import json
+
+    from tests.conftest import METROPOLIS
+
+    data = json.loads(METROPOLIS.read_text())
+    dx, dy = shift
+    moved = json.loads(json.dumps(data))
+    room = moved["room"]
+    room.update(x_min=room["x_min"] + dx, x_max=room["x_max"] + dx,
+                y_min=room["y_min"] + dy, y_max=room["y_max"] + dy)
+    for p in moved["persons"]:
+        p["x"] += dx
+        p["y"] += dy
+    moved["starts"] = [[x + dx, y + dy] for x, y in moved["starts"]]
+    moved["goal"] = [moved["goal"][0] + dx, moved["goal"][1] + dy]
+    here = lattice_graph(world_module.scene_from_dict(data), spacing)
+    there = lattice_graph(world_module.scene_from_dict(moved), spacing)
+    assert len(here[0]) == len(there[0]) and len(here[1]) == len(there[1])
+    np.testing.assert_allclose(there[0] - np.array(shift), here[0], atol=1e-6)
+    np.testing.assert_array_equal(np.sort(here[1] * len(here[0]) + here[2]),
+                                  np.sort(there[1] * len(there[0]) + there[2]))
