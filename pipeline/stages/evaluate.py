@@ -113,8 +113,9 @@ def transfer_metrics(ctx: RunContext, path: str, w_learned: np.ndarray,
         policy = ref.learner.mdp.solve(w_learned).policy
     out.update(summed_path_metrics(graph, policy, scene)[0])
     name = build.transfer_name(scene.name, path)
-    log.info("transfer to %s (%s): %s", name, path, {k: round(out[k], 4) for k in out
-                                                      if k in ("policy_loss_norm", "success")})
+    log.info("transfer to %s (%s): %s", name, path, {
+        k: round(out[k], 4) for k in ("policy_loss_norm", "success")
+        if k in out and np.isfinite(out[k])})  # NaN: not a metric (metrics.json leaves it out)
     return {f"transfer_{name}_{k}": v for k, v in out.items() if k in TRANSFER_KEYS}
 
 
