@@ -30,7 +30,7 @@ from scipy.optimize import minimize
 from scipy.special import chdtri
 
 from pipeline.core.evaluation import frechet
-from pipeline.core.graph_mdp import TrajectoryStats
+from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
 from pipeline.core.params import renamed, require, require_count, require_positive
 from pipeline.irl.base import (
     IRLConfig,
@@ -254,7 +254,7 @@ def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> Boltzman
         side = float(np.mean(prior.upper - prior.lower))
         prior = Prior("gaussian", config.boltzmann_prior_scale * side, prior.lower,
                       prior.upper, (prior.lower + prior.upper) / 2)
-    lattice = problem.lattice() if config.alternatives == "lattice" and problem.lattice else None
+    lattice = _lattice(problem, config)
     alternatives = lattice if lattice is not None else graph
     # The demonstrations enter by their polylines' exact sums, not as paths of the graph:
     # snapped onto its nodes, which merge waypoints of different demonstrations within the
@@ -266,6 +266,12 @@ def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> Boltzman
                                       (config.beta_min, config.beta_max), config.base_measure)
 
 
+def _lattice(problem: IRLProblem, config: BirlMapConfig) -> SpatialGraph | None:
+    """The lattice whose paths the Boltzmann model compares the demonstrations with
+    (birl.alternatives=lattice, built once), or None: the graph's paths."""
+    return problem.lattice() if config.alternatives == "lattice" and problem.lattice else None
+
+
 def _boltzmann_loop(problem: IRLProblem,
                     config: BirlMapConfig) -> tuple[list[Iteration], BoltzmannPosterior, float]:
     """The iterations, the last posterior and the last β. The posterior is concave in
@@ -274,8 +280,7 @@ def _boltzmann_loop(problem: IRLProblem,
     w, beta = problem.w0, config.beta  # β starts at birl.beta
     post = _boltzmann_posterior(problem, config)
     records = [problem.record(0, w, post.log_likelihood(w, beta))]
-    on_lattice = config.alternatives == "lattice" and problem.lattice is not None \
-        and problem.lattice() is not None  # cached: built by the posterior above
+    on_lattice = _lattice(problem, config) is not None  # the graph's growth changes nothing
     solved_on = None  # the graph's size when the MAP was last found: the same graph, the same MAP
     for n in range(1, config.n_iterations + 1):
         size = "lattice" if on_lattice else (problem.graph.mdp.n_nodes, problem.graph.mdp.n_edges)
