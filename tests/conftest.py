@@ -171,6 +171,21 @@ def walled_metropolis() -> dict:
     return data
 
 
+def moved_metropolis(shift: tuple[float, float]) -> dict:
+    """metropolis.json's data with every coordinate moved by `shift` (dx, dy) m."""
+    dx, dy = shift
+    moved = json.loads(METROPOLIS.read_text())
+    room = moved["room"]
+    room.update(x_min=room["x_min"] + dx, x_max=room["x_max"] + dx,
+                y_min=room["y_min"] + dy, y_max=room["y_max"] + dy)
+    for p in moved["persons"]:
+        p["x"] += dx
+        p["y"] += dy
+    moved["starts"] = [[x + dx, y + dy] for x, y in moved["starts"]]
+    moved["goal"] = [moved["goal"][0] + dx, moved["goal"][1] + dy]
+    return moved
+
+
 def write_json(path: Path, data: dict) -> Path:
     path.write_text(json.dumps(data))
     return path

@@ -120,11 +120,15 @@ def voronoi_centroids(points: np.ndarray, room: Room) -> np.ndarray:
     """Centroids (n, 2) of the Voronoi cells of `points` (n, 2) clipped to the room.
 
     Reflecting the points across the four walls makes every original cell bounded and cut
-    exactly by the walls (a wall is the bisector of a point and its mirror image).
+    exactly by the walls (a wall is the bisector of a point and its mirror image). Computed
+    relative to the room's corner: Qhull in map coordinates far from 0 (UTM, 10^6 m) put
+    the centroids 100 m off.
     """
     if len(points) == 0:
         return np.zeros((0, 2))
-    x0, y0, x1, y1 = room.x_min, room.y_min, room.x_max, room.y_max
+    corner = np.array([room.x_min, room.y_min])
+    points = np.asarray(points, float) - corner
+    x0, y0, x1, y1 = 0.0, 0.0, room.x_max - room.x_min, room.y_max - room.y_min
     mirrors = [points,
                np.column_stack([2 * x0 - points[:, 0], points[:, 1]]),
                np.column_stack([2 * x1 - points[:, 0], points[:, 1]]),
@@ -141,7 +145,7 @@ def voronoi_centroids(points: np.ndarray, room: Room) -> np.ndarray:
         area = cross.sum() / 2
         centroids.append([((x + np.roll(x, -1)) * cross).sum() / (6 * area),
                           ((y + np.roll(y, -1)) * cross).sum() / (6 * area)])
-    return np.array(centroids)
+    return np.array(centroids) + corner
 
 
 def medial_axis_points(scene: Scene, spacing: float) -> np.ndarray:

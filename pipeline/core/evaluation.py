@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from pipeline.core.graph_mdp import GraphMDP, Path, SpatialGraph
+from pipeline.core.ties import substeps
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,7 @@ def resample(points: np.ndarray, spacing: float) -> np.ndarray:
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
     if len(p) < 2 or s[-1] == 0:
         return p[:1].copy()
-    at = np.linspace(0.0, s[-1], int(np.ceil(s[-1] / spacing - 1e-9)) + 1)
+    at = np.linspace(0.0, s[-1], int(substeps(s[-1], spacing)) + 1)
     return np.column_stack([np.interp(at, s, p[:, 0]), np.interp(at, s, p[:, 1])])
 
 

@@ -68,6 +68,7 @@ from pipeline.core.social import (
     INTIMATE_ZONE,  # `intimate` is `social` at this radius
     orientation,
 )
+from pipeline.core.ties import TIE, substeps
 from pipeline.core.world import Room, Scene
 
 FEATURE_NAMES: tuple[str, ...] = ("relation", "social", "goal_deviation", "length")  # default
@@ -502,7 +503,7 @@ class FeatureModel:
         features = tuple(self.selected[c] for c in tiled)
 
         # Split every segment into equal sub-steps of at most `resolution`.
-        n_sub = np.maximum(1, np.ceil(length / self.resolution - 1e-9).astype(np.int64))
+        n_sub = substeps(length, self.resolution)
         owner = np.repeat(np.arange(n), n_sub)
         first = np.cumsum(n_sub) - n_sub
         k = np.arange(len(owner)) - np.repeat(first, n_sub)
@@ -566,14 +567,18 @@ class FeatureModel:
             tau0, dtau = a[sl] @ along.T - along0, seg[sl] @ along.T
             y0, dy = a[sl] @ normal.T - normal0, seg[sl] @ normal.T
             tau1, y1 = tau0 + dtau, y0 + dy
-            reach = ((np.minimum(tau0, tau1) <= span) & (np.maximum(tau0, tau1) >= 0)
+            # a segment along the perpendicular through a link's end (tau = 0 all along, a
+            # lattice's tie) counts as inside wherever the room lies: ends within TIE of the
+            # link's span are on it, and tau that moves less than TIE does not move
+            reach = ((np.minimum(tau0, tau1) <= span + TIE)
+                     & (np.maximum(tau0, tau1) >= -TIE)
                      & (np.minimum(y0, y1) < rho) & (np.maximum(y0, y1) > -rho))
             owner, link = np.nonzero(reach)  # row-major: each segment's links in order
             t0, dt, w0, dw = tau0[owner, link], dtau[owner, link], y0[owner, link], \
                 dy[owner, link]
             width = span[link]
             # the s-interval (s in [0, 1] along the segment) where 0 <= tau <= span
-            moving = dt != 0
+            moving = np.abs(dt) > TIE
             safe = np.where(moving, dt, 1.0)
             cross_start, cross_end = -t0 / safe, (width - t0) / safe
             s0 = np.clip(np.where(moving, np.minimum(cross_start, cross_end), 0.0), 0.0, 1.0)
@@ -597,21 +602,23 @@ class FeatureModel:
         out = np.zeros(n)
         if n == 0 or n_links == 0:
             return out
-        ab = self._link_frames[0]  # (L, 2)
+        _, span, along_unit, *_ = self._link_frames
         chunk = max(1, _CHUNK_POINTS // n_links)
         for lo in range(0, n, chunk):
             sl = slice(lo, lo + chunk)
-            # (m, L) signed areas: the ends' sides of each link's line
-            side_a = orientation(self.link_a, self.link_b, a[sl, None, :])
-            side_b = orientation(self.link_a, self.link_b, b[sl, None, :])
+            # (m, L) signed distances of the ends from each link's line; within TIE of it
+            # an end is on it, wherever the room lies (lattice points fall on links' lines)
+            side_a = orientation(self.link_a, self.link_b, a[sl, None, :]) / span
+            side_b = orientation(self.link_a, self.link_b, b[sl, None, :]) / span
+            side_a[np.abs(side_a) <= TIE] = 0.0
+            side_b[np.abs(side_b) <= TIE] = 0.0
             change = 0.5 * np.abs(np.sign(side_b) - np.sign(side_a))
             owner, link = np.nonzero(change)
-            # where the segment meets the line, as a fraction along the link
+            # where the segment meets the line, in metres along the link from its end a
             t = side_a[owner, link] / (side_a[owner, link] - side_b[owner, link])
             meet = a[sl][owner] + t[:, None] * (b[sl][owner] - a[sl][owner])
-            along = np.einsum("mk,mk->m", meet - self.link_a[link], ab[link]) / \
-                np.einsum("mk,mk->m", ab[link], ab[link])
-            inside = (along >= 0.0) & (along <= 1.0)
+            along = np.einsum("mk,mk->m", meet - self.link_a[link], along_unit[link])
+            inside = (along >= -TIE) & (along <= span[link] + TIE)
             out[sl] += np.bincount(owner[inside], change[owner, link][inside],
                                    minlength=len(out[sl]))
         return out

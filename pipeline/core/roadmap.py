@@ -17,7 +17,8 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, Polylines, SpatialGraph
 from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.params import require, require_positive
-from pipeline.core.world import TIE, Scene
+from pipeline.core.ties import TIE
+from pipeline.core.world import Scene
 
 # Lattice offsets (di, dj): 8 king moves plus 8 knight moves = 16-connected.
 _OFFSETS_8 = [(1, 0), (0, 1), (-1, 0), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]

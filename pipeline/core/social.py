@@ -7,6 +7,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from pipeline.core.ties import TIE, substeps
+
 if TYPE_CHECKING:  # the metric names alone (a sweep's table) need no scene geometry (scipy)
     from pipeline.core.world import Scene
 
@@ -44,18 +46,32 @@ def orientation(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarray) -> int:
-    """Number of (path segment, social link) pairs that properly intersect.
-
-    points: (K+1, 2) polyline; link_a, link_b: (L, 2) link end points.
-    """
+    """How many times the polyline `points` (K+1, 2) passes from one side of a social link
+    (link_a[l] to link_b[l], (L, 2) each) to the other through it, summed over the links.
+    Points within TIE of a link's line lie on it (wherever the room lies: lattice paths run
+    through points of links), so a path that touches a link and turns back does not cross it,
+    and one that crosses it at a vertex (or along the line) crosses it once."""
     p = np.asarray(points, float).reshape(-1, 2)
     if len(p) < 2 or len(link_a) == 0:
         return 0
-    a, b = p[:-1, None, :], p[1:, None, :]
-    c, d = link_a[None, :, :], link_b[None, :, :]
-    d1, d2 = orientation(c, d, a), orientation(c, d, b)
-    d3, d4 = orientation(a, b, c), orientation(a, b, d)
-    return int(((d1 * d2 < 0) & (d3 * d4 < 0)).sum())
+    span = np.linalg.norm(link_b - link_a, axis=1)  # (L,)
+    unit = (link_b - link_a) / np.where(span > 0, span, 1.0)[:, None]
+    distance = orientation(link_a[None], link_b[None], p[:, None]) / np.where(
+        span > 0, span, 1.0)  # (K+1, L) signed distances from the links' lines
+    side = np.where(np.abs(distance) <= TIE, 0.0, np.sign(distance))
+    crossings = 0
+    for link in np.flatnonzero(span > 0):
+        off = np.flatnonzero(side[:, link])  # the vertices off the line, in path order
+        changes = np.flatnonzero(side[off[1:], link] != side[off[:-1], link])
+        for before, after in zip(off[changes], off[changes + 1], strict=True):
+            if after == before + 1:  # where the segment meets the line
+                t = distance[before, link] / (distance[before, link] - distance[after, link])
+                meets = p[before] + t * (p[after] - p[before])
+            else:  # on the line at the vertices in between
+                meets = p[before + 1:after]
+            along = (meets - link_a[link]).reshape(-1, 2) @ unit[link]
+            crossings += int(((along >= -TIE) & (along <= span[link] + TIE)).any())
+    return crossings
 
 
 def _zone_intrusion(points: np.ndarray, persons: np.ndarray, radius: float,
@@ -66,7 +82,7 @@ def _zone_intrusion(points: np.ndarray, persons: np.ndarray, radius: float,
         return 0.0
     seg = np.diff(p, axis=0)
     length = np.linalg.norm(seg, axis=1)
-    n_sub = np.maximum(1, np.ceil(length / resolution).astype(int))
+    n_sub = substeps(length, resolution)
     owner = np.repeat(np.arange(len(seg)), n_sub)
     first = np.cumsum(n_sub) - n_sub
     frac = (np.arange(len(owner)) - np.repeat(first, n_sub) + 0.5) / n_sub[owner]

@@ -61,6 +61,7 @@ from pipeline.core.params import (
     require_step,
 )
 from pipeline.core.roadmap import lattice_graph, segments_feasible
+from pipeline.core.ties import substeps
 from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError
 
@@ -223,7 +224,7 @@ class SocialCost:
             return np.zeros(0)
         seg = b - a
         length = np.linalg.norm(seg, axis=1)
-        n_sub = np.maximum(1, np.ceil(length / self.params.resolution - 1e-9).astype(np.int64))
+        n_sub = substeps(length, self.params.resolution)
         owner = np.repeat(np.arange(len(a)), n_sub)
         first = np.cumsum(n_sub) - n_sub
         frac = (np.arange(len(owner)) - first[owner] + 0.5) / n_sub[owner]

@@ -25,6 +25,7 @@ from pipeline.core.obstacles import (
     rasterise,
 )
 from pipeline.core.params import require_positive
+from pipeline.core.ties import TIE
 from pipeline.errors import PipelineError
 
 
@@ -33,11 +34,6 @@ class SceneError(PipelineError):
 
 
 OBSTACLE_RESOLUTION = 0.05  # m, raster of polygon obstacles when the scene has no map
-# m: the geometric tests of the lattices (in the room, outside a body disk, near a start)
-# decide an exact tie the same way wherever the room lies. Round numbers make ties common (a
-# lattice point 0.1 m from a goal at x.5), and coordinates far from 0 carry their rounding
-# (1e-9 m at UTM magnitudes): metropolis moved by (10, 20) m learned other weights.
-TIE = 1e-6
 
 
 @dataclass

@@ -490,6 +490,33 @@ def test_crossing_counts_the_cuts_through_a_link(path, count):
     assert model(**LINKED).polyline(path)[0] == count
 
 
+SLANTED = dict(persons=[[0.0, 0.0], [2.0, 1.4]], features=["crossing"], relations=[(0, 1)])
+
+
+@pytest.mark.parametrize("path, count, metric", [
+    (np.array([[0.6, -1.0], [1.0, 0.7], [1.4, -1.0]]), 1.0, 0),  # touches it, turns back
+    (line(1.0, -1.0, 1.0, 0.7), 0.5, 0),  # ends on the link
+    (np.array([[0.6, -1.0], [1.0, 0.7], [1.4, 2.0]]), 1.0, 1),  # through, split on it
+    (line(2.0, -1.0, 2.0, 2.0), 1.0, 1),  # through its end
+    (np.array([[0.0, 1.0], [0.5, 0.35], [1.5, 1.05], [2.0, 2.0]]), 1.0, 0),  # along, back
+    (np.array([[0.0, 1.0], [0.5, 0.35], [1.5, 1.05], [2.0, 0.0]]), 1.0, 1),  # along, over
+    (line(-2.0, -1.4, 4.0, 2.8), 0.0, 0),  # along its line
+])
+@pytest.mark.parametrize("shift", [(0.0, 0.0), (-51.225, -51.225), (500_000.3, 5_600_000.7)])
+def test_crossing_and_its_metric_decide_touches_alike_wherever_they_lie(path, count, metric,
+                                                                         shift):
+    """A path through a point on a slanted link, both moved by a ROS map's origin or a UTM
+    offset: the rounding of the moved coordinates must not turn a touch into a cut (at
+    (−51.225, −51.225) the touch and turn back counted 2, and the metric 2 crossings). The
+    metric counts passes from one side to the other (it missed those at a vertex)."""
+    from pipeline.core.social import relation_crossings
+
+    shift = np.array(shift)
+    fm = model(**(SLANTED | {"persons": np.array(SLANTED["persons"]) + shift}))
+    assert fm.polyline(path + shift)[0] == count
+    assert relation_crossings(path + shift, fm.link_a, fm.link_b) == metric
+
+
 def test_crossing_does_not_depend_on_how_the_path_is_split():
     fm = model(**LINKED)
     rng = np.random.default_rng(0)

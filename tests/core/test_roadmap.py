@@ -5,8 +5,11 @@ import pytest
 
 import pipeline.core.roadmap as roadmap_module
 import pipeline.core.world as world_module
+from pipeline.core.adaptive_graph import voronoi_centroids
+from pipeline.core.features import FeatureModel, FeatureParams
 from pipeline.core.nearby import PAIR_BUDGET, points_in_disks, segments_clear_of_disks
-from pipeline.core.roadmap import lattice_graph, segments_feasible
+from pipeline.core.roadmap import RoadmapParams, build_roadmap, lattice_graph, segments_feasible
+from tests.conftest import moved_metropolis
 
 
 def test_roadmap_is_feasible_and_16_connected(metropolis, roadmap):
@@ -123,24 +126,49 @@ def test_a_lattice_is_the_same_wherever_the_room_lies(spacing, shift):
     round numbers put lattice points exactly 0.1 m from the goal and exactly on body disks'
     edges, ties that the moved coordinates' rounding decided differently (a node kept here,
     its neighbour there)."""
-    import json
-
-    from tests.conftest import METROPOLIS
-
-    data = json.loads(METROPOLIS.read_text())
-    dx, dy = shift
-    moved = json.loads(json.dumps(data))
-    room = moved["room"]
-    room.update(x_min=room["x_min"] + dx, x_max=room["x_max"] + dx,
-                y_min=room["y_min"] + dy, y_max=room["y_max"] + dy)
-    for p in moved["persons"]:
-        p["x"] += dx
-        p["y"] += dy
-    moved["starts"] = [[x + dx, y + dy] for x, y in moved["starts"]]
-    moved["goal"] = [moved["goal"][0] + dx, moved["goal"][1] + dy]
+    data = moved_metropolis((0.0, 0.0))
+    moved = moved_metropolis(shift)
     here = lattice_graph(world_module.scene_from_dict(data), spacing)
     there = lattice_graph(world_module.scene_from_dict(moved), spacing)
     assert len(here[0]) == len(there[0]) and len(here[1]) == len(there[1])
     np.testing.assert_allclose(there[0] - np.array(shift), here[0], atol=1e-6)
     np.testing.assert_array_equal(np.sort(here[1] * len(here[0]) + here[2]),
                                   np.sort(there[1] * len(there[0]) + there[2]))
+
+
+# every kind of the library that a scene without a map has
+EVERY_KIND = ["relation", "crossing", "social", "social@0.8", "social_squared", "intimate",
+              "gaussian", "front", "group_space", "wall", "goal_deviation", "length"]
+
+
+@pytest.mark.parametrize("shift", [(10.0, 20.0), (500_000.0, 5_600_000.0)])
+def test_lattice_edge_features_are_the_same_wherever_the_room_lies(shift):
+    """Every feature of every edge of the 0.2 m lattice (the alternatives) of metropolis
+    moved by `shift`: the same integrals to 1e-6. Before ties were decided with a tolerance,
+    at the UTM offset `relation` differed by up to 0.05 on edges along the perpendicular
+    through a link's end (counted inside here, outside there), and `social` by 5e-4 on edges
+    that got a midpoint sub-step more (length 0.2 + 1e-9 m: five sub-steps, not four)."""
+    built = []
+    for moved in (moved_metropolis((0.0, 0.0)), moved_metropolis(shift)):
+        scene = world_module.scene_from_dict(moved)
+        roadmap = build_roadmap(scene, FeatureModel.from_scene(scene, FeatureParams(EVERY_KIND)),
+                                RoadmapParams(spacing=0.2))
+        order = np.lexsort((roadmap.dst, roadmap.src))
+        built.append((roadmap.src[order], roadmap.dst[order], roadmap.features[order]))
+    (src, dst, here), (src_there, dst_there, there) = built
+    np.testing.assert_array_equal(src, src_there)
+    np.testing.assert_array_equal(dst, dst_there)
+    assert (here[:, EVERY_KIND.index("relation")] > 0).sum() > 100  # links are crossed
+    np.testing.assert_allclose(there, here, rtol=0, atol=1e-6)
+
+
+def test_voronoi_centroids_are_the_same_wherever_the_room_lies():
+    """The adaptive graph's first nodes: in UTM coordinates Qhull put them 100 m off (all
+    outside the room, so none was added)."""
+    here = world_module.scene_from_dict(moved_metropolis((0.0, 0.0)))
+    shift = np.array([500_000.0, 5_600_000.0])
+    there = world_module.scene_from_dict(moved_metropolis(tuple(shift)))
+    expected = voronoi_centroids(here.person_xy, here.room)
+    assert len(expected) == len(here.person_xy) and here.room.contains(expected).all()
+    np.testing.assert_allclose(voronoi_centroids(there.person_xy, there.room) - shift,
+                               expected, rtol=0, atol=1e-6)
