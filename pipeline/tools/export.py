@@ -76,6 +76,7 @@ FRAME = "map"
 
 TOPIC_LEARNED = "/birlg/learned_paths"  # on the adaptive graph, one Path per start
 TOPIC_LEARNED_REF = "/birlg/learned_paths_ref"  # on the reference roadmap
+LEARNED_TOPICS = {"graph": TOPIC_LEARNED, "ref": TOPIC_LEARNED_REF}  # by where they were planned
 TOPIC_DEMOS = "/birlg/demos"
 TOPIC_PEOPLE = "/birlg/people"
 
@@ -376,6 +377,7 @@ class RunReward:
     learned: dict[str, list[np.ndarray]]  # "graph" / "ref" -> path per start, in start order
     demos: list[np.ndarray]
     about: list[str]  # lines naming the run
+    short: dict[str, list[int]]  # "graph" / "ref" -> the starts whose path stops short
 
 
 def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
@@ -423,10 +425,13 @@ def read_run(run_dir: Path) -> RunReward:
     evaluation = read_artefact(run_dir / ARTEFACT_FILE["evaluate"],
                                required_topics=[topics.EVAL_PATHS])
     learned: dict[str, list[tuple[int, np.ndarray]]] = {"graph": [], "ref": []}
+    short: dict[str, list[int]] = {"graph": [], "ref": []}
     for msg in evaluation.all(topics.EVAL_PATHS):
         where, start = msg.get("graph"), msg.get("start")
         if where in learned and isinstance(start, int):
             learned[where].append((start, _points(evaluation, topics.EVAL_PATHS, msg)))
+            if msg.get("success") == 0:
+                short[where].append(start)
     paths = {k: [p for _, p in sorted(v, key=lambda sp: sp[0])] for k, v in learned.items()}
     demos_art = read_artefact(run_dir / ARTEFACT_FILE["demos"])
     # artefacts copied in from other runs would give a costmap of one scene with the
@@ -441,7 +446,8 @@ def read_run(run_dir: Path) -> RunReward:
              # what the export was made from: a later run into the dir changes these
              f"from: birl.mcap content {birl.digest[:16] or '?'}, eval.mcap content "
              f"{evaluation.digest[:16] or '?'}"]
-    return RunReward(scene, params, weights, paths, demos, about)
+    return RunReward(scene, params, weights, paths, demos, about,
+                     {k: sorted(v) for k, v in short.items()})
 
 
 # -- writing the export ------------------------------------------------------------------------
@@ -476,9 +482,19 @@ def _remove_stale_partials(run_dir: Path) -> None:
             pass
 
 
-def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int]]:
-    """Write RUN_DIR/export/ (see the module docstring); returns it, the costmap and the
-    bag's message counts. The new export is built beside the old one and swapped in."""
+def short_of_goal(short: dict[str, list[int]]) -> list[str]:
+    """One warning per topic whose learned paths (some starts') stop short of the goal."""
+    return [f"warning: the learned paths from start{'s' * (len(starts) > 1)} "
+            f"{', '.join(map(str, starts))} on {topic} stop short of the goal: exported as "
+            "they are (a robot following them does not arrive) and named in the bag's "
+            "metadata (birlg.short_of_goal)"
+            for where, topic in LEARNED_TOPICS.items() if (starts := short[where])]
+
+
+def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int], list[str]]:
+    """Write RUN_DIR/export/ (see the module docstring); returns it, the costmap, the
+    bag's message counts and its warnings (`short_of_goal`). The new export is built beside
+    the old one and swapped in."""
     run = read_run(run_dir)
     costmap = build_costmap(run.scene, run.params, run.weights)
     final = run_dir / EXPORT_DIR
@@ -489,9 +505,12 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int]]:
         (partial / COSTMAP_IMAGE).write_bytes(costmap_pgm(costmap))
         (partial / COSTMAP_YAML).write_text(costmap_yaml(
             costmap, tuple(run.params.features), run.weights, run.about))
-        counts = write_bag(partial / BAG_DIR, run.scene, run.learned, run.demos,
-                           {f"birlg.{k}": v for k, v in (line.split(": ", 1)
-                                                         for line in run.about)})
+        short = {topic: " ".join(map(str, run.short[where]))
+                 for where, topic in LEARNED_TOPICS.items() if run.short[where]}
+        about = {f"birlg.{k}": v for k, v in (line.split(": ", 1) for line in run.about)}
+        if short:  # topic: start indices (message k of a topic is start k's path)
+            about["birlg.short_of_goal"] = "; ".join(f"{t}: {v}" for t, v in short.items())
+        counts = write_bag(partial / BAG_DIR, run.scene, run.learned, run.demos, about)
         _sync_tree(partial)
         if final.exists():
             os.replace(final, old)
@@ -507,7 +526,7 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int]]:
             shutil.rmtree(old, ignore_errors=True)
         else:  # `export` was a file or a link (rmtree refuses links: it would stay for good)
             old.unlink(missing_ok=True)
-    return final, costmap, counts
+    return final, costmap, counts, short_of_goal(run.short)
 
 
 def check_run_dir(run_dir: Path) -> None:
@@ -542,7 +561,7 @@ def main(argv: list[str] | None = None) -> int:
         lock = acquire_lock(run_dir)  # no pipeline run starts into the dir meanwhile
         try:
             _remove_stale_partials(run_dir)
-            final, costmap, counts = export_run(run_dir)
+            final, costmap, counts, warnings = export_run(run_dir)
         finally:
             os.close(lock)
     except (PipelineError, OSError) as e:  # OSError: e.g. a read-only run dir, a full disk
@@ -553,6 +572,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {final / COSTMAP_YAML} ({w} x {h} cells at {costmap.grid.resolution:g} m; "
           f"features {', '.join(costmap.in_mask) or 'none'}; {scale})")
     print(f"wrote {final / BAG_DIR} (" + ", ".join(f"{t} {n}" for t, n in counts.items()) + ")")
+    for warning in warnings:
+        print(warning, file=sys.stderr)
     return 0
 
 

@@ -564,3 +564,28 @@ def test_a_dir_that_is_no_run_is_refused_without_a_lock_file(tmp_path, capsys):
     assert export.main([str(tmp_path)]) == 2
     assert "has no scene.mcap" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_paths_that_stop_short_of_the_goal_are_named_in_a_warning_and_the_bag(exported,
+                                                                             tmp_path, capsys):
+    """A deployment whose adaptive-graph paths never arrive (the summary's warning case) was
+    exported as if they did: a robot replaying the bag would not know. Now stderr names the
+    starts per topic, and so does the bag's metadata; arriving paths give neither."""
+    run_dir = tmp_path / "short"
+    m, _ = run_in_process(run_dir, "graph=small", "scene=random", "expert=none", "birl=fixed",
+                          "birl.weights=[-1,-0.7,-0.85,-0.1,-0.5]", "seed=0")
+    evaluated = read_artefact(run_dir / "eval.mcap").all(topics.EVAL_PATHS)
+    short = sorted(p["start"] for p in evaluated if p["graph"] == "graph" and p["success"] == 0)
+    assert short and m["ref_success"] == 1  # the case: some graph paths stop short
+    capsys.readouterr()
+    assert export.main([str(run_dir)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    starts = ", ".join(map(str, short))
+    assert len(err) == 1 and f"start{'s' * (len(short) > 1)} {starts} on " \
+        f"{export.TOPIC_LEARNED} stop short of the goal" in err[0], err
+    custom = yaml.safe_load((run_dir / "export/paths/metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"]["custom_data"]
+    assert custom["birlg.short_of_goal"] == f"{export.TOPIC_LEARNED}: {' '.join(map(str, short))}"
+    # every path of the quick default run arrives: no such key
+    arrived = yaml.safe_load((exported[1] / "paths/metadata.yaml").read_text())
+    assert "birlg.short_of_goal" not in arrived["rosbag2_bagfile_information"]["custom_data"]
