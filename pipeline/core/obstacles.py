@@ -27,6 +27,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
+from pipeline.core.ties import TIE
 from pipeline.errors import PipelineError
 
 Bounds = tuple[float, float, float, float]  # x_min, y_min, x_max, y_max
@@ -64,12 +65,14 @@ class OccupancyGrid:
         """Cells of `points` (n, 2) -> rows (n,), cols (n,) int, inside (n,) bool.
 
         Rows/cols of points outside the grid are clipped to the border (index-safe);
-        `inside` tells them apart.
+        `inside` tells them apart. A point within TIE of a cell border is in the cell above
+        it, wherever the map lies: lattice points fall on borders, and a map origin such as
+        ROS's −51.225 m rounded them into one cell here and its neighbour there.
         """
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         h, w = self.shape
-        col = np.floor((p[:, 0] - self.origin[0]) / self.resolution)
-        row = np.floor((p[:, 1] - self.origin[1]) / self.resolution)
+        col = np.floor((p[:, 0] - self.origin[0] + TIE) / self.resolution)
+        row = np.floor((p[:, 1] - self.origin[1] + TIE) / self.resolution)
         inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)  # False for NaN too
         # NaN -> 0, beyond the border (inf too) -> the border: fmax skips NaN (two ufuncs,
         # a third of nan_to_num and clip's cost on the few points of a growth step)

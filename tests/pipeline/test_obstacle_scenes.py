@@ -236,3 +236,40 @@ def test_a_map_too_small_or_without_free_space_is_named(occupied, message):
     with pytest.raises(PipelineError, match=message):
         random_scene(RandomSceneSpec(), np.random.default_rng(0), map_grid=grid,
                      map_source="tiny.yaml")
+
+
+def test_the_office_lattice_is_the_same_wherever_its_map_lies(tmp_path):
+    """The office with its map origin (and every coordinate of the scene) moved to ROS's
+    usual −51.225 m and to a UTM offset: the same reference roadmap, edge for edge. Lattice
+    points lie on the map's cell borders (0.25 m is 5 cells), and the moved origin's
+    rounding put them in one cell here and its neighbour there (12 edges more at −51.225)."""
+    import shutil
+
+    from pipeline.core.features import FeatureModel, FeatureParams
+    from pipeline.core.roadmap import build_roadmap
+
+    built = []
+    for k, shift in enumerate([(0.0, 0.0), (-51.225, -51.225), (500_000.0, 5_600_000.0)]):
+        shutil.copy(OFFICE_MAP.with_suffix(".pgm"), tmp_path / "office.pgm")
+        header = OFFICE_MAP.read_text().replace("origin: [0.0, 0.0, 0.0]",
+                                                f"origin: [{shift[0]!r}, {shift[1]!r}, 0.0]")
+        assert header != OFFICE_MAP.read_text() or shift == (0.0, 0.0)
+        (tmp_path / f"office{k}.yaml").write_text(header)
+        data = json.loads(OFFICE_SCENE.read_text())
+        data["map"] = f"office{k}.yaml"
+        for p in data["persons"]:
+            p["x"], p["y"] = p["x"] + shift[0], p["y"] + shift[1]
+        data["starts"] = [[x + shift[0], y + shift[1]] for x, y in data["starts"]]
+        data["goal"] = [data["goal"][0] + shift[0], data["goal"][1] + shift[1]]
+        scene = load_scene_file(write_json(tmp_path / f"office{k}.json", data))
+        roadmap = build_roadmap(scene, FeatureModel.from_scene(scene, FeatureParams(
+            ["relation", "social", "wall", "obstacle", "length"])), RoadmapParams())
+        order = np.lexsort((roadmap.dst, roadmap.src))
+        built.append((roadmap.positions - np.array(shift), roadmap.src[order],
+                      roadmap.dst[order], roadmap.features[order]))
+    here = built[0]
+    for there in built[1:]:
+        np.testing.assert_allclose(there[0], here[0], rtol=0, atol=1e-6)
+        np.testing.assert_array_equal(there[1], here[1])
+        np.testing.assert_array_equal(there[2], here[2])
+        np.testing.assert_allclose(there[3], here[3], rtol=0, atol=1e-6)
