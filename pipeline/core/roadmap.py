@@ -135,7 +135,7 @@ def build_roadmap(scene: Scene, feature_model: FeatureModel, params: RoadmapPara
     positions, src, dst = lattice_graph(scene, params.spacing, params.connectivity)
     features = feature_model.edge_features(positions, src, dst)
     duration = np.linalg.norm(positions[dst] - positions[src], axis=1) / speed
-    terminal = np.linalg.norm(positions - scene.goal, axis=1) <= scene.goal_tolerance
+    terminal = scene.at_goal(positions)
     n_starts = len(scene.starts)
     n_lattice = len(positions) - n_starts - 1
     return Roadmap(positions, src, dst, duration, features, terminal,

@@ -264,7 +264,7 @@ def planner_graph(scene: Scene, params: SocialPlannerParams) -> PlannerGraph:
     n_starts = len(scene.starts)
     goal = n - 1
     start_nodes = np.arange(n - 1 - n_starts, n - 1)
-    in_disk = np.linalg.norm(positions - scene.goal, axis=1) <= scene.goal_tolerance
+    in_disk = scene.at_goal(positions)
     in_disk[start_nodes] = False  # a start is a path's first point, never cut away
     keep = ~in_disk[src] & ~in_disk[dst]
     into = ~in_disk[src] & in_disk[dst]

@@ -317,8 +317,8 @@ class StateGraph:
         self._gp.append((gp_mean, gp_std, score))
         self._n_close.append(len(close))
         self._index.add(self.pose[idx])
-        at_goal = np.linalg.norm(self.pose[idx, :2] - self.scene.goal) <= self.scene.goal_tolerance
-        self.solver.add_node(bool(at_goal), source=(kind == START))
+        self.solver.add_node(bool(self.scene.at_goal(self.pose[idx, :2])[0]),
+                             source=(kind == START))
         return idx
 
     def add_edges(self, src: Sequence[int] | np.ndarray, dst: Sequence[int] | np.ndarray,

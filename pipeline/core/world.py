@@ -174,6 +174,12 @@ class Scene:
         b = np.array([pos[j] for _, j in self.relations], dtype=float).reshape(-1, 2)
         return a, b
 
+    def at_goal(self, points: np.ndarray) -> np.ndarray:
+        """Mask (n,) of points (n, 2) within goal_tolerance of the goal (terminal states; a
+        lattice point exactly goal_tolerance away is, wherever the room lies)."""
+        p = np.atleast_2d(points)
+        return np.linalg.norm(p - self.goal, axis=1) <= self.goal_tolerance + TIE
+
     def in_body(self, points: np.ndarray, clearance: float = 0.0) -> np.ndarray:
         """Mask (n,) of points (n, 2) inside some person's body disk (grown by `clearance`)."""
         p = np.atleast_2d(points)
@@ -377,7 +383,7 @@ def _check_placement(scene: Scene, fail: Any) -> None:
             raise fail(f"{where} is outside the room {room.describe()}")
         if scene.in_body(pt)[0]:
             raise fail(f"{where} is inside a person's body disk")
-        if k < len(scene.starts) and np.linalg.norm(pt - scene.goal) <= scene.goal_tolerance:
+        if k < len(scene.starts) and scene.at_goal(pt)[0]:
             raise fail(f"{where} is within goal_tolerance={scene.goal_tolerance:g} m of the "
                        "goal: a demonstration from it would end where it begins")
         if (off := off_map(pt[None, :])) is not None:
