@@ -88,8 +88,8 @@ def lattice_graph(scene: Scene, spacing: float = 0.25,
     if connectivity not in (8, 16):
         raise ValueError(f"connectivity must be 8 or 16, got {connectivity}")
     room = scene.room
-    xs = np.arange(room.x_min, room.x_max + 1e-9, spacing)
-    ys = np.arange(room.y_min, room.y_max + 1e-9, spacing)
+    xs = np.arange(room.x_min, room.x_max + TIE, spacing)
+    ys = np.arange(room.y_min, room.y_max + TIE, spacing)
     gi, gj = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
     lattice = np.column_stack([xs[gi.ravel()], ys[gj.ravel()]])
     special = np.vstack([scene.starts, scene.goal[None, :]])
