@@ -3,7 +3,7 @@ results/bench/learning.csv (one row per run), learning_summary.csv (per demonstr
 learner: median, worst, runs at ≤ 0.005, crossings, held-out distances, seconds) and
 learning.png.
 
-    python -m pipeline.tools.bench_learning                     # everything (~1 h on 2 cores)
+    python -m pipeline.tools.bench_learning                     # everything (~15 min on 2 cores)
     python -m pipeline.tools.bench_learning --demonstrators optimal boltzmann20 --seeds 0 1
     python -m pipeline.tools.bench_learning --learners policywalk maxent --merge  # add rows
     python -m pipeline.tools.bench_learning --table learner_features \
