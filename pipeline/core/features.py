@@ -316,11 +316,13 @@ class FeatureModel:
             a = self.link_a[link]
             ab = self.link_b[link] - a
             ap = p - a
-            t = ap @ ab / (ab @ ab)
+            span = np.sqrt(ab @ ab)
+            along = ap @ ab / span  # m from the link's end a; within TIE of the link is on it
             # With the projection inside the link, the distance to the segment is the
             # perpendicular distance |cross(ab, ap)| / |ab|.
-            d = np.abs(ab[0] * ap[:, 1] - ab[1] * ap[:, 0]) / np.sqrt(ab @ ab)
-            total += np.where((t >= 0.0) & (t <= 1.0), np.maximum(0.0, rho - d), 0.0)
+            d = np.abs(ab[0] * ap[:, 1] - ab[1] * ap[:, 0]) / span
+            total += np.where((along >= -TIE) & (along <= span + TIE),
+                              np.maximum(0.0, rho - d), 0.0)
         return total
 
     def _evaluate(self, p: np.ndarray, features: tuple[Feature, ...],
