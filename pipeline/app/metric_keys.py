@@ -13,7 +13,8 @@ from pipeline.core.social import INTIMATE_ZONE, PATH_METRICS, PERSONAL_ZONE
 # starts combine into the run's value.
 PATH_METRIC_MEANING: dict[str, str] = {
     "relation_crossings": "crossings of the path with social links (the segment between two "
-                          "related persons)",
+                          "related persons): passes from one side to the other through one, "
+                          "also at a vertex on it; a touch and turn back is none",
     "intimate_intrusion_m": f"metres of path inside a person's intimate zone ({INTIMATE_ZONE} m)",
     "personal_intrusion_m": f"metres of path inside a person's personal zone ({PERSONAL_ZONE} m)",
     "min_distance_to_person": "smallest distance from the path to a person's centre, m",
