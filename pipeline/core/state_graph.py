@@ -24,6 +24,7 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, Polylines
 from pipeline.core.incremental_mdp import GrowableArray, IncrementalGraphMDP
 from pipeline.core.roadmap import segments_feasible
+from pipeline.core.ties import TIE
 from pipeline.core.world import Scene
 
 # Node kinds, as stored in graph.mcap.
@@ -92,7 +93,11 @@ class SpatialIndex:
     """Neighbour queries on a growing point set: a cKDTree, rebuilt when the points added
     since the last build reach a quarter of it or 512, plus a brute-force scan of those
     recent points. The cap keeps the scan short in large graphs (it grew with n/8 on
-    average, the superlinear part of growth); below 2048 points it changes nothing."""
+    average, the superlinear part of growth); below 2048 points it changes nothing. A point
+    within TIE beyond a query's radius is within it, wherever the room lies: nodes on the
+    medial axis or on demonstrations drawn on a grid lie exactly `radius` apart, and a map's
+    origin decided such ties (a node's neighbour count, so its exploration score) one way
+    here and the other there."""
 
     def __init__(self) -> None:
         self.points = GrowableArray((2,))
@@ -113,6 +118,7 @@ class SpatialIndex:
 
     def within(self, p: np.ndarray, r: float, ordered: bool = True) -> np.ndarray:
         """Indices within distance r of p, nearest first (any order if not `ordered`)."""
+        r += TIE
         idx, dist = self._recent(p, r)
         if not ordered:
             old = self.tree.query_ball_point(p[:2], r) if self.tree is not None else []
@@ -126,6 +132,7 @@ class SpatialIndex:
 
     def nearest(self, p: np.ndarray, k: int, r: float) -> np.ndarray:
         """Up to k indices within r of p, nearest first."""
+        r += TIE
         idx, dist = self._recent(p, r)
         if self.tree is not None:
             d_old, i_old = self.tree.query(p[:2], k=min(k, self.n_tree), distance_upper_bound=r)
@@ -137,6 +144,7 @@ class SpatialIndex:
         return idx[order]
 
     def count_within(self, p: np.ndarray, r: float) -> int:
+        r += TIE
         n = len(self._recent(p, r)[0])
         if self.tree is not None:
             n += int(self.tree.query_ball_point(p[:2], r, return_length=True))
@@ -150,6 +158,7 @@ class SpatialIndex:
     def any_within_many(self, ps: np.ndarray, r: float) -> np.ndarray:
         """(m,) bool: is any point within r of ps[i] (m, 2 or 3)? One batched query; the
         same answers as `len(nearest(p, 1, r)) > 0` for each p."""
+        r += TIE
         found = np.asarray(self._recent_within(ps, r).any(axis=1))
         if self.tree is not None:
             d_old, _ = self.tree.query(ps[:, :2], k=1, distance_upper_bound=r)
@@ -158,6 +167,7 @@ class SpatialIndex:
 
     def count_within_many(self, ps: np.ndarray, r: float) -> np.ndarray:
         """(m,) int64: `count_within(p, r)` for each row p of ps (m, 2 or 3), batched."""
+        r += TIE
         n = self._recent_within(ps, r).sum(axis=1, dtype=np.int64)
         if self.tree is not None:
             n += np.asarray(self.tree.query_ball_point(ps[:, :2], r, return_length=True),

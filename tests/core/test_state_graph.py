@@ -44,3 +44,28 @@ def test_batched_queries_equal_the_single_point_queries():
                     [len(index.nearest(q, 1, r)) > 0 for q in queries]
                 assert index.count_within_many(poses, r).tolist() == \
                     [index.count_within(q, r) for q in queries]
+
+
+def test_a_point_exactly_a_radius_away_is_within_it_wherever_the_points_lie():
+    """Nodes on a 0.5 m grid (medial-axis points, gridded drawings) lie exactly a radius of
+    0.5 m (or √2·0.5) apart: counted within it at the origin, moved by a ROS map's origin
+    and by a UTM offset alike, before and after the k-d tree's first build. A warehouse
+    moved to a UTM offset counted such neighbours differently and grew another graph."""
+    centre = np.array([2.5, 2.5])
+    grid = np.array([[i * 0.5, j * 0.5] for i in range(12) for j in range(12)])
+    grid = grid[np.argsort(np.linalg.norm(grid - centre, axis=1), kind="stable")]
+    counts = []
+    for shift in ([0.0, 0.0], [-51.225, -51.225], [500_000.0, 5_600_000.0]):
+        for n in (30, len(grid)):  # recent points only; then most in the tree
+            index = SpatialIndex()
+            for p in grid[:n] + shift:
+                index.add(p)
+            q = centre + shift
+            counts.append((n, index.count_within(q, 0.5), index.count_within(q, np.hypot(
+                0.5, 0.5)), len(index.within(q, 0.5)), len(index.nearest(q, 20, 0.5)),
+                int(index.count_within_many(q[None], 0.5)[0]),
+                bool(index.any_within_many((q + [0.5, 0.0])[None], 0.0)[0])))
+    # the point and its 4 (8) neighbours, in the scan of recent points and in the tree
+    assert counts[0] == (30, 5, 9, 5, 5, 5, True)
+    assert counts[1] == (len(grid), 5, 9, 5, 5, 5, True)
+    assert counts[2:] == counts[:2] * 2, counts
