@@ -424,8 +424,8 @@ def read_run(run_dir: Path) -> RunReward:
     params = learned_feature_params(birl, names)
     evaluation = read_artefact(run_dir / ARTEFACT_FILE["evaluate"],
                                required_topics=[topics.EVAL_PATHS])
-    learned: dict[str, list[tuple[int, np.ndarray]]] = {"graph": [], "ref": []}
-    short: dict[str, list[int]] = {"graph": [], "ref": []}
+    learned: dict[str, list[tuple[int, np.ndarray]]] = {where: [] for where in LEARNED_TOPICS}
+    short: dict[str, list[int]] = {where: [] for where in LEARNED_TOPICS}
     for msg in evaluation.all(topics.EVAL_PATHS):
         where, start = msg.get("graph"), msg.get("start")
         if where in learned and isinstance(start, int):
