@@ -66,7 +66,8 @@ from pipeline.core.params import (
 )
 from pipeline.core.social import (
     INTIMATE_ZONE,  # `intimate` is `social` at this radius
-    orientation,
+    line_distances,
+    within_span,
 )
 from pipeline.core.ties import TIE, substeps
 from pipeline.core.world import Room, Scene
@@ -317,12 +318,11 @@ class FeatureModel:
             ab = self.link_b[link] - a
             ap = p - a
             span = np.sqrt(ab @ ab)
-            along = ap @ ab / span  # m from the link's end a; within TIE of the link is on it
+            along = ap @ ab / span  # m from the link's end a
             # With the projection inside the link, the distance to the segment is the
             # perpendicular distance |cross(ab, ap)| / |ab|.
             d = np.abs(ab[0] * ap[:, 1] - ab[1] * ap[:, 0]) / span
-            total += np.where((along >= -TIE) & (along <= span + TIE),
-                              np.maximum(0.0, rho - d), 0.0)
+            total += np.where(within_span(along, span), np.maximum(0.0, rho - d), 0.0)
         return total
 
     def _evaluate(self, p: np.ndarray, features: tuple[Feature, ...],
@@ -608,19 +608,16 @@ class FeatureModel:
         chunk = max(1, _CHUNK_POINTS // n_links)
         for lo in range(0, n, chunk):
             sl = slice(lo, lo + chunk)
-            # (m, L) signed distances of the ends from each link's line; within TIE of it
-            # an end is on it, wherever the room lies (lattice points fall on links' lines)
-            side_a = orientation(self.link_a, self.link_b, a[sl, None, :]) / span
-            side_b = orientation(self.link_a, self.link_b, b[sl, None, :]) / span
-            side_a[np.abs(side_a) <= TIE] = 0.0
-            side_b[np.abs(side_b) <= TIE] = 0.0
+            # (m, L) signed distances of the ends from each link's line (0: on it)
+            side_a = line_distances(self.link_a, self.link_b, a[sl])
+            side_b = line_distances(self.link_a, self.link_b, b[sl])
             change = 0.5 * np.abs(np.sign(side_b) - np.sign(side_a))
             owner, link = np.nonzero(change)
             # where the segment meets the line, in metres along the link from its end a
             t = side_a[owner, link] / (side_a[owner, link] - side_b[owner, link])
             meet = a[sl][owner] + t[:, None] * (b[sl][owner] - a[sl][owner])
             along = np.einsum("mk,mk->m", meet - self.link_a[link], along_unit[link])
-            inside = (along >= -TIE) & (along <= span[link] + TIE)
+            inside = within_span(along, span[link])
             out[sl] += np.bincount(owner[inside], change[owner, link][inside],
                                    minlength=len(out[sl]))
         return out

@@ -45,6 +45,22 @@ def orientation(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         b[..., 0] - o[..., 0])
 
 
+def line_distances(link_a: np.ndarray, link_b: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Signed distances (n, L) of `points` (n, 2) from the lines through the links
+    link_a[l] → link_b[l] ((L, 2) each), > 0 on the left; 0 within TIE of a line: a point on
+    a link's line is on it wherever the room lies (lattice points fall on such lines)."""
+    span = np.linalg.norm(link_b - link_a, axis=1)
+    distance = orientation(link_a, link_b, points[:, None, :]) / np.where(span > 0, span, 1.0)
+    distance[np.abs(distance) <= TIE] = 0.0
+    return distance
+
+
+def within_span(along: np.ndarray, span: ArrayLike) -> np.ndarray:
+    """Mask: positions `along` a link (m from its end a) on the link of length `span`, its
+    ends within TIE included."""
+    return (along >= -TIE) & (along <= np.asarray(span) + TIE)
+
+
 def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarray) -> int:
     """How many times the polyline `points` (K+1, 2) passes from one side of a social link
     (link_a[l] to link_b[l], (L, 2) each) to the other through it, summed over the links.
@@ -56,9 +72,8 @@ def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarra
         return 0
     span = np.linalg.norm(link_b - link_a, axis=1)  # (L,)
     unit = (link_b - link_a) / np.where(span > 0, span, 1.0)[:, None]
-    distance = orientation(link_a[None], link_b[None], p[:, None]) / np.where(
-        span > 0, span, 1.0)  # (K+1, L) signed distances from the links' lines
-    side = np.where(np.abs(distance) <= TIE, 0.0, np.sign(distance))
+    distance = line_distances(link_a, link_b, p)  # (K+1, L)
+    side = np.sign(distance)
     crossings = 0
     for link in np.flatnonzero(span > 0):
         off = np.flatnonzero(side[:, link])  # the vertices off the line, in path order
@@ -70,7 +85,7 @@ def relation_crossings(points: np.ndarray, link_a: np.ndarray, link_b: np.ndarra
             else:  # on the line at the vertices in between
                 meets = p[before + 1:after]
             along = (meets - link_a[link]).reshape(-1, 2) @ unit[link]
-            crossings += int(((along >= -TIE) & (along <= span[link] + TIE)).any())
+            crossings += int(within_span(along, span[link]).any())
     return crossings
 
 
