@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.irl.birl import BirlMapConfig
 from pipeline.tools import bench_startup as startup
 
 
@@ -136,8 +137,9 @@ def _birl_stage(t: Tables) -> Reading:
 
 # -- speed --------------------------------------------------------------------------------
 
-# the default learner's method in scaling.csv (birl.likelihood's default)
-DEFAULT_LEARNER = "boltzmann"
+# the default learner's method in scaling.csv: bench_scaling names its BIRL-G rows by
+# birl.likelihood, so the default's row is that setting's default
+DEFAULT_LEARNER = BirlMapConfig.likelihood
 
 
 def _speedup(nodes: int) -> Callable[[Tables], Reading]:
