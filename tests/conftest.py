@@ -173,11 +173,18 @@ def walled_metropolis() -> dict:
 
 def moved_metropolis(shift: tuple[float, float]) -> dict:
     """metropolis.json's data with every coordinate moved by `shift` (dx, dy) m."""
+    return moved_scene(json.loads(METROPOLIS.read_text()), shift)
+
+
+def moved_scene(data: dict, shift: tuple[float, float]) -> dict:
+    """A scene file's data with its room (if it has one: a map's scene has none), persons,
+    starts and goal moved by `shift` (dx, dy) m."""
     dx, dy = shift
-    moved = json.loads(METROPOLIS.read_text())
-    room = moved["room"]
-    room.update(x_min=room["x_min"] + dx, x_max=room["x_max"] + dx,
-                y_min=room["y_min"] + dy, y_max=room["y_max"] + dy)
+    moved = json.loads(json.dumps(data))
+    if "room" in moved:
+        room = moved["room"]
+        room.update(x_min=room["x_min"] + dx, x_max=room["x_max"] + dx,
+                    y_min=room["y_min"] + dy, y_max=room["y_max"] + dy)
     for p in moved["persons"]:
         p["x"] += dx
         p["y"] += dy

@@ -25,6 +25,7 @@ from tests.conftest import (
     OFFICE_SCENE,
     ROBOT_RADIUS,
     WALL_Y,
+    moved_scene,
     run_in_process,
     walled_metropolis,
     write_json,
@@ -255,12 +256,8 @@ def test_the_office_lattice_is_the_same_wherever_its_map_lies(tmp_path):
                                                 f"origin: [{shift[0]!r}, {shift[1]!r}, 0.0]")
         assert header != OFFICE_MAP.read_text() or shift == (0.0, 0.0)
         (tmp_path / f"office{k}.yaml").write_text(header)
-        data = json.loads(OFFICE_SCENE.read_text())
+        data = moved_scene(json.loads(OFFICE_SCENE.read_text()), shift)
         data["map"] = f"office{k}.yaml"
-        for p in data["persons"]:
-            p["x"], p["y"] = p["x"] + shift[0], p["y"] + shift[1]
-        data["starts"] = [[x + shift[0], y + shift[1]] for x, y in data["starts"]]
-        data["goal"] = [data["goal"][0] + shift[0], data["goal"][1] + shift[1]]
         scene = load_scene_file(write_json(tmp_path / f"office{k}.json", data))
         roadmap = build_roadmap(scene, FeatureModel.from_scene(scene, FeatureParams(
             ["relation", "social", "wall", "obstacle", "length"])), RoadmapParams())
