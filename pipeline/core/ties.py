@@ -14,6 +14,12 @@ from numpy.typing import ArrayLike
 TIE = 1e-6  # m: distances this close count as equal
 
 
+def within(distance: ArrayLike, radius: float) -> np.ndarray:
+    """Mask: `distance` ≤ `radius`, a distance less than TIE beyond it counted as within
+    (a lattice point exactly goal_tolerance from the goal is in the goal disk)."""
+    return np.asarray(distance) <= radius + TIE
+
+
 def substeps(length: ArrayLike, step: float) -> np.ndarray:
     """ceil(length / step), at least 1 (int64, shaped like `length`): how many equal
     sub-steps of at most `step` a segment of `length` needs, a length within TIE of a

@@ -25,7 +25,7 @@ from pipeline.core.obstacles import (
     rasterise,
 )
 from pipeline.core.params import require_positive
-from pipeline.core.ties import TIE
+from pipeline.core.ties import TIE, within
 from pipeline.errors import PipelineError
 
 
@@ -178,7 +178,7 @@ class Scene:
         """Mask (n,) of points (n, 2) within goal_tolerance of the goal (terminal states; a
         lattice point exactly goal_tolerance away is, wherever the room lies)."""
         p = np.atleast_2d(points)
-        return np.linalg.norm(p - self.goal, axis=1) <= self.goal_tolerance + TIE
+        return within(np.linalg.norm(p - self.goal, axis=1), self.goal_tolerance)
 
     def in_body(self, points: np.ndarray, clearance: float = 0.0) -> np.ndarray:
         """Mask (n,) of points (n, 2) inside some person's body disk (grown by `clearance`)."""

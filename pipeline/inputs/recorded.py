@@ -48,6 +48,7 @@ import numpy as np
 import scipy.linalg
 from scipy.spatial import cKDTree
 
+from pipeline.core.ties import within
 from pipeline.core.world import Room, metres, point
 from pipeline.errors import PipelineError, listed
 from pipeline.inputs.schemas import read_json
@@ -738,7 +739,7 @@ def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> 
     """
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     goal = np.asarray(goal, dtype=float)
-    if len(p) == 0 or np.linalg.norm(p[0] - goal) <= goal_tolerance:
+    if len(p) == 0 or within(np.linalg.norm(p[0] - goal), goal_tolerance):
         return None
     if len(p) < 2:
         return p.copy()
@@ -747,10 +748,10 @@ def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> 
     len2 = np.einsum("nk,nk->n", ab, ab)
     t = np.clip(np.einsum("nk,nk->n", goal - a, ab) / np.where(len2 > 0, len2, 1.0), 0.0, 1.0)
     gap = np.linalg.norm(a + t[:, None] * ab - goal, axis=1)
-    within = np.flatnonzero(gap <= goal_tolerance)
-    if len(within) == 0:
+    entered = np.flatnonzero(within(gap, goal_tolerance))
+    if len(entered) == 0:
         return p.copy()
-    return np.vstack([p[:within[0] + 1], goal[None, :]])
+    return np.vstack([p[:entered[0] + 1], goal[None, :]])
 
 
 def _visits(near: np.ndarray) -> list[tuple[int, int]]:
@@ -812,8 +813,8 @@ def stream_spans(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_
         return []
     gaps = np.linalg.norm(track[:, None, :] - starts[None, :, :], axis=2)  # (K, n)
     near_any = np.flatnonzero((gaps <= start_radius).any(axis=1))
-    at_goal = np.flatnonzero(np.linalg.norm(track - np.asarray(goal, dtype=float), axis=1)
-                             <= goal_tolerance)
+    at_goal = np.flatnonzero(within(np.linalg.norm(track - np.asarray(goal, dtype=float),
+                                                   axis=1), goal_tolerance))
     spans = []
     pos = 0
     while True:
