@@ -61,7 +61,7 @@ from pipeline.core.params import (
     require_step,
 )
 from pipeline.core.roadmap import lattice_graph, segments_feasible
-from pipeline.core.ties import substeps
+from pipeline.core.ties import TIE, substeps
 from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError
 
@@ -309,14 +309,16 @@ def cheapest_paths(graph: PlannerGraph, costs: np.ndarray) -> tuple[np.ndarray, 
 
 def _drop_collinear(points: np.ndarray,
                     cumulative: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices where the polyline turns (ends kept), with their cumulative costs."""
+    """Vertices where the polyline turns (ends kept), with their cumulative costs. A vertex
+    whose next one lies within TIE of the incoming line does not turn: lattice points at UTM
+    magnitudes carry 1e-9 m of rounding, which a relative test read as turns."""
     if len(points) < 3:
         return points, cumulative
     d_in, d_out = points[1:-1] - points[:-2], points[2:] - points[1:-1]
     cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
     dot = np.einsum("nk,nk->n", d_in, d_out)
-    scale = np.linalg.norm(d_in, axis=1) * np.linalg.norm(d_out, axis=1)
-    turn = (np.abs(cross) > 1e-9 * scale) | (dot <= 0)
+    offset = np.abs(cross) / np.linalg.norm(d_in, axis=1)  # next vertex off the incoming line
+    turn = (offset > TIE) | (dot <= 0)
     keep = np.concatenate([[True], turn, [True]])
     return points[keep], cumulative[keep]
 

@@ -4,6 +4,7 @@ computations, and its optimality against an independent Dijkstra."""
 
 import dataclasses
 import heapq
+import json
 import math
 
 import numpy as np
@@ -20,6 +21,7 @@ from pipeline.core.social_planner import (
     SUBJECT_FIELDS,
     SocialCost,
     SocialPlannerParams,
+    _drop_collinear,
     edge_costs,
     groups,
     lattice_spacing,
@@ -30,7 +32,8 @@ from pipeline.core.social_planner import (
 )
 from pipeline.core.world import Person, Room, Scene, scene_from_dict
 from pipeline.errors import PipelineError
-from tests.conftest import POLITE
+from pipeline.inputs.scene_file import load_scene_file
+from tests.conftest import METROPOLIS, POLITE, moved_scene, write_json
 
 INTIMATE = 0.45  # m
 
@@ -265,6 +268,34 @@ def test_lattice_is_capped_for_large_rooms(metropolis):
     assert lattice_spacing(metropolis, SocialPlannerParams()) == 0.1
     big = dataclasses.replace(metropolis, room=Room(0, 0, 40, 40))
     assert lattice_spacing(big, SocialPlannerParams()) == pytest.approx(0.2)
+
+
+def test_demonstrations_are_the_same_wherever_the_scene_lies(tmp_path, metropolis,
+                                                              metropolis_subjects):
+    """Five subjects on metropolis moved to UTM magnitudes give the same paths, moved: lattice
+    points there carry 1e-9 m of rounding, which used to keep straight runs as turns and
+    string-pull 6 of the 35 paths another way."""
+    shift = np.array([500_000.0, 5_600_000.0])
+    data = moved_scene(json.loads(METROPOLIS.read_text()), tuple(shift))
+    moved = load_scene_file(write_json(tmp_path / "utm.json", data))
+    there = planner_demos(moved, FeatureModel.from_scene(moved),
+                          SocialPlannerParams(n_subjects=5), np.random.default_rng(0), 1.0)
+    assert len(there) == len(metropolis_subjects) == 35
+    for here, utm in zip(metropolis_subjects, there, strict=True):
+        assert here.points.shape == utm.points.shape
+        np.testing.assert_allclose(utm.points - shift, here.points, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(utm.edge_features, here.edge_features, rtol=0, atol=1e-6)
+
+
+def test_straight_runs_with_rounding_are_not_turns():
+    """A straight lattice run at UTM magnitudes, its points rounded there, keeps only its
+    ends; a 1 mm kink is kept."""
+    x = 500_000.0 + 0.1 * np.arange(6)
+    run = np.column_stack([x, np.full(6, 5_600_000.0) + 1e-9 * np.array([0, 1, -1, 1, 0, 1])])
+    points, _ = _drop_collinear(run, np.arange(6.0))
+    assert np.array_equal(points, run[[0, -1]])
+    run[3, 1] += 1e-3
+    assert np.array_equal(_drop_collinear(run, np.arange(6.0))[0], run[[0, 2, 3, 4, 5]])
 
 
 # -- subjects ------------------------------------------------------------------------------
