@@ -54,6 +54,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.params import (
+    ParameterError,
     require,
     require_count,
     require_length,
@@ -119,9 +120,18 @@ def subjects(params: SocialPlannerParams,
         raise ValueError("n_subjects > 1 needs a random generator")
     z = rng.standard_normal((params.n_subjects, len(SUBJECT_FIELDS)))
     factors = np.exp(params.subject_spread * z)
-    return [dataclasses.replace(params, **{name: getattr(params, name) * float(f)
-                                           for name, f in zip(SUBJECT_FIELDS, row, strict=True)})
-            for row in factors]
+    drawn = []
+    for k, row in enumerate(factors):
+        try:
+            drawn.append(dataclasses.replace(params, **{
+                name: getattr(params, name) * float(f)
+                for name, f in zip(SUBJECT_FIELDS, row, strict=True)}))
+        except ParameterError as e:  # a wide spread draws a personal space of kilometres
+            raise PipelineError(
+                f"planner expert: expert.subject_spread={params.subject_spread:g} drew subject "
+                f"s{k}'s {e.field}={e.value:.6g}, outside its range ({e.allowed}); lower "
+                "expert.subject_spread") from None
+    return drawn
 
 
 def groups(scene: Scene) -> tuple[np.ndarray, np.ndarray]:

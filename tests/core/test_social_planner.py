@@ -390,3 +390,14 @@ def test_parameters_are_range_checked():
                 {"spacing": float("nan")}]:
         with pytest.raises(ParameterError, match=next(iter(bad))):
             SocialPlannerParams(**bad)
+
+
+def test_a_spread_that_draws_out_of_range_subjects_is_named():
+    """A log-normal spread of 20 draws personal spaces of kilometres: one line naming the
+    setting and the subject, not the range check of a parameter nobody set."""
+    with pytest.raises(PipelineError, match=r"expert\.subject_spread=20 drew subject s\d+'s "
+                                            r"\w+=.*lower expert\.subject_spread"):
+        subjects(SocialPlannerParams(n_subjects=3, subject_spread=20.0),
+                 np.random.default_rng(0))
+    assert len(subjects(SocialPlannerParams(n_subjects=3, subject_spread=1.0),
+                        np.random.default_rng(0))) == 3
