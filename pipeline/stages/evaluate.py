@@ -425,6 +425,12 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
     lines.append(f"  graph paths      {paths('')}"
                  + (f" ({share:.0%} of its nodes are demonstration waypoints: these say "
                     "little)" if share > 0.5 else ""))
+    for name in [k[len("transfer_"):-len("_success")] for k in m
+                 if k.startswith("transfer_") and k.endswith("_success")]:  # config order
+        prefix = f"transfer_{name}_"
+        loss = (f"normalised loss {fmt(prefix + 'policy_loss_norm')}, "
+                if prefix + "policy_loss_norm" in m else "")
+        lines.append(f"  transfer         {name} (roadmap): {loss}{paths(prefix)}")
     if "obstacle_collisions" in m:
         lines.append(f"  obstacles        collisions {fmt('obstacle_collisions', '.0f')}, min "
                      f"distance {fmt('min_distance_to_obstacle', '.2f')} m")

@@ -53,8 +53,13 @@ def test_fixed_from_run_refuses_other_feature_constants(tmp_path, default_run):
     # learner view was built from the wrong columns, an IndexError
     ("birl.features=[relation,social,wall,goal_deviation,length,crossing]",)])
 def test_transfer_to_the_same_scene_repeats_the_run_metrics(tmp_path, features):
-    m, _ = run_in_process(tmp_path, *SMALL, "birl.n_iterations=3", *features,
-                          f"evaluate.transfer_scenes=[{METROPOLIS}]")
+    m, printed = run_in_process(tmp_path, *SMALL, "birl.n_iterations=3", *features,
+                                f"evaluate.transfer_scenes=[{METROPOLIS}]")
+    # the one screen shows it, the same numbers as the run's own roadmap line
+    ref_line = next(x for x in printed.splitlines() if x.startswith("  roadmap paths"))
+    transfer_line = next(x for x in printed.splitlines() if x.startswith("  transfer "))
+    assert transfer_line.endswith(ref_line.removeprefix("  roadmap paths    "))
+    assert "metropolis (roadmap): normalised loss" in transfer_line
     assert m["transfer_metropolis_policy_loss"] == m["policy_loss_ref"]
     assert all(is_metric_key(k) for k in m)  # every key can be a sweep's objective
     assert m["transfer_metropolis_policy_loss_norm"] == pytest.approx(m["policy_loss_norm"])
