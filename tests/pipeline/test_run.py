@@ -215,6 +215,21 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
     assert "learned weights  relation -1.000" in fixed and "weight box" not in fixed
 
 
+def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp_path,
+                                                                            default_run):
+    """Deployed without demonstrations, the 460-node graph of metropolis (seed 0) lacks the
+    detours round the groups: its paths cross links the roadmap's avoid, under the same
+    learned reward, and the summary says which to deploy."""
+    m, out = run_in_process(tmp_path, "expert=none", "birl=fixed",
+                            f"birl.from_run={default_run[0]}", "seed=0")
+    assert m["relation_crossings"] > m["ref_relation_crossings"] == 0  # the case
+    warning = [x for x in out.splitlines() if "ruder than the roadmap's" in x]
+    assert len(warning) == 1
+    assert f"crossings {m['relation_crossings']:.0f} against 0" in warning[0]
+    assert "/birlg/learned_paths_ref" in warning[0]
+    assert "ruder" not in default_run[2]  # with demonstrations: the same paths' quality
+
+
 def test_the_summary_warns_when_learned_paths_stop_short(tmp_path, default_run):
     """A deployment whose graph paths never arrive printed their distances to people
     without a word on the summary (the log's warning only)."""
