@@ -128,7 +128,7 @@ docs-gen: $(STAMP)
 
 ## Remove the venv, run outputs and caches (not results/).
 clean:
-	rm -rf $(VENV) outputs multirun site .pytest_cache *.egg-info
+	rm -rf $(VENV) outputs multirun site .pytest_cache .mypy_cache .ruff_cache *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
 ## Every committed figure under results/ redrawn from its committed table, in the shared

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import NoReturn
 
 from pipeline.errors import survive_closed_stdout
@@ -20,3 +22,12 @@ def run_tool(main: Callable[[], int | None]) -> NoReturn:
         print("interrupted by the user", file=sys.stderr)
         sys.exit(130)
     sys.exit(status)
+
+
+def output_directory(parser: argparse.ArgumentParser, out: Path) -> Path:
+    """A benchmark's --out directory, created before any run (a path that is a file is
+    refused with one line then, not after minutes of runs)."""
+    if out.exists() and not out.is_dir():
+        parser.error(f"--out {out} is a file, not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    return out

@@ -23,7 +23,7 @@ import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.artefacts import codec, read_artefact
-from pipeline.tools import run_tool
+from pipeline.tools import output_directory, run_tool
 from pipeline.tools.bench import run_in_process
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=list(range(5)))
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
+    output_directory(parser, args.out)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in args.seeds:

@@ -65,3 +65,26 @@ def test_an_unknown_demonstrator_is_refused_in_one_line(capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert "invalid choice: 'handrawn'" in err[-1] and "handdrawn_heldout" in err[-1]
+
+
+@pytest.mark.parametrize("tool", ["bench_learning", "bench_buildings"])
+def test_an_output_path_that_is_a_file_is_refused_before_any_run(tool, tmp_path, capsys):
+    import importlib
+
+    a_file = tmp_path / "results"
+    a_file.write_text("")
+    with pytest.raises(SystemExit) as exit_info:  # a run would take seconds and print rows
+        importlib.import_module(f"pipeline.tools.{tool}").main(["--out", str(a_file)])
+    assert exit_info.value.code == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip().splitlines()[-1].endswith(
+        f"error: --out {a_file} is a file, not a directory")
+
+
+def test_a_missing_output_directory_is_made_at_once(tmp_path):
+    import argparse
+
+    from pipeline.tools import output_directory
+
+    out = tmp_path / "new" / "bench"
+    assert output_directory(argparse.ArgumentParser(), out) == out and out.is_dir()
