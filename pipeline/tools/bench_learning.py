@@ -11,7 +11,8 @@ learning.png.
         planner_hallway \
         --seeds 0 1 2 3 4 \
         --learners default paper_features rich_features hinge_features gaussian_features \
-        squared_features hinge_squared_features wall_features gaussian_wall_features
+        squared_features hinge_squared_features wall_features gaussian_wall_features \
+        gaussian_wall_intimate_features
     python -m pipeline.tools.bench_learning --table alternatives_spacing \
         --demonstrators optimal optimal_random boltzmann20 handdrawn planner_hallway \
         --learners default lattice_0.1 lattice_0.15 lattice_0.25 lattice_0.3
@@ -60,7 +61,7 @@ import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.errors import first_line
-from pipeline.tools import run_tool
+from pipeline.tools import output_directory, run_tool
 from pipeline.tools.bench import learning_stages, run_in_process
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
@@ -106,6 +107,9 @@ FEATURE_SETS = {
     "wall_features": "[relation,crossing,social,wall,goal_deviation,length]",
     "gaussian_wall_features": "[relation,crossing,group_space,gaussian,social,wall,goal_deviation,"
                               "length]",
+    # the same with the intimate hinge, so that a reward can forbid close passes outright
+    "gaussian_wall_intimate_features": "[relation,crossing,group_space,gaussian,social,intimate,"
+                                       "wall,goal_deviation,length]",
 }
 # The anchor of the planner's rows: no learning, the planner's own cost (the configured
 # subject) planned on the reference roadmap, judged like a learner. What a learner whose
@@ -440,9 +444,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="keep the rows of learning.csv for the (demonstrator, learner) "
                              "pairs not run now (e.g. add the baselines to a committed table)")
     args = parser.parse_args(argv)
-    if args.out.exists() and not args.out.is_dir():
-        parser.error(f"--out {args.out} is a file, not a directory")
-    args.out.mkdir(parents=True, exist_ok=True)
+    output_directory(parser, args.out)
     table_path = args.out / f"{args.table}.csv"
     try:  # before any case runs: a damaged table to merge into is one line, not hours later
         kept = kept_rows(table_path, args.demonstrators, args.learners) if args.merge else []
