@@ -9,7 +9,9 @@ door. One expansion (`step`) is DESIGN §7's steps 1–6:
 
 1. `expansion_set`: N_b (nodes on the best trajectories; while a start's does not reach the
    goal, every node that start reaches) with probability p_best, else N \\ N_b;
-2. `pick_node`: a node of it, with probability ∝ its exploration score;
+2. `pick_node`: a node of it, with probability ∝ its exploration score (while a start is
+   stuck, half of the time the node nearest the goal, and dead ends' quality is their
+   closeness to it: `_closeness_to_goal`);
 3. `sample_candidates`: controller runs from it with random heading and annealed duration;
 4. `score_candidates` (GP value estimate) and `pick_candidates` (probability ∝ score);
 5. `add_candidates`: new nodes, connected both ways to their neighbours;
@@ -364,7 +366,11 @@ class AdaptiveGraph(StateGraph):
         return choose_expansion_set(self.rng, best_set, other_set, self.p.p_best)
 
     def pick_node(self, pool: np.ndarray) -> int:
-        """Step 2: v ∈ N_e (`pool`, node ids) with probability ∝ its exploration score."""
+        """Step 2: v ∈ N_e (`pool`, node ids) with probability ∝ its exploration score;
+        while a start cannot reach the goal, half of the time the node of `pool` nearest to
+        the goal (RRT's goal bias)."""
+        if self._stuck() and self.rng.random() < 0.5:
+            return int(pool[self._closeness_to_goal(self.positions[pool]).argmax()])
         return int(pool[self.rng.choice(len(pool),
                                         p=_probabilities(self.exploration_scores(pool)))])
 
@@ -397,6 +403,8 @@ class AdaptiveGraph(StateGraph):
             self.edge_rewards(c.features, c.runs.durations) + \
             self.gamma ** c.runs.durations * (mean + p.gp_kappa * std)
         quality = np.clip((through - norm["q_lo"]) / norm["q_span"], 0.0, 1.0)
+        if self._stuck() and self.values[v] <= -self.v_max:  # a dead end: no value to go by
+            quality = self._closeness_to_goal(c.ends[:, :2])
         n_close = self.count_within_many(c.ends, p.radius)
         conc = np.minimum(1.0 / (1.0 + n_close) / norm["c_max"], 1.0)
         return dataclasses.replace(c, gp_mean=mean, gp_std=std,
@@ -467,8 +475,28 @@ class AdaptiveGraph(StateGraph):
         `nodes` (k,) node ids, result (k,)."""
         norm = self._normalisation()
         quality = (norm["through"][nodes] - norm["q_lo"]) / norm["q_span"]
+        if self._stuck():  # dead ends (all of them alike) by their closeness to the goal
+            dead_end = self.values[nodes] <= -self.v_max
+            quality[dead_end] = self._closeness_to_goal(self.positions[nodes[dead_end]])
         concentration = 1.0 / (1.0 + self.n_close[nodes]) / norm["c_max"]
         return self.p.lambda_q * quality + self.p.lambda_c * concentration
+
+    def _stuck(self) -> bool:
+        """Does a start's best trajectory not reach the goal yet?"""
+        return not self.best_reached.all()
+
+    def _closeness_to_goal(self, xy: np.ndarray) -> np.ndarray:
+        """The quality (k,) of points xy (k, 2) that cannot reach the goal while a start is
+        stuck: 1 at the goal, 0 at the room's farthest corner from it. Every dead end has
+        the same value (−V_max), which says nothing; without this, growth towards a goal no
+        start reaches yet is a random walk of the frontier (an open 10 m room with two
+        starts and no demonstration missed the goal in 4 of 5 seeds at 460 nodes). RRT's
+        goal bias, as a score."""
+        room, goal = self.scene.room, np.asarray(self.scene.goal, float)
+        corners = np.array([[room.x_min, room.y_min], [room.x_min, room.y_max],
+                            [room.x_max, room.y_min], [room.x_max, room.y_max]])
+        farthest = np.linalg.norm(corners - goal, axis=1).max()
+        return 1.0 - np.linalg.norm(xy - goal, axis=1) / farthest
 
     def _gp_estimate(self, v: int, cand: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """GP estimate of V (mean and std, each (m,)) at the candidate poses `cand` (m, 3) from

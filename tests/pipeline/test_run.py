@@ -217,11 +217,11 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
 
 def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp_path,
                                                                             default_run):
-    """Deployed without demonstrations, the 460-node graph of metropolis (seed 0) lacks the
+    """Deployed without demonstrations, the 460-node graph of metropolis (seed 2) lacks the
     detours round the groups: its paths cross links the roadmap's avoid, under the same
     learned reward, and the summary says which to deploy."""
     m, out = run_in_process(tmp_path, "expert=none", "birl=fixed",
-                            f"birl.from_run={default_run[0]}", "seed=0")
+                            f"birl.from_run={default_run[0]}", "seed=2")
     assert m["relation_crossings"] > m["ref_relation_crossings"] == 0  # the case
     warning = [x for x in out.splitlines() if "ruder than the roadmap's" in x]
     assert len(warning) == 1
@@ -232,8 +232,9 @@ def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp
 
 def test_the_summary_warns_when_learned_paths_stop_short(tmp_path, default_run):
     """A deployment whose graph paths never arrive printed their distances to people
-    without a word on the summary (the log's warning only)."""
-    m, out = run_in_process(tmp_path, "graph=small", "scene=random", "expert=none",
+    without a word on the summary (the log's warning only). The case: the office without
+    its medial-axis nodes, whose doors the graph's controller runs do not find."""
+    m, out = run_in_process(tmp_path, "scene=office", "graph.medial_axis=false", "expert=none",
                             "birl=fixed", "birl.weights=[-1,-0.7,-0.85,-0.1,-0.5]", "seed=0")
     assert m["success"] < 1 <= m["ref_success"]  # the case: the graph's paths stop short
     assert f"learned paths stop short of the goal (success graph {m['success']:.2f})" in out
