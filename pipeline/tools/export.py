@@ -72,6 +72,7 @@ restore_handlers(_HANDLERS_BEFORE_IMPORTS)
 EXPORT_DIR = "export"
 COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
 BAG_DIR = "paths"
+EXPORT_CONTENTS = frozenset({COSTMAP_YAML, COSTMAP_IMAGE, BAG_DIR})  # all that export/ holds
 FRAME = "map"
 
 TOPIC_LEARNED = "/birlg/learned_paths"  # on the adaptive graph, one Path per start
@@ -548,6 +549,21 @@ def check_run_dir(run_dir: Path) -> None:
               "read)", file=sys.stderr)
     # before the lock: a dir that is no run (an empty dir, a sweep dir, ~) gets no .lock file
     read_run_files(run_dir)
+    check_earlier_export(run_dir / EXPORT_DIR)
+
+
+def check_earlier_export(final: Path) -> None:
+    """The export replaces `final` as a whole: refuse (one line) when it is not an earlier
+    export (a file, or a directory with none of an export's files), whose replacing would
+    delete the user's files. A link is replaced, its target left alone."""
+    if final.is_symlink() or not final.exists():
+        return
+    if not final.is_dir():
+        raise PipelineError(f"{final} is a file, not an earlier export; move it away (the "
+                            "export is written there)")
+    if not any((final / name).exists() for name in EXPORT_CONTENTS):
+        raise PipelineError(f"{final} is a directory but not an earlier export (it has no "
+                            f"{COSTMAP_YAML}); move it away (an export replaces it as a whole)")
 
 
 def main(argv: list[str] | None = None) -> int:

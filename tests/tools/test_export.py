@@ -590,3 +590,17 @@ def test_paths_that_stop_short_of_the_goal_are_named_in_a_warning_and_the_bag(ex
     # every path of the quick default run arrives: no such key
     arrived = yaml.safe_load((exported[1] / "paths/metadata.yaml").read_text())
     assert "birlg.short_of_goal" not in arrived["rosbag2_bagfile_information"]["custom_data"]
+
+
+def test_an_export_that_would_delete_user_files_is_refused(exported, tmp_path, capsys):
+    run_dir = copy_run(exported, tmp_path)
+    (run_dir / "export").write_text("my notes")
+    assert export.main([str(run_dir)]) == 2
+    assert f"{run_dir / 'export'} is a file, not an earlier export" in _one_error_line(capsys)
+    assert (run_dir / "export").read_text() == "my notes"
+    (run_dir / "export").unlink()
+    (run_dir / "export").mkdir()
+    (run_dir / "export" / "figure.png").write_bytes(b"mine")
+    assert export.main([str(run_dir)]) == 2
+    assert "is a directory but not an earlier export" in _one_error_line(capsys)
+    assert (run_dir / "export" / "figure.png").read_bytes() == b"mine"
