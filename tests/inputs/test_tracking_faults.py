@@ -78,17 +78,17 @@ def test_smooth_to_noise_departs_by_the_noise_and_recovers_the_length():
 
 def test_clean_polylines_are_kept_point_for_point():
     clean = [walk(0.1), walk(0.02)]
-    kept, smoothed = smooth_jitter(clean, "x")
+    kept, smoothed, _ = smooth_jitter(clean, "x")
     assert not any(smoothed) and all(a is b for a, b in zip(kept, clean, strict=True))
     shipped = PACKAGE_ROOT / "data" / "demos" / "metropolis_handdrawn.json"
     tracks, _ = read_tracks(shipped)  # 1 cm tremor at 10 cm: below JITTER_INFLATION
-    kept, smoothed = smooth_jitter(tracks, "x")
+    kept, smoothed, _ = smooth_jitter(tracks, "x")
     assert not any(smoothed) and all(a is b for a, b in zip(kept, tracks, strict=True))
     # each track on its own: a noisy one beside clean ones is smoothed, they are not
     noisy_walk = noisy(walk(0.02), 0.03, 5)
-    kept, smoothed = smooth_jitter([clean[0], noisy_walk, clean[1]], "x")
+    kept, smoothed, _ = smooth_jitter([clean[0], noisy_walk, clean[1]], "x")
     assert smoothed == [False, True, False] and kept[0] is clean[0] and kept[2] is clean[1]
-    alone, _ = smooth_jitter([noisy_walk], "x")  # judged on its own points: no other track
+    alone, _, _ = smooth_jitter([noisy_walk], "x")  # judged on its own points: no other track
     np.testing.assert_array_equal(kept[1], alone[0])  # (a held-out one) changes it
 
 
@@ -108,6 +108,37 @@ def test_a_noisy_file_is_smoothed_with_a_warning_and_can_be_kept(tmp_path, caplo
         assert steps[:-1].max() <= 0.1 + 1e-9  # resampled; the last step jumps to the goal
     kept = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, denoise=False)
     assert all(length(d.points) > JITTER_INFLATION * 2 * cut_length for d in kept)
+
+
+def test_a_noisy_walk_that_stops_at_the_goal_disk_reaches_the_goal(tmp_path, caplog):
+    """A walker who stops at the disk's edge is recorded a few centimetres either side of it;
+    within GOAL_NOISE_SIGMAS of the estimated noise outside, the walk reaches the goal."""
+    true = walk(0.02)
+
+    def stopping(gap: float) -> np.ndarray:  # the walk up to `gap` m outside the 0.2 m disk
+        away = np.linalg.norm(true - GOAL, axis=1)
+        last = int(np.flatnonzero(away > 0.2 + gap)[-1])
+        end = GOAL + (true[last] - GOAL) * (0.2 + gap) / away[last]
+        return np.vstack([true[:last + 1], end])
+
+    def ends(tracks: list[np.ndarray], **kw) -> list[np.ndarray]:
+        path = tmp_path / "walks.json"
+        path.write_text(json.dumps({"trajectories": [t.tolist() for t in tracks]}))
+        return [d.points[-1] for d in load_recorded(path, START[None], GOAL, goal_tolerance=0.2,
+                                                     **kw)]
+
+    near, far = noisy(stopping(0.02), 0.03, 1), noisy(stopping(0.5), 0.03, 2)
+    with caplog.at_level(logging.WARNING):
+        reached, short = ends([near, far])
+    assert np.array_equal(reached, GOAL)
+    assert np.linalg.norm(short - GOAL) == pytest.approx(0.7, abs=1e-6)  # 0.5 m: no noise
+    assert "trajectories 0 (20.0 mm) end outside the goal disk (goal_tolerance=0.2 m) by " \
+        "less than 3 times their tracking noise: taken to reach the goal" in caplog.text
+    # kept as recorded, or a clean polyline (no noise to allow for): it stops short
+    [kept] = ends([near], denoise=False)
+    [clean] = ends([stopping(0.02)])
+    for end in (kept, clean):
+        assert np.linalg.norm(end - GOAL) == pytest.approx(0.22, abs=1e-6)
 
 
 def test_a_noisy_pose_stream_is_smoothed_before_resampling(tmp_path, caplog):
