@@ -55,6 +55,9 @@ METRIC_KEYS: dict[str, str] = {
     r"heldout_(count|(frechet_m|min_distance_error_m)(_shortest)?)": "`evaluate.holdout`: "
         "the held-out demonstrations, their median Fréchet distance to the learned paths and "
         "median error of the smallest distance to a person (`_shortest`: of the fastest path)",
+    r"heldout_frechet_m(_shortest)?_max": "`evaluate.holdout`: the largest Fréchet distance of "
+        "a held-out demonstration to its learned path (`_shortest`: to the fastest path); a "
+        "start whose paths go the other way round shows here, not in the median",
     r"heldout_log_likelihood(_shortest)?": "`evaluate.holdout`: mean log likelihood per "
         "held-out demonstration under the default learner's Boltzmann model (Boltzmann "
         "policy over the lattice of alternatives, relative to its base measure), β fitted to the "

@@ -124,7 +124,8 @@ def heldout_metrics(ref: SpatialGraph, policy: np.ndarray,
     """DESIGN §9: every held-out demonstration against the learned path from its start on
     the reference roadmap (which holds no demonstration) and, as the baseline, against the
     fastest path (no reward but the cost per second): median Fréchet distance and median
-    error of the smallest distance to a person, as heldout_* and heldout_*_shortest."""
+    error of the smallest distance to a person, as heldout_* and heldout_*_shortest, and the
+    largest Fréchet distance (heldout_frechet_m_max, heldout_frechet_m_shortest_max)."""
     if not demos:
         return {}
     mdp = ref.mdp
@@ -140,6 +141,8 @@ def heldout_metrics(ref: SpatialGraph, policy: np.ndarray,
             errors.append(abs(min_distance_to_person(path, persons)
                               - min_distance_to_person(shown, persons)))
         out[f"heldout_frechet_m{suffix}"] = float(np.median(frechets))
+        # a median hides a start whose paths go the other way round the room
+        out[f"heldout_frechet_m{suffix}_max"] = float(np.max(frechets))
         if len(persons):
             out[f"heldout_min_distance_error_m{suffix}"] = float(np.median(errors))
     return out
@@ -427,6 +430,14 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
                      f"{fmt('heldout_frechet_m_shortest', '.2f')} m), min-distance error "
                      f"{fmt('heldout_min_distance_error_m', '.2f')} m (shortest "
                      f"{fmt('heldout_min_distance_error_m_shortest', '.2f')} m)")
+        if "heldout_frechet_m_max" in m:
+            lines.append(f"                   worst held-out Fréchet "
+                         f"{fmt('heldout_frechet_m_max', '.2f')} m (shortest path "
+                         f"{fmt('heldout_frechet_m_shortest_max', '.2f')} m)")
+        if m.get("heldout_frechet_m", 0.0) > m.get("heldout_frechet_m_shortest", np.inf):
+            lines.append("  warning          the learned paths are farther from the held-out "
+                         "demonstrations than the shortest paths are: on these scenes the "
+                         "learned reward predicts them worse than no reward does")
         if "heldout_log_likelihood" in m:
             lines.append(f"                   log likelihood per demonstration "
                          f"{fmt('heldout_log_likelihood', '.2f')} (shortest path's reward "

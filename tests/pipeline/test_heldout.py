@@ -59,6 +59,26 @@ def test_held_out_metrics_compare_with_the_fastest_path(subjects_run):
     assert metrics["heldout_frechet_m"] < metrics["heldout_frechet_m_shortest"]
     assert metrics["heldout_log_likelihood"] > metrics["heldout_log_likelihood_shortest"]
     assert "held out (7)" in out
+    # a median hides a start whose paths go the other way round; the largest does not
+    for suffix in ("", "_shortest"):
+        assert metrics[f"heldout_frechet_m{suffix}_max"] >= metrics[f"heldout_frechet_m{suffix}"]
+    assert f"worst held-out Fréchet {metrics['heldout_frechet_m_max']:.2f} m" in out
+    assert "predicts them worse than no reward does" not in out
+
+
+def test_the_summary_warns_when_the_shortest_path_predicts_better(subjects_run, tmp_path):
+    """A reward deployed where its demonstrators behave otherwise can predict them worse
+    than going straight (a social-force demonstrator learned on metropolis, deployed on a
+    random scene: 2.17 m against 0.60 m); the summary says so. The case: a reward of the
+    links alone, which detours round every group the planner's subjects pass."""
+    run_dir, _, _ = subjects_run
+    m, out = run_in_process(tmp_path, "graph=small", "expert=planner", "expert.n_subjects=3",
+                            "evaluate.holdout=[s2]", "birl=fixed",
+                            "birl.weights=[-1,0,0,0,-1]", "stages=[birl,evaluate]",
+                            f"from_run={run_dir}")
+    assert m["heldout_frechet_m"] > m["heldout_frechet_m_shortest"]  # the case
+    assert "the learned paths are farther from the held-out demonstrations than the " \
+        "shortest paths are" in out
 
 
 def test_one_held_out_likelihood_judges_every_method(subjects_run, tmp_path):
