@@ -187,7 +187,9 @@ GRAPH_NODES = _message("GraphNodes", "Nodes of the adaptive state graph. "
     "y": _column("float64", "Position y, metres."),
     "theta": _column("float64", "Heading of the robot state, radians."),
     "kind": _array(_str("start, goal, voronoi, demo, medial (on the medial axis of the "
-                        "free space, scenes with obstacles) or sampled."),
+                        "free space: between obstacles in scenes with obstacles, and between "
+                        "obstacles, people and social links in a graph without "
+                        "demonstrations) or sampled."),
                    "How each node was made (count strings)."),
     "parent": _column("int32", "Node it was sampled from; −1 for initial nodes."),
     "iteration": _column("int32", "Growth iteration it was added (0 = initial nodes): "

@@ -5,7 +5,11 @@ persons (clipped to the room) and the demonstrations' waypoints, and grows where
 In scenes with obstacles it also starts from points along the medial axis of the free space
 (the obstacles' generalised Voronoi diagram, `medial_axis_points`), which run through every
 door and aisle: without demonstrations, growth by short controller runs seldom finds a 1 m
-door. One expansion (`step`) is DESIGN §7's steps 1–6:
+door. Without demonstrations the axis is that of the space between obstacles, people and
+social links (`social_medial_points`): growth refines the first way it finds to the goal,
+and without these nodes that way often went through a group.
+
+One expansion (`step`) is DESIGN §7's steps 1–6:
 
 1. `expansion_set`: N_b (nodes on the best trajectories; while a start's does not reach the
    goal, every node that start reaches) with probability p_best, else N \\ N_b;
@@ -42,6 +46,7 @@ from pipeline.core.controllers import Controller, Runs
 from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams
+from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
 from pipeline.core.params import require, require_count, require_non_negative, require_positive
 from pipeline.core.roadmap import segments_feasible
 from pipeline.core.state_graph import (
@@ -57,6 +62,9 @@ from pipeline.core.state_graph import (
 )
 from pipeline.core.world import Room, Scene
 
+# m, cells of the grid the social medial axis is found on (`social_medial_points`) when the
+# scene has no map of its own: a tenth of the robot's default width
+SOCIAL_MEDIAL_RESOLUTION = 0.05
 
 @dataclass
 class GraphParams:
@@ -80,9 +88,10 @@ class GraphParams:
     gp_kappa: float = 1.0  # optimism: candidate value = GP mean + kappa · GP std
     gp_max_points: int = 40  # nearest nodes within radius the GP is fitted to
     max_stalls: int = 500  # stop early after this many expansions in a row add nothing
-    # scenes with obstacles: initial nodes along the medial axis of the free space (through
-    # every door and aisle), about 0.8·radius apart; fewer when they would fill more than
-    # half of max_nodes
+    # initial nodes along the medial axis of the free space in scenes with obstacles (through
+    # every door and aisle), and in a graph without demonstrations along that of the space
+    # between obstacles, people and links (round every group); about 0.8·radius apart,
+    # fewer when they would fill more than half of max_nodes
     medial_axis: bool = True
 
     def __post_init__(self) -> None:
@@ -159,6 +168,20 @@ def medial_axis_points(scene: Scene, spacing: float) -> np.ndarray:
     return scene.obstacles.medial_axis(scene.robot_radius, spacing, scene.room.bounds, blocked)
 
 
+def social_medial_points(scene: Scene, spacing: float) -> np.ndarray:
+    """Points (k, 2) about `spacing` apart along the medial axis of the space between the
+    scene's obstacles, people (their body disks) and social links: the routes that keep
+    farthest from all of them, round a group rather than through it. For a graph without
+    demonstrations, which otherwise knows no way round a group it meets."""
+    grid = scene.obstacles.grid if scene.obstacles is not None else None
+    a, b = scene.links
+    grid = rasterise([np.vstack([p, q]) for p, q in zip(a, b, strict=True)], grid,
+                     scene.room.bounds, SOCIAL_MEDIAL_RESOLUTION)
+    bodies = ObstacleMap(grid).blocked_disks(scene.person_xy, scene.body_radius)
+    social = ObstacleMap(OccupancyGrid(grid.occupied | bodies, grid.origin, grid.resolution))
+    return social.medial_axis(scene.robot_radius, spacing, scene.room.bounds)
+
+
 def merged_count(points: np.ndarray, separation: float) -> int:
     """How many of `points` (n, 2), taken in order, become nodes when each merges into an
     earlier kept point closer than `separation` (`_add_demo`'s rule, without the walls)."""
@@ -213,7 +236,9 @@ class AdaptiveGraph(StateGraph):
     # -- initialisation ------------------------------------------------------------------
     def initialise(self, demos: Sequence[Demonstration] = ()) -> None:
         """Starts, goal, Voronoi centroids, demo waypoints and demo edges, with obstacles
-        points along the medial axis of the free space; then connect and solve."""
+        points along the medial axis of the free space, without demonstrations along that of
+        the space between obstacles, people and links (`medial_points`); then connect and
+        solve."""
         scene = self.scene
 
         def heading_to_goal(p: np.ndarray) -> float:
@@ -227,25 +252,29 @@ class AdaptiveGraph(StateGraph):
                 self.add_node([*c, heading_to_goal(c)], VORONOI)
         for demo in demos:
             self._add_demo(demo)
-        for m in self.medial_points():
+        for m in self.medial_points(social=not demos):
             if not self.too_close(m):
                 self.add_node([*m, heading_to_goal(m)], MEDIAL)
         self.connect(range(self.n_nodes))
         self.solver.solve_full()
         self.solve()
 
-    def medial_points(self) -> np.ndarray:
-        """The initial nodes on the medial axis (graph.medial_axis, scenes with obstacles):
-        (k, 2) about 0.8·radius apart, so neighbours along it connect, and sparser when
-        they would fill more than half of max_nodes. Without them growth by short controller
-        runs seldom finds its way through a 1 m door (RRT's narrow-passage problem)."""
-        if not self.p.medial_axis or self.scene.obstacles is None:
+    def medial_points(self, social: bool = False) -> np.ndarray:
+        """The initial nodes on the medial axis (graph.medial_axis): of the free space
+        (scenes with obstacles), or with `social` of the space between obstacles, people
+        and links (`social_medial_points`, graphs without demonstrations); (k, 2) about
+        0.8·radius apart, so neighbours along it connect, and sparser when they would fill
+        more than half of max_nodes. Without them growth by short controller runs seldom
+        finds its way through a 1 m door (RRT's narrow-passage problem), nor round a group
+        its first path to the goal went through."""
+        if not self.p.medial_axis or (self.scene.obstacles is None and not social):
             return np.zeros((0, 2))
+        along = social_medial_points if social else medial_axis_points
         spacing = max(0.8 * self.p.radius, self.min_separation)
-        points = medial_axis_points(self.scene, spacing)
+        points = along(self.scene, spacing)
         budget = self.p.max_nodes // 2
         if len(points) > budget:  # along a line the count falls as 1/spacing
-            points = medial_axis_points(self.scene, spacing * len(points) / max(budget, 1))
+            points = along(self.scene, spacing * len(points) / max(budget, 1))
         return points
 
     def _add_demo(self, demo: Demonstration) -> None:

@@ -29,7 +29,7 @@ from pipeline.core.world import Scene
 
 # Node kinds, as stored in graph.mcap.
 START, GOAL, VORONOI, DEMO, SAMPLED = "start", "goal", "voronoi", "demo", "sampled"
-MEDIAL = "medial"  # on the medial axis of the free space (scenes with obstacles)
+MEDIAL = "medial"  # on the medial axis of the free space (obstacles; without demos: people too)
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from pipeline.core.adaptive_graph import (
     choose_expansion_set,
     gp_value_estimate,
     medial_axis_points,
+    social_medial_points,
     voronoi_centroids,
 )
 from pipeline.core.controllers import LinearController, PosqController
@@ -349,12 +350,46 @@ def test_without_demonstrations_the_medial_axis_leads_through_a_door():
     assert all(reached[True]) and not all(reached[False])
 
 
-def test_scenes_without_obstacles_get_no_medial_nodes(metropolis):
+def test_medial_nodes_without_obstacles_only_for_a_graph_without_demonstrations(metropolis,
+                                                                                 demos):
     assert len(medial_axis_points(metropolis, 1.0)) == 0
-    g = AdaptiveGraph(metropolis, FeatureModel.from_scene(metropolis), LinearController(),
-                      POLITE, GraphParams(), np.random.default_rng(0))
-    g.initialise(())
-    assert MEDIAL not in g.node_kind
+    kinds = {}
+    for given in ((), demos):
+        g = AdaptiveGraph(metropolis, FeatureModel.from_scene(metropolis), LinearController(),
+                          POLITE, GraphParams(), np.random.default_rng(0))
+        g.initialise(given)
+        kinds[len(given)] = g.node_kind
+    assert MEDIAL in kinds[0] and MEDIAL not in kinds[len(demos)]
+
+
+def test_the_social_medial_axis_runs_midway_between_a_link_and_the_walls():
+    """A 10 m room with one link from (3, 5) to (7, 5): the points farthest from it and the
+    walls lie at y = 2.5 and 7.5 above its middle; none on or beside the link, none within a
+    robot's width of a body."""
+    scene = Scene("link", Room(0, 0, 10, 10), (Person(0, 3.0, 5.0), Person(1, 7.0, 5.0)),
+                  ((0, 1),), np.array([[1.0, 1.0]]), np.array([9.0, 9.0]))
+    points = social_medial_points(scene, 0.3)
+    middle = points[np.abs(points[:, 0] - 5.0) < 0.2, 1]
+    assert (middle < 5).any() and (middle > 5).any()
+    assert np.where(middle < 5, middle - 2.5, middle - 7.5) == pytest.approx(0.0, abs=0.05)
+    along = np.clip(points[:, 0], 3.0, 7.0)  # the nearest point of the link
+    assert np.hypot(points[:, 0] - along, points[:, 1] - 5.0).min() >= scene.robot_radius
+    gaps = np.linalg.norm(points[:, None] - scene.person_xy[None], axis=2)
+    assert gaps.min() >= scene.body_radius + scene.robot_radius - 0.05
+
+
+def test_without_demonstrations_the_graph_goes_round_the_groups(metropolis):
+    """Deployed without demonstrations, growth found a way to the goal first and then
+    refined it, so its paths went through groups it met on the way (metropolis, 460 nodes:
+    0-20 links crossed per seed); the social medial axis gives it the ways round them."""
+    fm = FeatureModel.from_scene(metropolis)
+    for seed in range(3):
+        g = AdaptiveGraph(metropolis, fm, LinearController(), POLITE, GraphParams(),
+                          np.random.default_rng(seed))
+        g.initialise(())
+        g.grow()
+        for path in g.best_paths:
+            assert relation_crossings(g.positions[path], *metropolis.links) == 0, seed
 
 
 def test_a_stuck_start_expands_every_node_it_reaches():
