@@ -3,14 +3,29 @@
 import errno
 import os
 import signal
+import stat
 import sys
 import threading
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, TextIO
 
 
 class PipelineError(Exception):
     """A user-facing error: bad config value, malformed input file, missing artefact."""
+
+
+def file_kind(path: Path) -> str | None:
+    """What an existing path is when it is not a regular file ('a directory', 'a named
+    pipe', ...), else None: checked before a reader opens a path a user gave, as `/dev/zero`
+    is read for ever and opening a named pipe waits for a writer."""
+    mode = path.stat().st_mode
+    for test, name in ((stat.S_ISREG, None), (stat.S_ISDIR, "a directory"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
 
 
 def first_line(e: BaseException, limit: int = 200) -> str:

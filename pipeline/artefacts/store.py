@@ -30,7 +30,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from pipeline.artefacts.schemas import SCHEMAS
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import PipelineError, file_kind, os_error_reason
 
 SCHEMA_PREFIX = "birlg."
 LOG_TIME_NS = 1_000_000_000  # stored log_time = caller's index × this: index k at k seconds
@@ -77,6 +77,8 @@ def content_digest(path: Path) -> str | None:
     summary section without reading the messages; None for a missing or unreadable file.
     """
     try:
+        if not Path(path).is_file():  # a named pipe would wait for a writer
+            return None
         with open(path, "rb") as f:
             for record in make_reader(f).iter_metadata():
                 if record.name == CONTENT_METADATA:
@@ -421,6 +423,9 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
         return ArtefactError(f"artefact {path} {what}")
 
     try:
+        kind = file_kind(path)  # before open: opening a named pipe waits for a writer
+        if kind is not None:
+            raise fail(f"is {kind}, not an MCAP file")
         f = open(path, "rb")
     except FileNotFoundError:
         hint = f" (run the '{producer_stage}' stage first or pass from_run=...)"

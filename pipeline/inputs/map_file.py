@@ -36,7 +36,7 @@ import yaml
 from PIL import Image, UnidentifiedImageError
 
 from pipeline.core.obstacles import OccupancyGrid
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, file_kind
 
 MODES = ("trinary", "scale", "raw")
 YAW_NONE = 1e-6  # rad: an origin yaw this small is read as none
@@ -104,8 +104,9 @@ def read_map_header(path: str | Path) -> MapHeader:
     fail = _fail(path)
     if not path.exists():
         raise fail("file not found")
-    if not path.is_file():
-        raise fail("is not a file")
+    kind = file_kind(path)
+    if kind is not None:
+        raise fail(f"is {kind}, not a map's YAML file")
     try:
         data = yaml.load(path.read_text(), Loader=_MapLoader)  # noqa: S506 (a safe loader)
     except UnicodeDecodeError:
@@ -197,6 +198,9 @@ def load_map(path: str | Path,
 def _image_size(path: Path, fail: Callable[[str], PipelineError]) -> tuple[int, int]:
     """(width, height) in pixels from the image's header alone."""
     try:
+        kind = file_kind(path)  # before open: opening a named pipe waits for a writer
+        if kind is not None:
+            raise fail(f"image {path} (key 'image') is {kind}, not an image")
         with _no_bomb_check(), Image.open(path) as img:
             width, height = img.size
     except FileNotFoundError:

@@ -38,7 +38,6 @@ import difflib
 import logging
 import math
 import re
-import stat
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from pipeline.core.ties import within
 from pipeline.core.world import Room, metres, point
-from pipeline.errors import PipelineError, listed
+from pipeline.errors import PipelineError, file_kind, listed
 from pipeline.inputs.schemas import read_json
 
 log = logging.getLogger(__name__)
@@ -226,18 +225,6 @@ def read_tracks(path: Path, *, topic: str | None = None,
     (`read_recording` without the subjects)."""
     recording = read_recording(path, topic=topic, frame=frame)
     return recording.tracks, recording.is_stream
-
-
-def file_kind(path: Path) -> str | None:
-    """What an existing path is when it is not a regular file ('a directory', 'a character
-    device', ...), else None: `/dev/zero` as an input is named as what it is."""
-    mode = path.stat().st_mode
-    for test, name in ((stat.S_ISREG, None), (stat.S_ISDIR, "a directory"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return name
-    return "not a regular file"
 
 
 def _read_json(path: Path, where: str) -> Recording:

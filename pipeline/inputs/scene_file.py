@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene, SceneError, scene_from_dict
+from pipeline.errors import file_kind
 from pipeline.inputs.map_file import MapHeader, load_map, read_map_header
-from pipeline.inputs.recorded import file_kind
 from pipeline.inputs.schemas import read_json
 
 

@@ -3,24 +3,34 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-from pipeline.errors import survive_closed_stdout
+from pipeline.errors import restore_handlers, stop_quietly_while_starting, survive_closed_stdout
+
+# `python -m pipeline.tools.X` (argv[0] is "-m" while Python finds the module): a Ctrl-C
+# during the tool's imports, most of a second, is one line, not a traceback from inside
+# them; `run_tool` puts the handlers back. Imported by tests or a notebook: nothing changes.
+_HANDLERS_BEFORE_IMPORTS = stop_quietly_while_starting() if sys.argv[:1] == ["-m"] else {}
 
 
 def run_tool(main: Callable[[], int | None]) -> NoReturn:
     """A tool's command: exit with what its main returns; Ctrl-C is one line and exit status
     130, as for birlg (each tool writes its files atomically, so a stop leaves none half
     written)."""
+    restore_handlers(_HANDLERS_BEFORE_IMPORTS)
     survive_closed_stdout()  # `python -m pipeline.tools.export RUN | head -1`
     try:
         status = main()
     except KeyboardInterrupt:
         print("interrupted by the user", file=sys.stderr)
         sys.exit(130)
+    # Its work is done and said: a Ctrl-C in the interpreter's teardown would turn its exit
+    # status into 130 without a word.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     sys.exit(status)
 
 

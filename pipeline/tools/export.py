@@ -543,12 +543,13 @@ def check_run_dir(run_dir: Path) -> None:
     if status.state not in (COMPLETE, UNKNOWN):  # unknown: made before status.json existed
         raise PipelineError(f"run dir {run_dir} is {status.describe()}; export a complete run "
                             "(rerun it into this dir or choose another)")
+    # before the lock: a dir that is no run (an empty dir, a sweep dir, ~) gets no .lock file,
+    # and before the warning below, which would say its artefacts are being exported
+    read_run_files(run_dir)
     if status.state == UNKNOWN:  # said as birl.from_run says it
         print(f"warning: run dir {run_dir} has no {STATUS_FILE}, so whether its run finished "
               "is not known; exporting its artefacts as they are (each is checked as it is "
               "read)", file=sys.stderr)
-    # before the lock: a dir that is no run (an empty dir, a sweep dir, ~) gets no .lock file
-    read_run_files(run_dir)
     check_earlier_export(run_dir / EXPORT_DIR)
 
 

@@ -562,6 +562,13 @@ def _grey(value: int, size: int = 200) -> np.ndarray:
     return np.full((size, size), value, np.uint8)
 
 
+def _map_image_a_named_pipe(tmp: Path) -> list[str]:
+    overrides = map_scene(tmp)
+    (tmp / "maps" / "m.png").unlink()
+    os.mkfifo(tmp / "maps" / "m.png")  # opening it would wait for a writer
+    return overrides
+
+
 MAP_CASES = {
     "map YAML not YAML": (lambda t: map_scene(t, "image: [unclosed\n"), ["m.yaml", "YAML"]),
     "map YAML a list": (lambda t: map_scene(t, "- 1\n- 2\n"), ["m.yaml", "mapping"]),
@@ -602,7 +609,9 @@ MAP_CASES = {
         ["reference roadmap", "roadmap.spacing", "GB"]),
     "map path a directory": (lambda t: (t / "dir.yaml").mkdir() or
                              scene_file(t, good_scene(map="dir.yaml")),
-                             ["dir.yaml", "is not a file"]),
+                             ["dir.yaml", "is a directory, not a map's YAML file"]),
+    "map image a named pipe": (_map_image_a_named_pipe,
+                               ["m.png (key 'image') is a named pipe, not an image"]),
 }
 
 
@@ -710,6 +719,9 @@ DRIVE = np.array(DEMO)
 BAG_CASES = {
     "demo file missing": (lambda t: t / "none.json", [], ["none.json", "not found"]),
     "demo path a device": (lambda t: Path("/dev/zero"), [], ["/dev/zero", "character device"]),
+    # opening a named pipe waits for a writer: refused before anything opens it
+    "demo path a named pipe": (lambda t: os.mkfifo(t / "p.json") or t / "p.json", [],
+                               ["p.json is a named pipe, not a demonstration file"]),
     "bag directory without a bag": (lambda t: (t / "bag").mkdir() or t / "bag", [],
                                     ["bag", "metadata.yaml"]),
     "bag without a usable topic": (_chatter_bag, [], ["no topic of a supported type",
@@ -804,6 +816,13 @@ def _not_mcap(tmp, default_dir):
     src = _copy_run(default_dir, tmp / "src")
     (src / "graph.mcap").write_text("not an mcap file")
     return [f"from_run={src}", "stages=[birl]"], ["graph.mcap", "not an MCAP file"]
+
+
+def _named_pipe(tmp, default_dir):
+    src = _copy_run(default_dir, tmp / "src")
+    (src / "graph.mcap").unlink()
+    os.mkfifo(src / "graph.mcap")  # opening it would wait for a writer
+    return [f"from_run={src}", "stages=[birl]"], ["graph.mcap is a named pipe"]
 
 
 def _wrong_stage(tmp, default_dir):
@@ -907,6 +926,7 @@ ARTEFACT_CASES = {
     "garbled graph columns": _garbled_graph_columns,
     "empty input artefact": _empty_artefact,
     "input artefact not MCAP": _not_mcap,
+    "input artefact a named pipe": _named_pipe,
     "input artefact of another stage": _wrong_stage,
     "input artefact missing": _missing_artefact,
     "input made with another config value": _changed_config,

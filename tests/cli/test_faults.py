@@ -90,11 +90,13 @@ def test_a_signal_while_starting_is_one_line(tmp_path, sig, says):
 
 
 @pytest.mark.parametrize("command", [[sys.executable, "-m", "pipeline.tools.export"],
-                                     [str(Path(sys.executable).parent / "birlg-export")]],
-                         ids=["module", "script"])
-def test_ctrl_c_while_the_export_starts_is_one_line(tmp_path, command):
-    """The export's imports (rosbags, PIL, scipy) take most of a second: Ctrl-C then is one
-    line and exit 130, as for birlg."""
+                                     [str(Path(sys.executable).parent / "birlg-export")],
+                                     [sys.executable, "-m", "pipeline.tools.viewer", "--no-open"],
+                                     [sys.executable, "-m", "pipeline.tools.redraw"]],
+                         ids=["export-module", "export-script", "viewer", "redraw"])
+def test_ctrl_c_while_a_tool_starts_is_one_line(tmp_path, command):
+    """A tool's imports (the export's rosbags, PIL and scipy; the viewer's rerun; matplotlib)
+    take most of a second: Ctrl-C then is one line and exit 130, as for birlg."""
     proc = subprocess.Popen([*command, str(tmp_path)], cwd=ROOT, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
     time.sleep(0.25)

@@ -474,6 +474,11 @@ def test_bad_run_dirs_are_refused_in_one_line(exported, tmp_path, capsys):
     assert export.main([str(a_file)]) == 2
     assert "is not a directory" in _one_error_line(capsys)
 
+    empty = tmp_path / "empty"  # no status.json either: no warning that it is exported
+    empty.mkdir()
+    assert export.main([str(empty)]) == 2
+    assert "has no scene.mcap, demos.mcap, birl.mcap, eval.mcap" in _one_error_line(capsys)
+
     early = tmp_path / "early"  # a complete run that stopped before learning
     run_in_process(early, *QUICK, "stages=[scene,demos]")
     assert export.main([str(early)]) == 2
