@@ -331,10 +331,11 @@ def worse_than_initial(m: dict) -> list[str]:
 
 def graph_less_polite(m: dict) -> list[str]:
     """A warning line when the graph's paths cross more social links or intrude further into
-    intimate zones than the same reward's roadmap paths: a graph grown without
-    demonstrations can lack the detours (metropolis deployed with learned weights, 460
-    nodes: 0-18 crossings over eight seeds, the roadmap's 0), and these are the paths a
-    robot would be given."""
+    intimate zones than the same reward's roadmap paths: the graph's detours, if it has
+    any, are worse under the reward than the roadmap's (a graph grown without
+    demonstrations and without its medial-axis nodes, metropolis, 460 nodes: 0-18
+    crossings over eight seeds, the roadmap's 0), and these are the paths a robot would be
+    given."""
     worse = [f"{what} {m[key]:{spec}}{unit} against {m['ref_' + key]:{spec}}{unit}"
              for what, key, spec, unit in (("crossings", "relation_crossings", ".0f", ""),
                                            ("intimate", "intimate_intrusion_m", ".2f", " m"))
@@ -342,7 +343,8 @@ def graph_less_polite(m: dict) -> list[str]:
     if not worse:
         return []
     return ["  warning          the graph's paths are ruder than the roadmap's under the same "
-            f"reward ({', '.join(worse)}): it lacks the detours; deploy the roadmap's paths "
+            f"reward ({', '.join(worse)}): it lacks detours as good as the roadmap's; deploy "
+            "the roadmap's paths "
             "(birlg-export: /birlg/learned_paths_ref) or grow it further (graph.max_nodes)"]
 
 
