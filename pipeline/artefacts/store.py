@@ -27,7 +27,7 @@ from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, Message, MessageIndex, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap.writer import CompressionType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 from pipeline.artefacts.schemas import SCHEMAS
 from pipeline.errors import PipelineError, file_kind, os_error_reason
@@ -36,7 +36,7 @@ SCHEMA_PREFIX = "birlg."
 LOG_TIME_NS = 1_000_000_000  # stored log_time = caller's index × this: index k at k seconds
 _MAX_INDEX = (2**64 - 1) // LOG_TIME_NS  # MCAP times are uint64 nanoseconds
 CONTENT_METADATA = "content"  # MCAP metadata record holding the content digest
-_MAGIC = b"\x89MCAP0\r\n"
+_MAGIC = MCAP0_MAGIC
 _FOOTER_PREFIX_LEN = 1 + 8 + 8 + 8  # opcode, length, summary_start, summary_offset_start
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
 
 from pipeline.artefacts.store import read_records
 from pipeline.tools import run_tool
@@ -95,6 +96,18 @@ def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
     return lines, len(bad)
 
 
+def cut_short(path: Path) -> bool:
+    """Does the file begin with the MCAP magic and not end with it (a copy or a write that
+    stopped)? False for what cannot be read or sought (a pipe)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(MCAP_MAGIC))
+            f.seek(-len(MCAP_MAGIC), io.SEEK_END)
+            return head == MCAP_MAGIC and f.read() != MCAP_MAGIC
+    except OSError:
+        return False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m pipeline.tools.mcapinfo", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -108,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
             lines, invalid = describe(path, args.check)
         except Exception as e:  # noqa: BLE001 - missing, truncated, foreign: one line each
             detail = " ".join((str(e) or type(e).__name__).split())
+            if cut_short(path):  # the reader's own words for it are a misread record
+                detail = f"truncated: it begins as MCAP but does not end with its magic; {detail}"
             print(f"error: {path} cannot be read as MCAP ({detail})", file=sys.stderr)
             status = 2
             continue

@@ -279,6 +279,12 @@ def test_mcapinfo_lists_topics_counts_and_metadata_and_checks_schemas(runs, caps
     assert mcapinfo.main([str(tmp_path / "x.mcap")]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"error: {tmp_path / 'x.mcap'} cannot be read as MCAP") \
+        and err.count("\n") == 1 and "truncated" not in err
+    # One cut short (a copy that stopped): said so, not only as the record it misreads.
+    (tmp_path / "cut.mcap").write_bytes(data[:len(data) // 2])
+    assert mcapinfo.main([str(tmp_path / "cut.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert "cannot be read as MCAP (truncated: it begins as MCAP but does not end" in err \
         and err.count("\n") == 1
 
 

@@ -158,7 +158,7 @@ def test_what_map_server_reads_is_read_quoted_numbers_no_yaw_and_no_unknown_band
     ({"origin": [0.0, 0.0, 2e-6]}, "origin yaw 2e-06 is not supported"),
     ({"mode": "fancy"}, "key 'mode'='fancy' is not one of trinary, scale, raw"),
     ({"image": "missing.pgm"}, "missing.pgm (key 'image') not found"),
-    ({"image": "."}, "(key 'image') cannot be read"),
+    ({"image": "."}, "(key 'image') is a directory, not an image"),
     ({"image": "broken.pgm"}, "broken.pgm (key 'image') cannot be read"),
     ({"image": 3}, "key 'image'=3"),
 ])
