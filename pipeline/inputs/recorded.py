@@ -114,9 +114,10 @@ JUMP_STEPS = 10.0
 # A trajectory that ends outside the goal disk by less than GOAL_NOISE_SIGMAS times its
 # tracking noise (`noise_sigma`) reaches the goal (`cut_trajectory`): a walker who stopped at
 # the disk's edge is recorded a few centimetres either side of it, and a demonstration that
-# does not reach the goal forgoes its reward, which drags β and the weights (measured: 6 of 35
-# social-force walks 0.3-3 cm outside a 0.3 m disk moved β from 230 to 11 and the weights to
-# the box's edge). 3σ: a point inside the disk is recorded outside by more in 1 of 700.
+# does not reach the goal forgoes its reward, which drags β and the weights (measured: 5-6 of
+# 40-70 social-force walks per scene 0.3-28 mm outside a 0.3 m disk held β at 11, 230 when
+# they reach, and the weights at the box's edge). 3σ: noise moves a point at the disk's edge
+# farther out in about 1 of 700.
 GOAL_NOISE_SIGMAS = 3.0
 JUMP_MIN = 1.0  # m
 # `match_to_starts` warns of a trajectory whose second-nearest start is less than this much
