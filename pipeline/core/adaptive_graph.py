@@ -62,9 +62,11 @@ from pipeline.core.state_graph import (
 )
 from pipeline.core.world import Room, Scene
 
-# m, cells of the grid the social medial axis is found on (`social_medial_points`) when the
-# scene has no map of its own: a tenth of the robot's default width
+# The grid the social medial axis is found on (`social_medial_points`) when the scene has no
+# map of its own: cells of a tenth of the robot's default width (m), coarser where the room
+# would need more than SOCIAL_MEDIAL_CELLS of them (a 200 m room at 5 cm: 6.5 s and 1 GB)
 SOCIAL_MEDIAL_RESOLUTION = 0.05
+SOCIAL_MEDIAL_CELLS = 1_000_000
 
 @dataclass
 class GraphParams:
@@ -174,10 +176,11 @@ def social_medial_points(scene: Scene, spacing: float) -> np.ndarray:
     farthest from all of them, round a group rather than through it. For a graph without
     demonstrations, which otherwise knows no way round a group it meets."""
     grid = scene.obstacles.grid if scene.obstacles is not None else None
+    resolution = max(SOCIAL_MEDIAL_RESOLUTION, math.sqrt(scene.room.area / SOCIAL_MEDIAL_CELLS))
     a, b = scene.links
     grid = rasterise([np.vstack([p, q]) for p, q in zip(a, b, strict=True)], grid,
-                     scene.room.bounds, SOCIAL_MEDIAL_RESOLUTION)
-    bodies = ObstacleMap(grid).blocked_disks(scene.person_xy, scene.body_radius)
+                     scene.room.bounds, resolution)
+    bodies = grid.disks(scene.person_xy, scene.body_radius)
     social = ObstacleMap(OccupancyGrid(grid.occupied | bodies, grid.origin, grid.resolution))
     return social.medial_axis(scene.robot_radius, spacing, scene.room.bounds)
 

@@ -87,6 +87,15 @@ class OccupancyGrid:
         ys = self.origin[1] + (np.arange(h)[rows] + 0.5) * self.resolution
         return np.stack(np.meshgrid(xs, ys), axis=-1)
 
+    def disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
+        """(H, W) bool: cells whose centre lies within `radius` of any of `centres` (p, 2)."""
+        inside = np.zeros(self.shape, dtype=bool)
+        for centre in np.asarray(centres, dtype=float).reshape(-1, 2):
+            window, box = self.window(centre - radius, centre + radius)
+            offsets = box - centre
+            inside[window] |= np.einsum("ijk,ijk->ij", offsets, offsets) <= radius ** 2
+        return inside
+
     def window(self, lo: np.ndarray, hi: np.ndarray) -> tuple[tuple[slice, slice], np.ndarray]:
         """The cells of the box lo..hi (2,) each, clipped to the grid -> (row slice, col
         slice), (h, w, 2) their centres."""
@@ -526,12 +535,7 @@ class ObstacleMap:
 
     def blocked_disks(self, centres: np.ndarray, radius: float) -> np.ndarray:
         """(H, W) bool: cells whose centre lies within `radius` of any of `centres` (p, 2)."""
-        blocked = np.zeros(self.grid.shape, dtype=bool)
-        for centre in np.asarray(centres, dtype=float).reshape(-1, 2):
-            window, box = self.grid.window(centre - radius, centre + radius)
-            offsets = box - centre
-            blocked[window] |= np.einsum("ijk,ijk->ij", offsets, offsets) <= radius ** 2
-        return blocked
+        return self.grid.disks(centres, radius)
 
 
 def _free(clearance: np.ndarray, radius: float) -> np.ndarray:
