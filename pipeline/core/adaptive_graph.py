@@ -264,21 +264,26 @@ class AdaptiveGraph(StateGraph):
 
     def medial_points(self, social: bool = False) -> np.ndarray:
         """The initial nodes on the medial axis (graph.medial_axis): of the free space
-        (scenes with obstacles), or with `social` of the space between obstacles, people
-        and links (`social_medial_points`, graphs without demonstrations); (k, 2) about
-        0.8·radius apart, so neighbours along it connect, and sparser when they would fill
-        more than half of max_nodes. Without them growth by short controller runs seldom
-        finds its way through a 1 m door (RRT's narrow-passage problem), nor round a group
-        its first path to the goal went through."""
-        if not self.p.medial_axis or (self.scene.obstacles is None and not social):
+        (scenes with obstacles), and with `social` also of the space between obstacles,
+        people and links (`social_medial_points`, graphs without demonstrations; after the
+        first, whose doors a link in front of one would close); (k, 2) about 0.8·radius
+        apart, so neighbours along it connect, each sparser when it would fill more than half
+        of max_nodes. Without them growth by short controller runs seldom finds its way
+        through a 1 m door (RRT's narrow-passage problem), nor round a group its first path
+        to the goal went through."""
+        axes = [along for along, used in ((medial_axis_points, self.scene.obstacles is not None),
+                                          (social_medial_points, social)) if used]
+        if not self.p.medial_axis or not axes:
             return np.zeros((0, 2))
-        along = social_medial_points if social else medial_axis_points
         spacing = max(0.8 * self.p.radius, self.min_separation)
-        points = along(self.scene, spacing)
         budget = self.p.max_nodes // 2
-        if len(points) > budget:  # along a line the count falls as 1/spacing
-            points = along(self.scene, spacing * len(points) / max(budget, 1))
-        return points
+        found = []
+        for along in axes:
+            points = along(self.scene, spacing)
+            if len(points) > budget:  # along a line the count falls as 1/spacing
+                points = along(self.scene, spacing * len(points) / max(budget, 1))
+            found.append(points)
+        return np.vstack(found)
 
     def _add_demo(self, demo: Demonstration) -> None:
         """Demonstration waypoints become nodes (or merge into a node closer than min_separation);

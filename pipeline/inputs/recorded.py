@@ -117,8 +117,10 @@ JUMP_STEPS = 10.0
 # does not reach the goal forgoes its reward, which drags β and the weights (measured: 5-6 of
 # 40-70 social-force walks per scene 0.3-28 mm outside a 0.3 m disk held β at 11, 230 when
 # they reach, and the weights at the box's edge). 3σ: noise moves a point at the disk's edge
-# farther out in about 1 of 700.
+# farther out in about 1 of 700. At most GOAL_NOISE_MARGIN: a tracker's noise is centimetres,
+# and a walk that stopped farther out did not reach the goal, however jerky its track.
 GOAL_NOISE_SIGMAS = 3.0
+GOAL_NOISE_MARGIN = 0.1  # m
 JUMP_MIN = 1.0  # m
 # `match_to_starts` warns of a trajectory whose second-nearest start is less than this much
 # farther than its nearest: which start it is learned from is then a coin toss
@@ -982,9 +984,9 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
             found.append(f"{k} ({1000 * gap:.1f} mm)")
     if found:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m) by "
-                    "less than %g times their tracking noise: taken to reach the goal, with a "
-                    "last segment to it", where, listed(found, 5), goal_tolerance,
-                    GOAL_NOISE_SIGMAS)
+                    "less than %g times their tracking noise (and %g m): taken to reach the "
+                    "goal, with a last segment to it", where, listed(found, 5), goal_tolerance,
+                    GOAL_NOISE_SIGMAS, GOAL_NOISE_MARGIN)
 
 
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
@@ -1046,7 +1048,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         tracks = onto_room_edge(tracks, room, where)
     cleaned = [cut_trajectory(t, goal, goal_tolerance, room, f"{where}: trajectory {i}",
                               spacing if recording.is_stream or smoothed[i] else None,
-                              GOAL_NOISE_SIGMAS * noise[i])
+                              min(GOAL_NOISE_SIGMAS * noise[i], GOAL_NOISE_MARGIN))
                for i, t in enumerate(tracks)]
     warn_noisy_ends(tracks, cleaned, goal, goal_tolerance, where)
     cleaned = [np.round(c, COORDINATE_DECIMALS) for c in cleaned]

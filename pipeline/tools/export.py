@@ -72,7 +72,6 @@ restore_handlers(_HANDLERS_BEFORE_IMPORTS)
 EXPORT_DIR = "export"
 COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
 BAG_DIR = "paths"
-EXPORT_CONTENTS = frozenset({COSTMAP_YAML, COSTMAP_IMAGE, BAG_DIR})  # all that export/ holds
 FRAME = "map"
 
 TOPIC_LEARNED = "/birlg/learned_paths"  # on the adaptive graph, one Path per start
@@ -555,14 +554,15 @@ def check_run_dir(run_dir: Path) -> None:
 
 def check_earlier_export(final: Path) -> None:
     """The export replaces `final` as a whole: refuse (one line) when it is not an earlier
-    export (a file, or a directory with none of an export's files), whose replacing would
-    delete the user's files. A link is replaced, its target left alone."""
+    export (a file, or a directory without the costmap.yaml every export writes: exports are
+    swapped in whole), whose replacing would delete the user's files. A link is replaced,
+    its target left alone."""
     if final.is_symlink() or not final.exists():
         return
     if not final.is_dir():
         raise PipelineError(f"{final} is a file, not an earlier export; move it away (the "
                             "export is written there)")
-    if not any((final / name).exists() for name in EXPORT_CONTENTS):
+    if not (final / COSTMAP_YAML).is_file():
         raise PipelineError(f"{final} is a directory but not an earlier export (it has no "
                             f"{COSTMAP_YAML}); move it away (an export replaces it as a whole)")
 

@@ -24,6 +24,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
 
 from pipeline.artefacts.store import read_records
+from pipeline.errors import file_kind
 from pipeline.tools import run_tool
 
 
@@ -100,6 +101,8 @@ def cut_short(path: Path) -> bool:
     """Does the file begin with the MCAP magic and not end with it (a copy or a write that
     stopped)? False for what cannot be read or sought (a pipe)."""
     try:
+        if file_kind(path) is not None:  # opening a named pipe again would wait for a writer
+            return False
         with open(path, "rb") as f:
             head = f.read(len(MCAP_MAGIC))
             f.seek(-len(MCAP_MAGIC), io.SEEK_END)

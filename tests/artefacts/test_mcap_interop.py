@@ -330,3 +330,21 @@ def test_mcapinfo_reads_a_pipe(runs):
                           capture_output=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert b"check: all 2 messages match their schemas" in done.stdout
+
+
+def test_mcapinfo_on_a_named_pipe_of_a_cut_file_ends_in_one_line(runs, tmp_path):
+    """A named pipe whose writer sent a truncated file and left: the error line, not a second
+    open of the pipe (to see whether the file was cut short), which would wait for ever."""
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "scene.mcap"
+    os.mkfifo(fifo)
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.tools.mcapinfo", str(fifo)],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    data = (runs["default"] / "scene.mcap").read_bytes()
+    with open(fifo, "wb") as writer:
+        writer.write(data[:len(data) // 2])
+    err = proc.communicate(timeout=60)[1].decode()
+    assert proc.returncode == 2 and "cannot be read as MCAP" in err and err.count("\n") == 1
