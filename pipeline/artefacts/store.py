@@ -36,7 +36,6 @@ SCHEMA_PREFIX = "birlg."
 LOG_TIME_NS = 1_000_000_000  # stored log_time = caller's index × this: index k at k seconds
 _MAX_INDEX = (2**64 - 1) // LOG_TIME_NS  # MCAP times are uint64 nanoseconds
 CONTENT_METADATA = "content"  # MCAP metadata record holding the content digest
-_MAGIC = MCAP0_MAGIC
 _FOOTER_PREFIX_LEN = 1 + 8 + 8 + 8  # opcode, length, summary_start, summary_offset_start
 
 
@@ -302,7 +301,7 @@ def read_records(f) -> list:
     if end != f.seek(0, os.SEEK_END):  # the file's size (a file in memory has no fstat)
         raise ValueError("trailing bytes after the MCAP end magic")
     if footer.summary_crc:  # the stream reader does not check the summary/footer CRC
-        footer_start = end - len(_MAGIC) - _FOOTER_PREFIX_LEN - 4
+        footer_start = end - len(MCAP0_MAGIC) - _FOOTER_PREFIX_LEN - 4
         f.seek(footer.summary_start or footer_start)
         if zlib.crc32(f.read(footer_start + _FOOTER_PREFIX_LEN - f.tell())) != footer.summary_crc:
             raise ValueError("summary CRC mismatch")
@@ -433,10 +432,10 @@ def read_artefact(path, *, required_topics: Iterable[str] = (),
     except OSError as e:
         raise fail(f"cannot be opened ({e.strerror or e})") from None
     with f:
-        head = f.read(len(_MAGIC))
-        if head != _MAGIC:
+        head = f.read(len(MCAP0_MAGIC))
+        if head != MCAP0_MAGIC:
             raise fail("is truncated or corrupt (shorter than the MCAP magic)"
-                       if _MAGIC.startswith(head) else "is not an MCAP file")
+                       if MCAP0_MAGIC.startswith(head) else "is not an MCAP file")
         f.seek(0)
         try:
             records = read_records(f)
