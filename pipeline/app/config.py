@@ -113,9 +113,9 @@ class ExpertConfig:
     n_demos: Optional[int] = None  # deprecated spelling of n_starts
 
     def __post_init__(self) -> None:
-        renamed(self, "n_demos", "n_starts", "expert")
-        if self.n_starts is not None:
-            require_count(self, "n_starts")
+        with renamed(self, "n_demos", "n_starts", "expert"):
+            if self.n_starts is not None:
+                require_count(self, "n_starts")
 
     @property
     def knows_true_reward(self) -> bool:

@@ -8,10 +8,12 @@ ParameterError naming the field; the app prefixes the config key.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
 import numbers
+from collections.abc import Iterator
 from typing import Any
 
 
@@ -29,12 +31,16 @@ def is_number(value: Any) -> bool:
             and math.isfinite(value))
 
 
-def renamed(obj: Any, old: str, new: str, section: str) -> None:
+@contextlib.contextmanager
+def renamed(obj: Any, old: str, new: str, section: str) -> Iterator[None]:
     """A renamed setting that still works for one release: its value moves to the new name,
-    with one warning. Both given (the new one away from its default) is refused: the old
-    spelling used to win silently over the new one."""
+    with one warning; the checks in the `with` block then name the spelling the user wrote
+    (`expert.n_demos=0 is not allowed`, not `expert.n_starts=0`). Both given (the new one
+    away from its default) is refused: the old spelling used to win silently over the new
+    one."""
     value = getattr(obj, old)
     if value is None:
+        yield
         return
     default = next(f.default for f in dataclasses.fields(obj) if f.name == new)
     require(getattr(obj, new) == default, old, value,
@@ -43,6 +49,12 @@ def renamed(obj: Any, old: str, new: str, section: str) -> None:
                                           section, old, section, new)
     setattr(obj, new, value)
     setattr(obj, old, None)
+    try:
+        yield
+    except ParameterError as e:
+        if e.field != new:
+            raise
+        raise ParameterError(old, e.value, e.allowed) from None
 
 
 def require(ok: bool, field: str, value: Any, allowed: str) -> None:

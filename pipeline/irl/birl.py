@@ -98,8 +98,8 @@ class BirlMapConfig(IRLConfig):
             require_count(self, "grow_nodes", minimum=0)
         require(self.likelihood in LIKELIHOODS, "likelihood", self.likelihood,
                 " or ".join(repr(k) for k in LIKELIHOODS))
-        renamed(self, "lr_level", "test_level", "birl")
-        require(0 < self.test_level < 1, "test_level", self.test_level, "a number in (0, 1)")
+        with renamed(self, "lr_level", "test_level", "birl"):
+            require(0 < self.test_level < 1, "test_level", self.test_level, "a number in (0, 1)")
         if self.boltzmann_prior_scale is not None:
             require_positive(self, "boltzmann_prior_scale")
         require(self.base_measure in BASE_MEASURES, "base_measure", self.base_measure,

@@ -82,8 +82,8 @@ class AdaptiveChainParams(ChainParams):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        renamed(self, "step", "proposal_step", "birl")
-        require_positive(self, "proposal_step")
+        with renamed(self, "step", "proposal_step", "birl"):
+            require_positive(self, "proposal_step")
         require_count(self, "n_chains")
         if self.max_samples is not None:
             require_count(self, "max_samples")

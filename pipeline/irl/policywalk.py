@@ -33,8 +33,8 @@ class PolicyWalkConfig(IRLConfig, ChainParams):
     def __post_init__(self) -> None:
         IRLConfig.__post_init__(self)
         ChainParams.__post_init__(self)
-        renamed(self, "step", "grid_step", "birl")
-        require_positive(self, "grid_step")
+        with renamed(self, "step", "grid_step", "birl"):
+            require_positive(self, "grid_step")
         require_positive(self, "alpha")
 
     def make_prior(self, dim: int) -> Prior:

@@ -149,6 +149,20 @@ def test_an_old_spelling_given_with_its_new_name_is_refused(overrides, message):
         validate(compose_config(*overrides))
 
 
+@pytest.mark.parametrize("overrides, message", [
+    (["expert.n_demos=0"], "expert.n_demos=0 is not allowed (allowed: an integer >= 1)"),
+    (["birl=mcmc", "birl.step=-1"], "birl.step=-1.0 is not allowed"),
+    (["birl=policywalk", "birl.step=0"], "birl.step=0.0 is not allowed"),
+    (["birl.lr_level=2"], "birl.lr_level=2.0 is not allowed"),
+    (["expert.n_starts=0"], "expert.n_starts=0 is not allowed"),
+])
+def test_a_bad_value_is_refused_under_the_name_it_was_given(overrides, message):
+    """An old spelling's value moves to the new name before it is checked; the refusal
+    named the new key, which the user had not written."""
+    with pytest.raises(PipelineError, match=re.escape(f"config error: {message}")):
+        validate(compose_config(*overrides))
+
+
 @pytest.mark.parametrize("overrides, expected", [
     ([], ["relation", "social", "goal_deviation", "length", "crossing"]),
     (["expert=planner"], ["relation", "social", "goal_deviation", "length", "crossing"]),
