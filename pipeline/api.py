@@ -65,7 +65,18 @@ from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.world import Scene, scene_from_dict
 from pipeline.errors import PipelineError, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
-from pipeline.inputs.recorded import cut_trajectory, drop_repeats, match_to_starts
+from pipeline.inputs.recorded import (
+    COORDINATE_DECIMALS,
+    GOAL_NOISE_MARGIN,
+    GOAL_NOISE_SIGMAS,
+    RESAMPLE_SPACING,
+    cut_trajectory,
+    drop_repeats,
+    match_to_starts,
+    onto_room_edge,
+    smooth_jitter,
+    warn_noisy_ends,
+)
 from pipeline.irl import methods
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment, spatial_graph
@@ -291,7 +302,7 @@ DemoLike = Demonstration | Mapping[str, Any] | np.ndarray | Sequence[Sequence[fl
 
 
 def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed: int = 0,
-          overrides: Sequence[str] = (), **config: Any) -> Learned:
+          overrides: Sequence[str] = (), denoise: bool = False, **config: Any) -> Learned:
     """Learn reward weights for `scene` from `demos` with the IRL method `method` (map, mcmc,
     policywalk, maxent, fixed), in memory: grow the adaptive graph, then fit, as the graph
     and birl stages do (same seeds: the same inputs and settings give the same weights).
@@ -303,10 +314,18 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
     room, clear of bodies and obstacles, beginning within 1 m of a start, cut where they
     run on past the goal disk); rows marked "heldout" (evaluate.holdout) are left out, as
     the run left them out. Their features are computed on the learner's features.
+    denoise: read polylines as `expert=file` reads a file's trajectories (its default
+    expert.denoise=true): smoothed of tracking noise, and straying a few centimetres out of
+    the room or ending a few millimetres outside the goal disk taken as that noise. Off by
+    default: polylines given here are often a run's own paths, whose corners on the
+    roadmap the smoothing would round off. Rows and Demonstration objects are what a run
+    learned from, taken as they are.
     config: the method's settings (birl.* without the prefix, e.g. n_iterations=5, beta=10);
     overrides: any other setting, as command-line overrides (e.g. "graph=small",
     "mdp=paper", "reward=rude" for the feature constants). The scene settings are unused.
     """
+    if not isinstance(denoise, bool | np.bool_):
+        raise PipelineError(f"denoise={denoise!r} must be true or false")
     if not isinstance(method, str) or method not in methods():
         raise PipelineError(f"unknown method {method!r} (one of {', '.join(methods())})")
     scene = checked_scene(scene)
@@ -324,8 +343,7 @@ def learn(scene: Scene, demos: Sequence[DemoLike], method: str = "map", *, seed:
         raise PipelineError(f"all {len(given)} demonstrations are held out (their 'heldout' "
                             "is true): nothing to learn from")
     features = build.learner_feature_model(cfg, scene)
-    demonstrations = [as_demonstration(d, scene, features, cfg.mdp.speed, k)
-                      for k, d in enumerate(training)]
+    demonstrations = as_demonstrations(training, scene, features, cfg.mdp.speed, denoise)
     with threadpool_limits(1):  # as the stages run (and one thread is faster here)
         graph_weights, _ = build.growth_weights(cfg, None)
         graph = AdaptiveGraph(scene, features, build.controller(cfg), graph_weights, cfg.graph,
@@ -437,11 +455,56 @@ def _overrides_list(overrides: Sequence[str]) -> list[str]:
     return listed
 
 
-def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel, speed: float,
-                     k: int = 0) -> Demonstration:
-    """Demonstration `k` of `learn`, checked and cut at the goal disk as a demonstration file's
-    trajectories are (`pipeline.inputs`), with the features of its own segments."""
-    what = f"demonstration {k}"
+def as_demonstrations(demos: Sequence[DemoLike], scene: Scene, features: FeatureModel,
+                      speed: float, denoise: bool = False) -> list[Demonstration]:
+    """`learn`'s demonstrations, checked and cut at the goal disk as a demonstration file's
+    trajectories are (`pipeline.inputs`), with the features of their own segments. With
+    `denoise`, given polylines are read wholly as a file's trajectories are: smoothed of
+    tracking noise (`smooth_jitter`, expert.denoise), moved onto the room's edge where they
+    stray a few centimetres out, taken to reach the goal where they end outside its disk by
+    less than their noise. Rows (a run's /demos: what it learned from) and Demonstration
+    objects are taken as they are."""
+    given = [demo_fields(d, scene, f"demonstration {k}") for k, d in enumerate(demos)]
+    tracks = [points for points, *_ in given]
+    raw = [k for k, d in enumerate(demos) if not isinstance(d, Demonstration | Mapping)]
+    smoothed, noise = [False] * len(given), [0.0] * len(given)
+    if denoise and raw:
+        where = "learn(): demos"
+        read, was_smoothed, sigmas = smooth_jitter([tracks[k] for k in raw], where)
+        read = onto_room_edge(read, scene.room, where)
+        for k, track, changed, sigma in zip(raw, read, was_smoothed, sigmas, strict=True):
+            tracks[k], smoothed[k], noise[k] = track, changed, sigma
+    out = []
+    for k, (_, start, reached, subject) in enumerate(given):
+        what = f"demonstration {k}"
+        cut = cut_trajectory(tracks[k], scene.goal, scene.goal_tolerance, scene.room, what,
+                             RESAMPLE_SPACING if smoothed[k] else None,
+                             min(GOAL_NOISE_SIGMAS * noise[k], GOAL_NOISE_MARGIN))
+        whole = drop_repeats(tracks[k])
+        if not smoothed[k] and len(cut) == len(whole) and np.array_equal(cut[:-1], whole[:-1]):
+            cut = whole  # it ends at its first point in the disk (a synthetic expert's node)
+        if denoise and k in raw:  # as a file's: the same polylines whatever the source
+            cut = np.round(cut, COORDINATE_DECIMALS)
+        nearest = match_to_starts([cut], scene.starts, scene.goal,
+                                  FileExpertConfig.start_radius, scene.goal_tolerance, what)[0]
+        if start is not None and start != nearest:
+            raise PipelineError(f"{what} begins at start {nearest}, not at its "
+                                f"start_index={start}")
+        demo = checked_demonstration(nearest, cut, None if subject is None else str(subject),
+                                     scene, features, speed, what)
+        if reached is not None and bool(reached) != demo.reached:
+            demo = dataclasses.replace(demo, reached=bool(reached))
+        out.append(demo)
+    if denoise and raw:
+        warn_noisy_ends([tracks[k] for k in raw], [out[k].points for k in raw], scene.goal,
+                        scene.goal_tolerance, "learn(): demos")
+    return out
+
+
+def demo_fields(demo: DemoLike, scene: Scene,
+                what: str) -> tuple[np.ndarray, int | None, bool | None, Any]:
+    """One of `learn`'s demonstrations as (points, start index, reached, subject), each
+    None where not given; refused in one line when malformed."""
     start = reached = subject = None
     if isinstance(demo, Demonstration):
         points: Any = demo.points
@@ -471,21 +534,7 @@ def as_demonstration(demo: DemoLike, scene: Scene, features: FeatureModel, speed
                             f"{len(scene.starts) - 1})")
     if reached is not None and not isinstance(reached, bool | np.bool_):  # "no" is truthy
         raise PipelineError(f"{what}: reached={reached!r} must be true or false")
-    cut = cut_trajectory(pts, scene.goal, scene.goal_tolerance, scene.room, what)
-    given = drop_repeats(pts)
-    if not (len(cut) == len(given) and np.array_equal(cut[:-1], given[:-1])):
-        pts = cut  # it ran on past the goal disk: cut there, as a file's trajectory is
-    else:  # it ends at its first point in the disk (a synthetic expert's roadmap node)
-        pts = given
-    nearest = match_to_starts([pts], scene.starts, scene.goal, FileExpertConfig.start_radius,
-                              scene.goal_tolerance, what)[0]
-    if start is not None and start != nearest:
-        raise PipelineError(f"{what} begins at start {nearest}, not at its start_index={start}")
-    demo_ = checked_demonstration(nearest, pts, None if subject is None else str(subject),
-                                  scene, features, speed, what)
-    if reached is not None and bool(reached) != demo_.reached:
-        demo_ = dataclasses.replace(demo_, reached=bool(reached))
-    return demo_
+    return pts, start, reached, subject
 
 
 def learning_environment(cfg: Config, scene: Scene, graph: AdaptiveGraph,

@@ -121,6 +121,8 @@ JUMP_STEPS = 10.0
 # and a walk that stopped farther out did not reach the goal, however jerky its track.
 GOAL_NOISE_SIGMAS = 3.0
 GOAL_NOISE_MARGIN = 0.1  # m
+# m, the spacing a pose stream's poses and a smoothed trajectory are resampled to
+RESAMPLE_SPACING = 0.1
 JUMP_MIN = 1.0  # m
 # `match_to_starts` warns of a trajectory whose second-nearest start is less than this much
 # farther than its nearest: which start it is learned from is then a coin toss
@@ -991,7 +993,7 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
 
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
                   topic: str | None = None, frame: str | None = None, start_radius: float = 1.0,
-                  spacing: float = 0.1, room: Room | None = None,
+                  spacing: float = RESAMPLE_SPACING, room: Room | None = None,
                   denoise: bool = True) -> list[Recorded]:
     """Read a recorded demonstration into its demonstrations (matched start, polyline, subject).
 

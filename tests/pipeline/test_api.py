@@ -361,6 +361,42 @@ def test_learn_checks_demonstrations_as_a_demonstration_file_is_checked(metropol
                           api.learn(metropolis, cut, overrides=o, n_iterations=2).weights)
 
 
+def test_learn_with_denoise_reads_noisy_tracks_as_a_demonstration_file(fast_run, tmp_path):
+    """With denoise=True, tracked walks learn what the same walks in a file learn with
+    expert=file (smoothed of their noise; one ending 2 cm outside the goal disk reaches
+    the goal); without, they are taken as given."""
+    scene = fast_run.scene()
+    rng = np.random.default_rng(0)
+    walks = []
+    for row in fast_run.messages("demos", topics.DEMOS).to_dict("records"):
+        points = np.asarray(row["points"], float)
+        length = np.r_[0, np.cumsum(np.hypot(*np.diff(points, axis=0).T))]
+        s = np.arange(0.0, length[-1], 0.12)
+        dense = np.column_stack([np.interp(s, length, points[:, 0]),
+                                 np.interp(s, length, points[:, 1])])
+        walks.append(dense + rng.normal(0, 0.02, dense.shape))
+    outward = walks[0][-1] - scene.goal  # the first stops 2 cm outside the goal disk
+    walks[0] = np.vstack([walks[0][np.linalg.norm(walks[0] - scene.goal, axis=1) >
+                                   scene.goal_tolerance + 0.02],
+                          scene.goal + outward / np.linalg.norm(outward)
+                          * (scene.goal_tolerance + 0.02)])
+    walks = [np.round(w, 6) for w in walks]
+    path = tmp_path / "walks.json"
+    path.write_text(json.dumps({"scene": scene.name,
+                                "trajectories": [w.tolist() for w in walks]}))
+    o = ["graph=small", "birl.n_iterations=2"]
+    run = api.run([*o, "expert=file", f"expert.path={path}"], run_dir=tmp_path / "run")
+    from_file = run.messages("demos", topics.DEMOS).to_dict("records")
+    assert from_file[0]["reached"] and np.array_equal(from_file[0]["points"][-1], scene.goal)
+    denoised = api.learn(scene, walks, overrides=["graph=small"], denoise=True,
+                         n_iterations=2)
+    assert np.array_equal(denoised.weights, birl_weights(run.dir)[-1])
+    as_given = api.learn(scene, walks, overrides=["graph=small"], n_iterations=2)
+    assert not np.array_equal(as_given.weights, denoised.weights)
+    with pytest.raises(PipelineError, match="denoise='yes' must be true or false"):
+        api.learn(scene, walks, denoise="yes")
+
+
 def test_learn_refuses_what_run_refuses(metropolis):
     walk = [[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]
     for kwargs, says in (
