@@ -67,11 +67,10 @@ from pipeline.errors import PipelineError, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
 from pipeline.inputs.recorded import (
     COORDINATE_DECIMALS,
-    GOAL_NOISE_MARGIN,
-    GOAL_NOISE_SIGMAS,
     RESAMPLE_SPACING,
     cut_trajectory,
     drop_repeats,
+    goal_margin,
     match_to_starts,
     onto_room_edge,
     smooth_jitter,
@@ -479,7 +478,7 @@ def as_demonstrations(demos: Sequence[DemoLike], scene: Scene, features: Feature
         what = f"demonstration {k}"
         cut = cut_trajectory(tracks[k], scene.goal, scene.goal_tolerance, scene.room, what,
                              RESAMPLE_SPACING if smoothed[k] else None,
-                             min(GOAL_NOISE_SIGMAS * noise[k], GOAL_NOISE_MARGIN))
+                             goal_margin(noise[k]) if denoise and k in raw else 0.0)
         whole = drop_repeats(tracks[k])
         if not smoothed[k] and len(cut) == len(whole) and np.array_equal(cut[:-1], whole[:-1]):
             cut = whole  # it ends at its first point in the disk (a synthetic expert's node)

@@ -49,6 +49,8 @@ METRIC_KEYS: dict[str, str] = {
     r"frechet_to_demos(_max)?": "demonstrations without a true reward: mean (max) Fréchet "
                                 "distance of the learned paths to them (both resampled every "
                                 "0.1 m, however densely either is sampled), m",
+    r"demos_(count|unreached)": "demonstrations without a true reward: how many were learned "
+                                "from, and how many of them do not reach the goal",
     r"time_\w+_s": "wall-clock seconds of a stage (or a part of one); never in an artefact",
     r"graph_demo_node_share": "share of the adaptive graph's nodes that are demonstration "
                               "waypoints",

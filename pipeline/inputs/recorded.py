@@ -107,6 +107,12 @@ JITTER_INFLATION = 1.03
 DISCREPANCY = 1.25
 # `noise_sigma`: the ratio measured 1.0-1.06 on noisy tracks, 1.24 hand-drawn, 4-9 clean
 NOISE_SPAN_RATIO = 1.5
+# `noise_sigma` reads noise only in trajectories of at least this many points: in a sparse
+# polyline the few second differences are its corners, which the span test above cannot
+# tell from noise (8-point planner paths through a door read as 1.2-1.4 m of "noise" and
+# were smoothed through the wall; 1 Hz walks of 8-9 points as 0.2-0.4 m, smoothed to 0.23 m
+# of a person they passed at 0.86 m). Tracked walks have a hundred points and more.
+MIN_NOISE_POINTS = 20
 # A step between consecutive poses longer than JUMP_STEPS times the trajectory's usual step
 # (the 75th percentile of its steps: pauses do not shrink it) and than JUMP_MIN is a jump: the
 # tracker lost the person and found them, or someone else, again (`largest_jump`, one warning).
@@ -117,9 +123,14 @@ JUMP_STEPS = 10.0
 # does not reach the goal forgoes its reward, which drags β and the weights (measured: 5-6 of
 # 40-70 social-force walks per scene 0.3-28 mm outside a 0.3 m disk held β at 11, 230 when
 # they reach, and the weights at the box's edge). 3σ: noise moves a point at the disk's edge
-# farther out in about 1 of 700. At most GOAL_NOISE_MARGIN: a tracker's noise is centimetres,
-# and a walk that stopped farther out did not reach the goal, however jerky its track.
+# farther out in about 1 of 700. At least GOAL_MARGIN_FLOOR, whatever the estimate: a
+# recorded position is not known to the millimetre, and the noise estimate misses noise it
+# cannot see (a track kept as recorded, expert.denoise=false; points added along the
+# segments; a sparse polyline), where one walk 0.3 mm outside the disk moved the learned
+# social weight 17-fold. At most GOAL_NOISE_MARGIN: a tracker's noise is centimetres, and a
+# walk that stopped farther out did not reach the goal, however jerky its track.
 GOAL_NOISE_SIGMAS = 3.0
+GOAL_MARGIN_FLOOR = 0.05  # m
 GOAL_NOISE_MARGIN = 0.1  # m
 # m, the spacing a pose stream's poses and a smoothed trajectory are resampled to
 RESAMPLE_SPACING = 0.1
@@ -578,8 +589,8 @@ def noise_sigma(tracks: Sequence[np.ndarray]) -> float:
     0 when they are not noise: second differences over twice the span, p[i-2] - 2 p[i] +
     p[i+2], are as large as those of noise (the same variance) and NOISE_SPAN_RATIO times
     larger or more where they measure the route's turns (4 times for a smooth curve), as in
-    a sparse polyline of a few corners; 0 without tracks of five points."""
-    dense = [t for t in tracks if len(t) >= 5]
+    a sparse polyline of a few corners; 0 without tracks of MIN_NOISE_POINTS points."""
+    dense = [t for t in tracks if len(t) >= MIN_NOISE_POINTS]
     if not dense:
         return 0.0
     near = np.median(np.abs(np.concatenate([(t[2:] - 2 * t[1:-1] + t[:-2]).ravel()
@@ -971,10 +982,17 @@ def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list
     return out
 
 
+def goal_margin(sigma: float) -> float:
+    """How far outside the goal disk a recorded trajectory with tracking noise `sigma` (m)
+    may end and still reach the goal (GOAL_NOISE_SIGMAS, GOAL_MARGIN_FLOOR,
+    GOAL_NOISE_MARGIN)."""
+    return min(max(GOAL_NOISE_SIGMAS * sigma, GOAL_MARGIN_FLOOR), GOAL_NOISE_MARGIN)
+
+
 def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
                     goal: np.ndarray, goal_tolerance: float, where: str) -> None:
     """One warning naming the trajectories that end outside the goal disk within their
-    tracking noise and so reach the goal (`cut_trajectory`'s goal_margin)."""
+    tracking noise and so reach the goal (`cut_trajectory`'s goal_margin, `goal_margin`)."""
     found = []
     for k, (track, cut) in enumerate(zip(tracks, cleaned, strict=True)):
         if not np.array_equal(cut[-1], goal):
@@ -986,9 +1004,10 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
             found.append(f"{k} ({1000 * gap:.1f} mm)")
     if found:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m) by "
-                    "less than %g times their tracking noise (and %g m): taken to reach the "
-                    "goal, with a last segment to it", where, listed(found, 5), goal_tolerance,
-                    GOAL_NOISE_SIGMAS, GOAL_NOISE_MARGIN)
+                    "less than their tracking noise (%g cm, or %g times the noise, at most "
+                    "%g cm): taken to reach the goal, with a last segment to it", where,
+                    listed(found, 5), goal_tolerance, 100 * GOAL_MARGIN_FLOOR,
+                    GOAL_NOISE_SIGMAS, 100 * GOAL_NOISE_MARGIN)
 
 
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
@@ -1050,7 +1069,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         tracks = onto_room_edge(tracks, room, where)
     cleaned = [cut_trajectory(t, goal, goal_tolerance, room, f"{where}: trajectory {i}",
                               spacing if recording.is_stream or smoothed[i] else None,
-                              min(GOAL_NOISE_SIGMAS * noise[i], GOAL_NOISE_MARGIN))
+                              goal_margin(noise[i]))
                for i, t in enumerate(tracks)]
     warn_noisy_ends(tracks, cleaned, goal, goal_tolerance, where)
     cleaned = [np.round(c, COORDINATE_DECIMALS) for c in cleaned]

@@ -230,6 +230,8 @@ def run(ctx: RunContext) -> None:
         dists = [frechet(graph_paths[d["start_index"]][0], d["points"]) for d in training]
         metrics["frechet_to_demos"] = float(np.mean(dists))
         metrics["frechet_to_demos_max"] = float(np.max(dists))
+        metrics["demos_unreached"] = float(sum(not d["reached"] for d in training))
+        metrics["demos_count"] = float(len(training))
     kinds = codec.decode_nodes(graph_art).kind
     metrics["graph_demo_node_share"] = int(np.count_nonzero(kinds == DEMO)) / max(len(kinds), 1)
 
@@ -444,6 +446,11 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
             lines.append(f"                   log likelihood per demonstration "
                          f"{fmt('heldout_log_likelihood', '.2f')} (shortest path's reward "
                          f"{fmt('heldout_log_likelihood_shortest', '.2f')})")
+    if m.get("demos_unreached", 0) > 0:
+        lines.append(f"  warning          {fmt('demos_unreached', '.0f')} of "
+                     f"{fmt('demos_count', '.0f')} demonstrations learned from do not reach the "
+                     "goal (the log names them): each forgoes the goal's reward, and a few "
+                     "move every weight; extend or drop them if they stopped short by accident")
     short = {where: m[key] for where, key in (("roadmap", "ref_success"), ("graph", "success"))
              if m.get(key) is not None and m[key] < 1}
     if short:
