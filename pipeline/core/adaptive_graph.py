@@ -247,6 +247,7 @@ class AdaptiveGraph(StateGraph):
         # full (`expansion_set` leaves them out)
         self.failed_expansions: dict[int, int] = {}
         self.saturated: list[int] = []
+        self.exhausted = False  # every non-terminal node is saturated: growth is over
 
     # -- initialisation ------------------------------------------------------------------
     def initialise(self, demos: Sequence[Demonstration] = ()) -> None:
@@ -358,7 +359,8 @@ class AdaptiveGraph(StateGraph):
         stalls = 0
         # Tiny GP matrices: BLAS threads cost more in wake-ups than they save.
         with threadpool_limits(1):
-            while self.n_nodes < self.p.max_nodes and stalls < self.p.max_stalls:
+            while self.n_nodes < self.p.max_nodes and stalls < self.p.max_stalls \
+                    and not self.exhausted:
                 stalls = stalls + 1 if self.step() == 0 else 0
                 if progress is not None:
                     progress(self)
@@ -372,7 +374,8 @@ class AdaptiveGraph(StateGraph):
         before, stalls = self.n_nodes, 0
         self.p = dataclasses.replace(self.p, max_nodes=max(self.p.max_nodes, before + n_nodes))
         with threadpool_limits(1):
-            while self.n_nodes < before + n_nodes and stalls < self.p.max_stalls:
+            while self.n_nodes < before + n_nodes and stalls < self.p.max_stalls \
+                    and not self.exhausted:
                 stalls = stalls + 1 if self.step() == 0 else 0
         return self.n_nodes - before
 
@@ -385,7 +388,12 @@ class AdaptiveGraph(StateGraph):
     def step(self) -> int:
         """One expansion (DESIGN §7 steps 1–6); returns the number of nodes added."""
         self.iteration += 1
-        v = self.pick_node(self.expansion_set())
+        pool = self.expansion_set()
+        if not len(pool):
+            self.exhausted = True
+            self.record()
+            return 0
+        v = self.pick_node(pool)
         candidates = self.sample_candidates(v)
         if candidates is None:
             self.failed_expansions[v] = self.failed_expansions.get(v, 0) + 1

@@ -85,9 +85,10 @@ def run(ctx: RunContext) -> None:
                     "bodies (check graph.controller)", graph.n_nodes, cfg.graph.max_nodes,
                     graph.runs_drawn)
     elif graph.n_nodes < cfg.graph.max_nodes:
-        log.warning("graph stopped at %d of %d nodes: %d expansions in a row found no free "
-                    "place (lower graph.min_separation or graph.max_nodes)", graph.n_nodes,
-                    cfg.graph.max_nodes, cfg.graph.max_stalls)
+        why = ("every node's expansions found no free place" if graph.exhausted else
+               f"{cfg.graph.max_stalls} expansions in a row found no free place")
+        log.warning("graph stopped at %d of %d nodes: %s (lower graph.min_separation or "
+                    "graph.max_nodes)", graph.n_nodes, cfg.graph.max_nodes, why)
     log.info("graph grown in %.2f s: %d nodes, %d edges, %d iterations", time.perf_counter() - t0,
              graph.n_nodes, len(graph.src), graph.iteration)
     if not graph.best_reached.all():

@@ -70,6 +70,42 @@ def polite_graph(metropolis, demos):
     return grow(metropolis, demos, POLITE, max_nodes=250, seed=1)
 
 
+def test_a_node_whose_expansions_found_no_place_twice_is_expanded_no_more(metropolis, demos):
+    """Late in growth the space round the best trajectories fills up; their nodes kept being
+    picked (one failed 30 times in a 40 m room). After SATURATED failed expansions a node
+    is left out of the expansion sets, and growth ends when every node is."""
+    from pipeline.core.adaptive_graph import SATURATED
+
+    for separation, max_nodes in ((0.3, 300), (2.5, 460)):
+        g = AdaptiveGraph(metropolis, FeatureModel.from_scene(metropolis), LinearController(),
+                          PRIOR_MEAN, GraphParams(max_nodes=max_nodes,
+                                                  min_separation=separation),
+                          np.random.default_rng(0))
+        g.initialise(demos)
+        expanded, failed, saturated_at = [], {}, {}
+        sample = g.sample_candidates
+
+        def watched(v, sample=sample, expanded=expanded, failed=failed, at=saturated_at):
+            expanded.append(v)
+            found = sample(v)
+            if found is None:
+                failed[v] = failed.get(v, 0) + 1
+                if failed[v] == SATURATED:
+                    at[v] = len(expanded) - 1
+            return found
+
+        g.sample_candidates = watched
+        g.grow()
+        assert g.failed_expansions == failed
+        assert sorted(g.saturated) == sorted(v for v, n in failed.items() if n >= SATURATED)
+        assert g.saturated  # the case arises at both sizes
+        for v in g.saturated:  # never expanded after the failure that saturated it
+            assert v not in expanded[saturated_at[v] + 1:] and failed[v] == SATURATED
+        if g.n_nodes < max_nodes:  # stopped early: every open node is saturated
+            assert g.exhausted and set(g.saturated) == set(np.flatnonzero(~g.terminal))
+    assert g.n_nodes < 460 and g.iteration < 100  # 2.5 m apart: over at once, not 500 stalls
+
+
 def test_expansion_set_is_best_set_with_frequency_p_best():
     rng = np.random.default_rng(0)
     best, other = np.arange(3), np.arange(3, 10)

@@ -231,6 +231,22 @@ def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp
     assert "ruder" not in default_run[2]  # with demonstrations: the same paths' quality
 
 
+def test_the_summary_warns_of_demonstrations_that_do_not_reach_the_goal(tmp_path, default_run):
+    """A walk that stops short forgoes the goal's reward, and one among 70 moved the learned
+    social weight 17-fold; the log's warning was the only sign."""
+    shipped = json.loads((ROOT / "data" / "demos" / "metropolis_handdrawn.json").read_text())
+    walks = shipped["trajectories"]
+    walks[2] = walks[2][:-8]  # the third walk stops short of the goal
+    path = tmp_path / "short.json"
+    path.write_text(json.dumps({**shipped, "trajectories": walks}))
+    m, out = run_in_process(tmp_path / "run", "expert=file", f"expert.path={path}",
+                            "graph=small", "birl.n_iterations=2")
+    assert (m["demos_unreached"], m["demos_count"]) == (1, len(walks))
+    assert f"warning          1 of {len(walks)} demonstrations learned from do not reach " \
+        "the goal" in out
+    assert "do not reach the goal" not in default_run[2]  # every synthetic walk arrives
+
+
 def test_the_summary_warns_when_learned_paths_stop_short(tmp_path, default_run):
     """A deployment whose graph paths never arrive printed their distances to people
     without a word on the summary (the log's warning only). The case: the office without
