@@ -655,6 +655,34 @@ def revisit(track: np.ndarray) -> tuple[np.ndarray, float] | None:
     return p[later[k]], float(walked[far][k])
 
 
+def _first_at_goal(track: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> int:
+    """The index of the first pose of `track` within `goal_tolerance` of `goal` (its last
+    index when none is)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        at = np.flatnonzero(within(np.linalg.norm(np.asarray(track, float) - goal, axis=1),
+                                   goal_tolerance))
+    return int(at[0]) if len(at) else len(track) - 1
+
+
+def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
+                        start_radius: float, goal_tolerance: float, where: str) -> None:
+    """One warning naming the trajectories that walk from a start to the goal more than once
+    (`stream_spans`): one id given to several walks (two sessions' ids 0, 1, ... in one
+    file), of which every trajectory's cut at the goal keeps only the first."""
+    found = []
+    for k, track in enumerate(tracks):
+        with np.errstate(over="ignore", invalid="ignore"):
+            walks = len(stream_spans(track, starts, goal, start_radius, goal_tolerance))
+        if walks > 1:
+            found.append(f"{k} ({walks} walks)")
+    if found:
+        log.warning("%s: %d of %d trajectories go from a start to the goal more than once "
+                    "(one trajectory id for several walks, e.g. two sessions' ids in one "
+                    "file?): %s; each is cut at its first arrival, so only its first walk is "
+                    "learned from: give every walk its own id", where, len(found), len(tracks),
+                    listed(found, 5))
+
+
 def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
     """One warning naming the trajectories that come back to their own route (`revisit`):
     learned as they are, a loop reads as a longer, more winding walk."""
@@ -1061,7 +1089,9 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     else:
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
-        warn_jumps(tracks, where)
+        # what follows the goal is cut away: a jump there is no jump in a demonstration
+        warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
+        warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
     smoothed, noise = [False] * len(tracks), [0.0] * len(tracks)
     if denoise:
         tracks, smoothed, noise = smooth_jitter(tracks, where)

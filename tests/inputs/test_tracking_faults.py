@@ -186,6 +186,29 @@ def test_a_jump_where_tracking_was_lost_is_found_and_named(tmp_path, caplog):
                      r"usually 0\.10 m\)", caplog.text)
 
 
+def test_two_walks_under_one_id_are_named_and_no_jump_is_claimed(tmp_path, caplog):
+    """Two sessions' CSVs appended, both numbering their walks from 0, and no time column:
+    each id holds two walks. The cut at the goal keeps the first; the second was dropped
+    with only a warning of a jump 'kept with a straight segment' (it was not kept)."""
+    first, second = walk(0.1), walk(0.1) + [0.0, 0.05]
+    rows = [(k, x, y) for k in (0, 1) for x, y in np.vstack([first, second]).tolist()]
+    path = tmp_path / "sessions.csv"
+    path.write_text("trajectory,x,y\n" + "".join(f"{k},{x!r},{y!r}\n" for k, x, y in rows))
+    with caplog.at_level(logging.WARNING):
+        demos = load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    assert len(demos) == 2 and all(length(d.points) < length(first) for d in demos)
+    assert "2 of 2 trajectories go from a start to the goal more than once" in caplog.text
+    assert "0 (2 walks), 1 (2 walks)" in caplog.text
+    assert "jump" not in caplog.text  # the jump back to the start lies after the cut
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # one walk per id: no warning
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2, denoise=False)
+        single = tmp_path / "single.json"
+        single.write_text(json.dumps({"trajectories": [first.tolist(), second.tolist()]}))
+        load_recorded(single, START[None], GOAL, goal_tolerance=0.2)
+    assert caplog.text.count("more than once") == 1  # only the sessions file's
+
+
 def test_a_recording_in_another_frame_is_said_to_be_one(tmp_path):
     """Every pose 100 m off (another frame or origin): named as such, not as a pose that
     leaves the room, nor only as no trajectory found."""
