@@ -230,17 +230,19 @@ def fitting_lattice(cfg: Config, scene: Scene, features: FeatureModel, params: R
                     what: str, fix: str) -> Roadmap:
     """A lattice roadmap of `scene` (`build_roadmap`), refused up front if it cannot fit in
     memory (`what` names it in the message, `fix` says which key to change)."""
+    # Only the free space's lattice points get edges (a SLAM map's unknown margin, 99 % of
+    # its extent, cost nothing but its points' free test): sized by the free area
+    free = scene.free_area
     limits.check_memory(f"{what} of scene '{scene.name}'",
-                        limits.lattice_edges(scene.room.area, params.spacing,
-                                             params.connectivity),
+                        limits.lattice_edges(free, params.spacing, params.connectivity),
                         limits.bytes_per_lattice_edge(len(scene.persons),
                                                       scene.obstacles is not None), fix)
-    seconds = limits.lattice_seconds(scene.room.area, params.spacing)
+    seconds = limits.lattice_seconds(free, params.spacing)
     if seconds > limits.LONG_WORK_S:
-        points = f"{scene.room.area / params.spacing**2:,.0f}"
-        log.info("building %s of scene '%s': %s lattice points %g m apart over %.0f m², about "
-                 "%.0f s; for less, %s", what, scene.name, points, params.spacing,
-                 scene.room.area, seconds, fix)
+        points = f"{free / params.spacing**2:,.0f}"
+        log.info("building %s of scene '%s': %s lattice points %g m apart over %.0f m² of "
+                 "free space, about %.0f s; for less, %s", what, scene.name, points,
+                 params.spacing, free, seconds, fix)
     return build_roadmap(scene, features, params, cfg.mdp.speed)
 
 
@@ -270,7 +272,7 @@ def alternatives_lattice(cfg: Config, scene: Scene, spacing: float | None = None
 
     @functools.cache
     def lattice() -> SpatialGraph | None:
-        chosen, why = limits.alternatives_spacing(scene.room.area, spacing, scene.name)
+        chosen, why = limits.alternatives_spacing(scene.free_area, spacing, scene.name)
         if why:
             log.info("%s", why)
         built = fitting_lattice(cfg, scene, learner_feature_model(cfg, scene),

@@ -139,14 +139,15 @@ ALTERNATIVES_MAX_NODES = 5_000
 
 
 def alternatives_spacing(area: float, spacing: float, scene_name: str) -> tuple[float, str]:
-    """The spacing of the alternatives lattice over `area` m² (birl.alternatives_spacing, or
-    coarser to stay within ALTERNATIVES_MAX_NODES), and why, for the log ('' if as set)."""
+    """The spacing of the alternatives lattice over `area` m² of free space (its nodes lie
+    there only; birl.alternatives_spacing, or coarser to stay within
+    ALTERNATIVES_MAX_NODES), and why, for the log ('' if as set)."""
     if area / spacing**2 <= ALTERNATIVES_MAX_NODES:
         return spacing, ""
     coarse = math.sqrt(area / ALTERNATIVES_MAX_NODES)
     return coarse, (f"the alternatives lattice of scene '{scene_name}' is {coarse:.2f} m apart, "
-                    f"not {spacing:g} m (birl.alternatives_spacing): {area:.0f} m² at most "
-                    f"{ALTERNATIVES_MAX_NODES} nodes")
+                    f"not {spacing:g} m (birl.alternatives_spacing): {area:.0f} m² of free "
+                    f"space at most {ALTERNATIVES_MAX_NODES} nodes")
 
 
 def check_graph_resolution(max_nodes: int, free_area: float, rho_personal: float,

@@ -279,4 +279,5 @@ def test_a_lattice_that_takes_long_says_so_before_it_starts(tmp_path, caplog, mo
     with caplog.at_level(logging.INFO, logger="pipeline.app.build"):
         run_in_process(tmp_path, "stages=[scene,demos]")
     assert "building the reference roadmap of scene 'metropolis': 1,600 lattice points 0.25 m " \
-        "apart over 100 m², about 16 s; for less, raise roadmap.spacing" in caplog.text
+        "apart over 100 m² of free space, about 16 s; for less, raise roadmap.spacing" \
+        in caplog.text
