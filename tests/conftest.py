@@ -247,9 +247,12 @@ def make_msg(ts, msgtype: str, stamp: int, frame: str, data: np.ndarray):
 
 
 def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]],
-              frame: str | list[str] = "map", storage: str = "mcap") -> Path:
+              frame: str | list[str] = "map", storage: str = "mcap",
+              arrival: list[int] | None = None) -> Path:
     """Write `topics` {name: (msgtype, [data per message])}; storage mcap|sqlite3|ros1;
-    `frame` is every message's frame_id, or one per message."""
+    `frame` is every message's frame_id, or one per message. Message k's header stamp is
+    1 s + k·0.1 s; `arrival` (a permutation of the messages) is the order they arrive in,
+    the bag's log times (default: in stamp order)."""
     ts = ROS1 if storage == "ros1" else ROS2
     if storage == "ros1":
         writer = Writer1(path)
@@ -259,13 +262,14 @@ def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]],
     with writer:
         for name, (msgtype, items) in topics.items():
             conn = writer.add_connection(name, msgtype, typestore=ts)
-            for k, data in enumerate(items):
+            for slot, k in enumerate(range(len(items)) if arrival is None else arrival):
                 stamp = 10**9 + k * 10**8
                 frame_id = frame if isinstance(frame, str) else frame[k]
-                msg = make_msg(ts, msgtype, stamp, frame_id, np.asarray(data, dtype=float))
+                msg = make_msg(ts, msgtype, stamp, frame_id,
+                               np.asarray(items[k], dtype=float))
                 raw = ts.serialize_ros1(msg, msgtype) if storage == "ros1" else \
                     ts.serialize_cdr(msg, msgtype)
-                writer.write(conn, stamp, raw)
+                writer.write(conn, 10**9 + slot * 10**8, raw)
     return path
 
 

@@ -192,6 +192,14 @@ def load_map(path: str | Path,
         free = p < header.free_thresh
         if header.mode == "scale":
             free &= opaque
+    if not free.any():  # else the first person or start "stands inside an obstacle"
+        read_as = ("a pixel is free only at 0 (mode: raw)" if header.mode == "raw" else
+                   f"a pixel is free where its occupancy p = {'s' if header.negate else '1 - s'}"
+                   f" (s its shade, 0 black to 1 white) is below free_thresh="
+                   f"{header.free_thresh:g}")
+        raise _fail(header.path)(f"no pixel of {header.image.name} reads as free: {read_as}; "
+                                 f"check 'negate', 'free_thresh' and 'mode' against how the "
+                                 "image was saved")
     return OccupancyGrid(np.ascontiguousarray(~free[::-1]), header.origin, header.resolution)
 
 

@@ -441,6 +441,7 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
             connections = [c for c in reader.connections if c.topic == topic]
             tracks: list[np.ndarray] = []
             stream: list[tuple[float, float]] = []
+            stamps: list[float] = []  # each stream message's header.stamp (s)
             frames: dict[str, int] = {}  # frame_id -> first message with it
             too_short: list[int] = []  # Path messages with fewer than two poses
             count = 0
@@ -466,6 +467,7 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                     if not (math.isfinite(pos.x) and math.isfinite(pos.y)):
                         raise PipelineError(f"{what} has a non-finite position")
                     stream.append((pos.x, pos.y))
+                    stamps.append(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec)
                 at = (count, "read")
     except PipelineError:
         raise
@@ -498,7 +500,18 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     if len(stream) < 2:
         raise PipelineError(f"{where}: topic {topic} has 1 message; a pose stream needs at "
                             f"least two")
-    return Recording([np.array(stream, dtype=float)], True)
+    poses = np.array(stream, dtype=float)
+    # A bag lists messages as they arrived; over a network some arrive after later ones, and
+    # in arrival order a walk zig-zags back and forth. Their header stamps (when every
+    # message has one: 0 is "not set") say when each pose was taken.
+    when = np.array(stamps)
+    if (when > 0).all() and (np.diff(when) < 0).any():
+        order = np.argsort(when, kind="stable")
+        moved = int(np.count_nonzero(order != np.arange(len(order))))
+        log.warning("%s: %d of %d messages of topic %s arrived out of the order of their "
+                    "header.stamp; read in stamp order", where, moved, len(order), topic)
+        poses = poses[order]
+    return Recording([poses], True)
 
 
 def _bag_topic(reader: Any, where: str, topic: str | None) -> tuple[str, str]:
@@ -805,8 +818,11 @@ def motion_begin(gaps: np.ndarray, start_radius: float) -> int:
     """Where the demonstration begins in a stretch of poses (their distances to every start,
     (K, n)), the first of which is within `start_radius` of a start.
 
-    A *visit* is a run of consecutive poses within `start_radius` of one start; only each
-    start's last visit in the stretch counts (the robot came back to it). The visit's closest
+    A *visit* is a run of consecutive poses within `start_radius` + VISIT_SLACK of one start
+    that comes within `start_radius` of it (the slack: a noisy track that leaves a start
+    crosses the radius several times, and a last re-entry of one pose at the radius was
+    taken for the visit, its stop of 60 poses ignored); only each start's last visit in the
+    stretch counts (the robot came back to it). The visit's closest
     approach is its smallest distance to that start, and the robot *stops* there at the poses
     within STOP_TOLERANCE of it. Among the visits that come within VISIT_SLACK of the closest
     approach of any of them, the one with the longest stop wins (then the closer one, then the
@@ -816,7 +832,8 @@ def motion_begin(gaps: np.ndarray, start_radius: float) -> int:
     """
     candidates = []  # (stop length, -closest approach, last stop pose)
     for s in range(gaps.shape[1]):
-        visits = _visits(gaps[:, s] <= start_radius)
+        visits = [(r0, r1) for r0, r1 in _visits(gaps[:, s] <= start_radius + VISIT_SLACK)
+                  if gaps[r0:r1, s].min() <= start_radius]
         if not visits:
             continue
         r0, r1 = visits[-1]
@@ -952,7 +969,8 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
             cut = np.vstack([cut, goal[None, :]])
     if cut is None:
         raise PipelineError(f"{what} begins within goal_tolerance={goal_tolerance:g} m of the "
-                            f"goal {point(*goal)}")
+                            f"goal {point(*goal)} (recorded from the goal back to a start? a "
+                            "demonstration goes from a start to the goal)")
 
     def refuse_outside(area: Room, points: np.ndarray, margin: float = 0.0) -> None:
         inside = area.contains(points, margin)
@@ -961,8 +979,8 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
             where = f"({x:.2f}, {y:.2f})" if max(abs(x), abs(y)) < 1e6 else f"({x:.3g}, {y:.3g})"
             if not inside.any():  # never inside: not a stray pose but another frame
                 raise PipelineError(f"{what} lies wholly outside the room {area.describe()}, "
-                                    f"from {where}: recorded in another frame or with another "
-                                    "origin than the scene's?")
+                                    f"from {where}: recorded in another frame, with another "
+                                    "origin or in other units than the scene's (metres)?")
             raise PipelineError(f"{what} leaves the room {area.describe()} at {where}")
 
     if resample is not None:  # it ends at the goal: resample what leads there

@@ -59,6 +59,22 @@ def test_raw_mode_reads_percentages_and_ignores_negate_and_thresholds(tmp_path):
                                                        [False] * 4]
 
 
+@pytest.mark.parametrize("fields, says", [
+    ({"negate": 1}, r"occupancy p = s \(s its shade, 0 black to 1 white\) is below "
+                    r"free_thresh=0\.196"),
+    ({"mode": "raw"}, r"a pixel is free only at 0 \(mode: raw\)"),
+    ({"free_thresh": 0.01}, r"p = 1 - s .* below free_thresh=0\.01;"),
+])
+def test_a_map_with_no_free_pixel_says_how_its_pixels_were_read(tmp_path, fields, says):
+    """A normal map read with negate=1 (or raw, or a free grey above free_thresh) has no free
+    pixel; the run said only that the first person 'stands inside an obstacle'."""
+    light = [[240, 235, 250], [230, 245, 240]]  # free white and light greys, no black
+    load_map(_write_map(tmp_path, light))  # as saved: free
+    with pytest.raises(PipelineError, match=r"map .*map\.yaml: no pixel of map\.pgm reads as "
+                       r"free: .*" + says + r".*check 'negate', 'free_thresh' and 'mode'"):
+        load_map(_write_map(tmp_path, light, **fields))
+
+
 def test_colour_pixels_are_the_mean_of_their_channels_not_a_luma(tmp_path):
     """map_server averages red, green and blue. (0, 255, 255): mean 170, p = 0.333, unknown
     with the default thresholds; its luma (179) would give p = 0.298, unknown too, so the

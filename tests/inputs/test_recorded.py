@@ -20,6 +20,7 @@ from pipeline.inputs.recorded import (
     cut_trajectory,
     load_recorded,
     match_to_starts,
+    motion_begin,
     read_tracks,
 )
 from tests.conftest import ROS2, write_bag
@@ -185,6 +186,44 @@ def test_odometry_stream_is_cut_into_two_trajectories(tmp_path):
         assert on_polyline(p[:-1], piece).max() < 1e-9
     # the stretch towards start 3 never reaches the goal and is dropped
     assert len(pieces) == 2
+
+
+def test_noise_at_the_start_radius_does_not_move_where_the_walk_begins():
+    """A noisy track leaving its start crosses the 1 m radius more than once: its last
+    re-entry (one pose at 0.935 m), and another start's (one at 0.925 m), were taken for the
+    visits, the 60 poses of the stop ignored, and the walk given to the other start with
+    3 m of it dropped. Distances (poses × starts 0 and 2) by hand."""
+    stop = np.column_stack([np.linspace(0.0, 0.03, 60), np.full(60, 2.0)])
+    leave = np.column_stack([np.linspace(0.1, 0.95, 10), np.linspace(1.9, 1.2, 10)])
+    blips = np.array([[1.05, 1.1], [0.935, 1.05], [1.1, 0.925], [1.2, 1.05], [1.5, 1.3],
+                      [1.9, 1.6], [2.3, 1.9]])
+    gaps = np.vstack([stop, leave, blips])
+    assert motion_begin(gaps, 1.0) == 59  # the stop's last pose, where the walk sets off
+    # the slack only joins re-entries to their visit: an earlier stop at start 2, left
+    # beyond the slack, still does not begin the walk (only each start's last visit counts)
+    earlier = np.vstack([np.column_stack([np.full(5, 3.0), np.zeros(5)]),
+                         np.column_stack([np.full(5, 2.5), np.full(5, 1.6)]), gaps])
+    assert motion_begin(earlier, 1.0) == 10 + 59
+
+
+def test_a_stream_arriving_out_of_order_is_read_in_header_stamp_order(tmp_path, caplog):
+    """Over a network some poses arrive after later ones: read in arrival order, a walk
+    zig-zagged back and forth (1.47 times as long) and one was given another start."""
+    run = odometry_run()
+    arrival = list(range(len(run)))
+    for k in range(0, len(run) - 1, 5):  # every fifth pair swapped
+        arrival[k], arrival[k + 1] = arrival[k + 1], arrival[k]
+    for storage in ("mcap", "ros1"):
+        name = "late.bag" if storage == "ros1" else "late"
+        bag = write_bag(tmp_path / name, {"/odom": ("nav_msgs/msg/Odometry", list(run))},
+                        storage=storage, arrival=arrival)
+        with caplog.at_level("WARNING"):
+            [track], _ = read_tracks(bag)
+        assert np.array_equal(track, run)
+        swapped = 2 * len(range(0, len(run) - 1, 5))
+        assert f"{swapped} of {len(run)} messages of topic /odom arrived out of the order " \
+            "of their header.stamp" in caplog.text
+        caplog.clear()
 
 
 def test_pose_streams_from_sqlite3_and_ros1(tmp_path):
