@@ -501,6 +501,10 @@ def _check_demonstrator(settings: Config) -> None:
     if settings.evaluate.holdout == "all" and settings.birl.kind != "fixed":
         raise config_error("evaluate.holdout", "all", "a fraction or subject ids, unless "
                            "birl=fixed (holding out every demonstration leaves none to learn)")
+    if settings.expert.kind == "none" and settings.evaluate.holdout is not None:
+        raise config_error("evaluate.holdout", settings.evaluate.holdout,
+                           "null with expert=none (it has no demonstrations to hold out; "
+                           "held-out ones come from a file: expert=file expert.path=...)")
     if settings.expert.kind == "none" and settings.birl.kind != "fixed":
         raise config_error("birl", settings.birl.kind,
                            "fixed with expert=none (nothing to learn from: birl=fixed "

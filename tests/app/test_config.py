@@ -149,6 +149,15 @@ def test_an_old_spelling_given_with_its_new_name_is_refused(overrides, message):
         validate(compose_config(*overrides))
 
 
+def test_holding_out_demonstrations_of_no_demonstrator_is_refused():
+    """expert=none evaluate.holdout=all ran and warned that no start has two demonstrations."""
+    with pytest.raises(PipelineError, match=re.escape(
+            "config error: evaluate.holdout=all is not allowed (allowed: null with expert=none "
+            "(it has no demonstrations to hold out")):
+        validate(compose_config("expert=none", "birl=fixed", "birl.weights=[-1,-1,-1,-1,-1]",
+                                "evaluate.holdout=all"))
+
+
 @pytest.mark.parametrize("overrides, message", [
     (["expert.n_demos=0"], "expert.n_demos=0 is not allowed (allowed: an integer >= 1)"),
     (["birl=mcmc", "birl.step=-1"], "birl.step=-1.0 is not allowed"),
