@@ -59,8 +59,9 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                     scene.robot_radius, ROOM_EDGE_TOLERANCE)
     if unreached:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m): they "
-                    "are learned from as demonstrations that do not reach the goal; extend them "
-                    "to the goal or raise scene.goal_tolerance", describe(path),
+                    "are learned from as walks to the goal whose end was not recorded; extend "
+                    "them to the goal or raise scene.goal_tolerance if they reached it",
+                    describe(path),
                     listed(unreached, 5),
                     scene.goal_tolerance)
     return demos

@@ -20,13 +20,14 @@ of a Metropolis–Hastings chain each iteration).
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize
+from scipy.spatial import cKDTree
 from scipy.special import chdtri
 
 from pipeline.core.evaluation import frechet
@@ -263,7 +264,21 @@ def _boltzmann_posterior(problem: IRLProblem, config: BirlMapConfig) -> Boltzman
     # 0.30 m, every 0.1 m at 0.95 m)
     starts = np.asarray(alternatives.start_nodes)[[t.start for t in problem.expert]]
     return BoltzmannPosterior.of_sums(alternatives.mdp, starts, problem.expert, prior,
-                                      (config.beta_min, config.beta_max), config.base_measure)
+                                      (config.beta_min, config.beta_max), config.base_measure,
+                                      stop_nodes(alternatives, problem.expert,
+                                                 problem.demo_points))
+
+
+def stop_nodes(alternatives: SpatialGraph, demonstrations: Sequence[TrajectoryStats],
+               points: Sequence[np.ndarray]) -> np.ndarray:
+    """(K,) the node of `alternatives` nearest to where each demonstration that does not
+    reach the goal stops (its last point), −1 for those that do (`BoltzmannPosterior.of_sums`)."""
+    stops = np.full(len(demonstrations), -1, dtype=np.int64)
+    short = [k for k, d in enumerate(demonstrations) if not d.reached]
+    if short:
+        ends = np.array([points[k][-1] for k in short], dtype=float)
+        stops[short] = cKDTree(alternatives.positions).query(ends)[1]
+    return stops
 
 
 def _lattice(problem: IRLProblem, config: BirlMapConfig) -> SpatialGraph | None:

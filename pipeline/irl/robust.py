@@ -124,7 +124,9 @@ class BoltzmannPosterior:
     Boltzmann (soft) policy of the rewards βw·φ and goal value βR_goal on a graph, plus the
     prior on w (β log-uniform on [beta_min, beta_max]). βQ is linear in (βw, β), so the log
     likelihood is concave in those; the box over (w, β) maps onto a convex cone of them, so
-    a local search over (w, log β) (`map`) finds the global MAP."""
+    a local search over (w, log β) (`map`) finds the global MAP. Demonstrations that stop
+    short of the goal add the (convex) soft values at their stops (`of_sums`): then the log
+    likelihood is concave no longer everywhere, and the MAP found is a local one."""
 
     def __init__(self, mdp: GraphMDP, expert_paths: list[Path], prior: Prior,
                  beta_range: tuple[float, float], base_measure: str = "walk",
@@ -160,27 +162,45 @@ class BoltzmannPosterior:
     @classmethod
     def of_sums(cls, alternatives: GraphMDP, starts: np.ndarray,
                 demonstrations: Sequence[TrajectoryStats], prior: Prior,
-                beta_range: tuple[float, float], base_measure: str = "walk"
-                ) -> BoltzmannPosterior:
+                beta_range: tuple[float, float], base_measure: str = "walk",
+                stops: np.ndarray | None = None) -> BoltzmannPosterior:
         """The posterior of demonstrations given by their sums alone (Φ(ξ), b(ξ): polylines
         on no graph), compared with the paths of `alternatives` from their start nodes
         there (K,). log μ(ξ) is left out (0): the log likelihood is relative to the base
-        measure, log dP/dμ, as the base measure of a path on no graph is undefined."""
+        measure, log dP/dμ, as the base measure of a path on no graph is undefined.
+
+        stops (K,): where each demonstration that does not reach the goal stops (a node of
+        `alternatives`), −1 for those that do. Without discounting such a demonstration is
+        the beginning of a walk to the goal whose rest was not recorded: its likelihood is
+        that of its paths' prefix, exp(β(w·Φ + b) + V_soft(stop) − V_soft(start)), every
+        way on from the stop counted. Taken as a whole path that forgoes R_goal instead
+        (with discounting, still), one walk 0.5 m short among 70 moved the learned social
+        weight from −0.06 to −0.96: its missing βR_goal drags β down and the weights to the
+        box's edge."""
         if not demonstrations or len(starts) != len(demonstrations):
             raise ValueError("one start node per demonstration, and at least one")
         posterior = cls.__new__(cls)
         posterior._set_up(alternatives, np.asarray(starts, dtype=np.int64),
                           np.sum([d.phi for d in demonstrations], axis=0),
                           float(sum(d.offset for d in demonstrations)), 0.0, prior, beta_range,
-                          base_measure)
+                          base_measure, stops)
         return posterior
 
     def _set_up(self, mdp: GraphMDP, starts: np.ndarray, empirical: np.ndarray,
                 goal_term: float, base_term: float, prior: Prior,
-                beta_range: tuple[float, float], base_measure: str) -> None:
+                beta_range: tuple[float, float], base_measure: str,
+                stops: np.ndarray | None = None) -> None:
         self.prior, self.beta_range, self.base_measure = prior, beta_range, base_measure
         self.empirical, self.goal_term, self.base_term = empirical, goal_term, base_term
         self.starts = starts
+        # The log likelihood's soft values: −V_soft at every start, +V_soft at every stop of
+        # a demonstration that does not reach the goal (`of_sums`; undiscounted only), and
+        # the expected counts' sources accordingly
+        self.stops = np.zeros(0, dtype=np.int64)
+        if stops is not None and mdp.gamma == 1.0:
+            self.stops = np.asarray(stops, dtype=np.int64)[np.asarray(stops) >= 0]
+        self._source = (np.bincount(starts, minlength=mdp.n_nodes)
+                        - np.bincount(self.stops, minlength=mdp.n_nodes)).astype(float)
         # log μ per edge, a step's share (0: uniform)
         self.mdp, self.log_base = mdp, _log_base(mdp, base_measure)
         # Warm start of the next soft policy iteration: the last values, the parameters
@@ -459,10 +479,11 @@ class BoltzmannPosterior:
     def expected_counts(self, w: np.ndarray, beta: float,
                         values: np.ndarray) -> tuple[np.ndarray, float]:
         """E[Φ] (d,) and E[b] (the weight-free part of the return: discounted cost per
-        second and γ^T · fixed value) summed over the starts, under the soft policy: one
+        second and γ^T · fixed value) summed over the starts, less those from the stops of
+        the demonstrations that do not reach the goal, under the soft policy: one
         sparse solve for the discounted visits x = x_0 + P^T x (maxent.py)."""
-        mdp, n = self.mdp, self.mdp.n_nodes
-        x0 = np.bincount(self.starts, minlength=n).astype(float)
+        mdp = self.mdp
+        x0 = self._source
         if mdp.gamma == 1.0:  # from the linear system's solution: π(e) = m(e) y(dst) / y(src)
             _, m, y = self._linear_soft_values(np.append(beta * w, beta))
             u = self._solve(m, x0 / y, "N")  # visits x = y·u
@@ -480,15 +501,15 @@ class BoltzmannPosterior:
 
     def count_derivatives(self, w: np.ndarray, beta: float) -> np.ndarray:
         """d(E[Φ], E[b])/dθ ((d + 1) × (d + 1)) at θ = (βw, β) without discounting: the
-        covariance of the paths' sums (Φ, b) summed over the starts, minus the log
+        covariance of the paths' sums (Φ, b) summed over the starts (less the stops'), minus the log
         likelihood's Hessian in θ. Forward differentiation of `expected_counts` along each
         parameter, with the reference R of the linear system held fixed: its matrix M(e)
         moves by M(e)·a(e), a(e) = (φ(e), b(e)) the edge term's derivative, and y at the
         absorbing nodes by y·fixed (their values β·fixed); two solves on the same LU per
         parameter, all parameters at once."""
-        mdp, n = self.mdp, self.mdp.n_nodes
+        mdp = self.mdp
         _, m, y = self._linear_soft_values(np.append(beta * w, beta))
-        x0 = np.bincount(self.starts, minlength=n).astype(float)
+        x0 = self._source
         u = self._solve(m, x0 / y, "N")
         slopes, absorbing = self._slopes, ~mdp.has_out
         forward = m * y[mdp.dst]  # dy = (I − M)⁻¹ (dM y + dy at the absorbing nodes)
@@ -514,7 +535,7 @@ class BoltzmannPosterior:
     def likelihood_given_values(self, w: np.ndarray, beta: float, values: np.ndarray) -> float:
         """log p(Ξ_E | w, β) given the soft values at (w, β)."""
         return float(beta * (w @ self.empirical + self.goal_term) + self.base_term
-                     - values[self.starts].sum())
+                     - values[self.starts].sum() + values[self.stops].sum())
 
     def gradient(self, w: np.ndarray, beta: float,
                  values: np.ndarray) -> tuple[np.ndarray, float]:
@@ -644,9 +665,11 @@ class BoltzmannPosterior:
         return value, gradient, hess
 
 
+Demonstrations = tuple[np.ndarray, Sequence[TrajectoryStats], np.ndarray | None]
+
+
 def heldout_log_likelihood(alternatives: GraphMDP, w: ArrayLike,
-                           training: tuple[np.ndarray, Sequence[TrajectoryStats]],
-                           heldout: tuple[np.ndarray, Sequence[TrajectoryStats]],
+                           training: Demonstrations, heldout: Demonstrations,
                            prior: Prior, beta_range: tuple[float, float],
                            base_measure: str = "walk") -> tuple[float, float]:
     """How well the reward w·φ predicts demonstrations it was not learned from, under the
@@ -654,9 +677,12 @@ def heldout_log_likelihood(alternatives: GraphMDP, w: ArrayLike,
     log likelihood per held-out demonstration, relative to the base measure (log dP/dμ,
     `of_sums`), at the β that makes the training demonstrations most likely (w fixed; one
     dimension, concave in β); and that β. training, heldout: (start nodes in `alternatives`
-    (K,), the demonstrations' sums), each at least one demonstration."""
+    (K,), the demonstrations' sums, their stops or None: `of_sums`), each at least one
+    demonstration."""
     w = np.asarray(w, dtype=float)
-    fit = BoltzmannPosterior.of_sums(alternatives, *training, prior, beta_range, base_measure)
+    starts, stats, stops = training
+    fit = BoltzmannPosterior.of_sums(alternatives, starts, stats, prior, beta_range,
+                                     base_measure, stops)
     low, high = np.log(beta_range[0]), np.log(beta_range[1])
     found = minimize_scalar(lambda t: -fit.log_likelihood(w, float(np.exp(t))),
                             bounds=(low, high), method="bounded",
@@ -664,7 +690,9 @@ def heldout_log_likelihood(alternatives: GraphMDP, w: ArrayLike,
     beta = float(np.exp(found.x))
     # the soft values belong to the alternatives, not to the demonstrations: the fit's
     # (warm from its search) serve the held-out ones
-    judged = BoltzmannPosterior.of_sums(alternatives, *heldout, prior, beta_range, base_measure)
+    starts, stats, stops = heldout
+    judged = BoltzmannPosterior.of_sums(alternatives, starts, stats, prior, beta_range,
+                                        base_measure, stops)
     values = fit.soft_values(w, beta)
     return judged.likelihood_given_values(w, beta, values) / len(heldout[1]), beta
 

@@ -26,7 +26,7 @@ from pipeline.core.evaluation import (
     policy_loss,
 )
 from pipeline.core.experts import Demonstration
-from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
+from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.social import (
     PATH_METRICS,
     combine_path_metrics,
@@ -36,11 +36,11 @@ from pipeline.core.social import (
 from pipeline.core.state_graph import DEMO
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
-from pipeline.irl.birl import BirlMapConfig
+from pipeline.irl.birl import BirlMapConfig, stop_nodes
 from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT, chains_agree
 from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import Prior
-from pipeline.irl.robust import heldout_log_likelihood
+from pipeline.irl.robust import Demonstrations, heldout_log_likelihood
 
 log = logging.getLogger(__name__)
 
@@ -168,11 +168,12 @@ def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
         return {}
     features = build.learner_feature_model(cfg, scene)
 
-    def sums(demos: list[dict]) -> tuple[np.ndarray, list[TrajectoryStats]]:
-        return (lattice.start_nodes[[d["start_index"] for d in demos]],
-                [Demonstration.from_points(d["start_index"], d["points"], features,
+    def sums(demos: list[dict]) -> Demonstrations:
+        stats = [Demonstration.from_points(d["start_index"], d["points"], features,
                                            cfg.mdp.speed, d["reached"]).stats(cfg.mdp)
-                 for d in demos])
+                 for d in demos]
+        return (lattice.start_nodes[[d["start_index"] for d in demos]], stats,
+                stop_nodes(lattice, stats, [np.asarray(d["points"], float) for d in demos]))
 
     b, seen, judged, prior = cfg.birl, sums(training), sums(heldout), build.prior(cfg)
     beta_range = (getattr(b, "beta_min", BirlMapConfig.beta_min),
@@ -449,8 +450,9 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
     if m.get("demos_unreached", 0) > 0:
         lines.append(f"  warning          {fmt('demos_unreached', '.0f')} of "
                      f"{fmt('demos_count', '.0f')} demonstrations learned from do not reach the "
-                     "goal (the log names them): each forgoes the goal's reward, and a few "
-                     "move every weight; extend or drop them if they stopped short by accident")
+                     "goal (the log names them): the default learner reads them as walks to "
+                     "the goal whose end was not recorded, eq. (2), PolicyWalk and MaxEnt as "
+                     "walks that give the goal up")
     short = {where: m[key] for where, key in (("roadmap", "ref_success"), ("graph", "success"))
              if m.get(key) is not None and m[key] < 1}
     if short:

@@ -414,8 +414,8 @@ def test_held_out_log_likelihood_by_hand(w):
     goal = GraphMDP(mdp.src, mdp.dst, mdp.duration, mdp.features, mdp.terminal, GOAL)
     route_a = TrajectoryStats.from_edges(0, [[1.0]], [1.0], GOAL, True)
     route_b = TrajectoryStats.from_edges(0, [[0.2], [0.3]], [1.0, 1.0], GOAL, True)
-    training = (np.zeros(4, dtype=np.int64), [route_a, route_b, route_b, route_b])
-    heldout = (np.zeros(2, dtype=np.int64), [route_a, route_b])
+    training = (np.zeros(4, dtype=np.int64), [route_a, route_b, route_b, route_b], None)
+    heldout = (np.zeros(2, dtype=np.int64), [route_a, route_b], None)
     beta_range = (0.1, 100.0)
     ll, beta = heldout_log_likelihood(goal, [w], training, heldout,
                                       Prior("uniform", 1.0, [-1.0], [0.0]), beta_range)
@@ -660,6 +660,70 @@ def test_goal_reaching_soft_values_sum_over_every_path():
                  for e in p) + beta * 1.0 for p in paths(0)]
     assert len(terms) == 4
     assert post.soft_values([w], beta)[0] == pytest.approx(logsumexp(terms), rel=1e-12)
+
+
+def test_a_demonstration_that_stops_short_is_the_prefix_of_a_walk_to_the_goal():
+    """Its likelihood is the probability of every path that begins with it, enumerated by
+    hand on a DAG: P(prefix)/μ(prefix) = Σ_{paths through it} μ·exp(βR) / exp(V(start)) /
+    μ(prefix). Taken as a whole path without R_goal (the old model), it was far less likely,
+    and the more so the larger β."""
+    src = [0, 0, 0, 1, 1, 2, 3]
+    dst = [1, 2, 3, 2, 4, 4, 4]
+    feats = [[0.3], [1.0], [0.2], [0.5], [0.1], [0.0], [0.7]]
+    tau = [1.0, 2.0, 0.5, 0.7, 1.2, 0.4, 0.9]
+    terminal = [False, False, False, False, True]
+    mdp = GraphMDP(src, dst, tau, feats, terminal, GOAL)
+    out = {s: [e for e in range(7) if src[e] == s] for s in range(5)}
+
+    def paths(s):
+        return [[]] if terminal[s] else [[e] + rest for e in out[s] for rest in paths(dst[e])]
+
+    def log_term(path, w, beta):  # log μ(path) + βR(path), R_goal = 1 at the goal
+        return sum(-math.log(len(out[src[e]])) + beta * (w * feats[e][0] - GOAL.time_cost
+                                                          * tau[e]) for e in path) + beta
+
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    short = TrajectoryStats.from_edges(0, [feats[0]], [tau[0]], GOAL, reached=False)  # 0 → 1
+    for w, beta in ((-0.6, 2.5), (-0.2, 30.0)):
+        through = [log_term(p, w, beta) for p in paths(0) if p[0] == 0]
+        expected = logsumexp(through) - logsumexp([log_term(p, w, beta) for p in paths(0)]) \
+            + math.log(len(out[0]))  # less log μ(prefix) = log 1/3
+        post = BoltzmannPosterior.of_sums(mdp, np.array([0]), [short], prior, (0.1, 100),
+                                          stops=np.array([1]))
+        assert post.log_likelihood([w], beta) == pytest.approx(expected, rel=1e-10, abs=1e-10)
+        whole = BoltzmannPosterior.of_sums(mdp, np.array([0]), [short], prior, (0.1, 100))
+        assert whole.log_likelihood([w], beta) < expected - 0.5 * beta  # R_goal forgone
+    # a demonstration that reaches the goal has no stop: the same posterior either way
+    done = TrajectoryStats.from_edges(0, [feats[2], feats[6]], [tau[2], tau[6]], GOAL, True)
+    a = BoltzmannPosterior.of_sums(mdp, np.array([0]), [done], prior, (0.1, 100),
+                                   stops=np.array([-1]))
+    b = BoltzmannPosterior.of_sums(mdp, np.array([0]), [done], prior, (0.1, 100))
+    assert a.log_likelihood([-0.3], 4.0) == b.log_likelihood([-0.3], 4.0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_gradient_and_hessian_with_demonstrations_that_stop_short(seed):
+    """The expected counts less those from the stops, and their derivatives, against central
+    differences (the log likelihood is no longer concave: the Newton steps make it so)."""
+    mdp = random_goal_graph(seed)
+    stats, starts, stops = [], [], []
+    for w, s in (([-0.5, -0.5], 0), ([-0.9, -0.1], 3), ([-0.1, -0.9], 5)):
+        path = mdp.follow(mdp.solve(w).policy, s)
+        cut = path.edges[:2]  # its first two edges, then it stops
+        stats.append(TrajectoryStats.from_edges(s, mdp.features[cut], mdp.duration[cut], GOAL,
+                                                reached=False))
+        starts.append(s)
+        stops.append(int(mdp.dst[cut[-1]]))
+    post = BoltzmannPosterior.of_sums(mdp, np.array(starts), stats,
+                                      Prior("gaussian", 0.5, -np.ones(2), np.zeros(2)),
+                                      (0.1, 100), stops=np.array(stops))
+    x = np.array([-0.4, -0.6, math.log(3.0)])
+    value, gradient, hessian = post._newton_terms(x)
+    numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
+    np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-7)
+    numeric = np.column_stack([central_difference(
+        lambda y, j=j: post.neg_log_posterior(y)[1][j], x, h=1e-5) for j in range(3)])
+    np.testing.assert_allclose(hessian, numeric, rtol=1e-5, atol=1e-6)
 
 
 def test_the_old_spelling_of_the_test_level_still_works_with_a_warning(caplog):

@@ -18,7 +18,7 @@ from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import ArtefactError, read_artefact
 from pipeline.core.experts import optimal_demos
 from pipeline.errors import PipelineError
-from tests.conftest import run_app
+from tests.conftest import ROOT, run_app
 from tests.pipeline.conftest import FAST
 
 matplotlib.use("Agg")  # before pyplot: no window in tests
@@ -395,6 +395,22 @@ def test_learn_with_denoise_reads_noisy_tracks_as_a_demonstration_file(fast_run,
     assert not np.array_equal(as_given.weights, denoised.weights)
     with pytest.raises(PipelineError, match="denoise='yes' must be true or false"):
         api.learn(scene, walks, denoise="yes")
+
+
+def test_a_walk_that_stops_short_is_learned_from_as_one_whose_end_was_not_recorded(
+        metropolis):
+    """One of the 21 hand-drawn walks cut 0.8 m short: read as a walk that gives the goal
+    up, it moved the social weight from -0.78 to the box's edge (-1.0, the largest change
+    0.26); read as the beginning of a walk to the goal, the weights barely move."""
+    walks = [np.asarray(w, float) for w in json.loads(
+        (ROOT / "data" / "demos" / "metropolis_handdrawn.json").read_text())["trajectories"]]
+    cut = [*walks[:2], walks[2][:-8], *walks[3:]]
+    o = ["graph=small"]
+    full = api.learn(metropolis, walks, overrides=o, n_iterations=2).weights
+    short = api.learn(metropolis, cut, overrides=o, n_iterations=2)
+    # the case: that walk ends well outside the goal disk
+    assert np.linalg.norm(cut[2][-1] - metropolis.goal) > metropolis.goal_tolerance + 0.5
+    assert np.abs(short.weights - full).max() < 0.01
 
 
 def test_learn_refuses_what_run_refuses(metropolis):

@@ -232,8 +232,8 @@ def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp
 
 
 def test_the_summary_warns_of_demonstrations_that_do_not_reach_the_goal(tmp_path, default_run):
-    """A walk that stops short forgoes the goal's reward, and one among 70 moved the learned
-    social weight 17-fold; the log's warning was the only sign."""
+    """The log's warning was the only sign of demonstrations that stop short, which move
+    the weights of every method but the default learner's."""
     shipped = json.loads((ROOT / "data" / "demos" / "metropolis_handdrawn.json").read_text())
     walks = shipped["trajectories"]
     walks[2] = walks[2][:-8]  # the third walk stops short of the goal
