@@ -12,12 +12,15 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import yaml
 
 from pipeline.app import build
 from pipeline.app.build import preset_weights
-from pipeline.app.context import RunContext
+from pipeline.app.config import Config
+from pipeline.app.context import RunContext, resolve_path
+from pipeline.app.summary import Unreadable, read_metrics
 from pipeline.artefacts import codec, foxglove, topics
-from pipeline.artefacts.store import Artefact, write_json_atomic
+from pipeline.artefacts.store import Artefact, read_artefact, write_json_atomic
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import (
     follow_all,
@@ -39,7 +42,7 @@ from pipeline.errors import PipelineError
 from pipeline.irl.birl import BirlMapConfig, stop_nodes
 from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT, chains_agree
 from pipeline.irl.fixed import FixedConfig
-from pipeline.irl.prior import Prior
+from pipeline.irl.prior import Prior, broadcast
 from pipeline.irl.robust import Demonstrations, heldout_log_likelihood
 
 log = logging.getLogger(__name__)
@@ -381,14 +384,40 @@ BOX_TOLERANCE = 1e-6
 def print_summary(m: dict, ctx: RunContext) -> None:
     learned = not isinstance(ctx.cfg.birl, FixedConfig)
     print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features,
-                       build.prior(ctx.cfg) if learned else None), flush=True)
+                       build.prior(ctx.cfg) if learned else None,
+                       None if learned else given_weights_origin(ctx.cfg)), flush=True)
+
+
+def given_weights_origin(cfg: Config) -> list[str]:
+    """birl=fixed: where its weights come from, and with birl.from_run=RUN which of them
+    RUN's learner left at its weight box's bounds or middle (RUN's metrics.json and the
+    box of its birl.mcap's config): a deployment of a weight nothing moved would otherwise
+    show it as any other."""
+    run = getattr(cfg.birl, "from_run", None)
+    if run is None:
+        return ["  weights from     birl.weights (given)"]
+    lines = [f"  weights from     {run} (learned there)"]
+    try:
+        source = resolve_path(run)
+        m = read_metrics(source / "metrics.json")
+        birl_cfg = yaml.safe_load(read_artefact(source / topics.ARTEFACT_FILE["birl"])
+                                  .config_yaml)["birl"]
+        names = cfg.learner_features
+        box = Prior("uniform", 1.0, broadcast(birl_cfg["lower"], len(names), "lower"),
+                    broadcast(birl_cfg["upper"], len(names), "upper"))
+    except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError,
+            yaml.YAMLError):
+        return lines  # no metrics.json (a run without its evaluate stage): nothing to carry
+    return lines + [line.replace("weight box      ", "its weight box  ")
+                    for line in weights_at_box(m, names, box)]
 
 
 def summary_text(m: dict, run_dir: str, learner_features: list[str],
-                 box: Prior | None = None) -> str:
+                 box: Prior | None = None, given: list[str] | None = None) -> str:
     """The one screen a run ends with, from its metrics (the docs generator prints the same
     for the README's sample output). box: the learner's weight box, to say which learned
-    weights lie at its bounds or its middle (None: the weights were given, not learned)."""
+    weights lie at its bounds or its middle (None: the weights were given, not learned);
+    given: for given weights, where they come from (`given_weights_origin`)."""
     def fmt(key: str, spec: str = ".4f", unit: str = "") -> str:
         v = m.get(key)
         return "n/a" if v is None else format(v, spec) + unit
@@ -406,10 +435,12 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
         shown = "n/a" if w is None else f"{round(w, 3) + 0.0:.3f}"  # + 0.0: never "-0.000"
         return f"{n} {shown}" + ("" if std is None else f" ± {std:.3f}")
 
+    label = "learned weights  " if given is None else "fixed weights    "
     lines = [f"BIRL-G run: {run_dir}",
-             "  learned weights  " + ", ".join(weight(n) for n in learner_features)]
+             f"  {label}" + ", ".join(weight(n) for n in learner_features)]
     if box is not None:
         lines += weights_at_box(m, learner_features, box)
+    lines += given or []
     if "mcmc_acceptance_rate" in m:
         if m["mcmc_acceptance_rate"] < STUCK_ACCEPTANCE:  # the samples are the starts
             verdict = ("the chains barely moved: lower birl.proposal_step, or leave "

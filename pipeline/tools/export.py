@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 from PIL import Image
 from rosbags.interfaces import (
     Qos,
@@ -402,6 +403,19 @@ def read_run_files(run_dir: Path) -> None:
                             "run through the birl and evaluate stages")
 
 
+def _given_weights(config_yaml: str) -> str:
+    """Where a birl=fixed run's weights came from ('' for a run that learned them)."""
+    try:
+        birl = yaml.safe_load(config_yaml)["birl"]
+    except (yaml.YAMLError, KeyError, TypeError):
+        return ""
+    if not isinstance(birl, dict) or birl.get("kind") != "fixed":
+        return ""
+    source = birl.get("from_run")
+    return (f"given (birl=fixed), learned in {source}" if source
+            else "given (birl=fixed birl.weights)")
+
+
 def read_run(run_dir: Path) -> RunReward:
     """The scene, learned reward, learned paths and demonstrations of a finished run."""
     read_run_files(run_dir)
@@ -446,6 +460,9 @@ def read_run(run_dir: Path) -> RunReward:
              # what the export was made from: a later run into the dir changes these
              f"from: birl.mcap content {birl.digest[:16] or '?'}, eval.mcap content "
              f"{evaluation.digest[:16] or '?'}"]
+    given = _given_weights(birl.config_yaml)
+    if given:  # a deployment: its weights were given, not learned in this run
+        about.append(f"weights: {given}")
     return RunReward(scene, params, weights, paths, demos, about,
                      {k: sorted(v) for k, v in short.items()})
 

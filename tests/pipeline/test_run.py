@@ -212,7 +212,15 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
     # given weights (birl=fixed, all at a bound) are not described as learned
     fixed = run_in_process(tmp_path, "birl=fixed", "birl.weights=[-1,-1,-1,-1,-1]",
                            "stages=[birl,evaluate]", f"from_run={default_run[0]}")[1]
-    assert "learned weights  relation -1.000" in fixed and "weight box" not in fixed
+    assert "fixed weights    relation -1.000" in fixed and "weight box" not in fixed
+    assert "learned weights" not in fixed and "weights from     birl.weights (given)" in fixed
+    # from a run: its learner's notes come along (crossing: nothing moved it)
+    deployed = run_in_process(tmp_path / "deployed", "birl=fixed",
+                              f"birl.from_run={default_run[0]}", "stages=[birl,evaluate]",
+                              f"from_run={default_run[0]}")[1]
+    source_notes = line.replace("  weight box       ", "")
+    assert f"weights from     {default_run[0]} (learned there)" in deployed
+    assert f"  its weight box   {source_notes}" in deployed
 
 
 def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp_path,

@@ -595,6 +595,12 @@ def test_paths_that_stop_short_of_the_goal_are_named_in_a_warning_and_the_bag(ex
     # every path of the quick default run arrives: no such key
     arrived = yaml.safe_load((exported[1] / "paths/metadata.yaml").read_text())
     assert "birlg.short_of_goal" not in arrived["rosbag2_bagfile_information"]["custom_data"]
+    # given weights are said to be given (the costmap called them learned, nothing more)
+    _, comments = read_yaml_and_comments(run_dir / "export/costmap.yaml")
+    assert "weights: given (birl=fixed birl.weights)" in comments
+    assert custom["birlg.weights"] == "given (birl=fixed birl.weights)"
+    _, learned_here = read_yaml_and_comments(exported[1] / "costmap.yaml")
+    assert not any(c.startswith("weights: given") for c in learned_here)
 
 
 def test_an_export_that_would_delete_user_files_is_refused(exported, tmp_path, capsys):
