@@ -147,8 +147,11 @@ class Run:
     def messages(self, stage: str, topic: str) -> pd.DataFrame:
         """The messages of one topic: one row per message (in log-time order), one named
         column per field; numeric arrays are numpy arrays in their cells (lists of records,
-        e.g. a scene's persons, stay lists of dicts)."""
-        rows = self.artefact(stage).all(topic)
+        e.g. a scene's persons, stay lists of dicts), the graph's and the roadmap's columns
+        too (stored as base64: a message's `count` values each, its features as
+        rows × n_features, points as (k, 2))."""
+        art = self.artefact(stage)
+        rows = [codec.decoded_columns(art, topic, row) for row in art.all(topic)]
         return pd.DataFrame([{k: _cell(v) for k, v in row.items()} for row in rows])
 
     def paths(self, graph: str = "graph") -> dict[int, np.ndarray]:

@@ -61,6 +61,43 @@ EDGE_COLUMNS = {"src": I32, "dst": I32, "duration": F64, "demo": U8, "iteration"
                 "n_waypoints": I32}
 
 
+# The base64 columns of each columnar topic and their dtypes (`decoded_columns`)
+_NODES = {**NODE_COLUMNS, "terminal": U8}
+_EDGES = {**EDGE_COLUMNS, "features": F64, "waypoints": F64}
+COLUMNAR: dict[str, dict[str, str]] = {
+    topics.GRAPH_NODES: _NODES, topics.BIRL_GRAPH_NODES: _NODES,
+    topics.GRAPH_EDGES: _EDGES, topics.BIRL_GRAPH_EDGES: _EDGES,
+    topics.DEMOS_ROADMAP: {"positions": F64, "src": I32, "dst": I32, "duration": F64,
+                           "features": F64, "terminal": U8, "true_values": F64,
+                           "true_policy": I32}}
+# columns of two numbers per point, and of n_features numbers per row
+_POINT_COLUMNS, _FEATURE_COLUMN = ("positions", "waypoints"), "features"
+
+
+def decoded_columns(art: Artefact, topic: str, msg: dict) -> dict:
+    """`msg` of `topic` with its base64 columns (COLUMNAR) as numpy arrays: features
+    (rows × n_features), positions and waypoints (points × 2), the others one value per
+    row; a message of another topic as it is."""
+    dtypes = COLUMNAR.get(topic)
+    if dtypes is None:
+        return msg
+    reader, out = _Columns(art, topic), dict(msg)
+    for key, dtype in dtypes.items():
+        if not isinstance(msg.get(key), str):  # absent, or null (no true reward)
+            continue
+        try:
+            n = len(binascii.a2b_base64(msg[key])) // np.dtype(dtype).itemsize
+        except ValueError as e:
+            raise reader.fail(f"whose column '{key}' is not valid base64 ({e})") from None
+        values = reader.array(msg, key, dtype, n)
+        if key in _POINT_COLUMNS:
+            values = values.reshape(-1, 2)
+        elif key == _FEATURE_COLUMN:
+            values = values.reshape(-1, max(reader.count(msg, "n_features"), 1))
+        out[key] = values
+    return out
+
+
 def column(values: np.ndarray, dtype: str) -> str:
     """An array as a message column: base64 of its values as little-endian `dtype`."""
     values = np.asarray(values)

@@ -413,6 +413,25 @@ def test_a_walk_that_stops_short_is_learned_from_as_one_whose_end_was_not_record
     assert np.abs(short.weights - full).max() < 0.01
 
 
+def test_messages_of_the_graph_and_the_roadmap_are_arrays_not_base64(fast_run):
+    """Run.messages promised numpy arrays in its cells; the columnar topics' came as base64
+    strings of thousands of characters. Each cell now holds its message's values, the same
+    as the codec reads."""
+    nodes_art = fast_run.artefact("graph")
+    nodes = fast_run.messages("graph", topics.GRAPH_NODES)
+    table, edge_table = codec.graph_tables(nodes_art)
+    assert all(isinstance(x, np.ndarray) and len(x) == n
+               for x, n in zip(nodes["x"], nodes["count"], strict=True))
+    assert np.array_equal(np.concatenate(list(nodes["x"])), table.pose[:, 0])
+    edges = fast_run.messages("graph", topics.GRAPH_EDGES)
+    features = np.vstack(list(edges["features"]))
+    assert np.array_equal(features, edge_table.features)
+    assert np.array_equal(np.vstack(list(edges["waypoints"])), edge_table.waypoints.points)
+    roadmap = fast_run.messages("demos", topics.DEMOS_ROADMAP).iloc[0]
+    assert roadmap["positions"].shape == (roadmap["n_nodes"], 2)
+    assert roadmap["features"].shape == (roadmap["n_edges"], roadmap["n_features"])
+
+
 def test_learn_refuses_what_run_refuses(metropolis):
     walk = [[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]
     for kwargs, says in (
