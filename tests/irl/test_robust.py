@@ -637,14 +637,16 @@ def test_goal_reaching_map_by_newton_agrees_with_a_quasi_newton_search(seed):
     assert betas[0] == pytest.approx(0.5, rel=1e-12) and 0.1 < betas[1] < 100
 
 
+# A DAG small enough to enumerate its paths by hand: src, dst, features, durations, terminal
+SMALL_DAG = ([0, 0, 0, 1, 1, 2, 3], [1, 2, 3, 2, 4, 4, 4],
+             [[0.3], [1.0], [0.2], [0.5], [0.1], [0.0], [0.7]],
+             [1.0, 2.0, 0.5, 0.7, 1.2, 0.4, 0.9], [False, False, False, False, True])
+
+
 def test_goal_reaching_soft_values_sum_over_every_path():
     """On a DAG the soft value is log Σ over paths to the goal of μ(path)·exp(βR(path)),
     enumerated by hand."""
-    src = [0, 0, 0, 1, 1, 2, 3]
-    dst = [1, 2, 3, 2, 4, 4, 4]
-    feats = [[0.3], [1.0], [0.2], [0.5], [0.1], [0.0], [0.7]]
-    tau = [1.0, 2.0, 0.5, 0.7, 1.2, 0.4, 0.9]
-    terminal = [False, False, False, False, True]
+    src, dst, feats, tau, terminal = SMALL_DAG
     mdp = GraphMDP(src, dst, tau, feats, terminal, GOAL)
     demo = mdp.follow(mdp.solve([-1.0]).policy, 0)
     post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
@@ -667,11 +669,7 @@ def test_a_demonstration_that_stops_short_is_the_prefix_of_a_walk_to_the_goal():
     hand on a DAG: P(prefix)/μ(prefix) = Σ_{paths through it} μ·exp(βR) / exp(V(start)) /
     μ(prefix). Taken as a whole path without R_goal (the old model), it was far less likely,
     and the more so the larger β."""
-    src = [0, 0, 0, 1, 1, 2, 3]
-    dst = [1, 2, 3, 2, 4, 4, 4]
-    feats = [[0.3], [1.0], [0.2], [0.5], [0.1], [0.0], [0.7]]
-    tau = [1.0, 2.0, 0.5, 0.7, 1.2, 0.4, 0.9]
-    terminal = [False, False, False, False, True]
+    src, dst, feats, tau, terminal = SMALL_DAG
     mdp = GraphMDP(src, dst, tau, feats, terminal, GOAL)
     out = {s: [e for e in range(7) if src[e] == s] for s in range(5)}
 
