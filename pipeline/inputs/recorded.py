@@ -975,13 +975,10 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
     def refuse_outside(area: Room, points: np.ndarray, margin: float = 0.0) -> None:
         inside = area.contains(points, margin)
         if not inside.all():
-            x, y = points[int(np.argmin(inside))]
-            where = f"({x:.2f}, {y:.2f})" if max(abs(x), abs(y)) < 1e6 else f"({x:.3g}, {y:.3g})"
             if not inside.any():  # never inside: not a stray pose but another frame
-                raise PipelineError(f"{what} lies wholly outside the room {area.describe()}, "
-                                    f"from {where}: recorded in another frame, with another "
-                                    "origin or in other units than the scene's (metres)?")
-            raise PipelineError(f"{what} leaves the room {area.describe()} at {where}")
+                raise other_frame(what, area, points)
+            raise PipelineError(f"{what} leaves the room {area.describe()} at "
+                                f"{_place(points[int(np.argmin(inside))])}")
 
     if resample is not None:  # it ends at the goal: resample what leads there
         if room is not None:
@@ -1002,6 +999,27 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
         raise PipelineError(f"{what} never moves (all its points are within "
                             f"{REPEAT_TOLERANCE:g} m of each other)")
     return cut
+
+
+def _place(p: np.ndarray) -> str:
+    x, y = p
+    return f"({x:.2f}, {y:.2f})" if max(abs(x), abs(y)) < 1e6 else f"({x:.3g}, {y:.3g})"
+
+
+def other_frame(what: str, room: Room, points: np.ndarray) -> PipelineError:
+    """The error for a trajectory with no point in the room."""
+    return PipelineError(f"{what} lies wholly outside the room {room.describe()}, from "
+                         f"{_place(points[0])}: recorded in another frame, with another origin "
+                         "or in other units than the scene's (metres)?")
+
+
+def refuse_other_frames(tracks: Sequence[np.ndarray], room: Room, where: str) -> None:
+    """Refuse, before any other work on them, the first trajectory with no point in the
+    room (`other_frame`): in millimetres a walk first read as 20 m of tracking noise."""
+    for i, t in enumerate(tracks):
+        with np.errstate(over="ignore", invalid="ignore"):  # inf, nan: refused later
+            if len(t) and not room.contains(t).any() and np.isfinite(t).all():
+                raise other_frame(f"{where}: trajectory {i}", room, t)
 
 
 def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list[np.ndarray]:
@@ -1111,6 +1129,8 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
         warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
     smoothed, noise = [False] * len(tracks), [0.0] * len(tracks)
+    if room is not None:
+        refuse_other_frames(tracks, room, where)
     if denoise:
         tracks, smoothed, noise = smooth_jitter(tracks, where)
     if room is not None:

@@ -230,6 +230,21 @@ def test_a_recording_in_another_frame_is_said_to_be_one(tmp_path):
         load_recorded(stream, START[None], GOAL, goal_tolerance=0.2, room=room)
 
 
+def test_a_recording_in_millimetres_is_refused_before_it_is_smoothed(tmp_path, caplog):
+    """In millimetres a noisy walk was first 'smoothed of 2042.8 cm of tracking noise'
+    (one warning), then refused as in another frame; now it is refused at once."""
+    from pipeline.core.world import Room
+    from pipeline.errors import PipelineError
+    millimetres = 1000.0 * noisy(walk(0.02), 0.02, 5)
+    path = tmp_path / "mm.json"
+    path.write_text(json.dumps({"trajectories": [millimetres.tolist()]}))
+    with caplog.at_level(logging.WARNING), pytest.raises(
+            PipelineError, match=r"trajectory 0 lies wholly outside the room .* in other "
+                                 r"units than the scene's \(metres\)\?"):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2, room=Room(0, 0, 10, 10))
+    assert "zig-zag" not in caplog.text
+
+
 def test_a_walk_that_comes_back_to_its_own_route_is_named(tmp_path, caplog):
     from pipeline.inputs.recorded import revisit
     straight = walk(0.1)
