@@ -120,6 +120,13 @@ def stopped_by_signals() -> Iterator[None]:
         yield
         if stops:  # the Interrupted was raised where Python drops exceptions (a finaliser,
             raise Interrupted(stops[0])  # a weakref callback) and the block went on
+    except Exception as e:
+        # or where a library turned it into an error of its own (OmegaConf, interrupted
+        # inside a node update, left it half-made: "AttributeError: 'NoneType' object has
+        # no attribute '_invalidate_flags_cache'"): the signal is the news
+        if stops and not isinstance(e, Interrupted):
+            raise Interrupted(stops[0]) from e
+        raise
     finally:
         # by identity: list.remove compares by value, and an inner block's [] equals this
         # one's, so it took the outer's list out and a later signal made the outer's

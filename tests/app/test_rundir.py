@@ -667,3 +667,23 @@ def test_a_signal_after_an_inner_block_ended_stops_the_outer_one():
             for _ in range(1000):  # the handler runs at one of these steps
                 pass
     assert stopped.value.signum == signal.SIGTERM
+
+
+def test_a_stop_a_library_turns_into_an_error_of_its_own_is_still_the_stop():
+    """A signal whose Interrupted hit a library's try/finally left its state half made, and
+    the finally raised an AttributeError in its place (OmegaConf, composing a sweep's jobs):
+    the sweep said "error: AttributeError ..." and a repeated Ctrl-C then killed it. The
+    block raises the signal's Interrupted instead, from the library's error."""
+    with pytest.raises(Interrupted) as stopped:
+        with stopped_by_signals():
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                for _ in range(1000):  # the handler runs at one of these steps
+                    pass
+            finally:
+                raise AttributeError("'NoneType' object has no attribute "
+                                     "'_invalidate_flags_cache'")
+    assert stopped.value.signum == signal.SIGINT
+    assert isinstance(stopped.value.__cause__, AttributeError)
+    with pytest.raises(AttributeError), stopped_by_signals():  # no signal: the error itself
+        raise AttributeError("a bug")
