@@ -65,17 +65,7 @@ from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.world import Scene, scene_from_dict
 from pipeline.errors import PipelineError, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
-from pipeline.inputs.recorded import (
-    COORDINATE_DECIMALS,
-    RESAMPLE_SPACING,
-    cut_trajectory,
-    drop_repeats,
-    goal_margin,
-    match_to_starts,
-    onto_room_edge,
-    smooth_jitter,
-    warn_noisy_ends,
-)
+from pipeline.inputs.recorded import clean_tracks, cut_trajectory, drop_repeats, match_to_starts
 from pipeline.irl import methods
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment, spatial_graph
@@ -461,32 +451,28 @@ def as_demonstrations(demos: Sequence[DemoLike], scene: Scene, features: Feature
                       speed: float, denoise: bool = False) -> list[Demonstration]:
     """`learn`'s demonstrations, checked and cut at the goal disk as a demonstration file's
     trajectories are (`pipeline.inputs`), with the features of their own segments. With
-    `denoise`, given polylines are read wholly as a file's trajectories are: smoothed of
-    tracking noise (`smooth_jitter`, expert.denoise), moved onto the room's edge where they
-    stray a few centimetres out, taken to reach the goal where they end outside its disk by
-    less than their noise. Rows (a run's /demos: what it learned from) and Demonstration
+    `denoise`, given polylines are read wholly as a file's trajectories are
+    (`clean_tracks`: smoothed of tracking noise, moved onto the room's edge where they stray
+    a few centimetres out, taken to reach the goal where they end outside its disk by less
+    than their noise). Rows (a run's /demos: what it learned from) and Demonstration
     objects are taken as they are."""
     given = [demo_fields(d, scene, f"demonstration {k}") for k, d in enumerate(demos)]
     tracks = [points for points, *_ in given]
+    read: dict[int, np.ndarray] = {}  # given polylines, as a file's trajectories are read
     raw = [k for k, d in enumerate(demos) if not isinstance(d, Demonstration | Mapping)]
-    smoothed, noise = [False] * len(given), [0.0] * len(given)
     if denoise and raw:
-        where = "learn(): demos"
-        read, was_smoothed, sigmas = smooth_jitter([tracks[k] for k in raw], where)
-        read = onto_room_edge(read, scene.room, where)
-        for k, track, changed, sigma in zip(raw, read, was_smoothed, sigmas, strict=True):
-            tracks[k], smoothed[k], noise[k] = track, changed, sigma
+        read = dict(zip(raw, clean_tracks([tracks[k] for k in raw], scene.goal,
+                                          scene.goal_tolerance, scene.room, "learn(): demos",
+                                          [f"demonstration {k}" for k in raw]), strict=True))
     out = []
     for k, (_, start, reached, subject) in enumerate(given):
         what = f"demonstration {k}"
-        cut = cut_trajectory(tracks[k], scene.goal, scene.goal_tolerance, scene.room, what,
-                             RESAMPLE_SPACING if smoothed[k] else None,
-                             goal_margin(noise[k]) if denoise and k in raw else 0.0)
-        whole = drop_repeats(tracks[k])
-        if not smoothed[k] and len(cut) == len(whole) and np.array_equal(cut[:-1], whole[:-1]):
-            cut = whole  # it ends at its first point in the disk (a synthetic expert's node)
-        if denoise and k in raw:  # as a file's: the same polylines whatever the source
-            cut = np.round(cut, COORDINATE_DECIMALS)
+        cut = read.get(k)
+        if cut is None:  # as given, cut at the goal disk
+            cut = cut_trajectory(tracks[k], scene.goal, scene.goal_tolerance, scene.room, what)
+            whole = drop_repeats(tracks[k])
+            if len(cut) == len(whole) and np.array_equal(cut[:-1], whole[:-1]):
+                cut = whole  # it ends at its first point in the disk (a synthetic expert's node)
         nearest = match_to_starts([cut], scene.starts, scene.goal,
                                   FileExpertConfig.start_radius, scene.goal_tolerance, what)[0]
         if start is not None and start != nearest:
@@ -497,9 +483,6 @@ def as_demonstrations(demos: Sequence[DemoLike], scene: Scene, features: Feature
         if reached is not None and bool(reached) != demo.reached:
             demo = dataclasses.replace(demo, reached=bool(reached))
         out.append(demo)
-    if denoise and raw:
-        warn_noisy_ends([tracks[k] for k in raw], [out[k].points for k in raw], scene.goal,
-                        scene.goal_tolerance, "learn(): demos")
     return out
 
 

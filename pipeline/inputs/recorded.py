@@ -119,16 +119,18 @@ MIN_NOISE_POINTS = 20
 JUMP_STEPS = 10.0
 # A trajectory that ends outside the goal disk by less than GOAL_NOISE_SIGMAS times its
 # tracking noise (`noise_sigma`) reaches the goal (`cut_trajectory`): a walker who stopped at
-# the disk's edge is recorded a few centimetres either side of it, and a demonstration that
-# does not reach the goal forgoes its reward, which drags β and the weights (measured: 5-6 of
-# 40-70 social-force walks per scene 0.3-28 mm outside a 0.3 m disk held β at 11, 230 when
-# they reach, and the weights at the box's edge). 3σ: noise moves a point at the disk's edge
-# farther out in about 1 of 700. At least GOAL_MARGIN_FLOOR, whatever the estimate: a
-# recorded position is not known to the millimetre, and the noise estimate misses noise it
-# cannot see (a track kept as recorded, expert.denoise=false; points added along the
-# segments; a sparse polyline), where one walk 0.3 mm outside the disk moved the learned
-# social weight 17-fold. At most GOAL_NOISE_MARGIN: a tracker's noise is centimetres, and a
-# walk that stopped farther out did not reach the goal, however jerky its track.
+# the disk's edge is recorded a few centimetres either side of it, and learning reads a
+# demonstration that does not reach the goal otherwise (measured before the default learner
+# read such a walk as one whose end was not recorded, when it forwent the goal's reward:
+# 5-6 of 40-70 social-force walks per scene 0.3-28 mm outside a 0.3 m disk held β at 11,
+# 230 when they reach, and the weights at the box's edge). 3σ: noise moves a point at the
+# disk's edge farther out in about 1 of 700. At least GOAL_MARGIN_FLOOR, whatever the
+# estimate: a recorded position is not known to the millimetre, and the noise estimate
+# misses noise it cannot see (a track kept as recorded, expert.denoise=false; points added
+# along the segments; a sparse polyline), where one walk 0.3 mm outside the disk moved the
+# learned social weight 17-fold (under that earlier reading). At most GOAL_NOISE_MARGIN: a
+# tracker's noise is centimetres, and a walk that stopped farther out did not reach the
+# goal, however jerky its track.
 GOAL_NOISE_SIGMAS = 3.0
 GOAL_MARGIN_FLOOR = 0.05  # m
 GOAL_NOISE_MARGIN = 0.1  # m
@@ -1013,13 +1015,14 @@ def other_frame(what: str, room: Room, points: np.ndarray) -> PipelineError:
                          "or in other units than the scene's (metres)?")
 
 
-def refuse_other_frames(tracks: Sequence[np.ndarray], room: Room, where: str) -> None:
+def refuse_other_frames(tracks: Sequence[np.ndarray], room: Room, names: Sequence[str]) -> None:
     """Refuse, before any other work on them, the first trajectory with no point in the
-    room (`other_frame`): in millimetres a walk first read as 20 m of tracking noise."""
-    for i, t in enumerate(tracks):
+    room (`other_frame`, naming it by `names`): in millimetres a walk first read as 20 m of
+    tracking noise."""
+    for name, t in zip(names, tracks, strict=True):
         with np.errstate(over="ignore", invalid="ignore"):  # inf, nan: refused later
             if len(t) and not room.contains(t).any() and np.isfinite(t).all():
-                raise other_frame(f"{where}: trajectory {i}", room, t)
+                raise other_frame(name, room, t)
 
 
 def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list[np.ndarray]:
@@ -1072,6 +1075,30 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
                     "%g cm): taken to reach the goal, with a last segment to it", where,
                     listed(found, 5), goal_tolerance, 100 * GOAL_MARGIN_FLOOR,
                     GOAL_NOISE_SIGMAS, 100 * GOAL_NOISE_MARGIN)
+
+
+def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance: float,
+                 room: Room | None, where: str, names: Sequence[str], *, denoise: bool = True,
+                 resample: bool = False, spacing: float = RESAMPLE_SPACING) -> list[np.ndarray]:
+    """Tracks read from a recording (`names` name each in errors, `where` the recording in
+    warnings) as they are learned from: one wholly outside `room` refused at once; with
+    `denoise` smoothed of tracking noise (`smooth_jitter`); those straying a few centimetres
+    out of `room` moved onto its edge; each cut at the goal disk (`cut_trajectory`), one
+    that ends outside it within its noise (`goal_margin`) taken to reach it; resampled
+    every `spacing` m when smoothed, or all of them with `resample` (a pose stream);
+    positions rounded to COORDINATE_DECIMALS."""
+    smoothed, noise = [False] * len(tracks), [0.0] * len(tracks)
+    if room is not None:
+        refuse_other_frames(tracks, room, names)
+    if denoise:
+        tracks, smoothed, noise = smooth_jitter(tracks, where)
+    if room is not None:
+        tracks = onto_room_edge(tracks, room, where)
+    cleaned = [cut_trajectory(t, goal, goal_tolerance, room, name,
+                              spacing if resample or smoothed[i] else None, goal_margin(noise[i]))
+               for i, (name, t) in enumerate(zip(names, tracks, strict=True))]
+    warn_noisy_ends(tracks, cleaned, goal, goal_tolerance, where)
+    return [np.round(c, COORDINATE_DECIMALS) for c in cleaned]
 
 
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
@@ -1128,19 +1155,9 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         # what follows the goal is cut away: a jump there is no jump in a demonstration
         warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
         warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
-    smoothed, noise = [False] * len(tracks), [0.0] * len(tracks)
-    if room is not None:
-        refuse_other_frames(tracks, room, where)
-    if denoise:
-        tracks, smoothed, noise = smooth_jitter(tracks, where)
-    if room is not None:
-        tracks = onto_room_edge(tracks, room, where)
-    cleaned = [cut_trajectory(t, goal, goal_tolerance, room, f"{where}: trajectory {i}",
-                              spacing if recording.is_stream or smoothed[i] else None,
-                              goal_margin(noise[i]))
-               for i, t in enumerate(tracks)]
-    warn_noisy_ends(tracks, cleaned, goal, goal_tolerance, where)
-    cleaned = [np.round(c, COORDINATE_DECIMALS) for c in cleaned]
+    cleaned = clean_tracks(tracks, goal, goal_tolerance, room, where,
+                           [f"{where}: trajectory {i}" for i in range(len(tracks))],
+                           denoise=denoise, resample=recording.is_stream, spacing=spacing)
     warn_revisits(cleaned, where)
     matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
     without = sorted(set(range(len(np.asarray(starts).reshape(-1, 2)))) - set(matched))

@@ -354,7 +354,8 @@ def graph_less_polite(m: dict) -> list[str]:
             "(birlg-export: /birlg/learned_paths_ref) or grow it further (graph.max_nodes)"]
 
 
-def weights_at_box(m: dict, learner_features: list[str], box: Prior) -> list[str]:
+def weights_at_box(m: dict, learner_features: list[str], box: Prior,
+                   label: str = "weight box     ") -> list[str]:
     """A line naming the learned weights at a bound of the weight box (the demonstrations
     would have them further out: their size is the box's, not learned) or at its middle
     (where the default learner leaves what the demonstrations say nothing about, e.g. a
@@ -371,7 +372,7 @@ def weights_at_box(m: dict, learner_features: list[str], box: Prior) -> list[str
                  ("upper bound", near(box.upper), BOUND_MEANS),
                  ("middle", near((box.lower + box.upper) / 2), "nothing moved it: unknown"))
              if hit.any()]
-    return [f"  weight box       {'; '.join(parts)}"] if parts else []
+    return [f"  {label}  {'; '.join(parts)}"] if parts else []
 
 
 BOUND_MEANS = "birl.lower/upper, not the demonstrations, set its size"
@@ -408,8 +409,7 @@ def given_weights_origin(cfg: Config) -> list[str]:
     except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError,
             yaml.YAMLError):
         return lines  # no metrics.json (a run without its evaluate stage): nothing to carry
-    return lines + [line.replace("weight box      ", "its weight box  ")
-                    for line in weights_at_box(m, names, box)]
+    return lines + weights_at_box(m, names, box, label="its weight box ")
 
 
 def summary_text(m: dict, run_dir: str, learner_features: list[str],
