@@ -306,8 +306,8 @@ GOAL_TOLERANCE = 0.3  # the world model's default
 def stepped(corners: list[list[float]], goal: np.ndarray = METROPOLIS_GOAL,
             step: float = 0.1) -> np.ndarray:
     """Points exactly `step` apart along the corners (each piece a multiple of `step` long),
-    then on towards the goal up to the last point outside the goal disk, then the goal: a
-    polyline as the goal-disk cut leaves it, and a fixed point of resampling at `step`."""
+    then on towards the goal up to its first point inside the goal disk: a polyline as the
+    goal-disk cut leaves it, and a fixed point of resampling at `step`."""
     c = np.asarray(corners, float)
     pts = [c[0]]
     for a, b in zip(c[:-1], c[1:], strict=True):
@@ -321,7 +321,7 @@ def stepped(corners: list[list[float]], goal: np.ndarray = METROPOLIS_GOAL,
     while np.linalg.norm(last + k * step * u - goal) > GOAL_TOLERANCE:
         pts.append(last + k * step * u)
         k += 1
-    return np.vstack(pts + [goal])
+    return np.vstack(pts + [last + k * step * u])
 
 
 # Two drives in metropolis, from start 0 and from start 2, clear of the persons' body disks
@@ -330,12 +330,11 @@ CLEAN_DRIVES = [stepped([[0.5, 0.5], [0.5, 4.0], [3.5, 8.0]]),
 
 
 def into_the_disk(clean: np.ndarray) -> np.ndarray:
-    """A recording of the clean polyline that does not stop at the goal: it runs on into the
-    goal disk (a pose every 5 cm), past the goal and out of the room."""
-    last, goal = clean[-2], clean[-1]
-    u = (goal - last) / np.linalg.norm(goal - last)
-    first_in = last + 0.1 * u  # the next 0.1 m step lies inside the disk
-    assert np.linalg.norm(first_in - goal) <= GOAL_TOLERANCE
+    """A recording of the clean polyline that does not stop at its first point in the goal
+    disk: it runs on (a pose every 5 cm), past the goal and out of the room."""
+    first_in = clean[-1]
+    u = (first_in - clean[-2]) / np.linalg.norm(first_in - clean[-2])
+    assert np.linalg.norm(first_in - METROPOLIS_GOAL) <= GOAL_TOLERANCE
     beyond = [first_in + k * 0.05 * u for k in range(40)] + [np.array([12.0, 12.0])]
     return np.vstack([clean[:-1], beyond])
 

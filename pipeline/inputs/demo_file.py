@@ -117,7 +117,7 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
                 f"{y:.2f}); the robot needs robot_radius={scene.robot_radius:g} m (lower it "
                 "in the scene file or with scene.robot_radius)")
     check_clear_of_bodies(what, points, scene)
-    # cut_at_goal ends a trajectory that entered the goal disk at the goal itself
+    # cut_at_goal ends a trajectory that entered the goal disk at its first point there
     reached = bool(scene.at_goal(points[-1])[0])
     feats = feature_model.segments(points[:-1], points[1:])
     durations = np.linalg.norm(np.diff(points, axis=0), axis=1) / speed

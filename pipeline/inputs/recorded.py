@@ -25,8 +25,9 @@ Path forms read by `read_recording`:
   ROS 2 way (`nav_msgs/Path` is read as `nav_msgs/msg/Path`), so one set of names serves both.
 
 Then, whatever the format (`load_recorded`): a pose stream is cut into trajectories, every
-trajectory is cut at the goal disk (`cut_at_goal`: the goal becomes its last point, what follows
-is dropped), pose streams are resampled (`clean_track`), polylines only lose repeated points.
+trajectory is cut at the goal disk (`cut_at_goal`: it ends at its first point in the disk,
+what follows is dropped), pose streams are resampled (`clean_track`), polylines only lose
+repeated points.
 Tracking noise that makes the trajectories zig-zag from point to point is smoothed out first
 (`smooth_jitter`). Every problem with the input is a `PipelineError` with one line naming the file.
 """
@@ -113,6 +114,15 @@ NOISE_SPAN_RATIO = 1.5
 # were smoothed through the wall; 1 Hz walks of 8-9 points as 0.2-0.4 m, smoothed to 0.23 m
 # of a person they passed at 0.86 m). Tracked walks have a hundred points and more.
 MIN_NOISE_POINTS = 20
+# Noise moves every point. A trajectory of which at least this share of the points lie
+# exactly on the line through their neighbours (to STRAIGHT_SINE of a turn) is a planned or
+# drawn polyline, straight runs between corners, whose corners `noise_sigma` cannot tell
+# from noise either: a run's own roadmap paths written to a file (0.25 m lattice paths, 25-70 %
+# of their points on straight runs) read as 15 cm of noise, were smoothed, and learned
+# relation -0.62, social -0.70, length -0.31 in place of the run's -1, -0.44, -0.07. Tracked
+# walks have none (70 social-force walks: 0 %; the hand-drawn set: 0-1 %).
+PLANNED_STRAIGHT_SHARE = 0.1
+STRAIGHT_SINE = 1e-6  # a file's nanometres in 0.1 m steps: 1e-8; noise of a millimetre: 1e-2
 # A step between consecutive poses longer than JUMP_STEPS times the trajectory's usual step
 # (the 75th percentile of its steps: pauses do not shrink it) and than JUMP_MIN is a jump: the
 # tracker lost the person and found them, or someone else, again (`largest_jump`, one warning).
@@ -604,8 +614,10 @@ def noise_sigma(tracks: Sequence[np.ndarray]) -> float:
     0 when they are not noise: second differences over twice the span, p[i-2] - 2 p[i] +
     p[i+2], are as large as those of noise (the same variance) and NOISE_SPAN_RATIO times
     larger or more where they measure the route's turns (4 times for a smooth curve), as in
-    a sparse polyline of a few corners; 0 without tracks of MIN_NOISE_POINTS points."""
-    dense = [t for t in tracks if len(t) >= MIN_NOISE_POINTS]
+    a sparse polyline of a few corners; 0 without tracks of MIN_NOISE_POINTS points that are
+    no planned polyline (`straight_share`, PLANNED_STRAIGHT_SHARE)."""
+    dense = [t for t in tracks if len(t) >= MIN_NOISE_POINTS
+             and straight_share(t) < PLANNED_STRAIGHT_SHARE]
     if not dense:
         return 0.0
     near = np.median(np.abs(np.concatenate([(t[2:] - 2 * t[1:-1] + t[:-2]).ravel()
@@ -615,6 +627,17 @@ def noise_sigma(tracks: Sequence[np.ndarray]) -> float:
     if not near > 0 or wide > NOISE_SPAN_RATIO * near:
         return 0.0
     return float(1.4826 * near / math.sqrt(6.0))
+
+
+def straight_share(track: np.ndarray) -> float:
+    """The share of the interior points of `track` (n, 2) that lie on the straight line
+    through their neighbours: |sin| of the turn there below STRAIGHT_SINE."""
+    a, b = track[1:-1] - track[:-2], track[2:] - track[1:-1]
+    if not len(a):
+        return 0.0
+    cross = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    return float(np.mean(cross <= STRAIGHT_SINE * np.linalg.norm(a, axis=1)
+                         * np.linalg.norm(b, axis=1)))
 
 
 def largest_jump(track: np.ndarray) -> tuple[int, float, float] | None:
@@ -783,14 +806,19 @@ def smooth_jitter(tracks: Sequence[np.ndarray],
 
 
 def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> np.ndarray | None:
-    """DESIGN §3: the trajectory up to its first point within `goal_tolerance` of the goal, with
-    the goal itself as its last point; what follows is not part of the demonstration.
+    """DESIGN §3: the trajectory up to its first point within `goal_tolerance` of the goal;
+    what follows is not part of the demonstration.
 
-    The polyline is taken as the path it describes: the first point within the tolerance may
-    lie between two vertices (a sparse polyline passing through the goal disk). Returns
-    `points[:i + 1]` followed by the goal, where segment i → i+1 is the first to come within
-    the tolerance; `points` unchanged when it never does; None when its first point already
-    lies within the tolerance (nothing is left before the goal).
+    The polyline is taken as the path it describes: where segment i → i+1 is the first to
+    come within the tolerance, the trajectory is `points[:i + 2]` when vertex i+1 lies in
+    the goal disk, else (a sparse polyline passing through the disk) `points[:i + 1]` and
+    the point where the segment enters the disk (`disk_entry`). It ends there, not at the
+    goal itself: the run's paths end where they enter the goal disk (its states are
+    terminal), and the goal's centre lies up to `goal_tolerance` farther on, a last piece
+    no path compared with it has (an optimal expert's own paths, ending at the goal, learned
+    relation -1, social -0.25, goal_deviation -0.38, length -0.02 in place of its -1, -0.44,
+    -0.62, -0.07). Returns `points` unchanged when it never comes within the tolerance, None
+    when its first point already does (nothing is left before the goal).
     """
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     goal = np.asarray(goal, dtype=float)
@@ -806,7 +834,24 @@ def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> 
     entered = np.flatnonzero(within(gap, goal_tolerance))
     if len(entered) == 0:
         return p.copy()
-    return np.vstack([p[:entered[0] + 1], goal[None, :]])
+    i = int(entered[0])
+    if within(np.linalg.norm(p[i + 1] - goal), goal_tolerance):
+        return p[:i + 2].copy()
+    return np.vstack([p[:i + 1], disk_entry(p[i], p[i + 1], goal, goal_tolerance)[None, :]])
+
+
+def disk_entry(a: np.ndarray, b: np.ndarray, goal: np.ndarray, radius: float) -> np.ndarray:
+    """The first point (2,) of the segment a → b at `radius` from `goal`, a outside that
+    disk and the segment coming within it; the segment's point nearest the goal where it
+    only grazes the disk (within TIE)."""
+    ab = b - a
+    to_goal = goal - a
+    len2 = float(ab @ ab)
+    along = float(to_goal @ ab)
+    # |a + t·ab − goal|² = radius²: len2·t² − 2·along·t + |a − goal|² − radius² = 0
+    discriminant = max(along * along - len2 * (float(to_goal @ to_goal) - radius * radius), 0.0)
+    t = min(max((along - np.sqrt(discriminant)) / len2, 0.0), 1.0)
+    return a + t * ab
 
 
 def _visits(near: np.ndarray) -> list[tuple[int, int]]:
@@ -956,19 +1001,21 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
                    room: Room | None, what: str, resample: float | None = None,
                    goal_margin: float = 0.0) -> np.ndarray:
     """A trajectory as it is learned from: repeated points dropped, cut at the goal disk
-    (`cut_at_goal`), with `resample` the part before the goal resampled to that spacing
+    (`cut_at_goal`), with `resample` the part before its last point resampled to that spacing
     (`clean_track`: a pose stream's dense, noisy poses); refused (naming `what`) when it
     begins at the goal, leaves `room` or never moves. One that never enters the disk but
     ends within `goal_margin` of its edge (the tracking noise, GOAL_NOISE_SIGMAS) reaches
-    the goal: the goal becomes its last point."""
+    the goal: it ends at the disk's point nearest its end."""
     goal = np.asarray(goal, dtype=float)
     # coordinates far outside any room (1e300) overflow to inf and nan on the way, which never
     # count as within a tolerance: the room check below refuses them by name
     with np.errstate(over="ignore", invalid="ignore"):
         cut = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
-        if cut is not None and goal_margin > 0 and not np.array_equal(cut[-1], goal) and \
-                within(np.linalg.norm(cut[-1] - goal), goal_tolerance + goal_margin):
-            cut = np.vstack([cut, goal[None, :]])
+        if cut is not None and goal_margin > 0:
+            gap = float(np.linalg.norm(cut[-1] - goal))
+            if not within(gap, goal_tolerance) and within(gap, goal_tolerance + goal_margin):
+                # on to the disk's nearest point, where a path into the disk would end
+                cut = np.vstack([cut, goal + (cut[-1] - goal) * (goal_tolerance / gap)])
     if cut is None:
         raise PipelineError(f"{what} begins within goal_tolerance={goal_tolerance:g} m of the "
                             f"goal {point(*goal)} (recorded from the goal back to a start? a "
@@ -982,7 +1029,7 @@ def cut_trajectory(track: np.ndarray, goal: np.ndarray, goal_tolerance: float,
             raise PipelineError(f"{what} leaves the room {area.describe()} at "
                                 f"{_place(points[int(np.argmin(inside))])}")
 
-    if resample is not None:  # it ends at the goal: resample what leads there
+    if resample is not None:  # resample what leads to its last point (in the goal disk)
         if room is not None:
             # Every vertex lies within half a step of a resampled point, so a vertex outside
             # the room grown by a step would be refused after resampling too: refused now,
@@ -1062,17 +1109,18 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
     tracking noise and so reach the goal (`cut_trajectory`'s goal_margin, `goal_margin`)."""
     found = []
     for k, (track, cut) in enumerate(zip(tracks, cleaned, strict=True)):
-        if not np.array_equal(cut[-1], goal):
+        if not within(np.linalg.norm(cut[-1] - goal), goal_tolerance):
             continue
         with np.errstate(over="ignore", invalid="ignore"):
             plain = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
-        if plain is not None and not np.array_equal(plain[-1], goal):
+        if plain is not None and not within(np.linalg.norm(plain[-1] - goal), goal_tolerance):
             gap = float(np.linalg.norm(plain[-1] - goal)) - goal_tolerance
             found.append(f"{k} ({1000 * gap:.1f} mm)")
     if found:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m) by "
                     "less than their tracking noise (%g cm, or %g times the noise, at most "
-                    "%g cm): taken to reach the goal, with a last segment to it", where,
+                    "%g cm): taken to reach the goal, with a last segment to the disk's edge",
+                    where,
                     listed(found, 5), goal_tolerance, 100 * GOAL_MARGIN_FLOOR,
                     GOAL_NOISE_SIGMAS, 100 * GOAL_NOISE_MARGIN)
 

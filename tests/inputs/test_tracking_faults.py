@@ -20,6 +20,7 @@ from pipeline.inputs.recorded import (
     read_tracks,
     smooth_jitter,
     smooth_to_noise,
+    straight_share,
     whittaker,
 )
 
@@ -46,6 +47,27 @@ def noisy(points: np.ndarray, sigma: float, seed: int) -> np.ndarray:
     out = points + np.random.default_rng(seed).normal(0.0, sigma, points.shape)
     out[0], out[-1] = points[0], points[-1]
     return out
+
+
+# The optimal expert's roadmap path from metropolis start 4 (0.25 m lattice, 16-connected)
+ROADMAP_PATH = np.array([
+    [8.9, 0.1], [8.5, 0.25], [8.0, 0.5], [7.75, 0.75], [7.25, 1.0], [6.75, 1.25], [6.25, 1.5],
+    [6.0, 2.0], [5.75, 2.5], [6.0, 3.0], [6.25, 3.5], [6.5, 3.75], [6.75, 4.0], [7.0, 4.25],
+    [7.25, 4.75], [7.25, 5.0], [7.0, 5.5], [6.5, 5.75], [6.25, 6.0], [6.0, 6.5], [6.0, 6.75],
+    [6.25, 7.25], [6.25, 7.5], [6.0, 8.0], [5.75, 8.25], [5.5, 8.75]])
+
+
+def test_a_roadmap_path_is_no_noisy_track():
+    """A run's roadmap path written to a file: 6 of its 24 interior points lie on straight
+    runs (the same step before and after them), so its corners are no noise; they read as
+    15 cm of it before, and the path was smoothed off its own nodes. The same path with 1 mm
+    of noise has no straight run and reads noise."""
+    turns = np.diff(np.diff(ROADMAP_PATH, axis=0), axis=0)  # zero where a run goes straight
+    assert straight_share(ROADMAP_PATH) == np.mean(np.all(np.abs(turns) < 1e-12, axis=1)) \
+        == 6 / 24
+    assert noise_sigma([ROADMAP_PATH]) == 0.0
+    shaken = noisy(ROADMAP_PATH, 0.001, 5)
+    assert straight_share(shaken) == 0.0 and noise_sigma([shaken]) > 0.0
 
 
 def test_noise_sigma_recovers_the_noise_of_a_dense_walk():
@@ -120,6 +142,9 @@ def test_a_noisy_walk_that_stops_at_the_goal_disk_reaches_the_goal(tmp_path, cap
     within GOAL_NOISE_SIGMAS of the estimated noise outside, the walk reaches the goal."""
     true = walk(0.02)
 
+    def on_disk_edge(end: np.ndarray) -> bool:  # the 0.2 m disk's edge (to round-off)
+        return abs(float(np.linalg.norm(end - GOAL)) - 0.2) < 1e-12
+
     def stopping(gap: float) -> np.ndarray:  # the walk up to `gap` m outside the 0.2 m disk
         away = np.linalg.norm(true - GOAL, axis=1)
         last = int(np.flatnonzero(away > 0.2 + gap)[-1])
@@ -135,7 +160,8 @@ def test_a_noisy_walk_that_stops_at_the_goal_disk_reaches_the_goal(tmp_path, cap
     near, far = noisy(stopping(0.02), 0.03, 1), noisy(stopping(0.5), 0.03, 2)
     with caplog.at_level(logging.WARNING):
         reached, short = ends([near, far])
-    assert np.array_equal(reached, GOAL)
+    # it reaches the goal where a path into the disk ends: at the disk's edge, on the way
+    assert on_disk_edge(reached)
     assert np.linalg.norm(short - GOAL) == pytest.approx(0.7, abs=1e-6)  # 0.5 m: no noise
     assert "trajectories 0 (20.0 mm) end outside the goal disk (goal_tolerance=0.2 m) by " \
         "less than their tracking noise (5 cm, or 3 times the noise, at most 10 cm): taken " \
@@ -147,10 +173,10 @@ def test_a_noisy_walk_that_stops_at_the_goal_disk_reaches_the_goal(tmp_path, cap
     # 5 cm a recorded position is known to (one such walk moved a learned weight 17-fold)
     [kept] = ends([near], denoise=False)
     [clean] = ends([stopping(0.02)])
-    assert np.array_equal(kept, GOAL) and np.array_equal(clean, GOAL)
+    assert on_disk_edge(kept) and on_disk_edge(clean)
     # 8 cm out: within 3σ of a 3 cm noise, not without noise
     [noisy_far, clean_far] = ends([noisy(stopping(0.08), 0.03, 4), stopping(0.08)])
-    assert np.array_equal(noisy_far, GOAL)
+    assert on_disk_edge(noisy_far)
     assert np.linalg.norm(clean_far - GOAL) == pytest.approx(0.28, abs=1e-6)
 
 

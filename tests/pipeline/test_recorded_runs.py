@@ -241,9 +241,9 @@ def test_densely_sampled_paths_that_reach_the_goal_learn(tmp_path, copies):
                    f"expert.path={demos}", *LEARN)
     stored = read_artefact(run / "demos.mcap").all("/demos")
     assert len(stored) == copies
-    for d in stored:  # cut at the goal disk: only the goal itself is inside it
+    for d in stored:  # cut at the goal disk: only its last point is inside it
         gaps = np.linalg.norm(np.asarray(d["points"]) - [9.0, 2.0], axis=1)
-        assert gaps[-1] == 0.0 and (gaps[:-1] > 0.3).all()
+        assert gaps[-1] <= 0.3 + 1e-12 and (gaps[:-1] > 0.3).all()
     assert np.isfinite(learned_weights(run)).all()
 
 
