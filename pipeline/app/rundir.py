@@ -32,7 +32,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from pipeline.artefacts.store import content_digest, write_json_atomic
+from pipeline.artefacts.store import content_digest, write_json_atomic, write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.errors import PipelineError, os_error_reason
 
@@ -268,6 +268,9 @@ def check_from_run(from_run: Path, given: str, key: str = "from_run",
 
 
 _HANDED_OVER: set[Path] = set()  # run dirs whose lock the CLI holds for this process's run
+# The .hydra/ files of those dirs as they were before Hydra began the run (None: absent), so
+# that a run its config refuses can put an earlier run's back (`_restore_hydra_files`).
+_HYDRA_FILES_BEFORE: dict[Path, dict[str, str | None]] = {}
 
 
 def acquire_lock(run_dir: Path, in_use: str | None = None, kind: str = "run dir") -> int:
@@ -301,6 +304,9 @@ def locked(run_dir: Path):
     before = run_files_version(run_dir)
     try:
         check_writable(run_dir)
+        with suppress(OSError, UnicodeDecodeError):  # unreadable: not put back, as before
+            _HYDRA_FILES_BEFORE[key] = {name: _read_or_none(Path(run_dir) / name)
+                                        for name in HYDRA_FILES}
         yield
     except (KeyboardInterrupt, Interrupted) as e:
         with suppress(OSError):
@@ -308,7 +314,34 @@ def locked(run_dir: Path):
         raise
     finally:
         _HANDED_OVER.discard(key)
+        _HYDRA_FILES_BEFORE.pop(key, None)
         os.close(fd)  # releases the lock
+
+
+def _read_or_none(path: Path) -> str | None:
+    try:
+        return path.read_text()
+    except FileNotFoundError:
+        return None
+
+
+def _restore_hydra_files(run_dir: Path) -> bool:
+    """Put the .hydra/ files of the earlier run in `run_dir` back as `locked` found them,
+    Hydra having replaced them with those of a run that its config then refused: the dir
+    describes the earlier run again, whole (its status.json, artefacts and metrics were never
+    touched). False where there was no earlier run, no files were taken, or writing fails."""
+    before = _HYDRA_FILES_BEFORE.get(Path(run_dir).resolve())
+    if before is None or read_status(run_dir).state == UNKNOWN:
+        return False
+    try:
+        for name, content in before.items():
+            if content is None:
+                (Path(run_dir) / name).unlink(missing_ok=True)
+            else:
+                write_text_atomic(Path(run_dir) / name, content)
+    except OSError:
+        return False
+    return True
 
 
 def is_sweep_dir(path: Path) -> bool:
@@ -497,9 +530,14 @@ def mark_ended_before_stages(run_dir: Path, state: str, error: str,
     replaced .hydra/config.yaml, so it says `state` with this run's error where it says
     anything else (`complete` would now be a lie, an old failure the wrong error); in a
     sweep (`sweep`, its number) also where there is none, so aggregation counts the job.
-    A dir another live process holds is left alone."""
+    A command-line run refused by its config puts the earlier run's .hydra/ files back
+    instead (`_restore_hydra_files`), and the earlier run stays as it was: a typo in a
+    re-run must not cost a good run its export. A dir another live process holds is left
+    alone."""
     run_dir = Path(run_dir)
     if run_dir.resolve() not in _HANDED_OVER and is_locked(run_dir):
+        return
+    if state == FAILED and _restore_hydra_files(run_dir):
         return
     if read_status(run_dir).state != UNKNOWN or sweep is not None:
         run_dir.mkdir(parents=True, exist_ok=True)

@@ -26,8 +26,10 @@ import numpy as np
 import pytest
 
 import pipeline.stages
+from pipeline import api
 from pipeline.app.rundir import (
     FAILED,
+    HYDRA_FILES,
     SWEEP_FILE,
     Interrupted,
     RunDir,
@@ -43,6 +45,7 @@ from pipeline.app.rundir import (
     sweep_jobs,
     write_status,
 )
+from pipeline.artefacts import topics
 from pipeline.artefacts.store import read_artefact
 from pipeline.artefacts.topics import STAGES
 from pipeline.errors import PipelineError
@@ -461,19 +464,6 @@ def test_status_of_a_job_that_failed_before_running(tmp_path):
     assert (status["state"], status["error"], status["sweep"]) == ("failed", "config error: x", 3)
 
 
-def test_a_config_error_in_a_complete_run_dir_marks_it_failed(tmp_path):
-    # Hydra has replaced .hydra/config.yaml before the config is checked: the old artefacts
-    # are no longer what the dir's config says, so `complete` would be a lie
-    run_in_process(tmp_path, *QUICK)
-    before = snapshot(tmp_path)
-    assert run_app("birl.beta=-1", f"hydra.run.dir={tmp_path}").returncode == 2
-    status = read_status(tmp_path)
-    assert status.state == "failed" and "birl.beta=-1" in status.error
-    # the artefacts themselves are untouched
-    assert {k: v for k, v in snapshot(tmp_path).items() if k.endswith(".mcap")} == \
-        {k: v for k, v in before.items() if k.endswith(".mcap")}
-
-
 def test_a_signal_while_the_config_is_checked_marks_a_complete_run_dir_interrupted(
         tmp_path, monkeypatch):
     # as a config error there: Hydra has replaced .hydra/ already, so `complete` would lie
@@ -492,14 +482,26 @@ def test_a_signal_while_the_config_is_checked_marks_a_complete_run_dir_interrupt
     assert status.error == "interrupted by the user before the first stage"
 
 
-def test_a_config_error_replaces_an_earlier_failure_in_the_dir(tmp_path):
-    # the dir's status must give this run's error, not the earlier run's (its config is gone)
-    run_in_process(tmp_path, *QUICK)
-    assert run_app("birl.beta=-1", f"hydra.run.dir={tmp_path}").returncode == 2
-    assert "birl.beta=-1" in read_status(tmp_path).error
-    assert run_app("scene.body_radius=-1", f"hydra.run.dir={tmp_path}").returncode == 2
-    status = read_status(tmp_path)
-    assert status.state == "failed" and "scene.body_radius=-1" in status.error
+def test_a_run_its_config_refuses_leaves_the_earlier_run_in_the_dir_as_it_was(tmp_path):
+    """A re-run into a complete run's dir with a typo (a value, a missing file, the dir
+    itself as birl.from_run) is refused before its stages: the earlier run's .hydra/ files
+    are put back where Hydra had replaced them, and its status stays `complete` (it said
+    `failed` with the typo's error, and the run could no longer be exported)."""
+    run_app(*QUICK, f"hydra.run.dir={tmp_path}")
+    files = {name: (tmp_path / name).read_bytes() for name in
+             (*HYDRA_FILES, "status.json", "metrics.json", *topics.ARTEFACT_FILE.values())}
+    assert read_status(tmp_path).state == "complete"
+    for typo in ("birl.beta=-1", "expert=file expert.path=/no/such/demos.json",
+                 f"birl=fixed birl.from_run={tmp_path}"):
+        assert run_app(*typo.split(), f"hydra.run.dir={tmp_path}").returncode == 2
+        assert {name: (tmp_path / name).read_bytes() for name in files} == files, typo
+    exported = subprocess.run([sys.executable, "-m", "pipeline.tools.export", str(tmp_path)],
+                              capture_output=True, text=True)
+    assert exported.returncode == 0, exported.stderr
+    # an API run writes no .hydra/ files: refused, it leaves the dir alone too
+    with pytest.raises(PipelineError):
+        api.run([*QUICK, "birl.beta=-1"], run_dir=tmp_path)
+    assert {name: (tmp_path / name).read_bytes() for name in files} == files
 
 
 # -- 6. damaged side files -------------------------------------------------------------------
