@@ -198,7 +198,8 @@ def learning_growth(cfg: Config, scene: Scene) -> int:
     do not learn on the graph."""
     grow_nodes = getattr(cfg.birl, "grow_nodes", 0)
     if grow_nodes is None:
-        return limits.learning_growth(scene.obstacles is not None, scene.name)[0]
+        return limits.learning_growth(scene.obstacles is not None, scene.name,
+                                      cfg.birl.learns_on_the_graph)[0]
     return int(grow_nodes)
 
 

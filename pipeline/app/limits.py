@@ -116,14 +116,21 @@ def graph_size(free_area: float, rho_personal: float, scene_name: str) -> tuple[
     return derived, f"{base}, more than the paper's {GraphParams.max_nodes}"
 
 
-# birl.grow_nodes derived for a scene with obstacles (measured: random scenes on the office
-# map and the office itself learn closer to the true reward when the graph grows under the
-# weights being learned; in open rooms it changes little and costs up to a second per run)
+# birl.grow_nodes derived for a scene with obstacles, for a learner whose estimate depends
+# on the graph (measured with eq. (2): random scenes on the office map and the office itself
+# learn closer to the true reward when the graph grows under the weights being learned; in
+# open rooms it changes little and costs up to a second per run)
 GROW_ON_MAPS = 10
 
 
-def learning_growth(obstacles: bool, scene_name: str) -> tuple[int, str]:
-    """birl.grow_nodes derived from the scene (birl.grow_nodes=null), and why, for the log."""
+def learning_growth(obstacles: bool, scene_name: str,
+                    learns_on_the_graph: bool = True) -> tuple[int, str]:
+    """birl.grow_nodes derived from the scene and the learner (birl.grow_nodes=null), and
+    why, for the log."""
+    if not learns_on_the_graph:
+        return 0, ("the learner compares the demonstrations with a lattice's paths "
+                   "(birl.alternatives=lattice): growing the graph would change nothing it "
+                   "learns")
     if obstacles:
         return GROW_ON_MAPS, (f"scene '{scene_name}' has obstacles: on a map the graph grows "
                               "under the weights being learned (BIRL-G's loop), which finds "

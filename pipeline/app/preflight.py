@@ -11,7 +11,8 @@ then the files themselves: the scene file and every transfer scene are loaded an
 `birl=fixed` gets its weights, and the graph's resolution is checked on the scene's free
 space. Loaded scene files are kept for the stages (`build.scene_file`). `graph.max_nodes`
 left null is derived from the scene's free space here (`limits.graph_size`, logged in one
-line), `birl.grow_nodes` left null from whether it has obstacles (`limits.learning_growth`);
+line), `birl.grow_nodes` left null from whether it has obstacles and the learner learns on
+the graph (`limits.learning_growth`);
 `run_pipeline` puts the numbers into the settings and the recorded config.
 """
 
@@ -117,7 +118,8 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
     facts = scene_facts(cfg, run_dir, from_run) \
         if stages - {"birl"} or derive_graph or derive_growth else None
     if derive_growth and facts is not None:
-        grow_nodes, why = limits.learning_growth(facts.obstacles, facts.name)
+        grow_nodes, why = limits.learning_growth(facts.obstacles, facts.name,
+                                                 cfg.birl.learns_on_the_graph)
         # said where it changes what runs (growth on a map); an open room runs as always
         log.log(logging.INFO if grow_nodes else logging.DEBUG, "birl.grow_nodes=%d: %s",
                 grow_nodes, why)

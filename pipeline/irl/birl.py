@@ -84,6 +84,14 @@ class BirlMapConfig(IRLConfig):
     alternatives_spacing: float = 0.2
     lr_level: Optional[float] = None  # deprecated spelling of test_level
 
+    @property
+    def learns_on_the_graph(self) -> bool:
+        """Whether the estimate depends on the adaptive graph, so that growing it while
+        learning (grow_nodes) can change what is learned: not for the Boltzmann model on the
+        lattice, whose MAP is found once, there (on the office, seeds 0-4, 10 nodes per
+        iteration gave bit-identical weights and losses, at 0.1 s more)."""
+        return not (self.likelihood == "boltzmann" and self.alternatives == "lattice")
+
     def describe_prior(self) -> str:
         if self.boltzmann_prior_scale is not None and self.likelihood in BOLTZMANN_FORMS:
             scale = f"gaussian prior (σ {self.boltzmann_prior_scale:g} of the box's side)"

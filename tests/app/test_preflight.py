@@ -182,8 +182,9 @@ def _derived(tmp_path, caplog, *overrides: str) -> tuple[dict[str, int], list[st
 
 @pytest.mark.parametrize("overrides, free, expected, grow", [
     ((), 100, 460, 0),  # metropolis: the paper's 460, so its results stay as they were
-    (("scene=office",), 176, 460, 10),  # maps: the graph grows while learning
-    (("scene=warehouse",), 810, 1126, 10),  # 2 × 563
+    # maps: the default learner, on a lattice, grows nothing while learning (eq. (2) does)
+    (("scene=office",), 176, 460, 0),
+    (("scene=warehouse",), 810, 1126, 0),  # 2 × 563
     (("scene=random", "scene.width=30", "scene.height=30"), 900, 1250, 0),  # 2 × 625
 ])
 def test_graph_max_nodes_is_derived_from_the_free_area(tmp_path, caplog, overrides, free,
@@ -232,18 +233,24 @@ def test_the_derived_graph_size_is_what_the_stages_and_the_artefacts_see(tmp_pat
 # -- birl.grow_nodes derived from the scene -----------------------------------------------------
 
 def test_the_graph_grows_while_learning_on_a_map_and_not_in_an_open_room(tmp_path, caplog):
-    """birl.grow_nodes=null: growth on a scene with obstacles, said in the log; none in an
-    open room; a given value is used as given; methods without the key derive nothing."""
+    """birl.grow_nodes=null: for a learner whose estimate depends on the graph (eq. (2)),
+    growth on a scene with obstacles, said in the log; none in an open room, nor for the
+    default learner, which compares the demonstrations with a lattice's paths; a given
+    value is used as given; methods without the key derive nothing."""
     from pipeline.app.limits import GROW_ON_MAPS
 
-    derived, _ = _derived(tmp_path, caplog, "scene=office")
+    paper = "birl.likelihood=paper"
+    derived, _ = _derived(tmp_path, caplog, "scene=office", paper)
     assert derived["birl.grow_nodes"] == GROW_ON_MAPS > 0
     assert any(r.getMessage().startswith(f"birl.grow_nodes={GROW_ON_MAPS}: scene 'office' "
                                          "has obstacles") for r in caplog.records)
-    assert _derived(tmp_path, caplog, "scene=metropolis")[0]["birl.grow_nodes"] == 0
-    random_on_map = _derived(tmp_path, caplog, "scene=random",
+    assert _derived(tmp_path, caplog, "scene=metropolis", paper)[0]["birl.grow_nodes"] == 0
+    random_on_map = _derived(tmp_path, caplog, "scene=random", paper,
                              "scene.map=data/maps/office.yaml")[0]
     assert random_on_map["birl.grow_nodes"] == GROW_ON_MAPS
+    assert _derived(tmp_path, caplog, "scene=office")[0]["birl.grow_nodes"] == 0
+    assert _derived(tmp_path, caplog, "scene=office", "birl.likelihood=robust")[0][
+        "birl.grow_nodes"] == GROW_ON_MAPS
     assert "birl.grow_nodes" not in _derived(tmp_path, caplog, "scene=office",
                                              "birl.grow_nodes=3")[0]
     assert "birl.grow_nodes" not in _derived(tmp_path, caplog, "scene=office",
@@ -258,11 +265,12 @@ def test_a_run_on_a_map_records_and_reuses_the_derived_growth(tmp_path):
     from pipeline.app.limits import GROW_ON_MAPS
 
     run = tmp_path / "a"
-    metrics, _ = run_in_process(run, "scene=office", "graph=small", "birl.n_iterations=2")
+    paper = "birl.likelihood=paper"  # a learner whose estimate depends on the graph
+    metrics, _ = run_in_process(run, "scene=office", paper, "graph=small", "birl.n_iterations=2")
     birl = read_artefact(run / "birl.mcap")
     assert yaml.safe_load(birl.config_yaml)["birl"]["grow_nodes"] == GROW_ON_MAPS
     assert birl.messages.get("/birl/graph_nodes"), "the graph grew while learning"
-    again, _ = run_in_process(tmp_path / "b", "scene=office", "graph=small",
+    again, _ = run_in_process(tmp_path / "b", "scene=office", paper, "graph=small",
                               "birl.n_iterations=2", "stages=[evaluate]", f"from_run={run}")
     assert again["policy_loss_norm"] == metrics["policy_loss_norm"]
 
