@@ -52,11 +52,30 @@ def one_line(e: BaseException) -> str:
             else lines[0]
 
     line = first(e)
+    options = group_options(str(e))
+    if options:  # Hydra lists a config group's options on the lines that one_line drops
+        line += f" (options: {', '.join(options)})"
     if isinstance(getattr(e, "override", None), str):  # Hydra's override parse errors
         line = f"cannot parse override '{e.override}': {line}"  # type: ignore[attr-defined]
     if e.__cause__ is not None and first(e.__cause__) not in line:
         line += f" ({first(e.__cause__)})"
     return line
+
+
+def group_options(text: str) -> list[str]:
+    """The options Hydra lists under "Available options in 'GROUP':" in an error's text (a
+    tab before each), without the base_* configs the options extend (not choices)."""
+    lines = text.splitlines()
+    start = next((i for i, ln in enumerate(lines) if ln.startswith("Available options in")),
+                 None)
+    if start is None:
+        return []
+    options = []
+    for ln in lines[start + 1:]:
+        if not ln.startswith("\t"):
+            break
+        options.append(ln.strip())
+    return [o for o in options if not o.startswith("base_")]
 
 
 def os_error_reason(e: OSError) -> str:
