@@ -245,7 +245,7 @@ def run(ctx: RunContext) -> None:
     # Flat and numeric: a metric that cannot be computed (e.g. 0/0) is left out.
     metrics = {k: float(v) for k, v in metrics.items() if np.isfinite(v)}
     write_evaluation(ctx, weights, curves, graph_paths, ref_paths, metrics)
-    print_summary(metrics, ctx)
+    print_summary(metrics, ctx, weights)
 
 
 def loss_metrics(ref: Views, graph: Views, true_weights: list[float] | None,
@@ -380,13 +380,26 @@ BOUND_MEANS = "birl.lower/upper, not the demonstrations, set its size"
 STUCK_ACCEPTANCE = 0.01
 # weights_at_box: a weight this close to a bound or the middle, relative to the box's width
 BOX_TOLERANCE = 1e-6
+# print_summary: a weight that moved less than this share of the box's width over all
+# iterations never left its start (MaxEnt's untouched weight moved 2e-6 of it, the others
+# tenths)
+UNMOVED_SHARE = 1e-5
 
 
-def print_summary(m: dict, ctx: RunContext) -> None:
+def print_summary(m: dict, ctx: RunContext, weights: np.ndarray | None = None) -> None:
+    """The summary of a run whose iterations' weights (iterations × features) are
+    `weights`."""
     learned = not isinstance(ctx.cfg.birl, FixedConfig)
-    print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features,
-                       build.prior(ctx.cfg) if learned else None,
-                       None if learned else given_weights_origin(ctx.cfg)), flush=True)
+    box = build.prior(ctx.cfg) if learned else None
+    unmoved = None
+    if box is not None and weights is not None and len(weights) > 1:
+        # e.g. MaxEnt's weight of a feature no path of its MDP incurs: its gradient is ~0,
+        # and the prior draw it starts from (crossing -70.087) would read as learned
+        moved = np.ptp(weights, axis=0) > UNMOVED_SHARE * (box.upper - box.lower)
+        unmoved = [n for n, m_ in zip(ctx.cfg.learner_features, moved, strict=True) if not m_]
+    print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features, box,
+                       None if learned else given_weights_origin(ctx.cfg), unmoved),
+          flush=True)
 
 
 def given_weights_origin(cfg: Config) -> list[str]:
@@ -413,11 +426,13 @@ def given_weights_origin(cfg: Config) -> list[str]:
 
 
 def summary_text(m: dict, run_dir: str, learner_features: list[str],
-                 box: Prior | None = None, given: list[str] | None = None) -> str:
+                 box: Prior | None = None, given: list[str] | None = None,
+                 unmoved: list[str] | None = None) -> str:
     """The one screen a run ends with, from its metrics (the docs generator prints the same
     for the README's sample output). box: the learner's weight box, to say which learned
     weights lie at its bounds or its middle (None: the weights were given, not learned);
-    given: for given weights, where they come from (`given_weights_origin`)."""
+    given: for given weights, where they come from (`given_weights_origin`); unmoved: the
+    learned weights no iteration moved from their start."""
     def fmt(key: str, spec: str = ".4f", unit: str = "") -> str:
         v = m.get(key)
         return "n/a" if v is None else format(v, spec) + unit
@@ -440,6 +455,10 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
              f"  {label}" + ", ".join(weight(n) for n in learner_features)]
     if box is not None:
         lines += weights_at_box(m, learner_features, box)
+    if unmoved:
+        lines.append(f"  not learned      {', '.join(unmoved)} never moved from where learning "
+                     "started (a draw from the prior, see the log): the demonstrations say "
+                     "nothing about it")
     lines += given or []
     if "mcmc_acceptance_rate" in m:
         if m["mcmc_acceptance_rate"] < STUCK_ACCEPTANCE:  # the samples are the starts

@@ -223,6 +223,22 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
     assert f"  its weight box   {source_notes}" in deployed
 
 
+def test_the_summary_names_the_weights_learning_never_moved(tmp_path, default_run):
+    """MaxEnt leaves the weight of a feature no path of its MDP incurs (crossing, on
+    metropolis) at its start, a prior draw, which the summary showed as if learned; the
+    iterations' weights (birl.mcap) tell which, and the default learner's moved all."""
+    stdout = run_in_process(tmp_path, "birl=maxent", "stages=[graph,birl,evaluate]",
+                            f"from_run={default_run[0]}")[1]
+    weights = np.array([it["weights"] for it in
+                        read_artefact(tmp_path / "birl.mcap").all(topics.BIRL_ITERATION)])
+    names = ["relation", "social", "goal_deviation", "length", "crossing"]
+    still = [n for n, span in zip(names, np.ptp(weights, axis=0), strict=True)
+             if span <= 1e-5 * 100]  # MaxEnt's box: [-100, 0]
+    assert still == ["crossing"] and weights[0, -1] == pytest.approx(weights[-1, -1], abs=1e-3)
+    assert "  not learned      crossing never moved from where learning started" in stdout
+    assert "not learned" not in default_run[2]
+
+
 def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp_path,
                                                                             default_run):
     """Deployed without demonstrations and without the medial axis's initial nodes, the
