@@ -341,7 +341,11 @@ def graph_less_polite(m: dict) -> list[str]:
     any, are worse under the reward than the roadmap's (a graph grown without
     demonstrations and without its medial-axis nodes, metropolis, 460 nodes: 0-18
     crossings over eight seeds, the roadmap's 0), and these are the paths a robot would be
-    given."""
+    given. Not where a true reward says the graph's paths lose no more than the roadmap's
+    (`reward=rude`, which no link or person costs: 15 crossings against 0, policy loss 0
+    against 0.06, and the advice to deploy the roadmap's paths was wrong)."""
+    if m.get("policy_loss", np.inf) <= m.get("policy_loss_ref", -np.inf):
+        return []
     worse = [f"{what} {m[key]:{spec}}{unit} against {m['ref_' + key]:{spec}}{unit}"
              for what, key, spec, unit in (("crossings", "relation_crossings", ".0f", ""),
                                            ("intimate", "intimate_intrusion_m", ".2f", " m"))

@@ -253,6 +253,11 @@ def test_the_summary_warns_when_the_graphs_paths_are_ruder_than_the_roadmaps(tmp
     assert f"crossings {m['relation_crossings']:.0f} against 0" in warning[0]
     assert "/birlg/learned_paths_ref" in warning[0]
     assert "ruder" not in default_run[2]  # with demonstrations: the same paths' quality
+    # a true reward no link costs (rude): the graph's crossings lose nothing, no advice
+    m, out = run_in_process(tmp_path / "rude", "reward=rude", "expert=boltzmann",
+                            "expert.beta=20")
+    assert m["relation_crossings"] > m["ref_relation_crossings"]
+    assert m["policy_loss"] <= m["policy_loss_ref"] and "ruder" not in out
 
 
 def test_the_summary_warns_of_demonstrations_that_do_not_reach_the_goal(tmp_path, default_run):
