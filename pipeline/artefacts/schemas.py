@@ -80,8 +80,11 @@ def _message(title: str, desc: str, props: dict[str, Schema],
 def _node(desc: str) -> Schema:
     return _int(f"{desc} (node id: index into the graph's node list).", minimum=0)
 
-FEATURE_NAMES = _array({"type": "string"}, "Names of the reward features, in the order of "
-                       "every feature vector and weight vector of the run.", min_items=1)
+FEATURE_NAMES = _array({"type": "string"}, "Names of the features, in the order of the "
+                       "feature vectors that follow them: in demos.mcap (/demos/expert) the "
+                       "true reward's; in birl.mcap (/birl/expert) the learner's, which "
+                       "graph.mcap's and eval.mcap's feature and weight vectors follow too.",
+                       min_items=1)
 GAMMA_T = _num("Discount at the end of the path, γ^T with T its duration in seconds "
                "(0 < γ^T ≤ 1).", minimum=0, maximum=1)
 PHI = _features("Discounted feature counts Φ(ξ) = Σ_t γ^{T_t} φ(e_t) of the path")
@@ -132,11 +135,12 @@ OCCUPANCY_GRID = _message("OccupancyGrid", "The scene's occupancy map (only for 
 })
 
 EXPERT = _message("Expert", "Who demonstrated, under which true reward.", {
-    "kind": _str("Expert kind: optimal, boltzmann, file or planner."),
+    "kind": _str("Expert kind: optimal, boltzmann, file, planner, or none (a deployment "
+                 "without demonstrations)."),
     "reward": _nullable(_str("Name of the true reward preset (polite, rude, ...)."),
-                        "for file and planner demonstrations"),
+                        "for file, planner and none demonstrations"),
     "true_weights": _nullable(_features("The true reward weights w*"),
-                              "for file and planner demonstrations (no w* known)"),
+                              "for file, planner and none demonstrations (no w* known)"),
     "feature_names": FEATURE_NAMES,
     "beta": _nullable(_num("Boltzmann rationality β_E of the expert."),
                       "unless kind is boltzmann"),
@@ -162,7 +166,7 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
     "heldout": _bool("Held out of learning (evaluate.holdout): never in the graph nor in the "
                      "likelihood, only compared with the learned paths."),
     "value_true": _nullable(_num("Quality of the path under w*: w*·Φ + offset."),
-                            "for file and planner demonstrations"),
+                            "for file, planner and none demonstrations"),
 })
 
 def _column(dtype: str, desc: str, per: str = "node") -> Schema:
@@ -251,10 +255,10 @@ ROADMAP = _message("Roadmap", "The reference roadmap with its exact solution und
     "start_nodes": _ids("Node of every start, in the order of Scene.starts."),
     "goal_node": _node("The goal's node"),
     "true_values": _nullable(_column("float64", "Optimal values V* under w*."),
-                             "for file and planner demonstrations"),
+                             "for file, planner and none demonstrations"),
     "true_policy": _nullable(_column("int32", "Optimal policy under w*: the edge index taken "
                                      "at each node, −1 for none."),
-                             "for file and planner demonstrations"),
+                             "for file, planner and none demonstrations"),
 })
 
 BEST_PATHS = _message("BestPaths", "The greedy best trajectories after one growth iteration.", {
@@ -284,7 +288,9 @@ GRAPH_SOLUTION = _message("GraphSolution", "The final graph's MDP solution under
 
 BIRL_EXPERT = _message("BirlExpert", "The demonstrations as the likelihood sees them.", {
     "feature_names": FEATURE_NAMES,
-    "beta": _nullable(_num("Likelihood temperature β."), "for methods without one"),
+    "beta": _nullable(_num("The likelihood's temperature β at the estimate: learned by the "
+                           "Boltzmann forms (the MAP's; with birl=mcmc the posterior mean's), "
+                           "birl.beta for eq. (2)."), "for methods without one"),
     "prior": _str("Prior kind: gaussian, laplace or uniform."),
     "trajectories": _array(_obj("One demonstration.", {
         "start": _int("Start index.", minimum=0), "phi": PHI, "offset": OFFSET,
@@ -310,13 +316,23 @@ BIRL_ITERATION = _message("BirlIteration", "One learning iteration (log_time = i
 })
 
 BIRL_POSTERIOR = _message("BirlPosterior", "Posterior samples of one sampling iteration "
-                          "(birl=mcmc; log_time = iteration, from 1).", {
-    "iteration": _int("Iteration (from 1).", minimum=1),
+                          "(birl=mcmc; log_time = iteration: with eq. (2) iterations 1..n; "
+                          "with the Boltzmann forms the last, whose weights are its mean).", {
+    "iteration": _int("The iteration whose weights are this posterior's mean (from 1).",
+                      minimum=1),
     "mean": _features("Posterior mean of the weights"),
     "std": _features("Posterior standard deviation of the weights"),
     "acceptance_rate": _num("Metropolis–Hastings acceptance rate over all steps (burn-in "
                             "included).", minimum=0, maximum=1),
     "samples": _array(_features("One kept sample"), "Kept samples (n_kept × n_features)."),
+    "n_chains": _int("Chains sampled; `samples` holds them one after the other.", minimum=1),
+    "step": _num("The proposal step the chains kept after burn-in (adapted).", minimum=0),
+    "rhat": _nullable(_array(_nullable(_num("Split R-hat (ArviZ)."), "where not finite"),
+                             "Per weight, in the order of feature_names."),
+                      "for one chain"),
+    "ess": _nullable(_array(_nullable(_num("Bulk effective sample size (ArviZ)."),
+                                      "where not finite"),
+                            "Per weight, in the order of feature_names."), "for one chain"),
 })
 
 POLICY_LOSS = _message("PolicyLoss", "Policy loss of one iteration's weights ("
@@ -362,7 +378,9 @@ METRICS = {
                "(weight_std_<feature> and mcmc_acceptance_rate for mcmc), ref_<metric> for "
                "the roadmap's paths, obstacle_collisions / min_distance_to_obstacle (scenes "
                "with obstacles), frechet_to_demos(_max) (file demos, metres), "
-               "transfer_<scene>_<metric>.", {
+               "transfer_<scene>_<metric>; every key is in the metrics reference "
+               "(docs/reference/metrics.md): held-out, demonstration-count, MCMC-diagnostic "
+               "and graph keys among them.", {
         "policy_loss": _num("Final policy loss on the adaptive graph."),
         "policy_loss_ref": _num("Final policy loss on the reference roadmap."),
         "policy_loss_norm": _num("policy_loss_ref normalised by the contrasting preset's."),

@@ -161,6 +161,9 @@ class IRLResult:
     iterations: list[Iteration]  # iteration 0 holds the initial weights
     mdp_solves: list[int]  # full MDP solves spent up to each iteration
     posteriors: list[PosteriorSamples] = field(default_factory=list)  # sampling methods
+    # the likelihood's β at the estimate: learned by the Boltzmann forms, birl.beta for
+    # eq. (2); None for methods without one
+    beta: float | None = None
 
     @property
     def weights(self) -> np.ndarray:

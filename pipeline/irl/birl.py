@@ -149,11 +149,11 @@ def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:
         records, _, beta = _boltzmann_loop(problem, config)
         if problem.status is not None:
             problem.status(f"estimate: the Boltzmann MAP (β = {beta:.3g})")
-        return IRLResult(records, list(range(1, len(records) + 1)))
+        return IRLResult(records, list(range(1, len(records) + 1)), beta=beta)
     records = birl_map(problem.expert, problem.environment.rollout, problem.prior,
                        beta=config.beta, n_iterations=config.n_iterations, w0=problem.w0,
                        progress=problem.progress)
-    return IRLResult(records, list(range(1, len(records) + 1)))
+    return IRLResult(records, list(range(1, len(records) + 1)), beta=config.beta)
 
 
 def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
@@ -208,7 +208,8 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
             "admissible")
     # Graph solves: eq. (2)'s whole loop, then one per recorded iteration (the soft policy
     # iterations of the Boltzmann model are not counted).
-    return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))])
+    return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))],
+                     beta=config.beta if chosen_from else beta_map)
 
 
 # Eq. (2)'s loop inside the robust form reports how far it got in tenths from this many
@@ -331,7 +332,7 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
         w = np.clip(posteriors[-1].mean, problem.prior.lower, problem.prior.upper)
         beta = float(np.exp(joint.mean[-1]))
         records.append(problem.record(len(records), w, post.log_likelihood(w, beta)))
-        return IRLResult(records, list(range(1, len(records) + 1)), posteriors)
+        return IRLResult(records, list(range(1, len(records) + 1)), posteriors, beta)
 
     # eq. (2) samples a posterior every iteration, each only to move the estimate: only the
     # last, the one reported, is sampled until its chains agree
@@ -346,7 +347,7 @@ def fit_mcmc(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     records = birl_map(problem.expert, problem.environment.rollout, problem.prior,
                        beta=config.beta, n_iterations=config.n_iterations, w0=problem.w0,
                        progress=problem.progress, fit=posterior_mean)
-    return IRLResult(records, list(range(1, len(records) + 1)), posteriors)
+    return IRLResult(records, list(range(1, len(records) + 1)), posteriors, config.beta)
 
 
 class Posterior:

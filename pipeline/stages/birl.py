@@ -108,7 +108,8 @@ def write_birl(ctx: RunContext, expert: list[TrajectoryStats], result: IRLResult
     b = ctx.cfg.birl
     with ctx.writer("birl") as w:
         w.add(topics.BIRL_EXPERT, "BirlExpert", {
-            "feature_names": ctx.cfg.learner_features, "beta": getattr(b, "beta", None),
+            "feature_names": ctx.cfg.learner_features,
+            "beta": result.beta if result.beta is not None else getattr(b, "beta", None),
             "prior": b.prior.kind,
             "trajectories": [{"start": t.start, "phi": t.phi, "offset": t.offset,
                               "end_discount": t.end_discount, "reached": t.reached}
@@ -128,7 +129,10 @@ def write_birl(ctx: RunContext, expert: list[TrajectoryStats], result: IRLResult
                   log_time=it.index)
         if isinstance(env, GrowingGraphEnvironment):
             write_growth(w, env)
-        for n, post in enumerate(result.posteriors, start=1):
+        # each posterior belongs to one of the last iterations (eq. (2): 1..n; the Boltzmann
+        # forms: one, the last, whose weights are its mean)
+        first = len(result.iterations) - len(result.posteriors)
+        for n, post in enumerate(result.posteriors, start=first):
             w.add(topics.BIRL_POSTERIOR, "BirlPosterior", {
                 "iteration": n, "mean": post.mean, "std": post.std,
                 "acceptance_rate": post.acceptance_rate, "samples": post.samples,

@@ -89,6 +89,15 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
     post = birl.all("/birl/posterior")
     names = ("relation", "social", "goal_deviation", "length", "crossing")
     assert len(post) == n_posteriors and post[-1]["n_chains"] == 4
+    # each labels the iteration whose weights are its mean: the last ones (the Boltzmann
+    # forms' one was labelled 1, the MAP's iteration, though it gives the extra last one)
+    its = birl.all("/birl/iteration")
+    assert [p["iteration"] for p in post] == list(range(len(its) - len(post), len(its)))
+    last = np.clip(post[-1]["mean"], -1.0, 0.0)
+    assert np.allclose(its[post[-1]["iteration"]]["weights"], last)
+    # the expert message's β is the likelihood's at the estimate (learned; eq. (2): birl.beta)
+    beta = birl.one("/birl/expert")["beta"]
+    assert (beta == 10.0) == (likelihood == "paper") or likelihood == "robust"
     assert post[-1]["mean"] == [m[f"weight_{n}"] for n in names] or likelihood != "paper"
     assert all(m[f"weight_std_{n}"] > 0 for n in names)
     assert 0.2 <= m["mcmc_acceptance_rate"] <= 0.5  # the adapted step
