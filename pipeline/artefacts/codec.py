@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import binascii
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -122,15 +123,20 @@ def nodes_message(nodes: NodeTable, first_id: int, with_terminal: bool = False) 
     return msg
 
 
-def edges_message(edges: EdgeTable, first_id: int) -> dict:
+def edges_message(edges: EdgeTable, first_id: int, feature_names: Sequence[str]) -> dict:
     """A GraphEdges message: `edges` as columns, ids first_id, first_id + 1, ...;
-    features row-major (count × n_features), waypoints the [x, y] points of every edge's
-    path one after the other (n_waypoints of them per edge)."""
+    features row-major (count × n_features, the columns named by `feature_names`), waypoints
+    the [x, y] points of every edge's path one after the other (n_waypoints of them per
+    edge)."""
+    if len(feature_names) != edges.features.shape[1]:
+        raise ValueError(f"{len(feature_names)} feature names for {edges.features.shape[1]} "
+                         "feature columns")
     values = {"src": edges.src, "dst": edges.dst, "duration": edges.duration,
               "demo": edges.demo, "iteration": edges.added_at,
               "n_waypoints": edges.waypoints.counts}
     msg = {k: column(values[k], dtype) for k, dtype in EDGE_COLUMNS.items()}
     msg.update(first_id=first_id, count=len(edges), n_features=int(edges.features.shape[1]),
+               feature_names=list(feature_names),
                features=column(edges.features, F64), waypoints=column(edges.waypoints.points, F64))
     return msg
 

@@ -83,7 +83,8 @@ def _node(desc: str) -> Schema:
 FEATURE_NAMES = _array({"type": "string"}, "Names of the features, in the order of the "
                        "feature vectors that follow them: in demos.mcap (/demos/expert) the "
                        "true reward's; in birl.mcap (/birl/expert) the learner's, which "
-                       "graph.mcap's and eval.mcap's feature and weight vectors follow too.",
+                       "graph.mcap's (its /graph/edges names them too) and eval.mcap's "
+                       "feature and weight vectors follow.",
                        min_items=1)
 GAMMA_T = _num("Discount at the end of the path, γ^T with T its duration in seconds "
                "(0 < γ^T ≤ 1).", minimum=0, maximum=1)
@@ -215,6 +216,8 @@ GRAPH_EDGES = _message("GraphEdges", "Directed edges (local-controller runs) of 
     "count": _int("Number of edges (rows) in this message.", minimum=0),
     "n_features": _int("Entries of each edge's feature vector (len(feature_names)).",
                        minimum=0),
+    "feature_names": _array({"type": "string"}, "Names of the features of `features`' "
+                            "columns, in order (the learner's)."),
     "src": _column("int32", "Source node id.", "edge"),
     "dst": _column("int32", "Destination node id.", "edge"),
     "duration": _column("float64", "Duration τ(e) of the controller run, seconds (> 0).",

@@ -154,5 +154,6 @@ def write_growth(w: ArtefactWriter, env: GrowingGraphEnvironment) -> None:
     w.add(topics.BIRL_GRAPH_NODES, "GraphNodes",
           codec.nodes_message(nodes, env.base_nodes, with_terminal=True),
           log_time=codec.last_iteration(nodes))
-    w.add(topics.BIRL_GRAPH_EDGES, "GraphEdges", codec.edges_message(edges, env.base_edges),
+    w.add(topics.BIRL_GRAPH_EDGES, "GraphEdges",
+          codec.edges_message(edges, env.base_edges, env.adaptive.fm.names),
           log_time=codec.last_iteration(edges))

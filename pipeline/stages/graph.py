@@ -147,7 +147,7 @@ def add_graph(w: ArtefactWriter, graph: AdaptiveGraph, weights: np.ndarray,
     nodes, edges = graph.node_table(), graph.edge_table()
     w.add(topics.GRAPH_NODES, "GraphNodes", codec.nodes_message(nodes, 0),
           log_time=codec.last_iteration(nodes))
-    w.add(topics.GRAPH_EDGES, "GraphEdges", codec.edges_message(edges, 0),
+    w.add(topics.GRAPH_EDGES, "GraphEdges", codec.edges_message(edges, 0, graph.fm.names),
           log_time=codec.last_iteration(edges))
     for h in graph.history:
         w.add(topics.GRAPH_BEST_PATHS, "BestPaths", {

@@ -63,7 +63,7 @@ def _graph_file(path, g, chunks=1):
                            part_e.demo[:hi_e - lo_e], part_e.added_at[:hi_e - lo_e])
         msgs += [(topics.GRAPH_NODES, "GraphNodes", codec.nodes_message(part_n, lo_n),
                   codec.last_iteration(part_n)),
-                 (topics.GRAPH_EDGES, "GraphEdges", codec.edges_message(part_e, lo_e),
+                 (topics.GRAPH_EDGES, "GraphEdges", codec.edges_message(part_e, lo_e, g.fm.names),
                   codec.last_iteration(part_e))]
     msgs.append((topics.GRAPH_SOLUTION, "GraphSolution", {
         "terminal": g.terminal, "start_nodes": g.start_nodes, "min_separation": 0.1},
@@ -125,8 +125,8 @@ def test_unusual_values_round_trip(tmp_path):
                             Polylines.from_list([]), np.zeros(0, bool), np.zeros(0, int))
     path = _write(tmp_path / "x.mcap", [
         ("/n", "GraphNodes", codec.nodes_message(nodes, 10, with_terminal=True), 2),
-        ("/e", "GraphEdges", codec.edges_message(edges, 4), 2),
-        ("/none", "GraphEdges", codec.edges_message(empty_edges, 0), 0)])
+        ("/e", "GraphEdges", codec.edges_message(edges, 4, ["a", "b", "c"]), 2),
+        ("/none", "GraphEdges", codec.edges_message(empty_edges, 0, ["a", "b", "c"]), 0)])
     art = read_artefact(path)
     got = codec.decode_nodes(art, "/n", first_id=10)
     assert_same_nodes(got, nodes)
@@ -176,7 +176,8 @@ def test_birl_growth_continues_the_graph(tmp_path, grown):
         (topics.BIRL_GRAPH_NODES, "GraphNodes",
          codec.nodes_message(more_nodes, base_nodes, with_terminal=True),
          codec.last_iteration(more_nodes)),
-        (topics.BIRL_GRAPH_EDGES, "GraphEdges", codec.edges_message(more_edges, base_edges),
+        (topics.BIRL_GRAPH_EDGES, "GraphEdges",
+         codec.edges_message(more_edges, base_edges, r.fm.names),
          codec.last_iteration(more_edges))])
     nodes, edges = codec.graph_tables(read_artefact(graph_path), read_artefact(birl_path))
     assert_same_nodes(nodes, r.node_table())

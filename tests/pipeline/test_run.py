@@ -223,6 +223,17 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
     assert f"  its weight box   {source_notes}" in deployed
 
 
+def test_graph_edges_name_their_feature_columns(default_run):
+    """graph.mcap is made before birl.mcap: its edges' feature columns are named in it (the
+    learner's features, as /birl/expert names them), not only by the later artefact."""
+    run_dir = default_run[0]
+    [edges] = read_artefact(run_dir / "graph.mcap").all(topics.GRAPH_EDGES)
+    learner = read_artefact(run_dir / "birl.mcap").one(topics.BIRL_EXPERT)["feature_names"]
+    assert edges["feature_names"] == learner == ["relation", "social", "goal_deviation",
+                                                 "length", "crossing"]
+    assert edges["n_features"] == len(learner)
+
+
 def test_the_summary_names_the_weights_learning_never_moved(tmp_path, default_run):
     """MaxEnt leaves the weight of a feature no path of its MDP incurs (crossing, on
     metropolis) at its start, a prior draw, which the summary showed as if learned; the
