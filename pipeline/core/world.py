@@ -36,6 +36,13 @@ class SceneError(PipelineError):
 OBSTACLE_RESOLUTION = 0.05  # m, raster of polygon obstacles when the scene has no map
 
 
+def in_goal_disk(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> np.ndarray:
+    """Mask of the points (..., 2) within `goal_tolerance` of `goal` (`within`: one at the
+    disk's edge is in it); for one point (2,) a single bool."""
+    return within(np.linalg.norm(np.asarray(points, float) - np.asarray(goal, float), axis=-1),
+                  goal_tolerance)
+
+
 @dataclass
 class BodyParams:
     """Sizes every scene has, whatever its source."""
@@ -177,8 +184,7 @@ class Scene:
     def at_goal(self, points: np.ndarray) -> np.ndarray:
         """Mask (n,) of points (n, 2) within goal_tolerance of the goal (terminal states; a
         lattice point exactly goal_tolerance away is, wherever the room lies)."""
-        p = np.atleast_2d(points)
-        return within(np.linalg.norm(p - self.goal, axis=1), self.goal_tolerance)
+        return in_goal_disk(np.atleast_2d(points), self.goal, self.goal_tolerance)
 
     def in_body(self, points: np.ndarray, clearance: float = 0.0) -> np.ndarray:
         """Mask (n,) of points (n, 2) inside some person's body disk (grown by `clearance`)."""

@@ -49,7 +49,7 @@ import scipy.linalg
 from scipy.spatial import cKDTree
 
 from pipeline.core.ties import within
-from pipeline.core.world import Room, metres, point
+from pipeline.core.world import Room, in_goal_disk, metres, point
 from pipeline.errors import PipelineError, file_kind, listed
 from pipeline.inputs.schemas import read_json
 
@@ -697,8 +697,7 @@ def _first_at_goal(track: np.ndarray, goal: np.ndarray, goal_tolerance: float) -
     """The index of the first pose of `track` within `goal_tolerance` of `goal` (its last
     index when none is)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        at = np.flatnonzero(within(np.linalg.norm(np.asarray(track, float) - goal, axis=1),
-                                   goal_tolerance))
+        at = np.flatnonzero(in_goal_disk(track, goal, goal_tolerance))
     return int(at[0]) if len(at) else len(track) - 1
 
 
@@ -822,7 +821,7 @@ def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> 
     """
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     goal = np.asarray(goal, dtype=float)
-    if len(p) == 0 or within(np.linalg.norm(p[0] - goal), goal_tolerance):
+    if len(p) == 0 or in_goal_disk(p[0], goal, goal_tolerance):
         return None
     if len(p) < 2:
         return p.copy()
@@ -835,7 +834,7 @@ def cut_at_goal(points: np.ndarray, goal: np.ndarray, goal_tolerance: float) -> 
     if len(entered) == 0:
         return p.copy()
     i = int(entered[0])
-    if within(np.linalg.norm(p[i + 1] - goal), goal_tolerance):
+    if in_goal_disk(p[i + 1], goal, goal_tolerance):
         return p[:i + 2].copy()
     return np.vstack([p[:i + 1], disk_entry(p[i], p[i + 1], goal, goal_tolerance)[None, :]])
 
@@ -917,8 +916,7 @@ def stream_spans(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_
         return []
     gaps = np.linalg.norm(track[:, None, :] - starts[None, :, :], axis=2)  # (K, n)
     near_any = np.flatnonzero((gaps <= start_radius).any(axis=1))
-    at_goal = np.flatnonzero(within(np.linalg.norm(track - np.asarray(goal, dtype=float),
-                                                   axis=1), goal_tolerance))
+    at_goal = np.flatnonzero(in_goal_disk(track, goal, goal_tolerance))
     spans = []
     pos = 0
     while True:
@@ -1109,11 +1107,11 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
     tracking noise and so reach the goal (`cut_trajectory`'s goal_margin, `goal_margin`)."""
     found = []
     for k, (track, cut) in enumerate(zip(tracks, cleaned, strict=True)):
-        if not within(np.linalg.norm(cut[-1] - goal), goal_tolerance):
+        if not in_goal_disk(cut[-1], goal, goal_tolerance):
             continue
         with np.errstate(over="ignore", invalid="ignore"):
             plain = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
-        if plain is not None and not within(np.linalg.norm(plain[-1] - goal), goal_tolerance):
+        if plain is not None and not in_goal_disk(plain[-1], goal, goal_tolerance):
             gap = float(np.linalg.norm(plain[-1] - goal)) - goal_tolerance
             found.append(f"{k} ({1000 * gap:.1f} mm)")
     if found:

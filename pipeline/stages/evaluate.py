@@ -400,7 +400,8 @@ def print_summary(m: dict, ctx: RunContext, weights: np.ndarray | None = None) -
         # e.g. MaxEnt's weight of a feature no path of its MDP incurs: its gradient is ~0,
         # and the prior draw it starts from (crossing -70.087) would read as learned
         moved = np.ptp(weights, axis=0) > UNMOVED_SHARE * (box.upper - box.lower)
-        unmoved = [n for n, m_ in zip(ctx.cfg.learner_features, moved, strict=True) if not m_]
+        unmoved = [name for name, moved_it in zip(ctx.cfg.learner_features, moved,
+                                                   strict=True) if not moved_it]
     print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features, box,
                        None if learned else given_weights_origin(ctx.cfg), unmoved),
           flush=True)
