@@ -238,6 +238,7 @@ class AdaptiveGraph(StateGraph):
         self.best_paths: list[np.ndarray] = []
         self.best_path_values = np.zeros(0)
         self.best_reached = np.zeros(0, dtype=bool)
+        self._best_path_edges: list[np.ndarray] = []  # the policy's edge at each path node
         self.history: list[dict] = []  # per iteration: best paths and values
         self._recorded_at = -1  # the solver's changes at the last record
         # Controller runs drawn from graph nodes, and those that arrived clear of obstacles
@@ -507,15 +508,26 @@ class AdaptiveGraph(StateGraph):
         record when the solver has not changed since (late in growth most expansions add
         nothing, and following every start's path again would be wasted)."""
         if self.solver.changes != self._recorded_at:
-            paths = [self.solver.follow(int(s)) for s in self.start_nodes]
+            paths = [self._best_path(k, int(s)) for k, s in enumerate(self.start_nodes)]
             self.best_paths = [nodes for nodes, _ in paths]
-            self.best_reached = np.array([reached for _, reached in paths])
+            self.best_reached = np.array([reached for _, reached in paths], dtype=bool)
+            self._best_path_edges = [self.solver.policy[nodes] for nodes in self.best_paths]
             self.best_path_values = self.values[self.start_nodes].copy()
             self._recorded_at = self.solver.changes
         self.history.append({"iteration": self.iteration, "n_nodes": self.n_nodes,
                              "paths": [p.copy() for p in self.best_paths],
                              "values": self.best_path_values.copy(),
                              "reached": self.best_reached.copy()})
+
+    def _best_path(self, k: int, start: int) -> tuple[np.ndarray, bool]:
+        """The best trajectory from start k (node `start`) and whether it reaches the goal.
+        A path whose nodes all keep their policy edge is the same path: one array comparison
+        instead of following it node by node again (following grows with the paths' length:
+        4 of 98 profiled seconds of a 20 000-node growth in a 40 m room)."""
+        if k < len(self.best_paths) and np.array_equal(self.solver.policy[self.best_paths[k]],
+                                                       self._best_path_edges[k]):
+            return self.best_paths[k], bool(self.best_reached[k])
+        return self.solver.follow(start)
 
     # -- exploration score -----------------------------------------------------------------
     def _normalisation(self) -> dict[str, Any]:

@@ -77,6 +77,9 @@ class IncrementalGraphMDP:
         self._duration = GrowableArray()
         self._reward, self._discount, self._cost = GrowableArray(), GrowableArray(), GrowableArray()
         self.out_edges: list[list[int]] = []
+        # per node, its out-edges' (ids, end nodes, rewards, discounts) as arrays, built when
+        # _improve first needs them and dropped when the node gains an edge or rewards change
+        self._out_arrays: list[tuple[np.ndarray, ...] | None] = []
         self.in_edges: list[list[int]] = []
         self._in_src: list[list[int]] = []  # per node, src of each of in_edges (Python ints)
         self._policy_children: list[set[int]] = []  # y with dst(policy(y)) == x
@@ -136,6 +139,7 @@ class IncrementalGraphMDP:
         self._policy.append(NO_EDGE)
         self._ctc.append(0.0 if source else np.inf)
         self.out_edges.append([])
+        self._out_arrays.append(None)
         self.in_edges.append([])
         self._in_src.append([])
         self._policy_children.append(set())
@@ -161,6 +165,7 @@ class IncrementalGraphMDP:
         self._cost.extend(np.maximum(-rewards, 0.0))
         for k, (a, b) in enumerate(zip(src.tolist(), dst.tolist(), strict=True)):
             self.out_edges[a].append(first + k)
+            self._out_arrays[a] = None
             self.in_edges[b].append(first + k)
             self._in_src[b].append(a)
             self._dirty_nodes.append(a)
@@ -173,6 +178,7 @@ class IncrementalGraphMDP:
         rewards = np.asarray(rewards, float)
         self._reward.data[: len(rewards)] = rewards
         self._cost.data[: len(rewards)] = np.maximum(-rewards, 0.0)
+        self._out_arrays = [None] * self.n_nodes
         self.solve_full()
 
     # -- solving ---------------------------------------------------------------------------
@@ -237,6 +243,7 @@ class IncrementalGraphMDP:
                                         self._discount.data)
         reward, terminal, undiscounted = self._reward.data, self._terminal.data, self.undiscounted
         out_edges, in_src, children = self.out_edges, self._in_src, self._policy_children
+        out_arrays = self._out_arrays
         queue = deque(dict.fromkeys(dirty))
         queued = set(queue)
         while queue:
@@ -244,11 +251,14 @@ class IncrementalGraphMDP:
             queued.discard(u)
             if terminal[u] or not out_edges[u]:
                 continue
-            out = np.asarray(out_edges[u])
+            arrays = out_arrays[u]
+            if arrays is None:  # a node is re-checked ~20 times per edge it gains
+                out = np.asarray(out_edges[u])
+                arrays = out_arrays[u] = (out, dst[out], reward[out], discount[out])
+            out, ends, out_reward, out_discount = arrays
             # Q of every out-edge at once (the hot loop of graph growth: 3x faster than
             # one edge at a time, the same floating-point operations per edge).
-            ends = dst[out]
-            q = reward[out] + discount[out] * value[ends]
+            q = out_reward + out_discount * value[ends]
             if undiscounted:  # only edges into nodes that reach the goal are usable
                 q[~(terminal[ends] | (policy[ends] != NO_EDGE))] = -np.inf
             best = int(q.argmax())

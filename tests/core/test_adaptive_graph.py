@@ -327,6 +327,30 @@ def test_a_record_follows_the_paths_again_only_after_a_change(metropolis, demos)
     assert fresh != [p.tolist() for p in before]  # the rude weights change some path
 
 
+def test_every_record_holds_the_paths_the_policy_gives_then(metropolis, demos):
+    """A record reuses a start's path when no node on it changed its policy edge: at every
+    iteration (under the weights growth starts with, then under new ones) the recorded
+    paths and reached flags are those of following the policy from each start."""
+    g = AdaptiveGraph(metropolis, FeatureModel.from_scene(metropolis), LinearController(),
+                      PRIOR_MEAN, GraphParams(max_nodes=200), np.random.default_rng(3))
+    g.initialise(demos)
+    reused = []
+
+    def check(graph):
+        fresh = [graph.solver.follow(int(s)) for s in graph.start_nodes]
+        assert [p.tolist() for p in graph.best_paths] == [p.tolist() for p, _ in fresh]
+        assert graph.best_reached.tolist() == [r for _, r in fresh]
+        assert [p.tolist() for p in graph.history[-1]["paths"]] == [p.tolist() for p, _ in fresh]
+        reused.append(graph.solver.changes)
+
+    g.grow(progress=check)
+    g.set_weights(np.asarray(RUDE, float))
+    check(g)
+    g.grow_by(40)
+    check(g)
+    assert len(reused) > 15
+
+
 def test_posq_graph_is_feasible_and_reaches_goal(metropolis, demos):
     # Under the polite weights (cheap length): with strongly negative length weights, slow
     # POSQ turns between close nodes can make circling cheaper than reaching the goal.

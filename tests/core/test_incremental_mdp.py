@@ -61,6 +61,12 @@ def test_new_rewards_resolve_exactly():
     inc.update()
     inc.set_rewards(-rng.uniform(0, 1, keep.sum()))
     np.testing.assert_allclose(inc.values, inc.mdp().solve([1.0]).values, atol=1e-12)
+    # growth goes on under the new rewards: the repair must not use any earlier ones
+    new = inc.add_node(terminal=False)
+    inc.add_edges([new] * 3 + [2, 3, 4], [0, 5, 6] + [new] * 3, np.full(6, 0.5),
+                  -rng.uniform(0, 1, 6))
+    inc.update()
+    np.testing.assert_allclose(inc.values, inc.mdp().solve([1.0]).values, atol=1e-12)
 
 
 def test_growable_array_append_equals_extend():

@@ -58,6 +58,16 @@ def test_scene_dict_round_trip(metropolis):
     np.testing.assert_array_equal(again.starts, metropolis.starts)
 
 
+def test_person_positions_are_built_once_and_cannot_be_changed(metropolis):
+    """person_xy is cached (graph growth asks for it at every feasibility test): a caller
+    writing into it would move the persons for every later caller, so it is read-only."""
+    xy = metropolis.person_xy
+    assert metropolis.person_xy is xy
+    np.testing.assert_array_equal(xy, [[p.x, p.y] for p in metropolis.persons])
+    with pytest.raises(ValueError, match="read-only"):
+        xy[0, 0] += 1.0
+
+
 def test_a_room_far_from_the_origin_is_described_to_the_centimetre():
     # UTM coordinates: :g would print both x edges as 5e+06
     assert Room(5e6 + 0.123, 0.0, 5e6 + 10.0, 9.5).describe() == \
