@@ -252,11 +252,23 @@ def _read_image(path: Path, fail: Callable[[str], PipelineError],
     map_server reads them (the module docstring)."""
     try:
         with _no_bomb_check(), Image.open(path) as img:
+            # a 16-bit PGM's maxval: 65535 read raw, else only in its decoder's arguments
+            # (before loading)
+            pgm_maxval = None
+            if img.format == "PPM" and img.tile:
+                tile = img.tile[0]
+                pgm_maxval = tile.args[1] if tile.codec_name in ("ppm", "ppm_plain") else 65535
             img.load()
             has_alpha = "A" in img.getbands() or "transparency" in img.info
             top = 255  # the largest channel value
             if img.mode.startswith("I;16"):  # 16-bit grey (PNG)
                 total, top = 3 * np.asarray(img, dtype=np.uint32), 65535
+            elif img.mode == "I" and pgm_maxval is not None:
+                # 16-bit grey PGM: Pillow scales it to 0..65535; the file's own values
+                # (that scaling undone, exactly: it only rounds) over its maxval, as
+                # map_server reads them
+                raw = np.rint(np.asarray(img, dtype=float) * pgm_maxval / 65535)
+                total, top = 3 * raw, pgm_maxval
             elif img.mode.startswith(("I", "F")):
                 raise fail(f"image {path} (key 'image') has {img.mode} pixels; "
                            "save it as 8- or 16-bit grey or 8-bit colour (PGM/PNG)")

@@ -111,6 +111,20 @@ def test_16_bit_grey_images_are_read_at_their_depth(tmp_path):
     assert _free_in_image_order(load_map(path)).tolist() == [[True, True, False]]
 
 
+@pytest.mark.parametrize("header, body", [
+    (b"P5\n3 1\n65535\n", np.array([65535, 52000, 0], ">u2").tobytes()),
+    (b"P2\n3 1\n1000\n", b"1000 793 0\n"),  # ASCII, maxval 1000: 793 -> p = 0.207
+])
+def test_16_bit_pgm_is_read_at_its_maxval(tmp_path, header, body):
+    """A PGM with maxval above 255 (Pillow opens it as 32-bit integers scaled to 0..65535):
+    shade v / maxval, as map_server reads it."""
+    (tmp_path / "map16.pgm").write_bytes(header + body)
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map16.pgm")
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, False, False]]
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map16.pgm", free_thresh=0.21)
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, True, False]]
+
+
 def test_scale_mode_treats_translucent_pixels_as_unknown(tmp_path):
     grey = np.array([[254, 254, 0]], dtype=np.uint8)
     alpha = np.array([[255, 128, 255]], dtype=np.uint8)
