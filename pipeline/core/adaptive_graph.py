@@ -137,19 +137,24 @@ class Candidates:
     score: np.ndarray | None = None  # (m,) exploration score
 
 
+ON_WALL = 1e-6  # m: a point this close to a wall is on it (voronoi_centroids)
+
+
 def voronoi_centroids(points: np.ndarray, room: Room) -> np.ndarray:
     """Centroids (n, 2) of the Voronoi cells of `points` (n, 2) clipped to the room.
 
     Reflecting the points across the four walls makes every original cell bounded and cut
     exactly by the walls (a wall is the bisector of a point and its mirror image). Computed
     relative to the room's corner: Qhull in map coordinates far from 0 (UTM, 10^6 m) put
-    the centroids 100 m off.
+    the centroids 100 m off. A point on a wall would be its own mirror image there (Qhull
+    then keeps one of the two and the cell is garbage: no area, or outside the room), so
+    points within ON_WALL of a wall are moved that far inside first.
     """
     if len(points) == 0:
         return np.zeros((0, 2))
     corner = np.array([room.x_min, room.y_min])
-    points = np.asarray(points, float) - corner
     x0, y0, x1, y1 = 0.0, 0.0, room.x_max - room.x_min, room.y_max - room.y_min
+    points = np.clip(np.asarray(points, float) - corner, ON_WALL, [x1 - ON_WALL, y1 - ON_WALL])
     mirrors = [points,
                np.column_stack([2 * x0 - points[:, 0], points[:, 1]]),
                np.column_stack([2 * x1 - points[:, 0], points[:, 1]]),

@@ -10,6 +10,7 @@ import math
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import numpy as np
 import pytest
@@ -214,6 +215,20 @@ def test_voronoi_centroids_clipped_to_room():
     np.testing.assert_allclose(c, [[1.0, 1.0], [3.0, 1.0]])  # two 2x2 halves
     c = voronoi_centroids(np.array([[0.5, 0.5], [3.0, 1.5], [2.0, 0.4]]), room)
     assert room.contains(c).all()
+
+
+def test_a_point_on_a_wall_or_corner_has_the_centroid_of_its_half_cell():
+    """A point on a wall is its own mirror image: it is moved ON_WALL inside, so its cell is
+    the half of the cell it would have, clipped by the wall (no NaN, no numpy warning)."""
+    room = Room(0, 0, 4, 2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        c = voronoi_centroids(np.array([[2.0, 1.0], [0.0, 1.0]]), room)
+        corner = voronoi_centroids(np.array([[2.0, 1.0], [0.0, 0.0]]), room)
+    # the wall point's cell: x in [0, 1] (bisector at x = 1), the whole height
+    np.testing.assert_allclose(c, [[2.5, 1.0], [0.5, 1.0]], atol=1e-5)
+    assert room.contains(corner).all() and np.isfinite(corner).all()
+
 
 
 def test_graph_reaches_max_nodes_and_records_growth(graph):
