@@ -74,6 +74,8 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
     guard_log_files()
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
+    if hydra_cfg.job.chdir:  # input paths are relative to where the run was launched, as
+        os.chdir(hydra_cfg.runtime.cwd)  # without it (Hydra restores its cwd after the job)
     if hydra_cfg.mode != RunMode.MULTIRUN:
         try:
             run_pipeline(cfg, run_dir, group_choices=hydra_cfg.runtime.choices)

@@ -25,6 +25,18 @@ def test_typo_and_wrong_type_fail_at_start_up(tmp_path):
     assert not (tmp_path / "scene.mcap").exists()
 
 
+def test_relative_input_paths_are_the_launch_dirs_also_with_hydra_job_chdir(tmp_path):
+    """With hydra.job.chdir=true Hydra runs the job in its run dir: a scene file given
+    relative to where the command was launched is still found there."""
+    (tmp_path / "in").mkdir()
+    scene = (ROOT / "data" / "scenes" / "metropolis.json").read_text()
+    (tmp_path / "in" / "mine.json").write_text(scene)
+    done = run_app("hydra.job.chdir=true", "scene=file", "scene.path=in/mine.json",
+                   "stages=[scene]", f"hydra.run.dir={tmp_path / 'run'}", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "run" / "scene.mcap").exists()
+
+
 def test_out_of_range_value_exits_with_one_line(tmp_path):
     _fails_with_one_line(run_app(f"hydra.run.dir={tmp_path}", "scene.body_radius=-1"),
                          "scene.body_radius=-1")
