@@ -16,6 +16,7 @@ from pipeline.app.config import Config
 from pipeline.app.provenance import check_config, check_inputs, provenance_metadata
 from pipeline.artefacts.store import Artefact, ArtefactWriter, link_or_copy, read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
+from pipeline.errors import PipelineError
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent.parent
 # conf/ and data/ of the package: links to the top-level dirs in the source tree, real
@@ -28,9 +29,23 @@ def resolve_path(path: str) -> Path:
     """A user-given input path: as given (relative to the cwd), else relative to the package
     (so `data/scenes/metropolis.json` works from anywhere, also from an installed wheel)."""
     p = Path(path).expanduser()
-    if p.is_absolute() or p.exists():
+    if _exists(p, path) or p.is_absolute():
         return p
     return PACKAGE_ROOT / p if (PACKAGE_ROOT / p).exists() else p
+
+
+def _exists(p: Path, given: str) -> bool:
+    """Does input path p exist? A path the system cannot look up at all (a name too long, a
+    dir that may not be searched) is the user's input: one line naming it, not pathlib's
+    OSError, which would read as a failure to write."""
+    try:
+        p.stat()
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+    except OSError as e:
+        shown = given if len(given) <= 80 else f"{given[:60]}... ({len(given)} characters)"
+        raise PipelineError(f"input path {shown} cannot be looked up: {e.strerror}") from None
+    return True
 
 
 def _git(*args: str) -> str | None:

@@ -350,6 +350,11 @@ CONFIG_CASES = {
                                          "scene=random scene.map=PATH"]),
     "expert file not set": (["expert=file"], ["expert.path"]),
     "from_run not a directory": (["from_run=/nonexistent/run"], ["from_run"]),
+    # an input, not an output: not "cannot write", and the path is said shortened
+    "expert file name too long": (["expert=file", f"expert.path=/tmp/{'a' * 300}.json"],
+                                  ["input path /tmp/aaa", "(310 characters)", "too long"]),
+    "scene file name too long": (["scene=file", f"scene.path={'b' * 300}.json"],
+                                 ["input path bbb", "too long"]),
     "transfer scenes not a list": (["evaluate.transfer_scenes=5"], ["evaluate.transfer_scenes"]),
     # Hydra names the preset, the key and the option's schema on separate lines
     "a preset's setting the method lacks": (["experiment=quick", "birl=fixed"],
