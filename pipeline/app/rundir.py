@@ -39,6 +39,7 @@ from pipeline.errors import PipelineError, os_error_reason
 log = logging.getLogger("pipeline")
 
 LOCK_FILE, STATUS_FILE, METRICS_FILE = ".lock", "status.json", "metrics.json"
+TIMINGS_FILE = "timings.json"  # seconds per stage: side information, never in artefacts
 # Hydra's record of a run's config (in its default hydra.output_subdir)
 HYDRA_FILES = (".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml")
 SWEEP_FILE = "sweep.json"  # in a sweep dir: the number of the sweep that last ran into it
@@ -414,12 +415,18 @@ class RunDir:
         self.done_stages: list[str] = []
         self.stage: str | None = None
         self._fd: int | None = None  # our own lock, unless the CLI handed its lock over
+        # the earlier run's status.json and timings.json (None: absent), to put back
+        self._side_files_before: dict[str, str | None] | None = None
+        self._changed = False  # has an artefact of another content replaced one here?
 
     def __enter__(self) -> RunDir:
         if Path(self.path).resolve() not in _HANDED_OVER:
             check_not_a_sweep_dir(self.path)
             self._fd = acquire_lock(self.path)
         self._remove_stale_temp_files()
+        with suppress(OSError, UnicodeDecodeError):  # unreadable: not put back
+            self._side_files_before = {name: _read_or_none(self.path / name)
+                                       for name in (STATUS_FILE, TIMINGS_FILE)}
         self._write(RUNNING)
         return self
 
@@ -432,7 +439,7 @@ class RunDir:
                 if isinstance(exc, Interrupted):
                     exc.stage = interrupted.stage  # the CLI's one line names it
                 self._write(INTERRUPTED, error=interrupted.describe())
-            else:
+            elif not self._restore_earlier_run():
                 self._write(FAILED, error=error_text(exc))
         except OSError as e:  # e.g. disk full: the stage's own error matters more
             log.error("cannot write %s: %s", self.path / STATUS_FILE, os_error_reason(e))
@@ -453,6 +460,7 @@ class RunDir:
         beside old outputs; a failed or killed stage leaves the earlier files untouched."""
         if content_digest(self.path / ARTEFACT_FILE[stage]) == new_digest:
             return
+        self._changed = True
         # A later stage this run already made read the new inputs (an input linked out of
         # pipeline order, e.g. evaluate reading the scene after birl): its artefact stays.
         later = [self.path / ARTEFACT_FILE[s] for s in STAGES[STAGES.index(stage) + 1:]
@@ -476,6 +484,26 @@ class RunDir:
         if stale:
             log.info("removed %d stale temporary file(s) of an earlier run from %s", len(stale),
                      self.path)
+
+    def _restore_earlier_run(self) -> bool:
+        """A command-line run that failed before any artefact here changed (a bad
+        demonstration file, an artefact of `from_run` found corrupt or made with another
+        config by the stage that reads it; stages before it may have re-made theirs, the
+        same) leaves the earlier run in the dir as it was: its status.json, timings.json and
+        .hydra/ files put back, as for a run its config refuses (`mark_ended_before_stages`);
+        a good run must not lose its export to a failed re-run. Not in a sweep, whose failed
+        jobs must say so. False where nothing was put back."""
+        before = self._side_files_before
+        if self.sweep is not None or self._changed or before is None \
+                or before[STATUS_FILE] is None or not _restore_hydra_files(self.path):
+            return False
+        for name, content in before.items():
+            if content is None:
+                (self.path / name).unlink(missing_ok=True)
+            else:
+                write_text_atomic(self.path / name, content)
+        log.info("%s: nothing here was changed; the earlier run's status is kept", self.path)
+        return True
 
     def _write(self, state: str, error: str | None = None) -> None:
         write_status(self.path, state, self.stage if state != COMPLETE else None, error,

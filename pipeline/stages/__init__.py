@@ -25,6 +25,7 @@ from pipeline.app.preflight import preflight
 from pipeline.app.rundir import (
     FAILED,
     INTERRUPTED,
+    TIMINGS_FILE,
     Interrupted,
     RunDir,
     as_interrupted,
@@ -84,7 +85,7 @@ def run_pipeline(cfg: DictConfig, run_dir: Path, sweep: int | None = None,
         with stopped_by_signals(), RunDir(run_dir, stages, sweep) as rundir:
             ctx.before_replace = rundir.before_replace
             timings = ctx.timings  # stages add their own measurements
-            timings.update(read_timings(run_dir / "timings.json"))
+            timings.update(read_timings(run_dir / TIMINGS_FILE))
             for stage in STAGES[STAGES.index(stages[0]):]:  # derived: re-measured or removed
                 timings.pop(f"time_{stage}_s", None)
             for stage in stages:
@@ -128,7 +129,7 @@ def run_stage(stage: str, ctx: RunContext, rundir: RunDir) -> None:
     log.info("stage %s done in %.2f s -> %s", stage, ctx.timings[f"time_{stage}_s"],
              ctx.run_dir / ARTEFACT_FILE[stage])
     # Wall-clock goes to a side file (later into metrics.json), never into artefacts.
-    write_json_atomic(ctx.run_dir / "timings.json", ctx.timings)
+    write_json_atomic(ctx.run_dir / TIMINGS_FILE, ctx.timings)
 
 
 def read_timings(path: Path) -> dict[str, float]:

@@ -31,7 +31,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 
 from pipeline.__main__ import cli, objective_value, shorten_values
-from pipeline.app.rundir import RunDir
+from pipeline.app.rundir import RunDir, read_status
 from pipeline.artefacts import read_artefact, topics
 from pipeline.artefacts.store import ArtefactWriter, content_digest, write_json_atomic
 from tests.conftest import (
@@ -102,6 +102,8 @@ def artefacts_of(d: Path) -> dict[str, str | None]:
 def assert_one_line(capfd, argv: list[str], fragments: list[str], code: int | None = None,
                     earlier: Path | None = None) -> str:
     before = artefacts_of(earlier) if earlier is not None else None
+    status_before = read_status(earlier) if earlier is not None else None
+    timings_before = timings_of(earlier) if earlier is not None else None
     got, out, err = run_cli(capfd, *argv)
     lines = err.strip().splitlines()
     assert got != 0, f"exit 0 for {argv}\n{out[-2000:]}"
@@ -118,7 +120,29 @@ def assert_one_line(capfd, argv: list[str], fragments: list[str], code: int | No
         if after != before:  # a stage ran and replaced some: what is there must be sound
             assert check_run_dir(earlier) == []
             assert set(after) <= set(before) | {"scene.mcap", "demos.mcap"}
+        else:  # nothing replaced: the earlier run is as it was, status and all
+            assert read_status(earlier) == status_before, (read_status(earlier), err)
+            assert timings_of(earlier) == timings_before
     return err
+
+
+def timings_of(d: Path) -> str | None:
+    return (d / "timings.json").read_text() if (d / "timings.json").exists() else None
+
+
+def test_a_whole_re_run_failing_on_its_demonstration_file_keeps_the_earlier_run(
+        tmp_path, capfd, default_dir):
+    """All stages, the demonstration file bad: the scene stage re-makes the same scene, then
+    the demos stage refuses the file. No artefact changed, so the earlier run stays complete
+    (status, timings, config): it can still be exported."""
+    earlier = linked_run(default_dir, tmp_path / "run")
+    (earlier / ".hydra").mkdir()
+    (earlier / ".hydra" / "config.yaml").write_text("# the earlier run's\n")
+    bad = write(tmp_path, "demos.json", {"trajectories": 3})
+    assert_one_line(capfd, [f"hydra.run.dir={earlier}", "expert=file", f"expert.path={bad}"],
+                    ["trajectories: expected an array"], earlier=earlier)
+    assert read_status(earlier).state == "complete"
+    assert (earlier / ".hydra" / "config.yaml").read_text() == "# the earlier run's\n"
 
 
 def with_run_dir(tmp: Path, default_dir: Path, overrides: list[str]) -> tuple[list[str], Path]:
