@@ -505,6 +505,12 @@ def _check_demonstrator(settings: Config) -> None:
         raise config_error("evaluate.holdout", settings.evaluate.holdout,
                            "null with expert=none (it has no demonstrations to hold out; "
                            "held-out ones come from a file: expert=file expert.path=...)")
+    if isinstance(settings.evaluate.holdout, list) \
+            and settings.expert.kind in ("optimal", "boltzmann"):
+        raise config_error("evaluate.holdout", settings.evaluate.holdout,
+                           f"a fraction or null with expert={settings.expert.kind} (its "
+                           "demonstrations have no subjects; subject ids come from a "
+                           "file's `subjects` or expert=planner's subjects)")
     if settings.expert.kind == "none" and settings.birl.kind != "fixed":
         raise config_error("birl", settings.birl.kind,
                            "fixed with expert=none (nothing to learn from: birl=fixed "

@@ -374,6 +374,8 @@ CONFIG_CASES = {
                                          "scene=random scene.map=PATH"]),
     "expert file not set": (["expert=file"], ["expert.path"]),
     "from_run not a directory": (["from_run=/nonexistent/run"], ["from_run"]),
+    "held-out subjects of an expert without subjects": (
+        ["evaluate.holdout=[ana]"], ["evaluate.holdout=['ana']", "expert=optimal", "subjects"]),
     # an input, not an output: not "cannot write", and the path is said shortened
     "expert file name too long": (["expert=file", f"expert.path=/tmp/{'a' * 300}.json"],
                                   ["input path /tmp/aaa", "(310 characters)", "too long"]),
