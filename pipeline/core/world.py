@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from pipeline.core.nearby import points_in_disks
 from pipeline.core.obstacles import (
@@ -298,13 +299,20 @@ def _read_persons(data: dict, room: Room, fail: Any) -> list[Person]:
     for p in persons:
         if not room.contains(np.array([p.x, p.y]))[0]:
             raise fail(f"person {p.id} at {point(p.x, p.y)} is outside the room {room.describe()}")
+    if len(persons) > 1:  # one person listed twice (a copy, a tracker's duplicate track)
+        xy = np.array([[p.x, p.y] for p in persons])
+        pairs = cKDTree(xy).query_pairs(1e-6, output_type="ndarray")
+        if len(pairs):
+            a, b = persons[pairs[0, 0]], persons[pairs[0, 1]]
+            raise fail(f"persons {a.id} and {b.id} are at the same place {point(a.x, a.y)}; "
+                       "list each person once")
     return persons
 
 
 def _read_relations(data: dict, persons: list[Person], fail: Any) -> list[tuple[int, int]]:
     if not isinstance(data.get("relations", []), list):
         raise fail("'relations' must be a list of [id, id] pairs")
-    by_id = {p.id: p for p in persons}
+    known = {p.id for p in persons}
     relations = []
     for r in data.get("relations", []):
         try:
@@ -315,13 +323,10 @@ def _read_relations(data: dict, persons: list[Person], fail: Any) -> list[tuple[
             raise fail(f"relation {r!r} must be a pair of person ids") from None
         a, b = (int(v) for v in r)
         for pid in (a, b):
-            if pid not in by_id:
+            if pid not in known:
                 raise fail(f"relation [{a}, {b}] names unknown person id {pid}")
         if a == b:
             raise fail(f"relation [{a}, {b}] links a person to itself")
-        pa, pb = by_id[a], by_id[b]
-        if math.hypot(pa.x - pb.x, pa.y - pb.y) < 1e-6:  # a zero-length social link
-            raise fail(f"relation [{a}, {b}] links two persons at the same place")
         relations.append((a, b))
     return relations
 

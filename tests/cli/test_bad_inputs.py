@@ -474,6 +474,8 @@ SCENE_CASES = {
     "relation to itself": (good_scene(relations=[[1, 1]]), ["links a person to itself"]),
     "relation of two at one place": (good_scene(persons=[PERSON, {**PERSON, "id": 2}],
                                                 relations=[[1, 2]]), ["same place"]),
+    "two persons at one place": (good_scene(persons=[PERSON, {**PERSON, "id": 2}]),
+                                 ["persons 1 and 2 are at the same place"]),
     "person coordinate not a number": (good_scene(persons=[{**PERSON, "x": "a"}]),
                                        ["persons[0].x"]),
     "person id a fraction": (good_scene(persons=[{**PERSON, "id": 1.5}]), ["persons[0].id"]),

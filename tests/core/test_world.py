@@ -31,8 +31,10 @@ def _metropolis_dict():
     (lambda d: d.update(starts=[]), "'starts' is empty"),
     (lambda d: d["persons"][0].pop("x"), "person #0 needs numbers"),
     (lambda d: d.pop("room"), "missing key 'room'"),
-    (lambda d: d["persons"][1].update(x=2.0, y=5.0),
-     "relation [1, 2] links two persons at the same place"),
+    (lambda d: d["persons"][1].update(x=2.0, y=5.0),  # linked: no zero-length link either
+     "persons 1 and 2 are at the same place (2, 5)"),
+    (lambda d: d["persons"].append({**d["persons"][5], "id": 99}),  # unrelated, a copy
+     "persons 6 and 99 are at the same place"),
 ])
 def test_malformed_scene_names_the_culprit(mutate, message):
     data = _metropolis_dict()
