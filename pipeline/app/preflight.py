@@ -34,7 +34,7 @@ from pipeline.app.config import (
     RandomSceneConfig,
 )
 from pipeline.app.context import resolve_path
-from pipeline.app.provenance import check_source, file_digest
+from pipeline.app.provenance import check_source, file_digest, files_digest
 from pipeline.app.rundir import check_from_run
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import content_digest, read_artefact
@@ -110,6 +110,7 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         demos_file = resolve_path(cfg.expert.path)
         if made.is_file() and demos_file.exists():
             check_source(read_artefact(made, lazy=True), "expert.path", file_digest(demos_file))
+    check_scene_source(cfg, run_dir, from_run, checked)
     # evaluate too: its inputs were made with the derived value, which it must match
     derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl", "evaluate"})
     # evaluate checks birl.mcap against the birl section, derived value included
@@ -156,6 +157,46 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
 
 
 # -- the scene -----------------------------------------------------------------------------
+
+def check_scene_source(cfg: Config, run_dir: Path, from_run: Path | None,
+                       checked: Checked) -> None:
+    """The files a scene is read from (a scene file and its map, or a random scene's map):
+    recorded by digest when the scene stage runs; without it, the scene artefact the stages
+    will use must have been made from the files as they are now (edited since: refused, as an
+    edited demonstration file is). Files that cannot be read now are not compared: the
+    artefact is what the run uses."""
+    if "scene" in cfg.stages:
+        source = scene_source(cfg)
+        if source is not None:
+            checked.source_digests[source[0]] = files_digest(source[1])
+        return
+    made = (from_run or run_dir) / ARTEFACT_FILE["scene"]
+    if not made.is_file():
+        return
+    try:
+        source = scene_source(cfg)
+        if source is None:
+            return
+        digest = files_digest(source[1])
+    except (PipelineError, OSError):
+        return
+    check_source(read_artefact(made, lazy=True), source[0], digest)
+
+
+def scene_source(cfg: Config) -> tuple[str, list[Path]] | None:
+    """The outside files the scene stage reads, with the key that names them: a scene file
+    and its map (`scene.path`), or the map of a random scene (`scene.map`); None for a random
+    scene in an open room."""
+    sc = cfg.scene
+    if isinstance(sc, FileSceneConfig):
+        header = build.scene_file_extent(sc.path).map_header
+        return "scene.path", [resolve_path(sc.path)] + \
+            ([header.path, header.image] if header is not None else [])
+    if sc.map:
+        header = read_map_header(resolve_path(sc.map))
+        return "scene.map", [header.path, header.image]
+    return None
+
 
 
 def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts | None:

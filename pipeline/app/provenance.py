@@ -34,7 +34,8 @@ STAGE_CONFIG: dict[str, tuple[str, ...]] = {
 CONFIG_KEY, INPUT_KEY = "config_digest.", "input_digest."
 # Inputs from outside the run and the stages whose artefacts depend on them.
 SOURCE_STAGES: dict[str, tuple[str, ...]] = {"birl.from_run": ("graph", "birl"),
-                                             "expert.path": ("demos",)}
+                                             "expert.path": ("demos",),
+                                             "scene.path": ("scene",), "scene.map": ("scene",)}
 
 
 def file_digest(path: Path) -> str:
@@ -48,6 +49,12 @@ def file_digest(path: Path) -> str:
             for block in iter(lambda: stream.read(1 << 20), b""):
                 h.update(block)
     return h.hexdigest()[:16]
+
+
+def files_digest(paths: list[Path]) -> str:
+    """The content digest of several files read together, in order (a scene file, its map's
+    YAML and its image)."""
+    return hashlib.sha256("".join(file_digest(p) for p in paths).encode()).hexdigest()[:16]
 
 
 def check_source(artefact: Artefact, name: str, digest: str) -> None:

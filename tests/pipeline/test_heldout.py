@@ -2,6 +2,7 @@
 without demonstrations, through the real stages."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -197,3 +198,29 @@ def test_a_demonstration_file_edited_since_its_run_is_not_reused(tmp_path):
                                             r"expert\.path \(the file changed since\): add "
                                             r"'demos' to stages"):
         run_in_process(tmp_path / "edited", *QUICK, *again)
+
+
+def test_a_scene_file_or_its_map_edited_since_its_run_is_not_reused(tmp_path):
+    """As for demonstrations: later stages from a run whose scene came from a file must find
+    the file, and the map it names, as they were (the path alone was compared, so a moved
+    person or a redrawn map went on unseen)."""
+    shutil.copytree(ROOT / "data" / "maps", tmp_path / "maps")
+    (tmp_path / "scenes").mkdir()
+    scene = tmp_path / "scenes" / "office.json"
+    data = json.loads((ROOT / "data" / "scenes" / "office.json").read_text())
+    scene.write_text(json.dumps(data))
+    first = tmp_path / "first"
+    run_in_process(first, *QUICK, "scene=file", f"scene.path={scene}", "stages=[scene]")
+    again = ("stages=[demos]", f"from_run={first}", "scene=file", f"scene.path={scene}")
+    run_in_process(tmp_path / "same", *QUICK, *again)  # unchanged: reused
+    data["persons"][0]["x"] += 0.5
+    scene.write_text(json.dumps(data))
+    refused = r"scene\.mcap was made from another version of scene\.path \(the file changed"
+    with pytest.raises(PipelineError, match=refused):
+        run_in_process(tmp_path / "moved", *QUICK, *again)
+    data["persons"][0]["x"] -= 0.5
+    scene.write_text(json.dumps(data))
+    image = tmp_path / "maps" / "office.pgm"
+    image.write_bytes(image.read_bytes()[:-1] + b"\x00")  # one pixel black
+    with pytest.raises(PipelineError, match=refused):
+        run_in_process(tmp_path / "redrawn", *QUICK, *again)
