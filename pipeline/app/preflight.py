@@ -198,7 +198,6 @@ def scene_source(cfg: Config) -> tuple[str, list[Path]] | None:
     return None
 
 
-
 def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts | None:
     """The scene the stages will use: the configured one when the scene stage runs (a scene
     file is loaded and validated now, after its size check), else the scene artefact the
