@@ -14,7 +14,7 @@ import yaml
 from omegaconf import OmegaConf
 
 from pipeline.app import limits
-from pipeline.app.config import Config, RandomSceneConfig
+from pipeline.app.config import LEARNER_EXTRA_FEATURES, Config, RandomSceneConfig
 from pipeline.app.context import PACKAGE_ROOT, resolve_path
 from pipeline.artefacts import Artefact, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
@@ -415,20 +415,26 @@ def check_feature_constants(cfg: Config, learned: FeatureParams, from_run: str) 
 
 
 def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.ndarray, str]:
-    """The reward that grows the graph: the learner's prior mean (with `birl=fixed`, its
-    weights) on the reward's features, 0 on the learner's other features, unless
-    graph.weights says otherwise."""
+    """The reward that grows the graph, unless graph.weights says otherwise: the learner's
+    prior mean on the reward's features, 0 on the learner's other features; with
+    `birl=fixed`, its weights, 0 on the learner's extras (LEARNER_EXTRA_FEATURES)."""
     w = cfg.graph.weights
     if w is None or w == "prior":
-        # On the reward's features only: the learner's extras (crossing) leave the graph as
-        # it is, so learners with other feature sets are compared on the same graph. Growth
-        # is sensitive to its reward: grown with crossing as well, the warehouse's optimal
-        # expert lost 0.48 and 0.13 in two seeds (0.017 on this graph), and a metropolis
-        # deployment's graph lost the detours round a group (12 crossed links, 0 here).
-        extra = [n not in cfg.reward.features for n in cfg.learner_features]
+        # Learning: on the reward's features only. The learner's extras (crossing) leave
+        # the graph as it is, so learners with other feature sets are compared on the same
+        # graph. Growth is sensitive to its reward: grown with crossing as well, the
+        # warehouse's optimal expert lost 0.48 and 0.13 in two seeds (0.017 on this graph),
+        # and a metropolis deployment's graph lost the detours round a group (12 crossed
+        # links, 0 here).
         fixed = fixed_weights(cfg)
         if fixed is not None:
-            return np.where(extra, 0.0, fixed), "fixed"
+            # A deployment grows under the reward it deploys, whatever this run's
+            # reward.features (it has no true reward; often they are the defaults, and a
+            # learned social@0.8, gaussian or wall weight was dropped from growth).
+            extras = [n in LEARNER_EXTRA_FEATURES and n not in cfg.reward.features
+                      for n in cfg.learner_features]
+            return np.where(extras, 0.0, fixed), "fixed"
+        extra = [n not in cfg.reward.features for n in cfg.learner_features]
         return np.where(extra, 0.0, prior(cfg).box_mean()), "prior_mean"
     if w is True or w == "true":
         if true_weights is None:

@@ -415,17 +415,25 @@ def given_weights_origin(cfg: Config) -> list[str]:
     run = getattr(cfg.birl, "from_run", None)
     if run is None:
         return ["  weights from     birl.weights (given)"]
-    lines = [f"  weights from     {run} (learned there)"]
     try:
         source = resolve_path(run)
-        m = read_metrics(source / "metrics.json")
         birl_cfg = yaml.safe_load(read_artefact(source / topics.ARTEFACT_FILE["birl"])
                                   .config_yaml)["birl"]
+    except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError,
+            yaml.YAMLError):
+        return [f"  weights from     {run}"]
+    if not isinstance(birl_cfg, dict):
+        return [f"  weights from     {run}"]
+    if birl_cfg.get("kind") == "fixed":  # a deployment of a deployment: nothing learned there
+        origin = birl_cfg.get("from_run") or "its birl.weights"
+        return [f"  weights from     {run} (given there too: birl=fixed, {origin})"]
+    lines = [f"  weights from     {run} (learned there)"]
+    try:
+        m = read_metrics(source / "metrics.json")
         names = cfg.learner_features
         box = Prior("uniform", 1.0, broadcast(birl_cfg["lower"], len(names), "lower"),
                     broadcast(birl_cfg["upper"], len(names), "upper"))
-    except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError,
-            yaml.YAMLError):
+    except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError):
         return lines  # no metrics.json (a run without its evaluate stage): nothing to carry
     return lines + weights_at_box(m, names, box, label="its weight box ")
 

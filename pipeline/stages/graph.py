@@ -50,13 +50,13 @@ def run(ctx: RunContext) -> None:
     t0 = time.perf_counter()
     training = demos_for_graph(codec.training_demos(demos_art), features, cfg.mdp.speed)
     graph.initialise(training)
-    extras = [n for n in cfg.learner_features if n not in cfg.reward.features]
+    left_out = [n for n, w in zip(cfg.learner_features, weights, strict=True)
+                if w == 0 and n not in cfg.reward.features]
     log.info("graph initialised: %d nodes, %d edges; growing to %d nodes under %s weights %s%s",
              graph.n_nodes, len(graph.src), cfg.graph.max_nodes, weights_source,
              np.round(weights, 3).tolist(),
-             f" ({', '.join(extras)} at 0: growth leaves the learner's features beyond "
-             "reward.features out)" if extras and weights_source in ("fixed", "prior_mean")
-             else "")
+             f" ({', '.join(left_out)} at 0: growth leaves the learner's extra features out)"
+             if left_out and weights_source in ("fixed", "prior_mean") else "")
     # the robust learner compares the demonstrations with a lattice's paths and reads them by
     # their polylines' sums: how full of their waypoints the graph is changes its estimate
     # little (hallway, metropolis: the same weights at any graph.min_separation)

@@ -412,7 +412,7 @@ def _given_weights(config_yaml: str) -> str:
     if not isinstance(birl, dict) or birl.get("kind") != "fixed":
         return ""
     source = birl.get("from_run")
-    return (f"given (birl=fixed), learned in {source}" if source
+    return (f"given (birl=fixed), from the run {source}" if source
             else "given (birl=fixed birl.weights)")
 
 

@@ -206,3 +206,20 @@ def test_a_denoise_that_is_no_bool_is_one_line_naming_it():
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "expert.denoise=maybe" in lines[0] and "not a valid bool" \
         in lines[0]
+
+
+def test_a_deployment_grows_its_graph_under_the_weights_it_deploys():
+    """birl=fixed: the graph grows under the deployed weights on every learner feature but
+    the extras (crossing), whatever this run's reward.features (a deployment has no true
+    reward); learning grows under the prior mean on the reward's features only."""
+    from pipeline.app.build import growth_weights
+
+    features = "[relation,crossing,social@0.8,gaussian,goal_deviation,length]"
+    weights = "[-1,-0.5,-0.4,-0.3,-0.6,-0.1]"
+    deployed = validate(compose_config("expert=none", "birl=fixed", f"birl.features={features}",
+                                       f"birl.weights={weights}"))
+    w, source = growth_weights(deployed, None)
+    assert source == "fixed" and w.tolist() == [-1, 0, -0.4, -0.3, -0.6, -0.1]
+    learning = validate(compose_config(f"birl.features={features}"))
+    w, source = growth_weights(learning, None)
+    assert source == "prior_mean" and w[1] == w[2] == w[3] == 0 and w[0] != 0

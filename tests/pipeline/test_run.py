@@ -221,6 +221,11 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
     source_notes = line.replace("  weight box       ", "")
     assert f"weights from     {default_run[0]} (learned there)" in deployed
     assert f"  its weight box   {source_notes}" in deployed
+    # from a deployment: nothing was learned there, and its box says nothing
+    again = run_in_process(tmp_path / "again", "birl=fixed", f"birl.from_run={tmp_path}",
+                           "stages=[birl,evaluate]", f"from_run={default_run[0]}")[1]
+    assert f"weights from     {tmp_path} (given there too: birl=fixed, its birl.weights)" \
+        in again and "learned there" not in again and "weight box" not in again
 
 
 def test_graph_edges_name_their_feature_columns(default_run):
