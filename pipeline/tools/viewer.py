@@ -411,6 +411,30 @@ def _log_run(rec: rr.RecordingStream, scene_art: Artefact, decoded: Scene,
     _log_posterior_paths(rec, arts)
 
 
+LATER_ARTEFACTS = ("demos", "graph", "birl", "eval")  # shown when present; the scene is not
+
+
+def _later_artefacts(run_dir: Path) -> dict[str, Artefact]:
+    """The readable artefacts after the scene's, by name. What is missing or unreadable is
+    said on stderr (one line each) and left out of the recording, which shows the rest: a
+    run of `stages=[scene,demos]` opened on empty learning views without a word, and one
+    truncated eval.mcap kept the scene, graph and learning from being shown at all."""
+    arts, missing = {}, []
+    for name in LATER_ARTEFACTS:
+        path = run_dir / f"{name}.mcap"
+        if not path.exists():
+            missing.append(path.name)
+            continue
+        try:
+            arts[name] = read_artefact(path)
+        except PipelineError as e:
+            print(f"warning: {e}; the recording leaves it out", file=sys.stderr)
+    if missing:
+        print(f"note: run dir {run_dir} has no {', '.join(missing)} (stages not run): the "
+              "recording shows what it has", file=sys.stderr)
+    return arts
+
+
 def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     """Read the artefacts present in run_dir (scene.mcap required) and write an .rrd."""
     run_dir = Path(run_dir)
@@ -423,8 +447,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
         raise PipelineError(f"--out {rrd_path} is a directory; give the .rrd file to write")
     scene_art = read_artefact(run_dir / "scene.mcap", required_topics=[topics.SCENE])
     scene = codec.decode_scene(scene_art)  # a malformed scene: one line, before any drawing
-    arts = {n: read_artefact(run_dir / f"{n}.mcap") for n in ("demos", "graph", "birl", "eval")
-            if (run_dir / f"{n}.mcap").exists()}
+    arts = _later_artefacts(run_dir)
     # artefacts of different runs side by side are refused, as the stages and export do
     check_inputs({"scene": scene_art, **{("evaluate" if n == "eval" else n): a
                                           for n, a in arts.items()}})
@@ -490,11 +513,11 @@ def main(argv: list[str] | None = None) -> int:
                     "(default RUN_DIR/run.rrd)")
     ap.add_argument("--no-open", action="store_true", help="only write the .rrd")
     args = ap.parse_args(argv)
-    warn_if_incomplete(args.run_dir)
     try:
         rrd = build_recording(args.run_dir, args.out)
     except (PipelineError, OSError) as e:  # OSError: e.g. a read-only run dir at the rename
         return report(e, f"the recording of {args.run_dir}")
+    warn_if_incomplete(args.run_dir)  # after: a dir with nothing to show gets the error alone
     cmd = viewer_command(rrd)
     if args.no_open or not _has_display():
         print(f"wrote {rrd}; open it with: {' '.join(cmd)}")

@@ -158,24 +158,32 @@ def test_curves_have_distinct_colours(rrd):
     assert len(set(losses)) == 3 and len(set(weights)) == len(weights) == 5
 
 
-def test_only_the_scene_is_required(run_dir, tmp_path):
+def test_only_the_scene_is_required_and_what_is_missing_is_said(run_dir, tmp_path, capsys):
     (tmp_path / "scene.mcap").write_bytes((run_dir / "scene.mcap").read_bytes())
     out = build_recording(tmp_path, tmp_path / "only_scene.rrd")
     paths = set(RrdReader(out).store().schema().entity_paths())
     assert "/scene/persons" in paths and "/graph/nodes" not in paths
+    note = capsys.readouterr().err
+    assert "has no demos.mcap, graph.mcap, birl.mcap, eval.mcap (stages not run)" in note
 
 
-def test_missing_scene_or_truncated_artefact_is_a_clear_error(run_dir, tmp_path):
+def test_missing_scene_is_an_error_and_a_truncated_artefact_is_left_out(run_dir, tmp_path,
+                                                                        capsys):
     with pytest.raises(ArtefactError, match="scene.mcap"):
         build_recording(tmp_path)
     with pytest.raises(PipelineError, match="does not exist"):
         build_recording(tmp_path / "nope")
-    (tmp_path / "scene.mcap").write_bytes((run_dir / "scene.mcap").read_bytes())
+    assert not list(tmp_path.glob("*.rrd*"))
+    for name in ("scene.mcap", "demos.mcap", "birl.mcap", "eval.mcap"):
+        (tmp_path / name).write_bytes((run_dir / name).read_bytes())
     data = (run_dir / "graph.mcap").read_bytes()
     (tmp_path / "graph.mcap").write_bytes(data[: len(data) // 2])
-    with pytest.raises(ArtefactError, match="graph.mcap.*truncated"):
-        build_recording(tmp_path)
-    assert not list(tmp_path.glob("*.rrd*"))
+    out = build_recording(tmp_path)  # the rest is shown, the truncated one named
+    warning = capsys.readouterr().err
+    assert "graph.mcap" in warning and "truncated" in warning and "leaves it out" in warning
+    paths = set(RrdReader(out).store().schema().entity_paths())
+    assert "/graph/nodes" not in paths
+    assert {"/scene/persons", "/demos/trajectories", "/eval/paths"} <= paths
 
 
 def _cli(*args):
