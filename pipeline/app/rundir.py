@@ -467,7 +467,11 @@ class RunDir:
                  if s not in self.done_stages]
         removed = [p for p in later + [self.path / METRICS_FILE] if p.exists()]
         for p in removed:
-            p.unlink()
+            try:
+                p.unlink()
+            except OSError as e:  # e.g. a directory of its name: that file is the culprit
+                raise PipelineError(f"cannot remove {p} (derived from the {stage} artefact "
+                                    f"this run replaces): {os_error_reason(e)}") from None
         if removed:
             log.info("removed %s: derived from the %s artefact this run replaces",
                      ", ".join(p.name for p in removed), stage)

@@ -939,6 +939,15 @@ def _run_dir_is_a_file(tmp, default_dir):
     return [f"hydra.run.dir={tmp / 'afile'}"], ["afile", "cannot use run dir"]
 
 
+def _later_artefact_a_directory(tmp, default_dir):
+    """graph.mcap a directory: the scene stage's new artefact would remove it (derived from
+    the old scene) and cannot; the line names graph.mcap, not scene.mcap."""
+    (tmp / "run").mkdir()
+    (tmp / "run" / "graph.mcap").mkdir()
+    return [f"hydra.run.dir={tmp / 'run'}", "stages=[scene]"], [
+        "cannot remove", "graph.mcap", "derived from the scene artefact"]
+
+
 def _run_dir_under_a_file(tmp, default_dir):
     (tmp / "afile").write_text("")
     return [f"hydra.run.dir={tmp / 'afile' / 'run'}"], ["afile", "cannot use run dir"]
@@ -976,6 +985,7 @@ ARTEFACT_CASES = {
     "from_run in use": _from_run_in_use,
     "run dir path is a file": _run_dir_is_a_file,
     "run dir under a file": _run_dir_under_a_file,
+    "a later artefact a directory": _later_artefact_a_directory,
     "run dir where none can be made": _run_dir_in_proc,
     "quoted run dir in use": _quoted_run_dir_in_use,
 }
