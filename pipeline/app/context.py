@@ -29,12 +29,12 @@ def resolve_path(path: str) -> Path:
     """A user-given input path: as given (relative to the cwd), else relative to the package
     (so `data/scenes/metropolis.json` works from anywhere, also from an installed wheel)."""
     p = Path(path).expanduser()
-    if _exists(p, path) or p.is_absolute():
+    if input_path_exists(p, path) or p.is_absolute():
         return p
     return PACKAGE_ROOT / p if (PACKAGE_ROOT / p).exists() else p
 
 
-def _exists(p: Path, given: str) -> bool:
+def input_path_exists(p: Path, given: str) -> bool:
     """Does input path p exist? A path the system cannot look up at all (a name too long, a
     dir that may not be searched) is the user's input: one line naming it, not pathlib's
     OSError, which would read as a failure to write."""

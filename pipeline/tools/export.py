@@ -58,6 +58,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pipeline.app.build import learned_feature_params
+from pipeline.app.context import input_path_exists
 from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, STATUS_FILE, UNKNOWN, acquire_lock, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics
@@ -548,7 +549,7 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int], list[str]]
 
 def check_run_dir(run_dir: Path) -> None:
     """One line, as a PipelineError, when the run dir cannot be exported."""
-    if not run_dir.exists():
+    if not input_path_exists(run_dir, str(run_dir)):  # (a name too long: one line too)
         raise PipelineError(f"run dir {run_dir} not found")
     if not run_dir.is_dir():
         raise PipelineError(f"run dir {run_dir} is not a directory")

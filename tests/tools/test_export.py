@@ -474,6 +474,10 @@ def test_bad_run_dirs_are_refused_in_one_line(exported, tmp_path, capsys):
     assert export.main([str(a_file)]) == 2
     assert "is not a directory" in _one_error_line(capsys)
 
+    too_long = tmp_path / ("r" * 300)  # read, not written: not "cannot write the export"
+    assert export.main([str(too_long)]) == 2
+    assert "cannot be looked up: File name too long" in _one_error_line(capsys)
+
     empty = tmp_path / "empty"  # no status.json either: no warning that it is exported
     empty.mkdir()
     assert export.main([str(empty)]) == 2
