@@ -332,7 +332,7 @@ class _Pool:
                         self._replace(w)
         except (KeyboardInterrupt, Interrupted) as e:
             stopped = as_interrupted(e, None)
-            self._stop(stopped.signum if stopped else signal.SIGINT)
+            self._stop(stopped.signum if stopped else signal.SIGINT, kind)
             raise
         return replies
 
@@ -343,9 +343,12 @@ class _Pool:
         with signals_held():
             self.workers[self.workers.index(worker)] = _Worker()
 
-    def _stop(self, signum: int) -> None:
+    def _stop(self, signum: int, kind: str) -> None:
         """The running jobs get the signal (from the terminal they may have had it already:
-        they take the first) and record it; a second Ctrl-C here kills them."""
+        they take the first) and record it; a second Ctrl-C here kills them. A job that
+        ended before the signal reached it counts as executed: its reply, not Interrupted,
+        comes in now (the sweep's last line said 0 of 6 jobs completed with job 0
+        complete)."""
         busy = [w for w in self.workers if w.job and w.process.is_alive()]
         for w in busy:
             os.kill(w.process.pid, signum)
@@ -355,7 +358,10 @@ class _Pool:
                 wait([w.conn for w in busy] + [w.process.sentinel for w in busy],
                      timeout=max(0.0, deadline - time.monotonic()))
                 for w in list(busy):
-                    if _receive(w.conn) is not _NOTHING or not w.process.is_alive():
+                    reply = _receive(w.conn)
+                    if reply is not _NOTHING or not w.process.is_alive():
+                        self.executed += kind == "execute" and reply is not _NOTHING \
+                            and not isinstance(reply, Interrupted)
                         w.job = None
                         busy.remove(w)
         except KeyboardInterrupt:

@@ -570,6 +570,27 @@ def test_a_worker_that_died_idle_is_replaced_before_its_next_job(tmp_path):
         launcher._Current.launcher, launcher._Current.jobs = None, {}
 
 
+def test_a_job_that_ends_while_the_sweep_stops_counts_as_completed():
+    """Ctrl-C to a sweep: a job whose reply (not Interrupted) comes in while the pool waits
+    for its workers to stop was run to its end, and the sweep's last line counts it (it
+    said 0 of 6 jobs completed with job 0 complete). A compose request, which a worker
+    finishes whatever SIGINT says, stands in for such a job."""
+    class SlowComposer:
+        def compose(self, overrides):
+            time.sleep(0.5)
+            return overrides
+
+    launcher._Current.launcher, launcher._Current.jobs = SlowComposer(), {0: ["a"]}
+    pool = launcher._Pool(1)
+    try:
+        pool.workers[0].send("compose", 0, None)
+        pool._stop(signal.SIGINT, "execute")
+        assert pool.executed == 1 and pool.workers[0].job is None
+    finally:
+        pool.close()
+        launcher._Current.launcher, launcher._Current.jobs = None, {}
+
+
 # -- a read-only run dir or sweep dir (as a user without root's override of permissions) -----
 
 DROP_ROOTS_OVERRIDE = ["setpriv", "--bounding-set=-dac_override,-dac_read_search",
