@@ -372,6 +372,15 @@ def check_objective_name(objective: str) -> None:
                            f"a metrics.json key, e.g. {close[0] if close else 'policy_loss_norm'}")
 
 
+def check_objective_is_written(objective: str, holdout: Any) -> None:
+    """A heldout_* objective needs held-out demonstrations (evaluate.holdout); checked by
+    each run and, before any job, by a sweep that does not set evaluate.holdout."""
+    if objective.startswith("heldout_") and holdout is None:
+        raise config_error("objective", objective,
+                           "a metric this run writes: the heldout_* keys need held-out "
+                           "demonstrations, e.g. evaluate.holdout=0.3")
+
+
 def register_configs() -> None:
     if not OmegaConf.has_resolver("birlg_config_groups"):
         OmegaConf.register_new_resolver("birlg_config_groups", config_groups_help)
@@ -461,10 +470,7 @@ def load_settings(cfg: DictConfig) -> Config:
     if settings.from_run is not None and not settings.from_run.strip():  # the cwd, unsaid
         raise config_error("from_run", settings.from_run, "a run dir")
     check_objective_name(settings.objective)
-    if settings.objective.startswith("heldout_") and settings.evaluate.holdout is None:
-        raise config_error("objective", settings.objective,
-                           "a metric this run writes: the heldout_* keys need held-out "
-                           "demonstrations, e.g. evaluate.holdout=0.3")
+    check_objective_is_written(settings.objective, settings.evaluate.holdout)
     _require_matching_kind("scene", settings.scene, SCENES)
     _require_matching_kind("expert", settings.expert, EXPERTS)
     _require_matching_kind("birl", settings.birl, {n: m.config for n, m in methods().items()})

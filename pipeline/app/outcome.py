@@ -8,10 +8,11 @@ import signal
 from contextlib import suppress
 from pathlib import Path
 
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.experimental.callback import Callback
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from pipeline.app.config import check_objective_name
+from pipeline.app.config import check_objective_is_written, check_objective_name
 from pipeline.app.rundir import (
     HYDRA_FILES,
     Interrupted,
@@ -39,6 +40,19 @@ class SweepRefused(BaseException):
         self.error = error
 
 
+def _sweeps(config: DictConfig, key: str) -> bool:
+    """Does the sweep set `key` per job (a swept override, or an Optuna search parameter)?
+    A plain override is in the config already."""
+    task = [str(o) for o in OmegaConf.select(config, "hydra.overrides.task") or []]
+    params = OmegaConf.select(config, "hydra.sweeper.params") or {}
+    try:
+        swept = [o.key_or_group for o in OverridesParser.create().parse_overrides(task)
+                 if o.is_sweep_override()]
+    except Exception:  # noqa: BLE001 - Hydra reports a malformed override itself
+        return True
+    return key in swept or key in params
+
+
 class SweepOutcome(Callback):
     """Hydra callback (conf/config.yaml, hydra.callbacks): locks the sweep dir for the sweep
     (a second sweep into it is refused) and numbers the sweep there before any job runs (so
@@ -62,6 +76,9 @@ class SweepOutcome(Callback):
     def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
         try:  # before any job: a misspelt objective would fail every one of them
             check_objective_name(str(config.objective))
+            if not _sweeps(config, "evaluate.holdout"):  # nor one no job writes
+                check_objective_is_written(str(config.objective),
+                                           OmegaConf.select(config, "evaluate.holdout"))
         except PipelineError as e:
             raise SweepRefused(e) from None
         sweep_dir = Path(config.hydra.sweep.dir)

@@ -310,13 +310,16 @@ def main(argv=None) -> int:
     parser.add_argument("--no-figures", dest="figures", action="store_false",
                         help="write the tables only (summary.csv, table.md, table.tex)")
     args = parser.parse_args(argv)
+    # taken before the jobs are read: a sweep that ends meanwhile left rows of running jobs
+    running = args.sweep_dir.is_dir() and is_locked(args.sweep_dir)
     try:
         if not args.sweep_dir.is_dir():
             what = "is not a directory" if args.sweep_dir.exists() else "not found"
             raise PipelineError(f"sweep dir {args.sweep_dir} {what}")
         columns, rows = aggregate(args.sweep_dir, figures=args.figures)
     except PipelineError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {e}" + (" (the sweep still runs: aggregate it when it ends)"
+                               if running else ""), file=sys.stderr)
         return 2
     except OSError as e:  # a full disk, a read-only dir, a dir where a table goes
         print(f"error: cannot write the tables into {args.sweep_dir}: {os_error_reason(e)}",
@@ -345,10 +348,13 @@ def main(argv=None) -> int:
               f"there ({names}{', ...' if len(earlier) > 10 else ''})", file=sys.stderr)
     for row in failed:
         print(f"FAILED {row['job']}: {row['error']}", file=sys.stderr)
-    if not sweep_finished(args.sweep_dir):
+    if running or not sweep_finished(args.sweep_dir):
         why = sweep_stopped_why(args.sweep_dir)
-        how = "still runs" if is_locked(args.sweep_dir) else \
-            f"was stopped{f': {why}' if why else ''}"
+        if running:
+            how = "still runs" if is_locked(args.sweep_dir) else \
+                "still ran when this aggregation began; aggregate it again"
+        else:
+            how = f"was stopped{f': {why}' if why else ''}"
         print(f"error: the sweep did not finish (it {how}): jobs it had not started are in "
               "no row", file=sys.stderr)
         return 1

@@ -159,6 +159,12 @@ def test_aggregate_of_a_sweep_that_did_not_finish_says_so(tmp_path):
         agg = aggregate(tmp_path)
         assert lines_of(agg.stderr)[-1] == ("error: the sweep did not finish (it still runs): "
                                             "jobs it had not started are in no row")
+        # what the dir says of an earlier sweep (finished) is not this one's: it still runs
+        (tmp_path / "sweep.json").write_text(json.dumps(record))
+        agg = aggregate(tmp_path)
+        assert agg.returncode == 1 and lines_of(agg.stderr)[-1] == (
+            "error: the sweep did not finish (it still runs): jobs it had not started are in "
+            "no row")
         second = run_app("-m", "experiment=quick", "seed=0", f"hydra.sweep.dir={tmp_path}")
         assert second.returncode == 2
         assert lines_of(second.stderr) == [f"error: sweep dir {tmp_path} is in use by another "
@@ -413,3 +419,28 @@ def test_a_misspelt_objective_stops_the_sweep_before_any_job(tmp_path, experimen
         "error: config error: objective=policy_loss_nrom is not allowed (allowed: a "
         "metrics.json key, e.g. policy_loss_norm)"]
     assert not sweep_dir.exists() and "Failed experiment" not in result.stdout
+
+
+def test_a_held_out_objective_without_held_out_demonstrations_stops_the_sweep(tmp_path):
+    """experiment=tune optimises a heldout_* metric: with evaluate.holdout=null no job
+    writes it, and every trial failed before; one line instead, before any job. A sweep
+    that sets evaluate.holdout per job is left to its jobs."""
+    sweep_dir = tmp_path / "sweep"
+    result = run_app("-m", "experiment=tune", "evaluate.holdout=null",
+                     "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={sweep_dir}")
+    assert result.returncode == 2, result.stderr[-2000:]
+    [line] = result.stderr.strip().splitlines()
+    assert line.startswith("error: config error: objective=heldout_") and \
+        "evaluate.holdout=0.3" in line
+    assert not sweep_dir.exists()
+    from omegaconf import OmegaConf
+
+    from pipeline.app.outcome import _sweeps
+
+    def sweep(task, params=None):
+        return OmegaConf.create({"hydra": {"overrides": {"task": task},
+                                           "sweeper": {"params": params or {}}}})
+
+    assert _sweeps(sweep(["evaluate.holdout=0.2,0.3"]), "evaluate.holdout")
+    assert _sweeps(sweep([], {"evaluate.holdout": "interval(0.1, 0.5)"}), "evaluate.holdout")
+    assert not _sweeps(sweep(["evaluate.holdout=null", "seed=0,1"]), "evaluate.holdout")
