@@ -434,8 +434,8 @@ def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.nd
             extras = [n in LEARNER_EXTRA_FEATURES and n not in cfg.reward.features
                       for n in cfg.learner_features]
             return np.where(extras, 0.0, fixed), "fixed"
-        extra = [n not in cfg.reward.features for n in cfg.learner_features]
-        return np.where(extra, 0.0, prior(cfg).box_mean()), "prior_mean"
+        beyond_reward = [n not in cfg.reward.features for n in cfg.learner_features]
+        return np.where(beyond_reward, 0.0, prior(cfg).box_mean()), "prior_mean"
     if w is True or w == "true":
         if true_weights is None:
             raise PipelineError("config error: graph.weights=true needs true weights, but the "

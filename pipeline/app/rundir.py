@@ -335,14 +335,19 @@ def _restore_hydra_files(run_dir: Path) -> bool:
     if before is None or read_status(run_dir).state == UNKNOWN:
         return False
     try:
-        for name, content in before.items():
-            if content is None:
-                (Path(run_dir) / name).unlink(missing_ok=True)
-            else:
-                write_text_atomic(Path(run_dir) / name, content)
+        _put_back(Path(run_dir), before)
     except OSError:
         return False
     return True
+
+
+def _put_back(run_dir: Path, files: dict[str, str | None]) -> None:
+    """Files of `run_dir` (names relative to it) as they were: their text, or absent (None)."""
+    for name, content in files.items():
+        if content is None:
+            (run_dir / name).unlink(missing_ok=True)
+        else:
+            write_text_atomic(run_dir / name, content)
 
 
 def is_sweep_dir(path: Path) -> bool:
@@ -501,11 +506,7 @@ class RunDir:
         if self.sweep is not None or self._changed or before is None \
                 or before[STATUS_FILE] is None or not _restore_hydra_files(self.path):
             return False
-        for name, content in before.items():
-            if content is None:
-                (self.path / name).unlink(missing_ok=True)
-            else:
-                write_text_atomic(self.path / name, content)
+        _put_back(self.path, before)
         log.info("%s: nothing here was changed; the earlier run's status is kept", self.path)
         return True
 
