@@ -74,7 +74,7 @@ from pipeline.app.rundir import (
     read_status,
     recorded_in_sweep,
     run_files_version,
-    signals_held,
+    signals_deferred,
     stopped_by_signals,
 )
 from pipeline.artefacts.topics import STAGES
@@ -121,7 +121,7 @@ class PoolLauncher(Launcher):
         try:
             for stage in STAGES:  # imported once here, shared by every forked worker
                 importlib.import_module(f"pipeline.stages.{stage}")
-            with signals_held():  # a signal now comes after the forks, not inside one
+            with signals_deferred():  # a signal now comes after the forks, not inside one
                 pool = _Pool(n_workers)
             composed = pool.run("compose", [(idx, None) for idx, _ in jobs],
                                 on_death=lambda idx, payload, exit_code: None)
@@ -303,44 +303,58 @@ class _Pool:
         todo, replies = list(requests), {}
         try:
             while todo or any(w.job for w in self.workers):
-                for k in range(len(self.workers)):
-                    while self.workers[k].job is None and todo:
-                        request = todo.pop(0)
-                        try:
-                            self.workers[k].send(kind, *request)
-                        except OSError:  # the worker died since its last reply (a signal
-                            self.workers[k].job = None  # of its own): the job never
-                            todo.insert(0, request)  # reached it; a new worker takes it
-                            self._replace(self.workers[k])
+                # A signal waits while messages go out or come in: one cut short would leave
+                # the rest of it in the pipe, read later as the start of the next (the sweep
+                # waited for ever on a length read from the middle of a config)
+                with signals_deferred():
+                    self._hand_out(kind, todo)
                 busy = [w for w in self.workers if w.job]
                 wait([w.conn for w in busy] + [w.process.sentinel for w in busy])
-                for w in busy:
-                    reply = _receive(w.conn)
-                    if reply is not _NOTHING:
-                        idx = w.job[0]  # type: ignore[index]
-                        w.job = None
-                        if isinstance(reply, Interrupted):  # a signal to this worker
-                            reply = _failed_return(idx, reply.describe())  # alone
-                        replies[idx] = reply
-                        self.executed += kind == "execute"
-                    elif not w.process.is_alive():
-                        idx, payload = w.job  # type: ignore[misc]
-                        w.job = None
-                        w.process.join()
-                        replies[idx] = on_death(idx, payload, w.process.exitcode)
-                        self.executed += kind == "execute"
-                        self._replace(w)
+                with signals_deferred():
+                    self._take_replies(kind, busy, replies, on_death)
         except (KeyboardInterrupt, Interrupted) as e:
             stopped = as_interrupted(e, None)
             self._stop(stopped.signum if stopped else signal.SIGINT, kind)
             raise
         return replies
 
+    def _hand_out(self, kind: str, todo: list[tuple[int, Any]]) -> None:
+        """The next requests to the free workers."""
+        for k in range(len(self.workers)):
+            while self.workers[k].job is None and todo:
+                request = todo.pop(0)
+                try:
+                    self.workers[k].send(kind, *request)
+                except OSError:  # the worker died since its last reply (a signal of its
+                    self.workers[k].job = None  # own): the job never reached it; a new
+                    todo.insert(0, request)  # worker takes it
+                    self._replace(self.workers[k])
+
+    def _take_replies(self, kind: str, busy: list[_Worker], replies: dict[int, Any],
+                      on_death) -> None:
+        """The replies that came in, and the jobs of the workers that died."""
+        for w in busy:
+            reply = _receive(w.conn)
+            if reply is not _NOTHING:
+                idx = w.job[0]  # type: ignore[index]
+                w.job = None
+                if isinstance(reply, Interrupted):  # a signal to this worker alone
+                    reply = _failed_return(idx, reply.describe())
+                replies[idx] = reply
+                self.executed += kind == "execute"
+            elif not w.process.is_alive():
+                idx, payload = w.job  # type: ignore[misc]
+                w.job = None
+                w.process.join()
+                replies[idx] = on_death(idx, payload, w.process.exitcode)
+                self.executed += kind == "execute"
+                self._replace(w)
+
     def _replace(self, worker: _Worker) -> None:
         """A new worker in the place of one that died."""
         worker.process.join()
         worker.conn.close()
-        with signals_held():
+        with signals_deferred():
             self.workers[self.workers.index(worker)] = _Worker()
 
     def _stop(self, signum: int, kind: str) -> None:
@@ -403,7 +417,6 @@ def _serve(conn: Connection, parent_pid: int) -> None:
     signal.signal(signal.SIGINT, ignore_repeat)
     for signum in STOP_SIGNALS[1:]:  # between jobs a worker just ends
         signal.signal(signum, signal.SIG_DFL)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)  # held while it was forked
     threading.Thread(target=_stop_when_orphaned, args=(parent_pid,), daemon=True).start()
     launcher = _Current.launcher
     assert launcher is not None

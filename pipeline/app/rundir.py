@@ -81,15 +81,23 @@ def ignore_repeat(signum: int, frame: object) -> None:
 
 
 @contextmanager
-def signals_held() -> Iterator[None]:
-    """STOP_SIGNALS held back for the block and delivered after it: a fork inside gives no
-    half-made child a signal its parent's handler would raise in (the child lets them
-    through once it has its own handlers)."""
-    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+def signals_deferred() -> Iterator[None]:
+    """STOP_SIGNALS that arrive in the block are acted on after it (the first of them, by
+    the handlers from before the block): a message on a pipe goes out or comes in whole, a
+    fork gives no half-made child. (Blocking the signals would not do: the kernel hands a
+    process's signal to any thread that does not block it, e.g. one of numpy's, and Python
+    runs the handler in the main thread all the same.)"""
+    arrived: list[int] = []
+    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, lambda signum, frame: arrived.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOP_SIGNALS)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if arrived:
+            signal.raise_signal(arrived[0])
 
 
 @contextmanager

@@ -14,6 +14,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -587,6 +588,52 @@ def test_a_job_that_ends_while_the_sweep_stops_counts_as_completed():
         pool._stop(signal.SIGINT, "execute")
         assert pool.executed == 1 and pool.workers[0].job is None
     finally:
+        pool.close()
+        launcher._Current.launcher, launcher._Current.jobs = None, {}
+
+
+def test_a_signal_while_a_reply_comes_in_leaves_the_pipe_whole():
+    """Ctrl-C while the sweep's process reads a worker's reply: the reply is read to its end
+    before the signal stops the sweep. Cut short, the rest of it stayed in the pipe and the
+    pool read a length from its middle, waiting for ever (a sweep hung on a Ctrl-C). A reply
+    of 64 MB takes long enough to read that the signal comes while it does; a watchdog ends
+    the worker if the pool hangs all the same, so the test fails instead."""
+    class BigComposer:
+        def compose(self, overrides):
+            return bytes(64 << 20) if overrides == ["big"] else overrides
+
+    launcher._Current.launcher = BigComposer()
+    launcher._Current.jobs = {0: ["big"], 1: ["small"]}
+    pool = launcher._Pool(1)
+    main_thread, done, seen_in_recv = threading.main_thread().ident, threading.Event(), []
+
+    def interrupt_while_reading() -> None:
+        while not done.is_set():
+            frame = sys._current_frames().get(main_thread)
+            while frame is not None and frame.f_code.co_name != "_recv":
+                frame = frame.f_back
+            if frame is not None:
+                seen_in_recv.append(True)
+                os.kill(os.getpid(), signal.SIGINT)
+                return
+            time.sleep(0.0002)
+
+    def watchdog() -> None:
+        if not done.wait(60):
+            pool.workers[0].process.kill()
+
+    threads = [threading.Thread(target=f, daemon=True)
+               for f in (interrupt_while_reading, watchdog)]
+    try:
+        with pytest.raises(rundir.Interrupted), rundir.stopped_by_signals():
+            for t in threads:
+                t.start()
+            pool.run("compose", [(0, None)], on_death=None)
+        assert seen_in_recv, "the signal did not come while the reply was read"
+        assert pool.workers[0].job is None and pool.workers[0].process.is_alive()
+        assert pool.run("compose", [(1, None)], on_death=None) == {1: ["small"]}
+    finally:
+        done.set()
         pool.close()
         launcher._Current.launcher, launcher._Current.jobs = None, {}
 
