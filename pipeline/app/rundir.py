@@ -86,7 +86,11 @@ def signals_deferred() -> Iterator[None]:
     the handlers from before the block): a message on a pipe goes out or comes in whole, a
     fork gives no half-made child. (Blocking the signals would not do: the kernel hands a
     process's signal to any thread that does not block it, e.g. one of numpy's, and Python
-    runs the handler in the main thread all the same.)"""
+    runs the handler in the main thread all the same.) Elsewhere than in the main thread,
+    where no handler runs, nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     arrived: list[int] = []
     previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
     for sig in STOP_SIGNALS:

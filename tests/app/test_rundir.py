@@ -18,6 +18,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -41,6 +42,7 @@ from pipeline.app.rundir import (
     is_locked,
     mark_ended_before_stages,
     read_status,
+    signals_deferred,
     stopped_by_signals,
     sweep_jobs,
     write_status,
@@ -669,6 +671,33 @@ def test_a_signal_after_an_inner_block_ended_stops_the_outer_one():
             for _ in range(1000):  # the handler runs at one of these steps
                 pass
     assert stopped.value.signum == signal.SIGTERM
+
+
+def test_a_deferred_signal_stops_the_run_after_the_block_and_only_once():
+    """signals_deferred: signals inside the block (three Ctrl-C) change nothing there; after
+    it the first one reaches the handler from before, once. From another thread (no signal
+    handler runs there) the block runs as it is."""
+    steps = []
+    with pytest.raises(Interrupted) as stopped:
+        with stopped_by_signals():
+            with signals_deferred():
+                for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGINT):
+                    os.kill(os.getpid(), sig)
+                    for _ in range(1000):  # a handler would run at one of these steps
+                        pass
+                steps.append("block ended")
+            steps.append("after the block")
+    assert steps == ["block ended"] and stopped.value.signum == signal.SIGTERM
+    ran: list[bool] = []
+
+    def in_a_thread() -> None:
+        with signals_deferred():
+            ran.append(True)
+
+    worker = threading.Thread(target=in_a_thread)
+    worker.start()
+    worker.join()
+    assert ran == [True]
 
 
 def test_a_stop_a_library_turns_into_an_error_of_its_own_is_still_the_stop():
