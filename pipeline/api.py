@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+import signal
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
@@ -53,7 +54,15 @@ from pipeline.app.config import (
 from pipeline.app.context import stage_rng
 from pipeline.app.figure_style import paper_style
 from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
-from pipeline.app.rundir import RunStatus, is_sweep_dir, read_status
+from pipeline.app.rundir import (
+    HYDRA_FILES,
+    METRICS_FILE,
+    STATUS_FILE,
+    Interrupted,
+    RunStatus,
+    is_sweep_dir,
+    read_status,
+)
 from pipeline.app.summary import Unreadable, read_metrics, summary_table
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import Artefact, read_artefact
@@ -87,10 +96,19 @@ class Run:
     def __post_init__(self) -> None:  # Run("outputs/x") as the docstrings write it
         object.__setattr__(self, "dir", _path(self.dir, "run_dir"))
 
+    def _existing_dir(self) -> Path:
+        """The run dir, or one line where there is none (a mistyped path read as a run
+        with no metrics and an unknown status)."""
+        if not self.dir.is_dir():
+            raise PipelineError(f"run dir {self.dir} " + ("is not a dir" if self.dir.exists()
+                                                          else "not found"))
+        return self.dir
+
     @property
     def config(self) -> DictConfig:
         """The resolved config the run used: the one attached to its latest stage's artefact
         (`.hydra/config.yaml` for a CLI run without artefacts)."""
+        self._existing_dir()
         for stage in reversed(STAGES):
             if (self.dir / ARTEFACT_FILE[stage]).exists():
                 cfg = OmegaConf.create(self.artefact(stage).config_yaml)
@@ -110,7 +128,7 @@ class Run:
     @property
     def metrics(self) -> dict[str, float]:
         """metrics.json as a dict; empty when the evaluate stage has not run."""
-        path = self.dir / "metrics.json"
+        path = self._existing_dir() / METRICS_FILE
         if not path.exists():
             status = self.status  # deleted since: {} would read as "not evaluated yet"
             if status.complete and "evaluate" in status.done:
@@ -124,14 +142,14 @@ class Run:
     @property
     def status(self) -> RunStatus:
         """How far the run got (status.json): `.state`, `.stage`, `.error`, `.complete`."""
-        return read_status(self.dir)
+        return read_status(self._existing_dir())
 
     def artefact(self, stage: str) -> Artefact:
         """The artefact a stage wrote (checked whole before it is returned)."""
         if not isinstance(stage, str) or stage not in ARTEFACT_FILE:
             raise PipelineError(f"unknown stage {stage!r} (one of {', '.join(ARTEFACT_FILE)})")
         # its stage's topic: another stage's file copied in is refused, not read as this one
-        return read_artefact(self.dir / ARTEFACT_FILE[stage], producer_stage=stage,
+        return read_artefact(self._existing_dir() / ARTEFACT_FILE[stage], producer_stage=stage,
                              required_topics=[topics.STAGE_TOPIC[stage]])
 
     def messages(self, stage: str, topic: str) -> pd.DataFrame:
@@ -190,12 +208,18 @@ def _cell(value: Any) -> Any:
 def run(overrides: Sequence[str] = (), run_dir: str | Path | None = None) -> Run:
     """Run the pipeline with command-line style overrides (as `birlg` takes them) and return
     the run's handle. `run_dir` defaults to a new `outputs/api/<date-time-microseconds>` dir
-    under the current directory."""
+    under the current directory. Ctrl-C (a notebook's interrupt) raises KeyboardInterrupt
+    naming the stage it stopped, which the run dir's status.json records as `interrupted`."""
     cfg = _compose(overrides)
     if run_dir is None:
         run_dir = Path("outputs") / "api" / datetime.now().strftime("%Y-%m-%d_%H-%M-%S-%f")
     path = _path(run_dir, "run_dir")
-    run_pipeline(cfg, path, config_files_replaced=False)
+    try:
+        run_pipeline(cfg, path, config_files_replaced=False)
+    except Interrupted as e:  # Ctrl-C (a notebook's "interrupt") is what Python makes of it
+        if e.signum == signal.SIGINT:
+            raise KeyboardInterrupt(e.describe()) from None
+        raise
     return Run(path)
 
 
@@ -228,14 +252,16 @@ def _compose(overrides: Sequence[str]) -> DictConfig:
 
 def open_run(run_dir: str | Path) -> Run:
     """The handle of an existing run dir (made by `birlg`, `run` or a sweep job)."""
-    path = _path(run_dir, "run_dir")
-    if not path.is_dir():
-        raise PipelineError(f"run dir {path} " + ("is not a dir" if path.exists() else
-                                                  "not found"))
+    handle = Run(run_dir)
+    path = handle._existing_dir()
     if is_sweep_dir(path):
         raise PipelineError(f"{path} is a sweep dir, not a run dir: read it with "
                             "pipeline.api.sweep(), or open one of its jobs (e.g. its 0/)")
-    return Run(path)
+    if not any((path / name).exists()
+               for name in (STATUS_FILE, HYDRA_FILES[0], *ARTEFACT_FILE.values())):
+        raise PipelineError(f"{path} holds no run (no status.json, artefact or "
+                            ".hydra/config.yaml)")
+    return handle
 
 
 def sweep(sweep_dir: str | Path) -> pd.DataFrame:
@@ -428,6 +454,10 @@ def settings_for_learning(method: str, seed: int, overrides: Sequence[str],
         except OmegaConfBaseException as e:
             reason = str(e).splitlines()[0]
             raise PipelineError(f"config error: birl.{key}={value!r}: {reason}") from None
+        if isinstance(value, str) and isinstance(dc.birl[key], bool | int | float):
+            # a keyword is Python, not the command line: "5" is refused, as seed="1" is
+            kind = {bool: "true or false", int: "an integer"}.get(type(dc.birl[key]), "a number")
+            raise PipelineError(f"{key}={value!r} must be {kind}, not a string")
     return load_settings(dc)
 
 

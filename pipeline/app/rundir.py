@@ -69,6 +69,9 @@ class Interrupted(BaseException):
             return f"interrupted by the user{at}"
         return f"stopped by {signal.Signals(self.signum).name}{at}"
 
+    def __str__(self) -> str:
+        return self.describe()
+
 
 # The signals that stop a run or a sweep with a word (Interrupted): Ctrl-C, `kill`, and the
 # terminal closing under it
@@ -507,16 +510,19 @@ class RunDir:
                      self.path)
 
     def _restore_earlier_run(self) -> bool:
-        """A command-line run that failed before any artefact here changed (a bad
-        demonstration file, an artefact of `from_run` found corrupt or made with another
-        config by the stage that reads it; stages before it may have re-made theirs, the
-        same) leaves the earlier run in the dir as it was: its status.json, timings.json and
-        .hydra/ files put back, as for a run its config refuses (`mark_ended_before_stages`);
-        a good run must not lose its export to a failed re-run. Not in a sweep, whose failed
-        jobs must say so. False where nothing was put back."""
+        """A run that failed before any artefact here changed (a bad demonstration file, an
+        artefact of `from_run` found corrupt or made with another config by the stage that
+        reads it; stages before it may have re-made theirs, the same) leaves the earlier run
+        in the dir as it was: its status.json and timings.json put back, and the .hydra/
+        files of a command-line run, as for a run its config refuses (`mark_ended_before_
+        stages`); a good run must not lose its export to a failed re-run. (An API run writes
+        no .hydra/ files.) Not in a sweep, whose failed jobs must say so. False where nothing
+        was put back."""
         before = self._side_files_before
         if self.sweep is not None or self._changed or before is None \
-                or before[STATUS_FILE] is None or not _restore_hydra_files(self.path):
+                or before[STATUS_FILE] is None:
+            return False
+        if Path(self.path).resolve() in _HANDED_OVER and not _restore_hydra_files(self.path):
             return False
         _put_back(self.path, before)
         log.info("%s: nothing here was changed; the earlier run's status is kept", self.path)

@@ -3,7 +3,11 @@ handle, earlier runs and sweeps opened, and learning from Python objects in memo
 
 import dataclasses
 import json
+import os
 import shutil
+import signal
+import threading
+import time
 from pathlib import Path
 
 import matplotlib
@@ -14,6 +18,7 @@ from omegaconf import OmegaConf
 from pipeline import api
 from pipeline.app import build
 from pipeline.app.config import load_settings
+from pipeline.app.rundir import read_status
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import ArtefactError, read_artefact
 from pipeline.core.experts import optimal_demos
@@ -138,6 +143,41 @@ def test_a_refused_api_run_leaves_a_complete_dir_as_it_was(fast_run, tmp_path):
         api.run(["scene.body_radius=-1"], run_dir=fast_run.dir)
     assert (fast_run.dir / "status.json").read_bytes() == before
     assert api.open_run(fast_run.dir).status.complete
+
+
+def test_an_api_re_run_failing_in_a_stage_before_any_artefact_changed_keeps_the_run(
+        fast_run, tmp_path):
+    """The birl stage refuses the graph the run made (other MDP settings): no artefact of
+    the dir changed, so the earlier run stays complete, timings and all, and can still be
+    learned from or deployed, as after the same failure from the command line (it said
+    `failed`: an API run writes no .hydra/ files, and only those were looked for)."""
+    earlier = shutil.copytree(fast_run.dir, tmp_path / "run")
+    before = {name: (earlier / name).read_bytes() for name in ("status.json", "timings.json")}
+    with pytest.raises(PipelineError, match="gamma"):
+        api.run([*FAST, "stages=[birl,evaluate]", "mdp.gamma=0.5"], run_dir=earlier)
+    assert {name: (earlier / name).read_bytes() for name in before} == before
+    assert api.open_run(earlier).status.complete
+
+
+def test_ctrl_c_during_an_api_run_is_a_keyboard_interrupt_naming_the_stage(tmp_path):
+    """A notebook's interrupt (SIGINT) once the run has begun its stages: KeyboardInterrupt,
+    which `except KeyboardInterrupt` catches, saying where it stopped, as status.json does
+    (it was the pipeline's own exception, printed as "(2, None, None)")."""
+    run_dir = tmp_path / "run"
+
+    def interrupt_once_running() -> None:
+        for _ in range(6000):
+            if read_status(run_dir).state == "running":
+                os.kill(os.getpid(), signal.SIGINT)
+                return
+            time.sleep(0.005)
+
+    threading.Thread(target=interrupt_once_running, daemon=True).start()
+    with pytest.raises(KeyboardInterrupt, match=r"^interrupted by the user at stage \w+$") \
+            as stopped:
+        api.run(list(FAST), run_dir=run_dir)
+    status = read_status(run_dir)
+    assert status.state == "interrupted" and str(stopped.value) == status.error
 
 
 def test_open_run_reads_an_existing_dir(fast_run, tmp_path):
@@ -302,6 +342,9 @@ def test_learn_refuses_bad_input(metropolis):
         api.learn(metropolis, [walk], overrides="graph=small")
     with pytest.raises(PipelineError, match="seed must be an integer"):
         api.learn(metropolis, [walk], seed="x")
+    # a keyword is Python: a number given as a string is refused, as the seed is
+    with pytest.raises(PipelineError, match="n_iterations='5' must be an integer, not a string"):
+        api.learn(metropolis, [walk], n_iterations="5")
 
 
 def test_run_refuses_bad_overrides_in_one_line(tmp_path):
@@ -478,6 +521,12 @@ def test_learn_refuses_what_run_refuses(metropolis):
     (lambda d: api.run([], run_dir=""), "run_dir='': a path to a dir"),
     (lambda d: api.open_run(None), "run_dir=None: a path to a dir"),
     (lambda d: api.open_run(Path(__file__)), "is not a dir"),
+    # a mistyped path read as a run without metrics; an empty dir opened as a run
+    (lambda d: api.Run(d).metrics, "run dir .*run not found"),
+    (lambda d: api.Run(d).status, "run dir .*run not found"),
+    (lambda d: api.artefact(d, "scene"), "run dir .*run not found"),
+    (lambda d: api.open_run(d.parent), "holds no run \\(no status.json, artefact or "
+     "\\.hydra/config.yaml\\)"),
 ])
 def test_bad_api_arguments_are_one_line_naming_them(tmp_path, call, says):
     with pytest.raises(PipelineError, match=says):
