@@ -81,9 +81,9 @@ ROOM_EDGE_TOLERANCE = 0.1
 # A pose stream's trajectory resampled into more points than this (1000 km at 0.1 m) is
 # refused: no walk is that long, a pose far off is (without a room to refuse it by)
 MAX_RESAMPLED_POINTS = 10_000_000
-# A CSV track ordered by its t column may be at most this many times longer than its rows in
-# file order (`_csv_recording`): sorting fixes rows exported out of order, it does not turn a
-# walk into a zig-zag.
+# A track ordered by its clock (a CSV's t column, a bag's header.stamp) may be at most this
+# many times longer than as given (`refuse_appended`): sorting fixes poses exported or logged
+# out of order, it does not turn a walk into a zig-zag.
 T_ORDER_GROWTH = 2.0
 # Positions are rounded to this many decimals of a metre (a nanometre, far below any sensor):
 # formats reach the same polyline by different float arithmetic (an odometry stream's 0.6 is
@@ -255,6 +255,14 @@ def read_tracks(path: Path, *, topic: str | None = None,
     return recording.tracks, recording.is_stream
 
 
+def refuse_unprintable(ident: str, what: str) -> None:
+    """An id with a line break, tab or other control character is refused: errors and tables
+    that name it must stay one line (held-out subjects are named in messages)."""
+    if not ident.isprintable():
+        raise PipelineError(f"{what} {ident!r} holds a control character (a line break, a "
+                            "tab); give ids of printable characters")
+
+
 def _read_json(path: Path, where: str) -> Recording:
     # demos.schema.json: at least one trajectory, each at least two finite [x, y]; subjects
     # strings
@@ -267,6 +275,8 @@ def _read_json(path: Path, where: str) -> Recording:
         if blank is not None:
             raise PipelineError(f"{where}: subjects[{blank}] is blank; give every trajectory "
                                 f"a subject id")
+        for i, subject in enumerate(subjects):
+            refuse_unprintable(subject, f"{where}: subjects[{i}]")
     if subjects is not None and len(subjects) != len(tracks):
         raise PipelineError(f"{where}: subjects has {len(subjects)} entries but there are "
                             f"{len(tracks)} trajectories; give one subject id per trajectory")
@@ -363,9 +373,10 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarr
         for name, out in (("trajectory", ids), ("subject", subjects)):
             if name in col:
                 ident = row[col[name]].strip()
+                what = "trajectory id" if name == "trajectory" else "subject"
                 if not ident:
-                    what = "trajectory id" if name == "trajectory" else "subject"
                     raise PipelineError(f"{where}, line {line}: empty {what}")
+                refuse_unprintable(ident, f"{where}, line {line}: {what}")
                 out.append(ident)
     if not rows:
         raise PipelineError(f"{where} has no rows")
@@ -393,27 +404,34 @@ def _polyline_length(points: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
 
 
+def refuse_appended(where: str, what: str, points: np.ndarray, times: np.ndarray,
+                    clock: str, as_given: str, place: Callable[[int], str], fix: str) -> None:
+    """Ordering a track by its clock must make it more coherent, never less: poses exported
+    or logged out of order fall into place, but two recordings appended with clocks that
+    both start at 0 would be interleaved into one zig-zag many times longer than either. A
+    track that ordering makes more than T_ORDER_GROWTH times longer than as given (`points`
+    and their `times`, in that order) is refused; `place(k)` names the k-th pose."""
+    as_filed = _polyline_length(points)
+    as_timed = _polyline_length(points[np.argsort(times, kind="stable")])
+    if as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
+        back = int(np.flatnonzero(np.diff(times) < 0)[0]) + 1
+        raise PipelineError(
+            f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
+            f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:g} to "
+            f"{times[back]:g} at {place(back)}); are several recordings appended? {fix}")
+
+
 def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, ids: list[str],
                    subjects: list[str], where: str) -> Recording:
-    """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given.
-
-    Ordering by t must make a track more coherent, never less: rows exported out of order
-    fall into place, but two recordings appended with clocks that both start at 0 would be
-    interleaved into one zig-zag many times longer than either. A track that ordering makes
-    more than T_ORDER_GROWTH times longer than its rows in file order is refused."""
+    """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given
+    (`refuse_appended` first)."""
     def ordered(sel: np.ndarray, what: str) -> np.ndarray:
         if "t" not in col:
             return sel
-        by_t = sel[np.argsort(table[sel, 2], kind="stable")]
-        as_filed, as_timed = (_polyline_length(table[k, :2]) for k in (sel, by_t))
-        if as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
-            back = int(np.flatnonzero(np.diff(table[sel, 2]) < 0)[0]) + 1
-            raise PipelineError(
-                f"{where}: ordered by t, {what} is {as_timed:.1f} m long against {as_filed:.1f} m "
-                f"in file order (t goes back from {table[sel[back - 1], 2]:g} to "
-                f"{table[sel[back], 2]:g} at line {lines[sel[back]]}); are several recordings "
-                f"appended? give each its own id in a trajectory column")
-        return by_t
+        refuse_appended(where, what, table[sel, :2], table[sel, 2], "t", "in file order",
+                        lambda k: f"line {lines[sel[k]]}",
+                        "give each its own id in a trajectory column")
+        return sel[np.argsort(table[sel, 2], kind="stable")]
 
     if "trajectory" not in col:
         order = ordered(np.arange(len(table)), "the pose stream")
@@ -518,6 +536,15 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     # message has one: 0 is "not set") say when each pose was taken.
     when = np.array(stamps)
     if (when > 0).all() and (np.diff(when) < 0).any():
+        backwards = int(np.count_nonzero(np.diff(when) < 0))
+        if backwards > (len(when) - 1) / 2:  # late arrivals are a few: this is the clock
+            raise PipelineError(
+                f"{where}: topic {topic}'s header.stamp goes back at {backwards} of "
+                f"{len(when) - 1} steps in the order its messages were logged; is the "
+                f"recording's clock wrong? (poses are read in header.stamp order)")
+        refuse_appended(f"{where}: topic {topic}", "the pose stream", poses, when,
+                        "header.stamp", "in the order it was logged",
+                        lambda k: f"message {k}", "record each in a bag of its own")
         order = np.argsort(when, kind="stable")
         moved = int(np.count_nonzero(order != np.arange(len(order))))
         log.warning("%s: %d of %d messages of topic %s arrived out of the order of their "

@@ -99,6 +99,21 @@ def test_json_subjects_are_trimmed_like_csv_ones(tmp_path):
     refused(r"s\.json: subjects\[1\] is blank", read_recording, path)
 
 
+def test_ids_with_a_line_break_are_refused(tmp_path):
+    """A subject "ana\nbob" was accepted, and every later message naming it (a held-out
+    subject list, the sweep's table) broke over two lines."""
+    path = tmp_path / "s.json"
+    path.write_text(json.dumps({"subjects": ["ana\nbob", "ben"],
+                                "trajectories": [PATH_A.tolist(), PATH_A.tolist()]}))
+    refused(r"s\.json: subjects\[0\] 'ana\\nbob' holds a control character", read_recording,
+            path)
+    table = tmp_path / "s.csv"
+    for column, says in (("subject", "subject"), ("trajectory", "trajectory id")):
+        table.write_text(f'x,y,{column}\n0.5,0.5,"a\tb"\n1,1,"a\tb"\n')
+        refused(rf"s\.csv, line 2: {says} 'a\\tb' holds a control character", read_recording,
+                table)
+
+
 # -- where a demonstration goes -------------------------------------------------------------
 
 

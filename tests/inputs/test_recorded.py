@@ -11,6 +11,7 @@ from rosbags.rosbag2 import Writer as Writer2
 
 from pipeline.core.features import FeatureModel
 from pipeline.core.world import Room
+from pipeline.errors import PipelineError
 from pipeline.inputs.demo_file import load_demo_file
 from pipeline.inputs.recorded import (
     COORDINATE_DECIMALS,
@@ -225,6 +226,37 @@ def test_a_stream_arriving_out_of_order_is_read_in_header_stamp_order(tmp_path, 
         assert f"{swapped} of {len(run)} messages of topic /odom arrived out of the order " \
             "of their header.stamp" in caplog.text
         caplog.clear()
+
+
+def test_a_bag_of_two_recordings_appended_or_with_a_clock_running_back_is_refused(tmp_path):
+    """Two drives logged one after the other whose header stamps both start from the same
+    clock: sorted by stamp they interleave into one zig-zag (learned as one walk, or as a
+    dozen two-point jumps), so it is refused as a CSV's appended recordings are, naming the
+    first stamp that goes back. Stamps that count down while the messages were logged in
+    order (every step goes back) are a wrong clock, not late arrivals: refused too."""
+    first = line(STARTS[1], GOAL)
+    second = line(STARTS[0], GOAL)[:len(first)]
+    both = [p for pair in zip(first, second, strict=True) for p in pair]  # stamp order
+    n = len(both)
+    logged = list(range(0, n, 2)) + list(range(1, n, 2))  # the first drive, then the second
+    for storage in ("mcap", "ros1"):
+        name = "appended.bag" if storage == "ros1" else "appended"
+        bag = write_bag(tmp_path / name, {"/odom": ("nav_msgs/msg/Odometry", both)},
+                        storage=storage, arrival=logged)
+        with pytest.raises(PipelineError, match=(
+                r"topic /odom: ordered by header.stamp, the pose stream is [\d.]+ m long "
+                r"against [\d.]+ m in the order it was logged \(header.stamp goes back from "
+                rf"{1 + 0.1 * (n - 2):g} to 1.1 at message {len(first)}\); are several "
+                r"recordings appended\? record each in a bag of its own")):
+            read_tracks(bag)
+        name = "backwards.bag" if storage == "ros1" else "backwards"
+        bag = write_bag(tmp_path / name, {"/odom": ("nav_msgs/msg/Odometry", list(first))},
+                        storage=storage, arrival=list(range(len(first)))[::-1])
+        with pytest.raises(PipelineError, match=(
+                rf"topic /odom's header.stamp goes back at {len(first) - 1} of "
+                rf"{len(first) - 1} steps in the order its messages were logged; is the "
+                r"recording's clock wrong\?")):
+            read_tracks(bag)
 
 
 def test_pose_streams_from_sqlite3_and_ros1(tmp_path):
