@@ -438,6 +438,9 @@ class RunDir:
         # the earlier run's status.json and timings.json (None: absent), to put back
         self._side_files_before: dict[str, str | None] | None = None
         self._changed = False  # has an artefact of another content replaced one here?
+        # links to the earlier artefacts that one of the same content replaced (its config
+        # names this run's settings), and where each was: put back if this run fails
+        self._kept: list[tuple[Path, Path]] = []
 
     def __enter__(self) -> RunDir:
         if Path(self.path).resolve() not in _HANDED_OVER:
@@ -464,6 +467,9 @@ class RunDir:
         except OSError as e:  # e.g. disk full: the stage's own error matters more
             log.error("cannot write %s: %s", self.path / STATUS_FILE, os_error_reason(e))
         finally:
+            for kept, _ in self._kept:  # not put back: the run's own files stay
+                with suppress(OSError):
+                    kept.unlink(missing_ok=True)
             if self._fd is not None:
                 os.close(self._fd)  # releases the lock
                 self._fd = None
@@ -479,6 +485,7 @@ class RunDir:
         stages' artefacts, metrics.json) is removed first, so no moment leaves new inputs
         beside old outputs; a failed or killed stage leaves the earlier files untouched."""
         if content_digest(self.path / ARTEFACT_FILE[stage]) == new_digest:
+            self._keep_earlier(self.path / ARTEFACT_FILE[stage])
             return
         self._changed = True
         # A later stage this run already made read the new inputs (an input linked out of
@@ -495,6 +502,19 @@ class RunDir:
         if removed:
             log.info("removed %s: derived from the %s artefact this run replaces",
                      ", ".join(p.name for p in removed), stage)
+
+    def _keep_earlier(self, path: Path) -> None:
+        """A hard link to the artefact about to be replaced by one of the same content, so
+        that a run that then fails with nothing changed leaves the dir as it was, byte for
+        byte (the new file's config would name, say, the demonstration file it refused).
+        The link's name ends in .tmp: a killed run's is removed by the next."""
+        kept = path.with_name(path.name + ".earlier.tmp")
+        try:
+            kept.unlink(missing_ok=True)
+            os.link(path, kept)
+        except OSError:  # a file system without hard links: the new file stays
+            return
+        self._kept.append((kept, path))
 
     def done(self, stage: str) -> None:
         raise_if_stopped()  # (the stage's artefact stays: it is whole)
@@ -525,6 +545,8 @@ class RunDir:
         if Path(self.path).resolve() in _HANDED_OVER and not _restore_hydra_files(self.path):
             return False
         _put_back(self.path, before)
+        for kept, path in self._kept:
+            os.replace(kept, path)
         log.info("%s: nothing here was changed; the earlier run's status is kept", self.path)
         return True
 

@@ -99,9 +99,14 @@ def artefacts_of(d: Path) -> dict[str, str | None]:
     return found
 
 
+def file_bytes(d: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in d.glob("*.mcap")}
+
+
 def assert_one_line(capfd, argv: list[str], fragments: list[str], code: int | None = None,
                     earlier: Path | None = None) -> str:
     before = artefacts_of(earlier) if earlier is not None else None
+    files_before = file_bytes(earlier) if earlier is not None else None
     status_before = read_status(earlier) if earlier is not None else None
     timings_before = timings_of(earlier) if earlier is not None else None
     got, out, err = run_cli(capfd, *argv)
@@ -123,6 +128,9 @@ def assert_one_line(capfd, argv: list[str], fragments: list[str], code: int | No
         else:  # nothing replaced: the earlier run is as it was, status and all
             assert read_status(earlier) == status_before, (read_status(earlier), err)
             assert timings_of(earlier) == timings_before
+            if read_status(earlier).state == "complete":  # byte for byte: an artefact
+                assert file_bytes(earlier) == files_before  # re-made the same says the
+                # settings of the run that wrote it, here a refused one
     return err
 
 
