@@ -82,7 +82,7 @@ ROOM_EDGE_TOLERANCE = 0.1
 # refused: no walk is that long, a pose far off is (without a room to refuse it by)
 MAX_RESAMPLED_POINTS = 10_000_000
 # A track ordered by its clock (a CSV's t column, a bag's header.stamp) may be at most this
-# many times longer than as given (`refuse_appended`): sorting fixes poses exported or logged
+# many times longer than as given (`clock_order`): sorting fixes poses exported or logged
 # out of order, it does not turn a walk into a zig-zag.
 T_ORDER_GROWTH = 2.0
 # Positions are rounded to this many decimals of a metre (a nanometre, far below any sensor):
@@ -404,34 +404,35 @@ def _polyline_length(points: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
 
 
-def refuse_appended(where: str, what: str, points: np.ndarray, times: np.ndarray,
-                    clock: str, as_given: str, place: Callable[[int], str], fix: str) -> None:
-    """Ordering a track by its clock must make it more coherent, never less: poses exported
-    or logged out of order fall into place, but two recordings appended with clocks that
-    both start at 0 would be interleaved into one zig-zag many times longer than either. A
-    track that ordering makes more than T_ORDER_GROWTH times longer than as given (`points`
-    and their `times`, in that order) is refused; `place(k)` names the k-th pose."""
-    as_filed = _polyline_length(points)
-    as_timed = _polyline_length(points[np.argsort(times, kind="stable")])
+def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
+                clock: str, as_given: str, place: Callable[[int], str], fix: str) -> np.ndarray:
+    """The order of a track's poses by their clock (`points` and their `times`, as given;
+    stable). Ordering must make the track more coherent, never less: poses exported or
+    logged out of order fall into place, but two recordings appended with clocks that both
+    start at 0 would be interleaved into one zig-zag many times longer than either. A track
+    that ordering makes more than T_ORDER_GROWTH times longer than as given is refused;
+    `place(k)` names the k-th pose."""
+    order = np.argsort(times, kind="stable")
+    as_filed, as_timed = _polyline_length(points), _polyline_length(points[order])
     if as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
         back = int(np.flatnonzero(np.diff(times) < 0)[0]) + 1
         raise PipelineError(
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
             f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:g} to "
             f"{times[back]:g} at {place(back)}); are several recordings appended? {fix}")
+    return order
 
 
 def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, ids: list[str],
                    subjects: list[str], where: str) -> Recording:
     """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given
-    (`refuse_appended` first)."""
+    (`clock_order`)."""
     def ordered(sel: np.ndarray, what: str) -> np.ndarray:
         if "t" not in col:
             return sel
-        refuse_appended(where, what, table[sel, :2], table[sel, 2], "t", "in file order",
-                        lambda k: f"line {lines[sel[k]]}",
-                        "give each its own id in a trajectory column")
-        return sel[np.argsort(table[sel, 2], kind="stable")]
+        return sel[clock_order(where, what, table[sel, :2], table[sel, 2], "t", "in file order",
+                               lambda k: f"line {lines[sel[k]]}",
+                               "give each its own id in a trajectory column")]
 
     if "trajectory" not in col:
         order = ordered(np.arange(len(table)), "the pose stream")
@@ -535,17 +536,16 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     # in arrival order a walk zig-zags back and forth. Their header stamps (when every
     # message has one: 0 is "not set") say when each pose was taken.
     when = np.array(stamps)
-    if (when > 0).all() and (np.diff(when) < 0).any():
-        backwards = int(np.count_nonzero(np.diff(when) < 0))
+    backwards = int(np.count_nonzero(np.diff(when) < 0))
+    if (when > 0).all() and backwards:
         if backwards > (len(when) - 1) / 2:  # late arrivals are a few: this is the clock
             raise PipelineError(
                 f"{where}: topic {topic}'s header.stamp goes back at {backwards} of "
                 f"{len(when) - 1} steps in the order its messages were logged; is the "
                 f"recording's clock wrong? (poses are read in header.stamp order)")
-        refuse_appended(f"{where}: topic {topic}", "the pose stream", poses, when,
-                        "header.stamp", "in the order it was logged",
-                        lambda k: f"message {k}", "record each in a bag of its own")
-        order = np.argsort(when, kind="stable")
+        order = clock_order(f"{where}: topic {topic}", "the pose stream", poses, when,
+                            "header.stamp", "in the order it was logged",
+                            lambda k: f"message {k}", "record each in a bag of its own")
         moved = int(np.count_nonzero(order != np.arange(len(order))))
         log.warning("%s: %d of %d messages of topic %s arrived out of the order of their "
                     "header.stamp; read in stamp order", where, moved, len(order), topic)
