@@ -99,10 +99,7 @@ class Run:
     def _existing_dir(self) -> Path:
         """The run dir, or one line where there is none (a mistyped path read as a run
         with no metrics and an unknown status)."""
-        if not self.dir.is_dir():
-            raise PipelineError(f"run dir {self.dir} " + ("is not a dir" if self.dir.exists()
-                                                          else "not found"))
-        return self.dir
+        return _existing(self.dir, "run dir")
 
     @property
     def config(self) -> DictConfig:
@@ -114,7 +111,7 @@ class Run:
                 cfg = OmegaConf.create(self.artefact(stage).config_yaml)
                 assert isinstance(cfg, DictConfig)
                 return cfg
-        hydra = self.dir / ".hydra" / "config.yaml"
+        hydra = self.dir / HYDRA_FILES[0]
         if hydra.exists():
             try:
                 cfg = OmegaConf.load(hydra)
@@ -233,6 +230,14 @@ def _path(value: Any, name: str) -> Path:
     return Path(value).expanduser().absolute()
 
 
+def _existing(path: Path, kind: str) -> Path:
+    """`path`, or one line saying that the `kind` of dir is not there."""
+    if not path.is_dir():
+        raise PipelineError(f"{kind} {path} " + ("is not a dir" if path.exists() else
+                                                 "not found"))
+    return path
+
+
 def _compose(overrides: Sequence[str]) -> DictConfig:
     """`compose_config`, with Hydra's errors as one-line PipelineErrors (as `birlg` says
     them) and one string refused: it would be read one character at a time."""
@@ -267,11 +272,7 @@ def open_run(run_dir: str | Path) -> Run:
 def sweep(sweep_dir: str | Path) -> pd.DataFrame:
     """The table of a Hydra multirun dir, as `make aggregate` writes it to summary.csv: one
     row per job with its overrides, status, error and every metric (writes nothing)."""
-    path = _path(sweep_dir, "sweep_dir")
-    if not path.is_dir():
-        raise PipelineError(f"sweep dir {path} " + ("is not a dir" if path.exists() else
-                                                    "not found"))
-    return summary_table(path)
+    return summary_table(_existing(_path(sweep_dir, "sweep_dir"), "sweep dir"))
 
 
 # Backwards compatible helpers of the first API (a run dir instead of a handle).
