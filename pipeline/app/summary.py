@@ -24,7 +24,7 @@ from pipeline.app.rundir import (
     unrecorded_jobs,
 )
 from pipeline.core.social import OBSTACLE_METRICS, PATH_METRICS
-from pipeline.errors import PipelineError, first_line
+from pipeline.errors import PipelineError, file_kind, first_line
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -52,6 +52,9 @@ def parse_overrides(job: Path) -> dict[str, str]:
 def read_metrics(path: Path) -> dict:
     """A job's metrics.json: an object of numbers (NaN and null included) or lists of them."""
     try:
+        kind = file_kind(path)  # a named pipe would wait for ever, /dev/zero fill memory
+        if kind:
+            raise Unreadable(f"{path.name} is {kind}, not a file")
         metrics = json.loads(path.read_text())
     except (OSError, ValueError) as e:
         raise Unreadable(f"{path.name} cannot be read ({first_line(e, 120)})") from None

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
+from pipeline.app.rundir import Interrupted
 from pipeline.errors import restore_handlers, stop_quietly_while_starting, survive_closed_stdout
 
 # `python -m pipeline.tools.X` (argv[0] is "-m" while Python finds the module): a Ctrl-C
@@ -28,6 +29,9 @@ def run_tool(main: Callable[[], int | None]) -> NoReturn:
     except KeyboardInterrupt:
         print("interrupted by the user", file=sys.stderr)
         sys.exit(130)
+    except Interrupted as e:  # a tool that runs the pipeline in-process (benchmarks, docs)
+        print(e.describe(), file=sys.stderr)
+        sys.exit(e.exit_code)
     # Its work is done and said: a Ctrl-C in the interpreter's teardown would turn its exit
     # status into 130 without a word.
     signal.signal(signal.SIGINT, signal.SIG_IGN)

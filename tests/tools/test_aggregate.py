@@ -1,9 +1,13 @@
 """The sweep tables of pipeline/tools/aggregate.py: mean ± sample std per setting, counts as
 whole numbers, the best value of each metric in bold in the LaTeX table."""
 
+import os
+
 import numpy as np
 import pandas as pd
+import pytest
 
+from pipeline.app.summary import Unreadable, read_metrics
 from pipeline.tools.aggregate import (
     latex_table,
     markdown_table,
@@ -150,3 +154,14 @@ def test_swept_numbers_are_ordered_by_value_not_as_text():
              "policy_loss_norm": 0.1} for k, beta in enumerate(["12.5", "2.26", "84.6", "1.1"])]
     results, _ = results_table(list(rows[0]), rows)
     assert [r["β"] for r in results] == ["1.1", "2.26", "12.5", "84.6"]
+
+
+def test_a_metrics_file_that_is_no_file_is_refused_before_it_is_opened(tmp_path):
+    """A named pipe would wait for a writer for ever; /dev/zero would fill the memory."""
+    os.mkfifo(tmp_path / "metrics.json")
+    with pytest.raises(Unreadable, match="metrics.json is a named pipe, not a file"):
+        read_metrics(tmp_path / "metrics.json")
+    (tmp_path / "zero").mkdir()
+    (tmp_path / "zero" / "metrics.json").symlink_to("/dev/zero")
+    with pytest.raises(Unreadable, match="metrics.json is a character device, not a file"):
+        read_metrics(tmp_path / "zero" / "metrics.json")

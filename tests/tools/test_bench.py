@@ -45,3 +45,20 @@ def test_graph_growth_times_its_gaussian_process_apart():
     assert adaptive_graph.gp_value_estimate is estimate
     assert row["nodes"] == 300 and 0 < row["gp_calls"] <= row["iterations"]
     assert 0 < row["gp_s"] < row["seconds"]
+
+
+def test_a_run_stopped_inside_a_tool_is_one_line_and_the_shells_exit_status(capsys):
+    """The benchmarks and the docs tool run the pipeline in-process: its Ctrl-C arrives as
+    the pipeline's Interrupted, which a tool says as a stopped run does."""
+    import signal
+
+    from pipeline.app.rundir import Interrupted
+    from pipeline.tools import run_tool
+
+    def stopped() -> None:
+        raise Interrupted(signal.SIGINT, "graph")
+    with pytest.raises(SystemExit) as stop:
+        run_tool(stopped)
+    assert stop.value.code == 130
+    assert capsys.readouterr().err == "interrupted by the user at stage graph\n"
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # run_tool ignores it after
