@@ -125,7 +125,12 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
         log.log(logging.INFO if grow_nodes else logging.DEBUG, "birl.grow_nodes=%d: %s",
                 grow_nodes, why)
         checked.derived["birl.grow_nodes"] = grow_nodes
-    if facts is not None and "demos" in stages:
+    # the demos stage builds the reference roadmap, and so does a random scene on a map
+    # (each draw must connect on it)
+    builds_roadmap = "demos" in stages or ("scene" in stages and
+                                           isinstance(cfg.scene, RandomSceneConfig) and
+                                           bool(cfg.scene.map))
+    if facts is not None and builds_roadmap:
         check_roadmap_size(cfg, facts)
     if facts is not None:
         scene = facts.load()  # sizes are fine: the scene file is validated now, not at its stage

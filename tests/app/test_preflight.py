@@ -100,6 +100,20 @@ def test_sizes_that_cannot_fit_are_refused_within_a_second(tmp_path):
     assert seconds < REFUSED_WITHIN_S, seconds
 
 
+def test_a_random_scene_on_a_map_checks_its_roadmap_when_it_is_made_alone(tmp_path):
+    """The random scene on a map builds the reference roadmap (each draw must connect on
+    it), so `stages=[scene]` is refused as the whole run is (a map whose resolution reads
+    50 instead of 0.05 would take 10 GB at the first draw)."""
+    grey = np.full((160, 200), 254, np.uint8)
+    Image.fromarray(grey).save(tmp_path / "m.png")
+    (tmp_path / "m.yaml").write_text("image: m.png\nresolution: 50\norigin: [0, 0, 0]\n"
+                                     "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    seconds = refused_before_any_stage(tmp_path / "run", r"reference roadmap .* TB",
+                                       "scene=random", f"scene.map={tmp_path / 'm.yaml'}",
+                                       "stages=[scene]")
+    assert seconds < REFUSED_WITHIN_S, seconds
+
+
 def test_a_room_larger_than_its_map_counts_only_the_maps_free_cells(tmp_path):
     # a 10 m × 10 m free map in a 30 m × 30 m room: outside the map is unknown (occupied)
     Image.fromarray(np.full((200, 200), 254, np.uint8)).save(tmp_path / "m.png")
