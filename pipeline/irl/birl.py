@@ -32,7 +32,7 @@ from scipy.special import chdtri
 
 from pipeline.core.evaluation import frechet
 from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
-from pipeline.core.params import renamed, require, require_count, require_positive
+from pipeline.core.params import is_number, renamed, require, require_count, require_positive
 from pipeline.irl.base import (
     IRLConfig,
     IRLProblem,
@@ -43,7 +43,7 @@ from pipeline.irl.base import (
 )
 from pipeline.irl.environment import Rollout
 from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
-from pipeline.irl.prior import Prior
+from pipeline.irl.prior import LARGEST_WEIGHT, Prior
 from pipeline.irl.robust import BASE_MEASURES, BoltzmannPosterior, LogBetaDensity
 
 LIKELIHOODS = ("boltzmann", "paper", "robust")
@@ -109,8 +109,11 @@ class BirlMapConfig(IRLConfig):
                 " or ".join(repr(k) for k in LIKELIHOODS))
         with renamed(self, "lr_level", "test_level", "birl"):
             require(0 < self.test_level < 1, "test_level", self.test_level, "a number in (0, 1)")
-        if self.boltzmann_prior_scale is not None:
-            require_positive(self, "boltzmann_prior_scale")
+        if self.boltzmann_prior_scale is not None:  # σ in box sides; larger is flat: null
+            require(is_number(self.boltzmann_prior_scale) and
+                    0 < self.boltzmann_prior_scale <= LARGEST_WEIGHT, "boltzmann_prior_scale",
+                    self.boltzmann_prior_scale,
+                    f"a number > 0 and <= {LARGEST_WEIGHT:g} (larger: null, no prior)")
         require(self.base_measure in BASE_MEASURES, "base_measure", self.base_measure,
                 " or ".join(repr(k) for k in BASE_MEASURES))
         require(self.alternatives in ALTERNATIVES, "alternatives", self.alternatives,

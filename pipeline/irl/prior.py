@@ -11,7 +11,7 @@ from typing import Optional
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pipeline.core.params import require, require_positive
+from pipeline.core.params import is_number, require
 
 PRIORS = ("gaussian", "laplace", "uniform")
 
@@ -25,7 +25,10 @@ class PriorConfig:
 
     def __post_init__(self) -> None:
         require(self.kind in PRIORS, "kind", self.kind, " or ".join(repr(k) for k in PRIORS))
-        require_positive(self, "scale")
+        # beyond the largest weight the prior is flat on any box: the uniform prior, whose
+        # draws and means a huge σ or b would lose to round-off
+        require(is_number(self.scale) and 0 < self.scale <= LARGEST_WEIGHT, "scale",
+                self.scale, f"a number > 0 and <= {LARGEST_WEIGHT:g} (larger: kind=uniform)")
 
 
 # Weights beyond this size leave β·w out of what the learned β (birl.beta_min ..

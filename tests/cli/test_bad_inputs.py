@@ -319,6 +319,11 @@ CONFIG_CASES = {
     "unknown prior": (["birl.prior.kind=cauchy"], ["birl.prior.kind=cauchy"]),
     "zero prior scale": (["birl.prior.kind=gaussian", "birl.prior.scale=0"],
                          ["birl.prior.scale"]),
+    # a flat prior in all but round-off: weights of 1e284, then std::bad_alloc mid-run
+    "huge prior scale": (["birl.prior.kind=gaussian", "birl.prior.scale=1e300"],
+                         ["birl.prior.scale=1e+300", "kind=uniform"]),
+    "huge Boltzmann prior scale": (["birl.boltzmann_prior_scale=1e300"],
+                                   ["birl.boltzmann_prior_scale=1e+300", "null"]),
     "negative iterations": (["birl.n_iterations=-1"], ["birl.n_iterations"]),
     "zero optimality": (["birl.beta=0"], ["birl.beta"]),
     "negative learning growth": (["birl.grow_nodes=-1"], ["birl.grow_nodes"]),
