@@ -113,7 +113,7 @@ class BirlMapConfig(IRLConfig):
             require(is_number(self.boltzmann_prior_scale) and
                     0 < self.boltzmann_prior_scale <= LARGEST_WEIGHT, "boltzmann_prior_scale",
                     self.boltzmann_prior_scale,
-                    f"a number > 0 and <= {LARGEST_WEIGHT:g} (larger: null, no prior)")
+                    f"a number > 0 and <= {LARGEST_WEIGHT:g} (larger: null, birl.prior)")
         require(self.base_measure in BASE_MEASURES, "base_measure", self.base_measure,
                 " or ".join(repr(k) for k in BASE_MEASURES))
         require(self.alternatives in ALTERNATIVES, "alternatives", self.alternatives,
