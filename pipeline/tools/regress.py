@@ -24,16 +24,17 @@ import yaml
 
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.app.summary import Unreadable, read_metrics
-from pipeline.errors import PipelineError, first_line
+from pipeline.artefacts.store import write_text_atomic
+from pipeline.errors import PipelineError, first_line, os_error_reason
 from pipeline.tools import run_tool
 
 BASELINE = PROJECT_ROOT / "results" / "baseline"
 
 
-def _load(path: Path, kind: type, loads=yaml.safe_load):
+def _load(path: Path, kind: type):
     """A YAML or JSON file that must hold a `kind` (dict or list), or one line saying why not."""
     try:
-        data = loads(path.read_text())
+        data = yaml.safe_load(path.read_text())
     except (OSError, ValueError, yaml.YAMLError) as e:
         raise PipelineError(f"{path} cannot be read ({first_line(e)})") from None
     if not isinstance(data, kind) or not data:
@@ -46,11 +47,31 @@ def load_tolerances(baseline: Path) -> list[tuple[str, dict | str]]:
     if not isinstance(spec.get("patterns"), dict) or "default" not in spec:
         raise PipelineError(f"{baseline / 'tolerances.yaml'} needs 'patterns' (a mapping) and "
                             "'default'")
-    return list(spec["patterns"].items()) + [("*", spec["default"])]
+    tolerances = list(spec["patterns"].items()) + [("*", spec["default"])]
+    for pattern, tol in tolerances:
+        where = "default" if pattern == "*" else f"patterns[{pattern!r}]"
+        if tol == "ignore":
+            continue
+        if not (isinstance(tol, dict) and tol and set(tol) <= {"abs", "rel"} and
+                all(isinstance(v, int | float) and not isinstance(v, bool) and v >= 0
+                    for v in tol.values())):
+            raise PipelineError(f"{baseline / 'tolerances.yaml'}: {where} must be 'ignore' or "
+                                f"a mapping of abs and/or rel to numbers >= 0, not {tol!r}")
+    return tolerances
 
 
 def tolerance_for(metric: str, tolerances) -> dict | str:
     return next(tol for pattern, tol in tolerances if fnmatch.fnmatch(metric, pattern))
+
+
+def read_baseline(path: Path) -> dict:
+    try:
+        baseline = read_metrics(path)  # numbers only, as a run's metrics.json
+    except Unreadable as e:
+        raise PipelineError(f"{path.parent}: {e}") from None
+    if not baseline:
+        raise PipelineError(f"{path} holds no metrics")
+    return baseline
 
 
 def run_experiment(name: str, overrides: list[str], work: Path, reuse: bool) -> dict:
@@ -126,21 +147,28 @@ def _regress(args: argparse.Namespace) -> int:
     tolerances = load_tolerances(args.baseline)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
-        rows = []
+        rows, updated = [], {}
         for name in names:
             print(f"running {name}: {' '.join(experiments[name]) or '(defaults)'}", flush=True)
             current = run_experiment(name, experiments[name], work, args.reuse)
             path = args.baseline / f"{name}.json"
             if args.update:
-                kept = {k: v for k, v in current.items()
-                        if tolerance_for(k, tolerances) != "ignore"}
-                path.write_text(json.dumps(kept, indent=1, sort_keys=True) + "\n")
+                updated[path] = {k: v for k, v in current.items()
+                                 if tolerance_for(k, tolerances) != "ignore"}
                 continue
             if not path.exists():
                 print(f"error: no baseline {path}; create it with --update", file=sys.stderr)
                 return 2
-            rows += compare(name, _load(path, dict, json.loads), current, tolerances)
-    if args.update:
+            rows += compare(name, read_baseline(path), current, tolerances)
+    if args.update:  # only once every experiment ran: a stop leaves the baseline as it was
+        for path, kept in updated.items():
+            try:
+                write_text_atomic(path, json.dumps(kept, indent=1, sort_keys=True) + "\n")
+            except OSError as e:
+                done = [p.name for p in updated][:list(updated).index(path)]
+                raise PipelineError(f"cannot write {path}: {os_error_reason(e)}"
+                                    + (f" (already updated: {', '.join(done)})" if done else
+                                       "")) from None
         print(f"baseline updated for {names}")
         return 0
     table = pd.DataFrame(rows)

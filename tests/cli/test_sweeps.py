@@ -258,7 +258,11 @@ def test_a_damaged_baseline_is_one_line(tmp_path):
     cases = [("experiments.yaml", "x: [\n", "experiments.yaml cannot be read"),
              ("experiments.yaml", "- a\n", "experiments.yaml does not hold a non-empty dict"),
              ("experiments.yaml", "a: 3\n", "a must be a list of overrides"),
-             ("tolerances.yaml", "default: {abs: 0}\n", "tolerances.yaml needs 'patterns'")]
+             ("tolerances.yaml", "default: {abs: 0}\n", "tolerances.yaml needs 'patterns'"),
+             ("tolerances.yaml", "patterns: {'weight_*': 0.05}\ndefault: {abs: 0}\n",
+              "patterns['weight_*'] must be 'ignore' or a mapping"),
+             ("tolerances.yaml", "patterns: {}\ndefault: {abs: '0.05'}\n",
+              "default must be 'ignore' or a mapping")]
     for name, text, says in cases:
         kept = (baseline / name).read_text()
         (baseline / name).write_text(text)
@@ -268,6 +272,26 @@ def test_a_damaged_baseline_is_one_line(tmp_path):
         assert says in result.stderr
     result = regress("--baseline", tmp_path / "nope")
     assert result.stderr == f"error: --baseline {tmp_path / 'nope'} is not a directory\n"
+
+
+def test_an_update_that_stops_leaves_the_whole_baseline_as_it_was(tmp_path):
+    """--update writes only once every experiment has run: a failure half-way left the
+    experiments before it rewritten and the rest not (a mixed baseline, committed data)."""
+    baseline, work = tmp_path / "baseline", tmp_path / "work"
+    shutil.copytree(ROOT / "results" / "baseline", baseline)
+    first, second = list(yaml.safe_load((baseline / "experiments.yaml").read_text()))[:2]
+    for name, text in ((first, '{"policy_loss": 0.5}'), (second, "{bad")):
+        (work / name).mkdir(parents=True)
+        (work / name / "metrics.json").write_text(text)  # reused: nothing runs
+    before = {p.name: p.read_bytes() for p in baseline.iterdir()}
+    result = regress("--baseline", baseline, "--work", work, "--reuse", "--update",
+                     "--only", first, second)
+    assert result.returncode == 2 and f"{second}: metrics.json cannot be read" in result.stderr
+    assert {p.name: p.read_bytes() for p in baseline.iterdir()} == before
+    result = regress("--baseline", baseline, "--work", work, "--reuse", "--update",
+                     "--only", first)
+    assert result.returncode == 0, result.stderr
+    assert json.loads((baseline / f"{first}.json").read_text()) == {"policy_loss": 0.5}
 
 
 def test_slurm_launcher_preset_composes():
