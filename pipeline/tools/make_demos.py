@@ -25,9 +25,11 @@ import numpy as np
 
 from pipeline.app.build import preset_weights
 from pipeline.app.context import PACKAGE_ROOT
+from pipeline.artefacts.store import write_text_atomic
 from pipeline.core.experts import optimal_demos
 from pipeline.core.features import FEATURE_NAMES, FeatureModel
 from pipeline.core.roadmap import build_roadmap
+from pipeline.errors import PipelineError, report
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.tools import run_tool
 
@@ -67,6 +69,12 @@ def write_handdrawn(root: Path) -> None:
     mdp = roadmap.mdp()
     demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes,
                           mdp.solve(preset_weights("polite", list(FEATURE_NAMES))))
+    out = root / "demos" / "metropolis_handdrawn.json"
+    for place in (root, root / "demos"):  # checked before the drawings are made
+        if place.exists() and not place.is_dir():
+            raise PipelineError(f"{place} is a file; --out needs a directory there")
+    if out.is_dir():
+        raise PipelineError(f"{out} is a directory; make_demos writes a file there")
     rng = np.random.default_rng(11)
     persons, limit = scene.person_xy, scene.body_radius + 0.05
     trajectories = []
@@ -80,8 +88,9 @@ def write_handdrawn(root: Path) -> None:
                 wobble *= 0.7
             trajectories.append(np.round(p, 3).tolist())
     (root / "demos").mkdir(parents=True, exist_ok=True)
-    out = root / "demos" / "metropolis_handdrawn.json"
-    out.write_text(json.dumps({"scene": "metropolis", "trajectories": trajectories}) + "\n")
+    # atomic: a stop or a full disk leaves the shipped file as it was, never cut short
+    write_text_atomic(out, json.dumps({"scene": "metropolis",
+                                       "trajectories": trajectories}) + "\n")
     print(f"wrote {out}: {len(trajectories)} drawings")
 
 
@@ -93,7 +102,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=DATA,
                         help="data directory to write into (default: the package's data/)")
     args = parser.parse_args(argv)
-    write_handdrawn(args.out)
+    try:
+        write_handdrawn(args.out)
+    except (PipelineError, OSError) as e:
+        raise SystemExit(report(e, "the hand-drawn demonstrations")) from None
 
 
 if __name__ == "__main__":

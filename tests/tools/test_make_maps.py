@@ -36,6 +36,17 @@ def test_make_demos_handdrawn_reproduces_the_shipped_drawings(tmp_path):
     _same_bytes(tmp_path, ["demos/metropolis_handdrawn.json"])
 
 
+def test_make_demos_refuses_an_out_that_cannot_hold_the_file_in_one_line(tmp_path, capsys):
+    (tmp_path / "a_file").write_text("")
+    (tmp_path / "d" / "demos" / "metropolis_handdrawn.json").mkdir(parents=True)
+    for out, says in ((tmp_path / "a_file", "a_file is a file; --out needs a directory"),
+                      (tmp_path / "d", "metropolis_handdrawn.json is a directory")):
+        with pytest.raises(SystemExit) as stop:
+            make_demos.main(["handdrawn", "--out", str(out)])
+        err = capsys.readouterr().err
+        assert stop.value.code == 2 and err.count("\n") == 1 and says in err, err
+
+
 def test_a_plan_failing_its_checks_replaces_nothing(tmp_path):
     make_maps.write(make_maps.WAREHOUSE, tmp_path)
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
