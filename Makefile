@@ -66,10 +66,13 @@ experiment: $(STAMP)
 ## launcher; ARGS=hydra/launcher=joblib for joblib's), then aggregate.
 ## A failing job does not stop the others; the exit status says whether any failed.
 sweep: $(STAMP) $(if $(filter tune,$(EXP)),$(VENV)/.installed-tune)
-	@# Aggregate also when jobs failed (the table lists them); exit with the sweep's status
-	@# when it failed or was stopped (1, or 130/143/129 after a signal), else aggregate's.
+	@# Aggregate also when jobs failed (the table lists them), not when none ran (a bad
+	@# EXP or ARGS: its one line is the news); exit with the sweep's status when it failed
+	@# or was stopped (1, 2, or 130/143/129 after a signal), else aggregate's.
 	$(PY) -m pipeline -m experiment=$(EXP) hydra.launcher.n_jobs=$(JOBS) "hydra.sweep.dir=$(SWEEP_DIR)" $(ARGS); \
-	  sweep=$$?; $(PY) -m pipeline.tools.aggregate "$(SWEEP_DIR)"; aggregated=$$?; \
+	  sweep=$$?; aggregated=0; \
+	  if [ $$sweep -eq 0 ] || ls -d "$(SWEEP_DIR)"/[0-9]* >/dev/null 2>&1; then \
+	    $(PY) -m pipeline.tools.aggregate "$(SWEEP_DIR)"; aggregated=$$?; fi; \
 	  if [ $$sweep -ne 0 ]; then exit $$sweep; fi; exit $$aggregated
 
 ## Table (summary.csv) and figures of a sweep dir: make aggregate SWEEP=multirun/...

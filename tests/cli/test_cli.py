@@ -79,6 +79,17 @@ def test_no_config_sets_hydra_mode():
             assert cfg.hydra.mode is None, preset
 
 
+def test_make_sweep_that_runs_no_job_is_its_one_line(tmp_path):
+    """A bad preset is the news; aggregating the sweep dir no job made added a second error
+    about a generated dir the user never named."""
+    result = subprocess.run(["make", "-s", "sweep", "EXP=nonexistent",
+                             f"SWEEP={tmp_path / 'sweep'}"], cwd=ROOT, capture_output=True,
+                            text=True, timeout=120)
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert result.returncode == 2 and len(errors) == 1, result.stderr
+    assert "experiment/nonexistent" in errors[0]
+
+
 def test_make_targets_pass_a_path_with_spaces_whole(tmp_path):
     """`make export RUN="my runs/a"`: the tools get one argument, not two."""
     for target, variable, tool_says in (("export", "RUN", "run dir {} not found"),
