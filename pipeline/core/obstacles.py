@@ -375,10 +375,26 @@ class ObstacleMap:
         x0, y0, x1, y1 = self.grid.extent()
         return f"x {x0:g}..{x1:g} m, y {y0:g}..{y1:g} m"
 
-    def free_bounds(self) -> Bounds | None:
-        """(x_min, y_min, x_max, y_max) of the cells that are not occupied, by their edges
-        (a building in a SLAM map wide with unknown space round it); None when none is."""
-        free = ~self.grid.occupied
+    def largest_free_region(self) -> np.ndarray:
+        """(H, W) bool: the largest 8-connected region of cells not occupied. A SLAM map
+        holds free specks outside the building (laser returns through a window or a glass
+        door) and rooms no door leads to; a random scene's starts and goal must all lie in
+        one region. (Whether a robot fits through its gaps is the reachability test's.)"""
+        labels, n = ndimage.label(~self.grid.occupied, structure=np.ones((3, 3), bool))
+        if n == 0:
+            return np.zeros(self.grid.shape, bool)
+        return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
+
+    def in_cells(self, points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """(n, 2) -> (n,) bool: the point lies in one of `cells` ((H, W) bool)."""
+        rows, cols, inside = self.grid.cell_of(points)
+        return inside & cells[rows, cols]
+
+    def free_bounds(self, cells: np.ndarray | None = None) -> Bounds | None:
+        """(x_min, y_min, x_max, y_max) of `cells` ((H, W) bool; default: those not
+        occupied), by their edges (a building in a SLAM map wide with unknown space round
+        it); None when there is none."""
+        free = ~self.grid.occupied if cells is None else cells
         rows, cols = np.flatnonzero(free.any(axis=1)), np.flatnonzero(free.any(axis=0))
         if len(rows) == 0:
             return None

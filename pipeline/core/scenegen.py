@@ -263,8 +263,10 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
                                 f"{spec.robot_radius:g} m (scene.robot_radius) from every "
                                 "obstacle and unknown cell")
     check_fits(spec, room, on_map=map_grid is not None)
-    free_bounds = obstacles.free_bounds() if map_grid is not None and obstacles is not None \
-        else None
+    free_bounds, region = None, None
+    if map_grid is not None and obstacles is not None:  # draws within the building
+        region = obstacles.largest_free_region()
+        free_bounds = obstacles.free_bounds(region)
     for _ in range(spec.max_tries):
         placed = _place_persons(spec, rng, room, obstacles, free_bounds)
         if placed is None:
@@ -275,9 +277,13 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
         else:
             with_persons = dataclasses.replace(empty, persons=persons)
 
-            def free(p: np.ndarray, s: Scene = with_persons) -> np.ndarray:
-                # clear of bodies by 0.1 m more, like the starts of a plain room below
-                return s.free(p) & ~s.in_body(p, 0.1)
+            assert obstacles is not None and region is not None  # a map has obstacles
+
+            def free(p: np.ndarray, s: Scene = with_persons, on: ObstacleMap = obstacles,
+                     region: np.ndarray = region) -> np.ndarray:
+                # clear of bodies by 0.1 m more, like the starts of a plain room below, and
+                # in the largest free region (others cannot reach its goal)
+                return s.free(p) & ~s.in_body(p, 0.1) & on.in_cells(p, region)
             ends = _starts_and_goal_on_map(spec, rng, free, room, free_bounds)
             if ends is None:
                 continue

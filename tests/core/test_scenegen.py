@@ -82,3 +82,33 @@ def test_a_random_scene_on_a_slam_map_lands_in_its_building():
     points = np.vstack([[[p.x, p.y] for p in scene.persons], scene.starts, scene.goal[None]])
     assert ((points >= [20, 30]) & (points <= [32, 38])).all()
     assert len(scene.persons) >= 6 and len(scene.starts) == 3
+
+
+@pytest.mark.parametrize("speck", [
+    np.s_[100:104, 500:504],  # 0.4 m of free cells 20 m away (laser through a window)
+    np.s_[50:110, 450:540],  # a 9 m × 6 m room no door leads to, smaller than the building
+])
+def test_a_random_scene_on_a_slam_map_ignores_free_space_outside_its_building(speck):
+    """Free cells outside the building stretched the box the starts are drawn in, and its
+    diagonal sets how far from the goal a start must be: every draw failed ("use fewer
+    persons"). Positions are drawn in the largest free region."""
+    occupied = np.ones((600, 600), dtype=bool)
+    occupied[300:380, 200:320] = False  # the building: x 20..32 m, y 30..38 m
+    occupied[speck] = False
+    grid = OccupancyGrid(occupied, (0.0, 0.0), 0.1)
+    spec = RandomSceneSpec(n_groups=2, n_singles=2, n_starts=3)
+    scene = random_scene(spec, np.random.default_rng(0), map_grid=grid, map_source="slam")
+    points = np.vstack([[[p.x, p.y] for p in scene.persons], scene.starts, scene.goal[None]])
+    assert ((points >= [20, 30]) & (points <= [32, 38])).all()
+
+
+def test_the_largest_free_region_by_hand():
+    from pipeline.core.obstacles import ObstacleMap
+    occupied = np.ones((6, 8), dtype=bool)
+    occupied[1:3, 1:4] = False  # 6 cells
+    occupied[3, 4] = False  # touches the first by a corner: 8-connected, 7 cells in all
+    occupied[4:5, 6:8] = False  # 2 cells apart
+    region = ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), 1.0)).largest_free_region()
+    expected = np.zeros_like(occupied)
+    expected[1:3, 1:4] = expected[3, 4] = True
+    assert (region == expected).all()
