@@ -55,6 +55,16 @@ class MaxEntTrace(Trace):
     expected_counts: np.ndarray  # (d,) at the last iterate
 
 
+class SoftValuesDiverge(PipelineError):
+    """Undiscounted, the weights lie where the paths' exp(reward) sum to infinity: the log
+    likelihood is −∞ there."""
+
+
+# halvings of an ascent step that lands where the soft values diverge (each halving costs a
+# divergence test); the step then stops short of that region, where the likelihood is −∞
+MAX_STEP_HALVINGS = 8
+
+
 def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10, max_iter: int = 10_000,
                 init_values: np.ndarray | None = None) -> np.ndarray:
     """Soft value iteration V(s) (n,) = log Σ_e exp(w·φ(e) + γ^τ(e) V(dst(e))), fixed values at
@@ -73,7 +83,7 @@ def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10, max_iter: in
     if mdp.gamma == 1.0:
         # Undiscounted, the sum over paths of exp(reward) is finite only where the costs
         # outweigh the branching (16 out-edges per lattice node): small weights diverge.
-        raise PipelineError(f"birl=maxent: the soft values diverge at weights "
+        raise SoftValuesDiverge(f"birl=maxent: the soft values diverge at weights "
                             f"{np.round(np.asarray(w, float), 4).tolist()} without discounting "
                             "(mdp.gamma=1: the paths' exp(reward) sum to infinity); run MaxEnt "
                             "with mdp=paper")
@@ -140,9 +150,8 @@ def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndar
     history: list[np.ndarray] = []
     log_likelihood: list[float] = []
     grad_norm: list[float] = []
-    values: np.ndarray | None = None
+    values = soft_values(mdp, w)
     for t in range(n_iterations + 1):
-        values = soft_values(mdp, w, init_values=values)  # warm start: few sweeps per step
         grad = empirical - expected_discounted_counts(mdp, w, starts, values)
         history.append(w.copy())
         log_likelihood.append(float(w @ empirical + goal_term - values[starts].sum()))
@@ -153,7 +162,16 @@ def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndar
         m = beta1 * m + (1 - beta1) * grad
         v = beta2 * v + (1 - beta2) * grad**2
         m_hat, v_hat = m / (1 - beta1 ** (t + 1)), v / (1 - beta2 ** (t + 1))
-        w = np.clip(w + learning_rate / np.sqrt(t + 1) * m_hat / (np.sqrt(v_hat) + eps),
-                    lower, upper)  # ascent, then projection onto the box
+        step = learning_rate / np.sqrt(t + 1) * m_hat / (np.sqrt(v_hat) + eps)
+        for halving in range(MAX_STEP_HALVINGS + 1):
+            new_w = np.clip(w + step, lower, upper)  # ascent, then projection onto the box
+            try:  # warm start: few sweeps per step
+                values = soft_values(mdp, new_w, init_values=values)
+                break
+            except SoftValuesDiverge:
+                if halving == MAX_STEP_HALVINGS:
+                    raise
+                step = step / 2
+        w = new_w
     return MaxEntTrace(history, log_likelihood, list(range(1, n_iterations + 2)), grad_norm,
                        empirical, empirical - grad)

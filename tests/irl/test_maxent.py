@@ -94,6 +94,24 @@ def test_soft_values_that_diverge_without_discounting_are_said_plainly():
     assert np.isfinite(values).all()
 
 
+def test_an_ascent_step_into_divergence_is_shortened_and_reaches_the_maximum():
+    """Undiscounted, weights near 0 make the paths' exp(reward) sum to infinity (the log
+    likelihood is −∞ there). A demonstration that loops once pulls w towards that region; a
+    step that lands in it is halved, so MaxEnt stops short of it and climbs to where the
+    expected counts match the demonstration's (it was an error half-way)."""
+    from pipeline.core.graph_mdp import Path
+    src, dst = np.array([0, 0, 1, 1, 1]), np.array([1, 1, 0, 0, 2])
+    terminal = np.array([False, False, True])
+    mdp = GraphMDP(src, dst, np.ones(5), np.ones((5, 1)), terminal,
+                   MDPParams(gamma=1.0, time_cost=0.01, r_goal=1.0, v_max=3.0))
+    looped = Path(np.array([0, 1, 0, 1, 2]), np.array([0, 2, 0, 4]), True)  # 4 edges
+    res = maxent_irl(mdp, [looped], (np.array([-10.0]), np.array([0.0])), n_iterations=300,
+                     learning_rate=3.0, w0=np.array([-5.0]))
+    assert all(np.isfinite(res.log_likelihood))
+    assert res.log_likelihood[-1] > res.log_likelihood[0]
+    assert abs(res.grad_norm[-1]) < 1e-2 * abs(res.grad_norm[0])  # at the maximum
+
+
 # ---------------------------------------------------------------- expected feature counts
 
 @pytest.mark.parametrize("seed", range(3))
