@@ -304,9 +304,10 @@ def _boltzmann_loop(problem: IRLProblem,
     """The iterations, the last posterior and the last β. The posterior is concave in
     (βw, β), so its MAP is found in iteration 1; later iterations change it only where its
     alternatives are the graph's paths and the graph grows (birl.grow_nodes)."""
-    w, beta = problem.w0, config.beta  # β starts at birl.beta
     post = _boltzmann_posterior(problem, config)
-    records = [problem.record(0, w, post.log_likelihood(w, beta))]
+    w = problem.w0
+    beta, log_likelihood = post.start(w, config.beta)  # β starts at birl.beta
+    records = [problem.record(0, w, log_likelihood)]
     on_lattice = _lattice(problem, config) is not None  # the graph's growth changes nothing
     solved_on = None  # the graph's size when the MAP was last found: the same graph, the same MAP
     for n in range(1, config.n_iterations + 1):

@@ -51,6 +51,11 @@ REFINE_STEPS, REFINE_RATE = 30, 0.5
 LOG_Y_KEPT, SWEEP_TOLERANCE, MAX_SWEEPS = 25.0, 1e-3, 5000
 
 
+class PathWeightDiverges(PipelineError):
+    """With the uniform base measure on a graph with cycles, the paths' total weight is
+    infinite at these (w, β): the log likelihood is −∞ there."""
+
+
 class PatternLU:
     """Sparse LUs of I − γ^τ P_π for one graph, given as its transpose in CSC with a fixed
     pattern (`indices`, `indptr`). The matrix is a nonsingular M-matrix (discounted:
@@ -398,7 +403,7 @@ class BoltzmannPosterior:
             return self._keep_linear(theta, hard, *wide, "hard")
         if self.base_measure == "uniform":
             # a setting's consequence, not a fault: one line for the user
-            raise PipelineError(f"the paths' total weight diverges at β = {theta[-1]:.3g}: "
+            raise PathWeightDiverges(f"the paths' total weight diverges at β = {theta[-1]:.3g}: "
                                 "with birl.base_measure=uniform every path of a graph with "
                                 "cycles counts once; use birl.base_measure=walk")
         raise RuntimeError("the soft values' linear system has no positive solution")
@@ -606,6 +611,18 @@ class BoltzmannPosterior:
             self._tangent(w, beta, values, ll)
         raise RuntimeError("the admissibility test did not settle")  # not seen in practice
 
+    def start(self, w: ArrayLike, beta: float) -> tuple[float, float]:
+        """(β, log likelihood) to start the search from at w: β itself, or where the paths'
+        total weight diverges there (the uniform base measure), β doubled until it does not
+        (a larger β weighs costly paths less)."""
+        while True:
+            try:
+                return beta, self.log_likelihood(w, beta)
+            except PathWeightDiverges:
+                if beta >= self.beta_range[1]:
+                    raise
+                beta = min(2 * beta, float(self.beta_range[1]))
+
     def map(self, w0: ArrayLike, beta0: float) -> tuple[np.ndarray, float]:
         """MAP (w (d,), β) within the prior box and the β range. The search runs over x =
         (w, log β), the same function of other coordinates (its minimum is the same point):
@@ -626,9 +643,13 @@ class BoltzmannPosterior:
         return x[:-1], float(np.clip(np.exp(x[-1]), *self.beta_range))
 
     def _objective_value(self, x: np.ndarray) -> float:
-        """`neg_log_posterior` without its gradient (one solve fewer)."""
+        """`neg_log_posterior` without its gradient (one solve fewer); +∞ where the paths'
+        total weight diverges (the trust region then shrinks away from there)."""
         w, beta = x[:-1], float(np.exp(x[-1]))
-        return -(self.log_likelihood(w, beta) + self.prior.log_pdf(w)) + x[-1]
+        try:
+            return -(self.log_likelihood(w, beta) + self.prior.log_pdf(w)) + x[-1]
+        except PathWeightDiverges:
+            return np.inf
 
     def _terms(self, x: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         """`neg_log_posterior`, its gradient in x = (w, u = log β) and the log likelihood's
@@ -684,8 +705,14 @@ def heldout_log_likelihood(alternatives: GraphMDP, w: ArrayLike,
     fit = BoltzmannPosterior.of_sums(alternatives, starts, stats, prior, beta_range,
                                      base_measure, stops)
     low, high = np.log(beta_range[0]), np.log(beta_range[1])
-    found = minimize_scalar(lambda t: -fit.log_likelihood(w, float(np.exp(t))),
-                            bounds=(low, high), method="bounded",
+
+    def neg_log_likelihood(t: float) -> float:
+        try:
+            return -fit.log_likelihood(w, float(np.exp(t)))
+        except PathWeightDiverges:  # −∞ there (the uniform base measure at small β)
+            return np.inf
+
+    found = minimize_scalar(neg_log_likelihood, bounds=(low, high), method="bounded",
                             options={"xatol": BETA_FIT_TOLERANCE})
     beta = float(np.exp(found.x))
     # the soft values belong to the alternatives, not to the demonstrations: the fit's

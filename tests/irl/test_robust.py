@@ -18,6 +18,7 @@ from pipeline.irl.prior import Prior
 from pipeline.irl.robust import (
     BoltzmannPosterior,
     LogBetaDensity,
+    PathWeightDiverges,
     PatternLU,
     heldout_log_likelihood,
     trust_region_newton,
@@ -881,3 +882,27 @@ def test_the_log_names_the_prior_each_part_of_the_robust_form_learns_under():
     assert BirlMapConfig().describe_prior() == "gaussian prior (σ 0.5 of the box's side)"
     assert BirlMapConfig(likelihood="paper").describe_prior() == "uniform prior"
     assert BirlMapConfig(boltzmann_prior_scale=None).describe_prior() == "uniform prior"
+
+
+def test_the_search_starts_and_stays_where_the_uniform_measures_sum_converges():
+    """Two nodes joined both ways by two edges each, then a goal. With every path counted
+    once, a loop 0→1→0 adds 4 paths of weight exp(β(2w − 0.02)): the sum converges iff
+    4·exp(−1.02β) < 1 at w = −0.5, i.e. β > ln 4 / 1.02 ≈ 1.36. From β = 1 the search
+    starts at β = 2 (doubled once), not with an error, and its steps keep out of the region
+    where the log likelihood is −∞."""
+    mdp = GraphMDP(np.array([0, 0, 1, 1, 1]), np.array([1, 1, 0, 0, 2]), np.ones(5),
+                   np.ones((5, 1)), np.array([False, False, True]),
+                   MDPParams(gamma=1.0, time_cost=0.01, r_goal=1.0, v_max=3.0))
+    demo = Path(np.array([0, 1, 2]), np.array([0, 4]), True)
+    post = BoltzmannPosterior(mdp, [demo], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100),
+                              "uniform")
+    with pytest.raises(PathWeightDiverges):
+        post.log_likelihood([-0.5], 1.0)
+    beta, log_likelihood = post.start([-0.5], 1.0)
+    assert beta == 2.0 and log_likelihood == post.log_likelihood([-0.5], 2.0)
+    assert post._objective_value(np.array([-0.5, 0.0])) == np.inf  # β = 1
+    w, beta = post.map([-0.5], beta)
+    # the shortest path demonstrated: the costliest weight in the box, β as large as the
+    # demonstration's likelihood keeps rising with it
+    assert w[0] == pytest.approx(-1.0) and np.isfinite(post.log_likelihood(w, beta))
+    assert post.log_likelihood(w, beta) > log_likelihood
