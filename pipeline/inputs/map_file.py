@@ -15,8 +15,9 @@ ROS 1 map_server and Nav2's map_server:
 - raw: round(255 s) is the occupancy in percent (negate and the thresholds are ignored, as
   in map_server): 0 is free, 1..100 occupied to that degree, anything above 100 unknown.
 
-Only free cells (occupancy 0 in map_server's grid) are free: occupied, intermediate and
-unknown cells are obstacles.
+Only free cells are free: occupied, intermediate and unknown cells are obstacles. In scale
+mode that is below free_thresh; map_server rounds a band half a per cent of the way above
+it (map_saver's unknown grey 205 among them) to occupancy 0, which is kept an obstacle here.
 Image row 0 is the map's top (largest y); the grid is flipped so its row 0 is the bottom.
 """
 
