@@ -128,3 +128,9 @@ def startup_table(root: Path, old: Path | None, repeats: int, jobs: int) -> pd.D
                      "jobs": N_SWEEP_JOBS if not name.startswith(("run", "floor")) else None,
                      "workers": jobs if name.startswith("sweep") else None})
     return pd.DataFrame(rows)
+
+
+if __name__ == "__main__":  # measured through the benchmarks' command, which writes its table
+    print("error: run this benchmark as `python -m pipeline.tools.bench startup` (see its "
+          "--help)", file=sys.stderr)
+    sys.exit(2)

@@ -10,8 +10,10 @@ shows it as the goal.
 
 from __future__ import annotations
 
+import argparse
 import math
 import operator
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +23,8 @@ import pandas as pd
 
 from pipeline.irl.birl import BirlMapConfig
 from pipeline.tools import bench_startup as startup
+from pipeline.tools import run_tool
+from pipeline.tools.bench import RESULTS
 
 
 class Tables:
@@ -306,3 +310,25 @@ def targets_table(results: Path) -> pd.DataFrame:
                      "measured": reading.text, "met": "yes" if target.met(reading) else "no",
                      "floor or anchor": reading.beside, "table": f"`{target.table}.csv`"})
     return pd.DataFrame(rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m pipeline.tools.targets",
+        description="Print the project's open targets beside the values measured in the "
+                    "committed tables (results/bench/; `make bench` re-measures them, "
+                    "`make docs-gen` writes docs/benchmarks/targets.md from them).")
+    parser.add_argument("--results", type=Path, default=RESULTS,
+                        help="the tables' directory (default: results/bench/)")
+    args = parser.parse_args(argv)
+    try:
+        table = targets_table(args.results)
+    except (OSError, ValueError, KeyError) as e:  # a table missing or damaged
+        print(f"error: the tables in {args.results} cannot be read ({e})", file=sys.stderr)
+        return 2
+    print(table.drop(columns="table").to_string(index=False))
+    return 0
+
+
+if __name__ == "__main__":
+    run_tool(main)

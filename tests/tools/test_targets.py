@@ -71,3 +71,14 @@ def test_every_target_is_read_from_a_committed_table():
     assert len(table) == len(targets.TARGETS) and set(table.met) <= {"yes", "no"}
     for name in table.table:
         assert (BENCH / name.strip("`")).exists(), name
+
+
+def test_the_targets_command_prints_each_target_and_refuses_missing_tables(tmp_path, capsys):
+    from pipeline.tools.targets import TARGETS, main
+    assert main([]) == 0
+    out = capsys.readouterr().out
+    assert all(target.what in out for target in TARGETS)
+    assert main(["--results", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: the tables in {tmp_path} cannot be read") and \
+        err.count("\n") == 1
