@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.errors import PipelineError, first_line, report
 from pipeline.tools import aggregate, bench, bench_learning, bench_scaling, run_tool
 
 # figure -> (its table, the function drawing the figure from the table), under the project root
@@ -37,7 +38,14 @@ def redraw(root: Path = PROJECT_ROOT) -> list[Path]:
     """Every figure of FIGURES drawn again from its table; the figures written."""
     written = []
     for figure, (table, draw) in FIGURES.items():
-        draw(root / table, root / figure)
+        if not (root / table).is_file():
+            raise PipelineError(f"{table} not found: `make bench` (or the sweep its figure "
+                                "names) writes it")
+        try:
+            draw(root / table, root / figure)
+        except (ValueError, KeyError, AttributeError, TypeError) as e:  # a damaged table
+            raise PipelineError(f"{table} cannot be drawn from: {first_line(e)} (missing or "
+                                "damaged columns?)") from None
         written.append(root / figure)
     return written
 
@@ -45,7 +53,11 @@ def redraw(root: Path = PROJECT_ROOT) -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     argparse.ArgumentParser(prog="python -m pipeline.tools.redraw",
                             description=__doc__.split("\n")[0]).parse_args(argv)
-    for path in redraw():
+    try:
+        written = redraw()
+    except (PipelineError, OSError) as e:
+        return report(e, "a figure")
+    for path in written:
         print(f"wrote {path.relative_to(PROJECT_ROOT)} (and .pdf)")
     for figure, source in RUN_FIGURES.items():
         print(f"not redrawn: {figure}, from a run: {source}")
