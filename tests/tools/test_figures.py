@@ -45,3 +45,16 @@ def test_redraw_draws_every_figure_from_its_table(tmp_path):
         assert recorded_digests(tmp_path / figure) == {
             (ROOT / table).name: table_digest(ROOT / table)}
         assert (tmp_path / figure).with_suffix(".pdf").read_bytes().startswith(b"%PDF")
+
+
+def test_a_missing_or_damaged_table_is_one_line_naming_it(tmp_path):
+    from pipeline.errors import PipelineError
+    from pipeline.tools.redraw import FIGURES, redraw
+    first_table = next(iter(FIGURES.values()))[0]
+    with pytest.raises(PipelineError, match=f"{first_table} not found"):
+        redraw(tmp_path)
+    (tmp_path / first_table).parent.mkdir(parents=True)
+    for text in ("garbage,,,\n", ""):
+        (tmp_path / first_table).write_text(text)
+        with pytest.raises(PipelineError, match=f"{first_table} cannot be drawn from"):
+            redraw(tmp_path)
