@@ -41,9 +41,10 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 
 from pipeline.app.config import Config, compose_config, load_settings, register_configs
 from pipeline.app.metric_keys import METRIC_KEYS, PATH_METRIC_MEANING
+from pipeline.artefacts.store import write_text_atomic
 from pipeline.core.params import ParameterError
 from pipeline.core.social import PATH_METRICS
-from pipeline.errors import PipelineError
+from pipeline.errors import PipelineError, first_line, report
 from pipeline.tools import run_tool
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -554,16 +555,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-run", action="store_true",
                         help="leave README.md's sample output as it is (no experiment run)")
     args = parser.parse_args(argv)
+    try:
+        write_pages(args.no_run)
+    except (PipelineError, OSError) as e:
+        raise SystemExit(report(e, "the generated pages")) from None
+
+
+def write_pages(no_run: bool) -> None:
+    """Every page built before any is written (a missing or damaged table leaves them all as
+    they were, agreeing with each other), each written atomically."""
+    pages = {}
     for relative, make in PAGES.items():
+        try:
+            with quiet_logging():
+                pages[relative] = make()
+        except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:  # a table
+            raise PipelineError(f"{relative} cannot be built: {first_line(e)} (a table under "
+                                "results/ missing or damaged?)") from None
+    for relative, text in pages.items():
         path = PROJECT_ROOT / relative
         path.parent.mkdir(parents=True, exist_ok=True)
-        with quiet_logging():
-            path.write_text(make())
+        write_text_atomic(path, text)
         print(f"wrote {relative}")
-    if not args.no_run:
+    if not no_run:
         print("running the default experiment for README.md's sample output ...", flush=True)
-        README.write_text(readme_with_sample(README.read_text(),
-                                             sample_output(default_run_metrics())))
+        write_text_atomic(README, readme_with_sample(README.read_text(),
+                                                     sample_output(default_run_metrics())))
         print("wrote README.md's sample output")
 
 

@@ -117,3 +117,22 @@ def test_hand_written_page_quotes_no_measured_number(page):
     found = measured_numbers(page.read_text())
     assert not found, (f"{page.relative_to(ROOT)} quotes measured numbers in prose; point to "
                        f"the committed table under results/ instead:\n" + "\n".join(found))
+
+
+def test_a_page_that_cannot_be_built_leaves_every_page_as_it_was(tmp_path, monkeypatch):
+    """A damaged table was a traceback after the pages before it had been rewritten (the
+    pages then disagreed with each other)."""
+    from pipeline.errors import PipelineError
+    from pipeline.tools import docs
+
+    def damaged() -> str:
+        raise AttributeError("'DataFrame' object has no attribute 'measurement'")
+    monkeypatch.setattr(docs, "PROJECT_ROOT", tmp_path)
+    monkeypatch.setattr(docs, "PAGES", {"docs/first.md": lambda: "new\n",
+                                        "docs/second.md": damaged})
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "first.md").write_text("old\n")
+    with pytest.raises(PipelineError, match="docs/second.md cannot be built: 'DataFrame'"):
+        docs.write_pages(no_run=True)
+    assert (tmp_path / "docs" / "first.md").read_text() == "old\n"
+    assert sorted(p.name for p in (tmp_path / "docs").iterdir()) == ["first.md"]
