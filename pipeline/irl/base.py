@@ -31,6 +31,9 @@ class IRLConfig(BoxConfig):
     """Settings every method has: the weight box and prior (BoxConfig), how many
     iterations, and the initial weights."""
     kind: str = ""  # the method's registry name; each subclass fixes its default
+    # map: iterations of eq. (2) (the Boltzmann forms find their MAP in the first; later
+    # ones repeat it unless the graph grows); maxent: gradient steps; mcmc, policywalk: the
+    # points of the run recorded as iterations
     n_iterations: int = 20
     init_weights: Optional[list[float]] = None  # null: drawn from the prior with the seed
     # The learner's features (names as reward.features, e.g. social@0.8); null:

@@ -64,8 +64,9 @@ class BirlMapConfig(IRLConfig):
     # paper: eq. (2) against the greedy generated trajectories; robust: that MAP or an
     # eq. (2) iterate it admits
     likelihood: str = "boltzmann"
-    beta_min: float = 0.1  # boltzmann, robust: β is learned, log-uniform on
-    beta_max: float = 1000.0  # [beta_min, beta_max]; `beta` is its starting value
+    # boltzmann, robust: β is learned, log-uniform on [beta_min, beta_max], from `beta`:
+    beta_min: float = 0.1  # its least value
+    beta_max: float = 1000.0  # β's largest value (boltzmann, robust)
     # robust: level of the likelihood-ratio test that keeps an eq. (2) iterate
     test_level: float = 1e-4
     # boltzmann, robust: σ of the Boltzmann model's Gaussian prior on w, centred in the box,

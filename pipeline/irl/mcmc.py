@@ -45,9 +45,9 @@ MAX_CHAIN_STEPS = 10_000_000  # steps of one chain: ~0.5 GB of states at 6 featu
 @dataclass
 class ChainParams:
     """A Metropolis–Hastings chain: burn_in + n_samples·thin steps, every thin-th kept."""
-    n_samples: int = 1000
-    burn_in: int = 500
-    thin: int = 1
+    n_samples: int = 1000  # states kept per chain
+    burn_in: int = 500  # steps discarded first (the step adapts during them)
+    thin: int = 1  # keep every thin-th state after burn-in
 
     def __post_init__(self) -> None:
         require_count(self, "n_samples", "thin")
@@ -75,9 +75,9 @@ class AdaptiveChainParams(ChainParams):
     # (target_acceptance 0.57 is optimal for it)
     sampler: str = "rw"
     step: Optional[float] = None  # deprecated spelling of proposal_step
-    # kept states per chain at most: while the chains do not agree (R-hat above AGREED_RHAT
-    # or ESS below AGREED_ESS) sampling goes on, n_samples more per chain each time;
-    # null: EXTENSIONS·n_samples; max_samples = n_samples samples a fixed length
+    # kept states per chain at most: while the chains do not agree (split R-hat or bulk
+    # ESS short of the agreed values, docs/methods.md) sampling goes on, n_samples more per
+    # chain each time; null: a few times n_samples; n_samples samples a fixed length
     max_samples: Optional[int] = None
 
     def __post_init__(self) -> None:

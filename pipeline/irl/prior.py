@@ -41,8 +41,9 @@ class BoxConfig:
     """The weight box and prior shared by every IRL method; one number applies to every
     feature, or give one per feature."""
     prior: PriorConfig = field(default_factory=PriorConfig)
-    lower: list[float] = field(default_factory=lambda: [-1.0])
-    upper: list[float] = field(default_factory=lambda: [0.0])
+    # the weight box, one number for every feature or one per feature (costs weigh < 0):
+    lower: list[float] = field(default_factory=lambda: [-1.0])  # the box's lower corner
+    upper: list[float] = field(default_factory=lambda: [0.0])  # the box's upper corner
 
     def make_prior(self, dim: int) -> Prior:
         """The prior on the box for `dim` features; ParameterError naming a wrong entry."""
