@@ -5,12 +5,18 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
 from pipeline.app.rundir import Interrupted
-from pipeline.errors import restore_handlers, stop_quietly_while_starting, survive_closed_stdout
+from pipeline.errors import (
+    os_error_reason,
+    restore_handlers,
+    stop_quietly_while_starting,
+    survive_closed_stdout,
+)
 
 # `python -m pipeline.tools.X` (argv[0] is "-m" while Python finds the module): a Ctrl-C
 # during the tool's imports, most of a second, is one line, not a traceback from inside
@@ -43,5 +49,10 @@ def output_directory(parser: argparse.ArgumentParser, out: Path) -> Path:
     refused with one line then, not after minutes of runs)."""
     if out.exists() and not out.is_dir():
         parser.error(f"--out {out} is a file, not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):  # writable: the tables come after the runs
+            pass
+    except OSError as e:
+        parser.error(f"--out {out} cannot be written: {os_error_reason(e)}")
     return out

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import os
 import resource
 import subprocess
@@ -31,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.irl.birl import LIKELIHOODS
 from pipeline.tools import run_tool
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
@@ -654,6 +656,17 @@ def positive_count(text: str) -> int:
     return _integer_from(text, 1)
 
 
+def positive_length(text: str) -> float:
+    """argparse type of room sides: a finite number > 0 (m)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{value} is not a finite number > 0")
+    return value
+
+
 def seed_number(text: str) -> int:
     """argparse type of seeds: an integer >= 0."""
     return _integer_from(text, 0)
@@ -691,26 +704,27 @@ def _parser() -> argparse.ArgumentParser:
                     help="a checkout of an earlier commit to measure beside this one")
     irl = sub.add_parser("irl", help="IRL methods -> results/bench/irl_methods.csv and .png")
     irl.add_argument("--seeds", type=seed_number, nargs="+", default=[0, 1, 2])
-    irl.add_argument("--methods", nargs="+", default=IRL_METHODS)
-    irl.add_argument("--scenes", nargs="+", default=list(IRL_SCENES))
+    irl.add_argument("--methods", nargs="+", default=IRL_METHODS, choices=IRL_METHODS)
+    irl.add_argument("--scenes", nargs="+", default=list(IRL_SCENES), choices=list(IRL_SCENES))
     o = sub.add_parser("obstacles", help="office map vs metropolis -> results/bench/obstacles.csv")
     o.add_argument("--repeats", type=positive_count, default=3)
     imp = sub.add_parser("imperfect", help="noisy and hand-drawn demonstrations -> "
                          "results/bench/imperfect.csv, imperfect_summary.csv and .png")
     imp.add_argument("--seeds", type=seed_number, nargs="+", default=list(range(10)))
     imp.add_argument("--baseline-seeds", type=seed_number, nargs="+", default=[0, 1, 2])
-    imp.add_argument("--conditions", nargs="+", default=list(IMPERFECT))
+    imp.add_argument("--conditions", nargs="+", default=list(IMPERFECT), choices=list(IMPERFECT))
     imp.add_argument("--methods", nargs="+", default=None, choices=list(IMPERFECT_METHODS))
     imp.add_argument("--merge", action="store_true",
                      help="keep the rows of imperfect.csv of the methods not run now")
     post = sub.add_parser("posterior", help="birl=mcmc diagnostics -> results/bench/posterior.csv")
     post.add_argument("--seeds", type=seed_number, nargs="+", default=[0, 1])
-    post.add_argument("--likelihoods", nargs="+", default=["robust", "paper"])
+    post.add_argument("--likelihoods", nargs="+", default=["robust", "paper"],
+                      choices=list(LIKELIHOODS))
     post.add_argument("--samplers", nargs="+", default=list(SAMPLER_OVERRIDES),
                       choices=list(SAMPLER_OVERRIDES))
     big = sub.add_parser("bigroom", help="scene + demos of 10-40 m random rooms -> "
                          "results/bench/big_rooms.csv")
-    big.add_argument("--sides", type=float, nargs="+", default=BIG_ROOM_SIDES)
+    big.add_argument("--sides", type=positive_length, nargs="+", default=BIG_ROOM_SIDES)
     big.add_argument("--repeats", type=positive_count, default=3)
     big.add_argument("--old", type=checkout, default=None,
                      help="another checkout to measure side by side (code=old rows)")

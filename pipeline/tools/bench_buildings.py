@@ -24,7 +24,7 @@ import pandas as pd
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.artefacts import codec, read_artefact
 from pipeline.tools import output_directory, run_tool
-from pipeline.tools.bench import run_in_process
+from pipeline.tools.bench import run_in_process, seed_number
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 SCENES = ("metropolis", "office", "warehouse")
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES)
     parser.add_argument("--random-on-maps", dest="random_on_maps", nargs="*",
                         default=list(RANDOM_ON_MAPS), choices=list(RANDOM_ON_MAPS))
-    parser.add_argument("--seeds", nargs="+", type=int, default=list(range(5)))
+    parser.add_argument("--seeds", nargs="+", type=seed_number, default=list(range(5)))
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     output_directory(parser, args.out)

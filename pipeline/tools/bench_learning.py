@@ -62,7 +62,7 @@ import pandas as pd
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.errors import first_line
 from pipeline.tools import output_directory, run_tool
-from pipeline.tools.bench import learning_stages, run_in_process
+from pipeline.tools.bench import learning_stages, run_in_process, seed_number
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 HANDDRAWN = "data/demos/metropolis_handdrawn.json"
@@ -435,8 +435,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--demonstrators", nargs="+", default=list(DEMONSTRATORS),
                         choices=list(DEMONSTRATORS))
     parser.add_argument("--learners", nargs="+", default=list(METHODS), choices=list(LEARNERS))
-    parser.add_argument("--seeds", nargs="+", type=int, default=list(range(10)))
-    parser.add_argument("--baseline-seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--seeds", nargs="+", type=seed_number, default=list(range(10)))
+    parser.add_argument("--baseline-seeds", nargs="+", type=seed_number, default=[0, 1, 2])
     parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--table", default="learning",
                         help="the tables' name: NAME.csv, NAME_summary.csv, NAME.png")
@@ -444,6 +444,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="keep the rows of learning.csv for the (demonstrator, learner) "
                              "pairs not run now (e.g. add the baselines to a committed table)")
     args = parser.parse_args(argv)
+    if not args.table or Path(args.table).name != args.table:  # written under --out, hours on
+        parser.error(f"--table {args.table!r} must be a plain name (the tables go to --out)")
     output_directory(parser, args.out)
     table_path = args.out / f"{args.table}.csv"
     try:  # before any case runs: a damaged table to merge into is one line, not hours later

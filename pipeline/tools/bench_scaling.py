@@ -25,7 +25,13 @@ import numpy as np
 import pandas as pd
 
 from pipeline.tools import run_tool
-from pipeline.tools.bench import RESULTS, _app, learning_stages, read_artefact_iterations
+from pipeline.tools.bench import (
+    RESULTS,
+    _app,
+    learning_stages,
+    positive_count,
+    read_artefact_iterations,
+)
 
 METHODS = ["map", "boltzmann", "robust", "robust_graph", "mcmc", "policywalk", "maxent"]
 NAMES = {"map": "BIRL-G (MAP, paper eq. 2)", "boltzmann": "BIRL-G (MAP, Boltzmann)",
@@ -197,7 +203,7 @@ def main(argv=None) -> None:
     parser.add_argument("--quick", action="store_true", help="only the 10 m room")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
-    parser.add_argument("--max-nodes", type=int, default=None,
+    parser.add_argument("--max-nodes", type=positive_count, default=None,
                         help="only graph sizes up to this (a slow method on a short budget)")
     parser.add_argument("--merge", action="store_true",
                         help="replace only these methods' rows in the existing scaling.csv")
@@ -205,7 +211,10 @@ def main(argv=None) -> None:
     RESULTS.mkdir(parents=True, exist_ok=True)
     grid = QUICK if args.quick else GRID
     if args.max_nodes is not None:
-        grid = {side: [n for n in sizes if n <= args.max_nodes] for side, sizes in grid.items()}
+        grid = {side: kept for side, sizes in grid.items()
+                if (kept := [n for n in sizes if n <= args.max_nodes])}
+        if not grid:
+            parser.error(f"--max-nodes {args.max_nodes} is below every graph size of the grid")
     print(f"scaling: rooms and graph sizes {grid}, methods {args.methods}", flush=True)
     # the kept rows: numbers as numbers (a failed row's are NaN), no error as "" (run_grid's)
     old = pd.read_csv(RESULTS / "scaling.csv", dtype={"error": str}).fillna({"error": ""}) \

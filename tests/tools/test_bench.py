@@ -25,6 +25,13 @@ def test_an_old_checkout_is_taken_as_its_resolved_directory():
     (["graph-once", "-5"], "argument nodes: -5 is not >= 1"),
     (["graph", "--sizes", "100", "--seed", "-1"], "argument --seed: -1 is not >= 0"),
     (["graph-io-once", "10", "--repeats", "x"], "argument --repeats: 'x' is not an integer"),
+    # each ran scene, demos and graph first, or ended in a KeyError or ValueError traceback
+    (["irl", "--methods", "bogus"], "argument --methods: invalid choice: 'bogus'"),
+    (["irl", "--scenes", "bogus"], "argument --scenes: invalid choice: 'bogus'"),
+    (["imperfect", "--conditions", "bogus"], "argument --conditions: invalid choice"),
+    (["posterior", "--likelihoods", "bogus"], "argument --likelihoods: invalid choice"),
+    (["bigroom", "--sides", "nan"], "argument --sides: nan is not a finite number > 0"),
+    (["bigroom", "--sides", "-5"], "argument --sides: -5.0 is not a finite number > 0"),
 ])
 def test_bench_counts_and_seeds_are_checked_before_anything_runs(argv, says, capsys):
     """--repeats 0 wrote an empty table over the committed experiment.csv; -5 nodes and
@@ -62,3 +69,26 @@ def test_a_run_stopped_inside_a_tool_is_one_line_and_the_shells_exit_status(caps
     assert stop.value.code == 130
     assert capsys.readouterr().err == "interrupted by the user at stage graph\n"
     signal.signal(signal.SIGINT, signal.default_int_handler)  # run_tool ignores it after
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--table", "../elsewhere/x"], "--table '../elsewhere/x' must be a plain name"),
+    (["--seeds", "-1"], "argument --seeds: -1 is not >= 0"),
+])
+def test_bench_learning_refuses_what_would_fail_after_its_runs(argv, says, capsys):
+    """A --table path with a missing directory failed after the whole benchmark (its
+    results lost); a negative seed was the pipeline's traceback at the first case."""
+    from pipeline.tools import bench_learning
+    with pytest.raises(SystemExit) as exit_:
+        bench_learning.main(argv)
+    assert exit_.value.code == 2 and says in capsys.readouterr().err
+
+
+def test_an_out_dir_that_cannot_be_written_is_refused_before_any_run(tmp_path, capsys):
+    import argparse
+
+    from pipeline.tools import output_directory
+    (tmp_path / "file").write_text("")
+    with pytest.raises(SystemExit):
+        output_directory(argparse.ArgumentParser(), tmp_path / "file" / "out")
+    assert "cannot be written" in capsys.readouterr().err
