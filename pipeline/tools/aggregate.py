@@ -261,10 +261,10 @@ def write_tables(columns: list[str], rows: list[Row], sweep_dir: Path) -> None:
     results, means = results_table(columns, rows)
     if not results:
         return
-    (sweep_dir / "table.md").write_text(markdown_table(results) + "\n")
+    write_text_atomic(sweep_dir / "table.md", markdown_table(results) + "\n")
     # the best value of each metric in bold, where there is more than one row to compare
     bold = best_rows(means) if len(results) > 1 else {}
-    (sweep_dir / "table.tex").write_text(latex_table(results, bold))
+    write_text_atomic(sweep_dir / "table.tex", latex_table(results, bold))
 
 
 def write_summary_csv(columns: list[str], rows: list[Row], path: Path) -> None:
