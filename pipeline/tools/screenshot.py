@@ -218,6 +218,15 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not 0 <= args.colors <= 256:
         ap.error(f"--colors {args.colors}: a PNG palette has 1 to 256 colours (0: no palette)")
+    for name in ("settle", "timeout"):
+        if not getattr(args, name) > 0:
+            ap.error(f"--{name} {getattr(args, name)}: seconds > 0")
+    if args.out.suffix.lower() != ".png":  # said after the capture otherwise
+        ap.error(f"--out {args.out}: the screenshot is a PNG; name it ....png")
+    if not args.run_dir.is_dir():  # before the tools it needs: the run dir is the news
+        what = "is not a directory" if args.run_dir.exists() else "not found"
+        print(f"error: run dir {args.run_dir} {what}", file=sys.stderr)
+        return 2
     if not sys.platform.startswith("linux"):
         print("error: the screenshot runs the viewer under Xvfb, on Linux only", file=sys.stderr)
         return 2

@@ -453,3 +453,18 @@ def test_rerun_switched_off_is_one_line(run_dir, tmp_path):
     assert res.returncode == 2
     assert res.stderr.strip().splitlines() == [
         "error: rerun logging is disabled (RERUN=off in the environment)"]
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["NOPE"], "error: run dir NOPE not found"),  # was "Xvfb not found" where it is missing
+    (["RUN", "--out", "shot"], "--out shot: the screenshot is a PNG"),  # after the capture
+    (["RUN", "--timeout", "-1"], "--timeout -1.0: seconds > 0"),
+])
+def test_the_screenshot_checks_its_arguments_before_it_needs_xvfb(argv, says, tmp_path, capsys):
+    from pipeline.tools.screenshot import main
+    names = {"NOPE": str(tmp_path / "nope"), "RUN": str(tmp_path)}
+    try:
+        status = main([names.get(a, a) for a in argv])
+    except SystemExit as e:  # argparse's refusal
+        status = e.code
+    assert status == 2 and says.replace("NOPE", names["NOPE"]) in capsys.readouterr().err
