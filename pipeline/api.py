@@ -72,7 +72,7 @@ from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.world import Scene, scene_from_dict
-from pipeline.errors import PipelineError, first_line, one_line
+from pipeline.errors import PipelineError, existing_dir, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
 from pipeline.inputs.recorded import clean_tracks, cut_trajectory, drop_repeats, match_to_starts
 from pipeline.irl import methods
@@ -99,7 +99,7 @@ class Run:
     def _existing_dir(self) -> Path:
         """The run dir, or one line where there is none (a mistyped path read as a run
         with no metrics and an unknown status)."""
-        return _existing(self.dir, "run dir")
+        return existing_dir(self.dir, "run dir")
 
     @property
     def config(self) -> DictConfig:
@@ -230,14 +230,6 @@ def _path(value: Any, name: str) -> Path:
     return Path(value).expanduser().absolute()
 
 
-def _existing(path: Path, kind: str) -> Path:
-    """`path`, or one line saying that the `kind` of dir is not there."""
-    if not path.is_dir():
-        raise PipelineError(f"{kind} {path} " + ("is not a dir" if path.exists() else
-                                                 "not found"))
-    return path
-
-
 def _compose(overrides: Sequence[str]) -> DictConfig:
     """`compose_config`, with Hydra's errors as one-line PipelineErrors (as `birlg` says
     them) and one string refused: it would be read one character at a time."""
@@ -272,7 +264,7 @@ def open_run(run_dir: str | Path) -> Run:
 def sweep(sweep_dir: str | Path) -> pd.DataFrame:
     """The table of a Hydra multirun dir, as `make aggregate` writes it to summary.csv: one
     row per job with its overrides, status, error and every metric (writes nothing)."""
-    return summary_table(_existing(_path(sweep_dir, "sweep_dir"), "sweep dir"))
+    return summary_table(existing_dir(_path(sweep_dir, "sweep_dir"), "sweep dir"))
 
 
 # Backwards compatible helpers of the first API (a run dir instead of a handle).

@@ -28,6 +28,15 @@ def file_kind(path: Path) -> str | None:
     return "not a regular file"
 
 
+def existing_dir(path: Path, kind: str) -> Path:
+    """`path`, or one line saying that the `kind` of dir ("run dir", "sweep dir") a user
+    named is not there."""
+    if not path.is_dir():
+        raise PipelineError(f"{kind} {path} " + ("is not a directory" if path.exists() else
+                                                 "not found"))
+    return path
+
+
 def first_line(e: BaseException, limit: int = 200) -> str:
     """The first line of an error's message (its type's name when it has none), cut to
     `limit` characters: a parser's or a library's message can run over many lines."""

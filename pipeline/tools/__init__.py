@@ -12,6 +12,7 @@ from typing import NoReturn
 
 from pipeline.app.rundir import Interrupted
 from pipeline.errors import (
+    PipelineError,
     os_error_reason,
     restore_handlers,
     stop_quietly_while_starting,
@@ -22,6 +23,11 @@ from pipeline.errors import (
 # during the tool's imports, most of a second, is one line, not a traceback from inside
 # them; `run_tool` puts the handlers back. Imported by tests or a notebook: nothing changes.
 _HANDLERS_BEFORE_IMPORTS = stop_quietly_while_starting() if sys.argv[:1] == ["-m"] else {}
+
+
+# What pandas and the plotting raise on a committed table that is damaged (a column gone, a
+# text where numbers were, an empty file): said as one line naming the table
+DAMAGED_TABLE = (ValueError, KeyError, AttributeError, TypeError)
 
 
 def run_tool(main: Callable[[], int | None]) -> NoReturn:
@@ -56,3 +62,14 @@ def output_directory(parser: argparse.ArgumentParser, out: Path) -> Path:
     except OSError as e:
         parser.error(f"--out {out} cannot be written: {os_error_reason(e)}")
     return out
+
+
+def check_out_places(root: Path, files: list[Path], writer: str) -> None:
+    """Before anything is made under the --out dir `root`: the dirs the `files` (relative to
+    root) go in are dirs where they exist, and no file's place is taken by a dir."""
+    for place in (root, *sorted({(root / f).parent for f in files} - {root})):
+        if place.exists() and not place.is_dir():
+            raise PipelineError(f"{place} is a file; --out needs a directory there")
+    for f in files:
+        if (root / f).is_dir():
+            raise PipelineError(f"{root / f} is a directory; {writer} writes a file there")

@@ -27,7 +27,7 @@ from pipeline.app.rundir import is_locked, sweep_finished, sweep_jobs, sweep_sto
 from pipeline.app.summary import is_metric, missing_value, summary_csv, summary_rows
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import PipelineError, existing_dir, os_error_reason
 from pipeline.tools import run_tool
 
 # A table as the sweep's jobs give it: plain rows (dicts; a row lacks what its job did not
@@ -313,10 +313,8 @@ def main(argv=None) -> int:
     # taken before the jobs are read: a sweep that ends meanwhile left rows of running jobs
     running = args.sweep_dir.is_dir() and is_locked(args.sweep_dir)
     try:
-        if not args.sweep_dir.is_dir():
-            what = "is not a directory" if args.sweep_dir.exists() else "not found"
-            raise PipelineError(f"sweep dir {args.sweep_dir} {what}")
-        columns, rows = aggregate(args.sweep_dir, figures=args.figures)
+        columns, rows = aggregate(existing_dir(args.sweep_dir, "sweep dir"),
+                                  figures=args.figures)
     except PipelineError as e:
         print(f"error: {e}" + (" (the sweep still runs: aggregate it when it ends)"
                                if running else ""), file=sys.stderr)

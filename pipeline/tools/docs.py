@@ -45,7 +45,7 @@ from pipeline.artefacts.store import write_text_atomic
 from pipeline.core.params import ParameterError
 from pipeline.core.social import PATH_METRICS
 from pipeline.errors import PipelineError, first_line, report
-from pipeline.tools import run_tool
+from pipeline.tools import DAMAGED_TABLE, run_tool
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 CONF = PROJECT_ROOT / "conf"
@@ -569,7 +569,7 @@ def write_pages(no_run: bool) -> None:
         try:
             with quiet_logging():
                 pages[relative] = make()
-        except (OSError, ValueError, KeyError, AttributeError, TypeError) as e:  # a table
+        except (OSError, *DAMAGED_TABLE) as e:  # a table missing or damaged
             raise PipelineError(f"{relative} cannot be built: {first_line(e)} (a table under "
                                 "results/ missing or damaged?)") from None
     for relative, text in pages.items():

@@ -31,7 +31,7 @@ from pipeline.core.features import FEATURE_NAMES, FeatureModel
 from pipeline.core.roadmap import build_roadmap
 from pipeline.errors import PipelineError, report
 from pipeline.inputs.scene_file import load_scene_file
-from pipeline.tools import run_tool
+from pipeline.tools import check_out_places, run_tool
 
 DATA = PACKAGE_ROOT / "data"
 DRAWINGS_PER_START = 3
@@ -70,11 +70,7 @@ def write_handdrawn(root: Path) -> None:
     demos = optimal_demos(mdp, roadmap.positions, roadmap.start_nodes,
                           mdp.solve(preset_weights("polite", list(FEATURE_NAMES))))
     out = root / "demos" / "metropolis_handdrawn.json"
-    for place in (root, root / "demos"):  # checked before the drawings are made
-        if place.exists() and not place.is_dir():
-            raise PipelineError(f"{place} is a file; --out needs a directory there")
-    if out.is_dir():
-        raise PipelineError(f"{out} is a directory; make_demos writes a file there")
+    check_out_places(root, [out.relative_to(root)], "make_demos")  # before the drawings
     rng = np.random.default_rng(11)
     persons, limit = scene.person_xy, scene.body_radius + 0.05
     trajectories = []

@@ -49,7 +49,7 @@ from pipeline.app.context import PACKAGE_ROOT
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError, report
 from pipeline.inputs.scene_file import load_scene_file
-from pipeline.tools import run_tool
+from pipeline.tools import check_out_places, run_tool
 
 RES = 0.05
 WALL = 0.15
@@ -195,12 +195,7 @@ def write(plan: FloorPlan, root: Path) -> list[Path]:
              Path("scenes") / f"{plan.name}.json"]
     # every place checked before anything is written: a failed rename half-way left a
     # map without its scene
-    for place in (root, root / "maps", root / "scenes"):
-        if place.exists() and not place.is_dir():
-            raise PipelineError(f"{place} is a file; --out needs a directory there")
-    for name in names:
-        if (root / name).is_dir():
-            raise PipelineError(f"{root / name} is a directory; the map tool writes a file there")
+    check_out_places(root, names, "the map tool")
     root.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=root, prefix=f".{plan.name}-") as tmp:
         stage = Path(tmp)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.errors import PipelineError, first_line, report
-from pipeline.tools import aggregate, bench, bench_learning, bench_scaling, run_tool
+from pipeline.tools import DAMAGED_TABLE, aggregate, bench, bench_learning, bench_scaling, run_tool
 
 # figure -> (its table, the function drawing the figure from the table), under the project root
 FIGURES: dict[str, tuple[str, Callable[[Path, Path], object]]] = {
@@ -43,7 +43,7 @@ def redraw(root: Path = PROJECT_ROOT) -> list[Path]:
                                 "names) writes it")
         try:
             draw(root / table, root / figure)
-        except (ValueError, KeyError, AttributeError, TypeError) as e:  # a damaged table
+        except DAMAGED_TABLE as e:
             raise PipelineError(f"{table} cannot be drawn from: {first_line(e)} (missing or "
                                 "damaged columns?)") from None
         written.append(root / figure)

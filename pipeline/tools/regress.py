@@ -32,7 +32,7 @@ BASELINE = PROJECT_ROOT / "results" / "baseline"
 
 
 def _load(path: Path, kind: type):
-    """A YAML or JSON file that must hold a `kind` (dict or list), or one line saying why not."""
+    """A YAML file that must hold a `kind` (dict or list), or one line saying why not."""
     try:
         data = yaml.safe_load(path.read_text())
     except (OSError, ValueError, yaml.YAMLError) as e:
@@ -161,14 +161,15 @@ def _regress(args: argparse.Namespace) -> int:
                 return 2
             rows += compare(name, read_baseline(path), current, tolerances)
     if args.update:  # only once every experiment ran: a stop leaves the baseline as it was
+        written: list[str] = []
         for path, kept in updated.items():
             try:
                 write_text_atomic(path, json.dumps(kept, indent=1, sort_keys=True) + "\n")
             except OSError as e:
-                done = [p.name for p in updated][:list(updated).index(path)]
                 raise PipelineError(f"cannot write {path}: {os_error_reason(e)}"
-                                    + (f" (already updated: {', '.join(done)})" if done else
-                                       "")) from None
+                                    + (f" (already updated: {', '.join(written)})" if written
+                                       else "")) from None
+            written.append(path.name)
         print(f"baseline updated for {names}")
         return 0
     table = pd.DataFrame(rows)

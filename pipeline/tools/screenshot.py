@@ -34,7 +34,7 @@ from pathlib import Path
 
 from PIL import Image
 
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import PipelineError, existing_dir, os_error_reason
 from pipeline.tools import run_tool
 
 try:
@@ -223,9 +223,10 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--{name} {getattr(args, name)}: seconds > 0")
     if args.out.suffix.lower() != ".png":  # said after the capture otherwise
         ap.error(f"--out {args.out}: the screenshot is a PNG; name it ....png")
-    if not args.run_dir.is_dir():  # before the tools it needs: the run dir is the news
-        what = "is not a directory" if args.run_dir.exists() else "not found"
-        print(f"error: run dir {args.run_dir} {what}", file=sys.stderr)
+    try:  # before the tools it needs: the run dir is the news
+        existing_dir(args.run_dir, "run dir")
+    except PipelineError as e:
+        print(f"error: {e}", file=sys.stderr)
         return 2
     if not sys.platform.startswith("linux"):
         print("error: the screenshot runs the viewer under Xvfb, on Linux only", file=sys.stderr)

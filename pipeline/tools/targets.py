@@ -22,8 +22,8 @@ import numpy as np
 import pandas as pd
 
 from pipeline.irl.birl import BirlMapConfig
+from pipeline.tools import DAMAGED_TABLE, run_tool
 from pipeline.tools import bench_startup as startup
-from pipeline.tools import run_tool
 from pipeline.tools.bench import RESULTS
 
 
@@ -323,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         table = targets_table(args.results)
-    except (OSError, ValueError, KeyError) as e:  # a table missing or damaged
+    except (OSError, *DAMAGED_TABLE) as e:  # a table missing or damaged
         print(f"error: the tables in {args.results} cannot be read ({e})", file=sys.stderr)
         return 2
     print(table.drop(columns="table").to_string(index=False))
