@@ -43,7 +43,7 @@ from pipeline.core import scenegen
 from pipeline.core.obstacles import ObstacleMap
 from pipeline.core.world import BodyParams, Room, Scene
 from pipeline.errors import PipelineError
-from pipeline.inputs.map_file import read_map_header
+from pipeline.inputs.map_file import MapHeader, read_map_header
 from pipeline.inputs.recorded import check_readable
 from pipeline.irl.fixed import FixedConfig
 
@@ -60,6 +60,7 @@ class SceneFacts:
     obstacles: bool
     free_area: Callable[[], float]  # m² of free space for the graph (loads what it needs)
     load: Callable[[], Scene | None] = lambda: None
+    map_header: MapHeader | None = None  # the scene's ROS map, if it has one
 
 
 @dataclass
@@ -223,7 +224,7 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
                                     robot_radius=sc.robot_radius)
 
         return SceneFacts(extent.name, extent.area, extent.n_persons, extent.obstacles,
-                          lambda: facts_of(load()).free_area(), load)
+                          lambda: facts_of(load()).free_area(), load, extent.map_header)
     assert isinstance(sc, RandomSceneConfig)
     n_persons = sc.n_singles + sc.n_groups * sc.group_size_max
     if not sc.map:
@@ -242,7 +243,7 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
         return ObstacleMap(grid).free_area(sc.robot_radius)
 
     return SceneFacts(f"random on {sc.map}", (x1 - x0) * (y1 - y0), n_persons, True,
-                      free_area)
+                      free_area, map_header=header)
 
 
 def facts_of(scene: Scene) -> SceneFacts:
@@ -255,7 +256,18 @@ def check_roadmap_size(cfg: Config, facts: SceneFacts) -> None:
     limits.check_memory(f"the reference roadmap of scene '{facts.name}'",
                         limits.lattice_edges(facts.area, rp.spacing, rp.connectivity),
                         limits.bytes_per_lattice_edge(facts.n_persons, facts.obstacles),
-                        f"raise roadmap.spacing (now {rp.spacing:g} m) or use a smaller scene")
+                        f"raise roadmap.spacing (now {rp.spacing:g} m) or use a smaller scene"
+                        + _map_extent_hint(facts.map_header))
+
+
+def _map_extent_hint(header: MapHeader | None) -> str:
+    """A map's size in metres, for a size refusal: a resolution typo (50 for 0.05 m/px)
+    makes a building a thousand times larger than it is."""
+    if header is None:
+        return ""
+    x0, y0, x1, y1 = header.extent()
+    return (f" (map {header.path} spans {x1 - x0:,.0f} m × {y1 - y0:,.0f} m at "
+            f"{header.resolution:g} m/px: if the building is smaller, its 'resolution' is wrong)")
 
 
 def check_demonstrations_size(cfg: Config, n_starts: int) -> None:

@@ -108,9 +108,10 @@ def test_a_random_scene_on_a_map_checks_its_roadmap_when_it_is_made_alone(tmp_pa
     Image.fromarray(grey).save(tmp_path / "m.png")
     (tmp_path / "m.yaml").write_text("image: m.png\nresolution: 50\norigin: [0, 0, 0]\n"
                                      "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
-    seconds = refused_before_any_stage(tmp_path / "run", r"reference roadmap .* TB",
-                                       "scene=random", f"scene.map={tmp_path / 'm.yaml'}",
-                                       "stages=[scene]")
+    seconds = refused_before_any_stage(
+        tmp_path / "run", r"reference roadmap .* TB.* spans 10,000 m × 8,000 m at 50 m/px: "
+        r"if the building is smaller, its 'resolution' is wrong", "scene=random",
+        f"scene.map={tmp_path / 'm.yaml'}", "stages=[scene]")
     assert seconds < REFUSED_WITHIN_S, seconds
 
 
