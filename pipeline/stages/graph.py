@@ -65,23 +65,25 @@ def run(ctx: RunContext) -> None:
         or getattr(cfg.birl, "alternatives", None) == "graph") or cfg.birl.kind == "policywalk"
     warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes, learns_on_graph)
     every = max(1, cfg.graph.max_nodes // 10)
-    first, last = graph.n_nodes, [graph.n_nodes, t0]
+    last = [graph.n_nodes, 0.0]  # nodes and time at the last line (the time: set below)
 
     def progress(g: AdaptiveGraph) -> None:
         # a line every tenth of the nodes, and at least every PROGRESS_SECONDS on long growth
         now = time.perf_counter()
         if g.n_nodes >= last[0] + every or g.n_nodes >= g.p.max_nodes \
                 or now - last[1] >= PROGRESS_SECONDS:
+            added, left = g.n_nodes - last[0], g.p.max_nodes - g.n_nodes
+            # at the rate since the last line: each node costs more as the graph grows (an
+            # MDP repair over more nodes), so the rate since the start would promise too little
+            # (and would count the initialisation as growth)
+            eta = f", about {seconds((now - last[1]) * left / added)} s left" \
+                if added and left else ""
             last[:] = [g.n_nodes, now]
-            added, left = g.n_nodes - first, g.p.max_nodes - g.n_nodes
-            # growth slows a little as the graph grows (time exponent about 1.1): the
-            # estimate from the rate so far is a lower bound
-            eta = f", about {seconds((now - t0) * left / added)} s left" if added and left \
-                else ""
             log.info("  iteration %4d: %4d of %d nodes, %5d edges, %s s%s; best value per "
                      "start %s", g.iteration, g.n_nodes, g.p.max_nodes, len(g.src),
                      seconds(now - t0), eta, np.round(g.best_path_values, 3).tolist())
 
+    last[1] = time.perf_counter()
     graph.grow(progress)
     if graph.n_nodes < cfg.graph.max_nodes and graph.runs_feasible == 0:
         log.warning("graph stopped at %d of %d nodes: none of the %d controller runs from its "
