@@ -393,7 +393,7 @@ def _log_run(rec: rr.RecordingStream, scene_art: Artefact, decoded: Scene,
     true = true_weights(arts, names)
     iterations = arts["birl"].all(topics.BIRL_ITERATION) if "birl" in arts else []
     rec.send_blueprint(_blueprint(scene["room"],
-                                  curve_ranges(arts.get("birl"), arts.get("eval"), true),
+                                  curve_ranges(arts.get("birl"), arts.get("evaluate"), true),
                                   iterations[-1]["index"] if iterations else 0))
     rec.log("legend", rr.TextDocument(LEGEND, media_type=rr.MediaType.MARKDOWN), static=True,
             strict=True)
@@ -407,26 +407,23 @@ def _log_run(rec: rr.RecordingStream, scene_art: Artefact, decoded: Scene,
             colors=DEMO, draw_order=ORDER["demos"]), static=True, strict=True)
     if "graph" in arts:
         _log_graph(rec, arts["graph"])
-    _log_birl(rec, arts.get("birl"), arts.get("eval"), names, true)
+    _log_birl(rec, arts.get("birl"), arts.get("evaluate"), names, true)
     _log_posterior_paths(rec, arts)
 
 
-LATER_ARTEFACTS = ("demos", "graph", "birl", "eval")  # shown when present; the scene is not
-
-
 def _later_artefacts(run_dir: Path) -> dict[str, Artefact]:
-    """The readable artefacts after the scene's, by name. What is missing or unreadable is
+    """The readable artefacts after the scene's, by stage. What is missing or unreadable is
     said on stderr (one line each) and left out of the recording, which shows the rest: a
     run of `stages=[scene,demos]` opened on empty learning views without a word, and one
     truncated eval.mcap kept the scene, graph and learning from being shown at all."""
     arts, missing = {}, []
-    for name in LATER_ARTEFACTS:
-        path = run_dir / f"{name}.mcap"
+    for stage in topics.STAGES[1:]:  # shown when present; the scene is not optional
+        path = run_dir / topics.ARTEFACT_FILE[stage]
         if not path.exists():
             missing.append(path.name)
             continue
         try:
-            arts[name] = read_artefact(path)
+            arts[stage] = read_artefact(path)
         except PipelineError as e:
             print(f"warning: {e}; the recording leaves it out", file=sys.stderr)
     if missing:
@@ -449,8 +446,7 @@ def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     scene = codec.decode_scene(scene_art)  # a malformed scene: one line, before any drawing
     arts = _later_artefacts(run_dir)
     # artefacts of different runs side by side are refused, as the stages and export do
-    check_inputs({"scene": scene_art, **{("evaluate" if n == "eval" else n): a
-                                          for n, a in arts.items()}})
+    check_inputs({"scene": scene_art, **arts})
     # rerun's own off switch (its accepted values): said before a stream exists, which would
     # add two warnings of its own when dropped
     if os.environ.get("RERUN", "").strip().lower() in ("0", "off", "false"):
