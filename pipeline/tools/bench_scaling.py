@@ -2,7 +2,7 @@
 state-space size for BIRL-G and the baselines, in rooms of 10, 20 and 40 m.
 
     python -m pipeline.tools.bench_scaling              # the full grid (~20 min on 2 cores)
-    python -m pipeline.tools.bench_scaling --quick      # the 10 m room only
+    python -m pipeline.tools.bench_scaling --quick      # the 10 m room only, into outputs/
 
 Per (room, graph size) the first three stages run once (random scene, persons scaled with
 the area, polite optimal demos, adaptive graph of N nodes), then every method learns from
@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.tools import run_tool
+from pipeline.app.context import PROJECT_ROOT
+from pipeline.tools import output_directory, run_tool
 from pipeline.tools.bench import (
     RESULTS,
     _app,
@@ -50,6 +51,7 @@ METHOD_OVERRIDES = {"map": ["birl=map", "birl.likelihood=paper"],
 # room side (m) -> graph sizes; persons scale with the area (metropolis: ~12 per 100 m²)
 GRID = {10: [460, 2000, 5000], 20: [2000, 5000, 20000], 40: [5000, 20000]}
 QUICK = {10: [460, 2000]}
+QUICK_OUT = PROJECT_ROOT / "outputs" / "bench_scaling_quick"  # a trial's tables (not committed)
 
 
 def scene_overrides(side: int) -> list[str]:
@@ -200,15 +202,19 @@ def plot(scaling_csv: Path, path: Path) -> None:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m pipeline.tools.bench_scaling",
                                      description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="only the 10 m room")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"only the 10 m room; its tables go to {QUICK_OUT}/ unless --out "
+                        "says otherwise (a partial grid must not replace the committed tables)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
     parser.add_argument("--max-nodes", type=positive_count, default=None,
                         help="only graph sizes up to this (a slow method on a short budget)")
     parser.add_argument("--merge", action="store_true",
                         help="replace only these methods' rows in the existing scaling.csv")
+    parser.add_argument("--out", type=Path, default=None,
+                        help=f"the tables' directory (default {RESULTS}; with --quick {QUICK_OUT})")
     args = parser.parse_args(argv)
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    out = output_directory(parser, args.out or (QUICK_OUT if args.quick else RESULTS))
     grid = QUICK if args.quick else GRID
     if args.max_nodes is not None:
         grid = {side: kept for side, sizes in grid.items()
@@ -217,16 +223,16 @@ def main(argv=None) -> None:
             parser.error(f"--max-nodes {args.max_nodes} is below every graph size of the grid")
     print(f"scaling: rooms and graph sizes {grid}, methods {args.methods}", flush=True)
     # the kept rows: numbers as numbers (a failed row's are NaN), no error as "" (run_grid's)
-    old = pd.read_csv(RESULTS / "scaling.csv", dtype={"error": str}).fillna({"error": ""}) \
-        if args.merge and (RESULTS / "scaling.csv").exists() else None
+    old = pd.read_csv(out / "scaling.csv", dtype={"error": str}).fillna({"error": ""}) \
+        if args.merge and (out / "scaling.csv").exists() else None
     earlier = {} if old is None else {
         (r.room_m, r.graph_nodes): float(r.policy_loss_ref)
         for r in old[old.method == "policywalk"].itertuples()}
     table, growth = run_grid(grid, args.seed, args.methods, earlier)
     if old is not None:
         table = pd.concat([old[~old.method.isin(args.methods)], table], ignore_index=True)
-    table.to_csv(RESULTS / "scaling.csv", index=False)
-    growth_csv = RESULTS / "scaling_growth.csv"
+    table.to_csv(out / "scaling.csv", index=False)
+    growth_csv = out / "scaling_growth.csv"
     if growth_csv.exists():  # the grid's (room, size) rows replace their earlier ones
         kept = pd.read_csv(growth_csv).merge(growth[["room_m", "graph_nodes"]], how="left",
                                              indicator=True)
@@ -234,11 +240,11 @@ def main(argv=None) -> None:
                            ignore_index=True).sort_values(["room_m", "graph_nodes"])
     growth.to_csv(growth_csv, index=False)
     fits = exponents(table)
-    fits.to_csv(RESULTS / "scaling_exponents.csv", index=False)
-    plot(RESULTS / "scaling.csv", RESULTS / "scaling.png")
+    fits.to_csv(out / "scaling_exponents.csv", index=False)
+    plot(out / "scaling.csv", out / "scaling.png")
     print(table.to_string(index=False))
     print(fits.to_string(index=False))
-    print(f"wrote {RESULTS / 'scaling.csv'}, scaling_exponents.csv, scaling.png and "
+    print(f"wrote {out / 'scaling.csv'}, scaling_exponents.csv, scaling.png and "
           "scaling_growth.csv")
 
 

@@ -1,5 +1,6 @@
 """The benchmark command's own input checks (the measurements run in `make bench`)."""
 
+import pandas as pd
 import pytest
 
 from pipeline.app.context import PROJECT_ROOT
@@ -92,3 +93,16 @@ def test_an_out_dir_that_cannot_be_written_is_refused_before_any_run(tmp_path, c
     with pytest.raises(SystemExit):
         output_directory(argparse.ArgumentParser(), tmp_path / "file" / "out")
     assert "cannot be written" in capsys.readouterr().err
+
+
+def test_a_quick_scaling_run_leaves_the_committed_tables_alone(tmp_path, monkeypatch):
+    """`bench_scaling --quick` (the 10 m room only) wrote its partial grid over the committed
+    scaling tables; it now writes them to a scratch dir unless --out names a place."""
+    from pipeline.tools import bench_scaling
+    committed = {p.name: p.read_bytes() for p in bench_scaling.RESULTS.glob("scaling*")}
+    monkeypatch.setattr(bench_scaling, "QUICK_OUT", tmp_path / "quick")
+    bench_scaling.main(["--quick", "--methods", "map", "--max-nodes", "460"])
+    table = pd.read_csv(tmp_path / "quick" / "scaling.csv")
+    assert table[["room_m", "graph_nodes", "method"]].values.tolist() == [[10, 460, "map"]]
+    assert (tmp_path / "quick" / "scaling_growth.csv").exists()
+    assert {p.name: p.read_bytes() for p in bench_scaling.RESULTS.glob("scaling*")} == committed
