@@ -497,7 +497,6 @@ def load_settings(cfg: DictConfig) -> Config:
             if any(v > 0 for v in values):
                 raise config_error(key, values, why)
     _check_demonstrator(settings)
-    check_magnitudes(settings)
     return settings
 
 
@@ -533,19 +532,3 @@ def _check_demonstrator(settings: Config) -> None:
                            f"reward.features={list(settings.reward.features)}, not all of "
                            f"them among the learner's {settings.learner_features}")
 
-
-# A dead end's value is −v_max and the goal's R_goal; path values are sums of rewards of
-# order one, which float64 keeps to ~1e-16 of the largest term: beyond ~1e9 they drown.
-MAX_MAGNITUDE = 1e9
-
-
-def check_magnitudes(settings: Config) -> None:
-    """Refuse values that are finite but absurd, which the MDP would not survive
-    (mdp.v_max=1e308 overflowed and changed the learned weights)."""
-    md = settings.mdp
-    for key in ("v_max", "r_goal"):
-        value = getattr(md, key, None)
-        if is_number(value) and abs(value) > MAX_MAGNITUDE:
-            raise config_error(f"mdp.{key}", value,
-                               f"|{key}| <= {MAX_MAGNITUDE:g}: values of order one beside it "
-                               "would drown in float64 rounding")

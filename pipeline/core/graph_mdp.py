@@ -39,13 +39,20 @@ from scipy.sparse.csgraph import breadth_first_order, dijkstra
 from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
-from pipeline.core.params import is_number, require, require_positive
+from pipeline.core.params import is_number, require
 
 NO_EDGE = -1
 # Dead ends' V = −v_max when v_max is not given: the paper's 10 with discounting; far below
 # any path's cost without discounting, where no choice ever compares against it.
 V_MAX_DISCOUNTED, V_MAX_UNDISCOUNTED = 10.0, 1e6
+# Path values are sums of rewards of order one, which float64 keeps to ~1e-16 of the largest
+# term. R_goal is in every path's value, which the policy loss compares to its third decimal:
+# at 1e7 the roadmap's loss already moved by rounding, at 5e8 it came out negative. A dead
+# end's value is compared with no path's (at 1e308 it overflowed).
+LARGEST_GOAL_REWARD, LARGEST_V_MAX = 1e6, 1e9
 MAX_SPEED = 100.0  # m/s
+# and a robot that moves: at 1e-300 m/s an edge's time cost overflowed float64
+MIN_SPEED = 1e-3  # m/s
 
 
 @dataclass
@@ -67,11 +74,14 @@ class MDPParams:
         require(self.gamma < 1 or self.time_cost > 0, "time_cost", self.time_cost,
                 "> 0 when gamma = 1 (undiscounted: without a cost per second a loop is free)")
         # a robot, not light: at 1e12 m/s an edge's duration rounds to nothing
-        require(is_number(self.speed) and 0 < self.speed <= MAX_SPEED, "speed", self.speed,
-                f"a speed in m/s > 0 and <= {MAX_SPEED:g}")
+        require(is_number(self.speed) and MIN_SPEED <= self.speed <= MAX_SPEED, "speed",
+                self.speed, f"a speed in m/s >= {MIN_SPEED:g} and <= {MAX_SPEED:g}")
         if self.v_max is not None:
-            require_positive(self, "v_max")
-        require(is_number(self.r_goal), "r_goal", self.r_goal, "a finite number")
+            require(is_number(self.v_max) and 0 < self.v_max <= LARGEST_V_MAX, "v_max",
+                    self.v_max, f"a number > 0 and <= {LARGEST_V_MAX:g}")
+        require(is_number(self.r_goal) and abs(self.r_goal) <= LARGEST_GOAL_REWARD, "r_goal",
+                self.r_goal, f"a number within ±{LARGEST_GOAL_REWARD:g} (beyond, path values "
+                "of order one drown in float64 rounding)")
 
     @property
     def undiscounted(self) -> bool:

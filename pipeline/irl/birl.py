@@ -43,7 +43,7 @@ from pipeline.irl.base import (
 )
 from pipeline.irl.environment import Rollout
 from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
-from pipeline.irl.prior import LARGEST_WEIGHT, Prior
+from pipeline.irl.prior import LARGEST_WEIGHT, SMALLEST_SCALE, Prior
 from pipeline.irl.robust import BASE_MEASURES, BoltzmannPosterior, LogBetaDensity
 
 LIKELIHOODS = ("boltzmann", "paper", "robust")
@@ -103,7 +103,10 @@ class BirlMapConfig(IRLConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        require_positive(self, "beta", "beta_min", "beta_max")
+        for key in ("beta", "beta_min", "beta_max"):  # β·w is a weight: at most the largest
+            value = getattr(self, key)  # (at β = 1e100 the likelihood was a 100-digit number)
+            require(is_number(value) and 0 < value <= LARGEST_WEIGHT, key, value,
+                    f"a number > 0 and <= {LARGEST_WEIGHT:g}")
         if self.grow_nodes is not None:
             require_count(self, "grow_nodes", minimum=0)
         require(self.likelihood in LIKELIHOODS, "likelihood", self.likelihood,
@@ -112,9 +115,10 @@ class BirlMapConfig(IRLConfig):
             require(0 < self.test_level < 1, "test_level", self.test_level, "a number in (0, 1)")
         if self.boltzmann_prior_scale is not None:  # σ in box sides; larger is flat: null
             require(is_number(self.boltzmann_prior_scale) and
-                    0 < self.boltzmann_prior_scale <= LARGEST_WEIGHT, "boltzmann_prior_scale",
-                    self.boltzmann_prior_scale,
-                    f"a number > 0 and <= {LARGEST_WEIGHT:g} (larger: null, birl.prior)")
+                    SMALLEST_SCALE <= self.boltzmann_prior_scale <= LARGEST_WEIGHT,
+                    "boltzmann_prior_scale", self.boltzmann_prior_scale,
+                    f"a number >= {SMALLEST_SCALE:g} and <= {LARGEST_WEIGHT:g} (larger: null, "
+                    "birl.prior)")
         require(self.base_measure in BASE_MEASURES, "base_measure", self.base_measure,
                 " or ".join(repr(k) for k in BASE_MEASURES))
         require(self.alternatives in ALTERNATIVES, "alternatives", self.alternatives,

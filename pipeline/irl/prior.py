@@ -26,14 +26,19 @@ class PriorConfig:
     def __post_init__(self) -> None:
         require(self.kind in PRIORS, "kind", self.kind, " or ".join(repr(k) for k in PRIORS))
         # beyond the largest weight the prior is flat on any box: the uniform prior, whose
-        # draws and means a huge σ or b would lose to round-off
-        require(is_number(self.scale) and 0 < self.scale <= LARGEST_WEIGHT, "scale",
-                self.scale, f"a number > 0 and <= {LARGEST_WEIGHT:g} (larger: kind=uniform)")
+        # draws and means a huge σ or b would lose to round-off; below the smallest it is a
+        # point (1/σ² overflowed at 1e-160)
+        require(is_number(self.scale) and SMALLEST_SCALE <= self.scale <= LARGEST_WEIGHT,
+                "scale", self.scale, f"a number >= {SMALLEST_SCALE:g} and <= "
+                f"{LARGEST_WEIGHT:g} (larger: kind=uniform; smaller: birl=fixed)")
 
 
 # Weights beyond this size leave β·w out of what the learned β (birl.beta_min ..
 # birl.beta_max) can scale back: with a box of ±1e12 the weights never left their start.
 LARGEST_WEIGHT = 1e6
+# A prior narrower than this pins the weights to its centre as birl=fixed would, and its
+# 1/σ² leaves float64 far below (ZeroDivisionError at σ = 1e-300).
+SMALLEST_SCALE = 1e-6
 
 
 @dataclass

@@ -297,6 +297,18 @@ CONFIG_CASES = {
     "infinity in the config": (["expert=boltzmann", "expert.beta=inf"], ["expert.beta=inf"]),
     "absurd v_max": (["mdp.v_max=1e308"], ["mdp.v_max=1e+308", "1e+09"]),
     "absurd goal reward": (["mdp.r_goal=-1e300"], ["mdp.r_goal"]),
+    # every path's value carries R_goal: at 5e8 the policy loss came out negative (a
+    # RuntimeError after all five stages)
+    "goal reward beyond the loss's rounding": (["mdp.r_goal=5e8"], ["mdp.r_goal", "1e+06"]),
+    "crawling speed": (["mdp.speed=1e-300"], ["mdp.speed=1e-300", "0.001"]),  # LinAlgError
+    # a prior narrower than round-off: ZeroDivisionError, or NaN written to birl.mcap
+    "point prior": (["birl.prior.kind=gaussian", "birl.prior.scale=1e-300"],
+                    ["birl.prior.scale=1e-300", "1e-06"]),
+    "point Boltzmann prior": (["birl.boltzmann_prior_scale=1e-300"],
+                              ["birl.boltzmann_prior_scale=1e-300", "1e-06"]),
+    # LinAlgError at 1e299; at 1e100 a 100-digit log likelihood and weights that never moved
+    "astronomical beta": (["birl.beta_min=1e100", "birl.beta_max=1e101", "birl.beta=1e100"],
+                          ["birl.beta", "1e+06"]),
     "zero v_max": (["mdp.v_max=0"], ["mdp.v_max"]),
     "zero speed": (["mdp.speed=0"], ["mdp.speed"]),
     "discount out of range": (["mdp.gamma=1.5"], ["mdp.gamma"]),
