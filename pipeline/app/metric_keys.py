@@ -44,8 +44,9 @@ METRIC_KEYS: dict[str, str] = {
                          "0 is the expert, 1 as bad as the contrast",
     r"weight_((std|rhat|ess)_)?\w+": "the learned weight of a feature; sampling methods also "
                                      "its posterior std, split R-hat and bulk ESS",
-    r"mcmc_(acceptance_rate|ess_min|rhat_max)": "sampling methods: acceptance rate, smallest "
-                                                "ESS and largest R-hat over the weights",
+    r"mcmc_(acceptance_rate|ess_min|rhat_max|chains)": "sampling methods: acceptance rate, "
+                                                       "smallest ESS and largest R-hat over the "
+                                                       "weights, number of chains",
     r"frechet_to_demos(_max)?": "demonstrations without a true reward: mean (max) Fréchet "
                                 "distance of the learned paths to them (both resampled every "
                                 "0.1 m, however densely either is sampled), m",

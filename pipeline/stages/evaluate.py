@@ -40,7 +40,7 @@ from pipeline.core.state_graph import DEMO
 from pipeline.core.world import Scene
 from pipeline.errors import PipelineError
 from pipeline.irl.birl import BirlMapConfig, stop_nodes
-from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT, chains_agree
+from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT, MIN_DRAWS, chains_agree
 from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import Prior, broadcast
 from pipeline.irl.robust import Demonstrations, heldout_log_likelihood
@@ -283,6 +283,7 @@ def posterior_metrics(birl_art: Artefact, names: list[str]) -> dict[str, float]:
     post = birl_art.all(topics.BIRL_POSTERIOR)[-1]
     out = {f"weight_std_{n}": float(v) for n, v in zip(names, post["std"], strict=True)}
     out["mcmc_acceptance_rate"] = float(post["acceptance_rate"])
+    out["mcmc_chains"] = float(post.get("n_chains", 1))
     for key in ("rhat", "ess"):  # null: one chain
         values = [v for v in post.get(key) or [] if v is not None]
         out.update({f"weight_{key}_{n}": float(v)
@@ -382,6 +383,9 @@ def weights_at_box(m: dict, learner_features: list[str], box: Prior,
 BOUND_MEANS = "birl.lower/upper, not the demonstrations, set its size"
 # below this acceptance rate a chain's samples are its few states, whatever R-hat says
 STUCK_ACCEPTANCE = 0.01
+# above this one, chains that do not agree creep: their steps are too small to go anywhere
+# (proposal_step=1e-300 accepted every step, and "raise birl.max_samples" would not help)
+CREEPING_ACCEPTANCE = 0.95
 # weights_at_box: a weight this close to a bound or the middle, relative to the box's width
 BOX_TOLERANCE = 1e-6
 # print_summary: a weight that moved less than this share of the box's width over all
@@ -477,10 +481,16 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
         if m["mcmc_acceptance_rate"] < STUCK_ACCEPTANCE:  # the samples are the starts
             verdict = ("the chains barely moved: lower birl.proposal_step, or leave "
                        "birl.adapt=true to size the proposals")
-        elif m.get("mcmc_rhat_max") is None:  # R-hat compares chains
-            verdict = "one chain: convergence untested; R-hat needs birl.n_chains ≥ 2"
+        elif m.get("mcmc_rhat_max") is None and m.get("mcmc_chains", 1) < 2:  # R-hat compares
+            verdict = "one chain: convergence untested; R-hat needs birl.n_chains ≥ 2"  # chains
+        elif m.get("mcmc_rhat_max") is None:
+            verdict = (f"too few samples per chain to compare the chains (R-hat needs "
+                       f"{MIN_DRAWS}): raise birl.n_samples")
         elif chains_agree([m["mcmc_rhat_max"]], [m.get("mcmc_ess_min", np.nan)]):
             verdict = "the chains agree"
+        elif m["mcmc_acceptance_rate"] > CREEPING_ACCEPTANCE:
+            verdict = ("the chains do not agree and nearly every step is accepted: the steps "
+                       "are too small to explore; raise birl.proposal_step")
         else:
             verdict = (f"the chains do not agree yet: R-hat above {AGREED_RHAT:g} or ESS below "
                        f"{AGREED_ESS} after birl.max_samples samples per chain; raise it")

@@ -128,6 +128,26 @@ def test_one_chain_mcmc_says_convergence_is_untested(tmp_path_factory):
     assert "the chains agree" not in out
 
 
+def test_chains_too_short_for_r_hat_are_not_called_one_chain(tmp_path_factory):
+    """Four chains of three samples each have no R-hat either (it needs four per chain):
+    the summary said "one chain" beside a log that sampled chain 4 of 4."""
+    _, m, out = run_experiment(tmp_path_factory, "birl=mcmc", "birl.n_samples=3",
+                               "birl.max_samples=3", "birl.n_iterations=2", "graph=small")
+    assert "mcmc_rhat_max" not in m and m["mcmc_chains"] == 4
+    assert "too few samples per chain" in out and "raise birl.n_samples" in out
+    assert "one chain" not in out
+
+
+def test_chains_that_creep_are_told_to_take_larger_steps(tmp_path_factory):
+    """Steps of 1e-300 accept every proposal and go nowhere: the summary said "raise
+    birl.max_samples", which would not help."""
+    _, m, out = run_experiment(tmp_path_factory, "birl=mcmc", "birl.adapt=false",
+                               "birl.proposal_step=1e-300", "birl.n_iterations=2",
+                               "graph=small", "birl.n_samples=100")
+    assert m["mcmc_acceptance_rate"] > 0.99
+    assert "raise birl.proposal_step" in out and "birl.max_samples" not in out
+
+
 def test_chains_that_never_move_are_called_stuck_not_unconverged(tmp_path_factory):
     """A proposal far too large, kept (adapt=false): nothing is accepted and R-hat is huge;
     raising birl.max_samples (what it said) would not help."""
