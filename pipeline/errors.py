@@ -103,6 +103,29 @@ def report(e: PipelineError | OSError, writing: str) -> int:
     return 2
 
 
+class Interrupted(BaseException):
+    """The run was stopped by a signal (Ctrl-C is SIGINT): not an error of the run, so a
+    BaseException like KeyboardInterrupt, which no `except Exception` swallows."""
+
+    def __init__(self, signum: int, stage: str | None = None, during: str | None = None):
+        super().__init__(signum, stage, during)
+        self.signum, self.stage, self.during = signum, stage, during
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum  # the shell's convention: 130 for SIGINT
+
+    def describe(self) -> str:
+        at = f" at stage {self.stage}" if self.stage else \
+            f" {self.during}" if self.during else " before the first stage"
+        if self.signum == signal.SIGINT:
+            return f"interrupted by the user{at}"
+        return f"stopped by {signal.Signals(self.signum).name}{at}"
+
+    def __str__(self) -> str:
+        return self.describe()
+
+
 _START_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 

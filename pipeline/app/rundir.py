@@ -34,7 +34,7 @@ from typing import Any
 
 from pipeline.artefacts.store import content_digest, write_json_atomic, write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import Interrupted, PipelineError, os_error_reason
 
 log = logging.getLogger("pipeline")
 
@@ -48,29 +48,6 @@ RUNNING, COMPLETE, FAILED, INTERRUPTED = "running", "complete", "failed", "inter
 UNKNOWN = "unknown"
 KILLED = "the run was killed or crashed"  # a dir that says running, but nobody holds it
 STATUS_ERROR_CHARS = 500  # status.json's error, cut: it must fit where the file already is
-
-
-class Interrupted(BaseException):
-    """The run was stopped by a signal (Ctrl-C is SIGINT): not an error of the run, so a
-    BaseException like KeyboardInterrupt, which no `except Exception` swallows."""
-
-    def __init__(self, signum: int, stage: str | None = None, during: str | None = None):
-        super().__init__(signum, stage, during)
-        self.signum, self.stage, self.during = signum, stage, during
-
-    @property
-    def exit_code(self) -> int:
-        return 128 + self.signum  # the shell's convention: 130 for SIGINT
-
-    def describe(self) -> str:
-        at = f" at stage {self.stage}" if self.stage else \
-            f" {self.during}" if self.during else " before the first stage"
-        if self.signum == signal.SIGINT:
-            return f"interrupted by the user{at}"
-        return f"stopped by {signal.Signals(self.signum).name}{at}"
-
-    def __str__(self) -> str:
-        return self.describe()
 
 
 # The signals that stop a run or a sweep with a word (Interrupted): Ctrl-C, `kill`, and the

@@ -10,8 +10,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-from pipeline.app.rundir import Interrupted
 from pipeline.errors import (
+    Interrupted,
     PipelineError,
     os_error_reason,
     restore_handlers,
@@ -22,6 +22,7 @@ from pipeline.errors import (
 # `python -m pipeline.tools.X` (argv[0] is "-m" while Python finds the module): a Ctrl-C
 # during the tool's imports, most of a second, is one line, not a traceback from inside
 # them; `run_tool` puts the handlers back. Imported by tests or a notebook: nothing changes.
+# (This module imports nothing heavy before it: under load, a Ctrl-C landed in mcap's.)
 _HANDLERS_BEFORE_IMPORTS = stop_quietly_while_starting() if sys.argv[:1] == ["-m"] else {}
 
 
