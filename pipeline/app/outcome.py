@@ -82,8 +82,12 @@ class SweepOutcome(Callback):
         except PipelineError as e:
             raise SweepRefused(e) from None
         sweep_dir = Path(config.hydra.sweep.dir)
+        launcher = str(config.hydra.launcher.get("_target_", ""))
         try:
             check_not_a_run_dir(sweep_dir)
+            if "PoolLauncher" not in launcher:  # it checks every job's resolved run dir
+                check_subdir_template(
+                    str(OmegaConf.to_container(config.hydra.sweep, resolve=False)["subdir"]))
         except PipelineError as e:
             raise SweepRefused(e) from None
         SweepOutcome.sweep_dir, SweepOutcome.unrecorded = sweep_dir, {}
@@ -105,7 +109,6 @@ class SweepOutcome(Callback):
                 f"cannot use sweep dir {sweep_dir}: {os_error_reason(e)}")) from None
         jobs = job_dirs(sweep_dir)
         SweepOutcome._versions = {j: run_files_version(j) for j in jobs}
-        launcher = str(config.hydra.launcher.get("_target_", ""))
         SweepOutcome._read_only = \
             hydra_files_of_read_only_dirs(jobs) if "BasicLauncher" in launcher else {}
         if "joblib" in launcher:
@@ -185,6 +188,24 @@ def start_resource_tracker_deaf_to_hangups() -> None:
             del os.environ["PYTHONWARNINGS"]
         else:
             os.environ["PYTHONWARNINGS"] = warnings
+
+
+def check_subdir_template(subdir: str) -> None:
+    """hydra.sweep.subdir as written, for the launchers that make each job's run dir only
+    as the job begins (Hydra's basic launcher of `birlg -m`, joblib, Slurm): a subdir without
+    an interpolation is one dir that every job would share, overwriting the one before; an
+    absolute one, one with `..` or `.` puts the jobs outside the sweep dir, where no table
+    finds them. (Interpolations that happen to agree between jobs are caught only by the
+    pool launcher, which resolves them all first.)"""
+    parts = Path(subdir).parts
+    if Path(subdir).is_absolute() or ".." in parts or not parts:
+        raise PipelineError(f"config error: hydra.sweep.subdir={subdir} puts the jobs' run "
+                            "dirs outside the sweep dir, or in it; give a relative path below "
+                            "it (the default: ${hydra.job.num})")
+    if "${" not in subdir:
+        raise PipelineError(f"config error: hydra.sweep.subdir={subdir} is one run dir that "
+                            "every job of the sweep would share; give a value that differs "
+                            "per job (the default: ${hydra.job.num})")
 
 
 def hydra_files_of_read_only_dirs(dirs: list[Path]) -> dict[Path, dict[str, bytes]]:

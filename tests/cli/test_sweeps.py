@@ -173,6 +173,24 @@ def test_aggregate_of_a_sweep_that_did_not_finish_says_so(tmp_path):
     assert json.loads((tmp_path / "sweep.json").read_text())["sweep"] == 1
 
 
+@pytest.mark.parametrize("subdir, says", [
+    ("same", "is one run dir that every job of the sweep would share"),
+    ("../outside_${hydra.job.num}", "outside the sweep dir"),
+    (".", "outside the sweep dir"),
+])
+def test_plain_multirun_refuses_shared_or_scattered_job_dirs(tmp_path, subdir, says):
+    """Hydra's basic launcher (`birlg -m` without a preset) ran both jobs into one dir, the
+    second replacing the first, or outside the sweep dir, exit 0: now refused before any
+    job, as the pool launcher refuses them."""
+    sweep = tmp_path / "sweep"
+    proc = run_app("-m", "seed=0,1", "stages=[scene]", f"hydra.sweep.subdir={subdir}",
+                   f"hydra.sweep.dir={sweep}")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert says in lines_of(proc.stderr)[-1] and "hydra.sweep.subdir" in proc.stderr
+    assert not list(tmp_path.glob("outside_*")) and not (sweep / "same").exists()
+    assert not (sweep / ".hydra").exists()
+
+
 def lines_of(text):
     return [ln for ln in text.splitlines() if ln.strip()]
 
