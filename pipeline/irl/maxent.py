@@ -43,6 +43,11 @@ def fit_maxent(problem: IRLProblem, config: IRLConfig) -> IRLResult:
                        (problem.prior.lower, problem.prior.upper),
                        n_iterations=config.n_iterations, learning_rate=config.learning_rate,
                        w0=problem.w0)
+    if trace.stopped_at is not None and problem.status is not None:
+        problem.status(f"the ascent stopped at iteration {trace.stopped_at}: every step from "
+                       "there, however short, leads to weights where the undiscounted soft "
+                       "values diverge (the likelihood is −∞ there); its weights are the "
+                       "estimate (mdp=paper discounts, and has no such region)")
     return problem.record_trace(trace)
 
 
@@ -53,6 +58,9 @@ class MaxEntTrace(Trace):
     grad_norm: list[float]  # |empirical − expected counts| per iterate
     empirical_counts: np.ndarray  # (d,)
     expected_counts: np.ndarray  # (d,) at the last iterate
+    # undiscounted: the iteration from which every ascent step, however short, led to where
+    # the soft values diverge (L = −∞), so the later iterations repeat its weights; None: none
+    stopped_at: int | None = None
 
 
 class SoftValuesDiverge(PipelineError):
@@ -63,9 +71,16 @@ class SoftValuesDiverge(PipelineError):
 # halvings of an ascent step that lands where the soft values diverge (each halving costs a
 # divergence test); the step then stops short of that region, where the likelihood is −∞
 MAX_STEP_HALVINGS = 8
+SOFT_VALUE_SWEEPS = 10_000  # a cold start's budget (undiscounted: then it diverges)
+# Sweeps an undiscounted step's values get, warm-started from the last weights' (a few dozen
+# suffice where they converge): fewer than a cold start's, since each divergent step costs
+# them all, and a step near the boundary that converges this slowly is halved as a
+# divergent one would be (a noisy expert's run spent a minute in 10 000-sweep tests).
+STEP_SWEEPS_UNDISCOUNTED = 1000
 
 
-def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10, max_iter: int = 10_000,
+def soft_values(mdp: GraphMDP, w: ArrayLike, *, tol: float = 1e-10,
+                max_iter: int = SOFT_VALUE_SWEEPS,
                 init_values: np.ndarray | None = None) -> np.ndarray:
     """Soft value iteration V(s) (n,) = log Σ_e exp(w·φ(e) + γ^τ(e) V(dst(e))), fixed values at
     terminals and dead ends; w (d,). A γ-contraction in the sup norm, so it converges from any
@@ -151,27 +166,34 @@ def maxent_irl(mdp: GraphMDP, expert_paths: list[Path], prior_box: tuple[np.ndar
     log_likelihood: list[float] = []
     grad_norm: list[float] = []
     values = soft_values(mdp, w)
+    step_sweeps = STEP_SWEEPS_UNDISCOUNTED if mdp.gamma == 1.0 else SOFT_VALUE_SWEEPS
+    solves: list[int] = []
+    stopped_at = None  # the iteration from which every step entered the divergent region
     for t in range(n_iterations + 1):
-        grad = empirical - expected_discounted_counts(mdp, w, starts, values)
+        if stopped_at is None:
+            grad = empirical - expected_discounted_counts(mdp, w, starts, values)
+            solves.append(t + 1)
+        else:  # the ascent cannot move: the rest repeat its last weights, with no solve
+            solves.append(solves[-1])
         history.append(w.copy())
         log_likelihood.append(float(w @ empirical + goal_term - values[starts].sum()))
         grad_norm.append(float(np.linalg.norm(grad)))
-        if t == n_iterations:
-            break
+        if t == n_iterations or stopped_at is not None:
+            continue
         # Adam normalises away the scale of the features and the number of demos.
         m = beta1 * m + (1 - beta1) * grad
         v = beta2 * v + (1 - beta2) * grad**2
         m_hat, v_hat = m / (1 - beta1 ** (t + 1)), v / (1 - beta2 ** (t + 1))
         step = learning_rate / np.sqrt(t + 1) * m_hat / (np.sqrt(v_hat) + eps)
-        for halving in range(MAX_STEP_HALVINGS + 1):
+        for _ in range(MAX_STEP_HALVINGS + 1):
             new_w = np.clip(w + step, lower, upper)  # ascent, then projection onto the box
             try:  # warm start: few sweeps per step
-                values = soft_values(mdp, new_w, init_values=values)
+                values = soft_values(mdp, new_w, init_values=values, max_iter=step_sweeps)
+                w = new_w
                 break
             except SoftValuesDiverge:
-                if halving == MAX_STEP_HALVINGS:
-                    raise
                 step = step / 2
-        w = new_w
-    return MaxEntTrace(history, log_likelihood, list(range(1, n_iterations + 2)), grad_norm,
-                       empirical, empirical - grad)
+        else:  # even 2^-8 of the step diverges: w is at the edge of where L is finite
+            stopped_at = t
+    return MaxEntTrace(history, log_likelihood, solves, grad_norm, empirical, empirical - grad,
+                       stopped_at)

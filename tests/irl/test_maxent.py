@@ -112,6 +112,31 @@ def test_an_ascent_step_into_divergence_is_shortened_and_reaches_the_maximum():
     assert abs(res.grad_norm[-1]) < 1e-2 * abs(res.grad_norm[0])  # at the maximum
 
 
+def test_an_ascent_that_cannot_step_without_diverging_keeps_its_last_weights():
+    """A demonstration that loops 200 times has its maximum a hair inside the divergence
+    boundary (w = 0.01 − ln 4 / 2 on this graph): near it, every step, even 2^-8 of one,
+    lands beyond. The ascent stops there and repeats its weights (it ended in an error after
+    its halvings, with no estimate, after a minute on a roadmap)."""
+    from pipeline.core.graph_mdp import Path
+    src, dst = np.array([0, 0, 1, 1, 1]), np.array([1, 1, 0, 0, 2])
+    terminal = np.array([False, False, True])
+    mdp = GraphMDP(src, dst, np.ones(5), np.ones((5, 1)), terminal,
+                   MDPParams(gamma=1.0, time_cost=0.01, r_goal=1.0, v_max=3.0))
+    loops = 200
+    looped = Path(np.array([0, 1] * (loops + 1) + [2]),
+                  np.array([0, 2] * loops + [0, 4]), True)
+    res = maxent_irl(mdp, [looped], (np.array([-10.0]), np.array([0.0])), n_iterations=100,
+                     learning_rate=3.0, w0=np.array([-5.0]))
+    boundary = 0.01 - np.log(4) / 2
+    assert res.stopped_at is not None and 0 < res.stopped_at < 100
+    assert all(np.array_equal(w, res.history[res.stopped_at])
+               for w in res.history[res.stopped_at:])
+    assert len(res.history) == len(res.mdp_solves) == 101
+    assert res.mdp_solves[-1] == res.stopped_at + 1  # the repeats solve nothing
+    assert all(np.isfinite(res.log_likelihood))
+    assert boundary - 0.05 < res.weights[0] < boundary  # at the edge, on the finite side
+
+
 # ---------------------------------------------------------------- expected feature counts
 
 @pytest.mark.parametrize("seed", range(3))
