@@ -65,7 +65,7 @@ class OccupancyGrid:
         """Cells of `points` (n, 2) -> rows (n,), cols (n,) int, inside (n,) bool.
 
         Rows/cols of points outside the grid are clipped to the border (index-safe);
-        `inside` tells them apart. A point within TIE of a cell border is in the cell above
+        `inside` tells them apart (a point on the grid's edge, within TIE, is inside). A point within TIE of a cell border is in the cell above
         it, wherever the map lies: lattice points fall on borders, and a map origin such as
         ROS's −51.225 m rounded them into one cell here and its neighbour there.
         """
@@ -73,7 +73,11 @@ class OccupancyGrid:
         h, w = self.shape
         col = np.floor((p[:, 0] - self.origin[0] + TIE) / self.resolution)
         row = np.floor((p[:, 1] - self.origin[1] + TIE) / self.resolution)
-        inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)  # False for NaN too
+        # the grid's far edges belong to it, as its near ones do (a start on a room's right
+        # wall, x = x_max, read as outside and unreachable; one on its left wall did not)
+        x1, y1 = self.extent()[2:]
+        inside = (col >= 0) & (row >= 0) & ((col < w) | (p[:, 0] <= x1 + TIE)) \
+            & ((row < h) | (p[:, 1] <= y1 + TIE))  # False for NaN too
         # NaN -> 0, beyond the border (inf too) -> the border: fmax skips NaN (two ufuncs,
         # a third of nan_to_num and clip's cost on the few points of a growth step)
         rows = np.minimum(np.fmax(row, 0.0), h - 1).astype(np.intp)

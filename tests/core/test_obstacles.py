@@ -42,6 +42,12 @@ def test_grid_geometry_and_cells():
                                                 [-1.01, 2.5], [np.nan, 2.5]]))
     assert rows.tolist()[:2] == [0, 2] and cols.tolist()[:2] == [0, 3]
     assert inside.tolist() == [True, True, False, False, False]
+    # the far edges belong to the grid as the near ones do (a start at x = x_max read as
+    # outside, so unreachable); beyond them by more than a tie they do not
+    rows, cols, inside = grid.cell_of(np.array([[1.0, 3.5], [-1.0, 2.0], [1.0, 2.7],
+                                                [1.0 + 1e-3, 2.7], [0.0, 3.5 + 1e-3]]))
+    assert inside.tolist() == [True, True, True, False, False]
+    assert (rows[0], cols[0], rows[1], cols[1], cols[2]) == (2, 3, 0, 0, 3)
     centres = grid.cell_centres()
     assert centres.shape == (3, 4, 2)
     np.testing.assert_allclose(centres[0, 0], [-0.75, 2.25])

@@ -84,3 +84,13 @@ def test_distance_outside_a_room_and_clipping_onto_it_by_hand():
     np.testing.assert_array_equal(room.clip(points),
                                   [[5, 2], [0, 2], [10, 4], [5, 4], [0, 0]])
     assert room.contains(room.clip(points)).all()
+
+
+@pytest.mark.parametrize("start, goal", [([10.0, 0.5], [5.5, 9.0]), ([2.0, 0.5], [5.5, 10.0]),
+                                         ([10.0, 10.0], [5.5, 9.0]), ([0.0, 0.5], [5.5, 0.0])])
+def test_a_start_or_goal_on_any_wall_of_the_room_is_reachable(start, goal):
+    """The room's edge is no obstacle: a start on its right or top wall read as outside the
+    raster, and the scene was refused as unreachable (one on the left or bottom wall ran)."""
+    d = _metropolis_dict()
+    d.update(starts=[start], goal=goal)
+    assert scene_from_dict(d, source="edge").unreachable_starts() == []
