@@ -475,7 +475,7 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
     if unmoved:
         lines.append(f"  not learned      {', '.join(unmoved)} never moved from where learning "
                      "started (a draw from the prior, see the log): the demonstrations say "
-                     "nothing about it")
+                     "nothing about it, or the method's steps are too small to move it")
     lines += given or []
     if "mcmc_acceptance_rate" in m:
         if m["mcmc_acceptance_rate"] < STUCK_ACCEPTANCE:  # the samples are the starts
