@@ -97,6 +97,8 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
             SweepOutcome.unrecorded[str(run_dir)] = error
             SweepOutcome.restore_hydra_files(run_dir)
         return FailedJob(error)
+    if "evaluate" not in cfg.stages:  # no metrics: nothing to optimise, nor to warn of
+        return FailedJob(f"objective {cfg.objective}: the job ran no evaluate stage")
     return objective_value(run_dir, cfg.objective)
 
 

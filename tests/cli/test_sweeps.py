@@ -191,6 +191,17 @@ def test_plain_multirun_refuses_shared_or_scattered_job_dirs(tmp_path, subdir, s
     assert not (sweep / ".hydra").exists()
 
 
+def test_a_sweep_of_early_stages_does_not_warn_of_its_objective(tmp_path):
+    """Jobs without the evaluate stage write no metrics: each logged 'objective
+    policy_loss_norm: the run wrote no such metric ... a failed trial' for a sweep that
+    optimises nothing."""
+    proc = run_app("-m", "seed=0,1", "stages=[scene]", f"hydra.sweep.dir={tmp_path}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    out = proc.stdout + proc.stderr
+    assert "objective" not in out and "WARNING" not in out
+    assert (tmp_path / "1" / "scene.mcap").is_file()
+
+
 def lines_of(text):
     return [ln for ln in text.splitlines() if ln.strip()]
 
