@@ -65,9 +65,10 @@ class OccupancyGrid:
         """Cells of `points` (n, 2) -> rows (n,), cols (n,) int, inside (n,) bool.
 
         Rows/cols of points outside the grid are clipped to the border (index-safe);
-        `inside` tells them apart (a point on the grid's edge, within TIE, is inside). A point within TIE of a cell border is in the cell above
-        it, wherever the map lies: lattice points fall on borders, and a map origin such as
-        ROS's −51.225 m rounded them into one cell here and its neighbour there.
+        `inside` tells them apart (a point on the grid's edge, within TIE, is inside). A
+        point within TIE of a cell border is in the cell above it, wherever the map lies:
+        lattice points fall on borders, and a map origin such as ROS's −51.225 m rounded
+        them into one cell here and its neighbour there.
         """
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         h, w = self.shape
