@@ -145,6 +145,16 @@ class BirlMcmcConfig(BirlMapConfig, AdaptiveChainParams):
         BirlMapConfig.__post_init__(self)
         AdaptiveChainParams.__post_init__(self)
 
+    def make_prior(self, dim: int) -> Prior:
+        """The box's prior; a first step wider than the box sends every proposal out of it,
+        and the burn-in's adaptation shrinks a step only about a thousandfold per phase
+        (1e300 never moved the chains, whatever birl.adapt said)."""
+        prior = super().make_prior(dim)
+        widest = float(np.max(prior.upper - prior.lower))
+        require(self.proposal_step <= widest, "proposal_step", self.proposal_step,
+                f"at most the weight box's widest side ({widest:g})")
+        return prior
+
 
 @register("map", BirlMapConfig)
 def fit_map(problem: IRLProblem, config: IRLConfig) -> IRLResult:

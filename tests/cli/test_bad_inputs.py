@@ -306,6 +306,9 @@ CONFIG_CASES = {
                     ["birl.prior.scale=1e-300", "1e-06"]),
     "point Boltzmann prior": (["birl.boltzmann_prior_scale=1e-300"],
                               ["birl.boltzmann_prior_scale=1e-300", "1e-06"]),
+    # every proposal left the box, and the burn-in could not shrink the step enough
+    "proposal step wider than the box": (["birl=mcmc", "birl.proposal_step=1e300"],
+                                         ["birl.proposal_step=1e+300", "widest side"]),
     # LinAlgError at 1e299; at 1e100 a 100-digit log likelihood and weights that never moved
     "astronomical beta": (["birl.beta_min=1e100", "birl.beta_max=1e101", "birl.beta=1e100"],
                           ["birl.beta", "1e+06"]),

@@ -152,7 +152,7 @@ def test_chains_that_never_move_are_called_stuck_not_unconverged(tmp_path_factor
     """A proposal far too large, kept (adapt=false): nothing is accepted and R-hat is huge;
     raising birl.max_samples (what it said) would not help."""
     _, m, out = run_experiment(tmp_path_factory, "birl=mcmc", "birl.adapt=false",
-                               "birl.proposal_step=3", "birl.n_iterations=2", "graph=small",
+                               "birl.proposal_step=1", "birl.n_iterations=2", "graph=small",
                                "birl.n_samples=100")
     assert m["mcmc_acceptance_rate"] < 0.01
     assert "the chains barely moved: lower birl.proposal_step" in out
