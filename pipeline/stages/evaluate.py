@@ -481,9 +481,9 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
         if m["mcmc_acceptance_rate"] < STUCK_ACCEPTANCE:  # the samples are the starts
             verdict = ("the chains barely moved: lower birl.proposal_step, or leave "
                        "birl.adapt=true to size the proposals")
-        elif m.get("mcmc_rhat_max") is None and m.get("mcmc_chains", 1) < 2:  # R-hat compares
-            verdict = "one chain: convergence untested; R-hat needs birl.n_chains ≥ 2"  # chains
-        elif m.get("mcmc_rhat_max") is None:
+        elif m.get("mcmc_rhat_max") is None and m.get("mcmc_chains", 1) < 2:
+            verdict = "one chain: convergence untested; R-hat needs birl.n_chains ≥ 2"
+        elif m.get("mcmc_rhat_max") is None:  # R-hat needs MIN_DRAWS samples of every chain
             verdict = (f"too few samples per chain to compare the chains (R-hat needs "
                        f"{MIN_DRAWS}): raise birl.n_samples")
         elif chains_agree([m["mcmc_rhat_max"]], [m.get("mcmc_ess_min", np.nan)]):
