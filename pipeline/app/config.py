@@ -203,9 +203,10 @@ class GraphConfig(GraphParams):
     # 460, or twice the nodes that resolve personal space on the scene's free space where
     # that is more; a number is used as given (and refused when it is too few)
     max_nodes: Optional[int] = None  # type: ignore[assignment]
-    # Reward that drives the growth: null = the learner's initial weights (the prior's
-    # mean within the bounds); true = the expert's true weights (oracle mode, as in the
-    # authors' experiments); or one number per feature. Typed Any: `true`, a list or null.
+    # Reward that drives the growth: null = the weight box's centre on reward.features and 0
+    # on the learner's other features (birl=fixed: its weights); true = the expert's true
+    # weights (oracle mode, as in the authors' experiments); or one number per feature.
+    # Typed Any: `true`, a list or null.
     weights: Any = None
     controller: ControllerConfig = field(default_factory=ControllerConfig)
 

@@ -12,9 +12,13 @@ trajectories Ξ_G(s_k) generated from that start so far:
 
     log p(Ξ_E, Ξ_G | w) = Σ_k βQ_E(k) − log(exp(βQ_E(k)) + Σ_i exp(βQ_i(s_k)))
 
-The environment (graph, policy iteration) is a callback, so nothing here knows about graphs.
-Registered methods: `map` (MAP by L-BFGS-B each iteration) and `mcmc` (the posterior mean
-of a Metropolis–Hastings chain each iteration).
+Registered methods: `map` and `mcmc`. With `birl.likelihood=paper` they follow the paper:
+eq. (2)'s MAP by L-BFGS-B each iteration, or the posterior mean of a Metropolis–Hastings
+chain each iteration, the environment (graph, policy iteration) a callback that generates
+the trajectories. By default (`boltzmann`, `robust`) the likelihood is a Boltzmann model of
+each demonstration against all paths from its start (pipeline.irl.robust): its MAP is found
+once (trust-region Newton undiscounted), `mcmc` samples it once at the end, and `robust`
+may keep an admissible eq. (2) iterate instead (`fit_robust`).
 """
 
 from __future__ import annotations

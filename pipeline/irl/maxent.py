@@ -1,5 +1,6 @@
-"""Maximum-entropy IRL (Ziebart et al. 2008), discounted, on the reference roadmap:
-`birl=maxent`.
+"""Maximum-entropy IRL (Ziebart et al. 2008) on the reference roadmap: `birl=maxent`,
+discounted (mdp=paper) or not (mdp=goal, where weights near 0 make the soft values
+diverge).
 
 Soft value iteration, expected discounted feature counts of the soft policy, projected
 gradient ascent (Adam) in the weight box. One soft value iteration counts as one MDP solve.

@@ -6,7 +6,8 @@ roadmap). All write the same topics, so stage 5 scores every method alike.
 
 Topics: /birl/expert (the demonstrations as the likelihood sees them), /birl/iteration (one
 per iteration: weights, log likelihood, log prior, generated trajectories), for sampling
-methods /birl/posterior (posterior mean, std, acceptance, samples of every iteration), and
+methods /birl/posterior (posterior mean, std, acceptance, samples: one per sampled
+iteration, with the Boltzmann likelihoods one, at the end), and
 with birl.grow_nodes the nodes and edges grown during learning (/birl/graph_nodes,
 /birl/graph_edges: columns, as graph.mcap's).
 """
