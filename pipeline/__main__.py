@@ -45,6 +45,7 @@ from omegaconf import DictConfig
 from pipeline.app.config import register_configs
 from pipeline.app.outcome import SweepOutcome, SweepRefused, failed_jobs
 from pipeline.app.rundir import (
+    METRICS_FILE,
     STOP_SIGNALS,
     FailedJob,
     Interrupted,
@@ -105,7 +106,7 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
 def objective_value(run_dir: Path, key: str) -> float | FailedJob:
     """The job's metric for a sweeper that optimises (Optuna); a FailedJob when there is
     none, which such a sweeper records as a failed trial."""
-    metrics_path = run_dir / "metrics.json"
+    metrics_path = run_dir / METRICS_FILE
     metrics = json.loads(metrics_path.read_text()) if metrics_path.exists() else {}
     if key not in metrics:
         # e.g. a held-out fraction that held nothing out (one demonstration per start)

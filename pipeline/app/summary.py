@@ -17,6 +17,8 @@ import yaml
 
 from pipeline.app.metric_keys import is_metric_key
 from pipeline.app.rundir import (
+    HYDRA_FILES,
+    METRICS_FILE,
     job_dirs,
     missing_jobs,
     read_status,
@@ -35,7 +37,7 @@ class Unreadable(Exception):
 
 
 def parse_overrides(job: Path) -> dict[str, str]:
-    path = job / ".hydra" / "overrides.yaml"
+    path = job / HYDRA_FILES[-1]
     try:
         lines = yaml.safe_load(path.read_text()) or []
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
@@ -74,7 +76,7 @@ def job_row(job: Path, sweep_dir: Path) -> dict:
     row: dict = {"job": str(job.relative_to(sweep_dir))}
     try:
         row.update(parse_overrides(job))
-        status, metrics_file = read_status(job), job / "metrics.json"
+        status, metrics_file = read_status(job), job / METRICS_FILE
         if not status.complete:  # failed, killed, still running, or made before status.json
             at = f"stage {status.stage}: " if status.stage else ""
             row.update(status=status.state, error=at + (status.error or status.state))

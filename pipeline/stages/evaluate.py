@@ -18,6 +18,7 @@ from pipeline.app import build
 from pipeline.app.build import preset_weights
 from pipeline.app.config import Config
 from pipeline.app.context import RunContext, resolve_path
+from pipeline.app.rundir import METRICS_FILE
 from pipeline.app.summary import Unreadable, read_metrics
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import Artefact, read_artefact, write_json_atomic
@@ -318,7 +319,7 @@ def write_evaluation(ctx: RunContext, weights: np.ndarray, curves: dict, graph_p
         w.add(topics.EVAL_METRICS, "Metrics", {k: v for k, v in metrics.items()
                                            if not (k.startswith("time_") and k.endswith("_s"))},
               log_time=0)
-    write_json_atomic(ctx.run_dir / "metrics.json", metrics)
+    write_json_atomic(ctx.run_dir / METRICS_FILE, metrics)
 
 
 def worse_than_initial(m: dict) -> list[str]:
@@ -433,7 +434,7 @@ def given_weights_origin(cfg: Config) -> list[str]:
         return [f"  weights from     {run} (given there too: birl=fixed, {origin})"]
     lines = [f"  weights from     {run} (learned there)"]
     try:
-        m = read_metrics(source / "metrics.json")
+        m = read_metrics(source / METRICS_FILE)
         names = cfg.learner_features
         box = Prior("uniform", 1.0, broadcast(birl_cfg["lower"], len(names), "lower"),
                     broadcast(birl_cfg["upper"], len(names), "upper"))

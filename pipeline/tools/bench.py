@@ -32,6 +32,8 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.app.rundir import METRICS_FILE, TIMINGS_FILE
+from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.irl.birl import LIKELIHOODS
 from pipeline.tools import run_tool
 
@@ -196,7 +198,7 @@ def experiment_timings(repeats: int, *overrides: str) -> pd.DataFrame:
             subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={tmp}", *overrides],
                            check=True, capture_output=True, cwd=PROJECT_ROOT)
             wall = time.perf_counter() - t0
-            m = json.loads((Path(tmp) / "metrics.json").read_text())
+            m = json.loads((Path(tmp) / METRICS_FILE).read_text())
         row = {"run": k, "wall_s": round(wall, 2)}
         row.update({key[5:-2] + "_s": m[key] for key in sorted(m)
                     if key.startswith("time_") and key.endswith("_s")})
@@ -218,7 +220,7 @@ def obstacle_costs(repeats: int) -> pd.DataFrame:
                             ("office_no_learning_growth", ["scene=office", "birl.grow_nodes=0"]),
                             ("office_preset", ["experiment=office"])]:
         runs = experiment_timings(repeats, *overrides)
-        stages = runs[[f"{s}_s" for s in ("scene", "demos", "graph", "birl", "evaluate")]]
+        stages = runs[[f"{s}_s" for s in STAGES]]
         best = runs.loc[stages.sum(axis=1).idxmin()]
         rows.append({"scene": name, "overrides": " ".join(overrides) or "(defaults)",
                      "stage_seconds": round(float(stages.sum(axis=1).min()), 3),
@@ -256,7 +258,7 @@ def _scene_demos_once(code: Path, overrides: list[str]) -> dict:
         child.returncode = os.waitstatus_to_exitcode(status)
         if child.returncode:
             raise RuntimeError(f"{' '.join(cmd)} in {code} failed ({child.returncode})")
-        timings = json.loads((Path(tmp) / "timings.json").read_text())
+        timings = json.loads((Path(tmp) / TIMINGS_FILE).read_text())
     return {"wall_s": round(wall, 2),
             "scene_demos_s": round(timings["time_scene_s"] + timings["time_demos_s"], 3),
             "scene_s": timings["time_scene_s"], "demos_s": timings["time_demos_s"],
@@ -370,8 +372,8 @@ IRL_SCENES = {"metropolis": ["scene=metropolis"], "random1": ["scene=random", "s
 def _app(run_dir: Path, *overrides: str) -> dict:
     subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}", *overrides],
                    check=True, capture_output=True, cwd=PROJECT_ROOT)
-    return json.loads((run_dir / "metrics.json").read_text()) \
-        if (run_dir / "metrics.json").exists() else {}
+    return json.loads((run_dir / METRICS_FILE).read_text()) \
+        if (run_dir / METRICS_FILE).exists() else {}
 
 
 # Methods that learn in their own box (MaxEnt: [-100, 0], conf/birl/maxent.yaml), which
@@ -423,7 +425,7 @@ def irl_methods(seeds: list[int], methods: list[str], scenes: list[str]):
 def read_artefact_iterations(run: Path) -> list[dict]:
     from pipeline.artefacts import read_artefact, topics
 
-    return read_artefact(run / "birl.mcap").all(topics.BIRL_ITERATION)
+    return read_artefact(run / ARTEFACT_FILE["birl"]).all(topics.BIRL_ITERATION)
 
 
 def plot_loss_vs_time(curves_csv: Path, path: Path) -> None:
@@ -493,7 +495,7 @@ def run_in_process(run_dir: Path, *overrides: str) -> dict:
 
     with contextlib.redirect_stdout(io.StringIO()):
         run_pipeline(compose_config(overrides), run_dir)
-    path = run_dir / "metrics.json"
+    path = run_dir / METRICS_FILE
     return json.loads(path.read_text()) if path.exists() else {}
 
 
@@ -548,9 +550,10 @@ def imperfect(seeds: list[int], baseline_seeds: list[int], conditions: list[str]
                         row["final_over_best"] = float(curve[-1] / max(curve.min(), 1e-9))
                         row["rises_after_iter3"] = int(np.sum(np.diff(curve[3:]) > 1e-9))
                     if cond == "handdrawn":
-                        scene = codec.decode_scene(read_artefact(base / "scene.mcap"))
-                        demos = read_artefact(base / "demos.mcap").all(topics.DEMOS)
-                        paths = read_artefact(run / "eval.mcap").all(topics.EVAL_PATHS)
+                        scene = codec.decode_scene(read_artefact(base / ARTEFACT_FILE["scene"]))
+                        demos = read_artefact(base / ARTEFACT_FILE["demos"]).all(topics.DEMOS)
+                        paths = read_artefact(run / ARTEFACT_FILE["evaluate"]).all(
+                            topics.EVAL_PATHS)
                         row["demo_median_dist_to_people"] = _median_distance_to_people(
                             [d["points"] for d in demos], scene)
                         row["learned_median_dist_to_people"] = _median_distance_to_people(

@@ -23,6 +23,7 @@ import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
 from pipeline.artefacts import codec, read_artefact
+from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.tools import output_directory, run_tool
 from pipeline.tools.bench import run_in_process, seed_number
 
@@ -31,7 +32,6 @@ SCENES = ("metropolis", "office", "warehouse")
 # random scenes on these maps: scene name -> the map
 RANDOM_ON_MAPS = {"random on office map": "data/maps/office.yaml",
                   "random on warehouse map": "data/maps/warehouse.yaml"}
-STAGES = ("scene", "demos", "graph", "birl", "evaluate")
 KEYS = ("success", "obstacle_collisions", "relation_crossings", "ref_relation_crossings",
         "ref_intimate_intrusion_m", "policy_loss_ref", "policy_loss_ref_rude",
         "policy_loss_norm")
@@ -48,7 +48,8 @@ def one_run(run_dir: Path, case: str, scene: str, seed: int, *overrides: str) ->
     m = run_in_process(run_dir, *scene_overrides(scene), f"seed={seed}", *overrides)
     row: dict = {"case": case, "scene": scene, "seed": seed,
                  "wall_s": round(time.perf_counter() - t0, 2),
-                 "graph_nodes": len(codec.decode_nodes(read_artefact(run_dir / "graph.mcap")))}
+                 "graph_nodes": len(codec.decode_nodes(
+                     read_artefact(run_dir / ARTEFACT_FILE["graph"])))}
     row.update({f"{s}_s": m.get(f"time_{s}_s") for s in STAGES})
     row.update({k: m.get(k) for k in KEYS})
     return row

@@ -60,6 +60,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.errors import first_line
 from pipeline.tools import output_directory, run_tool
 from pipeline.tools.bench import learning_stages, run_in_process, seed_number
@@ -248,7 +249,7 @@ def planner_cost_metrics(run: Path, every_demo: bool = False) -> tuple[dict, lis
     graph = roadmap.with_features(cost[:, None])
     policy = graph.mdp.solve(np.array([-1.0])).policy
     paths = [graph.polyline(graph.mdp.follow(policy, int(s))) for s in graph.start_nodes]
-    demos = read_artefact(run / "demos.mcap")
+    demos = read_artefact(run / ARTEFACT_FILE["demos"])
     judged = demos.all(topics.DEMOS) if every_demo else codec.heldout_demos(demos)
     return heldout_metrics(graph, policy, judged, scene), paths
 
@@ -259,8 +260,8 @@ def planner_cost_on_roadmap(run: Path) -> tuple:
     from pipeline.artefacts import codec, read_artefact, topics
     from pipeline.core.social_planner import SocialCost, SocialPlannerParams
 
-    scene = codec.decode_scene(read_artefact(run / "scene.mcap"))
-    demos = read_artefact(run / "demos.mcap")
+    scene = codec.decode_scene(read_artefact(run / ARTEFACT_FILE["scene"]))
+    demos = read_artefact(run / ARTEFACT_FILE["demos"])
     roadmap = codec.decode_roadmap(demos, codec.decode_mdp_params(demos.one(topics.DEMOS_EXPERT)))
     m = roadmap.mdp
     cost = SocialCost(scene, SocialPlannerParams()).segments(roadmap.positions[m.src],
@@ -311,13 +312,14 @@ def passing_distances(run: Path, paths: list[np.ndarray] | None = None) -> dict:
     from pipeline.artefacts import codec, read_artefact, topics
     from pipeline.core.social import min_distance_to_person
 
-    persons = codec.decode_scene(read_artefact(run / "scene.mcap")).person_xy
+    persons = codec.decode_scene(read_artefact(run / ARTEFACT_FILE["scene"])).person_xy
+    demos = read_artefact(run / ARTEFACT_FILE["demos"]).all(topics.DEMOS)
     seen = [min_distance_to_person(np.asarray(d["points"], float), persons)
-            for d in read_artefact(run / "demos.mcap").all(topics.DEMOS) if not d["heldout"]]
+            for d in demos if not d["heldout"]]
     low, high = np.percentile(seen, [10, 90])
     if paths is None:
         paths = [np.asarray(p["points"], float)
-                 for p in read_artefact(run / "eval.mcap").all(topics.EVAL_PATHS)
+                 for p in read_artefact(run / ARTEFACT_FILE["evaluate"]).all(topics.EVAL_PATHS)
                  if p["graph"] == "ref"]
     learned = np.array([min_distance_to_person(p, persons) for p in paths])
     return {"people_pass_p10_m": float(low), "people_pass_p90_m": float(high),

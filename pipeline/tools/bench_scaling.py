@@ -25,6 +25,8 @@ import numpy as np
 import pandas as pd
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.app.rundir import TIMINGS_FILE
+from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.tools import output_directory, run_tool
 from pipeline.tools.bench import (
     RESULTS,
@@ -84,7 +86,7 @@ def run_grid(grid: dict[int, list[int]], seed: int, methods: list[str],
                 base = Path(tmp) / f"{side}m-{nodes}"
                 _app(base, *scene_overrides(side), f"seed={seed}", f"graph.max_nodes={nodes}",
                      "stages=[scene,demos,graph]")
-                timings = json.loads((base / "timings.json").read_text())
+                timings = json.loads((base / TIMINGS_FILE).read_text())
                 growth.append({"room_m": side, "graph_nodes": nodes,
                                "graph_s": timings["time_graph_s"]})
                 print(f"  {side} m, {nodes} nodes: graph {growth[-1]['graph_s']:.2f} s",
@@ -134,8 +136,8 @@ def _states(run: Path, method: str) -> int:
     from pipeline.artefacts import read_artefact, topics
 
     if method == "maxent":
-        return int(read_artefact(run / "demos.mcap").one(topics.DEMOS_ROADMAP)["n_nodes"])
-    return int(read_artefact(run / "graph.mcap").one(topics.GRAPH_SOLUTION)["n_nodes"])
+        return int(read_artefact(run / ARTEFACT_FILE["demos"]).one(topics.DEMOS_ROADMAP)["n_nodes"])
+    return int(read_artefact(run / ARTEFACT_FILE["graph"]).one(topics.GRAPH_SOLUTION)["n_nodes"])
 
 
 def exponents(table: pd.DataFrame) -> pd.DataFrame:

@@ -41,6 +41,7 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 
 from pipeline.app.config import Config, compose_config, load_settings, register_configs
 from pipeline.app.metric_keys import METRIC_KEYS, PATH_METRIC_MEANING
+from pipeline.app.rundir import METRICS_FILE
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.core.params import ParameterError
 from pipeline.core.social import PATH_METRICS
@@ -510,7 +511,7 @@ def default_run_metrics() -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp, contextlib.redirect_stdout(io.StringIO()):
         run_dir = Path(tmp) / "run"
         run_pipeline(compose_config(), run_dir)
-        return json.loads((run_dir / "metrics.json").read_text())
+        return json.loads((run_dir / METRICS_FILE).read_text())
 
 
 def sample_output(metrics: dict[str, float]) -> str:

@@ -23,6 +23,7 @@ import pandas as pd
 import yaml
 
 from pipeline.app.context import PROJECT_ROOT
+from pipeline.app.rundir import METRICS_FILE
 from pipeline.app.summary import Unreadable, read_metrics
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.errors import PipelineError, first_line, os_error_reason
@@ -76,14 +77,14 @@ def read_baseline(path: Path) -> dict:
 
 def run_experiment(name: str, overrides: list[str], work: Path, reuse: bool) -> dict:
     run_dir = work / name
-    if not (reuse and (run_dir / "metrics.json").exists()):
+    if not (reuse and (run_dir / METRICS_FILE).exists()):
         result = subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}",
                                  *overrides], cwd=PROJECT_ROOT, capture_output=True, text=True)
         if result.returncode != 0:
             last = (result.stderr.strip().splitlines() or ["no message"])[-1]
             raise PipelineError(f"reference experiment {name} failed: {last}")
     try:
-        metrics = read_metrics(run_dir / "metrics.json")  # the check aggregate makes
+        metrics = read_metrics(run_dir / METRICS_FILE)  # the check aggregate makes
     except Unreadable as e:
         raise PipelineError(f"{run_dir}: {e}") from None
     if not metrics:

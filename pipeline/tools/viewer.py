@@ -31,7 +31,7 @@ from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, read_status
 from pipeline.artefacts import Artefact, codec, read_artefact, topics, unique_tmp
 from pipeline.core.world import Scene
-from pipeline.errors import PipelineError, report
+from pipeline.errors import PipelineError, existing_dir, report
 from pipeline.tools import run_tool
 
 # rerun-sdk is the optional `viewer` extra (670 MB with pyarrow), out of the core install.
@@ -434,15 +434,14 @@ def _later_artefacts(run_dir: Path) -> dict[str, Artefact]:
 
 def build_recording(run_dir: Path, rrd_path: Path | None = None) -> Path:
     """Read the artefacts present in run_dir (scene.mcap required) and write an .rrd."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise PipelineError(f"run dir {run_dir} does not exist or is not a directory")
+    run_dir = existing_dir(Path(run_dir), "run dir")
     rrd_path = Path(rrd_path) if rrd_path is not None else run_dir / "run.rrd"
     if rrd_path.suffix != ".rrd":  # e.g. --out RUN/scene.mcap replaced the run's own input
         raise PipelineError(f"--out {rrd_path}: the recording's file name must end in .rrd")
     if rrd_path.is_dir():
         raise PipelineError(f"--out {rrd_path} is a directory; give the .rrd file to write")
-    scene_art = read_artefact(run_dir / "scene.mcap", required_topics=[topics.SCENE])
+    scene_art = read_artefact(run_dir / topics.ARTEFACT_FILE["scene"],
+                              required_topics=[topics.SCENE])
     scene = codec.decode_scene(scene_art)  # a malformed scene: one line, before any drawing
     arts = _later_artefacts(run_dir)
     # artefacts of different runs side by side are refused, as the stages and export do
