@@ -419,7 +419,7 @@ def growth_weights(cfg: Config, true_weights: list[float] | None) -> tuple[np.nd
     prior mean on the reward's features, 0 on the learner's other features; with
     `birl=fixed`, its weights, 0 on the learner's extras (LEARNER_EXTRA_FEATURES)."""
     w = cfg.graph.weights
-    if w is None or w == "prior":
+    if w is None:
         # Learning: on the reward's features only. The learner's extras (crossing) leave
         # the graph as it is, so learners with other feature sets are compared on the same
         # graph. Growth is sensitive to its reward: grown with crossing as well, the

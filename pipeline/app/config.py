@@ -106,6 +106,11 @@ class RewardConfig(FeatureParams):
                 f"{len(self.features)} finite numbers, one per feature {list(self.features)}")
 
 
+# the experts that act under the true reward on the reference roadmap (their
+# demonstrations are its paths, and a policy loss can be scored)
+SYNTHETIC_EXPERTS = ("optimal", "boltzmann")
+
+
 @dataclass
 class ExpertConfig:
     kind: str = MISSING  # optimal | boltzmann | file | planner | none
@@ -119,9 +124,10 @@ class ExpertConfig:
 
     @property
     def knows_true_reward(self) -> bool:
-        """Synthetic experts act under the true reward (reward.*); file, planner and none
-        have none, so there is no policy loss."""
-        return self.kind in ("optimal", "boltzmann")
+        """Synthetic experts act under the true reward (reward.*), on the reference roadmap:
+        their demonstrations are its paths. File, planner and none have no true reward, so
+        there is no policy loss."""
+        return self.kind in SYNTHETIC_EXPERTS
 
 
 @dataclass
@@ -486,7 +492,7 @@ def load_settings(cfg: DictConfig) -> Config:
         raise config_error("birl.init_weights", list(w0),
                            f"null or {d} numbers within [birl.lower, birl.upper]")
     w = settings.graph.weights
-    ok = w is None or w is True or w in ("true", "prior") or (
+    ok = w is None or w is True or w == "true" or (
         isinstance(w, list) and len(w) == d and all(is_number(x) for x in w))
     if not ok:
         raise config_error("graph.weights", w, f"null (prior mean), true (oracle) or {d} numbers")
@@ -511,8 +517,7 @@ def _check_demonstrator(settings: Config) -> None:
         raise config_error("evaluate.holdout", settings.evaluate.holdout,
                            "null with expert=none (it has no demonstrations to hold out; "
                            "held-out ones come from a file: expert=file expert.path=...)")
-    if isinstance(settings.evaluate.holdout, list) \
-            and settings.expert.kind in ("optimal", "boltzmann"):
+    if isinstance(settings.evaluate.holdout, list) and settings.expert.knows_true_reward:
         raise config_error("evaluate.holdout", settings.evaluate.holdout,
                            f"a fraction or null with expert={settings.expert.kind} (its "
                            "demonstrations have no subjects; subject ids come from a "

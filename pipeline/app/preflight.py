@@ -26,6 +26,7 @@ from pathlib import Path
 
 from pipeline.app import build, limits
 from pipeline.app.config import (
+    SYNTHETIC_EXPERTS,
     BoltzmannExpertConfig,
     Config,
     FileExpertConfig,
@@ -73,9 +74,6 @@ class Checked:
     derived: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
-# the experts whose demonstrations are paths of the reference roadmap (they act on it)
-ROADMAP_EXPERTS = ("optimal", "boltzmann")
-
 
 def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
     """Run every start-up check for the stages `cfg.stages`; raises PipelineError."""
@@ -83,10 +81,10 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
     checked = Checked()
     stages = set(cfg.stages)
     if cfg.birl.kind == "maxent" and "birl" in stages and \
-            cfg.expert.kind not in ROADMAP_EXPERTS:
+            not cfg.expert.knows_true_reward:
         raise PipelineError(
             f"config error: birl=maxent learns on the reference roadmap, from demonstrations "
-            f"that are its paths (expert={' or expert='.join(ROADMAP_EXPERTS)}); "
+            f"that are its paths (expert={' or expert='.join(SYNTHETIC_EXPERTS)}); "
             f"expert={cfg.expert.kind} demonstrations are not: learn from them with the "
             "default birl=map (or birl=policywalk)")
     if isinstance(cfg.birl, FixedConfig) and cfg.birl.from_run and stages & {"graph", "birl"}:

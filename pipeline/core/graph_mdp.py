@@ -55,6 +55,16 @@ MAX_SPEED = 100.0  # m/s
 MIN_SPEED = 1e-3  # m/s
 
 
+# γ^0 = 1 would make a zero-duration edge a free loop (DESIGN §5): every edge takes time
+SHORTEST_DURATION = 1e-9  # s
+
+
+def check_durations(durations: np.ndarray) -> None:
+    """ValueError unless every edge's duration (s) exceeds SHORTEST_DURATION."""
+    if len(durations) and durations.min() <= SHORTEST_DURATION:
+        raise ValueError("every edge needs a positive duration")
+
+
 @dataclass
 class MDPParams:
     """The graph MDP's formulation (module docstring). Defaults: goal reaching, undiscounted
@@ -133,9 +143,7 @@ class GraphMDP:
         n = len(terminal)
         if len(src) and (src.min() < 0 or max(src.max(), dst.max()) >= n or dst.min() < 0):
             raise ValueError("edge end points must be node indices in [0, n_nodes)")
-        if len(duration) and duration.min() <= 1e-9:
-            # γ^0 = 1 would make a zero-duration edge a free loop (DESIGN §5).
-            raise ValueError("every edge needs a positive duration")
+        check_durations(duration)
         keep = ~terminal[src]
         if params.undiscounted:
             keep &= reaches(src, dst, terminal)[dst]  # only edges from which the goal is near

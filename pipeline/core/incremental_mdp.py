@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, DTypeLike
 from scipy.sparse.csgraph import dijkstra
 
-from pipeline.core.graph_mdp import NO_EDGE, GraphMDP, MDPParams
+from pipeline.core.graph_mdp import NO_EDGE, GraphMDP, MDPParams, check_durations
 
 
 class GrowableArray:
@@ -127,9 +127,6 @@ class IncrementalGraphMDP:
     def n_nodes(self) -> int:
         return self._terminal.n
 
-    def _fixed_value(self, node: int) -> float:
-        return self.r_goal if self.terminal[node] else -self.v_max
-
     # -- growth ----------------------------------------------------------------------------
     def add_node(self, terminal: bool, source: bool = False) -> int:
         self.changes += 1
@@ -155,8 +152,7 @@ class IncrementalGraphMDP:
         src, dst = np.asarray(src, np.int64), np.asarray(dst, np.int64)
         rewards = np.asarray(rewards, float)
         durations = np.asarray(durations, float)
-        if len(durations) and durations.min() <= 1e-9:
-            raise ValueError("every edge needs a positive duration")
+        check_durations(durations)
         self._src.extend(src)
         self._dst.extend(dst)
         self._duration.extend(durations)

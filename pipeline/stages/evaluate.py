@@ -357,7 +357,7 @@ def graph_less_polite(m: dict) -> list[str]:
     return ["  warning          the graph's paths are ruder than the roadmap's under the same "
             f"reward ({', '.join(worse)}): it lacks detours as good as the roadmap's; deploy "
             "the roadmap's paths "
-            "(birlg-export: /birlg/learned_paths_ref) or grow it further (graph.max_nodes)"]
+            f"(birlg-export: {topics.EXPORT_LEARNED_REF}) or grow it further (graph.max_nodes)"]
 
 
 def weights_at_box(m: dict, learner_features: list[str], box: Prior,

@@ -38,6 +38,7 @@ from pipeline.irl.birl import LIKELIHOODS
 from pipeline.tools import run_tool
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
+HANDDRAWN = "data/demos/metropolis_handdrawn.json"  # the shipped hand-drawn demonstrations
 GRAPH_SIZES = [250, 500, 1000, 2000, 5000]
 GRAPH_IO_SIZES = [460, 5000, 20000]
 
@@ -472,7 +473,7 @@ IMPERFECT = {
     **{f"beta{b}": ["expert=boltzmann", f"expert.beta={b}"] for b in (5, 10, 20, 50)},
     **{f"beta20_k{k}": ["expert=boltzmann", "expert.beta=20", f"expert.demos_per_start={k}"]
        for k in (2, 3, 5)},
-    "handdrawn": ["expert=file", "expert.path=data/demos/metropolis_handdrawn.json"],
+    "handdrawn": ["expert=file", f"expert.path={HANDDRAWN}"],
 }
 IMPERFECT_METHODS = {"birlg_paper": ["birl.likelihood=paper"],
                      "birlg_robust": ["birl.likelihood=robust"],

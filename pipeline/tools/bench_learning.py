@@ -63,10 +63,9 @@ from pipeline.app.context import PROJECT_ROOT
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.errors import first_line
 from pipeline.tools import output_directory, run_tool
-from pipeline.tools.bench import learning_stages, run_in_process, seed_number
+from pipeline.tools.bench import HANDDRAWN, learning_stages, run_in_process, seed_number
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
-HANDDRAWN = "data/demos/metropolis_handdrawn.json"
 PLANNER = ["expert=planner", "expert.n_subjects=5"]
 DEMONSTRATORS: dict[str, list[str]] = {
     "optimal": [],

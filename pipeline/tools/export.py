@@ -76,11 +76,9 @@ COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
 BAG_DIR = "paths"
 FRAME = "map"
 
-TOPIC_LEARNED = "/birlg/learned_paths"  # on the adaptive graph, one Path per start
-TOPIC_LEARNED_REF = "/birlg/learned_paths_ref"  # on the reference roadmap
+TOPIC_LEARNED, TOPIC_LEARNED_REF = topics.EXPORT_LEARNED, topics.EXPORT_LEARNED_REF
 LEARNED_TOPICS = {"graph": TOPIC_LEARNED, "ref": TOPIC_LEARNED_REF}  # by where they were planned
-TOPIC_DEMOS = "/birlg/demos"
-TOPIC_PEOPLE = "/birlg/people"
+TOPIC_DEMOS, TOPIC_PEOPLE = topics.EXPORT_DEMOS, topics.EXPORT_PEOPLE
 
 # map_server thresholds: a white cell (occ 0) is below free_thresh, black (occ 1) above
 # occupied_thresh, every grey between maps linearly onto occupancy 0..100.
