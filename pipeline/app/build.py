@@ -133,10 +133,13 @@ def check_scene_extent(extent: SceneExtent) -> None:
         "use a smaller room ('room' in the scene file)")
 
 
-def check_map_size(header: MapHeader) -> None:
+def check_map_size(header: MapHeader, per_cell: float = limits.BYTES_PER_RASTER_CELL,
+                   use: str = "") -> None:
+    """The map's raster must fit in memory (`use`: what else is done on it, said in the
+    refusal, and `per_cell` its bytes per cell)."""
     limits.check_memory(
         f"map {header.path}: its {header.width:,} × {header.height:,} px image at "
-        f"{header.resolution:g} m/px", header.cells, limits.BYTES_PER_RASTER_CELL,
+        f"{header.resolution:g} m/px{use}", header.cells, per_cell,
         "use a smaller or coarser map (crop it, or scale it down and raise 'resolution')")
 
 

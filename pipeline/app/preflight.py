@@ -232,7 +232,8 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
         return SceneFacts(f"random-{cfg.seed if sc.seed is None else sc.seed}", area,
                           n_persons, False, lambda: area)
     header = read_map_header(resolve_path(sc.map))
-    build.check_map_size(header)
+    build.check_map_size(header, limits.BYTES_PER_RANDOM_MAP_CELL,
+                         " with a random scene's draws on it")
     x0, y0, x1, y1 = header.extent()
     scenegen.check_fits(sc, Room(x0, y0, x1, y1), on_map=True)
 

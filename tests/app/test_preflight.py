@@ -115,6 +115,21 @@ def test_a_random_scene_on_a_map_checks_its_roadmap_when_it_is_made_alone(tmp_pa
     assert seconds < REFUSED_WITHIN_S, seconds
 
 
+def test_a_random_scene_on_a_map_counts_its_draws_work_on_the_raster(tmp_path, monkeypatch):
+    """A random scene labels the map's free regions and tests each draw's reachability on
+    its raster: about 125 bytes per cell, not the 48 of the raster alone (a 300 m map was
+    estimated at 1.9 GB and took 4.6). With 8 GB available, a 1e8-cell map is refused for
+    the scene's draws, before the roadmap's check."""
+    from pipeline.app import limits
+    monkeypatch.setattr(limits, "available_memory", lambda: 8e9)
+    (tmp_path / "m.pgm").write_bytes(b"P5\n10000 10000\n255\n")  # the header is read alone
+    (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n"
+                                     "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    refused_before_any_stage(tmp_path / "run", r"10,000 × 10,000 px .* with a random scene's "
+                             r"draws on it would need about 14", "scene=random",
+                             f"scene.map={tmp_path / 'm.yaml'}", "stages=[scene]")
+
+
 def test_a_room_larger_than_its_map_counts_only_the_maps_free_cells(tmp_path):
     # a 10 m × 10 m free map in a 30 m × 30 m room: outside the map is unknown (occupied)
     Image.fromarray(np.full((200, 200), 254, np.uint8)).save(tmp_path / "m.png")
