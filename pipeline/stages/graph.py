@@ -8,6 +8,7 @@ per iteration), /graph/solution (final values and policy, the weights that grew 
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import numpy as np
@@ -28,6 +29,23 @@ PROGRESS_SECONDS = 10.0  # growth of many thousand nodes logs its progress at le
 
 def seconds(t: float) -> str:
     return f"{t:.1f}" if t < 10 else f"{t:.0f}"
+
+
+def time_left(rates: list[tuple[float, float]], nodes: int, total: int) -> float:
+    """Seconds to grow from `nodes` to `total` nodes, from the seconds per node of the
+    progress windows so far, `rates` ((nodes at a window's middle, s per node), oldest
+    first; not empty). Each node costs more as the graph grows (an MDP repair over more
+    nodes), about as a power of its size: the last two windows give the exponent (clipped
+    to [0, 2]), and the cost is integrated from here on (the last window's rate alone was
+    3-4 times too low on a 200 m floor, the whole growth's rate lower still)."""
+    n_now, rate = rates[-1]
+    power = 0.0
+    if len(rates) > 1:
+        n_before, rate_before = rates[-2]
+        if rate > 0 and rate_before > 0 and n_now > n_before:
+            power = min(max(math.log(rate / rate_before) / math.log(n_now / n_before), 0.0), 2.0)
+    return rate * n_now / (power + 1) * ((total / n_now) ** (power + 1)
+                                          - (nodes / n_now) ** (power + 1))
 
 
 def demos_for_graph(demo_msgs: list[dict], features: FeatureModel,
@@ -66,18 +84,18 @@ def run(ctx: RunContext) -> None:
     warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes, learns_on_graph)
     every = max(1, cfg.graph.max_nodes // 10)
     last = [graph.n_nodes, 0.0]  # nodes and time at the last line (the time: set below)
+    rates: list[tuple[float, float]] = []  # (nodes at a window's middle, s per node) per line
 
     def progress(g: AdaptiveGraph) -> None:
         # a line every tenth of the nodes, and at least every PROGRESS_SECONDS on long growth
         now = time.perf_counter()
         if g.n_nodes >= last[0] + every or g.n_nodes >= g.p.max_nodes \
                 or now - last[1] >= PROGRESS_SECONDS:
-            added, left = g.n_nodes - last[0], g.p.max_nodes - g.n_nodes
-            # at the rate since the last line: each node costs more as the graph grows (an
-            # MDP repair over more nodes), so the rate since the start would promise too little
-            # (and would count the initialisation as growth)
-            eta = f", about {seconds((now - last[1]) * left / added)} s left" \
-                if added and left else ""
+            added = g.n_nodes - last[0]
+            if added:
+                rates.append(((g.n_nodes + last[0]) / 2, (now - last[1]) / added))
+            eta = f", about {seconds(time_left(rates, g.n_nodes, g.p.max_nodes))} s left" \
+                if rates and g.n_nodes < g.p.max_nodes else ""
             last[:] = [g.n_nodes, now]
             log.info("  iteration %4d: %4d of %d nodes, %5d edges, %s s%s; best value per "
                      "start %s", g.iteration, g.n_nodes, g.p.max_nodes, len(g.src),

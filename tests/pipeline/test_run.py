@@ -301,3 +301,20 @@ def test_the_summary_warns_when_learned_paths_stop_short(tmp_path, default_run):
     assert m["success"] < 1 <= m["ref_success"]  # the case: the graph's paths stop short
     assert f"learned paths stop short of the goal (success graph {m['success']:.2f})" in out
     assert "stop short" not in default_run[2]  # every default path arrives: no warning
+
+
+def test_growth_time_left_integrates_a_cost_that_grows_with_the_graph():
+    """The graph stage's time left: a constant cost per node gives the rate times the
+    nodes left; a cost proportional to the graph's size (seconds per node a·n) is
+    integrated exactly, a·(N² − n²)/2, where the last window's rate alone said a·n·(N − n)
+    (3-4 times too little on a 200 m floor)."""
+    from pipeline.stages.graph import time_left
+    assert time_left([(100.0, 0.01)], 200, 1000) == pytest.approx(0.01 * 800)
+    assert time_left([(100.0, 0.01), (300.0, 0.01)], 400, 1000) == pytest.approx(0.01 * 600)
+    a = 1e-5  # s per node per node of the graph
+    rates = [(1000.0, a * 1000), (3000.0, a * 3000)]
+    assert time_left(rates, 3000, 30_000) == pytest.approx(a * (30_000**2 - 3000**2) / 2)
+    # a cost that falls is taken as constant, one that rises faster than n² as n²
+    assert time_left([(100.0, 0.02), (200.0, 0.01)], 200, 400) == pytest.approx(0.01 * 200)
+    steep = time_left([(100.0, 1e-3), (200.0, 1e-1)], 200, 400)
+    assert steep == pytest.approx(1e-1 * 200 / 3 * (2**3 - 1))
