@@ -7,6 +7,8 @@ cost BIRL-G avoids. The weights are the running posterior mean.
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from typing import Optional
@@ -47,15 +49,27 @@ class PolicyWalkConfig(IRLConfig, ChainParams):
         return prior
 
 
+# a chain that runs longer says how far it got at least this often (seconds)
+PROGRESS_SECONDS = 5.0
+
+
 @register("policywalk", PolicyWalkConfig)
 def fit_policywalk(problem: IRLProblem, config: IRLConfig) -> IRLResult:
     """The chain's running mean at n_iterations evenly spaced points, as iterations."""
     assert isinstance(config, PolicyWalkConfig)
     mdp = problem.graph.mdp
     expert = expert_state_actions(mdp, problem.demo_paths(problem.graph))
+    status, said = problem.status, [time.perf_counter()]
+
+    def tell(step: int, steps: int) -> None:  # a long chain says how far it got
+        now = time.perf_counter()
+        if status is not None and now - said[0] >= PROGRESS_SECONDS:
+            said[0] = now
+            status(f"PolicyWalk: step {step:,} of {steps:,}")
+
     trace = policywalk(mdp, expert, problem.prior, problem.rng, alpha=config.alpha,
                        chain=config, grid_step=config.grid_step, w0=problem.w0,
-                       n_records=config.n_iterations)
+                       n_records=config.n_iterations, progress=tell)
     return problem.record_trace(trace)
 
 
@@ -88,14 +102,16 @@ def _boltzmann_log_likelihood(mdp: GraphMDP, nodes: np.ndarray, edges: np.ndarra
 
 def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
                rng: np.random.Generator, *, alpha: float, chain: ChainParams,
-               grid_step: float, w0: np.ndarray, n_records: int = 20) -> PolicyWalkTrace:
+               grid_step: float, w0: np.ndarray, n_records: int = 20,
+               progress: Callable[[int, int], None] | None = None) -> PolicyWalkTrace:
     """PolicyWalk: MH on the grid w0 + grid_step·Z^d. A proposal moves one random
     coordinate by ±grid_step (symmetric, so the acceptance is min(1, exp(Δ log
     posterior))); proposals outside the prior box are rejected without a solve (posterior
     0), every other one solves the MDP warm-started from the current state's values. Runs
     burn_in + n_samples·thin steps and keeps every thin-th state after burn-in; weights =
     posterior mean of the kept states.
-    w0: (d,) initial weights in the prior box."""
+    w0: (d,) initial weights in the prior box; progress(step, steps): called after every
+    hundredth of the steps."""
     n_samples, burn_in, thin, step = chain.n_samples, chain.burn_in, chain.thin, grid_step
     if not (alpha > 0 and n_records >= 1):
         raise ValueError(f"policywalk needs alpha > 0 and n_records >= 1; got {alpha}, "
@@ -116,7 +132,10 @@ def policywalk(mdp: GraphMDP, expert: list[tuple[int, int]], prior: Prior,
     solves, accepted, outside = 1, 0, 0
     samples = np.empty((n_samples, prior.dim))
     solves_after = np.empty(n_steps, dtype=np.int64)  # cumulative solves after each step
+    hundredth = max(1, n_steps // 100)
     for i in range(n_steps):
+        if progress is not None and i and i % hundredth == 0:
+            progress(i, n_steps)
         trial = offset.copy()
         trial[coord[i]] += sign[i]
         w_new = _grid_point_in_box(prior, w0 + step * trial, slack=1e-9 * step)

@@ -33,6 +33,20 @@ def test_policywalk_recovers_the_expert_region():
     assert np.all(np.diff(res.mdp_solves) >= 0)
 
 
+def test_a_chain_tells_its_progress_without_changing_its_draws():
+    """A long chain (45 s on a 2000-node graph) said nothing until it ended: it now calls
+    progress(step, steps) every hundredth of its steps, and draws the same chain."""
+    mdp, routes = three_routes()
+    expert = expert_state_actions(mdp, [routes["A"]] * 3)
+    told: list[tuple[int, int]] = []
+    runs = [policywalk(mdp, expert, UNIFORM, np.random.default_rng(0), alpha=5.0,
+                       chain=ChainParams(n_samples=1500, burn_in=500, thin=1), grid_step=0.1,
+                       w0=np.array([-0.5, -0.5]), progress=progress)
+            for progress in (None, lambda step, steps: told.append((step, steps)))]
+    assert told == [(k * 20, 2000) for k in range(1, 100)]
+    assert np.array_equal(runs[0].samples, runs[1].samples)
+
+
 # ---------------------------------------------------------------- PolicyWalk as an MCMC
 
 
