@@ -32,7 +32,7 @@ import json
 import logging
 import re
 from collections.abc import Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext, suppress
 from pathlib import Path
 
 import hydra
@@ -322,7 +322,20 @@ def exit_with_one_line(e: Exception) -> None:
     else:  # a bug, not bad input: still one line, with the way to the traceback
         message = f"{type(e).__name__}: {one_line(e)} (HYDRA_FULL_ERROR=1 shows the traceback)"
     print(f"error: {shorten_values(message)}", file=sys.stderr)
+    also_in_log_file(f"error: {shorten_values(message)}")
     sys.exit(2)
+
+
+def also_in_log_file(line: str) -> None:
+    """The command's last line, said on stderr, also at the end of the run's log file
+    (birlg.log), which otherwise stopped at the last progress line of a run that failed or
+    was stopped. Not through the logger: its console handler would say it twice."""
+    record = logging.LogRecord("pipeline", logging.ERROR, __file__, 0, line, None, None)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            with suppress(Exception):  # a log that cannot be written: stderr has said it
+                handler.handle(record)
+                handler.flush()
 
 
 # Packages a sweep hands its settings to (Hydra's launcher and sweeper plugins, what they
@@ -402,6 +415,7 @@ def cli() -> None:
             if _show_tracebacks[0]:
                 raise
             print(interrupted.describe(), file=sys.stderr)
+            also_in_log_file(interrupted.describe())
             if is_the_command():  # the run dirs say interrupted, the lock is the kernel's
                 exit_now(interrupted.exit_code, wait_for_threads=False)
             sys.exit(interrupted.exit_code)

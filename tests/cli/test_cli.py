@@ -100,3 +100,15 @@ def test_make_targets_pass_a_path_with_spaces_whole(tmp_path):
         assert result.returncode != 0
         assert tool_says.format(where) in result.stderr, result.stderr
         assert "Traceback" not in result.stderr
+
+
+def test_the_log_file_ends_with_how_the_run_ended(tmp_path):
+    """birlg.log stopped at the last progress line of a run that failed: the one line the
+    command said on stderr now ends the log as well."""
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"trajectories": [')
+    run = tmp_path / "run"
+    proc = run_app("expert=file", f"expert.path={bad}", f"hydra.run.dir={run}")
+    said = proc.stderr.strip().splitlines()[-1]
+    assert proc.returncode == 2 and said.startswith("error: demonstration file"), proc.stderr
+    assert (run / "birlg.log").read_text().strip().splitlines()[-1].endswith(said)
