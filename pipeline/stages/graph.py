@@ -25,6 +25,9 @@ from pipeline.core.state_graph import DEMO
 
 log = logging.getLogger(__name__)
 PROGRESS_SECONDS = 10.0  # growth of many thousand nodes logs its progress at least this often
+# from this many demonstrations on, the graph's initialisation is said before it starts
+# (7000 Boltzmann walks took 27 s to connect)
+MANY_DEMONSTRATIONS = 100
 
 
 def seconds(t: float) -> str:
@@ -67,14 +70,21 @@ def run(ctx: RunContext) -> None:
                           ctx.rng("graph"), cfg.mdp)
     t0 = time.perf_counter()
     training = demos_for_graph(codec.training_demos(demos_art), features, cfg.mdp.speed)
+    if len(training) >= MANY_DEMONSTRATIONS:  # their waypoints take a while to connect
+        log.info("graph: initialising from the waypoints of %d demonstrations ...",
+                 len(training))
     graph.initialise(training)
     left_out = [n for n, w in zip(cfg.learner_features, weights, strict=True)
                 if w == 0 and n not in cfg.reward.features]
-    log.info("graph initialised: %d nodes, %d edges; growing to %d nodes under %s weights %s%s",
-             graph.n_nodes, len(graph.src), cfg.graph.max_nodes, weights_source,
-             np.round(weights, 3).tolist(),
-             f" ({', '.join(left_out)} at 0: growth leaves the learner's extra features out)"
-             if left_out and weights_source in ("fixed", "prior_mean") else "")
+    if graph.n_nodes >= cfg.graph.max_nodes:  # the demonstrations' waypoints alone
+        log.info("graph initialised: %d nodes, %d edges, already graph.max_nodes=%d or more: "
+                 "no growth", graph.n_nodes, len(graph.src), cfg.graph.max_nodes)
+    else:
+        log.info("graph initialised: %d nodes, %d edges; growing to %d nodes under %s weights "
+                 "%s%s", graph.n_nodes, len(graph.src), cfg.graph.max_nodes, weights_source,
+                 np.round(weights, 3).tolist(),
+                 f" ({', '.join(left_out)} at 0: growth leaves the learner's extra features "
+                 "out)" if left_out and weights_source in ("fixed", "prior_mean") else "")
     # the robust learner compares the demonstrations with a lattice's paths and reads them by
     # their polylines' sums: how full of their waypoints the graph is changes its estimate
     # little (hallway, metropolis: the same weights at any graph.min_separation)
