@@ -53,10 +53,12 @@ def lattice_edges(area: float, spacing: float, connectivity: int) -> float:
     return area / spacing**2 * connectivity
 
 
-# Building a lattice roadmap takes about 20 µs per lattice point (measured on metropolis,
-# spacings 0.025-0.1 m, 8-connected, on 2 cores: 17-21 µs); from LONG_WORK_S on, the log says
-# how long to expect before the work starts (roadmap.spacing=0.01: a million points).
-LATTICE_SECONDS_PER_POINT = 20e-6
+# Building a lattice roadmap and solving it takes 17-21 µs per lattice point on metropolis
+# (spacings 0.025-0.1 m, 8-connected, on 2 cores), and more on large floors: 33 µs in a 100 m
+# room, 43 µs in a 200 m one (16-connected at 0.25 m); from LONG_WORK_S on, the log says how
+# long to expect before the work starts (roadmap.spacing=0.01: a million points). The rate
+# is the large floors', where the wait is long: on a small one it errs long.
+LATTICE_SECONDS_PER_POINT = 40e-6
 LONG_WORK_S = 5.0
 
 

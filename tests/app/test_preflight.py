@@ -311,7 +311,7 @@ def test_a_lattice_that_takes_long_says_so_before_it_starts(tmp_path, caplog, mo
     lattice, with the measured rate made 500x slower, so it says so)."""
     from pipeline.app import limits
 
-    assert limits.lattice_seconds(100.0, 0.01) == pytest.approx(20.0)
+    assert limits.lattice_seconds(100.0, 0.01) == pytest.approx(40.0)
     assert limits.lattice_seconds(100.0, 0.25) < limits.LONG_WORK_S  # the default: no line
     monkeypatch.setattr(limits, "LATTICE_SECONDS_PER_POINT", 1e-2)
     with caplog.at_level(logging.INFO, logger="pipeline.app.build"):
