@@ -167,7 +167,8 @@ def mcmc(posterior: LogDensity, w0: np.ndarray, rng: np.random.Generator,
             break
         block, skip = min(chain.n_samples, chain.most_samples - have), 0
         say(f"the chains do not agree yet after {have} samples each (R-hat max "
-            f"{np.nanmax(rhat):.3f}, ESS min {np.nanmin(ess):.0f}): {block} more each")
+            f"{np.nanmax(rhat):.3f}, ESS min {np.nanmin(ess):.0f}): {block} more each, "
+            f"{chain.most_samples} at most (birl.max_samples)")
     flat = draws.reshape(-1, draws.shape[-1])
     return PosteriorSamples(flat, flat.mean(axis=0), flat.std(axis=0), accepted / n_steps,
                             n_chains=n_chains, step=float(steps[0]), rhat=rhat, ess=ess)

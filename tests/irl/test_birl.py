@@ -313,6 +313,8 @@ def test_chains_that_agree_stop_and_those_that_do_not_go_on_from_where_they_were
     run = mcmc(post, [-0.5], np.random.default_rng(2), short, told.append)
     assert len(run.samples) == 4 * EXTENSIONS * 20
     assert sum("do not agree yet after" in t for t in told) == EXTENSIONS - 1
+    # each extension says where sampling will stop at the latest
+    assert all(f"{EXTENSIONS * 20} at most" in t for t in told if "do not agree" in t)
     again = mcmc(post, [-0.5], np.random.default_rng(2), short)
     np.testing.assert_array_equal(run.samples, again.samples)
     with pytest.raises(ValueError, match="max_samples=10 is not allowed"):
