@@ -99,6 +99,25 @@ def check_memory(what: str, n: float, per_element: float, fix: str) -> None:
                             f"but {_size(have)} are available: {fix}")
 
 
+def growth_seconds_left(rates: list[tuple[float, float]], nodes: int,
+                        total: int) -> float:
+    """Graph growth's time left: seconds to grow from `nodes` to `total` nodes, from the
+    seconds per node of the progress windows so far, `rates` ((nodes at a window's middle,
+    s per node), oldest first; not empty). Each node costs more as the graph grows (an MDP
+    repair over more nodes), about as a power of its size: the last two windows give the
+    exponent (clipped to [0, 2]), and the cost is integrated from here on (the last
+    window's rate alone was 3-4 times too low on a 200 m floor, the whole growth's rate
+    lower still)."""
+    n_now, rate = rates[-1]
+    power = 0.0
+    if len(rates) > 1:
+        n_before, rate_before = rates[-2]
+        if rate > 0 and rate_before > 0 and n_now > n_before:
+            power = min(max(math.log(rate / rate_before) / math.log(n_now / n_before), 0.0), 2.0)
+    return rate * n_now / (power + 1) * ((total / n_now) ** (power + 1)
+                                          - (nodes / n_now) ** (power + 1))
+
+
 def nodes_to_resolve(free_area: float, rho_personal: float) -> int:
     """Nodes that put on average one node on every rho_personal × rho_personal square of
     `free_area` m²: the fewest with which the adaptive graph resolves personal space."""

@@ -1,5 +1,6 @@
-"""Artefact I/O: the MCAP store (store.py), the topic names (topics.py), and the codecs
-that turn messages back into core objects and core objects into messages (codec.py)."""
+"""Artefact I/O: the MCAP store (store.py), the topic names (topics.py; the export's ROS
+bag's in export_topics.py), and the codecs that turn messages back into core objects and
+core objects into messages (codec.py)."""
 
 from pipeline.artefacts.store import (
     Artefact,

@@ -43,10 +43,3 @@ FOXGLOVE_MAP = "/foxglove/map"  # in scene.mcap, scenes with a map only (foxglov
 FOXGLOVE_DEMOS = "/foxglove/demos"  # in demos.mcap
 FOXGLOVE_GRAPH = "/foxglove/graph"  # in graph.mcap
 FOXGLOVE_PATHS = "/foxglove/paths"  # in eval.mcap
-
-# The ROS 2 bag the export writes (birlg-export, pipeline/tools/export.py): not an artefact,
-# but named here because the run's summary tells users which of its topics to deploy.
-EXPORT_LEARNED = "/birlg/learned_paths"  # on the adaptive graph, one Path per start
-EXPORT_LEARNED_REF = "/birlg/learned_paths_ref"  # on the reference roadmap
-EXPORT_DEMOS = "/birlg/demos"
-EXPORT_PEOPLE = "/birlg/people"

@@ -20,7 +20,7 @@ from pipeline.app.config import Config
 from pipeline.app.context import RunContext, resolve_path
 from pipeline.app.rundir import METRICS_FILE
 from pipeline.app.summary import Unreadable, read_metrics
-from pipeline.artefacts import codec, foxglove, topics
+from pipeline.artefacts import codec, export_topics, foxglove, topics
 from pipeline.artefacts.store import Artefact, read_artefact, write_json_atomic
 from pipeline.artefacts.topics import STAGES
 from pipeline.core.evaluation import (
@@ -357,7 +357,7 @@ def graph_less_polite(m: dict) -> list[str]:
     return ["  warning          the graph's paths are ruder than the roadmap's under the same "
             f"reward ({', '.join(worse)}): it lacks detours as good as the roadmap's; deploy "
             "the roadmap's paths "
-            f"(birlg-export: {topics.EXPORT_LEARNED_REF}) or grow it further (graph.max_nodes)"]
+            f"(birlg-export: {export_topics.LEARNED_REF}) or grow it further (graph.max_nodes)"]
 
 
 def weights_at_box(m: dict, learner_features: list[str], box: Prior,

@@ -8,12 +8,11 @@ per iteration), /graph/solution (final values and policy, the weights that grew 
 from __future__ import annotations
 
 import logging
-import math
 import time
 
 import numpy as np
 
-from pipeline.app import build
+from pipeline.app import build, limits
 from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import ArtefactWriter
@@ -32,23 +31,6 @@ MANY_DEMONSTRATIONS = 100
 
 def seconds(t: float) -> str:
     return f"{t:.1f}" if t < 10 else f"{t:.0f}"
-
-
-def time_left(rates: list[tuple[float, float]], nodes: int, total: int) -> float:
-    """Seconds to grow from `nodes` to `total` nodes, from the seconds per node of the
-    progress windows so far, `rates` ((nodes at a window's middle, s per node), oldest
-    first; not empty). Each node costs more as the graph grows (an MDP repair over more
-    nodes), about as a power of its size: the last two windows give the exponent (clipped
-    to [0, 2]), and the cost is integrated from here on (the last window's rate alone was
-    3-4 times too low on a 200 m floor, the whole growth's rate lower still)."""
-    n_now, rate = rates[-1]
-    power = 0.0
-    if len(rates) > 1:
-        n_before, rate_before = rates[-2]
-        if rate > 0 and rate_before > 0 and n_now > n_before:
-            power = min(max(math.log(rate / rate_before) / math.log(n_now / n_before), 0.0), 2.0)
-    return rate * n_now / (power + 1) * ((total / n_now) ** (power + 1)
-                                          - (nodes / n_now) ** (power + 1))
 
 
 def demos_for_graph(demo_msgs: list[dict], features: FeatureModel,
@@ -104,8 +86,9 @@ def run(ctx: RunContext) -> None:
             added = g.n_nodes - last[0]
             if added:
                 rates.append(((g.n_nodes + last[0]) / 2, (now - last[1]) / added))
-            eta = f", about {seconds(time_left(rates, g.n_nodes, g.p.max_nodes))} s left" \
-                if rates and g.n_nodes < g.p.max_nodes else ""
+            left = limits.growth_seconds_left(rates, g.n_nodes, g.p.max_nodes) \
+                if rates and g.n_nodes < g.p.max_nodes else None
+            eta = "" if left is None else f", about {seconds(left)} s left"
             last[:] = [g.n_nodes, now]
             log.info("  iteration %4d: %4d of %d nodes, %5d edges, %s s%s; best value per "
                      "start %s", g.iteration, g.n_nodes, g.p.max_nodes, len(g.src),

@@ -61,7 +61,7 @@ from pipeline.app.build import learned_feature_params
 from pipeline.app.context import input_path_exists
 from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, STATUS_FILE, UNKNOWN, acquire_lock, read_status
-from pipeline.artefacts import Artefact, codec, read_artefact, topics
+from pipeline.artefacts import Artefact, codec, export_topics, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.features import NOT_A_DENSITY, FeatureModel, FeatureParams
 from pipeline.core.obstacles import OccupancyGrid, rasterise
@@ -76,9 +76,9 @@ COSTMAP_YAML, COSTMAP_IMAGE = "costmap.yaml", "costmap.pgm"
 BAG_DIR = "paths"
 FRAME = "map"
 
-TOPIC_LEARNED, TOPIC_LEARNED_REF = topics.EXPORT_LEARNED, topics.EXPORT_LEARNED_REF
+TOPIC_LEARNED, TOPIC_LEARNED_REF = export_topics.LEARNED, export_topics.LEARNED_REF
 LEARNED_TOPICS = {"graph": TOPIC_LEARNED, "ref": TOPIC_LEARNED_REF}  # by where they were planned
-TOPIC_DEMOS, TOPIC_PEOPLE = topics.EXPORT_DEMOS, topics.EXPORT_PEOPLE
+TOPIC_DEMOS, TOPIC_PEOPLE = export_topics.DEMOS, export_topics.PEOPLE
 
 # map_server thresholds: a white cell (occ 0) is below free_thresh, black (occ 1) above
 # occupied_thresh, every grey between maps linearly onto occupancy 0..100.

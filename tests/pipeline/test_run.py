@@ -315,7 +315,7 @@ def test_growth_time_left_integrates_a_cost_that_grows_with_the_graph():
     nodes left; a cost proportional to the graph's size (seconds per node a·n) is
     integrated exactly, a·(N² − n²)/2, where the last window's rate alone said a·n·(N − n)
     (3-4 times too little on a 200 m floor)."""
-    from pipeline.stages.graph import time_left
+    from pipeline.app.limits import growth_seconds_left as time_left
     assert time_left([(100.0, 0.01)], 200, 1000) == pytest.approx(0.01 * 800)
     assert time_left([(100.0, 0.01), (300.0, 0.01)], 400, 1000) == pytest.approx(0.01 * 600)
     a = 1e-5  # s per node per node of the graph
