@@ -329,7 +329,11 @@ def exit_with_one_line(e: Exception) -> None:
 def also_in_log_file(line: str) -> None:
     """The command's last line, said on stderr, also at the end of the run's log file
     (birlg.log), which otherwise stopped at the last progress line of a run that failed or
-    was stopped. Not through the logger: its console handler would say it twice."""
+    was stopped. Not through the logger: its console handler would say it twice. Not for a
+    sweep: its handlers may still hold a finished job's log, and each job's status.json
+    says how it ended."""
+    if SweepOutcome.sweep_dir is not None or _Progress.multirun:
+        return
     record = logging.LogRecord("pipeline", logging.ERROR, __file__, 0, line, None, None)
     for handler in logging.getLogger().handlers:
         if isinstance(handler, logging.FileHandler):
