@@ -45,6 +45,7 @@ from pipeline.core.scenegen import RandomSceneSpec
 from pipeline.core.social_planner import SocialPlannerParams
 from pipeline.core.world import BodyParams
 from pipeline.errors import PipelineError
+from pipeline.inputs.recorded import START_RADIUS
 from pipeline.irl import methods
 from pipeline.irl.base import IRLConfig
 from pipeline.irl.fixed import FixedConfig
@@ -157,7 +158,7 @@ class FileExpertConfig(ExpertConfig):
     path: str = MISSING  # demonstrations: .json, .csv, a ROS bag (dir, .mcap, .bag)
     topic: Optional[str] = None  # bag topic; null: the only usable one
     frame: Optional[str] = None  # required header.frame_id of bag messages; null: any
-    start_radius: float = 1.0  # m, a demonstration begins this close to a start
+    start_radius: float = START_RADIUS  # m, a demonstration begins this close to a start
     denoise: bool = True  # smooth tracking noise that makes trajectories >3 % longer
 
     def __post_init__(self) -> None:

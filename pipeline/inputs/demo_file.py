@@ -14,14 +14,14 @@ from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.social import min_distance_to_person
 from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError, listed
-from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, describe, load_recorded
+from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, START_RADIUS, describe, load_recorded
 
 log = logging.getLogger(__name__)
 
 
 def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed: float, *,
                    topic: str | None = None, frame: str | None = None,
-                   start_radius: float = 1.0, denoise: bool = True) -> list[Demonstration]:
+                   start_radius: float = START_RADIUS, denoise: bool = True) -> list[Demonstration]:
     """Read a demonstration file or bag (DESIGN §3, `pipeline.inputs.recorded.load_recorded`).
 
     Every trajectory is cut at the goal disk, must stay in the room, keep robot_radius from

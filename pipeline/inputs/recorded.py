@@ -64,6 +64,7 @@ STREAM_TYPES: dict[str, Callable[[Any], Any]] = {
 }
 SUPPORTED_TYPES = (PATH_TYPE, *STREAM_TYPES)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+START_RADIUS = 1.0  # m, by default a demonstration begins this close to a start
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 # other usual names of those columns: refused with the name to use rather than left unread
 # (an unread time column would leave the rows in file order, an unread id one stream)
@@ -1175,8 +1176,8 @@ def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance:
 
 
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
-                  topic: str | None = None, frame: str | None = None, start_radius: float = 1.0,
-                  spacing: float = RESAMPLE_SPACING, room: Room | None = None,
+                  topic: str | None = None, frame: str | None = None,
+                  start_radius: float = START_RADIUS, spacing: float = RESAMPLE_SPACING, room: Room | None = None,
                   denoise: bool = True) -> list[Recorded]:
     """Read a recorded demonstration into its demonstrations (matched start, polyline, subject).
 
