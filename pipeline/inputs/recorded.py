@@ -1177,8 +1177,8 @@ def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance:
 
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
                   topic: str | None = None, frame: str | None = None,
-                  start_radius: float = START_RADIUS, spacing: float = RESAMPLE_SPACING, room: Room | None = None,
-                  denoise: bool = True) -> list[Recorded]:
+                  start_radius: float = START_RADIUS, spacing: float = RESAMPLE_SPACING,
+                  room: Room | None = None, denoise: bool = True) -> list[Recorded]:
     """Read a recorded demonstration into its demonstrations (matched start, polyline, subject).
 
     Whatever the format, every trajectory is cut at the goal disk (`cut_at_goal`): recordings
