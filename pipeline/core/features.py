@@ -298,16 +298,15 @@ class FeatureModel:
         return centres, spreads
 
     # -- densities at points -------------------------------------------------------------
-    def relation_density(self, p: np.ndarray, links: np.ndarray | None = None) -> np.ndarray:
+    def relation_density(self, p: np.ndarray) -> np.ndarray:
         """Σ_links max(0, ρ_r − d(p, link)) over links whose segment p projects onto; p (n, 2),
-        result (n,). `links` (indices) restricts the sum to the links that can reach p."""
-        return self._relation(p, self.rho_relation, links)
+        result (n,), over every link (the reference the tiled sums are tested against)."""
+        return self._relation(p, self.rho_relation, None)
 
-    def social_density(self, p: np.ndarray, persons: np.ndarray | None = None) -> np.ndarray:
-        """max(0, ρ_p − distance to the nearest person) (n,) at the points p (n, 2);
-        `persons` (indices) restricts it to the persons that can reach p."""
-        return self._evaluate(p, (Feature("social", "social", self.rho_personal),),
-                              persons=persons)[:, 0]
+    def social_density(self, p: np.ndarray) -> np.ndarray:
+        """max(0, ρ_p − distance to the nearest person) (n,) at the points p (n, 2), over
+        every person."""
+        return self._evaluate(p, (Feature("social", "social", self.rho_personal),))[:, 0]
 
     def _relation(self, p: np.ndarray, rho: float, links: np.ndarray | None) -> np.ndarray:
         # The sum runs link by link in index order, so leaving out links that add exactly 0
@@ -428,12 +427,6 @@ class FeatureModel:
                                         .all(axis=1))
             out[tile] = self._evaluate(q, features, links, persons, groups)
         return out
-
-    def _densities(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Relation and social density (n,) at the points p (n, 2), tiled."""
-        both = self._tiled(p, (Feature("relation", "relation", self.rho_relation),
-                               Feature("social", "social", self.rho_personal)))
-        return both[:, 0], both[:, 1]
 
     def obstacle_density(self, p: np.ndarray, rho: float | None = None) -> np.ndarray:
         """max(0, ρ_o − clearance) (n,) at the points p (n, 2); 0 without obstacles."""

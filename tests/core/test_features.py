@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.core.features import FEATURE_NAMES, FeatureModel, FeatureParams
+from pipeline.core.features import FEATURE_NAMES, Feature, FeatureModel, FeatureParams
 
 REL, SOC, DEV, LEN = (FEATURE_NAMES.index(n) for n in FEATURE_NAMES)
 
@@ -93,7 +93,8 @@ def test_tiled_densities_equal_the_sums_over_every_link_and_person():
                          np.random.default_rng(0))
     fm = FeatureModel.from_scene(scene)
     points = np.random.default_rng(1).random((20000, 2)) * 20
-    relation, social = fm._densities(points)
+    relation, social = fm._tiled(points, (Feature("relation", "relation", fm.rho_relation),
+                                          Feature("social", "social", fm.rho_personal))).T
     assert len(scene.relations) > 8 and (relation > 0).sum() > 100 and (social > 0).sum() > 100
     np.testing.assert_array_equal(relation, fm.relation_density(points))
     np.testing.assert_array_equal(social, fm.social_density(points))
