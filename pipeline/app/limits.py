@@ -104,16 +104,23 @@ def growth_seconds_left(rates: list[tuple[float, float]], nodes: int,
     """Graph growth's time left: seconds to grow from `nodes` to `total` nodes, from the
     seconds per node of the progress windows so far, `rates` ((nodes at a window's middle,
     s per node), oldest first; not empty). Each node costs more as the graph grows (an MDP
-    repair over more nodes), about as a power of its size: the last two windows give the
-    exponent (clipped to [0, 2]), and the cost is integrated from here on (the last
-    window's rate alone was 3-4 times too low on a 200 m floor, the whole growth's rate
-    lower still)."""
+    repair over more nodes), about as a power of its size: a least-squares line through
+    the windows' log rates against log size gives the exponent (clipped to [0, 2]), and the
+    last window's rate, so grown, is integrated from here on. On a 200 m floor (55 556
+    nodes) the last window's rate alone said a third to a half of what followed; the
+    exponent of the last two windows alone swung between half and 1.3 times it, that of
+    all windows between 0.6 and 0.9 times."""
     n_now, rate = rates[-1]
+    usable = [(n, r) for n, r in rates if n > 0 and r > 0]
     power = 0.0
-    if len(rates) > 1:
-        n_before, rate_before = rates[-2]
-        if rate > 0 and rate_before > 0 and n_now > n_before:
-            power = min(max(math.log(rate / rate_before) / math.log(n_now / n_before), 0.0), 2.0)
+    if len(usable) > 1 and rate > 0:
+        x = [math.log(n) for n, _ in usable]
+        y = [math.log(r) for _, r in usable]
+        x_mean, y_mean = sum(x) / len(x), sum(y) / len(y)
+        spread = sum((a - x_mean) ** 2 for a in x)
+        if spread > 0:
+            slope = sum((a - x_mean) * (b - y_mean) for a, b in zip(x, y, strict=True)) / spread
+            power = min(max(slope, 0.0), 2.0)
     return rate * n_now / (power + 1) * ((total / n_now) ** (power + 1)
                                           - (nodes / n_now) ** (power + 1))
 

@@ -325,3 +325,8 @@ def test_growth_time_left_integrates_a_cost_that_grows_with_the_graph():
     assert time_left([(100.0, 0.02), (200.0, 0.01)], 200, 400) == pytest.approx(0.01 * 200)
     steep = time_left([(100.0, 1e-3), (200.0, 1e-1)], 200, 400)
     assert steep == pytest.approx(1e-1 * 200 / 3 * (2**3 - 1))
+    # the exponent comes from every window: one flat window after a rise (noise: on a 200 m
+    # floor the estimate swung 97 s <-> 269 s from line to line) keeps part of the rise
+    r = 0.01
+    wobbly = time_left([(1000.0, r), (2000.0, 2 * r), (3000.0, 2 * r)], 3000, 6000)
+    assert 2 * r * 3000 < wobbly < 2 * r * 3000 / 2 * ((6000 / 3000) ** 2 - 1)
