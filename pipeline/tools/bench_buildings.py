@@ -21,13 +21,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipeline.app.context import PROJECT_ROOT
 from pipeline.artefacts import codec, read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.tools import output_directory, run_tool
-from pipeline.tools.bench import run_in_process, seed_number
+from pipeline.tools.bench import RESULTS, run_in_process, seed_number
 
-RESULTS = PROJECT_ROOT / "results" / "bench"
 SCENES = ("metropolis", "office", "warehouse")
 # random scenes on these maps: scene name -> the map
 RANDOM_ON_MAPS = {"random on office map": "data/maps/office.yaml",

@@ -59,13 +59,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.app.context import PROJECT_ROOT
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.errors import first_line
 from pipeline.tools import output_directory, run_tool
-from pipeline.tools.bench import HANDDRAWN, learning_stages, run_in_process, seed_number
+from pipeline.tools.bench import (
+    HANDDRAWN,
+    RESULTS,
+    learning_stages,
+    run_in_process,
+    seed_number,
+)
 
-RESULTS = PROJECT_ROOT / "results" / "bench"
 PLANNER = ["expert=planner", "expert.n_subjects=5"]
 DEMONSTRATORS: dict[str, list[str]] = {
     "optimal": [],

@@ -65,12 +65,12 @@ def test_hallway_reading_is_how_far_the_median_lies_outside_the_people_range(tmp
 
 
 def test_every_target_is_read_from_a_committed_table():
-    from pipeline.tools.docs import BENCH
+    from pipeline.tools.bench import RESULTS
 
-    table = targets_table(BENCH)
+    table = targets_table(RESULTS)
     assert len(table) == len(targets.TARGETS) and set(table.met) <= {"yes", "no"}
     for name in table.table:
-        assert (BENCH / name.strip("`")).exists(), name
+        assert (RESULTS / name.strip("`")).exists(), name
 
 
 def test_the_targets_command_prints_each_target_and_refuses_missing_tables(tmp_path, capsys):
