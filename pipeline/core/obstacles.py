@@ -72,13 +72,14 @@ class OccupancyGrid:
         """
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         h, w = self.shape
-        col = np.floor((p[:, 0] - self.origin[0] + TIE) / self.resolution)
-        row = np.floor((p[:, 1] - self.origin[1] + TIE) / self.resolution)
-        # the grid's far edges belong to it, as its near ones do (a start on a room's right
-        # wall, x = x_max, read as outside and unreachable; one on its left wall did not)
-        x1, y1 = self.extent()[2:]
-        inside = (col >= 0) & (row >= 0) & ((col < w) | (p[:, 0] <= x1 + TIE)) \
-            & ((row < h) | (p[:, 1] <= y1 + TIE))  # False for NaN too
+        u = (p[:, 0] - self.origin[0] + TIE) / self.resolution  # in cells, TIE above
+        v = (p[:, 1] - self.origin[1] + TIE) / self.resolution
+        col, row = np.floor(u), np.floor(v)
+        # the grid's far edges belong to it within TIE, as its near ones do (a start on a
+        # room's right wall, x = x_max, read as outside and unreachable; one on its left
+        # wall did not): u <= w + 2·TIE/resolution is x <= x_max + TIE
+        edge = 2 * TIE / self.resolution
+        inside = (u >= 0) & (v >= 0) & (u <= w + edge) & (v <= h + edge)  # False for NaN too
         # NaN -> 0, beyond the border (inf too) -> the border: fmax skips NaN (two ufuncs,
         # a third of nan_to_num and clip's cost on the few points of a growth step)
         rows = np.minimum(np.fmax(row, 0.0), h - 1).astype(np.intp)
