@@ -150,8 +150,15 @@ def warn_if_demonstrations_fill(graph: AdaptiveGraph, demos: list[Demonstration]
 
 def write_graph(ctx: RunContext, graph: AdaptiveGraph, weights: np.ndarray,
                 weights_source: str) -> None:
+    large = graph.n_nodes >= limits.LARGE_GRAPH_NODES
+    if large:
+        log.info("graph: writing graph.mcap (%d nodes, %d edges) ...", graph.n_nodes,
+                 len(graph.src))
+    t0 = time.perf_counter()
     with ctx.writer("graph") as w:
         add_graph(w, graph, weights, weights_source)
+    if large:
+        log.info("graph.mcap written in %s s", seconds(time.perf_counter() - t0))
 
 
 def add_graph(w: ArtefactWriter, graph: AdaptiveGraph, weights: np.ndarray,

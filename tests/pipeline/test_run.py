@@ -202,6 +202,24 @@ def test_long_work_inside_a_stage_says_how_far_it_got(tmp_path, caplog, override
     assert told == expected
 
 
+def test_writing_a_large_graph_is_said_before_and_timed_after(tmp_path, caplog, monkeypatch):
+    """graph.mcap of a 55 000-node floor took 25 s to write after growth's last line."""
+    from pipeline.app import limits
+    monkeypatch.setattr(limits, "LARGE_GRAPH_NODES", 200)  # graph=small grows 200 nodes
+    with caplog.at_level("INFO"):
+        run_in_process(tmp_path, "graph=small", "stages=[scene,demos,graph]")
+    said = [r.getMessage() for r in caplog.records]
+    before = next(i for i, m in enumerate(said)
+                  if re.fullmatch(r"graph: writing graph\.mcap \(200 nodes, \d+ edges\) \.\.\.", m))
+    assert re.fullmatch(r"graph\.mcap written in [\d.]+ s", said[before + 1])
+    assert (tmp_path / "graph.mcap").exists()
+    monkeypatch.setattr(limits, "LARGE_GRAPH_NODES", 201)  # one more: silent
+    caplog.clear()
+    with caplog.at_level("INFO"):
+        run_in_process(tmp_path / "small", "graph=small", "stages=[scene,demos,graph]")
+    assert not any("writing graph.mcap" in r.getMessage() or "written in" in r.getMessage()
+                   for r in caplog.records)
+
 
 def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run, tmp_path):
     _, metrics, stdout = default_run
