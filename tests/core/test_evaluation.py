@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pipeline.core.evaluation import discrete_frechet, frechet, loss_curve, policy_loss
+from pipeline.core.graph_mdp import GraphMDP, MDPParams
 from tests.conftest import POLITE, RUDE
 from tests.core.conftest import random_graph
 
@@ -21,6 +22,28 @@ def test_policy_loss_is_zero_for_true_weights_and_never_negative(roadmap):
     assert max(pl.loss for pl in losses) > 0.01  # wrong weights do lose value
     rude = policy_loss(mdp, POLITE, RUDE, roadmap.start_nodes, optimal)
     assert rude.loss > 0.05
+
+
+def test_policy_loss_by_hand_is_the_mean_over_starts():
+    """Starts 0 and 1 each choose between a direct edge to the goal 3 (features [0, 2]) and a
+    detour through 2 (edges [1, 0] then [0, 0]); 1 s per edge, 0.1 per second, R_goal 1.
+    Under w* = [−1, −0.1] the direct edge is best (V = 1 − 0.1 − 0.2 = 0.7, detour 1 − 0.2
+    − 1 = −0.2); learned weights [−0.1, −1] take the detour from both starts and lose 0.9
+    each; the loss is their mean, 0.9 (not their sum)."""
+    src, dst = [0, 0, 1, 1, 2], [3, 2, 3, 2, 3]
+    feats = np.array([[0.0, 2.0], [1.0, 0.0], [0.0, 2.0], [1.0, 0.0], [0.0, 0.0]])
+    mdp = GraphMDP(src, dst, np.ones(5), feats, np.array([False, False, False, True]),
+                   MDPParams(time_cost=0.1, r_goal=1.0))
+    w_true, starts = np.array([-1.0, -0.1]), np.array([0, 1])
+    optimal = mdp.solve(w_true).values
+    np.testing.assert_allclose(optimal[:3], [0.7, 0.7, 0.9])
+    pl = policy_loss(mdp, w_true, [-0.1, -1.0], starts, optimal)
+    np.testing.assert_allclose(pl.per_start, [0.9, 0.9])
+    assert pl.loss == pytest.approx(0.9)
+    # one start choosing well halves it
+    pl = policy_loss(mdp, w_true, [-0.1, -1.0], np.array([0, 2]), optimal)
+    np.testing.assert_allclose(pl.per_start, [0.9, 0.0], atol=1e-12)
+    assert pl.loss == pytest.approx(0.45)
 
 
 def test_a_loss_curve_is_each_iterations_own_loss_when_weights_repeat(roadmap):

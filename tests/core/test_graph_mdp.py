@@ -99,6 +99,27 @@ def test_hand_solved_two_route_graph():
     assert list(goal.follow(sol.policy, 0).nodes) == [0, 1, 3]
 
 
+@pytest.mark.parametrize("params", [DISCOUNTED, GOAL], ids=["discounted", "goal"])
+def test_of_two_parallel_edges_the_cheaper_one_is_taken(params):
+    """Two edges 1 -> goal (a demonstration's and a controller run's) cost 1 and 5; from 0,
+    the route 0 -> 1 -> goal then costs 1, the route 0 -> 2 -> goal 3. The cheaper parallel
+    edge counts, whichever is listed first (the shortest-path solve once kept the dearer
+    of each pair, valued node 1 by it and sent node 0 the other way)."""
+    for costs in ([1.0, 5.0], [5.0, 1.0]):
+        src, dst = [0, 0, 1, 1, 2], [1, 2, 3, 3, 3]
+        feats = np.array([[0.0], [3.0], [costs[0]], [costs[1]], [0.0]])
+        terminal = np.array([False, False, False, True])
+        mdp = GraphMDP(src, dst, np.ones(5), feats, terminal, params)
+        sol = mdp.solve([-1.0])
+        assert list(mdp.follow(sol.policy, 0).nodes) == [0, 1, 3]
+        assert sol.policy[1] == 2 + int(np.argmin(costs))
+        if params.gamma == 1.0:  # V(0) = R_goal − c·2 s − 1
+            assert sol.values[0] == pytest.approx(params.r_goal - 2 * params.time_cost - 1.0)
+        else:  # V(0) = 0 + γ·(−1 + γ·R_goal)
+            assert sol.values[0] == pytest.approx(params.gamma * (-1.0 + params.gamma
+                                                                  * params.r_goal))
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_warm_start_gives_same_values(seed):
     rng = np.random.default_rng(100 + seed)

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from pipeline.artefacts import codec, read_artefact, topics
+from pipeline.core.evaluation import frechet
 from pipeline.core.experts import choose_heldout
+from pipeline.core.social import min_distance_to_person
 from pipeline.errors import PipelineError
 from tests.conftest import ROOT, run_in_process
 
@@ -65,6 +67,28 @@ def test_held_out_metrics_compare_with_the_fastest_path(subjects_run):
         assert metrics[f"heldout_frechet_m{suffix}_max"] >= metrics[f"heldout_frechet_m{suffix}"]
     assert f"worst held-out Fréchet {metrics['heldout_frechet_m_max']:.2f} m" in out
     assert "predicts them worse than no reward does" not in out
+
+
+def test_held_out_distances_are_medians_over_the_held_out_demonstrations(subjects_run):
+    """heldout_frechet_m and heldout_min_distance_error_m: the median over the held-out
+    demonstrations of each one's distance to the learned roadmap path from its start
+    (eval.mcap), and the largest of them; recomputed here from the artefacts."""
+    run_dir, metrics, _ = subjects_run
+    scene = codec.decode_scene(read_artefact(run_dir / "scene.mcap"))
+    learned = {p["start"]: np.asarray(p["points"], float)
+               for p in read_artefact(run_dir / "eval.mcap").all(topics.EVAL_PATHS)
+               if p["graph"] == "ref"}
+    held = [d for d in read_artefact(run_dir / "demos.mcap").all(topics.DEMOS) if d["heldout"]]
+    frechets = [frechet(learned[d["start_index"]], np.asarray(d["points"], float))
+                for d in held]
+    errors = [abs(min_distance_to_person(learned[d["start_index"]], scene.person_xy)
+                  - min_distance_to_person(np.asarray(d["points"], float), scene.person_xy))
+              for d in held]
+    assert np.ptp(frechets) > 0.05  # mean, median and largest differ
+    assert metrics["heldout_frechet_m"] == pytest.approx(np.median(frechets), rel=1e-12)
+    assert metrics["heldout_frechet_m_max"] == pytest.approx(max(frechets), rel=1e-12)
+    assert metrics["heldout_min_distance_error_m"] == pytest.approx(np.median(errors),
+                                                                    rel=1e-12, abs=1e-15)
 
 
 def test_the_summary_warns_when_the_shortest_path_predicts_better(subjects_run, tmp_path):

@@ -253,6 +253,17 @@ def test_the_summary_names_the_weights_at_the_boxs_bounds_and_middle(default_run
         in again and "learned there" not in again and "weight box" not in again
 
 
+def test_the_normalised_loss_is_the_roadmap_loss_over_the_contrasts(tmp_path, default_run):
+    """policy_loss_norm divides the roadmap's loss (not the adaptive graph's) by the rude
+    reward's on the roadmap: weights that lose on both graphs, by different amounts."""
+    m = run_in_process(tmp_path, "birl=fixed", "birl.weights=[-0.2,-1,-0.1,-0.5,-0.5]",
+                       "stages=[birl,evaluate]", f"from_run={default_run[0]}")[0]
+    assert m["policy_loss_ref"] > 0.05 and m["policy_loss"] > 0.01
+    assert abs(m["policy_loss"] - m["policy_loss_ref"]) > 0.05
+    assert m["policy_loss_norm"] == pytest.approx(m["policy_loss_ref"] / m["policy_loss_ref_rude"],
+                                                  rel=1e-12)
+
+
 def test_graph_edges_name_their_feature_columns(default_run):
     """graph.mcap is made before birl.mcap: its edges' feature columns are named in it (the
     learner's features, as /birl/expert names them), not only by the later artefact."""
