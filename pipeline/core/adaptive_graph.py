@@ -449,7 +449,9 @@ class AdaptiveGraph(StateGraph):
         and ends too close to a node are dropped (None if nothing is left)."""
         p = self.p
         progress = min(1.0, self.n_nodes / p.max_nodes)
-        t_hi = p.t_max - progress * (p.t_max - p.t_min)
+        # at or past max_nodes (a graph grown further by birl.grow_nodes) t_hi rounds to a
+        # hair below t_min, which numpy's uniform refuses
+        t_hi = max(p.t_min, p.t_max - progress * (p.t_max - p.t_min))
         heading = self.rng.uniform(-math.pi, math.pi, p.n_new)
         reach = self.controller.cruise_speed * self.rng.uniform(p.t_min, t_hi, p.n_new)
         targets = np.column_stack([self.pose[v, 0] + reach * np.cos(heading),

@@ -198,7 +198,7 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     paper = birl_map(problem.expert, problem.environment.rollout, problem.prior,
                      beta=config.beta, n_iterations=config.n_iterations, w0=w_map,
                      progress=_tenths(problem, config.n_iterations))
-    threshold = chdtri(problem.prior.dim + 1, config.test_level) / 2  # χ² quantile
+    threshold = admission_threshold(problem.prior.dim, config.test_level)
     # every record's log likelihood is the Boltzmann model's at its weights and the MAP's β
     # (eq. (2)'s loop starts at the MAP, so its iteration 0 is not about w0)
     records = [problem.record(0, problem.w0, boltzmann.log_likelihood(problem.w0, beta_map))]
@@ -232,6 +232,13 @@ def fit_robust(problem: IRLProblem, config: BirlMapConfig) -> IRLResult:
     # iterations of the Boltzmann model are not counted).
     return IRLResult(records, [len(paper) + k + 1 for k in range(len(records))],
                      beta=config.beta if chosen_from else beta_map)
+
+
+def admission_threshold(dim: int, level: float) -> float:
+    """The largest fall in log likelihood from the Boltzmann MAP that the likelihood-ratio
+    test at `level` admits: half the χ² quantile with dim + 1 degrees of freedom (the
+    weights and β)."""
+    return float(chdtri(dim + 1, level)) / 2
 
 
 # Eq. (2)'s loop inside the robust form reports how far it got in tenths from this many

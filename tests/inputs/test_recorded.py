@@ -208,6 +208,20 @@ def test_noise_at_the_start_radius_does_not_move_where_the_walk_begins():
     assert motion_begin(earlier, 1.0) == 10 + 59
 
 
+def test_a_start_only_passed_outside_its_radius_is_no_visit():
+    """The slack joins a visit's re-entries; it does not make one. Three poses 0.95 m from
+    start 0 (inside the 1 m radius), then a 60-pose stop 1.1 m from start 1 (inside radius +
+    slack, never inside the radius): the walk begins at start 0's last pose, 2. Had the
+    stop counted as a visit, its 60 poses would have outweighed start 0's 3. Distances
+    (poses × starts 0 and 1) by hand."""
+    at_start = np.column_stack([np.full(3, 0.95), np.full(3, 3.0)])
+    between = np.column_stack([np.linspace(1.5, 2.8, 5), np.linspace(2.5, 1.4, 5)])
+    stop = np.column_stack([np.full(60, 3.0), np.full(60, 1.1)])
+    leave = np.column_stack([np.linspace(3.2, 4.0, 5), np.linspace(1.4, 2.5, 5)])
+    gaps = np.vstack([at_start, between, stop, leave])
+    assert motion_begin(gaps, 1.0) == 2
+
+
 def test_a_stream_arriving_out_of_order_is_read_in_header_stamp_order(tmp_path, caplog):
     """Over a network some poses arrive after later ones: read in arrival order, a walk
     zig-zagged back and forth (1.47 times as long) and one was given another start."""

@@ -191,6 +191,32 @@ def test_maxent_matches_feature_counts_and_prefers_the_expert_route():
     assert greedy_route(mdp, res.weights) == list(routes["A"].edges)
 
 
+def test_maxent_log_likelihood_and_adam_steps_by_hand():
+    """The objective Σ_k [w·Φ_k + γ^{T_k} R_goal − V_soft(s_k)] of every iterate, with the
+    soft values from the recursion written out; and each step the projected Adam ascent's,
+    learning_rate/√t times Adam's normalised moment, recomputed from the gradients
+    (empirical minus expected counts)."""
+    mdp, routes = three_routes()
+    demos = [routes[k] for k in "AABC"]
+    lr = 0.01  # small: no step reaches the box's bounds
+    res = maxent_irl(mdp, demos, ROUTES_BOX, n_iterations=3, learning_rate=lr,
+                     w0=np.array([-0.5, -0.5]))
+    phi = sum(discounted_counts(mdp.features[d.edges], mdp.duration[d.edges], mdp.gamma)[0]
+              for d in demos)
+    goal = len(demos) * mdp.gamma**2 * mdp.r_goal  # every route: two 1 s edges to the goal
+    for w, logl in zip(res.history, res.log_likelihood, strict=True):
+        assert logl == pytest.approx(w @ phi + goal - len(demos) * nested_soft_value(mdp, w, 0),
+                                     abs=1e-9)
+    m = v = np.zeros(2)
+    for t in range(3):
+        w = res.history[t]
+        grad = phi - expected_discounted_counts(mdp, w, [0] * len(demos))
+        m, v = 0.9 * m + 0.1 * grad, 0.999 * v + 0.001 * grad**2
+        moment = (m / (1 - 0.9 ** (t + 1))) / (np.sqrt(v / (1 - 0.999 ** (t + 1))) + 1e-8)
+        np.testing.assert_allclose(res.history[t + 1] - w, lr / np.sqrt(t + 1) * moment,
+                                   rtol=1e-6, atol=1e-12)
+
+
 def test_maxent_with_one_expert_route_heads_for_its_region():
     mdp, routes = three_routes()
     res = maxent_irl(mdp, [routes["A"]] * 2, ROUTES_BOX, n_iterations=100, learning_rate=0.1,

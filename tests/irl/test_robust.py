@@ -4,6 +4,7 @@ form of the learning loop on consistent and noisy demonstrations — cases with 
 
 import math
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,7 +13,12 @@ from scipy.special import chdtri, logsumexp
 
 from pipeline.core.experts import BoltzmannParams
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, Path, TrajectoryStats
-from pipeline.irl.birl import BirlMapConfig
+from pipeline.irl.birl import (
+    REPRODUCTION_TOLERANCE,
+    BirlMapConfig,
+    admission_threshold,
+    reproduces,
+)
 from pipeline.irl.mcmc import AdaptiveChainParams, mcmc
 from pipeline.irl.prior import Prior
 from pipeline.irl.robust import (
@@ -146,6 +152,21 @@ def test_robust_gradient_matches_finite_differences():
     post = BoltzmannPosterior(mdp, [a, b, b], Prior("gaussian", 0.5, [-1.0], [0.0]), (0.1, 100))
     x = np.array([-0.4, math.log(3.0)])  # (w, log β)
     f, grad = post.neg_log_posterior(x)
+    numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
+    np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("gamma", [0.9, 1.0])
+def test_robust_gradient_matches_finite_differences_with_a_cost_per_second(gamma):
+    """The two routes with a cost per second (unequal durations: 1.5 s direct, 1 s + 0.7 s
+    round): the part of the return no weight changes enters the β-derivative, discounted
+    or not."""
+    mdp0, a, b = two_routes()
+    mdp = GraphMDP(mdp0.src, mdp0.dst, [1.5, 1.0, 0.7, 1.0], mdp0.features, mdp0.terminal,
+                   MDPParams(gamma=gamma, time_cost=0.05))
+    post = BoltzmannPosterior(mdp, [a, b, b], Prior("gaussian", 0.5, [-1.0], [0.0]), (0.1, 100))
+    x = np.array([-0.4, math.log(3.0)])  # (w, log β)
+    _, grad = post.neg_log_posterior(x)
     numeric = central_difference(lambda y: post.neg_log_posterior(y)[0], x, h=1e-6)
     np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-7)
 
@@ -906,3 +927,32 @@ def test_the_search_starts_and_stays_where_the_uniform_measures_sum_converges():
     # demonstration's likelihood keeps rising with it
     assert w[0] == pytest.approx(-1.0) and np.isfinite(post.log_likelihood(w, beta))
     assert post.log_likelihood(w, beta) > log_likelihood
+
+
+def test_the_likelihood_ratio_test_counts_the_weights_and_beta():
+    """χ² with dim + 1 degrees of freedom: for one weight (and β), 2 degrees, whose quantile
+    is −2·ln(level) exactly; half of it is the admitted fall in log likelihood."""
+    for level in (0.05, 1e-4):
+        assert admission_threshold(1, level) == pytest.approx(-math.log(level), rel=1e-12)
+    assert admission_threshold(4, 1e-4) > admission_threshold(3, 1e-4) + 0.5
+
+
+def test_an_iterate_reproduces_the_demonstrations_on_average():
+    """`reproduces`: the mean over demonstrations of the Fréchet distance to the greedy
+    path from each one's start, against REPRODUCTION_TOLERANCE × the graph's resolution:
+    one demonstration on the path and one 3 resolutions off average 1.5 (admitted), one
+    on it and one 5 off average 2.5 (not)."""
+    resolution = 0.1
+    path = Path(np.array([0, 1]), np.array([0]), True)
+    line = np.array([[0.0, 0.0], [10.0, 0.0]])
+    graph = SimpleNamespace(snap_tolerance=resolution, polyline=lambda _: line)
+    rolled = SimpleNamespace(paths={0: path}, graph=graph)
+    assert REPRODUCTION_TOLERANCE == 2.0  # the cases below sit either side of it
+
+    def problem(offsets):
+        return SimpleNamespace(expert=[SimpleNamespace(start=0) for _ in offsets],
+                               demo_points=[line + [0.0, k * resolution] for k in offsets])
+
+    assert reproduces(rolled, problem([0, 3]))
+    assert not reproduces(rolled, problem([0, 5]))
+    assert reproduces(rolled, problem([2, 2])) and not reproduces(rolled, problem([2.2, 2.2]))
