@@ -47,7 +47,13 @@ from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
-from pipeline.core.params import require, require_count, require_non_negative, require_positive
+from pipeline.core.params import (
+    is_number,
+    require,
+    require_count,
+    require_non_negative,
+    require_positive,
+)
 from pipeline.core.roadmap import segments_feasible
 from pipeline.core.state_graph import (
     DEMO,
@@ -74,6 +80,9 @@ SOCIAL_MEDIAL_CELLS = 1_000_000
 # of them from the best trajectories' nodes, some of which failed 30 times (a failed
 # expansion is cheap: halving them saved about 6 % of the time).
 SATURATED = 2
+
+# lambda_q and lambda_c weigh the exploration score's terms; only their ratio matters
+LARGEST_SCORE_WEIGHT = 1e6
 
 
 @dataclass
@@ -109,10 +118,15 @@ class GraphParams:
                          "gp_noise")
         require_count(self, "max_nodes", "max_edges", "n_new", "n_add", "gp_max_points",
                       "max_stalls")
-        require_non_negative(self, "lambda_q", "lambda_c", "gp_kappa")
+        require_non_negative(self, "gp_kappa")
         require(0 <= self.p_best <= 1, "p_best", self.p_best, "0 <= p_best <= 1")
         require(self.t_min <= self.t_max, "t_min", self.t_min, f"<= t_max ({self.t_max})")
         require(self.n_add <= self.n_new, "n_add", self.n_add, f"<= n_new ({self.n_new})")
+        for name in ("lambda_q", "lambda_c"):  # only their ratio matters; 1e308 overflowed
+            value = getattr(self, name)
+            require(is_number(value) and 0 <= value <= LARGEST_SCORE_WEIGHT, name, value,
+                    f"a number >= 0 and <= {LARGEST_SCORE_WEIGHT:g} (only the ratio "
+                    "lambda_q : lambda_c matters)")
         require(self.lambda_q + self.lambda_c > 0, "lambda_q", self.lambda_q,
                 "lambda_q + lambda_c > 0")
         if self.min_separation is not None:

@@ -59,6 +59,7 @@ from scipy.sparse.csgraph import connected_components
 
 from pipeline.core.obstacles import ObstacleMap
 from pipeline.core.params import (
+    LONGEST_LENGTH,
     ParameterError,
     is_number,
     require_length,
@@ -117,7 +118,7 @@ class Feature(NamedTuple):
 def _allowed_names() -> str:
     with_value = [k for k, f in PARAMETER_FIELD.items() if f is not None]
     return (f"distinct names from {list(FEATURE_KINDS)}, each of {with_value} optionally "
-            "as NAME@VALUE with VALUE a finite number > 0 (m)")
+            f"as NAME@VALUE with VALUE a length in metres > 0 and <= {LONGEST_LENGTH:g}")
 
 
 @dataclass
@@ -180,8 +181,9 @@ class FeatureParams:
             value = float(text)
         except ValueError:
             value = math.nan
-        if not (is_number(value) and value > 0):
-            raise refuse(f"the value of {name!r} must be a finite number > 0")
+        if not (is_number(value) and 0 < value <= LONGEST_LENGTH):  # as rho_personal's
+            raise refuse(f"the value of {name!r} must be a length in metres > 0 and <= "
+                         f"{LONGEST_LENGTH:g}")
         return Feature(name, kind, value)
 
 

@@ -79,8 +79,10 @@ class MDPParams:
     def __post_init__(self) -> None:
         require(is_number(self.gamma) and 0 < self.gamma <= 1, "gamma", self.gamma,
                 "0 < gamma <= 1")
-        require(is_number(self.time_cost) and self.time_cost >= 0, "time_cost",
-                self.time_cost, "a finite number >= 0")
+        require(is_number(self.time_cost) and 0 <= self.time_cost <= LARGEST_GOAL_REWARD,
+                "time_cost", self.time_cost, f"a number >= 0 and <= {LARGEST_GOAL_REWARD:g} "
+                "(as R_goal: beyond, the features' part of a path's value drowns in float64 "
+                "rounding)")
         require(self.gamma < 1 or self.time_cost > 0, "time_cost", self.time_cost,
                 "> 0 when gamma = 1 (undiscounted: without a cost per second a loop is free)")
         # a robot, not light: at 1e12 m/s an edge's duration rounds to nothing

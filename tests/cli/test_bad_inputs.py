@@ -312,6 +312,13 @@ CONFIG_CASES = {
     # LinAlgError at 1e299; at 1e100 a 100-digit log likelihood and weights that never moved
     "astronomical beta": (["birl.beta_min=1e100", "birl.beta_max=1e101", "birl.beta=1e100"],
                           ["birl.beta", "1e+06"]),
+    # a config fuzz: each overflowed with a warning storm and an unclear error mid-run
+    "astronomical cost per second": (["mdp.time_cost=1e308"], ["mdp.time_cost", "1e+06"]),
+    "astronomical score weight": (["graph.lambda_q=1e308"], ["graph.lambda_q", "1e+06"]),
+    "astronomical PolicyWalk confidence": (["birl=policywalk", "birl.alpha=1e308"],
+                                           ["birl.alpha", "1e+06"]),
+    "astronomical hinge radius": (["birl.features=[social@1e308,length]"],
+                                  ["birl.features", "<= 10000"]),
     "zero v_max": (["mdp.v_max=0"], ["mdp.v_max"]),
     "zero speed": (["mdp.speed=0"], ["mdp.speed"]),
     "discount out of range": (["mdp.gamma=1.5"], ["mdp.gamma"]),
