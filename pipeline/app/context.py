@@ -51,8 +51,11 @@ def input_path_exists(p: Path, given: str) -> bool:
 def _git(*args: str) -> str | None:
     """A git command's output in the source tree; None where there is no git or no tree."""
     try:
-        out = subprocess.run(["git", *args], cwd=PROJECT_ROOT, capture_output=True, text=True,
-                             timeout=10)
+        # --no-optional-locks: `git status` otherwise refreshes the index, writing
+        # .git/index.lock in the source tree (outside the run dir) on every run, which can
+        # collide with the user's own git commands
+        out = subprocess.run(["git", "--no-optional-locks", *args], cwd=PROJECT_ROOT,
+                             capture_output=True, text=True, timeout=10)
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout if out.returncode == 0 else None
