@@ -489,7 +489,8 @@ def load_settings(cfg: DictConfig) -> Config:
     except ParameterError as e:
         raise config_error(f"birl.{e.field}", e.value, e.allowed) from None
     w0 = settings.birl.init_weights
-    if w0 is not None and not (len(w0) == d and prior.in_box(broadcast(w0, d, "init_weights"))):
+    if w0 is not None and not (len(w0) == d and all(is_number(x) for x in w0)
+                               and prior.in_box(broadcast(w0, d, "init_weights"))):
         raise config_error("birl.init_weights", list(w0),
                            f"null or {d} numbers within [birl.lower, birl.upper]")
     w = settings.graph.weights

@@ -60,6 +60,7 @@ from scipy.sparse.csgraph import connected_components
 from pipeline.core.obstacles import ObstacleMap
 from pipeline.core.params import (
     LONGEST_LENGTH,
+    SHORTEST_STEP,
     ParameterError,
     is_number,
     require_length,
@@ -118,7 +119,8 @@ class Feature(NamedTuple):
 def _allowed_names() -> str:
     with_value = [k for k, f in PARAMETER_FIELD.items() if f is not None]
     return (f"distinct names from {list(FEATURE_KINDS)}, each of {with_value} optionally "
-            f"as NAME@VALUE with VALUE a length in metres > 0 and <= {LONGEST_LENGTH:g}")
+            f"as NAME@VALUE with VALUE a length in metres from {SHORTEST_STEP:g} to "
+            f"{LONGEST_LENGTH:g}")
 
 
 @dataclass
@@ -181,9 +183,9 @@ class FeatureParams:
             value = float(text)
         except ValueError:
             value = math.nan
-        if not (is_number(value) and 0 < value <= LONGEST_LENGTH):  # as rho_personal's
-            raise refuse(f"the value of {name!r} must be a length in metres > 0 and <= "
-                         f"{LONGEST_LENGTH:g}")
+        if not (is_number(value) and SHORTEST_STEP <= value <= LONGEST_LENGTH):  # as rho_personal
+            raise refuse(f"the value of {name!r} must be a length in metres from "
+                         f"{SHORTEST_STEP:g} to {LONGEST_LENGTH:g}")
         return Feature(name, kind, value)
 
 

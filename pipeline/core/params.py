@@ -84,11 +84,12 @@ def require_step(obj: Any, *fields: str) -> None:
 
 
 def require_length(obj: Any, *fields: str) -> None:
-    """Each named attribute of `obj` is a length > 0 and at most LONGEST_LENGTH m."""
+    """Each named attribute of `obj` is a length of at least 1 mm and at most LONGEST_LENGTH
+    m (a config fuzz: radii of 1e-200 m divided by zero, room sides of 1e308 m overflowed)."""
     for name in fields:
         value = getattr(obj, name)
-        require(is_number(value) and 0 < value <= LONGEST_LENGTH, name, value,
-                f"a length in metres > 0 and <= {LONGEST_LENGTH:g}")
+        require(is_number(value) and SHORTEST_STEP <= value <= LONGEST_LENGTH, name, value,
+                f"a length in metres from {SHORTEST_STEP:g} to {LONGEST_LENGTH:g}")
 
 
 def require_non_negative(obj: Any, *fields: str) -> None:

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import GraphMDP, MDPParams, Polylines, SpatialGraph
 from pipeline.core.nearby import segments_clear_of_disks
-from pipeline.core.params import require, require_positive
+from pipeline.core.params import require, require_step
 from pipeline.core.ties import TIE
 from pipeline.core.world import Scene
 
@@ -31,7 +31,7 @@ class RoadmapParams:
     connectivity: int = 16  # 8 (king moves) or 16 (plus knight moves)
 
     def __post_init__(self) -> None:
-        require_positive(self, "spacing")
+        require_step(self, "spacing")
         require(self.connectivity in (8, 16), "connectivity", self.connectivity, "8 or 16")
 
 

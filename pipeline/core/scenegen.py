@@ -20,7 +20,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.core.obstacles import Bounds, ObstacleMap, OccupancyGrid
-from pipeline.core.params import require, require_count, require_positive
+from pipeline.core.params import require, require_count, require_length, require_positive
 from pipeline.core.roadmap import lattice_graph
 from pipeline.core.world import BodyParams, Person, Room, Scene
 from pipeline.errors import PipelineError
@@ -42,7 +42,7 @@ class RandomSceneSpec(BodyParams):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        require_positive(self, "width", "height", "formation_radius", "min_person_gap")
+        require_length(self, "width", "height", "formation_radius", "min_person_gap")
         require_count(self, "n_singles", "n_groups", minimum=0)
         require_count(self, "n_starts", "max_tries")
         require(2 <= self.group_size_min <= self.group_size_max <= 4, "group_size_min",

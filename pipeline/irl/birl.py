@@ -36,7 +36,13 @@ from scipy.special import chdtri
 
 from pipeline.core.evaluation import frechet
 from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
-from pipeline.core.params import is_number, renamed, require, require_count, require_positive
+from pipeline.core.params import (
+    is_number,
+    renamed,
+    require,
+    require_count,
+    require_step,
+)
 from pipeline.irl.base import (
     IRLConfig,
     IRLProblem,
@@ -127,7 +133,7 @@ class BirlMapConfig(IRLConfig):
                 " or ".join(repr(k) for k in BASE_MEASURES))
         require(self.alternatives in ALTERNATIVES, "alternatives", self.alternatives,
                 " or ".join(repr(k) for k in ALTERNATIVES))
-        require_positive(self, "alternatives_spacing")
+        require_step(self, "alternatives_spacing")
         # every lattice path counted once: with 16 ways out of each node and rewards of a
         # few hundredths per step, the looping paths' total weight diverges below β ≈ 1000
         require(not (self.base_measure == "uniform" and self.alternatives == "lattice"),
