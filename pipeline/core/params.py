@@ -62,11 +62,17 @@ def require(ok: bool, field: str, value: Any, allowed: str) -> None:
         raise ParameterError(field, value, allowed)
 
 
+# No positive setting (a radius, a gain, a rate, a duration) means anything beyond this; at
+# 1e308 a config fuzz saw overflows surface as internal errors mid-run.
+LARGEST_POSITIVE = 1e6
+
+
 def require_positive(obj: Any, *fields: str) -> None:
-    """Each named attribute of `obj` is a finite number > 0."""
+    """Each named attribute of `obj` is a number > 0 and at most LARGEST_POSITIVE."""
     for name in fields:
         value = getattr(obj, name)
-        require(is_number(value) and value > 0, name, value, "a finite number > 0")
+        require(is_number(value) and 0 < value <= LARGEST_POSITIVE, name, value,
+                f"a number > 0 and <= {LARGEST_POSITIVE:g}")
 
 
 # Lengths a scene can hold (m): far below them an integration step would take petabytes,

@@ -307,8 +307,8 @@ CONFIG_CASES = {
     "point Boltzmann prior": (["birl.boltzmann_prior_scale=1e-300"],
                               ["birl.boltzmann_prior_scale=1e-300", "1e-06"]),
     # every proposal left the box, and the burn-in could not shrink the step enough
-    "proposal step wider than the box": (["birl=mcmc", "birl.proposal_step=1e300"],
-                                         ["birl.proposal_step=1e+300", "widest side"]),
+    "proposal step wider than the box": (["birl=mcmc", "birl.proposal_step=5"],
+                                         ["birl.proposal_step=5", "widest side"]),
     # LinAlgError at 1e299; at 1e100 a 100-digit log likelihood and weights that never moved
     "astronomical beta": (["birl.beta_min=1e100", "birl.beta_max=1e101", "birl.beta=1e100"],
                           ["birl.beta", "1e+06"]),
@@ -328,6 +328,10 @@ CONFIG_CASES = {
                                ["expert.sigma_front", "0.001"]),
     "vanishing lattice of alternatives": (["birl.alternatives_spacing=1e-200"],
                                           ["birl.alternatives_spacing", "0.001"]),
+    "astronomical GP scale": (["graph.gp_signal_std=1e308"], ["graph.gp_signal_std", "1e+06"]),
+    "astronomical MaxEnt rate": (["birl=maxent", "birl.learning_rate=1e308"],
+                                 ["birl.learning_rate", "1e+06"]),
+    "astronomical candidate run": (["graph.t_max=1e308"], ["graph.t_max", "1e+06"]),
     "zero v_max": (["mdp.v_max=0"], ["mdp.v_max"]),
     "zero speed": (["mdp.speed=0"], ["mdp.speed"]),
     "discount out of range": (["mdp.gamma=1.5"], ["mdp.gamma"]),
