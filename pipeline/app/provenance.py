@@ -63,8 +63,9 @@ def check_source(artefact: Artefact, name: str, digest: str) -> None:
     recorded = artefact.metadata.get(INPUT_KEY + name)
     if recorded is not None and recorded != digest:
         stage = next(s for s, f in ARTEFACT_FILE.items() if f == artefact.path.name)
-        raise PipelineError(f"{artefact.path} was made from another version of {name} (the "
-                            f"file changed since): add '{stage}' to stages to read it again")
+        raise PipelineError(f"{artefact.path} was made from other contents of {name} than "
+                            "it names now (another file, or the file changed since): add "
+                            f"'{stage}' to stages to read it again")
 
 
 def _lookup(config: Mapping, key: str):

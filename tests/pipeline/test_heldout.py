@@ -218,8 +218,9 @@ def test_a_demonstration_file_edited_since_its_run_is_not_reused(tmp_path):
              f"expert.path={path}")
     run_in_process(tmp_path / "same", *QUICK, *again)  # unchanged: reused
     path.write_text(json.dumps({"trajectories": drawn["trajectories"][:10]}))
-    with pytest.raises(PipelineError, match=r"demos\.mcap was made from another version of "
-                                            r"expert\.path \(the file changed since\): add "
+    with pytest.raises(PipelineError, match=r"demos\.mcap was made from other contents of "
+                                            r"expert\.path than it names now \(another file, "
+                                            r"or the file changed since\): add "
                                             r"'demos' to stages"):
         run_in_process(tmp_path / "edited", *QUICK, *again)
 
@@ -239,7 +240,7 @@ def test_a_scene_file_or_its_map_edited_since_its_run_is_not_reused(tmp_path):
     run_in_process(tmp_path / "same", *QUICK, *again)  # unchanged: reused
     data["persons"][0]["x"] += 0.5
     scene.write_text(json.dumps(data))
-    refused = r"scene\.mcap was made from another version of scene\.path \(the file changed"
+    refused = r"scene\.mcap was made from other contents of scene\.path than it names now"
     with pytest.raises(PipelineError, match=refused):
         run_in_process(tmp_path / "moved", *QUICK, *again)
     data["persons"][0]["x"] -= 0.5
