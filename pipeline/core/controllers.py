@@ -13,7 +13,13 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike
 
-from pipeline.core.params import ParameterError, is_number, require, require_positive
+from pipeline.core.params import (
+    LARGEST_POSITIVE,
+    ParameterError,
+    is_number,
+    require,
+    require_positive,
+)
 
 
 def wrap_angle(a: ArrayLike) -> np.ndarray | np.float64:
@@ -154,22 +160,23 @@ class PosqController:
     near the goal only decays like rho**0.29, so at eps = 0.05 a pose target's heading can be
     missed by a lot (median ~0.75 rad over a grid of starts); a smaller eps tightens it."""
 
-    k_v: float = 3.8
-    k_rho: float = 1.0
-    k_alpha: float = 6.0
-    k_beta: float = -1.0
-    wheel_base: float = 0.4  # m
-    max_speed: float = 1.0  # max wheel speed, m/s
-    dt: float = 0.05  # s, integration step
-    eps: float = 0.05  # m, arrival tolerance
-    max_time: float = 10.0  # s, runs that take longer are dropped
-    # Reverse while the target is behind (|alpha| > pi/2), re-decided each step.
+    k_v: float = 3.8  # posq: gain of the forward speed
+    k_rho: float = 1.0  # posq: gain on the distance to the target
+    k_alpha: float = 6.0  # posq: gain on the heading error towards the target
+    k_beta: float = -1.0  # posq: gain on the target's orientation error (usually < 0)
+    wheel_base: float = 0.4  # posq: m
+    max_speed: float = 1.0  # posq: max wheel speed, m/s
+    dt: float = 0.05  # posq: s, integration step (from 0.001 to max_time)
+    eps: float = 0.05  # posq: m, arrival tolerance
+    max_time: float = 10.0  # posq: s, runs that take longer are dropped
+    # posq: reverse while the target is behind (|alpha| > pi/2), re-decided each step.
     allow_backward: bool = False
 
     def __post_init__(self) -> None:
         require_positive(self, "k_v", "k_rho", "k_alpha", "wheel_base", "max_speed", "dt", "eps",
                          "max_time")
-        require(is_number(self.k_beta), "k_beta", self.k_beta, "a finite number")  # often < 0
+        require(is_number(self.k_beta) and abs(self.k_beta) <= LARGEST_POSITIVE, "k_beta",
+                self.k_beta, f"a number within ±{LARGEST_POSITIVE:g}")  # often < 0
         # every run integrates max_time / dt steps: 1e-12 s hung growth at 7 GB
         require(MIN_DT <= self.dt <= self.max_time, "dt", self.dt,
                 f"a step in seconds from {MIN_DT:g} to max_time ({self.max_time:g})")

@@ -332,6 +332,8 @@ CONFIG_CASES = {
     "astronomical MaxEnt rate": (["birl=maxent", "birl.learning_rate=1e308"],
                                  ["birl.learning_rate", "1e+06"]),
     "astronomical candidate run": (["graph.t_max=1e308"], ["graph.t_max", "1e+06"]),
+    "astronomical POSQ gain": (["graph.controller.kind=posq", "graph.controller.k_beta=-1e308"],
+                               ["graph.controller.k_beta", "1e+06"]),
     "zero v_max": (["mdp.v_max=0"], ["mdp.v_max"]),
     "zero speed": (["mdp.speed=0"], ["mdp.speed"]),
     "discount out of range": (["mdp.gamma=1.5"], ["mdp.gamma"]),
