@@ -142,6 +142,12 @@ class NoExpertConfig(ExpertConfig):
     given reward is planned with (birl=fixed)."""
     kind: str = "none"
 
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        # no demonstrations to take from the first n starts: the run failed after the scene
+        require(self.n_starts is None, "n_starts", self.n_starts,
+                "null with expert=none (there are no demonstrations to select)")
+
 
 @dataclass
 class BoltzmannExpertConfig(ExpertConfig, BoltzmannParams):

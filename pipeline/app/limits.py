@@ -45,6 +45,10 @@ BYTES_PER_GRAPH_NODE = 30e3  # nodes, edges, GP data, per-iteration history
 BYTES_PER_DEMONSTRATION = 20e3
 # a candidate controller run of the graph's expansion (graph.n_new=2000 on metropolis: 10 MB)
 BYTES_PER_CANDIDATE = 10e3
+# The planner expert's lattice: 0.76 GB peak at 250 000 points, 2.7 GB at a million (the
+# expert alone, metropolis): about 2.6 kB per point. Unchecked, 10 million ran 24 s and then
+# failed to allocate.
+BYTES_PER_PLANNER_NODE = 2.7e3
 MEMORY_SHARE = 0.8  # of the memory available now
 
 

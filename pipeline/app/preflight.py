@@ -131,6 +131,8 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
                                            bool(cfg.scene.map))
     if facts is not None and builds_roadmap:
         check_roadmap_size(cfg, facts)
+    if facts is not None and "demos" in stages:
+        check_planner_lattice_size(cfg, facts)
     if facts is not None:
         scene = facts.load()  # sizes are fine: the scene file is validated now, not at its stage
         if scene is not None and "demos" in stages:
@@ -279,6 +281,19 @@ def check_demonstrations_size(cfg: Config, n_starts: int) -> None:
         limits.check_memory(f"{n_starts} starts × expert.{key}={per_start} demonstrations",
                             n_starts * per_start, limits.BYTES_PER_DEMONSTRATION,
                             f"lower expert.{key}")
+
+
+def check_planner_lattice_size(cfg: Config, facts: SceneFacts) -> None:
+    """The planner expert's lattice (expert.spacing, at most expert.max_lattice_nodes
+    points) must fit in memory."""
+    if not isinstance(cfg.expert, PlannerExpertConfig):
+        return
+    e = cfg.expert
+    nodes = min(facts.area / e.spacing**2, e.max_lattice_nodes)
+    limits.check_memory(f"the planner's lattice over scene '{facts.name}'", nodes,
+                        limits.BYTES_PER_PLANNER_NODE,
+                        f"raise expert.spacing (now {e.spacing:g} m) or lower "
+                        f"expert.max_lattice_nodes (now {e.max_lattice_nodes})")
 
 
 def check_graph_candidates(cfg: Config) -> None:
