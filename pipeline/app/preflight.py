@@ -42,6 +42,7 @@ from pipeline.artefacts.store import content_digest, read_artefact
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core import scenegen
 from pipeline.core.obstacles import ObstacleMap
+from pipeline.core.social_planner import spacing_over
 from pipeline.core.world import BodyParams, Room, Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import MapHeader, read_map_header
@@ -289,7 +290,7 @@ def check_planner_lattice_size(cfg: Config, facts: SceneFacts) -> None:
     if not isinstance(cfg.expert, PlannerExpertConfig):
         return
     e = cfg.expert
-    nodes = min(facts.area / e.spacing**2, e.max_lattice_nodes)
+    nodes = facts.area / spacing_over(facts.area, e) ** 2
     limits.check_memory(f"the planner's lattice over scene '{facts.name}'", nodes,
                         limits.BYTES_PER_PLANNER_NODE,
                         f"raise expert.spacing (now {e.spacing:g} m) or lower "

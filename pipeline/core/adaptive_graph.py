@@ -48,6 +48,7 @@ from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.obstacles import ObstacleMap, OccupancyGrid, rasterise
 from pipeline.core.params import (
+    LARGEST_POSITIVE,
     is_number,
     require,
     require_count,
@@ -80,10 +81,6 @@ SOCIAL_MEDIAL_CELLS = 1_000_000
 # of them from the best trajectories' nodes, some of which failed 30 times (a failed
 # expansion is cheap: halving them saved about 6 % of the time).
 SATURATED = 2
-
-# lambda_q and lambda_c weigh the exploration score's terms; only their ratio matters
-LARGEST_SCORE_WEIGHT = 1e6
-
 
 @dataclass
 class GraphParams:
@@ -124,8 +121,8 @@ class GraphParams:
         require(self.n_add <= self.n_new, "n_add", self.n_add, f"<= n_new ({self.n_new})")
         for name in ("lambda_q", "lambda_c"):  # only their ratio matters; 1e308 overflowed
             value = getattr(self, name)
-            require(is_number(value) and 0 <= value <= LARGEST_SCORE_WEIGHT, name, value,
-                    f"a number >= 0 and <= {LARGEST_SCORE_WEIGHT:g} (only the ratio "
+            require(is_number(value) and 0 <= value <= LARGEST_POSITIVE, name, value,
+                    f"a number >= 0 and <= {LARGEST_POSITIVE:g} (only the ratio "
                     "lambda_q : lambda_c matters)")
         require(self.lambda_q + self.lambda_c > 0, "lambda_q", self.lambda_q,
                 "lambda_q + lambda_c > 0")

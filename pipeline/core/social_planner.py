@@ -263,7 +263,12 @@ class PlannerGraph:
 def lattice_spacing(scene: Scene, params: SocialPlannerParams) -> float:
     """params.spacing, raised so that the lattice over the room has at most
     max_lattice_nodes points."""
-    return max(params.spacing, math.sqrt(scene.room.area / params.max_lattice_nodes))
+    return spacing_over(scene.room.area, params)
+
+
+def spacing_over(area: float, params: SocialPlannerParams) -> float:
+    """`lattice_spacing` over a room of `area` m² (known before the scene is built)."""
+    return max(params.spacing, math.sqrt(area / params.max_lattice_nodes))
 
 
 def planner_graph(scene: Scene, params: SocialPlannerParams) -> PlannerGraph:

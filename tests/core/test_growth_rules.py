@@ -68,7 +68,7 @@ def stub_gp(monkeypatch, mean, std) -> None:
 
 
 def test_a_candidate_s_value_estimate_is_optimistic_by_kappa_std(monkeypatch):
-    """Guards `mean + gp_kappa·std` (A2): two candidates with one GP mean, the one the GP
+    """Guards `mean + gp_kappa·std`: two candidates with one GP mean, the one the GP
     is less sure of scores higher."""
     g = chain_graph(gp_kappa=1.0, lambda_q=1.0, lambda_c=0.0)
     v = node_at(g, CENTRE)
@@ -84,7 +84,7 @@ def test_a_candidate_s_value_estimate_is_optimistic_by_kappa_std(monkeypatch):
 
 
 def test_a_candidate_s_score_is_the_value_of_the_path_through_it(monkeypatch):
-    """Guards the `− values[v]` term (A8): the path through a candidate of node v is the
+    """Guards the `− values[v]` term: the path through a candidate of node v is the
     path through v up to v (its value less V(v)), the run and the candidate's value."""
     g = chain_graph(gp_kappa=1.0, lambda_q=1.0, lambda_c=0.0)
     v = node_at(g, CENTRE)
@@ -99,7 +99,7 @@ def test_a_candidate_s_score_is_the_value_of_the_path_through_it(monkeypatch):
 
 
 def test_concentration_scores_peak_at_exactly_one_at_the_sparsest_node():
-    """Guards the concentration normalisation by the fewest neighbours (A3): with
+    """Guards the concentration normalisation by the fewest neighbours: with
     λ_q = 0 every score is (1 + min n_close) / (1 + n_close) ≤ 1."""
     g = chain_graph(lambda_q=0.0, lambda_c=1.0)
     # Neighbours within 1.2 m: the chain's ends and the side node 1, (5, 5) 3, the rest 2
@@ -113,7 +113,7 @@ def test_concentration_scores_peak_at_exactly_one_at_the_sparsest_node():
 
 
 def test_closeness_to_goal_runs_from_one_at_the_goal_to_zero_at_the_farthest_corner():
-    """Guards the farthest corner in `_closeness_to_goal` (A6): in a 10 m room with the
+    """Guards the farthest corner in `_closeness_to_goal`: in a 10 m room with the
     goal at (7, 6) the farthest corner is (0, 0), √85 m away."""
     scene = Scene("goal bias", Room(0, 0, 10, 10), (), (), np.array([[1.0, 1.0]]),
                   np.array([7.0, 6.0]))
@@ -129,7 +129,7 @@ def test_closeness_to_goal_runs_from_one_at_the_goal_to_zero_at_the_farthest_cor
 
 
 def test_dead_ends_stay_out_of_the_value_gp_s_training_set(monkeypatch):
-    """Guards `values > −v_max` in `_gp_estimate` (A7): a dead end (V = −v_max) within
+    """Guards `values > −v_max` in `_gp_estimate`: a dead end (V = −v_max) within
     radius of the expanded node is not among the points the GP is fitted to."""
     g = chain_graph()
     dead = g.add_node([4.5, 5.5, 0.0], SAMPLED)  # no edge: a dead end
@@ -158,14 +158,14 @@ def test_dead_ends_stay_out_of_the_value_gp_s_training_set(monkeypatch):
     np.testing.assert_allclose(std, expected[1], atol=1e-9)
 
 
-# 10 nodes: early (progress 0.001), a quarter full, and one node short of max_nodes (growth
-# never samples at progress 1)
+# 10 nodes: early (progress 0.001), a quarter full, and one node short of max_nodes (at
+# max_nodes: the next test)
 @pytest.mark.parametrize(("max_nodes", "t_hi"), [(10_000, 1.6 - 0.001 * 1.2),
                                                  (40, 1.6 - 0.25 * 1.2),
                                                  (11, 0.4 + 1.2 / 11)])
 def test_candidate_runs_last_t_min_to_t_max_annealed_towards_t_min_as_the_graph_fills(
         max_nodes, t_hi):
-    """Guards the duration annealing (A1): runs last t_min to t_hi = t_max − progress ·
+    """Guards the duration annealing: runs last t_min to t_hi = t_max − progress ·
     (t_max − t_min), progress = n_nodes / max_nodes; near t_max early, near t_min full."""
     g = chain_graph(n_new=400, t_min=0.4, t_max=1.6)
     g.p = dataclasses.replace(g.p, max_nodes=max_nodes)
