@@ -42,7 +42,7 @@ from hydra.errors import OverrideParseException
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from pipeline.app.config import register_configs
+from pipeline.app.config import one_job_of_a_sweep, register_configs
 from pipeline.app.outcome import SweepOutcome, SweepRefused, failed_jobs
 from pipeline.app.rundir import (
     METRICS_FILE,
@@ -59,7 +59,7 @@ from pipeline.app.rundir import (
     recorded_in_sweep,
     stopped_by_signals,
 )
-from pipeline.errors import PipelineError, one_line, os_error_reason
+from pipeline.errors import PipelineError, not_ignored, one_line, os_error_reason
 from pipeline.stages import run_pipeline
 
 register_configs()
@@ -78,6 +78,9 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
     if hydra_cfg.job.chdir:  # input paths are relative to where the run was launched, as
         os.chdir(hydra_cfg.runtime.cwd)  # without it (Hydra restores its cwd after the job)
     if hydra_cfg.mode != RunMode.MULTIRUN:
+        if warning := one_job_of_a_sweep(hydra_cfg.sweeper.get("params"),
+                                         "add -m to run the sweep"):
+            logging.getLogger("pipeline").warning(warning)
         try:
             run_pipeline(cfg, run_dir, group_choices=hydra_cfg.runtime.choices)
         except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
@@ -386,7 +389,7 @@ def cli() -> None:
     SweepOutcome.sweep_dir, SweepOutcome.ended, _Progress.run_ended = None, False, False
     multirun = _Progress.multirun = "-m" in sys.argv[1:] or "--multirun" in sys.argv[1:]
     if is_the_command():  # what a signal does once the work is over (and until it begins)
-        for signum in STOP_SIGNALS:
+        for signum in not_ignored(STOP_SIGNALS):  # SIGHUP under nohup stays ignored
             signal.signal(signum, _exit_stopped)
         survive_closed_stdout()  # before Hydra's log handlers take sys.stdout
     LogFiles.failed.clear()

@@ -11,6 +11,7 @@ learn a reward from Python objects without files.
     table = api.sweep("multirun/quick/2025-01-01_12-00")   # one row per job, as summary.csv
 
     scene = earlier.scene()                                # a pipeline.core.world.Scene
+    mine = api.load_scene("data/scenes/metropolis.json")   # a scene file, as scene.path reads it
     demos = earlier.messages("demos", "/demos").to_dict("records")  # or Demonstrations, arrays
     learned = api.learn(scene, demos, method="maxent", overrides=["graph=small"],
                         n_iterations=5)
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 import os
 import signal
 from collections.abc import Iterable, Mapping, Sequence
@@ -39,7 +41,7 @@ import numpy as np
 import pandas as pd
 import yaml
 from hydra.errors import HydraException
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 from threadpoolctl import threadpool_limits
 
@@ -49,9 +51,10 @@ from pipeline.app.config import (
     FileExpertConfig,
     compose_config,
     load_settings,
+    one_job_of_a_sweep,
     register_configs,
 )
-from pipeline.app.context import stage_rng
+from pipeline.app.context import resolve_path, stage_rng
 from pipeline.app.figure_style import paper_style
 from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
 from pipeline.app.rundir import (
@@ -75,10 +78,13 @@ from pipeline.core.world import Scene, scene_from_dict
 from pipeline.errors import PipelineError, existing_dir, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
 from pipeline.inputs.recorded import clean_tracks, cut_trajectory, drop_repeats, match_to_starts
+from pipeline.inputs.scene_file import load_scene_file
 from pipeline.irl import methods
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment, spatial_graph
 from pipeline.stages import run_pipeline
+
+log = logging.getLogger("pipeline")
 
 register_configs()
 
@@ -234,12 +240,18 @@ def _compose(overrides: Sequence[str]) -> DictConfig:
     """`compose_config`, with Hydra's errors as one-line PipelineErrors (as `birlg` says
     them) and one string refused: it would be read one character at a time."""
     overrides = _overrides_list(overrides)
-    hydra = [o for o in overrides if o.lstrip("+~").startswith("hydra.")]
+    hydra = [o for o in overrides if o.lstrip("+~").startswith(("hydra.", "hydra/"))]
     if hydra:  # the API has no Hydra run: they would be ignored silently
-        raise PipelineError(f"{hydra[0]}: hydra.* settings have no effect in pipeline.api "
-                            "(give the run's dir as run_dir=...)")
+        raise PipelineError(f"{hydra[0]}: Hydra's own settings (hydra.*, hydra/...) have no "
+                            "effect in pipeline.api (give the run's dir as run_dir=...)")
     try:
-        cfg = compose_config(overrides)
+        cfg = compose_config(overrides, with_hydra=True)
+        if warning := one_job_of_a_sweep(OmegaConf.select(cfg, "hydra.sweeper.params"),
+                                         "run the sweep with `birlg -m` and read its dir "
+                                         "with pipeline.api.sweep()"):
+            log.warning(warning)
+        with open_dict(cfg):
+            del cfg["hydra"]  # the run's config, as birlg's job sees it
         # interpolations resolved now, so a bad one is this one line, not a failure later
         OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
     except (HydraException, OmegaConfBaseException) as e:  # said as `birlg` says it
@@ -259,6 +271,14 @@ def open_run(run_dir: str | Path) -> Run:
         raise PipelineError(f"{path} holds no run (no status.json, artefact or "
                             ".hydra/config.yaml)")
     return handle
+
+
+def load_scene(path: str | Path) -> Scene:
+    """A scene file (JSON, with its map), read and checked as `scene.path=...` reads it: a
+    relative path from the current directory, else from the package's data/ (so
+    `load_scene("data/scenes/metropolis.json")` works from any directory)."""
+    return load_scene_file(resolve_path(os.fspath(path)),
+                           check=build.check_scene_extent)
 
 
 def sweep(sweep_dir: str | Path) -> pd.DataFrame:
@@ -296,6 +316,7 @@ class Learned:
 
     @property
     def iterations(self) -> list[Iteration]:
+        """Every iteration's weights, log likelihood and log prior (`trace` as a table)."""
         return self.result.iterations
 
     @property

@@ -138,13 +138,21 @@ def _stopped_while_starting(signum: int, frame: object) -> None:
     os._exit(128 + signum)  # nothing made yet; Python's teardown would let a repeat kill it
 
 
+def not_ignored(signals: Sequence[int]) -> tuple[int, ...]:
+    """Of `signals`, those this process does not ignore: the ones the pipeline may take over.
+    One the process was started ignoring stays ignored (`nohup` ignores SIGHUP, so that
+    closing the terminal does not stop the work; a shell's background job ignores SIGINT)."""
+    return tuple(s for s in signals if signal.getsignal(s) is not signal.SIG_IGN)
+
+
 def stop_quietly_while_starting() -> dict:
     """A command's Ctrl-C, SIGTERM or SIGHUP during its imports (most of a second) is one
     line and exit status 128 + signal, not a traceback from inside numpy or a silent end.
     Returns the handlers it replaced, for `restore_handlers` once the imports are done."""
     if threading.current_thread() is not threading.main_thread():
         return {}
-    return {signum: signal.signal(signum, _stopped_while_starting) for signum in _START_SIGNALS}
+    return {signum: signal.signal(signum, _stopped_while_starting)
+            for signum in not_ignored(_START_SIGNALS)}
 
 
 def restore_handlers(handlers: dict) -> None:

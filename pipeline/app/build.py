@@ -97,11 +97,13 @@ def scene_file(path: str, *, body_radius: float | None = None,
     raster cannot fit."""
     resolved = resolve_path(path)
     key = (_identity(resolved), body_radius, goal_tolerance, robot_radius)
-    if key not in _SCENE_FILES:
-        _SCENE_FILES[key] = load_scene_file(resolved, body_radius=body_radius,
-                                            goal_tolerance=goal_tolerance,
-                                            robot_radius=robot_radius, check=check_scene_extent)
-    return _SCENE_FILES[key]
+    scene = _SCENE_FILES.get(key)  # one lookup: a run in another thread may empty the cache
+    if scene is None:
+        scene = _SCENE_FILES[key] = load_scene_file(resolved, body_radius=body_radius,
+                                                    goal_tolerance=goal_tolerance,
+                                                    robot_radius=robot_radius,
+                                                    check=check_scene_extent)
+    return scene
 
 
 def scene_file_extent(path: str) -> SceneExtent:
@@ -116,9 +118,10 @@ def map_grid_of(path: str) -> OccupancyGrid:
     """A map_server map (once per run), refused before decoding when it cannot fit."""
     resolved = resolve_path(path)
     key = _identity(resolved)
-    if key not in _MAPS:
-        _MAPS[key] = load_map(resolved, check_cells=check_map_size)
-    return _MAPS[key]
+    grid = _MAPS.get(key)  # one lookup, as scene_file's
+    if grid is None:
+        grid = _MAPS[key] = load_map(resolved, check_cells=check_map_size)
+    return grid
 
 
 def check_scene_extent(extent: SceneExtent) -> None:

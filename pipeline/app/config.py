@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -352,15 +353,44 @@ def config_groups_help() -> str:
     return "\n".join(lines)
 
 
-def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
-    """The app's config with command-line style overrides, as `birlg` composes it."""
+_COMPOSING = threading.Lock()  # Hydra's GlobalHydra is one per process
+
+
+def compose_config(overrides: Sequence[str] = (), with_hydra: bool = False) -> DictConfig:
+    """The app's config with command-line style overrides, as `birlg` composes it (with
+    its `hydra` section too if `with_hydra`). Hydra
+    keeps one global state per process: compositions in threads take turns, and a Hydra
+    the caller had initialised (a notebook's `initialize()`, a script under `@hydra.main`)
+    is put back afterwards (Hydra refused: "GlobalHydra is already initialized")."""
     from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.initialize import get_gh_backup, restore_gh_from_backup
 
     from pipeline.app.context import PACKAGE_ROOT
 
     register_configs()
-    with initialize_config_dir(config_dir=str(PACKAGE_ROOT / "conf"), version_base="1.3"):
-        return compose(config_name="config", overrides=list(overrides))
+    with _COMPOSING:
+        callers = get_gh_backup() if GlobalHydra.instance().is_initialized() else None
+        GlobalHydra.instance().clear()
+        try:
+            with initialize_config_dir(config_dir=str(PACKAGE_ROOT / "conf"),
+                                       version_base="1.3"):
+                return compose(config_name="config", overrides=list(overrides),
+                               return_hydra_config=with_hydra)
+        finally:
+            if callers is not None:
+                restore_gh_from_backup(callers)
+
+
+def one_job_of_a_sweep(swept: Mapping | None, instead: str) -> str | None:
+    """The warning for a config that sweeps settings (an experiment preset's
+    hydra.sweeper.params) run as one job, which takes their values from the config alone;
+    None when nothing is swept. `instead` says how to run the sweep."""
+    if not swept:
+        return None
+    settings = "; ".join(f"{key}: {value}" for key, value in swept.items())
+    return (f"the config sweeps {settings} (its experiment preset's sweep), but this is one "
+            f"run, with the config's own values of those settings; {instead}")
 
 
 SCHEMA_PREFIX = "base_"  # the typed schemas of a group's options, stored in the group
@@ -472,8 +502,12 @@ def load_settings(cfg: DictConfig) -> Config:
     sections = {}
     for key in ("scene", "reward", "expert", "mdp", "roadmap", "graph", "birl", "evaluate"):
         sections[key] = _instantiate(cfg[key], key)
-    top = OmegaConf.to_object(OmegaConf.masked_copy(cfg, ["seed", "stages", "from_run",
-                                                          "objective"]))
+    # resolved first: the masked copy has no other keys (objective=${mdp.gamma} failed there
+    # with omegaconf's InterpolationKeyError) and no types (objective=${seed} was an int)
+    resolved = cfg.copy()
+    OmegaConf.resolve(resolved)
+    top = OmegaConf.to_object(OmegaConf.masked_copy(resolved, ["seed", "stages", "from_run",
+                                                               "objective"]))
     settings = Config(**top, **sections)  # type: ignore[arg-type]
 
     unknown = [s for s in settings.stages if s not in STAGES]

@@ -78,7 +78,7 @@ from pipeline.app.rundir import (
     stopped_by_signals,
 )
 from pipeline.artefacts.topics import STAGES
-from pipeline.errors import PipelineError, os_error_reason
+from pipeline.errors import PipelineError, not_ignored, os_error_reason
 
 log = logging.getLogger(__name__)
 
@@ -415,8 +415,8 @@ def _serve(conn: Connection, parent_pid: int) -> None:
     forwards it); during a job it and SIGTERM stop the job, which records it."""
     # (the fork copied the sweep's process: Hydra's singletons, and its signal handlers)
     signal.signal(signal.SIGINT, ignore_repeat)
-    for signum in STOP_SIGNALS[1:]:  # between jobs a worker just ends
-        signal.signal(signum, signal.SIG_DFL)
+    for signum in not_ignored(STOP_SIGNALS[1:]):  # between jobs a worker just ends
+        signal.signal(signum, signal.SIG_DFL)  # (under nohup SIGHUP stays ignored)
     threading.Thread(target=_stop_when_orphaned, args=(parent_pid,), daemon=True).start()
     launcher = _Current.launcher
     assert launcher is not None

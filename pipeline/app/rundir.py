@@ -34,7 +34,7 @@ from typing import Any
 
 from pipeline.artefacts.store import content_digest, write_json_atomic, write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
-from pipeline.errors import Interrupted, PipelineError, os_error_reason
+from pipeline.errors import Interrupted, PipelineError, not_ignored, os_error_reason
 
 log = logging.getLogger("pipeline")
 
@@ -72,8 +72,8 @@ def signals_deferred() -> Iterator[None]:
         yield
         return
     arrived: list[int] = []
-    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
-    for sig in STOP_SIGNALS:
+    previous = {sig: signal.getsignal(sig) for sig in not_ignored(STOP_SIGNALS)}
+    for sig in previous:
         signal.signal(sig, lambda signum, frame: arrived.append(signum))
     try:
         yield
@@ -98,13 +98,14 @@ def stopped_by_signals() -> Iterator[None]:
     def stop(signum: int, frame: object) -> None:
         # One signal stops the run; a second one (Ctrl-C reaches a sweep's workers both from
         # the terminal and from the sweep's process) must not cut short writing status.json.
-        for sig in STOP_SIGNALS:
+        for sig in previous:
             signal.signal(sig, ignore_repeat)
         stops.append(signum)
         raise Interrupted(signum)
 
-    previous = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
-    for sig in STOP_SIGNALS:
+    # a signal the process ignores stays ignored (SIGHUP under nohup: it stopped the run)
+    previous = {sig: signal.getsignal(sig) for sig in not_ignored(STOP_SIGNALS)}
+    for sig in previous:
         signal.signal(sig, stop)
     unraisable_hook = sys.unraisablehook
     sys.unraisablehook = partial(_quiet_about_stops, unraisable_hook)
@@ -281,7 +282,7 @@ def acquire_lock(run_dir: Path, in_use: str | None = None, kind: str = "run dir"
         os.close(fd)
         raise PipelineError(in_use or f"run dir {run_dir} is in use by another process (a "
                             "run or an export); wait for it to finish, or for a new run "
-                            "choose another hydra.run.dir") from None
+                            "choose another hydra.run.dir (pipeline.api: run_dir=)") from None
     return fd
 
 

@@ -79,6 +79,19 @@ def test_no_config_sets_hydra_mode():
             assert cfg.hydra.mode is None, preset
 
 
+def test_a_sweep_preset_run_without_m_warns_that_it_is_one_job(tmp_path):
+    """`birlg experiment=quick` (no -m) runs one job at the config's own seed and reward:
+    its sweep over them was dropped without a word."""
+    result = run_app("experiment=quick", "stages=[scene]", f"hydra.run.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr
+    warnings = [line for line in (result.stdout + result.stderr).splitlines()
+                if "WARNING" in line]
+    assert len(warnings) == 1 and "the config sweeps seed: 0,1; reward: polite,rude" in \
+        warnings[0] and "add -m to run the sweep" in warnings[0], warnings
+    plain = run_app("stages=[scene]", f"hydra.run.dir={tmp_path / 'plain'}")
+    assert "WARNING" not in plain.stdout + plain.stderr
+
+
 def test_make_sweep_that_runs_no_job_is_its_one_line(tmp_path):
     """A bad preset is the news; aggregating the sweep dir no job made added a second error
     about a generated dir the user never named."""

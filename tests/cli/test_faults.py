@@ -252,7 +252,8 @@ def test_a_quoted_run_dir_in_use_is_refused_before_anything_is_made(tmp_path, fo
                               timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 2 and lines(proc.stderr) == [
         f"error: run dir {d} is in use by another process (a run or an export); wait for it to "
-        "finish, or for a new run choose another hydra.run.dir"], proc.stderr
+        "finish, or for a new run choose another hydra.run.dir (pipeline.api: run_dir=)"], \
+        proc.stderr
     assert (d / ".hydra" / "config.yaml").read_text() == "the holder's\n"
     assert list(cwd.iterdir()) == []  # no dir named '"' or "'"
 
@@ -714,6 +715,26 @@ def test_a_read_only_job_dir_fails_its_job_alone(tmp_path, launcher):
     # launcher rewrites .hydra/, which stays writable, and the sweep puts it back)
     assert "seed=2" in (sweep / "1" / ".hydra" / "overrides.yaml").read_text()
     assert hydra_files == {f: (sweep / "1" / f).read_bytes() for f in hydra_files}
+
+
+def test_a_sweep_under_nohup_outlives_its_terminal(tmp_path):
+    """`nohup make sweep` ignores SIGHUP so that closing the terminal does not stop the
+    sweep: the sweep took the signal over anyway (exit 129), and its workers reset it
+    between jobs. Hang-ups all through the sweep now change nothing."""
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline", "-m", "experiment=quick",
+                             "seed=0,1,2", "reward=polite", "birl=mcmc", "hydra/launcher=pool",
+                             "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}"],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGHUP, signal.SIG_IGN))
+    wait_for_running_jobs(tmp_path, proc)
+    while proc.poll() is None:  # during jobs and between them
+        os.killpg(proc.pid, signal.SIGHUP)
+        time.sleep(0.1)
+    err = proc.communicate(timeout=300)[1]
+    assert proc.returncode == 0, err
+    assert {job: state[0] for job, state in job_states(tmp_path).items()} == \
+        {"0": "complete", "1": "complete", "2": "complete"}
 
 
 def test_the_terminal_closing_on_a_joblib_sweep_is_one_line(tmp_path):

@@ -180,6 +180,105 @@ def test_ctrl_c_during_an_api_run_is_a_keyboard_interrupt_naming_the_stage(tmp_p
     assert status.state == "interrupted" and str(stopped.value) == status.error
 
 
+def test_an_api_run_under_nohup_is_not_stopped_by_a_hangup(tmp_path):
+    """A process that ignores SIGHUP (`nohup python script.py`, so that closing the terminal
+    does not stop it) keeps ignoring it during a run: it stopped the run `interrupted`."""
+    run_dir = tmp_path / "run"
+
+    def hang_up_once_running() -> None:
+        for _ in range(6000):
+            if read_status(run_dir).state == "running":
+                os.kill(os.getpid(), signal.SIGHUP)
+                return
+            time.sleep(0.005)
+
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        threading.Thread(target=hang_up_once_running, daemon=True).start()
+        run = api.run(list(FAST), run_dir=run_dir)
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+    assert run.status.complete
+
+
+def test_an_api_run_inside_the_callers_own_hydra(tmp_path):
+    """A notebook's own `hydra.initialize()` (or a script under `@hydra.main`) holds Hydra's
+    one global state: api.run composes its config beside it and gives it back (it raised
+    Hydra's "ValueError: GlobalHydra is already initialized")."""
+    from hydra import compose, initialize_config_dir
+
+    conf = tmp_path / "conf"
+    conf.mkdir()
+    (conf / "mine.yaml").write_text("x: 1\n")
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+        run = api.run(["stages=[scene]"], run_dir=tmp_path / "run")
+        assert compose(config_name="mine").x == 1  # the caller's Hydra, as it was
+    assert run.status.complete
+
+
+def test_api_runs_in_threads_each_get_their_own_run(tmp_path):
+    """Hydra keeps one global state per process: runs started together in threads take
+    turns composing their configs (two of three raised Hydra's ValueError)."""
+    start = threading.Barrier(3)
+    outcome: dict[int, object] = {}
+
+    def job(seed: int) -> None:
+        start.wait()
+        try:
+            outcome[seed] = api.run([f"seed={seed}", "stages=[scene]"],
+                                    run_dir=tmp_path / str(seed)).config.seed
+        except Exception as e:  # noqa: BLE001 - the test reports it
+            outcome[seed] = e
+
+    threads = [threading.Thread(target=job, args=(seed,)) for seed in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert outcome == {0: 0, 1: 1, 2: 2}
+
+
+def test_an_api_run_of_a_sweep_preset_warns_that_it_is_one_job(tmp_path, caplog):
+    """api.run(["experiment=quick"]) runs one job: its sweep over seed and reward was dropped
+    without a word."""
+    run = api.run(["experiment=quick", "stages=[scene]"], run_dir=tmp_path / "run")
+    assert run.status.complete and run.config.seed == 0
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and "the config sweeps seed: 0,1; reward: polite,rude" in \
+        warned[0] and "pipeline.api.sweep()" in warned[0], warned
+    assert "hydra" not in run.config  # the job's config, as birlg's
+
+
+def test_an_api_run_writes_the_artefacts_birlg_writes(tmp_path):
+    """The same overrides give the same artefact bytes from pipeline.api and from birlg (the
+    config each artefact records included)."""
+    overrides = ["graph=small", "stages=[scene,demos]", "seed=4"]
+    cli = run_app(*overrides, f"hydra.run.dir={tmp_path / 'cli'}")
+    assert cli.returncode == 0, cli.stderr
+    api.run(overrides, run_dir=tmp_path / "api")
+    for name in ("scene.mcap", "demos.mcap"):
+        assert (tmp_path / "api" / name).read_bytes() == (tmp_path / "cli" / name).read_bytes()
+
+
+def test_load_scene_reads_a_scene_file_from_any_directory(tmp_path, monkeypatch):
+    """api.load_scene looks a relative path up as scene.path does: the current directory
+    first, then the package's data/ (the docs' example failed outside the repository)."""
+    monkeypatch.chdir(tmp_path)
+    shipped = api.load_scene("data/scenes/metropolis.json")
+    assert shipped.persons == build.scene_file(str(ROOT / "data/scenes/metropolis.json")).persons
+    assert len(shipped.persons) == 12
+    mine = tmp_path / "data" / "scenes" / "metropolis.json"  # a user's own file of that name
+    mine.parent.mkdir(parents=True)
+    text = json.loads((ROOT / "data/scenes/metropolis.json").read_text())
+    text["persons"] = text["persons"][:1]
+    text["relations"] = []
+    mine.write_text(json.dumps(text))
+    assert len(api.load_scene("data/scenes/metropolis.json").persons) == 1
+    with pytest.raises(PipelineError, match="scene file nope.json not found"):
+        api.load_scene("nope.json")
+
+
 def test_open_run_reads_an_existing_dir(fast_run, tmp_path):
     again = api.open_run(str(fast_run.dir))
     assert again == fast_run and again.metrics == fast_run.metrics
@@ -513,8 +612,17 @@ def test_learn_refuses_what_run_refuses(metropolis):
 @pytest.mark.parametrize("call, says", [
     (lambda d: api.run([3], run_dir=d), "overrides must be 'key=value' strings: 3 is a int"),
     (lambda d: api.run(["seed=${nope.x}"], run_dir=d), "Interpolation key 'nope.x' not found"),
+    # a top-level key interpolating another section's (omegaconf's InterpolationKeyError, from
+    # deep inside it) or a number (re's TypeError)
+    (lambda d: api.run(["objective=${mdp.gamma}"], run_dir=d),
+     "config error: objective=1.0 is not allowed \\(allowed: a metrics.json key"),
+    (lambda d: api.run(["objective=${seed}"], run_dir=d),
+     "config error: objective=0 is not allowed \\(allowed: a metrics.json key"),
     (lambda d: api.run(["~seed"], run_dir=d), "seed is missing \\(deleted with ~seed\\?\\)"),
-    (lambda d: api.run(["hydra.run.dir=/x"], run_dir=d), "hydra.\\* settings have no effect"),
+    (lambda d: api.run(["hydra.run.dir=/x"], run_dir=d), "hydra.run.dir=/x: Hydra's own settings"),
+    # a Hydra config group: `hydra/job_logging=disabled` ran without a word
+    (lambda d: api.run(["hydra/job_logging=disabled"], run_dir=d),
+     "hydra/job_logging=disabled: Hydra's own settings \\(hydra.\\*, hydra/...\\) have no effect"),
     # said as birlg says it: what was wrong with the value too (its cause), not only where
     (lambda d: api.run(["birl.beta=abc"], run_dir=d), "config error: Error merging override "
      "birl.beta=abc \\(Value 'abc' of type 'str' could not be converted to Float\\)"),
