@@ -85,6 +85,9 @@ def job_row(job: Path, sweep_dir: Path) -> dict:
         else:
             metrics = read_metrics(metrics_file)
             row.update(status="ok", error="")
+            if clash := sorted(set(metrics) & set(row)):  # a foreign or hand-edited file
+                raise Unreadable(f"{metrics_file}: key '{clash[0]}' is a column of the "
+                                 "table (the job, its outcome or an override), not a metric")
             row.update(metrics)
     except Unreadable as e:  # one damaged job is one failed row, not a failed table
         row.update(status="failed", error=str(e))

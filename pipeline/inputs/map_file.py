@@ -159,7 +159,7 @@ def read_map_header(path: str | Path) -> MapHeader:
     negate = get("negate")
     if isinstance(negate, str) and negate.strip() in ("0", "1"):  # yaml-cpp reads "1" as 1
         negate = int(negate)
-    if negate not in (0, 1) or isinstance(negate, float):
+    if negate not in (0, 1) or isinstance(negate, float | bool):  # yaml-cpp: true is no int
         raise fail(f"key 'negate'={negate!r} must be 0 or 1")
     occupied_thresh = number("occupied_thresh", lambda v: 0 <= v <= 1, "0..1")
     free_thresh = number("free_thresh", lambda v: 0 <= v <= 1, "0..1")

@@ -192,12 +192,29 @@ def _garble(msg: dict) -> None:
     msg["waypoints"] = msg["waypoints"][:-8]
 
 
+def _pad(msg: dict) -> None:
+    """Eight bytes too many at the end of the duration column."""
+    msg["duration"] = base64.b64encode(base64.b64decode(msg["duration"]) + bytes(8)).decode()
+
+
+def _negative_count(msg: dict) -> None:
+    """The first edge's n_waypoints -1, the second's more by as many: the sum unchanged."""
+    counts = np.frombuffer(base64.b64decode(msg["n_waypoints"]), "<i4").copy()
+    counts[1] += counts[0] + 1
+    counts[0] = -1
+    msg["n_waypoints"] = codec.column(counts, "<i4")
+
+
 @pytest.mark.parametrize("topic, garble, words", [
     (topics.GRAPH_EDGES, _garble, ["column 'waypoints' holds", "bytes"]),
     (topics.GRAPH_EDGES, lambda m: m.update(src="!!!"), ["column 'src'"]),
     (topics.GRAPH_EDGES, lambda m: m.update(dst=[1, 2]), ["column 'dst' is not a base64"]),
     (topics.GRAPH_EDGES, lambda m: m.pop("features"), ["without the field 'features'"]),
     (topics.GRAPH_EDGES, lambda m: m.update(count=-1), ["'count' is not a non-negative"]),
+    (topics.GRAPH_EDGES, lambda m: m.update(count=True), ["'count' is not a non-negative",
+                                                          "(True)"]),
+    (topics.GRAPH_EDGES, _pad, ["column 'duration' holds", "bytes"]),
+    (topics.GRAPH_EDGES, _negative_count, ["with a negative 'n_waypoints'"]),
     (topics.GRAPH_NODES, lambda m: m.update(kind=m["kind"][:-1]), ["'kind' is not a list"]),
     (topics.GRAPH_NODES, lambda m: m.update(first_id=3), ["start at id 3, expected 0"]),
     (topics.GRAPH_NODES, lambda m: m.update(x=m["x"][:-4] + "===="), ["column 'x'"]),

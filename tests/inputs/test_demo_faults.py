@@ -199,6 +199,24 @@ def test_points_a_little_outside_the_room_are_moved_onto_its_edge(tmp_path, capl
             load_recorded, path, STARTS, GOAL, goal_tolerance=0.3, room=room)
 
 
+def test_a_point_exactly_the_edge_tolerance_outside_the_room_is_moved_onto_its_edge():
+    """ROOM_EDGE_TOLERANCE is the most a point may stray and still be moved: exactly that
+    far out (0.1 m, exact in binary arithmetic here: 0 - (-0.1)) it is moved; a trajectory
+    inside is returned as it is."""
+    from pipeline.core.world import Room
+    from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, onto_room_edge
+    room = Room(0, 0, 10, 10)
+    edge = np.array([[0.5, 0.5], [-ROOM_EDGE_TOLERANCE, 3.0], [5.5, 9.0]])
+    inside = np.array([[0.5, 0.5], [5.5, 9.0]])
+    assert room.outside_distance(edge).max() == ROOM_EDGE_TOLERANCE
+    moved, kept = onto_room_edge([edge, inside], room, "demo")
+    assert np.array_equal(moved, [[0.5, 0.5], [0.0, 3.0], [5.5, 9.0]])
+    assert kept is inside
+    farther = edge.copy()
+    farther[1, 0] = np.nextafter(-ROOM_EDGE_TOLERANCE, -1.0)  # left for cut_trajectory to refuse
+    assert np.array_equal(onto_room_edge([farther], room, "demo")[0], farther)
+
+
 # -- bags -----------------------------------------------------------------------------------
 
 

@@ -168,6 +168,39 @@ def test_what_map_server_reads_is_read_quoted_numbers_no_yaw_and_no_unknown_band
     assert _free_in_image_order(no_band).tolist() == [[False, False, False, True], [True] * 4]
 
 
+def test_a_threshold_is_a_strict_bound_on_exact_shades(tmp_path):
+    """free if p < free_thresh: with negate=1, p = v/255, and 51/255 is the double 0.2, the
+    threshold itself: not free; 50 (p = 0.196) is."""
+    grid = load_map(_write_map(tmp_path, [[51, 50, 255]], negate=1, free_thresh=0.2))
+    assert _free_in_image_order(grid).tolist() == [[False, True, False]]
+
+
+def test_a_16_bit_pgm_at_a_threshold_reads_the_files_own_values(tmp_path):
+    """maxval 1000: 793 is shade 0.793 as map_server computes it, p = 1 - 0.793 just below
+    free_thresh=0.207: free. (Pillow's 0..65535 scaling, 51969, not undone exactly, reads
+    792.996: p above the threshold, not free.)"""
+    (tmp_path / "map16.pgm").write_bytes(b"P2\n3 1\n1000\n793 0 1000\n")
+    path = _write_map(tmp_path, np.zeros((1, 3)), "pgm", image="map16.pgm", free_thresh=0.207)
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, False, True]]
+
+
+def test_raw_mode_rounds_a_16_bit_shade_to_a_percentage(tmp_path):
+    """raw: round(255 s) is the occupancy; in a 16-bit image 128 is 255·128/65535 = 0.498:
+    occupancy 0, free; 129 (0.502) is 1, occupied."""
+    values = np.array([[0, 128, 129, 65535]], dtype=np.uint16)
+    Image.fromarray(values).save(tmp_path / "map.png")  # mode I;16
+    path = _write_map(tmp_path, np.zeros((1, 4)), "pgm", image="map.png", mode="raw")
+    assert _free_in_image_order(load_map(path)).tolist() == [[True, True, False, False]]
+
+
+def test_the_header_gives_the_maps_size_and_extent_without_the_pixels(tmp_path):
+    """GREYS is 4 pixels wide, 2 high, at 0.1 m from (-1, 2): x -1..-0.6, y 2..2.2."""
+    header = read_map_header(_write_map(tmp_path, GREYS, origin=[-1.0, 2.0, 0.0]))
+    assert (header.width, header.height, header.cells) == (4, 2, 8)
+    assert header.extent() == pytest.approx((-1.0, 2.0, -0.6, 2.2))
+    assert header.extent() == pytest.approx(load_map(header.path).extent())
+
+
 @pytest.mark.parametrize("fields, needle", [
     ({"resolution": None}, "missing key 'resolution'"),
     ({"image": None}, "missing key 'image'"),
@@ -182,10 +215,13 @@ def test_what_map_server_reads_is_read_quoted_numbers_no_yaw_and_no_unknown_band
     ({"origin": [0.0, "a", 0.0]}, "key 'origin'"),
     ({"origin": [0.0, 0.0, 0.3]}, "origin yaw 0.3 is not supported; rotate the image instead"),
     ({"negate": 2}, "key 'negate'=2"),
+    ({"negate": True}, "key 'negate'=True must be 0 or 1"),  # map_server (yaml-cpp) refuses it
     ({"occupied_thresh": 1.5}, "key 'occupied_thresh'=1.5"),
     ({"free_thresh": -0.1}, "key 'free_thresh'=-0.1"),
     ({"free_thresh": 0.7}, "key 'free_thresh'=0.7 must not be above occupied_thresh=0.65"),
     ({"origin": [0.0, 0.0, 2e-6]}, "origin yaw 2e-06 is not supported"),
+    ({"origin": [0.0, 0.0, -0.3]}, "origin yaw -0.3 is not supported"),  # clockwise too
+    ({"resolution": True}, "key 'resolution'=True is not allowed"),  # a YAML bool: no number
     ({"mode": "fancy"}, "key 'mode'='fancy' is not one of trinary, scale, raw"),
     ({"image": "missing.pgm"}, "missing.pgm (key 'image') not found"),
     ({"image": "."}, "(key 'image') is a directory, not an image"),

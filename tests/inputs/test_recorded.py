@@ -24,7 +24,7 @@ from pipeline.inputs.recorded import (
     motion_begin,
     read_tracks,
 )
-from tests.conftest import ROS2, write_bag
+from tests.conftest import ROS2, make_msg, write_bag
 from tests.inputs.conftest import refused
 
 STARTS = np.array([[0.5, 0.5], [4.0, 0.1], [2.0, 3.0], [8.5, 5.2]])
@@ -271,6 +271,66 @@ def test_a_bag_of_two_recordings_appended_or_with_a_clock_running_back_is_refuse
                 rf"{len(first) - 1} steps in the order its messages were logged; is the "
                 r"recording's clock wrong\?")):
             read_tracks(bag)
+
+
+def test_header_stamps_going_back_at_more_than_half_the_steps_are_a_wrong_clock(tmp_path):
+    """Four poses, three steps: stamps going back at 2 of them (more than half) are a wrong
+    clock and refused; at 1 of them, a late arrival read in stamp order."""
+    run = line(STARTS[1], GOAL, 0.5)[:4]
+    bag = write_bag(tmp_path / "clock", {"/odom": ("nav_msgs/msg/Odometry", list(run))},
+                    arrival=[2, 1, 0, 3])  # stamps 1.2, 1.1, 1.0, 1.3 s as logged
+    refused(r"topic /odom's header\.stamp goes back at 2 of 3 steps in the order its messages "
+            r"were logged", read_tracks, bag)
+    late = write_bag(tmp_path / "late", {"/odom": ("nav_msgs/msg/Odometry", list(run))},
+                     arrival=[1, 0, 2, 3])
+    assert np.array_equal(read_tracks(late)[0][0], run)
+
+
+def test_a_stream_with_unset_header_stamps_is_read_as_logged(tmp_path, caplog):
+    """A stamp of 0 is "not set": when any message has one, the stamps order nothing and
+    the poses are read in the order they were logged (here the second half is unstamped:
+    sorted by stamp it would come first, a jump of the whole walk back to the start)."""
+    run = line(STARTS[1], GOAL, 0.5)
+    half = len(run) // 2
+    bag = tmp_path / "unset"
+    with Writer2(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conn = w.add_connection("/pose", "geometry_msgs/msg/PoseStamped", typestore=ROS2)
+        for k, xy in enumerate(run):
+            stamp = 10**9 + k * 10**8 if k < half else 0
+            msg = make_msg(ROS2, "geometry_msgs/msg/PoseStamped", stamp, "map", xy)
+            w.write(conn, 10**9 + k * 10**8,
+                    ROS2.serialize_cdr(msg, "geometry_msgs/msg/PoseStamped"))
+    with caplog.at_level("WARNING"):
+        [track], is_stream = read_tracks(bag)
+    assert is_stream and np.array_equal(track, run)
+    assert "header.stamp" not in caplog.text
+
+
+def test_a_stream_whose_goal_pose_has_another_subject_is_refused(tmp_path):
+    """A pose stream's trajectory is its poses from where it sets off up to and including
+    its first pose at the goal: a subject change on that last pose is two subjects in one
+    trajectory."""
+    run = line(STARTS[0], GOAL, 0.5)  # only its last pose (the goal) is in the goal disk
+    subjects = ["ann"] * (len(run) - 1) + ["bo"]
+    path = tmp_path / "stream.csv"
+    path.write_text("x,y,subject\n" + "".join(f"{x!r},{y!r},{s}\n" for (x, y), s in
+                                              zip(run.tolist(), subjects, strict=True)))
+    refused(r"trajectory 0 \(cut from the pose stream\) has rows of several subjects: "
+            r"'ann', 'bo'", load, path)
+    path.write_text("x,y,subject\n" + "".join(f"{x!r},{y!r},ann\n" for x, y in run.tolist()))
+    assert [d.subject for d in load(path)] == ["ann"]
+
+
+def test_a_start_radius_whose_disk_overlaps_the_goal_disk_is_named(tmp_path):
+    """The radius reaches the goal's disk when it is at least the nearest start's distance
+    to the goal less goal_tolerance, not only when it reaches the goal itself."""
+    bag = write_bag(tmp_path / "b", {"/odom": ("nav_msgs/msg/Odometry",
+                                               list(line(STARTS[0], GOAL)))})
+    reach = np.linalg.norm(STARTS - GOAL, axis=1).min()  # 4.84 m, start 3
+    radius = float(reach - TOL / 2)  # short of the goal, into its disk
+    refused(rf"expert\.start_radius={radius:g} m reaches the goal's disk from start 3 "
+            rf"\({reach:.2f} m from the goal\).*give a radius below {reach - TOL:.2f} m",
+            load, bag, start_radius=radius)
 
 
 def test_pose_streams_from_sqlite3_and_ros1(tmp_path):

@@ -194,6 +194,17 @@ def test_a_noisy_pose_stream_is_smoothed_before_resampling(tmp_path, caplog):
     assert length(raw_demo.points) > 1.1 * length(demo.points)
 
 
+def test_a_jump_is_measured_against_the_75th_percentile_step():
+    """Steps 0.25, 0.25, 0.25, 0.5, 0.5 m then a long one (all exact in binary): the usual
+    step is their 75th percentile, 0.5 m (the median would be 0.375 m), so a jump is longer
+    than 10 × 0.5 = 5 m: 4.5 m is none, 5.5 m is one, from pose 5 to 6."""
+    def steps(last: float) -> np.ndarray:
+        x = np.cumsum([0.0, 0.25, 0.25, 0.25, 0.5, 0.5, last])
+        return np.column_stack([x, np.zeros_like(x)])
+    assert largest_jump(steps(4.5)) is None
+    assert largest_jump(steps(5.5)) == (5, 5.5, 0.5)
+
+
 def test_a_jump_where_tracking_was_lost_is_found_and_named(tmp_path, caplog):
     true = walk(0.1)
     gap = np.vstack([true[:40], true[90:]])  # 5 m of the walk missing

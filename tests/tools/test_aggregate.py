@@ -9,10 +9,13 @@ import pytest
 
 from pipeline.app.summary import Unreadable, read_metrics
 from pipeline.tools.aggregate import (
+    group_rows,
     latex_table,
     markdown_table,
     mean_std,
     results_table,
+    setting_label,
+    varies,
     write_summary_csv,
     write_tables,
 )
@@ -154,6 +157,54 @@ def test_swept_numbers_are_ordered_by_value_not_as_text():
              "policy_loss_norm": 0.1} for k, beta in enumerate(["12.5", "2.26", "84.6", "1.1"])]
     results, _ = results_table(list(rows[0]), rows)
     assert [r["β"] for r in results] == ["1.1", "2.26", "12.5", "84.6"]
+
+
+def test_a_value_missing_in_every_row_does_not_vary():
+    """Missing is one value whether None, absent or NaN (each NaN read from summary.csv is
+    another float object, and NaN != NaN)."""
+    assert not varies("x", [{"x": float("nan")}, {"x": float("nan")}, {"x": None}, {}])
+    assert varies("x", [{"x": "1"}, {}])
+    assert not varies("x", [{"x": "1"}, {"x": "1"}])
+
+
+def test_groups_are_ordered_by_value_with_missing_last():
+    rows = [{"reward": None, "job": 0}, {"reward": "rude", "job": 1},
+            {"reward": "polite", "job": 2}, {"job": 3}, {"reward": "polite", "job": 4}]
+    groups = group_rows(rows, ["reward"])
+    assert [(key, [r["job"] for r in part]) for key, part in groups] == [
+        (("polite",), [2, 4]), (("rude",), [1]), ((None,), [0, 3])]
+
+
+def test_one_setting_has_no_best_value_to_mark(tmp_path):
+    columns, rows = sweep_table()
+    rows = [r for r in rows if r["reward"] == "polite"]
+    write_tables(columns, rows, tmp_path)
+    assert "\\textbf" not in (tmp_path / "table.tex").read_text()
+
+
+def test_settings_tied_for_the_best_value_are_all_bold(tmp_path):
+    """polite and rude both succeed every time: both success rates are the best."""
+    columns, rows = sweep_table()
+    rows = [dict(r, success=1.0) for r in rows]
+    write_tables(columns, rows, tmp_path)
+    tex = (tmp_path / "table.tex").read_text().splitlines()
+    for reward in ("polite", "rude"):
+        line = next(line for line in tex if line.startswith(reward))
+        assert line.split(" & ")[-1] == "\\textbf{1 $\\pm$ 0.0} \\\\"
+
+
+def test_a_column_of_numbers_and_text_is_left_aligned_as_pandas_aligns_it():
+    results = pd.DataFrame({"β": ["0.1", "2"], "seeds": [3, 10], "demos": [5, "all"]})
+    pandas = results.to_latex(index=False, escape=True).replace("β", "$\\beta$")
+    assert latex_table(results.to_dict("records"), {}) == pandas
+    assert pandas.splitlines()[0] == "\\begin{tabular}{lrl}"
+
+
+def test_a_methods_legend_label_is_its_name_in_the_paper():
+    assert setting_label("birl", "map") == "method BIRL-G (MAP)"
+    assert setting_label("birl", "newmethod") == "method newmethod"
+    assert setting_label("reward", "polite") == "reward polite"
+    assert setting_label("graph.max_nodes", 20) == "graph.max_nodes 20"
 
 
 def test_a_metrics_file_that_is_no_file_is_refused_before_it_is_opened(tmp_path):

@@ -167,6 +167,17 @@ def test_every_occupancy_level_survives_map_server_and_no_learned_cost_is_lethal
     assert (occ <= export.OCCUPIED_THRESH).all()
 
 
+def test_every_learned_grey_level_lies_well_inside_its_occupancys_interval():
+    """Each grey is the rounded centre of its occupancy's interval (2.5 grey levels wide at
+    these thresholds), so a reader whose arithmetic differs by up to 0.75 of a grey level
+    still decodes the same occupancy."""
+    k = np.arange(1, 100)
+    grey = export.grey_of_occupancy(k).astype(float)
+    for shift in (-0.75, 0.75):
+        np.testing.assert_array_equal(nav2_scale_occupancy(
+            grey + shift, export.FREE_THRESH, export.OCCUPIED_THRESH), k)
+
+
 def test_costmap_yaml_is_a_scale_mode_map_server_map_with_its_comments(exported, learned, scene):
     run_dir, out = exported
     data, comments = read_yaml_and_comments(out / "costmap.yaml")
@@ -313,6 +324,34 @@ def test_a_reward_that_attracts_everywhere_is_said_so_not_zero(scene):
     assert f"negative (the reward attracts the robot) in {costmap.n_negative} cells" in text
 
 
+def test_negative_cost_is_counted_in_the_free_cells_only(scene):
+    """The cells said to be negative are those shown free: bodies, lethal whatever their
+    cost (the person features are largest there, so most negative), are not among them."""
+    costmap = export.build_costmap(scene, FeatureParams(), -POLITE)
+    shown_free = costmap.occupancy == 0
+    assert costmap.n_negative == int((shown_free & (costmap.cost < 0)).sum())
+    assert (costmap.lethal & (costmap.cost < 0)).any()
+
+
+def test_a_room_away_from_the_origin_keeps_its_origin_in_the_yaml(tmp_path):
+    """The metropolis moved by (-3, 2): the map_server YAML's origin is the grid's lower-left
+    corner, x then y, and the map reads back over the same extent."""
+    data = json.loads(METROPOLIS.read_text())
+    dx, dy = -3.0, 2.0
+    data["room"] = {"x_min": dx, "y_min": dy, "x_max": 10.0 + dx, "y_max": 10.0 + dy}
+    data["persons"] = [dict(p, x=p["x"] + dx, y=p["y"] + dy) for p in data["persons"]]
+    data["starts"] = [[x + dx, y + dy] for x, y in data["starts"]]
+    data["goal"] = [data["goal"][0] + dx, data["goal"][1] + dy]
+    moved = scene_from_dict(data, source="metropolis moved")
+    costmap = export.build_costmap(moved, FeatureParams(), POLITE)
+    (tmp_path / "costmap.pgm").write_bytes(export.costmap_pgm(costmap))
+    (tmp_path / "costmap.yaml").write_text(export.costmap_yaml(
+        costmap, tuple(FeatureParams().features), POLITE, []))
+    assert yaml.safe_load((tmp_path / "costmap.yaml").read_text())["origin"] == [dx, dy, 0.0]
+    grid = load_map(tmp_path / "costmap.yaml")
+    assert grid.extent() == pytest.approx((dx, dy, 10.0 + dx, 10.0 + dy))
+
+
 # -- the bag -----------------------------------------------------------------------------------
 
 
@@ -332,6 +371,20 @@ def test_bag_holds_one_path_per_start_and_demo_and_the_people(exported, scene):
                 if hasattr(part, "header"):  # a MarkerArray has none, its markers do
                     assert part.header.frame_id == "map"
                     assert (part.header.stamp.sec, part.header.stamp.nanosec) == (k, 0)
+
+
+def test_bag_topics_are_latched_with_every_message_kept(exported):
+    """Each topic's offered QoS (metadata.yaml, as `ros2 bag play` republishes it): reliable,
+    transient local, keeping the last as many messages as the topic has, so that a display
+    opened later gets every path, not only the last."""
+    _, out = exported
+    meta = yaml.safe_load((out / "paths" / "metadata.yaml").read_text())
+    meta = meta["rosbag2_bagfile_information"]
+    for entry in meta["topics_with_message_count"]:
+        [qos] = yaml.safe_load(entry["topic_metadata"]["offered_qos_profiles"])
+        assert qos["depth"] == entry["message_count"], entry["topic_metadata"]["name"]
+        assert (qos["history"], qos["reliability"], qos["durability"]) == (1, 1, 1)
+    assert max(e["message_count"] for e in meta["topics_with_message_count"]) > 1
 
 
 def test_bag_paths_are_the_learned_paths_with_headings_along_them(exported):
