@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from functools import cached_property
 from typing import NamedTuple
 
@@ -98,8 +98,12 @@ GAUSSIAN_CUTOFF = 1e-12
 _GAUSSIAN_REACH = math.sqrt(2.0 * math.log(1.0 / GAUSSIAN_CUTOFF))
 
 _PERSON_KINDS = frozenset({"social", "social_squared", "gaussian", "front"})
-# Densities evaluated tile by tile; on segments all but relation are integrated by sub-steps.
+# The kinds whose density vanishes beyond a known reach of the links, persons or groups, so
+# that a tile needs only those near it, and a tile none of them reaches is 0 (`_tiled`).
 _TILED_KINDS = _PERSON_KINDS | {"relation", "group_space"}
+# The kinds `densities` and `segments` compute themselves; every other density kind is
+# `_evaluate`'s (per point), integrated by sub-steps of `resolution`.
+_OWN_KINDS = frozenset({"length", "goal_deviation", "obstacle", "wall", "crossing"})
 
 # Keeps the (points x persons) distance matrices of a batch to a few tens of MB.
 _CHUNK_POINTS = 200_000
@@ -139,6 +143,12 @@ class FeatureParams:
                        "rho_obstacle")
         require_step(self, "resolution")
         self.selected()
+
+    def constants(self) -> dict[str, float]:
+        """Every setting but the feature names (radii, widths, the resolution), by field
+        (FeatureParams' own: a subclass's other settings, e.g. the reward's weights, not)."""
+        return {f.name: getattr(self, f.name) for f in fields(FeatureParams)
+                if f.name != "features"}
 
     def selected(self) -> tuple[Feature, ...]:
         """The selected features, parsed; ParameterError on `features` for an unknown name, a
@@ -251,19 +261,18 @@ class FeatureModel:
         a, b = scene.links
         index = {p.id: k for k, p in enumerate(scene.persons)}
         pairs = np.array([(index[i], index[j]) for i, j in scene.relations], np.int64)
-        return cls(a, b, scene.person_xy, np.asarray(scene.goal, float), params.rho_relation,
-                   params.rho_personal, params.resolution, tuple(params.features),
+        # every constant of FeatureParams (a field added there must be one here too)
+        return cls(a, b, scene.person_xy, np.asarray(scene.goal, float),
+                   names=tuple(params.features),
                    headings=np.array([p.theta for p in scene.persons], float),
                    groups=social_groups(len(scene.persons), pairs),
-                   obstacles=scene.obstacles, sigma=params.sigma, rho_group=params.rho_group,
-                   rho_obstacle=params.rho_obstacle, room=scene.room)
+                   obstacles=scene.obstacles, room=scene.room, **params.constants())
 
     @cached_property
     def selected(self) -> tuple[Feature, ...]:
         """The selected features, parsed, in column order."""
-        return FeatureParams(list(self.names), self.rho_relation, self.rho_personal,
-                             self.resolution, self.sigma, self.rho_group,
-                             self.rho_obstacle).selected()
+        return FeatureParams(list(self.names), **{
+            name: getattr(self, name) for name in FeatureParams().constants()}).selected()
 
     @property
     def dim(self) -> int:
@@ -364,13 +373,16 @@ class FeatureModel:
                 along = dx * heading[None, :, 0] + dy * heading[None, :, 1]  # d_i cos φ_i
                 cos = np.where(dist > 0, along / np.where(dist > 0, dist, 1.0), 0.0)
                 out[:, col] = (np.maximum(0.0, f.value - dist) * np.maximum(0.0, cos)).max(1)
-            else:  # gaussian, person by person in index order
+            elif f.kind == "gaussian":  # person by person in index order
                 reach2 = (_GAUSSIAN_REACH * f.value) ** 2
                 total = np.zeros(len(p))
                 for i in range(len(who)):
                     d2 = dist2[:, i]
                     total += np.where(d2 < reach2, np.exp(-d2 / (2.0 * f.value**2)), 0.0)
                 out[:, col] = total
+            else:  # a kind added to PARAMETER_FIELD whose density was never written
+                raise ValueError(f"feature kind {f.kind!r} has no density in "
+                                 "FeatureModel._evaluate")
         return out
 
     def _group_space(self, p: np.ndarray, rho: float, groups: np.ndarray | None) -> np.ndarray:
@@ -398,7 +410,7 @@ class FeatureModel:
         cell = np.floor((p - origin) / _TILE).astype(np.int64)
         key = cell[:, 0] * (cell[:, 1].max() + 1) + cell[:, 1]
         active = np.arange(len(p))
-        if len(p) >= _SKIP_TILES_FROM:
+        if len(p) >= _SKIP_TILES_FROM and all(f.kind in _TILED_KINDS for f in features):
             # Tiles no link, person or group reaches get no `_evaluate` (which would add
             # nothing there): on a building's costmap most of millions of cells are such.
             boxes = []
@@ -457,7 +469,7 @@ class FeatureModel:
         costmap of the reward holds the finite columns."""
         p = np.asarray(points, float).reshape(-1, 2)
         out = np.full((len(p), self.dim), np.nan)
-        tiled = [col for col, f in enumerate(self.selected) if f.kind in _TILED_KINDS]
+        tiled = [col for col, f in enumerate(self.selected) if f.kind not in _OWN_KINDS]
         out[:, tiled] = self._tiled(p, tuple(self.selected[c] for c in tiled))
         for col, f in enumerate(self.selected):
             if f.kind == "length":

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Optional
+from typing import Optional, TypeVar, cast
 
 import numpy as np
 
@@ -44,6 +44,13 @@ class IRLConfig(BoxConfig):
     def describe_prior(self) -> str:
         """The prior the method learns under, for the log."""
         return f"{self.prior.kind} prior"
+
+    @property
+    def compares_with_graph_paths(self) -> bool:
+        """Whether the method compares the demonstrations with the adaptive graph's paths, so
+        that a graph the demonstrations' waypoints fill leaves it few others (the graph stage
+        warns then); a method that learns elsewhere (a lattice, the roadmap) says False."""
+        return True
 
     def __post_init__(self) -> None:
         require_count(self, "n_iterations")
@@ -186,11 +193,17 @@ class Method:
 REGISTRY: dict[str, Method] = {}
 
 
-def register(name: str, config: type[IRLConfig]) -> Callable[[Fit], Fit]:
-    """Decorator: make `fit` the IRL method `birl=name`, configured by `config`."""
-    def add(fit: Fit) -> Fit:
+C = TypeVar("C", bound=IRLConfig)
+
+
+def register(name: str, config: type[C]
+             ) -> Callable[[Callable[[IRLProblem, C], IRLResult]],
+                           Callable[[IRLProblem, C], IRLResult]]:
+    """Decorator: make `fit` the IRL method `birl=name`, configured by `config`; `fit` may
+    take the method's own config class (the app passes it an instance of `config`)."""
+    def add(fit: Callable[[IRLProblem, C], IRLResult]) -> Callable[[IRLProblem, C], IRLResult]:
         if name in REGISTRY:
             raise ValueError(f"IRL method '{name}' is registered twice")
-        REGISTRY[name] = Method(name, config, fit)
+        REGISTRY[name] = Method(name, config, cast(Fit, fit))
         return fit
     return add

@@ -103,6 +103,14 @@ class BirlMapConfig(IRLConfig):
         iteration gave bit-identical weights and losses, at 0.1 s more)."""
         return not (self.likelihood == "boltzmann" and self.alternatives == "lattice")
 
+    @property
+    def compares_with_graph_paths(self) -> bool:
+        """eq. (2) alone, or the Boltzmann model on the graph's paths: the robust learner
+        reads the demonstrations by their polylines' sums against a lattice's paths, so how
+        full of their waypoints the graph is changes its estimate little (hallway,
+        metropolis: the same weights at any graph.min_separation)."""
+        return self.likelihood == "paper" or self.alternatives == "graph"
+
     def describe_prior(self) -> str:
         if self.boltzmann_prior_scale is not None and self.likelihood in BOLTZMANN_FORMS:
             scale = f"gaussian prior (σ {self.boltzmann_prior_scale:g} of the box's side)"

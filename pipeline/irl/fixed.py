@@ -20,6 +20,10 @@ class FixedConfig(IRLConfig):
     weights: Optional[list[float]] = None  # one number per feature
     from_run: Optional[str] = None  # a run dir: the final weights of its birl.mcap
 
+    @property
+    def compares_with_graph_paths(self) -> bool:
+        return False  # nothing is learned
+
     def __post_init__(self) -> None:
         if self.n_iterations != 0:
             raise ParameterError("n_iterations", self.n_iterations, "0 (birl=fixed learns nothing)")

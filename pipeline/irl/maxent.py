@@ -34,6 +34,10 @@ class MaxEntConfig(IRLConfig):
         super().__post_init__()
         require_positive(self, "learning_rate")
 
+    @property
+    def compares_with_graph_paths(self) -> bool:
+        return False  # the reference roadmap's
+
 
 @register("maxent", MaxEntConfig)
 def fit_maxent(problem: IRLProblem, config: IRLConfig) -> IRLResult:

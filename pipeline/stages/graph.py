@@ -67,13 +67,10 @@ def run(ctx: RunContext) -> None:
                  np.round(weights, 3).tolist(),
                  f" ({', '.join(left_out)} at 0: growth leaves the learner's extra features "
                  "out)" if left_out and weights_source in ("fixed", "prior_mean") else "")
-    # the robust learner compares the demonstrations with a lattice's paths and reads them by
-    # their polylines' sums: how full of their waypoints the graph is changes its estimate
-    # little (hallway, metropolis: the same weights at any graph.min_separation)
-    learns_on_graph = cfg.birl.kind in ("map", "mcmc") and (
-        getattr(cfg.birl, "likelihood", None) == "paper"
-        or getattr(cfg.birl, "alternatives", None) == "graph") or cfg.birl.kind == "policywalk"
-    warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes, learns_on_graph)
+    # the method says whether it compares the demonstrations with the graph's paths (a new
+    # one does unless it says otherwise: birl.kind is no list to keep)
+    warn_if_demonstrations_fill(graph, training, cfg.graph.max_nodes,
+                                cfg.birl.compares_with_graph_paths)
     every = max(1, cfg.graph.max_nodes // 10)
     last = [graph.n_nodes, 0.0]  # nodes and time at the last line (the time: set below)
     rates: list[tuple[float, float]] = []  # (nodes at a window's middle, s per node) per line

@@ -19,6 +19,7 @@ from collections import Counter
 from pathlib import Path
 
 from jsonschema import Draft202012Validator
+from jsonschema.exceptions import SchemaError, UnknownType
 from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
@@ -52,7 +53,7 @@ def describe(path: Path, check: bool = False) -> tuple[list[str], int]:
                 if schema.id not in validators:
                     validators[schema.id] = Draft202012Validator(json.loads(schema.data))
                 errors = list(validators[schema.id].iter_errors(json.loads(message.data)))
-            except (ValueError, RecursionError, LookupError) as e:
+            except (ValueError, RecursionError, LookupError, SchemaError, UnknownType) as e:
                 bad.append(f"{at}(message): not checkable against schema {schema.name!r} "
                            f"({' '.join(str(e).split())[:160] or type(e).__name__})")
                 continue

@@ -223,3 +223,18 @@ def test_a_deployment_grows_its_graph_under_the_weights_it_deploys():
     learning = validate(compose_config(f"birl.features={features}"))
     w, source = growth_weights(learning, None)
     assert source == "prior_mean" and w[1] == w[2] == w[3] == 0 and w[0] != 0
+
+
+@pytest.mark.parametrize("overrides, on_graph", [
+    ([], False), (["birl.likelihood=paper"], True), (["birl.alternatives=graph"], True),
+    (["birl.likelihood=robust"], False), (["birl=mcmc"], True), (["birl=policywalk"], True),
+    (["birl=maxent"], False), (["birl=fixed", "birl.weights=[-1,-1,-1,-1,-1]"], False),
+])
+def test_each_method_says_whether_it_compares_the_demonstrations_with_the_graphs_paths(
+        overrides, on_graph):
+    # the graph stage warns when the demonstrations' waypoints fill the graph for these; a
+    # new method (IRLConfig's default) is one unless it says otherwise
+    from pipeline.irl.base import IRLConfig
+
+    assert validate(compose_config(*overrides)).birl.compares_with_graph_paths is on_graph
+    assert IRLConfig().compares_with_graph_paths is True

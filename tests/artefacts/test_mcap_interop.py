@@ -233,9 +233,12 @@ def test_mcapinfo_lists_topics_counts_and_metadata_and_checks_schemas(runs, caps
     assert "INVALID /scene at log_time 0: .name: 3 is not of type 'string'" in out
     assert "INVALID /scene at log_time 0: (message): 'room' is a required property" in out
 
-    # A message or a stored schema that is no JSON is an invalid message, not an unreadable file
+    # A message or a stored schema that is no JSON, or names a type JSON Schema does not know
+    # (one flipped bit: 'number' -> 'oumber'), is an invalid message, not an unreadable file
     for name, schema, data in (("notjson", json.dumps(SCHEMAS["Scene"]).encode(), b"not json"),
-                               ("badschema", b"{not a schema", b'{"name": "x"}')):
+                               ("badschema", b"{not a schema", b'{"name": "x"}'),
+                               ("unknowntype", b'{"properties": {"name": {"type": "oumber"}}}',
+                                b'{"name": "x"}')):
         with open(tmp_path / f"{name}.mcap", "wb") as f:
             w = Writer(f)
             w.start()

@@ -9,6 +9,7 @@ max|f''| and the kinks of its integrand, and the bound is far below what a wrong
 factor would change.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -19,6 +20,8 @@ from pipeline.core.features import (
     FEATURE_KINDS,
     FEATURE_NAMES,
     GAUSSIAN_CUTOFF,
+    PARAMETER_FIELD,
+    Feature,
     FeatureModel,
     FeatureParams,
     social_groups,
@@ -686,3 +689,46 @@ def test_edge_features_integrate_each_pair_once_and_agree_with_segments(scene_na
     backward = fm.segments(positions[dst], positions[src])[:, deviation]
     assert (np.abs(backward - direct[:, deviation]) > 0.1).any()
     assert (edges[:, :-1] != 0).any(axis=0).sum() >= len(EVERY) - (scene_name == "metropolis")
+
+
+# -- what a new feature kind needs (docs/architecture.md "Adding a feature") ---------------
+
+def test_every_kind_is_in_the_property_tests_or_tested_apart():
+    # EVERY runs each kind through the properties above (resolution, splitting, densities,
+    # edges); a kind added to PARAMETER_FIELD must join it (crossing is no density: its own
+    # tests; intimate is social at 0.45 m)
+    kinds = {FeatureParams(features=[n]).selected()[0].kind for n in EVERY}
+    assert set(FEATURE_KINDS) - {"crossing", "intimate"} == kinds
+
+
+@pytest.mark.parametrize("value", [0.37, 2.5])
+def test_a_model_from_the_params_takes_every_constant(metropolis, value):
+    # FeatureParams' constants reach the model: a plain name (no @value) takes them there
+    for name in FeatureParams().constants():
+        params = dataclasses.replace(FeatureParams(), **{name: value})
+        assert getattr(FeatureModel.from_scene(metropolis, params), name) == value, name
+    for kind, field in PARAMETER_FIELD.items():
+        if field is not None:
+            params = dataclasses.replace(FeatureParams(features=[kind]), **{field: value})
+            assert FeatureModel.from_scene(metropolis, params).selected[0].value == value, kind
+
+
+def test_a_kind_without_a_density_is_refused_not_computed_as_another():
+    fm = model([(0, 0)], ["social"])
+    with pytest.raises(ValueError, match="'new_kind' has no density"):
+        fm._evaluate(np.zeros((3, 2)), (Feature("new_kind", "new_kind", 1.0),))
+
+
+def test_a_density_of_unknown_reach_is_evaluated_everywhere(monkeypatch):
+    # _evaluate's kinds: densities and segments reach them, in batches of any size (tiles no
+    # person reaches are skipped for the person kinds only: the others were 0 there)
+    fm = model([(0, 0)], ["social"])
+    monkeypatch.setattr(FeatureModel, "_evaluate",
+                        lambda self, p, features, *rest: np.ones((len(p), len(features))))
+    far = np.random.default_rng(0).random((20000, 2)) * 100 + 50  # no person within reach
+    assert (fm._tiled(far, (Feature("social", "social", 1.2),)) == 0).all()
+    assert (fm._tiled(far, (Feature("new_kind", "new_kind", 1.0),)) == 1).all()
+    fm.__dict__["selected"] = (Feature("new_kind", "new_kind", 1.0),)  # one column, as names
+    assert (fm.densities(far[:10]) == 1).all()
+    a = far[:300]
+    assert fm.segments(a, a + [10.0, 0.0]) == pytest.approx(10.0)  # 60 000 sub-steps at once
