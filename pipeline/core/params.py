@@ -104,9 +104,13 @@ def require_non_negative(obj: Any, *fields: str) -> None:
         require(is_number(value) and value >= 0, name, value, "a finite number >= 0")
 
 
-def require_count(obj: Any, *fields: str, minimum: int = 1) -> None:
-    """Each named attribute of `obj` is an integer >= minimum."""
+def require_count(obj: Any, *fields: str, minimum: int = 1, maximum: int | None = None) -> None:
+    """Each named attribute of `obj` is an integer >= minimum (and <= maximum): one check,
+    so that the config reference, which shows a key's first refusal, shows both bounds."""
+    allowed = f"an integer >= {minimum}" if maximum is None else \
+        f"an integer from {minimum} to {maximum:,}"
     for name in fields:
         value = getattr(obj, name)
         require(isinstance(value, numbers.Integral) and not isinstance(value, bool)
-                and int(value) >= minimum, name, value, f"an integer >= {minimum}")
+                and int(value) >= minimum and (maximum is None or int(value) <= maximum),
+                name, value, allowed)

@@ -18,7 +18,7 @@ import numpy as np
 
 from pipeline.core.features import FeatureParams
 from pipeline.core.graph_mdp import Path, SpatialGraph, TrajectoryStats
-from pipeline.core.params import ParameterError, require, require_count
+from pipeline.core.params import ParameterError, require_count
 from pipeline.errors import PipelineError
 from pipeline.irl.environment import Environment, Rollout
 from pipeline.irl.prior import BoxConfig, Prior
@@ -53,11 +53,9 @@ class IRLConfig(BoxConfig):
         return True
 
     def __post_init__(self) -> None:
-        require_count(self, "n_iterations")
         # every iteration keeps its paths, and eq. (2)'s generated paths join every later
         # likelihood, so its work grows with the square: 1e6 ran for hours without a word
-        require(self.n_iterations <= MAX_ITERATIONS, "n_iterations", self.n_iterations,
-                f"at most {MAX_ITERATIONS:,}")
+        require_count(self, "n_iterations", maximum=MAX_ITERATIONS)
         if self.features is not None:
             try:
                 FeatureParams(list(self.features))

@@ -319,3 +319,19 @@ def test_chains_that_agree_stop_and_those_that_do_not_go_on_from_where_they_were
     np.testing.assert_array_equal(run.samples, again.samples)
     with pytest.raises(ValueError, match="max_samples=10 is not allowed"):
         AdaptiveChainParams(n_samples=20, max_samples=10)
+
+
+@pytest.mark.parametrize("n, ok", [(0, False), (1, True), (10_000, True), (10_001, False),
+                                   (True, False), (2.0, False)])
+def test_iterations_are_counted_from_1_to_10_000_in_one_check(n, ok):
+    """Both bounds in the one refusal (the config reference shows a key's first refusal:
+    it said "an integer >= 1" of a key that also had an upper bound)."""
+    from pipeline.core.params import ParameterError
+    from pipeline.irl.base import IRLConfig
+
+    if ok:
+        assert IRLConfig(n_iterations=n).n_iterations == n
+    else:
+        with pytest.raises(ParameterError, match=r"n_iterations=\S+ is not allowed \(allowed: "
+                                                 r"an integer from 1 to 10,000\)"):
+            IRLConfig(n_iterations=n)
