@@ -81,7 +81,8 @@ def clear_of_walls(points: np.ndarray, scene: Scene) -> np.ndarray:
     by at most ROOM_EDGE_TOLERANCE, moved away from it to robot_radius
     (`ObstacleMap.push_clear`): first its points, then, where a segment between them still
     dips in, that segment's points half a map cell apart. `points` itself when nothing
-    needed moving; deeper intrusions stay for `checked_demonstration` to refuse."""
+    needed moving, and also when moving did not clear it: a deeper intrusion is refused by
+    `checked_demonstration` naming the user's own points, not ones added here."""
     walls, radius = scene.obstacles, scene.robot_radius
     assert walls is not None
     if (walls.segments_min_clearance(points[:-1], points[1:]) >= radius).all():
@@ -97,7 +98,7 @@ def clear_of_walls(points: np.ndarray, scene: Scene) -> np.ndarray:
             n = max(1, math.ceil(np.linalg.norm(b - a) / step)) if dip else 1
             pieces.append(a + np.arange(n)[:, None] / n * (b - a))
         p = walls.push_clear(np.vstack(pieces + [p[-1:]]), radius, ROOM_EDGE_TOLERANCE)
-    return p
+    return p if (walls.segments_min_clearance(p[:-1], p[1:]) >= radius).all() else points
 
 
 def checked_demonstration(start: int, points: np.ndarray, subject: str | None, scene: Scene,

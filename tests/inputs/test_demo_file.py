@@ -123,3 +123,14 @@ def test_a_segment_too_close_to_a_wall_is_refused_naming_the_point_it_leaves_fro
     refused(r"trajectory 0 comes 0\.0\d m from an obstacle after \(4\.20, 7\.50\); the robot "
             r"needs robot_radius=0\.2 m", checked_demonstration, 0, walk, None, scene,
             FeatureModel.from_scene(scene), 1.0, "trajectory 0")
+
+
+def test_a_demonstration_too_deep_into_a_wall_is_refused_naming_its_own_point(tmp_path):
+    """Moving a walk off a wall it comes too close to adds points along the segment; when
+    that cannot clear it (0.025 m from the wall's end, robot_radius 0.2), the refusal names
+    the file's own point the segment leaves from, not one of the added ones."""
+    scene = walled_scene(tmp_path)
+    walk = [[0.5, 0.5], [0.5, 6.0], [4.2, 7.5], [4.6, 8.5], [5.5, 9.0]]
+    refused(r"trajectory 0 comes 0\.0\d m from an obstacle after \(4\.20, 7\.50\)",
+            load_demo_file, json_demos(tmp_path, walk), scene, FeatureModel.from_scene(scene),
+            1.0)
