@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,7 +34,7 @@ def combine_path_metrics(per_path: list[dict[str, float]]) -> dict[str, float]:
     for name, how in PATH_METRICS.items():
         values = [m[name] for m in per_path if name in m]
         if values:
-            out[name] = float(sum(values) if how == "sum" else min(values) if how == "min"
+            out[name] = float(math.fsum(values) if how == "sum" else min(values) if how == "min"
                               else np.mean(values))
     return out
 

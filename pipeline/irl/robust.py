@@ -29,6 +29,7 @@ with β_E = 20 the median loss falls from 0.053 to 0.012 with `walk`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -187,7 +188,7 @@ class BoltzmannPosterior:
         posterior = cls.__new__(cls)
         posterior._set_up(alternatives, np.asarray(starts, dtype=np.int64),
                           np.sum([d.phi for d in demonstrations], axis=0),
-                          float(sum(d.offset for d in demonstrations)), 0.0, prior, beta_range,
+                          math.fsum(d.offset for d in demonstrations), 0.0, prior, beta_range,
                           base_measure, stops)
         return posterior
 

@@ -956,3 +956,17 @@ def test_an_iterate_reproduces_the_demonstrations_on_average():
     assert reproduces(rolled, problem([0, 3]))
     assert not reproduces(rolled, problem([0, 5]))
     assert reproduces(rolled, problem([2, 2])) and not reproduces(rolled, problem([2.2, 2.2]))
+
+
+def test_the_demonstrations_goal_terms_are_summed_exactly():
+    """Σ_k offset_k, exactly rounded (math.fsum): Python's own sum() of floats changed in
+    3.12 (compensated), so the learned weights differed in their last bits between Python
+    3.11 and 3.13 with the same locked packages. Ten offsets of 0.1 sum to 1.0 exactly;
+    added one by one they give 0.9999999999999999."""
+    src, dst, feats, tau, terminal = SMALL_DAG
+    mdp = GraphMDP(src, dst, tau, feats, terminal, GOAL)
+    demo = TrajectoryStats(start=0, phi=np.array([-2.0]), offset=0.1, end_discount=1.0,
+                           reached=True)
+    post = BoltzmannPosterior.of_sums(mdp, np.zeros(10, dtype=np.int64), [demo] * 10,
+                                      Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    assert post.goal_term == 1.0
