@@ -172,3 +172,101 @@ def test_voronoi_centroids_are_the_same_wherever_the_room_lies():
     assert len(expected) == len(here.person_xy) and here.room.contains(expected).all()
     np.testing.assert_allclose(voronoi_centroids(there.person_xy, there.room) - shift,
                                expected, rtol=0, atol=1e-6)
+
+
+# -- a tiny room worked by hand -------------------------------------------------------------
+
+
+def tiny_scene(persons=(), polygons=(), robot_radius=0.25):
+    """A 1.5 m x 1 m room: the lattice of 0.5 m has 4 x 3 nodes; the start and the goal lie
+    in the middle of a cell, 0.354 m (> spacing/2) from its four corners, so none is dropped."""
+    return world_module.Scene("tiny", world_module.Room(0.0, 0.0, 1.5, 1.0), tuple(persons), (),
+                              np.array([[0.25, 0.25]]), np.array([1.25, 0.75]),
+                              robot_radius=robot_radius, polygons=tuple(polygons))
+
+
+def test_tiny_lattice_has_the_hand_counted_nodes_and_edges():
+    """8-connected: 3·3 + 4·2 horizontal and vertical pairs and 2·3·2 diagonal ones, each
+    both ways (58), plus start and goal both ways to the 4 corners of their cell (16).
+    16-connected: 28 knight moves more, and start and goal reach the 9 nodes within
+    0.5·√5 m (36)."""
+    scene = tiny_scene()
+    for connectivity, n_edges in [(8, 58 + 16), (16, 58 + 28 + 36)]:
+        positions, src, dst = lattice_graph(scene, 0.5, connectivity)
+        assert len(positions) == 12 + 2
+        np.testing.assert_allclose(positions[-2:], [[0.25, 0.25], [1.25, 0.75]])
+        lattice = {(round(x / 0.5), round(y / 0.5)) for x, y in positions[:-2]}
+        assert lattice == {(i, j) for i in range(4) for j in range(3)}
+        assert len(src) == n_edges
+        pairs = set(zip(src.tolist(), dst.tolist(), strict=True))
+        assert len(pairs) == n_edges  # no edge twice
+        assert pairs == {(b, a) for a, b in pairs}  # every edge both ways
+        length = np.linalg.norm(positions[dst] - positions[src], axis=1)
+        steps = np.sqrt([1.0, 2.0, 5.0][:2 if connectivity == 8 else 3]) * 0.5
+        inner = (src < 12) & (dst < 12)
+        assert np.isclose(length[inner, None], steps[None, :]).any(axis=1).all()
+        assert (length[~inner] <= steps[-1] + 1e-9).all()
+
+
+def test_interior_node_has_exactly_the_king_and_knight_moves():
+    """In a 2 m x 1.5 m room (not square: rows and columns cannot be swapped unseen), the
+    node at (1, 0.75) links to exactly the 8 king and 8 knight offsets of 0.25 m."""
+    scene = world_module.Scene("tiny", world_module.Room(0.0, 0.0, 2.0, 1.5), (), (),
+                               np.array([[0.1, 0.1]]), np.array([1.9, 1.4]))
+    positions, src, dst = lattice_graph(scene, 0.25, 16)
+    node = int(np.argmin(np.linalg.norm(positions - [1.0, 0.75], axis=1)))
+    offsets = {tuple(np.round((positions[d] - positions[node]) / 0.25).astype(int))
+               for d in dst[src == node]}
+    king = {(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)} - {(0, 0)}
+    knight = {(i, j) for i in (-2, -1, 1, 2) for j in (-2, -1, 1, 2) if abs(i) != abs(j)}
+    assert offsets == king | knight
+    assert (src == node).sum() == 16
+
+
+def test_lattice_node_near_a_start_is_dropped_only_within_half_a_spacing():
+    """A start 0.2 m (< 0.25) from a lattice node replaces it; one 0.28 m and more from the
+    corners of its cell does not."""
+    scene = world_module.Scene("tiny", world_module.Room(0.0, 0.0, 1.5, 1.0), (), (),
+                               np.array([[0.5, 0.2], [1.2, 0.7]]), np.array([1.5, 0.0]))
+    positions, src, dst = lattice_graph(scene, 0.5, 8)
+    lattice = {(round(x / 0.5), round(y / 0.5)) for x, y in positions[:-3]}
+    assert src.min() >= 0 and dst.min() >= 0  # a dropped node starts or ends no edge
+    # (1, 0) is 0.2 m from start 0, the goal sits on (3, 0); start 1 is 0.28 m from (2, 1)
+    assert lattice == {(i, j) for i in range(4) for j in range(3)} - {(1, 0), (3, 0)}
+
+
+def test_segments_feasible_keeps_out_of_bodies_room_and_obstacles():
+    """Hand-placed segments: through a body disk, 0.22 m from a person (inside the 0.25 m
+    disk), 0.3 m from it; leaving the room; 0.1 m from a wall with robot_radius 0.25 m
+    and 0.4 m from it."""
+    person = world_module.Person(1, 0.75, 0.5)
+    scene = tiny_scene(persons=[person])
+    a = np.array([[0.1, 0.5], [0.1, 0.72], [0.1, 0.8], [1.2, 0.2], [1.2, 0.8]])
+    b = np.array([[1.4, 0.5], [1.4, 0.72], [1.4, 0.8], [1.7, 0.2], [1.2, 1.2]])
+    np.testing.assert_array_equal(segments_feasible(scene, a, b),
+                                  [False, False, True, False, False])
+    wall = np.array([[0.0, 0.9], [1.5, 0.9], [1.5, 1.0], [0.0, 1.0]])  # 0.1 m thick
+    walled = tiny_scene(polygons=[wall])
+    a = np.array([[0.2, 0.8], [0.2, 0.5]])
+    b = np.array([[1.3, 0.8], [1.3, 0.5]])
+    np.testing.assert_array_equal(segments_feasible(walled, a, b), [False, True])
+
+
+def test_roadmap_durations_are_lengths_over_the_speed():
+    scene = tiny_scene()
+    roadmap = build_roadmap(scene, FeatureModel.from_scene(scene),
+                            RoadmapParams(spacing=0.5, connectivity=8), speed=2.0)
+    length = np.linalg.norm(roadmap.positions[roadmap.dst] - roadmap.positions[roadmap.src],
+                            axis=1)
+    np.testing.assert_allclose(roadmap.duration, length / 2.0)
+    assert roadmap.goal_node == 13 and roadmap.start_nodes.tolist() == [12]
+
+
+def test_starts_without_path_follow_the_edges_direction():
+    """Edges 0 → 1 → 2 (goal) → 3: start 0 reaches the goal, start 3 only leaves it."""
+    positions = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    src, dst = np.array([0, 1, 2]), np.array([1, 2, 3])
+    roadmap = roadmap_module.Roadmap(positions, src, dst, np.ones(3), np.zeros((3, 1)),
+                                     np.array([False, False, True, False]),
+                                     start_nodes=np.array([0, 3]), goal_node=2)
+    assert roadmap.starts_without_path_to_goal() == [1]

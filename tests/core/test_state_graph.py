@@ -69,3 +69,54 @@ def test_a_point_exactly_a_radius_away_is_within_it_wherever_the_points_lie():
     assert counts[0] == (30, 5, 9, 5, 5, 5, True)
     assert counts[1] == (len(grid), 5, 9, 5, 5, 5, True)
     assert counts[2:] == counts[:2] * 2, counts
+
+
+def test_a_point_within_tie_beyond_the_radius_is_within():
+    """0.4 − 0.1 is 0.30000000000000004 in floating point: at radius 0.3 the point counts."""
+    index = SpatialIndex()
+    index.add(np.array([0.4, 0.0]))
+    q = np.array([0.1, 0.0])
+    assert index.within(q, 0.3).tolist() == [0]
+    assert index.within(q, 0.3, ordered=False).tolist() == [0]
+    assert index.count_within(q, 0.3) == 1
+
+
+def tiny_graph(max_edges=2):
+    from pipeline.core.controllers import LinearController
+    from pipeline.core.features import FeatureModel
+    from pipeline.core.graph_mdp import MDPParams
+    from pipeline.core.state_graph import SAMPLED, START, StateGraph
+    from pipeline.core.world import Room, Scene
+    scene = Scene("tiny", Room(0.0, 0.0, 5.0, 1.0), (), (), np.array([[0.5, 0.5]]),
+                  np.array([4.5, 0.5]))
+    fm = FeatureModel.from_scene(scene)
+    graph = StateGraph(scene, fm, LinearController(), np.zeros(fm.dim), radius=3.0,
+                       max_edges=max_edges, min_separation=0.1, mdp=MDPParams())
+    for k, x in enumerate([0.5, 1.0, 1.5, 2.0, 2.5]):
+        graph.add_node((x, 0.5, 0.0), START if k == 0 else SAMPLED)
+    return graph
+
+
+def test_connect_links_each_node_to_its_max_edges_nearest_both_ways():
+    graph = tiny_graph(max_edges=2)
+    graph.connect([0])
+    pairs = sorted(zip(graph.src.tolist(), graph.dst.tolist(), strict=True))
+    assert pairs == [(0, 1), (0, 2), (1, 0), (2, 0)]
+    np.testing.assert_allclose(graph.duration[np.lexsort((graph.dst, graph.src))],
+                               [0.5, 1.0, 0.5, 1.0])
+
+
+def test_add_edges_skips_self_loops_and_repeats():
+    graph = tiny_graph()
+    w = [np.zeros((2, 2))] * 3
+    graph.add_edges([0, 1, 0], [0, 2, 1], [1.0, 1.0, 1.0], np.zeros((3, graph.fm.dim)), w)
+    graph.add_edges([1], [2], [1.0], np.zeros((1, graph.fm.dim)), w[:1])
+    assert list(zip(graph.src.tolist(), graph.dst.tolist(), strict=True)) == [(1, 2), (0, 1)]
+
+
+def test_reachable_from_follows_edges_forward_only():
+    """Edges 0 → 1 → 2 and 3 → 2: from 1, nodes 1 and 2; never 0 or 3."""
+    graph = tiny_graph()
+    w = [np.zeros((2, 2))] * 3
+    graph.add_edges([0, 1, 3], [1, 2, 2], [1.0, 1.0, 1.0], np.zeros((3, graph.fm.dim)), w)
+    assert graph.reachable_from(np.array([1])).tolist() == [False, True, True, False, False]

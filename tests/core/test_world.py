@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.core.world import Room, SceneError, scene_from_dict
+from pipeline.core.world import Person, Room, Scene, SceneError, scene_from_dict
 from tests.conftest import METROPOLIS
 
 
@@ -94,3 +94,26 @@ def test_a_start_or_goal_on_any_wall_of_the_room_is_reachable(start, goal):
     d = _metropolis_dict()
     d.update(starts=[start], goal=goal)
     assert scene_from_dict(d, source="edge").unreachable_starts() == []
+
+
+def test_room_containment_border_distance_and_clip_by_hand():
+    """A 4 m x 2 m room from (1, 3): x and y bounds differ, so no axis can stand in for the
+    other."""
+    room = Room(1.0, 3.0, 5.0, 5.0)
+    pts = np.array([[2.0, 4.0], [4.5, 4.0], [0.5, 4.0], [2.0, 5.5], [5.2, 4.0], [1.5, 2.9]])
+    np.testing.assert_array_equal(room.contains(pts), [True, True, False, False, False, False])
+    np.testing.assert_array_equal(room.contains(pts, margin=0.6),
+                                  [True, False, False, False, False, False])
+    np.testing.assert_allclose(room.border_distance(pts[:2]), [1.0, 0.5])
+    np.testing.assert_allclose(room.border_distance(np.array([[4.0, 4.8]])), [0.2])
+    np.testing.assert_allclose(room.clip(pts[2:]), [[1.0, 4.0], [2.0, 5.0], [5.0, 4.0],
+                                                    [1.5, 3.0]])
+
+
+def test_body_disks_and_free_points_by_hand():
+    scene = Scene("s", Room(0.0, 0.0, 4.0, 4.0), (Person(1, 2.0, 2.0),), (),
+                  np.array([[0.5, 0.5]]), np.array([3.5, 3.5]), body_radius=0.5)
+    pts = np.array([[2.4, 2.0], [2.6, 2.0], [2.0, 2.75], [3.0, 3.0]])
+    np.testing.assert_array_equal(scene.in_body(pts), [True, False, False, False])
+    np.testing.assert_array_equal(scene.in_body(pts, clearance=0.3), [True, True, True, False])
+    np.testing.assert_array_equal(scene.free(pts), [False, True, True, True])
