@@ -5,11 +5,10 @@ metrics as any run."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Optional
 
-from pipeline.core.params import ParameterError
+from pipeline.core.params import ParameterError, is_number
 from pipeline.irl.base import IRLConfig, IRLProblem, IRLResult, register
 
 
@@ -32,8 +31,7 @@ class FixedConfig(IRLConfig):
         if (self.weights is None) == (self.from_run is None):
             raise ParameterError("weights", self.weights,
                                  "exactly one of birl.weights=[...] or birl.from_run=RUN_DIR")
-        if self.weights is not None and not all(
-                isinstance(x, (int, float)) and math.isfinite(x) for x in self.weights):
+        if self.weights is not None and not all(is_number(x) for x in self.weights):
             raise ParameterError("weights", self.weights, "finite numbers")
 
 

@@ -105,3 +105,26 @@ def test_cost_to_come_of_a_full_solve_by_hand(zero_costs):
     for _ in range(15):  # Bellman-Ford: |V| rounds of relaxing every edge
         np.minimum.at(expected, dst, expected[src] - rewards)
     np.testing.assert_allclose(inc.cost_to_come, expected, atol=1e-12)
+
+
+def test_follow_and_cost_to_come_by_hand_with_rewarding_edges():
+    """Discounted (γ = 0.9, R_goal = 1): from the start 3 the edge to 1 pays +0.5, so
+    3 → 1 → 0 beats 3 → 2 → 0 (1.22 against 0.62); a paying edge costs nothing to come
+    by. Then a loop 1 ⇄ 2 paying +1 per edge is worth 1/(1 − 0.9) = 10 > the goal's 1: the
+    greedy paths run round it for ever, followed until a node repeats, not reaching the goal."""
+    inc = IncrementalGraphMDP(MDPParams(gamma=0.9, time_cost=0.0, r_goal=1.0, v_max=5.0))
+    for k in range(4):
+        inc.add_node(terminal=(k == 0), source=(k == 3))
+    inc.add_edges([3, 3, 2, 1], [1, 2, 0, 0], np.ones(4), [0.5, -0.1, -0.1, -0.1])
+    inc.update()
+    np.testing.assert_allclose(inc.values, [1.0, 0.8, 0.8, 0.5 + 0.9 * 0.8], rtol=1e-12)
+    assert inc.follow(3)[0].tolist() == [3, 1, 0] and inc.follow(3)[1]
+    np.testing.assert_allclose(inc.cost_to_come, [0.1, 0.0, 0.1, 0.0], rtol=1e-12)
+    inc.add_edges([1, 2], [2, 1], np.ones(2), [1.0, 1.0])
+    inc.update()
+    np.testing.assert_allclose(inc.values[[1, 2]], 10.0, rtol=1e-12)
+    nodes, reached = inc.follow(1)
+    assert nodes.tolist() == [1, 2, 1] and not reached
+    nodes, reached = inc.follow(3)
+    assert nodes.tolist() == [3, 1, 2, 1] and not reached
+    np.testing.assert_allclose(inc.cost_to_come, [0.1, 0.0, 0.0, 0.0], rtol=1e-12)

@@ -11,7 +11,14 @@ from pipeline.core.graph_mdp import MDPParams, TrajectoryStats
 from pipeline.irl.birl import Posterior, birl_map
 from pipeline.irl.diagnostics import chains_agree
 from pipeline.irl.environment import Rollout
-from pipeline.irl.mcmc import EXTENSIONS, AdaptiveChainParams, ChainParams, mcmc
+from pipeline.irl.mcmc import (
+    EXTENSIONS,
+    AdaptiveChainParams,
+    ChainParams,
+    Proposal,
+    mcmc,
+    run_chain,
+)
 from pipeline.irl.prior import Prior
 from tests.irl.conftest import BOX, D, central_difference
 
@@ -321,6 +328,107 @@ def test_chains_that_agree_stop_and_those_that_do_not_go_on_from_where_they_were
         AdaptiveChainParams(n_samples=20, max_samples=10)
 
 
+class Gaussian:
+    """A target known in closed form: log p(w) = -(w - m)ᵀ P (w - m) / 2."""
+
+    def __init__(self, mean, precision):
+        self.mean, self.precision = np.asarray(mean, float), np.asarray(precision, float)
+
+    def log_posterior(self, w):
+        d = np.asarray(w, float) - self.mean
+        return float(-0.5 * d @ self.precision @ d)
+
+    def log_posterior_and_grad(self, w):
+        return self.log_posterior(w), -self.precision @ (np.asarray(w, float) - self.mean)
+
+    def dispersed_start(self, rng):
+        return rng.normal(size=len(self.mean))
+
+
+def test_mala_proposal_and_acceptance_ratio_by_hand():
+    """w' = w + (ε²/2) C ∇log p(w) + ε L z with C = LLᵀ, accepted with
+    p(w') q(w | w') / (p(w) q(w' | w)), q(· | x) = N(x + (ε²/2) C ∇log p(x), ε² C)."""
+    from pipeline.irl.mcmc import _langevin_step
+
+    target = Gaussian([0.3, -0.2], [[2.0, 0.5], [0.5, 1.0]])
+    shape = np.array([[0.8, 0.0], [0.3, 0.5]])
+    cov, eps, z, w = shape @ shape.T, 0.7, np.array([0.4, -1.1]), np.array([1.0, -1.0])
+    lp, grad = target.log_posterior_and_grad(w)
+    new, lp_new, grad_new, log_ratio = _langevin_step(target, Proposal(shape, mala=True), w,
+                                                      grad, lp, eps, z, shape @ z)
+
+    def log_q(to, frm):  # up to a constant, the same both ways
+        r = to - frm - 0.5 * eps**2 * cov @ target.log_posterior_and_grad(frm)[1]
+        return -0.5 * r @ np.linalg.solve(eps**2 * cov, r)
+
+    np.testing.assert_allclose(new, w + 0.5 * eps**2 * cov @ grad + eps * shape @ z,
+                               rtol=1e-14)
+    assert lp_new == target.log_posterior(new)
+    np.testing.assert_array_equal(grad_new, target.log_posterior_and_grad(new)[1])
+    expected = lp_new - lp + log_q(w, new) - log_q(new, w)
+    assert abs(log_q(w, new) - log_q(new, w)) > 0.1  # not a symmetric move
+    assert log_ratio == pytest.approx(expected, rel=1e-12)
+
+
+def test_one_chain_of_fixed_step_is_run_chain_after_its_burn_in():
+    """n_chains=1, adapt=false: the burn-in steps are discarded but counted in the
+    acceptance rate, which is over every step taken."""
+    post = one_weight_posterior()
+    chain = AdaptiveChainParams(n_samples=50, burn_in=30, thin=2, proposal_step=0.3,
+                                n_chains=1, adapt=False)
+    result = mcmc(post, [-0.5], np.random.default_rng(11), chain)
+    run = run_chain(post, np.array([-0.5]), np.random.default_rng(11), Proposal(np.eye(1)),
+                    0.3, 30 + 50 * 2, thin=2, skip=30)
+    np.testing.assert_array_equal(result.samples, run.samples)
+    assert 0 < run.accepted < 130
+    assert result.acceptance_rate == run.accepted / 130
+
+
+def test_an_extension_goes_on_from_each_chains_last_state_without_a_burn_in():
+    """Chains too short to agree (2 x 20 draws cannot reach an ESS of 100) go on: each
+    extension is the chain run on from its last kept state by n_samples steps, the burn-in
+    not repeated; the same generator as a run that stops after the first block."""
+    post = one_weight_posterior()
+    chain = AdaptiveChainParams(n_samples=20, burn_in=30, proposal_step=0.05, n_chains=2,
+                                adapt=False, max_samples=40)
+    long = mcmc(post, [-0.5], np.random.default_rng(5), chain)
+    rng = np.random.default_rng(5)
+    first = mcmc(post, [-0.5], rng, dataclasses.replace(chain, max_samples=20))
+    assert long.samples.shape == (80, 1) and first.samples.shape == (40, 1)
+    for c in range(2):  # long: chain 0's 40 draws, then chain 1's
+        np.testing.assert_array_equal(long.samples[40 * c:40 * c + 20],
+                                      first.samples[20 * c:20 * c + 20])
+        run_on = run_chain(post, first.samples[20 * c + 19], rng, Proposal(np.eye(1)), 0.05,
+                           20)
+        np.testing.assert_array_equal(long.samples[40 * c + 20:40 * c + 40], run_on.samples)
+
+
+def test_chain_0_starts_at_w0_and_the_others_at_dispersed_starts():
+    """No burn-in and a tiny step: each chain's first draw is next to its start, w0 for
+    chain 0 and the posterior's dispersed starts (drawn first, in chain order) for the rest."""
+    post = one_weight_posterior()
+    chain = AdaptiveChainParams(n_samples=5, burn_in=0, proposal_step=1e-6, n_chains=3,
+                                adapt=False, max_samples=5)
+    result = mcmc(post, [-0.95], np.random.default_rng(8), chain)
+    rng = np.random.default_rng(8)
+    starts = [-0.95] + [post.dispersed_start(rng)[0] for _ in range(2)]
+    assert abs(starts[1] - starts[2]) > 0.01 and min(abs(np.subtract(starts[1:], -0.95))) > 0.01
+    np.testing.assert_allclose(result.samples[::5, 0], starts, atol=1e-5)
+
+
+def test_adaptive_burn_in_hands_every_chain_the_same_step():
+    """The sampling phase runs every chain at the chains' median adapted step."""
+    from pipeline.irl.mcmc import _adaptive_burn_in
+
+    post = one_weight_posterior()
+    rng = np.random.default_rng(6)
+    starts = [np.array([-0.9]), np.array([-0.5]), np.array([-0.1])]
+    chain = AdaptiveChainParams(n_samples=10, burn_in=200, n_chains=3, proposal_step=0.01)
+    _, steps = _adaptive_burn_in(post, starts, np.full(3, 0.01), rng, chain,
+                                 Proposal(np.eye(1)), lambda _: None)
+    assert steps.shape == (3,) and np.all(steps == steps[0]) and steps[0] > 0.01
+
+
 @pytest.mark.parametrize("n, ok", [(0, False), (1, True), (10_000, True), (10_001, False),
                                    (True, False), (2.0, False)])
 def test_iterations_are_counted_from_1_to_10_000_in_one_check(n, ok):
@@ -335,3 +443,48 @@ def test_iterations_are_counted_from_1_to_10_000_in_one_check(n, ok):
         with pytest.raises(ParameterError, match=r"n_iterations=\S+ is not allowed \(allowed: "
                                                  r"an integer from 1 to 10,000\)"):
             IRLConfig(n_iterations=n)
+
+
+# ---------------------------------------------------------------- birl=fixed
+
+
+def test_fixed_weights_are_the_only_iteration_with_one_solve():
+    """birl=fixed learns nothing: iteration 0 holds the given weights, with their greedy
+    paths on the graph (route A where feature 1 costs more), log likelihood 0, one solve."""
+    from pipeline.core.graph_mdp import SpatialGraph
+    from pipeline.irl.base import IRLProblem
+    from pipeline.irl.environment import GraphEnvironment
+    from pipeline.irl.fixed import FixedConfig, fit_fixed
+    from tests.conftest import PAPER_MDP
+    from tests.irl.conftest import ROUTES_BOX, three_routes
+
+    mdp, routes = three_routes()
+    graph = SpatialGraph(np.zeros((6, 2)), mdp, np.array([0]), [np.zeros((2, 2))] * 7)
+    w = np.array([-0.2, -0.9])
+    problem = IRLProblem([], [], GraphEnvironment(graph, PAPER_MDP),
+                         Prior("uniform", 1.0, *ROUTES_BOX), w, np.random.default_rng(0),
+                         roadmap=lambda: graph)
+    result = fit_fixed(problem, FixedConfig(weights=w.tolist()))
+    assert result.mdp_solves == [1] and len(result.iterations) == 1
+    it = result.iterations[0]
+    assert it.index == 0 and it.log_likelihood == 0.0 and np.array_equal(it.weights, w)
+    assert list(it.rollout.paths[0].edges) == list(routes["A"].edges)
+
+
+@pytest.mark.parametrize("kwargs, key", [
+    (dict(weights=[-1.0, float("nan")]), "weights"),
+    (dict(weights=[-1.0, float("-inf")]), "weights"),
+    (dict(weights=[False, -1.0]), "weights"),  # a YAML false is no weight
+    (dict(from_run="   "), "from_run"),  # would be the working directory
+    (dict(from_run=""), "from_run"),
+    (dict(weights=[-1.0], from_run="run"), "weights"),
+    (dict(), "weights"),
+    (dict(weights=[-1.0], n_iterations=1), "n_iterations"),
+])
+def test_fixed_config_refuses_what_names_no_weights(kwargs, key):
+    from pipeline.core.params import ParameterError
+    from pipeline.irl.fixed import FixedConfig
+
+    with pytest.raises(ParameterError, match=rf"^{key}="):
+        FixedConfig(**kwargs)
+    assert FixedConfig(weights=[-1, 0.0, -0.5]).weights == [-1, 0.0, -0.5]

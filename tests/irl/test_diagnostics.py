@@ -4,7 +4,13 @@ draws, and the properties R-hat and the bulk ESS must have."""
 import numpy as np
 import pytest
 
-from pipeline.irl.diagnostics import autocovariance, convergence
+from pipeline.irl.diagnostics import (
+    AGREED_ESS,
+    AGREED_RHAT,
+    autocovariance,
+    chains_agree,
+    convergence,
+)
 
 
 def ar1(rho: float, shape: tuple[int, int, int], rng: np.random.Generator) -> np.ndarray:
@@ -114,3 +120,22 @@ def test_autocovariance_by_fft_is_the_direct_sum():
 def test_draws_must_be_chains_samples_parameters():
     with pytest.raises(ValueError, match="chains, samples, d"):
         convergence(np.zeros((4, 100)))
+
+
+def test_antithetic_chains_have_their_ess_capped_at_s_log10_s():
+    """Draws that alternate in sign have a negative lag-1 autocorrelation: the integrated
+    autocorrelation tau falls below 1/log10(S), where ArviZ caps it (ESS = S log10 S)."""
+    rng = np.random.default_rng(0)
+    size = np.abs(rng.normal(size=(2, 100, 1))) + 0.1
+    draws = size * (-1.0) ** np.arange(100)[None, :, None]
+    _, ess = convergence(draws)
+    assert ess[0] == pytest.approx(200 * np.log10(200), rel=1e-12)
+
+
+def test_chains_agree_at_the_agreed_values_and_ignore_nan():
+    assert chains_agree(np.array([AGREED_RHAT, 1.0]), np.array([AGREED_ESS, 1e4]))
+    assert not chains_agree(np.array([AGREED_RHAT + 1e-9]), np.array([AGREED_ESS]))
+    assert not chains_agree(np.array([1.0]), np.array([AGREED_ESS - 1e-9]))
+    # a constant parameter (R-hat NaN, ESS the draws) or one chain (R-hat NaN) counts as agreed
+    assert chains_agree(np.array([np.nan, 1.01]), np.array([400.0, 300.0]))
+    assert chains_agree(np.array([np.nan]), np.array([np.nan]))

@@ -67,6 +67,8 @@ def test_policywalk_with_flat_likelihood_samples_the_uniform_box():
     assert np.abs(freq - 1 / 25).max() < 0.02
     # Every in-box proposal is a solve; out-of-box ones are rejected unsolved.
     assert res.mdp_solves[-1] == 1 + 100 + 6000 - res.out_of_box
+    # a flat posterior accepts every in-box proposal: the rate is over all the steps
+    assert res.acceptance_rate == (100 + 6000 - res.out_of_box) / (100 + 6000)
     again = run_walk(mdp, [], UNIFORM, 1)
     assert np.array_equal(again.samples, res.samples)
 
@@ -90,6 +92,49 @@ def test_policywalk_samples_the_exact_grid_posterior():
     assert 0.5 * np.abs(freq - exact).sum() < 0.06  # total variation distance
     assert np.allclose(res.weights, exact @ np.array(list(itertools.product(grid, grid))),
                        atol=0.05)
+
+
+def test_grid_points_that_miss_a_box_face_by_round_off_lie_on_it():
+    """From w0 = -0.7 the grid point 7 steps of 0.1 up is 1.1e-16 above the face 0: it is
+    the face (clipped into the box), proposed and kept like every other grid point."""
+    assert -0.7 + 0.1 * 7 > 0.0
+    mdp, _ = three_routes()
+    res = run_walk(mdp, [], UNIFORM, 3, w0=np.array([-0.7, -0.7]), grid_step=0.1,
+                   n_samples=3000)
+    assert np.all((res.samples >= -1.0) & (res.samples <= 0.0))
+    grid = np.round(np.linspace(-1, 0, 11), 9)
+    for j in range(2):
+        assert set(np.round(res.samples[:, j], 9)) == set(grid)
+        assert res.samples[:, j].max() == 0.0 and res.samples[:, j].min() == -1.0
+
+
+def test_recorded_log_likelihoods_are_the_boltzmann_likelihood_alone():
+    """history[k] is scored by alpha times Q* in the Boltzmann likelihood, the prior left out
+    (a Gaussian prior centred away from w0, so log prior(w0) != 0)."""
+    mdp, routes = three_routes()
+    expert = expert_state_actions(mdp, [routes["A"]])
+    prior = Prior("gaussian", 0.5, *ROUTES_BOX, mean=np.array([-1.0, 0.0]))
+    assert prior.log_pdf(np.array([-0.5, -0.5])) < -0.5
+    res = run_walk(mdp, expert, prior, 4, n_samples=200, n_records=4)
+
+    def by_hand(w):
+        q = 2.0 * mdp.q_values(w, mdp.solve(w).values)  # alpha = 2
+        return q[0] - logsumexp(q[:4]) + q[4] - logsumexp(q[4:5])
+
+    assert len(res.history) == 5
+    for w, ll in zip(res.history, res.log_likelihood, strict=True):
+        assert ll == pytest.approx(by_hand(w), abs=1e-9)
+
+
+def test_the_grid_step_may_be_half_the_narrowest_side():
+    """Two grid steps fit in the box's narrowest side (here exactly): allowed; wider: not."""
+    from pipeline.core.params import ParameterError
+    from pipeline.irl.policywalk import PolicyWalkConfig
+
+    prior = PolicyWalkConfig(grid_step=0.5).make_prior(2)
+    np.testing.assert_array_equal(prior.upper - prior.lower, [1.0, 1.0])
+    with pytest.raises(ParameterError, match="grid_step"):
+        PolicyWalkConfig(grid_step=0.5000001).make_prior(2)
 
 
 def test_baselines_reject_bad_input():

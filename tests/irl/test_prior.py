@@ -8,8 +8,9 @@ import pytest
 from scipy.integrate import quad
 from scipy.stats import truncnorm
 
-from pipeline.irl.prior import Prior
-from tests.irl.conftest import BOX, D
+from pipeline.core.params import ParameterError
+from pipeline.irl.prior import BoxConfig, Prior, PriorConfig
+from tests.irl.conftest import BOX, D, central_difference
 
 
 def test_prior_log_pdf_formulas_and_box():
@@ -77,3 +78,45 @@ def test_box_means_uniform_and_truncnorm():
     expected = [truncnorm.mean((lo - m) / sigma, (hi - m) / sigma, loc=m, scale=sigma)
                 for lo, hi, m in zip(lower, upper, mu, strict=True)]
     np.testing.assert_allclose(Prior("gaussian", sigma, lower, upper, mu).box_mean(), expected)
+
+
+@pytest.mark.parametrize("kind", ["gaussian", "laplace", "uniform"])
+def test_prior_gradient_and_hessian_are_the_log_densitys_derivatives(kind):
+    """Central differences of log_pdf and grad_log_pdf inside the box, away from the Laplace
+    peak (its kink): the gradient, and the diagonal Hessian (-1/σ² Gaussian, else 0)."""
+    prior = Prior(kind, 0.3, *BOX, mean=np.array([-0.2, -0.5, 0.0, -1.0]))
+    w = np.array([-0.6, -0.1, -0.35, -0.8])
+    np.testing.assert_allclose(prior.grad_log_pdf(w), central_difference(prior.log_pdf, w),
+                               rtol=1e-7, atol=1e-7)
+    hessian = np.array([central_difference(lambda v, j=j: prior.grad_log_pdf(v)[j], w)[j]
+                        for j in range(D)])
+    np.testing.assert_allclose(prior.hess_log_pdf(w), hessian, rtol=1e-6, atol=1e-6)
+    if kind == "gaussian":
+        np.testing.assert_allclose(prior.hess_log_pdf(w), -1 / 0.3**2)
+
+
+def test_check_start_wants_one_weight_per_feature_in_the_box():
+    prior = Prior("uniform", 1.0, *BOX)
+    np.testing.assert_array_equal(prior.check_start(BOX[1]), np.zeros(D))  # the face counts
+    for w0 in ([-0.5], np.full(D + 1, -0.5), np.full((1, D), -0.5), np.full(D, 0.1)):
+        with pytest.raises(ValueError, match="w0 must have shape"):
+            prior.check_start(w0)
+
+
+def test_box_config_allows_a_prior_mean_on_the_box_face():
+    """The usual Gaussian centre, no cost (0), is the upper face of the default box."""
+    prior = BoxConfig(prior=PriorConfig("gaussian", 0.5, mean=[0.0])).make_prior(3)
+    np.testing.assert_array_equal(prior.mean, np.zeros(3))
+    assert BoxConfig(prior=PriorConfig("laplace", 0.5, mean=[-1.0, 0.0])).make_prior(2).kind \
+        == "laplace"
+    with pytest.raises(ParameterError, match="prior.mean"):
+        BoxConfig(prior=PriorConfig("gaussian", 0.5, mean=[0.1])).make_prior(3)
+
+
+def test_box_config_takes_one_number_or_one_per_feature():
+    np.testing.assert_array_equal(BoxConfig(lower=[-2.0, -1.0]).make_prior(2).lower,
+                                  [-2.0, -1.0])
+    with pytest.raises(ParameterError, match="lower"):
+        BoxConfig(lower=[-2.0, -1.0, -1.0]).make_prior(2)
+    with pytest.raises(ParameterError, match="upper"):
+        BoxConfig(upper=[0.0, 0.0]).make_prior(3)

@@ -253,6 +253,23 @@ def test_admissibility_test_agrees_with_the_profile_by_hand(w):
     assert not post.admissible([0.5], -1e9, 3.0)  # outside the prior box
 
 
+def test_admissibility_test_rejects_a_level_just_above_the_profile_at_an_end_of_the_range():
+    """Where the profile's maximum is at an end of the β range (here β = 0.1: log p − log β
+    falls with β), a level above it by less than the planes' slack is rejected once the
+    search comes back to that β: the value there is known and below the level."""
+    mdp, a, b = two_routes()
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    for w in (-0.3, -0.8):
+        profile = by_hand(w, 0.1, 1, 3, walk=True) - np.log(0.1)
+        betas = np.exp(np.linspace(np.log(0.1), np.log(100), 201))
+        assert all(by_hand(w, beta, 1, 3, walk=True) - np.log(beta) <= profile
+                   for beta in betas)
+        for guess in (0.1, 3.0, 100):
+            post = BoltzmannPosterior(mdp, [a, b, b, b], prior, (0.1, 100))
+            assert not post.admissible([w], profile + 1e-8, guess)
+            assert post.admissible([w], profile - 1e-8, guess)
+
+
 def test_noisy_demos_do_not_collapse_the_weights():
     """The paper's failure: demonstrations worse than the greedy paths. Here they take the
     costlier route A half the time; eq. (2) against the greedy route B alone would push w
@@ -622,9 +639,10 @@ def test_trust_region_newton_on_a_box_by_hand():
     def quadratic(x):
         return 0.5 * (x - c) @ a @ (x - c), a @ (x - c), a
 
-    x = trust_region_newton(quadratic, lambda x: quadratic(x)[0], np.array([1.0, 1.0]),
-                         np.zeros(2), np.ones(2))
-    np.testing.assert_allclose(x, [0.3, 0.0], atol=1e-12)
+    for x0 in ([1.0, 1.0], [0.0, 0.0]):  # from the lower corner x₁ leaves its bound (∂f/∂x₁ < 0)
+        x = trust_region_newton(quadratic, lambda x: quadratic(x)[0], np.array(x0),
+                             np.zeros(2), np.ones(2))
+        np.testing.assert_allclose(x, [0.3, 0.0], atol=1e-12)
 
     def rosenbrock(x):
         f = (1 - x[0]) ** 2 + 100 * (x[1] - x[0] ** 2) ** 2
@@ -927,6 +945,60 @@ def test_the_search_starts_and_stays_where_the_uniform_measures_sum_converges():
     # demonstration's likelihood keeps rising with it
     assert w[0] == pytest.approx(-1.0) and np.isfinite(post.log_likelihood(w, beta))
     assert post.log_likelihood(w, beta) > log_likelihood
+
+
+def test_the_search_start_doubles_beta_only_up_to_the_end_of_its_range():
+    """The graph above (the sum converges iff β > ln 4 / 1.02 ≈ 1.36 at w = −0.5): from
+    β = 1 doubling stops at the range's end, which converges at 1.5, and diverges at 1.2."""
+    mdp = GraphMDP(np.array([0, 0, 1, 1, 1]), np.array([1, 1, 0, 0, 2]), np.ones(5),
+                   np.ones((5, 1)), np.array([False, False, True]),
+                   MDPParams(gamma=1.0, time_cost=0.01, r_goal=1.0, v_max=3.0))
+    demo = Path(np.array([0, 1, 2]), np.array([0, 4]), True)
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    post = BoltzmannPosterior(mdp, [demo], prior, (0.1, 1.5), "uniform")
+    beta, log_likelihood = post.start([-0.5], 1.0)
+    assert beta == 1.5 and log_likelihood == post.log_likelihood([-0.5], 1.5)
+    with pytest.raises(PathWeightDiverges):
+        BoltzmannPosterior(mdp, [demo], prior, (0.1, 1.2), "uniform").start([-0.5], 1.0)
+
+
+def test_joint_density_support_is_the_closed_box_and_beta_range():
+    """log p(w, log β) is finite on the whole closed range of log β, and the extra chains'
+    starts lie in the support even where β0 sits at an end of the range."""
+    mdp, a, b = two_routes()
+    post = BoltzmannPosterior(mdp, [a, b, b], Prior("uniform", 1.0, [-1.0], [0.0]), (0.1, 100))
+    density = LogBetaDensity(post, 100.0)
+    for u in np.log([0.1, 100.0]):
+        assert np.isfinite(density.log_posterior(np.array([-0.4, u])))
+        assert np.isfinite(density.log_posterior_and_grad(np.array([-0.4, u]))[0])
+    for u in (np.log(0.1) - 1e-9, np.log(100.0) + 1e-9):
+        assert density.log_posterior(np.array([-0.4, u])) == -np.inf
+    rng = np.random.default_rng(0)
+    starts = np.array([density.dispersed_start(rng) for _ in range(40)])
+    assert np.all(starts[:, 1] <= np.log(100.0)) and np.sum(starts[:, 1] == np.log(100.0)) > 5
+    assert all(np.isfinite(density.log_posterior(x)) for x in starts)
+
+
+def test_a_path_that_stops_short_forgoes_the_goal_reward_and_its_stop_counts_only_undiscounted():
+    """Given as a path of the graph (discounted, uniform measure), a demonstration 0 → 1 that
+    stops there scores β·0.2w − V(0): no βγ^T R_goal. Given by its sums with its stop, the
+    stop is ignored with discounting (the whole path's likelihood, as in `of_sums`)."""
+    mdp, _, _ = two_routes()
+    edge = {(int(s), int(d)): i for i, (s, d) in enumerate(zip(mdp.src, mdp.dst, strict=True))}
+    prior = Prior("uniform", 1.0, [-1.0], [0.0])
+    short = Path(np.array([0, 1]), np.array([edge[0, 1]]), False)
+    post = BoltzmannPosterior(mdp, [short], prior, (0.1, 100), "uniform")
+    stats = TrajectoryStats.from_edges(0, [[0.2]], [1.0], mdp.params, reached=False)
+    whole = BoltzmannPosterior.of_sums(mdp, np.array([0]), [stats], prior, (0.1, 100),
+                                       "uniform")
+    stopped = BoltzmannPosterior.of_sums(mdp, np.array([0]), [stats], prior, (0.1, 100),
+                                         "uniform", stops=np.array([1]))
+    for w, beta in ((-0.5, 2.0), (-0.1, 10.0)):
+        v0 = beta * (w + GAMMA) - by_hand(w, beta, 1, 0)  # by_hand(.., 1, 0) = Q_A − V(0)
+        expected = beta * 0.2 * w - v0
+        assert post.log_likelihood([w], beta) == pytest.approx(expected, abs=1e-9)
+        assert whole.log_likelihood([w], beta) == pytest.approx(expected, abs=1e-9)
+        assert stopped.log_likelihood([w], beta) == pytest.approx(expected, abs=1e-9)
 
 
 def test_the_likelihood_ratio_test_counts_the_weights_and_beta():
