@@ -22,6 +22,7 @@ from pipeline.core.social_planner import (
     SocialCost,
     SocialPlannerParams,
     _drop_collinear,
+    _string_pull,
     edge_costs,
     groups,
     lattice_spacing,
@@ -111,6 +112,34 @@ def test_smoothing_leaves_few_vertices_and_no_collinear_ones(metropolis_paths):
         d_in, d_out = np.diff(p.points, axis=0)[:-1], np.diff(p.points, axis=0)[1:]
         cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
         assert np.all(np.abs(cross) > 1e-9)
+
+
+def test_smoothing_never_raises_the_cost_of_the_cheapest_lattice_path(metropolis_paths):
+    for p in metropolis_paths:
+        assert p.cost <= p.lattice_cost * (1 + 1e-9)
+        assert p.lattice_cost - p.cost < 0.01 * p.lattice_cost  # the same path, straightened
+
+
+def test_string_pulling_jumps_to_the_farthest_vertex_it_may():
+    """In an empty 10 m room, far from its walls (whose cost is e^-22 of its peak 2 m
+    away), the density is 1: a staircase from (3, 3) to (7, 5) costs its length, the
+    straight segment less, so pulling leaves its two ends. A vertex the segment may not
+    reach (a person in the way) is kept, and the pull goes on from it."""
+    room = Room(0.0, 0.0, 10.0, 10.0)
+    steps = np.array([[3.0, 3.0], [4.0, 3.0], [4.0, 4.0], [5.0, 4.0], [6.0, 4.0], [6.0, 5.0],
+                      [7.0, 5.0]])
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(steps, axis=0), axis=1))])
+    empty = Scene("empty", room, (), (), steps[:1], steps[-1])
+    pulled = _string_pull(empty, SocialCost(empty, SocialPlannerParams()), steps, along)
+    assert np.array_equal(pulled, steps[[0, -1]])
+    # a person 0.13 m off the straight line (clear of the staircase), the cost made flat by
+    # zero amplitudes: from (3, 3) the farthest vertex in sight is (6, 4), then the goal
+    flat = SocialPlannerParams(amplitude_person=0.0, amplitude_intimate=0.0,
+                               amplitude_group=0.0, amplitude_wall=0.0)
+    blocked = Scene("blocked", room, (Person(1, 5.3, 4.3),), (), steps[:1], steps[-1])
+    assert segments_feasible(blocked, steps[:-1], steps[1:]).all()
+    pulled = _string_pull(blocked, SocialCost(blocked, flat), steps, along)
+    assert pulled.tolist() == [[3.0, 3.0], [6.0, 4.0], [7.0, 5.0]]
 
 
 def test_paths_keep_clear_of_obstacles_and_go_through_the_door():
