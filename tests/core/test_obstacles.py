@@ -433,3 +433,29 @@ def test_free_bounds_are_the_free_cells_edges_by_hand():
     assert ObstacleMap(grid).free_bounds() == (-1.0 + 1.5, 10.0 + 1.0, -1.0 + 3.0, 10.0 + 2.0)
     assert ObstacleMap(OccupancyGrid(np.ones((2, 2), dtype=bool), (0.0, 0.0), 1.0)) \
         .free_bounds() is None
+
+
+def test_largest_free_region_and_its_bounds_by_hand():
+    """Image rows from the bottom (row 0 at y = origin): a wall column splits a 4 x 6 grid
+    into a 1-column region on the left and a 4-column one on the right; the largest is the
+    right one, bounded by its cells' edges."""
+    occupied = np.zeros((4, 6), dtype=bool)
+    occupied[:, 1] = True
+    obstacles = ObstacleMap(OccupancyGrid(occupied, (10.0, 20.0), 0.5))
+    right = obstacles.largest_free_region()
+    expected = ~occupied
+    expected[:, 0] = False
+    np.testing.assert_array_equal(right, expected)
+    assert obstacles.free_bounds(right) == (11.0, 20.0, 13.0, 22.0)
+    assert obstacles.free_bounds() == (10.0, 20.0, 13.0, 22.0)
+
+
+def test_free_area_within_bounds_counts_the_cells_whose_centre_lies_inside():
+    """A free 5 x 3 m grid of 1 m cells (clearance radius 0): a box over x 0..4, y 0..1
+    holds 4 cell centres, one over x 0..1, y 0..3 holds 3 (x and y read the other way
+    round would give 1 and 3)."""
+    obstacles = ObstacleMap(OccupancyGrid(np.zeros((3, 5), dtype=bool), (0.0, 0.0), 1.0),
+                            outside_occupied=False)
+    assert obstacles.free_area(0.0) == 15.0
+    assert obstacles.free_area(0.0, (0.0, 0.0, 4.0, 1.0)) == 4 * 1.0  # x 0.5..3.5, y 0.5
+    assert obstacles.free_area(0.0, (0.0, 0.0, 1.0, 3.0)) == 3 * 1.0  # x 0.5, y 0.5..2.5
