@@ -11,7 +11,7 @@ from pipeline.core.scenegen import (
     most_points_apart,
     random_scene,
 )
-from pipeline.core.world import scene_from_dict
+from pipeline.core.world import Room, Scene, scene_from_dict
 from pipeline.errors import PipelineError
 
 
@@ -112,3 +112,39 @@ def test_the_largest_free_region_by_hand():
     expected = np.zeros_like(occupied)
     expected[1:3, 1:4] = expected[3, 4] = True
     assert (region == expected).all()
+
+
+def test_starts_spread_along_one_wall_and_the_goal_at_the_opposite_one():
+    """In a 12 x 8 m room (not square: x and y cannot be swapped unseen), every start is
+    border_margin from one wall, one per equal bin along it, and the goal border_margin from
+    the opposite wall, within the middle 40 % of it; over eight seeds the walls differ
+    (starts along the long walls and along the short ones)."""
+    spec = RandomSceneSpec(width=12.0, height=8.0, n_singles=0, n_groups=0, n_starts=4)
+    m, shared = spec.border_margin, set()
+    for seed in range(8):
+        scene = random_scene(spec, np.random.default_rng(seed))
+        across = 1 if np.ptp(scene.starts[:, 1]) == 0 else 0  # the coordinate they share
+        shared.add(across)
+        assert np.ptp(scene.starts[:, across]) == 0
+        side = (spec.width, spec.height)[across]
+        along_len = (spec.width, spec.height)[1 - across]
+        assert scene.starts[0, across] in (m, side - m)
+        assert scene.starts[0, across] + scene.goal[across] == pytest.approx(side)
+        bins = np.linspace(m, along_len - m, spec.n_starts + 1)
+        assert ((scene.starts[:, 1 - across] >= bins[:-1])
+                & (scene.starts[:, 1 - across] <= bins[1:])).all()
+        assert 0.3 * along_len <= scene.goal[1 - across] <= 0.7 * along_len
+    assert shared == {0, 1}
+
+
+def test_a_start_walled_off_from_the_goal_fails_the_reachability_check():
+    """Start 0 or start 1 walled into the room's corner (two walls meeting), the other free:
+    not every start reaches the goal, whichever start it is (a scene file with it is
+    refused; here the check is called on a Scene made directly)."""
+    corner = (np.array([[0.0, 2.0], [2.6, 2.0], [2.6, 2.3], [0.0, 2.3]]),
+              np.array([[2.3, 0.0], [2.6, 0.0], [2.6, 2.3], [2.3, 2.3]]))
+    room, goal = Room(0.0, 0.0, 10.0, 10.0), np.array([6.0, 9.0])
+    for starts in ([[1.0, 1.0], [6.0, 1.0]], [[6.0, 1.0], [1.0, 1.0]]):
+        walled = Scene("corner", room, (), (), np.array(starts), goal, polygons=corner)
+        assert not all_starts_reach_goal(walled), starts
+        assert all_starts_reach_goal(Scene("free", room, (), (), np.array(starts), goal))
