@@ -130,6 +130,21 @@ def test_posq_path_is_smooth_and_respects_wheel_limits(posq_runs):
     assert max_wheel == pytest.approx(ctrl.max_speed)  # the clipping is actually exercised
 
 
+def test_posq_first_step_of_a_hard_turn_is_clipped_to_the_wheel_limit_by_hand():
+    """Target 2 m to the left, heading up: α = π/2, β = 0, so the command is v = k_ρ·tanh(2
+    k_v), ω = k_α·π/2; its outer wheel would turn at v + ω·b/2 > max_speed, and both are
+    divided by that over max_speed, which keeps the curvature and puts the outer wheel
+    exactly at max_speed."""
+    ctrl = PosqController()
+    traj = ctrl.steer(np.array([0.0, 0.0, 0.0]), np.array([0.0, 2.0, math.pi / 2]))
+    v0, omega0 = ctrl.k_rho * math.tanh(2.0 * ctrl.k_v), ctrl.k_alpha * math.pi / 2
+    scale = (v0 + omega0 * ctrl.wheel_base / 2) / ctrl.max_speed
+    assert scale > 1
+    v, omega = implied_speeds(traj, ctrl.dt)
+    assert (v[0], omega[0]) == pytest.approx((v0 / scale, omega0 / scale), rel=1e-9)
+    assert v[0] + omega[0] * ctrl.wheel_base / 2 == pytest.approx(ctrl.max_speed, rel=1e-9)
+
+
 def test_posq_backward_option_reverses_when_target_is_behind():
     ctrl = PosqController(allow_backward=True)
     behind = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0])  # target straight behind
