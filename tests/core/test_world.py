@@ -35,6 +35,12 @@ def _metropolis_dict():
      "persons 1 and 2 are at the same place (2, 5)"),
     (lambda d: d["persons"].append({**d["persons"][5], "id": 99}),  # unrelated, a copy
      "persons 6 and 99 are at the same place"),
+    (lambda d: d["room"].update(x_max=0.0), "room [0, 0] x [0, 10] is empty"),  # no width
+    (lambda d: d["persons"][1].update(id=1), "duplicate person ids in [1, 1, 3,"),  # one pair
+    (lambda d: d["relations"].append([4, 4]), "relation [4, 4] links a person to itself"),
+    (lambda d: d["starts"][0].__setitem__(0, float("nan")), "'starts' must be a list of finite"),
+    (lambda d: d.update(body_radius=0.0), "'body_radius' must be > 0, got 0"),
+    (lambda d: d.update(goal_tolerance=0.0), "'goal_tolerance' must be > 0, got 0"),
 ])
 def test_malformed_scene_names_the_culprit(mutate, message):
     data = _metropolis_dict()
