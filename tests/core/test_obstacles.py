@@ -459,3 +459,15 @@ def test_free_area_within_bounds_counts_the_cells_whose_centre_lies_inside():
     assert obstacles.free_area(0.0) == 15.0
     assert obstacles.free_area(0.0, (0.0, 0.0, 4.0, 1.0)) == 4 * 1.0  # x 0.5..3.5, y 0.5
     assert obstacles.free_area(0.0, (0.0, 0.0, 1.0, 3.0)) == 3 * 1.0  # x 0.5, y 0.5..2.5
+
+
+def test_segments_are_sampled_end_points_included_at_most_spacing_apart():
+    """1 m at spacing 0.3: ceil(1/0.3) = 4 steps of 0.25 m, 5 samples from end to end; a
+    zero-length segment is its point twice; each segment's first sample is indexed."""
+    from pipeline.core.obstacles import _sample_segments
+
+    samples, starts = _sample_segments(np.array([[0.0, 0.0], [2.0, 2.0]]),
+                                       np.array([[1.0, 0.0], [2.0, 2.0]]), 0.3)
+    np.testing.assert_allclose(samples, [[0.0, 0.0], [0.25, 0.0], [0.5, 0.0], [0.75, 0.0],
+                                         [1.0, 0.0], [2.0, 2.0], [2.0, 2.0]])
+    assert starts.tolist() == [0, 5]
