@@ -199,6 +199,18 @@ def test_posq_point_target_and_failures():
         ctrl.steer(np.array([0.0, 0.0]), np.array([1.0, 0.0]))
 
 
+def test_posq_runs_last_at_most_max_time():
+    """A run of K steps of dt is kept with max_time = K·dt and dropped with (K − 1)·dt; an
+    integration step longer than max_time is refused (no run could take one)."""
+    origin, target = np.array([0.0, 0.0, 0.0]), np.array([1.5, 0.8, 0.3])
+    steps = len(PosqController().steer(origin, target).poses) - 1
+    dt = PosqController().dt
+    assert PosqController(max_time=steps * dt).steer(origin, target) is not None
+    assert PosqController(max_time=(steps - 1) * dt).steer(origin, target) is None
+    with pytest.raises(ValueError, match="dt=2.0 is not allowed"):
+        PosqController(dt=2.0, max_time=1.0)
+
+
 def test_posq_is_deterministic():
     ctrl = PosqController()
     s, t = np.array([0.2, -1.0, 2.0]), np.array([1.5, 0.7, -0.4])
