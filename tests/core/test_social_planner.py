@@ -142,6 +142,22 @@ def test_string_pulling_jumps_to_the_farthest_vertex_it_may():
     assert pulled.tolist() == [[3.0, 3.0], [6.0, 4.0], [7.0, 5.0]]
 
 
+def test_the_planners_lattice_ends_a_path_where_it_enters_the_goal_disk(metropolis):
+    """No edge leaves or enters a lattice node within goal_tolerance of the goal: an edge
+    into the disk goes to the goal itself instead. A start is a path's first point, never
+    cut away, even within the disk (a Scene made directly: a file refuses it)."""
+    graph = planner_graph(metropolis, SocialPlannerParams())
+    in_disk = metropolis.at_goal(graph.positions)
+    in_disk[graph.goal_node] = False
+    assert not in_disk[graph.src].any() and not in_disk[graph.dst].any()
+    into_goal = graph.src[graph.dst == graph.goal_node]
+    assert len(into_goal) and (np.linalg.norm(graph.positions[into_goal] - metropolis.goal,
+                                              axis=1) > metropolis.goal_tolerance).all()
+    near = dataclasses.replace(metropolis, starts=np.array([[5.5, 8.8], [0.5, 0.5]]))
+    graph = planner_graph(near, SocialPlannerParams())
+    assert (graph.src == graph.start_nodes[0]).any()
+
+
 def test_paths_keep_clear_of_obstacles_and_go_through_the_door():
     # A wall across the room at y = 5 with a 1.2 m door at x in [6, 7.2].
     wall = [[[0, 4.9], [6, 4.9], [6, 5.1], [0, 5.1]], [[7.2, 4.9], [10, 4.9], [10, 5.1],
