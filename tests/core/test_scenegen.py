@@ -61,6 +61,28 @@ def test_persons_that_can_never_fit_are_refused_before_drawing():
         random_scene(spec, np.random.default_rng(0))
 
 
+def test_groups_count_towards_what_can_fit_and_a_goal_disk_across_the_room_is_refused():
+    """Each group keeps one member min_person_gap from the others, as a single does: 2
+    singles and 2 groups are 4 where at most 3 fit. A goal disk as wide as the distance
+    between the starts' wall and the goal's reaches the starts: refused, also at equality
+    (the room's 4 m less twice the 0.3 m margin: 3.4 m)."""
+    spec = RandomSceneSpec(width=2.0, height=2.0, n_singles=2, n_groups=2, max_tries=3)
+    with pytest.raises(PipelineError, match="4 singles and groups do not fit .* at most 3 "):
+        random_scene(spec, np.random.default_rng(0))
+    spec = RandomSceneSpec(width=4.0, height=4.0, n_singles=0, n_groups=0, goal_tolerance=3.4)
+    with pytest.raises(PipelineError, match="goal_tolerance=3.4 m reaches across"):
+        random_scene(spec, np.random.default_rng(0))
+
+
+def test_a_formation_radius_below_the_body_radius_is_refused():
+    """Members of a pair closer than a body radius to their centre overlap bodies."""
+    from pipeline.core.params import ParameterError
+
+    with pytest.raises(ParameterError, match="formation_radius=0.2 is not allowed"):
+        RandomSceneSpec(formation_radius=0.2, body_radius=0.25)
+    assert RandomSceneSpec(formation_radius=0.25, body_radius=0.25).formation_radius == 0.25
+
+
 def test_the_packing_bound_is_exact_on_a_unit_square_and_never_below_a_hexagonal_packing():
     assert most_points_apart(1.0, 1.0, 1.0) == 4  # the corners; a fifth point is < 1 apart
     for width, height, gap in [(10, 10, 0.7), (3, 17, 1.0), (0.0, 5.0, 0.5), (40, 2.5, 0.3)]:
