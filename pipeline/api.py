@@ -54,7 +54,7 @@ from pipeline.app.config import (
     one_job_of_a_sweep,
     register_configs,
 )
-from pipeline.app.context import resolve_path, stage_rng
+from pipeline.app.context import stage_rng
 from pipeline.app.figure_style import paper_style
 from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
 from pipeline.app.rundir import (
@@ -78,7 +78,6 @@ from pipeline.core.world import Scene, scene_from_dict
 from pipeline.errors import PipelineError, existing_dir, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
 from pipeline.inputs.recorded import clean_tracks, cut_trajectory, drop_repeats, match_to_starts
-from pipeline.inputs.scene_file import load_scene_file
 from pipeline.irl import methods
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment, spatial_graph
@@ -277,8 +276,7 @@ def load_scene(path: str | Path) -> Scene:
     """A scene file (JSON, with its map), read and checked as `scene.path=...` reads it: a
     relative path from the current directory, else from the package's data/ (so
     `load_scene("data/scenes/metropolis.json")` works from any directory)."""
-    return load_scene_file(resolve_path(os.fspath(path)),
-                           check=build.check_scene_extent)
+    return build.scene_file(os.fspath(path))
 
 
 def sweep(sweep_dir: str | Path) -> pd.DataFrame:

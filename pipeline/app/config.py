@@ -358,10 +358,10 @@ _COMPOSING = threading.Lock()  # Hydra's GlobalHydra is one per process
 
 def compose_config(overrides: Sequence[str] = (), with_hydra: bool = False) -> DictConfig:
     """The app's config with command-line style overrides, as `birlg` composes it (with
-    its `hydra` section too if `with_hydra`). Hydra
-    keeps one global state per process: compositions in threads take turns, and a Hydra
-    the caller had initialised (a notebook's `initialize()`, a script under `@hydra.main`)
-    is put back afterwards (Hydra refused: "GlobalHydra is already initialized")."""
+    its `hydra` section too if `with_hydra`). Hydra keeps one global state per process:
+    compositions in threads take turns, and a Hydra the caller had initialised (a
+    notebook's `initialize()`, a script under `@hydra.main`) is put back afterwards (Hydra
+    refused: "GlobalHydra is already initialized")."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.initialize import get_gh_backup, restore_gh_from_backup

@@ -82,6 +82,7 @@ SOCIAL_MEDIAL_CELLS = 1_000_000
 # expansion is cheap: halving them saved about 6 % of the time).
 SATURATED = 2
 
+
 @dataclass
 class GraphParams:
     max_nodes: int = 460  # the paper's Fig. 1

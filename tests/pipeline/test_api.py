@@ -159,20 +159,25 @@ def test_an_api_re_run_failing_in_a_stage_before_any_artefact_changed_keeps_the_
     assert api.open_run(earlier).status.complete
 
 
+def signal_once_running(run_dir: Path, signum: int) -> None:
+    """Send this process `signum` from a thread as soon as the run in `run_dir` has begun
+    its stages (status.json says running)."""
+    def send() -> None:
+        for _ in range(6000):
+            if read_status(run_dir).state == "running":
+                os.kill(os.getpid(), signum)
+                return
+            time.sleep(0.005)
+
+    threading.Thread(target=send, daemon=True).start()
+
+
 def test_ctrl_c_during_an_api_run_is_a_keyboard_interrupt_naming_the_stage(tmp_path):
     """A notebook's interrupt (SIGINT) once the run has begun its stages: KeyboardInterrupt,
     which `except KeyboardInterrupt` catches, saying where it stopped, as status.json does
     (it was the pipeline's own exception, printed as "(2, None, None)")."""
     run_dir = tmp_path / "run"
-
-    def interrupt_once_running() -> None:
-        for _ in range(6000):
-            if read_status(run_dir).state == "running":
-                os.kill(os.getpid(), signal.SIGINT)
-                return
-            time.sleep(0.005)
-
-    threading.Thread(target=interrupt_once_running, daemon=True).start()
+    signal_once_running(run_dir, signal.SIGINT)
     with pytest.raises(KeyboardInterrupt, match=r"^interrupted by the user at stage \w+$") \
             as stopped:
         api.run(list(FAST), run_dir=run_dir)
@@ -184,17 +189,9 @@ def test_an_api_run_under_nohup_is_not_stopped_by_a_hangup(tmp_path):
     """A process that ignores SIGHUP (`nohup python script.py`, so that closing the terminal
     does not stop it) keeps ignoring it during a run: it stopped the run `interrupted`."""
     run_dir = tmp_path / "run"
-
-    def hang_up_once_running() -> None:
-        for _ in range(6000):
-            if read_status(run_dir).state == "running":
-                os.kill(os.getpid(), signal.SIGHUP)
-                return
-            time.sleep(0.005)
-
     previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
     try:
-        threading.Thread(target=hang_up_once_running, daemon=True).start()
+        signal_once_running(run_dir, signal.SIGHUP)
         run = api.run(list(FAST), run_dir=run_dir)
         assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
     finally:
