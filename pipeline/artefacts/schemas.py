@@ -325,8 +325,10 @@ BIRL_POSTERIOR = _message("BirlPosterior", "Posterior samples of one sampling it
                       minimum=1),
     "mean": _features("Posterior mean of the weights"),
     "std": _features("Posterior standard deviation of the weights"),
-    "acceptance_rate": _num("Metropolis–Hastings acceptance rate over all steps (burn-in "
-                            "included).", minimum=0, maximum=1),
+    "acceptance_rate": _num("Metropolis–Hastings acceptance rate over the steps taken with "
+                            "the kept proposal: the sampling steps, and a fixed-step burn-in "
+                            "(an adapting burn-in's steps are not counted: its rate is the "
+                            "target by construction).", minimum=0, maximum=1),
     "samples": _array(_features("One kept sample"), "Kept samples (n_kept × n_features)."),
     "n_chains": _int("Chains sampled; `samples` holds them one after the other.", minimum=1),
     "step": _num("The proposal step the chains kept after burn-in (adapted).", minimum=0),
