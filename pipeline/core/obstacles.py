@@ -147,11 +147,14 @@ def _segments_meet(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
                    scale: float) -> np.ndarray:
     """Element by element (arrays (..., 2) of one shape): segment a→b meets segment c→d, with
     tolerances scaled to `scale`, the coordinates' largest magnitude (at least 1)."""
-    eps = 1e-12 * scale * scale
-
     def orient(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
-        o = (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) \
-            - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
+        pq, pr = q - p, r - p
+        o = pq[..., 0] * pr[..., 1] - pq[..., 1] * pr[..., 0]
+        # The differences carry a rounding error of the coordinates' magnitude, so |o| (the
+        # lengths times r's distance from the line) does of that times the lengths: r within
+        # about 1e-12·scale of the line counts as on it. (1e-12·scale², the lengths left
+        # out, let a point 12 m off a 2 m edge touch it at UTM magnitudes.)
+        eps = 1e-12 * scale * (np.abs(pq).max(axis=-1) + np.abs(pr).max(axis=-1))
         return np.where(np.abs(o) <= eps, 0.0, np.sign(o))
 
     def on_segment(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:

@@ -234,3 +234,75 @@ def test_linear_rejects_bad_speed_and_make_controller():
         make_controller("foo")
     assert make_controller("linear", speed=2.0) == LinearController(speed=2.0)
     assert make_controller("posq", dt=0.1).dt == 0.1
+
+
+def test_posq_parameter_bounds_are_inclusive_and_cruise_speed_is_k_rho():
+    """dt may be MIN_DT (1 ms) itself and k_beta ±LARGEST_POSITIVE itself; a forward speed
+    of k_rho·tanh(k_v·rho) never exceeds k_rho, the cruise speed (not the wheel limit)."""
+    from pipeline.core.controllers import MIN_DT
+    from pipeline.core.params import LARGEST_POSITIVE
+
+    assert PosqController(dt=MIN_DT, max_time=1.0).dt == MIN_DT
+    for k_beta in (-LARGEST_POSITIVE, LARGEST_POSITIVE):
+        assert PosqController(k_beta=k_beta).k_beta == k_beta
+    with pytest.raises(ValueError, match="k_beta"):
+        PosqController(k_beta=-2 * LARGEST_POSITIVE)
+    assert PosqController(k_rho=0.5, max_speed=2.0).cruise_speed == 0.5
+    assert LinearController(speed=2.0).cruise_speed == 2.0
+
+
+def test_posq_runs_end_heading_along_their_last_step():
+    """steer_many: a run's end pose heads along its last step (a curved run: not along the
+    chord from its start)."""
+    ctrl = PosqController()
+    starts = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 2.0]])
+    targets = np.array([[0.0, 2.0, math.pi], [-1.0, 0.5, 0.0]])
+    runs = ctrl.steer_many(starts, targets)
+    assert len(runs) == 2
+    for k in range(2):
+        step = runs.waypoints(k)[-1] - runs.waypoints(k)[-2]
+        chord = runs.waypoints(k)[-1] - runs.waypoints(k)[0]
+        assert runs.end_poses[k, 2] == math.atan2(step[1], step[0])
+        assert abs(wrap_angle(runs.end_poses[k, 2] - math.atan2(chord[1], chord[0]))) > 0.1
+
+
+def test_posq_stops_only_below_eps():
+    """The loop runs until rho < eps: a start exactly eps (0.5 m, exact) from the target
+    still makes a run, straight ahead; a start nearer than eps makes none."""
+    ctrl = PosqController(eps=0.5)
+    traj = ctrl.steer(np.array([0.0, 0.0, 0.0]), np.array([0.5, 0.0]))
+    assert traj is not None and len(traj.poses) >= 2
+    assert (np.diff(traj.points[:, 0]) > 0).all() and (traj.points[:, 1] == 0).all()
+    assert ctrl.steer(np.array([0.0, 0.0, 0.0]), np.array([0.49, 0.0])) is None
+
+
+def test_posq_target_exactly_abeam_is_not_behind():
+    """|alpha| > pi/2 reverses; a target exactly to the left (alpha = pi/2) does not: with
+    allow_backward the run is the forward one."""
+    start, target = np.array([0.0, 0.0, 0.0]), np.array([0.0, 2.0, math.pi / 2])
+    backward = PosqController(allow_backward=True).steer(start, target)
+    forward = PosqController().steer(start, target)
+    v, _ = implied_speeds(backward, backward.duration / (len(backward.poses) - 1))
+    assert v[0] > 0
+    np.testing.assert_array_equal(backward.poses, forward.poses)
+
+
+def test_posq_start_heading_is_wrapped():
+    """A start heading of 2π + 0.3 is the heading 0.3: the same run, its first pose's heading
+    in (-π, π]."""
+    ctrl = PosqController()
+    target = np.array([1.5, 0.8, 0.3])
+    wound = ctrl.steer(np.array([0.0, 0.0, 2 * math.pi + 0.3]), target)
+    plain = ctrl.steer(np.array([0.0, 0.0, 0.3]), target)
+    assert -math.pi < wound.poses[0, 2] <= math.pi
+    assert wound.poses.shape == plain.poses.shape
+    np.testing.assert_allclose(wound.poses, plain.poses, atol=1e-9)
+
+
+def test_linear_runs_end_in_the_target_pose_as_given():
+    ctrl = LinearController()
+    starts = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 2.0, 0.0]])
+    targets = np.array([[1.0, 0.0, 2.5], [1.0, 1.0, 1.0], [0.0, 3.0, -1.0]])
+    runs = ctrl.steer_many(starts, targets)
+    assert runs.index.tolist() == [0, 2]  # the second has zero length
+    np.testing.assert_array_equal(runs.end_poses, targets[[0, 2]])

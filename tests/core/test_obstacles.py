@@ -12,6 +12,8 @@ from pipeline.core.obstacles import (
     ObstacleMap,
     OccupancyGrid,
     first_self_crossing,
+    polygon_outside,
+    polygon_problem,
     rasterise,
     segments_intersect,
 )
@@ -471,3 +473,307 @@ def test_segments_are_sampled_end_points_included_at_most_spacing_apart():
     np.testing.assert_allclose(samples, [[0.0, 0.0], [0.25, 0.0], [0.5, 0.0], [0.75, 0.0],
                                          [1.0, 0.0], [2.0, 2.0], [2.0, 2.0]])
     assert starts.tolist() == [0, 5]
+
+
+# ------------------------------------------------- raster, geometry and query edge cases by hand
+
+def test_a_point_a_tie_below_the_grids_near_edge_is_inside():
+    """cell_of: a point within TIE (1e-6 m) of a cell border is in the cell above it, the
+    grid's near edge included (x0 - TIE lands exactly on the border: u = 0); 2·TIE below
+    is outside."""
+    grid = OccupancyGrid(np.zeros((3, 4), dtype=bool), (0.0, 0.0), 0.5)
+    rows, cols, inside = grid.cell_of(np.array([[-1e-6, 0.7], [0.7, -1e-6], [-2e-6, 0.7]]))
+    assert inside.tolist() == [True, True, False]
+    assert (rows[0], cols[0], rows[1], cols[1]) == (1, 0, 0, 1)
+
+
+def test_disks_include_the_cells_whose_centre_lies_exactly_on_the_circle():
+    """Cells of 0.5 m (centres at 0.25 + 0.5 k, exact in binary) and a disk of radius 1 m
+    centred on cell (3, 3): the 13 cells within two cells' distance, the four at exactly
+    1 m included."""
+    grid = OccupancyGrid(np.zeros((8, 8), dtype=bool), (0.0, 0.0), 0.5)
+    disk = grid.disks(np.array([[1.75, 1.75]]), 1.0)
+    rows, cols = np.nonzero(disk)
+    assert len(rows) == 13
+    assert ((rows - 3) ** 2 + (cols - 3) ** 2 <= 4).all()
+    assert disk[1, 3] and disk[5, 3] and disk[3, 1] and disk[3, 5]
+
+
+def test_a_touching_end_in_the_middle_of_the_other_segment_meets_it():
+    """A T: c lies inside a→b, d off its line, a and b on either side of c→d (only the
+    first touching test sees it); and the same with the segments swapped."""
+    a, b = np.array([[0.0, 0.0]]), np.array([[2.0, 0.0]])
+    c, d = np.array([[1.0, 0.0]]), np.array([[1.0, 1.0]])
+    assert segments_intersect(a, b, c, d).tolist() == [[True]]
+    assert segments_intersect(c, d, a, b).tolist() == [[True]]
+    assert segments_intersect(a, b, c + [0, 1e-3], d).tolist() == [[False]]
+
+
+def test_a_triangle_too_small_to_have_area_is_refused():
+    """Legs of 10 µm: three points not on one line (rank 2) and no crossing, but an area
+    of 5e-11 m² (below the 1e-9 m² threshold): no obstacle."""
+    tiny = np.array([[0.0, 0.0], [1e-5, 0.0], [0.0, 1e-5]])
+    assert polygon_problem(tiny) == "has zero area"
+    assert polygon_problem(tiny * 1e3) is None  # 1 cm legs: 5e-5 m²
+
+
+def test_a_polygon_round_the_room_with_a_vertex_level_with_its_corner_is_not_outside():
+    """The room [0, 1]² inside a pentagon one of whose vertices, (4, 0), lies on the
+    horizontal through the room's corner (0, 0): the even-odd count along that line must
+    count the vertex once (the edge leaving it upwards), so the room is inside."""
+    around = np.array([[-1.0, -1.0], [3.0, -1.0], [4.0, 0.0], [3.0, 3.0], [-1.0, 3.0]])
+    assert not polygon_outside(around, (0.0, 0.0, 1.0, 1.0))
+    assert polygon_outside(around + [10.0, 0.0], (0.0, 0.0, 1.0, 1.0))
+
+
+def test_rasterise_refuses_bounds_without_height():
+    with pytest.raises(PipelineError, match="are empty"):
+        rasterise([], None, (0.0, 1.0, 1.0, 0.5), 0.1)
+    with pytest.raises(PipelineError, match="are empty"):
+        rasterise([], None, (1.0, 0.0, 0.5, 1.0), 0.1)
+
+
+def test_rasterising_polygons_together_is_the_union_of_rasterising_each():
+    """A triangle whose bounding box covers a square it does not touch: burning the
+    triangle in must not clear the square's cells (nor a given grid's)."""
+    square = _rect(0.25, 1.25, 0.65, 1.65)
+    triangle = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]]) + [0.0, -0.01]
+    bounds = (0.0, 0.0, 2.0, 2.0)
+    each = [rasterise([p], None, bounds, 0.1).occupied for p in (square, triangle)]
+    assert each[0].any() and not (each[0] & each[1]).any()
+    np.testing.assert_array_equal(rasterise([square, triangle], None, bounds, 0.1).occupied,
+                                  each[0] | each[1])
+    given = rasterise([square], None, bounds, 0.1)
+    np.testing.assert_array_equal(rasterise([triangle], given).occupied, each[0] | each[1])
+
+
+def test_a_wall_reaching_just_onto_the_grid_marks_the_cell_it_ends_in():
+    """A wall from far outside ending 1 cm inside the corner cell: its only sample on the
+    grid is its end (the next one, a quarter cell back, is off the grid), and that cell alone
+    is occupied."""
+    grid = rasterise([np.array([[0.01, 0.05], [-5.0, 0.05]])], None, (0.0, 0.0, 1.0, 1.0), 0.1)
+    assert np.argwhere(grid.occupied).tolist() == [[0, 0]]
+
+
+def test_a_diamond_through_cell_corners_marks_every_cell_it_touches():
+    """The diamond |x - 0.5| + |y - 0.5| <= 0.5 over a 1 m grid of 0.1 m cells: its edges
+    pass exactly through cell corners, and every cell the closed diamond touches is marked:
+    cell (i, j) touches it when |i - 4.5| + |j - 4.5| <= 6 (60 by their centre, 16 by a
+    corner only); the raster is symmetric like the diamond, whichever way an edge runs."""
+    diamond = np.array([[0.5, 0.0], [1.0, 0.5], [0.5, 1.0], [0.0, 0.5]])
+    occupied = rasterise([diamond], None, (0.0, 0.0, 1.0, 1.0), 0.1).occupied
+    i, j = np.indices((10, 10))
+    expected = np.abs(i - 4.5) + np.abs(j - 4.5) <= 6
+    assert expected.sum() == 76
+    np.testing.assert_array_equal(occupied, expected)
+
+
+def test_clearance_off_a_polygon_raster_is_zero_only_for_points_that_are_not_finite():
+    """outside_occupied=False: a point past the grid takes the nearest cell's clearance, a
+    NaN or infinite one has none."""
+    obstacles = ObstacleMap(rasterise([_rect(4.0, 4.0, 5.0, 5.0)], None, (0, 0, 10, 10), 0.5),
+                            outside_occupied=False)
+    points = np.array([[np.nan, 1.0], [np.inf, 1.0], [1.0, -np.inf], [-0.5, 1.25]])
+    clearance = obstacles.clearance_at(points)
+    assert clearance[:3].tolist() == [0.0, 0.0, 0.0]
+    assert clearance[3] == obstacles.clearance[2, 0] > 0
+
+
+def test_push_clear_at_its_bounds_by_hand():
+    """0.5 m cells (exact in binary), a wall column at x 5.0..5.5: points 1.75, 1.25, 0.75 and
+    0.25 m from it. At radius 0.75 the one exactly 0.75 away is not closer than the radius
+    and stays; at radius 1 with reach 0.25 the one exactly 0.25 too close is moved (and then
+    clear), the one 0.75 too close is beyond the reach."""
+    occupied = np.zeros((20, 20), dtype=bool)
+    occupied[2:18, 10] = True
+    obstacles = ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), 0.5))
+    points = np.array([[3.3, 5.1], [3.8, 5.1], [4.3, 5.1], [4.8, 5.1]])
+    assert obstacles.clearance_at(points).tolist() == [1.75, 1.25, 0.75, 0.25]
+    np.testing.assert_array_equal(obstacles.push_clear(points, 0.75, 0.25), points)
+    moved = obstacles.push_clear(points, 1.0, 0.25)
+    np.testing.assert_array_equal(moved[[0, 1, 3]], points[[0, 1, 3]])
+    assert moved[2, 0] < points[2, 0] and obstacles.clearance_at(moved[2:3])[0] >= 1.0
+
+
+def test_in_cells_is_false_beyond_the_grid_whatever_its_border_cell():
+    obstacles = ObstacleMap(OccupancyGrid(np.zeros((2, 2), dtype=bool), (0.0, 0.0), 1.0))
+    cells = np.ones((2, 2), dtype=bool)
+    assert obstacles.in_cells(np.array([[0.5, 0.5], [2.5, 0.5], [0.5, -0.5]]),
+                              cells).tolist() == [True, False, False]
+
+
+def test_free_area_bounds_through_cell_centres_count_those_cells_on_every_side():
+    """1 m cells, bounds x 0.5..2.5, y 0.5..1.5 pass through cell centres: "within bounds by
+    cell centre" counts those cells (3 x 2 = 6), on the low sides as on the high ones."""
+    obstacles = ObstacleMap(OccupancyGrid(np.zeros((3, 5), dtype=bool), (0.0, 0.0), 1.0),
+                            outside_occupied=False)
+    assert obstacles.free_area(0.0, (0.5, 0.5, 2.5, 1.5)) == 6.0
+
+
+def test_segments_free_across_a_cell_corner_agrees_with_sampling():
+    """1 m cells, one occupied cell (row 6, column 3). A 0.51 m segment from cell (4, 4) to
+    its diagonal neighbour (5, 5) has its middle sample in cell (5, 4), √2 cells from the
+    obstacle where both ends' cells are √5 away: clearances 0.914 m against 1.736 m. The
+    shortcut must not call it free at radius 0.95 (the ends less half the length and half a
+    cell would: only a cell diagonal is safe)."""
+    occupied = np.zeros((10, 10), dtype=bool)
+    occupied[6, 3] = True
+    obstacles = ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), 1.0), outside_occupied=False)
+    a, b = np.array([[4.72, 4.92]]), np.array([[5.08, 5.28]])
+    np.testing.assert_allclose(obstacles.clearance_at(np.r_[a, b]), np.sqrt(5) - 0.5)
+    np.testing.assert_allclose(obstacles.segments_min_clearance(a, b), np.sqrt(2) - 0.5)
+    assert obstacles.segments_free(a, b, 0.95).tolist() == [False]
+    assert obstacles.segments_free(a, b, 0.9).tolist() == [True]
+
+
+def test_min_clearance_along_one_point_is_its_clearance():
+    obstacles = _thin_wall_map()
+    point = np.array([[4.0, 5.0]])
+    assert obstacles.min_clearance_along(point) == obstacles.clearance_at(point)[0] > 0
+    assert obstacles.min_clearance_along(np.zeros((0, 2))) == np.inf
+
+
+def test_points_off_a_map_reach_nothing_even_at_radius_zero():
+    """At radius 0 the map's border cells are free (clearance half a cell); a start or a
+    target beyond the edge, clipped onto them, must still count as off free cells."""
+    obstacles = _two_rooms(door=1.0)
+    targets = np.array([[9.0, 2.0], [7.0, 1.0], [-1.0, 2.0]])
+    assert obstacles.reachable(np.array([1.0, 2.0]), targets, 0.0).tolist() == \
+        [False, True, False]
+    assert not obstacles.reachable(np.array([-1.0, 2.0]), targets, 0.0).any()
+
+
+def test_the_medial_axis_of_a_corridor_runs_along_its_middle():
+    """A 2 m x 1 m map (0.1 m cells, its outside a wall) whose two lowest rows are occupied:
+    a corridor y 0.2..1.0, eight rows, whose middle y = 0.6 lies between two equally far
+    rows. The axis away from the corridor's ends is one of those two rows, within half a
+    cell of the middle, and reaches along the corridor."""
+    occupied = np.zeros((10, 20), dtype=bool)
+    occupied[:2] = True
+    obstacles = ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), 0.1))
+    points = obstacles.medial_axis(0.2, 0.5)
+    middle = points[(points[:, 0] > 0.5) & (points[:, 0] < 1.5)]
+    assert len(middle) >= 2 and np.abs(middle[:, 1] - 0.6).max() <= 0.05 + 1e-9
+    assert np.ptp(middle[:, 0]) >= 0.5
+
+
+def test_medial_axis_bounds_through_the_outermost_cell_centres_cut_nothing_off():
+    """Bounds by cell centre: bounds through the centres of the outermost cells keep every
+    cell, so the axis is that of no bounds."""
+    obstacles = _two_rooms(door=1.0, res=0.25)
+    everything = obstacles.medial_axis(0.2, 0.5)
+    assert len(everything) > 0
+    np.testing.assert_array_equal(obstacles.medial_axis(0.2, 0.5, (0.125, 0.125, 7.875, 3.875)),
+                                  everything)
+
+
+def test_medial_axis_points_lie_within_the_bounds():
+    """Outside `bounds` counts as occupied, for a small radius too (where the cells outside,
+    each its own nearest obstacle, stand a cell apart from their neighbours' nearest)."""
+    obstacles = _two_rooms(door=1.0)
+    bounds = (1.0, 0.5, 6.0, 3.5)
+    for radius in (0.02, 0.2):  # 2·0.02 m is 0.8 cells: any two nearest cells apart
+        points = obstacles.medial_axis(radius, 0.5, bounds)
+        assert len(points) > 0
+        assert ((points >= [1.0, 0.5]) & (points <= [6.0, 3.5])).all()
+
+
+def test_the_medial_cells_graph_joins_8_neighbours_and_never_wraps_round_the_grid():
+    """Cells (0, 0), (0, 1), (1, 0), (1, 2) of a 2 x 3 grid of 0.5 m cells: edges (0,0)-(0,1)
+    and (0,0)-(1,0) 0.5 m long, the anti-diagonal (0,1)-(1,0) and the diagonal (0,1)-(1,2)
+    0.5·√2; none from (0, 0) to (1, 2), its neighbour only across the grid's edge."""
+    obstacles = ObstacleMap(OccupancyGrid(np.zeros((2, 3), dtype=bool), (0.0, 0.0), 0.5))
+    cells = np.zeros((2, 3), dtype=bool)
+    rows, cols = np.array([0, 0, 1, 1]), np.array([0, 1, 0, 2])
+    cells[rows, cols] = True
+    adjacency = obstacles._cell_adjacency(cells, rows, cols).toarray()
+    both_ways = adjacency + adjacency.T
+    d = 0.5 * np.sqrt(2)
+    np.testing.assert_allclose(both_ways, [[0, 0.5, 0.5, 0], [0.5, 0, d, d],
+                                           [0.5, d, 0, 0], [0, d, 0, 0]])
+
+
+def test_picks_along_a_path_by_hand():
+    """Two parallel chains of points 0.25 m apart, 0.3 m between them (an axis two cells
+    wide), from a common root, at spacing 1 and due 1 (passed as they are):
+    - the lower chain reaches due at x = 1.0 exactly (0.25 · 4): picked;
+    - the upper point there (x = 1.0) is due too but 0.3 m (< spacing/2) from that pick: not
+      picked, and counts on from 0.3;
+    - so the upper chain is due at x = 1.75 (0.3 + 0.75): picked, 0.81 m from the last pick;
+    - the lower chain is due again at x = 2.0, 0.39 m from that one: not picked."""
+    from pipeline.core.obstacles import _pick_along
+
+    lower = np.array([[0.25 * k, 0.0] for k in range(9)])  # ids 0..8, 0 the root
+    upper = np.array([[0.25 * k, 0.3] for k in range(1, 9)])  # ids 9..16
+    xy = np.vstack([lower, upper])
+    along = np.r_[0.25 * np.arange(9), 0.25 * np.arange(1, 9) + 0.05]
+    before = np.r_[-9999, np.arange(8), 0, np.arange(9, 16)]
+    assert sorted(_pick_along(xy, along, before, 1.0, 1.0)) == [0, 4, 15]
+
+
+def test_an_empty_grid_is_refused_and_an_empty_raster_has_infinite_clearance():
+    with pytest.raises(PipelineError, match="non-empty"):
+        OccupancyGrid(np.zeros((0, 3), dtype=bool), (0.0, 0.0), 1.0)
+    open_room = ObstacleMap(rasterise([], None, (0.0, 0.0, 2.0, 2.0), 0.5),
+                            outside_occupied=False)
+    assert np.isinf(open_room.clearance).all()
+    assert open_room.clearance_at(np.array([[1.0, 1.0], [3.0, 1.0]])).tolist() == \
+        [np.inf, np.inf]
+
+
+def test_polygon_area_by_hand_away_from_the_origin():
+    from pipeline.core.obstacles import polygon_area
+
+    assert polygon_area(_rect(1.0, 1.0, 2.0, 2.0)) == 1.0
+    assert polygon_area(np.array([[3.0, 1.0], [5.0, 1.0], [3.0, 4.0]])) == 3.0
+
+
+def test_a_touching_vertex_is_found_at_utm_magnitudes():
+    """The touching pentagon of test_polygon_problems_by_hand, in decimetres, turned by
+    angles from 1° to 85° and moved 5·10⁶ m from the origin, its vertex 3 the midpoint of
+    edge 0: the coordinates carry rounding (1e-9 m), which tolerances scaled to the
+    coordinates absorb."""
+    touching = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [1.0, 0.0], [0.0, 2.0]])
+    for degrees in range(1, 90, 7):
+        t = np.radians(degrees)
+        turned = touching @ np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
+        far = turned * 0.1 + [5e6 + 0.123, 4e6 + 0.321]
+        far[3] = (far[0] + far[1]) / 2
+        assert first_self_crossing(far) == (0, 2), degrees
+
+
+def test_a_gap_of_5_cm_stays_a_gap_at_utm_magnitudes():
+    """A vertex 5 cm from a non-adjacent 2 m edge, and a T whose stem stops 5 cm short: the
+    same answer from the origin out to 5·10⁶ m. The collinearity tolerance grew with the
+    coordinates squared (25 m² at 5·10⁶ m, so a point 12 m off a 2 m edge was on it): from
+    5·10⁵ m on, the pentagon was refused as a bow-tie and the T touched."""
+    near = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [1.0, 0.05], [0.0, 2.0]])
+    t = np.radians(30)
+    turned = near @ np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
+    for offset in (0.0, 1e3, 1e5, 5e5, 1e6, 5e6):
+        assert polygon_problem(turned + offset) is None, offset
+        bar = np.array([[offset, offset]]), np.array([[offset + 2.0, offset]])
+        short_stem = np.array([[offset + 1.0, offset + 0.05]]), np.array([[offset + 1, offset + 1]])
+        stem = np.array([[offset + 1.0, offset]]), np.array([[offset + 1, offset + 1]])
+        assert not segments_intersect(*bar, *short_stem)[0, 0], offset
+        assert segments_intersect(*bar, *stem)[0, 0], offset
+
+
+def test_the_largest_free_region_of_a_map_without_free_cells_is_empty():
+    full = ObstacleMap(OccupancyGrid(np.ones((3, 4), dtype=bool), (0.0, 0.0), 1.0))
+    region = full.largest_free_region()
+    assert region.shape == (3, 4) and not region.any()
+
+
+def test_nearest_obstacles_exactly_two_radii_apart_make_an_axis():
+    """Two occupied cells (row 10, columns 17 and 22) of 1 m cells, 5 m apart, radius
+    2.5 m: "at least 2·radius apart" holds with equality for neighbours either side of their
+    bisector (x = 20), so the axis runs up it (columns 19 and 20) wherever the clearance,
+    √((row − 10)² + 4) − 0.5, reaches 2.5: from row 13 on."""
+    occupied = np.zeros((40, 40), dtype=bool)
+    occupied[10, [17, 22]] = True
+    obstacles = ObstacleMap(OccupancyGrid(occupied, (0.0, 0.0), 1.0), outside_occupied=False)
+    on_axis = obstacles._medial_cells(2.5, None, None)
+    expected = np.zeros((9, 10), dtype=bool)  # rows 11..19, columns 15..24
+    expected[2:, 4:6] = True
+    np.testing.assert_array_equal(on_axis[11:20, 15:25], expected)

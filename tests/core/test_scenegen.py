@@ -8,7 +8,9 @@ from pipeline.core.obstacles import OccupancyGrid
 from pipeline.core.scenegen import (
     RandomSceneSpec,
     all_starts_reach_goal,
+    check_fits,
     most_points_apart,
+    person_margin,
     random_scene,
 )
 from pipeline.core.world import Room, Scene, scene_from_dict
@@ -170,3 +172,150 @@ def test_a_start_walled_off_from_the_goal_fails_the_reachability_check():
         walled = Scene("corner", room, (), (), np.array(starts), goal, polygons=corner)
         assert not all_starts_reach_goal(walled), starts
         assert all_starts_reach_goal(Scene("free", room, (), (), np.array(starts), goal))
+
+
+def test_spec_bounds_on_group_sizes_and_the_rooms_size():
+    """Groups have two members or more; a room must be wider and higher than twice the
+    walls' margin, max(border_margin, 0.5 m + body_radius) = 0.75 m: 1.5 m is refused (at
+    equality too), 1.51 m is not."""
+    from pipeline.core.params import ParameterError
+
+    with pytest.raises(ParameterError, match="group_size_min"):
+        RandomSceneSpec(group_size_min=1)
+    for width, height in [(1.5, 10.0), (10.0, 1.5), (1.0, 10.0)]:
+        with pytest.raises(ParameterError, match="width and height above 1.5 m"):
+            RandomSceneSpec(width=width, height=height)
+    assert RandomSceneSpec(width=1.51, height=1.51).width == 1.51
+
+
+def test_what_fits_is_refused_above_the_bound_and_allowed_at_it():
+    """check_fits by hand. A 10 x 2 m room: persons keep 0.75 m from the walls, an 8.5 x
+    0.5 m box, (8.5 + 0.7)(0.5 + 0.7) / (√3/2 · 0.7²) = 26.02: 26 singles and groups pass,
+    27 do not (a bound from 8.5 x 8.5 would pass 199). A 2 x 2 m room with a 0.25 m border
+    margin: starts along 1.5 m, one per 0.2 m: 7 pass, 8 do not. A 1.6 m room with a
+    0.75 m margin leaves 0.1 m: still one start."""
+    room = Room(0.0, 0.0, 10.0, 2.0)
+    check_fits(RandomSceneSpec(width=10.0, height=2.0, n_singles=20, n_groups=6), room, False)
+    with pytest.raises(PipelineError, match="27 singles and groups .* at most 26 singles"):
+        check_fits(RandomSceneSpec(width=10.0, height=2.0, n_singles=21, n_groups=6), room,
+                   False)
+    square = Room(0.0, 0.0, 2.0, 2.0)
+    check_fits(RandomSceneSpec(width=2.0, height=2.0, n_singles=3, n_groups=0, n_starts=7,
+                               border_margin=0.25), square, False)
+    with pytest.raises(PipelineError, match="8 starts do not fit .* at most 7;"):
+        check_fits(RandomSceneSpec(width=2.0, height=2.0, n_singles=0, n_groups=0, n_starts=8,
+                                   border_margin=0.25), square, False)
+    narrow = RandomSceneSpec(width=1.6, height=1.6, n_singles=0, n_groups=0, n_starts=1,
+                             border_margin=0.75, goal_tolerance=0.05)
+    check_fits(narrow, Room(0.0, 0.0, 1.6, 1.6), False)
+    # on a 20 x 2 m map starts keep 1 m apart: (20 + 1)(2 + 1) / (√3/2) = 72.7, so 72
+    spec = RandomSceneSpec(n_singles=0, n_groups=0, n_starts=72)
+    check_fits(spec, Room(0.0, 0.0, 20.0, 2.0), True)
+    with pytest.raises(PipelineError, match="73 starts do not fit .* at most 72;"):
+        check_fits(RandomSceneSpec(n_singles=0, n_groups=0, n_starts=73),
+                   Room(0.0, 0.0, 20.0, 2.0), True)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_persons_stand_inside_the_walls_margin_and_pairs_face_each_other(seed):
+    """Every person, group members included, at least person_margin (0.75 m) from the
+    walls; groups of exactly two (group_size_min = group_size_max = 2) stand on opposite
+    sides of their centre, about 2 · formation_radius apart (each member's angle jitters by
+    0.15 rad: their distance is 1.4 m · cos(δ/2), above 1.2 m for |δ| up to 1.1 rad, five
+    standard deviations); each pair is related once, lower id first."""
+    spec = RandomSceneSpec(width=6.0, height=6.0, n_singles=1, n_groups=5, group_size_min=2,
+                           group_size_max=2)
+    scene = random_scene(spec, np.random.default_rng(seed))
+    m = person_margin(spec)
+    xy = scene.person_xy
+    assert ((xy >= m - 1e-9) & (xy <= 6.0 - m + 1e-9)).all()
+    assert len(scene.persons) == 11 and len(scene.relations) == 5
+    assert len(set(scene.relations)) == 5 and all(a < b for a, b in scene.relations)
+    pos = {p.id: np.array([p.x, p.y]) for p in scene.persons}
+    for a, b in scene.relations:
+        assert np.linalg.norm(pos[a] - pos[b]) > 1.2
+
+
+def test_groups_of_the_largest_size_are_drawn():
+    spec = RandomSceneSpec(width=8.0, height=8.0, n_singles=0, n_groups=2, group_size_min=4,
+                           group_size_max=4)
+    scene = random_scene(spec, np.random.default_rng(0))
+    assert len(scene.persons) == 8 and len(scene.relations) == 2 * 6
+
+
+def test_persons_on_a_map_keep_person_margin_from_its_walls():
+    """On a map persons stand clear of obstacles by person_margin (0.75 m), not merely by
+    robot_radius: the building's walls are inside the box they are drawn in."""
+    occupied = np.ones((200, 200), dtype=bool)  # 0.1 m cells
+    occupied[50:130, 40:160] = False  # a 12 m x 8 m room
+    grid = OccupancyGrid(occupied, (0.0, 0.0), 0.1)
+    spec = RandomSceneSpec(n_groups=2, n_singles=4, n_starts=2)
+    for seed in range(3):
+        scene = random_scene(spec, np.random.default_rng(seed), map_grid=grid, map_source="m")
+        clearance = scene.obstacles.clearance_at(scene.person_xy)
+        assert (clearance >= person_margin(spec)).all(), clearance.min()
+
+
+@pytest.mark.parametrize(("goal_tolerance", "n_starts"), [(0.3, 5), (5.5, 3)])
+def test_starts_on_a_map_keep_away_from_the_goal_and_from_each_other(goal_tolerance, n_starts):
+    """On a map the starts lie at least a third of the draw box's diagonal (here the 12 m x
+    8 m building: 4.81 m) from the goal and outside its goal disk (a 5.5 m tolerance reaches
+    farther than that third), and MAP_START_GAP (1 m) from each other."""
+    from pipeline.core.scenegen import MAP_START_GAP
+
+    occupied = np.ones((200, 200), dtype=bool)  # 0.1 m cells
+    occupied[50:130, 40:160] = False  # x 4..16 m, y 5..13 m
+    grid = OccupancyGrid(occupied, (0.0, 0.0), 0.1)
+    spec = RandomSceneSpec(n_groups=0, n_singles=1, n_starts=n_starts,
+                           goal_tolerance=goal_tolerance)
+    third = np.hypot(12.0, 8.0) / 3
+    for seed in range(3):
+        scene = random_scene(spec, np.random.default_rng(seed), map_grid=grid, map_source="m")
+        to_goal = np.linalg.norm(scene.starts - scene.goal, axis=1)
+        assert (to_goal >= third).all() and (to_goal > goal_tolerance).all()
+        apart = np.linalg.norm(scene.starts[:, None] - scene.starts[None], axis=2)
+        assert (apart + np.eye(n_starts) * 1e9 >= MAP_START_GAP).all()
+
+
+def test_a_map_too_small_or_without_free_space_is_refused():
+    """A map 1.5 m high, exactly twice person_margin: refused (at equality too); a 3 m map
+    with every cell occupied has no free cell for the robot."""
+    thin = OccupancyGrid(np.zeros((15, 100), dtype=bool), (0.0, 0.0), 0.1)
+    with pytest.raises(PipelineError, match="both sides must be longer than 1.5 m"):
+        random_scene(RandomSceneSpec(), np.random.default_rng(0), map_grid=thin,
+                     map_source="thin")
+    full = OccupancyGrid(np.ones((30, 30), dtype=bool), (0.0, 0.0), 0.1)
+    with pytest.raises(PipelineError, match="has no free cell"):
+        random_scene(RandomSceneSpec(), np.random.default_rng(0), map_grid=full,
+                     map_source="full")
+
+
+def test_on_a_map_a_goal_disk_may_reach_across_the_room():
+    """The opposite-walls rule of a plain room does not apply on a map: a 3.5 m goal disk
+    in a 4 m x 4 m map is fine, the start drawn beyond it (towards a far corner)."""
+    grid = OccupancyGrid(np.zeros((40, 40), dtype=bool), (0.0, 0.0), 0.1)
+    spec = RandomSceneSpec(n_singles=0, n_groups=0, n_starts=1, goal_tolerance=3.5)
+    scene = random_scene(spec, np.random.default_rng(0), map_grid=grid, map_source="m")
+    assert np.linalg.norm(scene.starts[0] - scene.goal) > 3.5
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_starts_and_goal_keep_a_tenth_of_a_metre_more_than_a_body_from_persons(seed):
+    """With a border margin of 0.7 m starts and goal may stand next to persons (who keep
+    0.75 m from the walls): they are kept body_radius + 0.1 m from each of them."""
+    spec = RandomSceneSpec(width=5.0, height=5.0, n_singles=8, n_groups=0, border_margin=0.7)
+    scene = random_scene(spec, np.random.default_rng(seed))
+    ends = np.vstack([scene.starts, scene.goal[None]])
+    gap = np.linalg.norm(ends[:, None] - scene.person_xy[None], axis=2)
+    assert gap.min() >= spec.body_radius + 0.1 - 1e-6
+
+
+def test_random_scene_returns_only_scenes_its_accept_test_passes():
+    spec = RandomSceneSpec(n_singles=1, n_groups=1)
+    for seed in range(3):
+        scene = random_scene(spec, np.random.default_rng(seed),
+                             accept=lambda s: s.goal[1] > 9.0)  # the goal at the top wall
+        assert scene.goal[1] == pytest.approx(10.0 - spec.border_margin)
+    with pytest.raises(PipelineError, match="no valid scene in scene.max_tries=5"):
+        random_scene(RandomSceneSpec(max_tries=5), np.random.default_rng(0),
+                     accept=lambda s: False)

@@ -446,3 +446,132 @@ def test_a_spread_that_draws_out_of_range_subjects_is_named():
                  np.random.default_rng(0))
     assert len(subjects(SocialPlannerParams(n_subjects=3, subject_spread=1.0),
                         np.random.default_rng(0))) == 3
+
+
+def test_groups_are_relation_components_of_two_members_or_more():
+    """Persons 1 and 2 related, 2 m apart; person 3 alone: one o-space, centred between the
+    pair, radius 1 m (the lone person is no group)."""
+    scene = Scene("pair", Room(0.0, 0.0, 10.0, 10.0),
+                  (Person(1, 1.0, 2.0), Person(2, 3.0, 2.0), Person(3, 7.0, 7.0)), ((1, 2),),
+                  np.array([[0.5, 0.5]]), np.array([9.5, 9.5]))
+    centres, radii = groups(scene)
+    assert centres.tolist() == [[2.0, 2.0]] and radii.tolist() == [1.0]
+
+
+def test_the_personal_space_reaches_five_sigma_front_ahead():
+    """A person facing +x, room walls off: 3.5 to 5.5 m ahead (beyond five σ_side or σ_back,
+    within five σ_front) the density is the formula's; 6.5 m ahead (beyond 5 σ_front = 6 m)
+    the term is dropped and only the 1 is left."""
+    q = SocialPlannerParams(room_walls=False)
+    scene = Scene("ahead", Room(0.0, 0.0, 20.0, 10.0), (Person(1, 5.0, 5.0, 0.0),), (),
+                  np.array([[0.5, 0.5]]), np.array([19.5, 9.5]))
+    d = np.array([3.5, 4.5, 5.5])
+    expected = 1 + q.amplitude_person * np.exp(-d ** 2 / (2 * q.sigma_front ** 2)) \
+        + q.amplitude_intimate * np.exp(-d ** 2 / (2 * q.sigma_intimate ** 2))
+    cost = SocialCost(scene, q)
+    np.testing.assert_allclose(cost.density(np.c_[5.0 + d, np.full(3, 5.0)]), expected,
+                               rtol=1e-12)
+    assert cost.density(np.array([[11.5, 5.0]]))[0] == 1.0
+
+
+def test_the_wall_cost_by_hand_from_the_room_border_and_from_obstacles():
+    """c = 1 + A_w·exp(-clearance² / 2σ_w²): 0.3 m from the room's border (σ_w = 0.3 m)
+    1 + e^-0.5. Obstacles count with room_walls off too: beside a box, its clearance."""
+    q = SocialPlannerParams()
+    room = Room(0.0, 0.0, 10.0, 10.0)
+    empty = Scene("empty", room, (), (), np.array([[5.0, 5.0]]), np.array([9.0, 9.0]))
+    assert SocialCost(empty, q).density(np.array([[0.3, 5.0]]))[0] == \
+        pytest.approx(1 + math.exp(-0.5), rel=1e-12)
+    box = np.array([[4.0, 4.0], [6.0, 4.0], [6.0, 6.0], [4.0, 6.0]])
+    boxed = Scene("boxed", room, (), (), np.array([[1.0, 1.0]]), np.array([9.0, 9.0]),
+                  polygons=(box,))
+    no_room = SocialPlannerParams(room_walls=False)
+    p = np.array([[3.8, 5.0], [2.0, 5.0]])
+    clearance = boxed.obstacles.clearance_at(p)
+    assert 0.1 < clearance[0] < 0.3
+    np.testing.assert_allclose(SocialCost(boxed, no_room).density(p),
+                               1 + np.exp(-0.5 * (clearance / 0.3) ** 2), rtol=1e-12)
+
+
+def test_no_edge_leads_into_the_goal_through_an_obstacle():
+    """A shelf (y 5.3..5.4) across the goal disk (1 m round the goal (5, 5)): lattice edges
+    entering the disk above the shelf would lead to the goal through it; only those that
+    reach the goal collision-free are kept."""
+    shelf = np.array([[3.5, 5.3], [6.5, 5.3], [6.5, 5.4], [3.5, 5.4]])
+    scene = Scene("shelf", Room(0.0, 0.0, 10.0, 10.0), (), (), np.array([[5.0, 1.0]]),
+                  np.array([5.0, 5.0]), goal_tolerance=1.0, polygons=(shelf,))
+    params = SocialPlannerParams(spacing=0.2, connectivity=8)
+    graph = planner_graph(scene, params)
+    into = graph.src[graph.dst == graph.goal_node]
+    assert len(into) > 0
+    assert (graph.positions[into, 1] < 5.0).any()
+    assert segments_feasible(scene, graph.positions[into],
+                             np.repeat(scene.goal[None], len(into), axis=0)).all()
+    assert not (graph.positions[into, 1] > 5.4).any()
+
+
+def test_an_edge_costs_the_same_bits_both_ways(metropolis):
+    graph = planner_graph(metropolis, SocialPlannerParams())
+    costs = edge_costs(graph, SocialCost(metropolis, SocialPlannerParams()))
+    n = len(graph.positions)
+    key = {(int(s), int(d)): c for s, d, c in zip(graph.src, graph.dst, costs, strict=True)}
+    both = [(s, d) for s, d in key if s < d and (d, s) in key]
+    assert len(both) > 1000 and n > 0
+    assert all(key[s, d] == key[d, s] for s, d in both)
+
+
+def test_a_u_turn_is_a_turn_and_a_straight_run_is_not():
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, 0.0], [0.5, 1.0], [0.5, 2.0]])
+    kept, cumulative = _drop_collinear(points, np.arange(5.0))
+    assert kept.tolist() == [[0.0, 0.0], [1.0, 0.0], [0.5, 0.0], [0.5, 2.0]]
+    assert cumulative.tolist() == [0.0, 1.0, 2.0, 4.0]
+
+
+def test_string_pulling_takes_a_shortcut_that_costs_exactly_the_path():
+    """Density 1 (no persons, walls off) and integration steps of 0.25 m (exact in binary):
+    the straight run (0, 0) → (2, 0) costs exactly what its two halves cost, so it is
+    taken ("costs no more")."""
+    room = Room(-5.0, -5.0, 5.0, 5.0)
+    empty = Scene("empty", room, (), (), np.array([[0.0, 0.0]]), np.array([2.0, 0.0]))
+    q = SocialPlannerParams(room_walls=False, resolution=0.25)
+    cost = SocialCost(empty, q)
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    cumulative = np.array([0.0, 1.0, 2.0])
+    assert cost.segments(points[:1], points[2:])[0] == 2.0
+    assert cost.polyline(points) == 2.0
+    assert _string_pull(empty, cost, points, cumulative).tolist() == [[0.0, 0.0], [2.0, 0.0]]
+
+
+def test_planner_demos_report_progress_after_subjects():
+    scene = Scene("small", Room(0.0, 0.0, 4.0, 4.0), (Person(1, 2.0, 2.0),), (),
+                  np.array([[0.5, 0.5]]), np.array([3.5, 3.5]))
+    calls = []
+    demos = planner_demos(scene, FeatureModel.from_scene(scene),
+                          SocialPlannerParams(n_subjects=3, spacing=0.2),
+                          np.random.default_rng(0), 1.0, lambda done, n: calls.append((done, n)))
+    assert len(demos) == 3 and calls
+    assert all(1 <= done < 3 and n == 3 for done, n in calls)
+    assert [done for done, _ in calls] == sorted({done for done, _ in calls})
+
+
+def test_a_turn_is_measured_as_the_next_vertexs_distance_from_the_incoming_line():
+    """Within TIE (1e-6 m) of the incoming line is no turn, whatever the incoming edge's
+    length: 1e-7 m off after a 100 m edge is straight on; 5e-6 m off after a 1 cm edge
+    turns."""
+    long_in = np.array([[0.0, 0.0], [100.0, 0.0], [200.0, 1e-7]])
+    assert _drop_collinear(long_in, np.arange(3.0))[0].tolist() == [[0.0, 0.0], [200.0, 1e-7]]
+    short_in = np.array([[0.0, 0.0], [0.01, 0.0], [0.02, 5e-6]])
+    assert len(_drop_collinear(short_in, np.arange(3.0))[0]) == 3
+
+
+def test_the_planner_graph_records_the_spacing_it_used():
+    """A 4 m x 4 m room capped at 100 lattice nodes: the spacing is raised to √(16/100) =
+    0.4 m, and the graph says so (its error messages name it)."""
+    scene = Scene("small", Room(0.0, 0.0, 4.0, 4.0), (), (), np.array([[0.5, 0.5]]),
+                  np.array([3.5, 3.5]))
+    params = SocialPlannerParams(spacing=0.1, max_lattice_nodes=100)
+    graph = planner_graph(scene, params)
+    assert graph.spacing == pytest.approx(0.4) == lattice_spacing(scene, params)
+    lattice = graph.positions[:-2]  # less the start and the goal
+    gaps = np.linalg.norm(lattice[:, None] - lattice[None], axis=2) + np.eye(len(lattice)) * 9
+    assert gaps.min() == pytest.approx(0.4)

@@ -123,3 +123,113 @@ def test_body_disks_and_free_points_by_hand():
     np.testing.assert_array_equal(scene.in_body(pts), [True, False, False, False])
     np.testing.assert_array_equal(scene.in_body(pts, clearance=0.3), [True, True, True, False])
     np.testing.assert_array_equal(scene.free(pts), [False, True, True, True])
+
+
+def test_room_geometry_where_x_and_y_bounds_differ_by_hand():
+    """A 10 m x 4 m room: border distances read the right bound of each axis (x_max 10, not
+    y_max 4), are 0 outside; containment with a margin shrinks y too; the area."""
+    room = Room(0.0, 0.0, 10.0, 4.0)
+    np.testing.assert_allclose(room.border_distance(np.array([[9.5, 2.0], [5.0, 3.75],
+                                                              [11.0, 2.0], [5.0, -1.0]])),
+                               [0.5, 0.25, 0.0, 0.0])
+    np.testing.assert_array_equal(room.contains(np.array([[5.0, 0.5], [5.0, 1.5], [5.0, 3.5]]),
+                                                margin=1.0), [False, True, False])
+    assert room.area == 40.0 and Room(1.0, 3.0, 5.0, 5.0).area == 8.0
+
+
+def test_a_robot_exactly_as_wide_as_the_room_does_not_fit():
+    room = Room(0.0, 0.0, 1.0, 2.0)
+    assert room.robot_too_wide(0.5) is not None
+    assert room.robot_too_wide(0.49) is None
+
+
+def test_body_disk_and_goal_disk_edges_by_hand():
+    """A point exactly body_radius (0.5 m) from a person is outside the body (touching is no
+    collision), as one a tie inside the edge; a point exactly goal_tolerance (0.5 m) from the
+    goal is in the goal disk."""
+    scene = Scene("s", Room(0.0, 0.0, 4.0, 4.0), (Person(1, 2.0, 2.0),), (),
+                  np.array([[0.5, 0.5]]), np.array([3.0, 3.0]), body_radius=0.5,
+                  goal_tolerance=0.5)
+    pts = np.array([[2.5, 2.0], [2.0, 1.5 + 5e-7], [2.0, 1.5 + 1e-5]])
+    np.testing.assert_array_equal(scene.in_body(pts), [False, False, True])
+    np.testing.assert_array_equal(scene.at_goal(np.array([[3.5, 3.0], [3.0, 2.5],
+                                                          [3.5 + 1e-3, 3.0]])),
+                                  [True, True, False])
+
+
+def test_free_points_keep_robot_radius_from_obstacles():
+    box = np.array([[1.0, 1.0], [2.0, 1.0], [2.0, 2.0], [1.0, 2.0]])
+    scene = Scene("s", Room(0.0, 0.0, 4.0, 4.0), (), (), np.array([[0.5, 0.5]]),
+                  np.array([3.5, 3.5]), robot_radius=0.25, polygons=(box,))
+    pts = np.array([[2.1, 1.5], [2.5, 1.5], [1.5, 1.5]])
+    np.testing.assert_array_equal(scene.free(pts), [False, True, False])
+
+
+def test_a_start_ringed_by_overlapping_body_disks_is_unreachable():
+    """Fourteen persons on a 1 m circle round start 0, 0.445 m apart: their 0.25 m body disks
+    overlap, a closed fence; start 1 outside it reaches the goal."""
+    angles = 2 * np.pi * np.arange(14) / 14
+    persons = tuple(Person(k + 1, 5.0 + np.cos(a), 5.0 + np.sin(a)) for k, a in enumerate(angles))
+    scene = Scene("ring", Room(0.0, 0.0, 10.0, 10.0), persons, (),
+                  np.array([[5.0, 5.0], [1.0, 1.0]]), np.array([9.0, 9.0]))
+    assert scene.unreachable_starts() == [0]
+
+
+def test_free_area_of_a_room_smaller_than_its_map():
+    """The room (0..5 m)² on a 10 m x 10 m free map: the free area is the room's (less the
+    0.25 m band along the map's edge, by cell centre), not the map's."""
+    from pipeline.core.obstacles import OccupancyGrid
+
+    grid = OccupancyGrid(np.zeros((100, 100), dtype=bool), (0.0, 0.0), 0.1)
+    scene = Scene("s", Room(0.0, 0.0, 5.0, 5.0), (), (), np.array([[2.0, 2.0]]),
+                  np.array([4.0, 4.0]), map_grid=grid)
+    assert 4.5 ** 2 <= scene.free_area <= 25.0
+    assert Scene("t", Room(1.0, 3.0, 5.0, 5.0), (), (), np.array([[2.0, 4.0]]),
+                 np.array([4.0, 4.0])).free_area == 8.0
+
+
+def test_obstacle_maps_keep_only_the_last_few():
+    from pipeline.core import world
+
+    for k in range(world.OBSTACLE_MAPS_KEPT + 2):
+        world.obstacle_map((np.array([[1.0, 1.0], [2.0, 1.0], [2.0, 2.0 + k]]),), None,
+                           (0.0, 0.0, 5.0, 5.0))
+    assert len(world._OBSTACLE_MAPS) <= world.OBSTACLE_MAPS_KEPT
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d["room"].update(y_max=0.0), "room [0, 10] x [0, 0] is empty"),  # no height
+    (lambda d: d["persons"][0].update(id=1.5), "person #0 needs numbers id"),
+    (lambda d: d["relations"].append([1, 2.5]), "relation [1, 2.5] must be a pair of person"),
+    (lambda d: d.update(body_radius=True), "'body_radius' must be a finite number"),
+    (lambda d: d["room"].update(x_min=False), "'room' needs numbers x_min"),
+    (lambda d: d.update(goal=[]), "'starts' must be a list of finite [x, y] and 'goal' one"),
+    (lambda d: d.update(map="office.yaml"), "has a 'map' but no map was loaded for it"),
+])
+def test_more_malformed_scenes_name_the_culprit(mutate, message):
+    data = _metropolis_dict()
+    mutate(data)
+    with pytest.raises(SceneError) as err:
+        scene_from_dict(data, source="scene file x.json")
+    assert message in str(err.value)
+
+
+def test_two_persons_at_one_place_are_refused():
+    data = {"room": {"x_min": 0, "y_min": 0, "x_max": 4, "y_max": 4}, "relations": [],
+            "persons": [{"id": 1, "x": 2.0, "y": 2.0}, {"id": 2, "x": 2.0, "y": 2.0}],
+            "starts": [[0.5, 0.5]], "goal": [3.5, 3.5]}
+    with pytest.raises(SceneError, match="persons 1 and 2 are at the same place"):
+        scene_from_dict(data)
+
+
+def test_the_same_map_at_another_origin_gets_its_own_obstacle_map():
+    from pipeline.core.obstacles import OccupancyGrid
+    from pipeline.core.world import obstacle_map
+
+    occupied = np.zeros((20, 20), dtype=bool)
+    occupied[10, :] = True
+    box = (0.0, 0.0, 10.0, 10.0)  # the same room: only the map's origin differs
+    here = obstacle_map((), OccupancyGrid(occupied, (0.0, 0.0), 0.5), box)
+    there = obstacle_map((), OccupancyGrid(occupied.copy(), (100.0, 0.0), 0.5), box)
+    assert there is not here and there.grid.origin == (100.0, 0.0)
+    assert there.clearance_at(np.array([[105.0, 2.0]]))[0] > 0
