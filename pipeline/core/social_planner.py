@@ -395,7 +395,8 @@ def planner_demos(scene: Scene, feature_model: FeatureModel, params: SocialPlann
                   progress: Callable[[int, int], None] | None = None) -> list[Demonstration]:
     """Demonstrations of every subject ("s0", "s1", ...) from every start, subject by
     subject; features from the run's FeatureModel, durations = length / speed.
-    `progress(done, n_subjects)` after each subject."""
+    `progress(done, n_subjects)` before each subject after the first (the caller reports
+    the end)."""
     graph = planner_graph(scene, params)
     demos = []
     for k, subject in enumerate(subjects(params, rng)):
