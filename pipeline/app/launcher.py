@@ -15,7 +15,11 @@ Measured on `make sweep EXP=quick` (pipeline/tools/bench.py startup).
 The worker processes are forked (POSIX), each serving one job at a time over a pipe: a job's
 number goes out, its composed config comes back and goes out again pickled, and so does its
 result (Hydra's JobReturn). A job goes to a worker only when that worker is free, so no job
-waits in a queue where a stop could not reach it.
+waits in a queue where a stop could not reach it. The sweep's process has one thread when it
+forks: a thread there could hold a lock that a worker would then wait on for ever (Python
+3.12+ warns of any). numpy's and scipy's OpenBLAS start idle thread pools on import and stop
+them in their own fork handlers; start no thread here (test_sweeps counts them at the forks).
+A forkserver would not depend on it, but added ~2 s to each sweep.
 - A failing job fails alone (pipeline.__main__ writes its status.json and returns a
   FailedJob); so does one whose run dir Hydra cannot make (noted for the sweep's outcome,
   as no status.json can say it). A worker that dies (killed, out of memory) fails its job

@@ -460,6 +460,38 @@ def test_a_batch_that_does_not_compose_runs_no_job(tmp_path, workers):
     assert sorted(p.name for p in tmp_path.iterdir()) == [".lock", "multirun.yaml"]
 
 
+# `python -m pipeline ARGS`, saying after each fork, in the process that forked, how many
+# threads it had at the fork: as Python 3.12+ counts them to warn "This process is
+# multi-threaded, use of fork() may lead to deadlocks in the child" (after the fork handlers)
+# (native threads too, where /proc lists them; elsewhere Python's)
+THREADS_AT_FORK = """
+import os, runpy, sys, threading
+def count():
+    tasks = "/proc/self/task"
+    return len(os.listdir(tasks)) if os.path.isdir(tasks) else threading.active_count()
+os.register_at_fork(after_in_parent=lambda: print(
+    "threads at fork:", count(), file=sys.stderr, flush=True))
+runpy.run_module("pipeline", run_name="__main__", alter_sys=True)
+"""
+
+
+def test_the_pool_forks_its_workers_from_a_process_of_one_thread(tmp_path):
+    """The pool launcher forks its workers from the sweep's process: a thread running there
+    at a fork (a Python thread holding a lock, an OpenMP pool) can leave a worker waiting
+    for ever, and Python 3.12+ warns of any. numpy's and scipy's OpenBLAS start idle thread
+    pools on import and stop them in their own fork handlers; nothing else may be left."""
+    result = subprocess.run(
+        [sys.executable, "-W", "always:This process:DeprecationWarning", "-c",
+         THREADS_AT_FORK, "-m", "experiment=quick", "seed=0,1", "reward=polite",
+         "stages=[scene]", "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    counts = [line for line in result.stderr.splitlines() if line.startswith("threads at")]
+    assert counts == ["threads at fork: 1"] * 2, result.stderr[-2000:]  # one per worker
+    assert "multi-threaded" not in result.stderr  # (Python 3.12+)
+    assert sorted(p.parent.name for p in tmp_path.glob("*/scene.mcap")) == ["0", "1"]
+
+
 @pytest.mark.parametrize("experiment", ["quick", "tune"])
 def test_a_misspelt_objective_stops_the_sweep_before_any_job(tmp_path, experiment):
     """Each job would refuse it (and Optuna would log every trial's refusal as a failed,
