@@ -169,13 +169,18 @@ class FailedJob:
 
 def as_interrupted(exc: BaseException | None, stage: str | None) -> Interrupted | None:
     """`exc` as an Interrupted (a KeyboardInterrupt is SIGINT), with the stage it hit; None
-    when it is no interruption."""
+    when it is no interruption. Any exception while a stop is pending is the stop: a library
+    the signal's Interrupted hit can raise an error of its own in its place (as
+    `stopped_by_signals` says)."""
     if isinstance(exc, Interrupted):
         if exc.stage is None:
             exc.stage = stage
         return exc
     if isinstance(exc, KeyboardInterrupt):
         return Interrupted(signal.SIGINT, stage)
+    pending = next((stops[0] for stops in _STOPS if stops), None)
+    if exc is not None and pending is not None:
+        return Interrupted(pending, stage)
     return None
 
 
@@ -440,6 +445,10 @@ class RunDir:
                 if isinstance(exc, Interrupted):
                     exc.stage = interrupted.stage  # the CLI's one line names it
                 self._write(INTERRUPTED, error=interrupted.describe())
+                if not isinstance(exc, (Interrupted, KeyboardInterrupt)):
+                    # a library's own error in the stop's place: the stop goes on, with its
+                    # stage (stopped_by_signals' own would say "before the first stage")
+                    raise interrupted from exc
             elif not self._restore_earlier_run():
                 self._write(FAILED, error=error_text(exc))
         except OSError as e:  # e.g. disk full: the stage's own error matters more

@@ -718,3 +718,30 @@ def test_a_stop_a_library_turns_into_an_error_of_its_own_is_still_the_stop():
     assert isinstance(stopped.value.__cause__, AttributeError)
     with pytest.raises(AttributeError), stopped_by_signals():  # no signal: the error itself
         raise AttributeError("a bug")
+
+
+def test_a_stop_a_library_turns_into_its_own_error_in_a_stage_names_the_stage(tmp_path):
+    """The same inside a run's stage: status.json said `failed` with the library's error and
+    the command "stopped by SIGTERM before the first stage" (the block's own Interrupted has
+    no stage). Both say the stage now, and the library's error is the cause."""
+    d = tmp_path / "run"
+    with pytest.raises(Interrupted) as stopped:
+        with stopped_by_signals(), RunDir(d, ["scene", "graph"]) as run:
+            run.start("scene")
+            run.start("graph")
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                for _ in range(1000):  # the handler runs at one of these steps
+                    pass
+            finally:
+                raise AttributeError("a library's half-made state")
+    assert (stopped.value.signum, stopped.value.stage) == (signal.SIGTERM, "graph")
+    assert isinstance(stopped.value.__cause__, AttributeError)
+    status = json.loads((d / "status.json").read_text())
+    assert (status["state"], status["stage"]) == ("interrupted", "graph")
+    assert status["error"] == "stopped by SIGTERM at stage graph"
+    fresh = tmp_path / "fresh"
+    with pytest.raises(AttributeError), stopped_by_signals(), RunDir(fresh, ["scene"]) as run:
+        run.start("scene")  # no signal: the error itself, and the run failed
+        raise AttributeError("a bug")
+    assert read_status(fresh).state == FAILED

@@ -161,10 +161,12 @@ def test_an_api_re_run_failing_in_a_stage_before_any_artefact_changed_keeps_the_
 
 def signal_once_running(run_dir: Path, signum: int) -> None:
     """Send this process `signum` from a thread as soon as the run in `run_dir` has begun
-    its stages (status.json says running)."""
+    its stages (status.json says running, at a stage: it says running before the first
+    stage begins, and a signal there stops the run "before the first stage")."""
     def send() -> None:
         for _ in range(6000):
-            if read_status(run_dir).state == "running":
+            status = read_status(run_dir)
+            if status.state == "running" and status.stage is not None:
                 os.kill(os.getpid(), signum)
                 return
             time.sleep(0.005)
