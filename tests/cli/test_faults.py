@@ -775,7 +775,11 @@ def test_the_terminal_closing_on_a_joblib_sweep_is_one_line(tmp_path):
     os.killpg(proc.pid, signal.SIGHUP)
     err = proc.communicate(timeout=120)[1]
     assert proc.returncode == 129, err
-    time.sleep(1.0)  # the tracker removes what the workers left as it ends
     assert [ln for ln in lines(err) if "[HYDRA]" not in ln] == [
         "stopped by SIGHUP during the sweep"], err
-    assert not list(Path("/dev/shm").glob(f"*loky-{proc.pid}-*"))  # (none where no such dir)
+    left = list(Path("/dev/shm").glob(f"*loky-{proc.pid}-*"))  # (none where no such dir)
+    deadline = time.monotonic() + 60
+    while left and time.monotonic() < deadline:  # the tracker removes them as it ends
+        time.sleep(0.1)
+        left = list(Path("/dev/shm").glob(f"*loky-{proc.pid}-*"))
+    assert not left
