@@ -463,12 +463,21 @@ def test_a_batch_that_does_not_compose_runs_no_job(tmp_path, workers):
 # `python -m pipeline ARGS`, saying after each fork, in the process that forked, how many
 # threads it had at the fork: as Python 3.12+ counts them to warn "This process is
 # multi-threaded, use of fork() may lead to deadlocks in the child" (after the fork handlers)
-# (native threads too, where /proc lists them; elsewhere Python's)
+# (native threads too, where /proc lists them, less any still listed as it exits; elsewhere
+# Python's)
 THREADS_AT_FORK = """
 import os, runpy, sys, threading
+def alive(task):
+    try:
+        with open(f"/proc/self/task/{task}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] not in "ZX"
+    except OSError:
+        return False
 def count():
     tasks = "/proc/self/task"
-    return len(os.listdir(tasks)) if os.path.isdir(tasks) else threading.active_count()
+    if not os.path.isdir(tasks):
+        return threading.active_count()
+    return sum(alive(task) for task in os.listdir(tasks))
 os.register_at_fork(after_in_parent=lambda: print(
     "threads at fork:", count(), file=sys.stderr, flush=True))
 runpy.run_module("pipeline", run_name="__main__", alter_sys=True)
