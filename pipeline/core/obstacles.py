@@ -150,8 +150,8 @@ def _segments_meet(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
     def orient(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
         pq, pr = q - p, r - p
         o = pq[..., 0] * pr[..., 1] - pq[..., 1] * pr[..., 0]
-        # The differences carry a rounding error of the coordinates' magnitude, so |o| (the
-        # lengths times r's distance from the line) does of that times the lengths: r within
+        # The differences carry rounding errors of the coordinates' magnitude, so |o| (the
+        # lengths times r's distance from the line) carries them times the lengths: r within
         # about 1e-12·scale of the line counts as on it. (1e-12·scale², the lengths left
         # out, let a point 12 m off a 2 m edge touch it at UTM magnitudes.)
         eps = 1e-12 * scale * (np.abs(pq).max(axis=-1) + np.abs(pr).max(axis=-1))
