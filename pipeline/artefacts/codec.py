@@ -93,8 +93,10 @@ def decoded_columns(art: Artefact, topic: str, msg: dict) -> dict:
         values = reader.array(msg, key, dtype, n)
         if key in _POINT_COLUMNS:
             values = values.reshape(-1, 2)
-        elif key == _FEATURE_COLUMN:
-            values = values.reshape(-1, max(reader.count(msg, "n_features"), 1))
+        elif key == _FEATURE_COLUMN:  # one row per edge, also when there are no features
+            rows = reader.count(msg, "n_edges" if topic == topics.DEMOS_ROADMAP else "count")
+            d = reader.count(msg, "n_features")
+            values = reader.array(msg, key, dtype, rows * d).reshape(rows, d)
         out[key] = values
     return out
 

@@ -97,13 +97,13 @@ def test_edge_messages_of_different_feature_counts_are_one_line_errors(tmp_path)
 
 
 def test_decoded_columns_of_edges_without_features(tmp_path):
-    """n_features 0 (a run learning no feature): the features column is empty, not an error;
-    the other columns decode as they are."""
+    """n_features 0 (a run learning no feature): the features column is empty, not an error,
+    with a row per edge (it had shape (0, 1)); the other columns decode as they are."""
     edges = _edges(0)
     path = _write(tmp_path / "edges.mcap", [
         (topics.GRAPH_EDGES, "GraphEdges", codec.edges_message(edges, 0, []), 0)])
     art = read_artefact(path)
     out = codec.decoded_columns(art, topics.GRAPH_EDGES, art.one(topics.GRAPH_EDGES))
-    assert out["features"].size == 0
+    assert out["features"].shape == (2, 0)
     assert np.array_equal(out["duration"], [1.0, 2.0])
     assert np.array_equal(out["waypoints"], [[0, 0], [1, 1], [1, 1], [0, 0]])
