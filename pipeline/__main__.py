@@ -42,7 +42,7 @@ from hydra.errors import OverrideParseException
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from pipeline.app.config import one_job_of_a_sweep, register_configs
+from pipeline.app.config import check_boolean_overrides, one_job_of_a_sweep, register_configs
 from pipeline.app.outcome import SweepOutcome, SweepRefused, failed_jobs
 from pipeline.app.rundir import (
     METRICS_FILE,
@@ -82,6 +82,7 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
                                          "add -m to run the sweep"):
             logging.getLogger("pipeline").warning(warning)
         try:
+            check_boolean_overrides(cfg, hydra_cfg.overrides.task)
             run_pipeline(cfg, run_dir, group_choices=hydra_cfg.runtime.choices)
         except Exception as e:  # noqa: BLE001 - SystemExit passes through Hydra untouched
             exit_with_one_line(e)
@@ -92,6 +93,7 @@ def main(cfg: DictConfig) -> float | FailedJob | None:
     # and exit status.
     number = current_sweep(Path(hydra_cfg.sweep.dir))
     try:
+        check_boolean_overrides(cfg, hydra_cfg.overrides.task)
         run_pipeline(cfg, run_dir, sweep=number, group_choices=hydra_cfg.runtime.choices)
     except Exception as e:  # noqa: BLE001 - any failure of one job, reported per job
         error = error_text(e)

@@ -49,6 +49,7 @@ from pipeline.app import build, limits
 from pipeline.app.config import (
     Config,
     FileExpertConfig,
+    check_boolean_overrides,
     compose_config,
     load_settings,
     one_job_of_a_sweep,
@@ -251,6 +252,7 @@ def _compose(overrides: Sequence[str]) -> DictConfig:
             log.warning(warning)
         with open_dict(cfg):
             del cfg["hydra"]  # the run's config, as birlg's job sees it
+        check_boolean_overrides(cfg, overrides)
         # interpolations resolved now, so a bad one is this one line, not a failure later
         OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
     except (HydraException, OmegaConfBaseException) as e:  # said as `birlg` says it

@@ -23,7 +23,7 @@ from typing import Any, Optional
 import numpy as np
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
-from omegaconf.errors import MissingMandatoryValue
+from omegaconf.errors import MissingMandatoryValue, OmegaConfBaseException
 
 from pipeline.app.metric_keys import is_metric_key
 from pipeline.artefacts.store import read_artefact
@@ -446,6 +446,29 @@ def register_configs() -> None:
 
 _HINTS = {"scene.path": "scene=file scene.path=PATH", "expert.path": "expert=file expert.path=PATH",
           "reward.weights": "one number per feature", "reward.name": "a name"}
+
+
+def check_boolean_overrides(cfg: DictConfig, overrides: Sequence[str]) -> None:
+    """A boolean setting given on the command line takes true or false: omegaconf takes 2,
+    `yes` or `on` for true, which a typed config should refuse, not guess."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from omegaconf.nodes import BooleanNode
+
+    for override in OverridesParser.create().parse_overrides(list(overrides)):
+        if override.is_delete() or override.is_sweep_override():
+            continue
+        key = override.key_or_group
+        parent_key, _, leaf = key.rpartition(".")
+        try:  # (a config group such as experiment=quick is no key of the config)
+            parent = OmegaConf.select(cfg, parent_key) if parent_key else cfg
+            node = parent._get_node(leaf) if isinstance(parent, DictConfig) else None
+        except OmegaConfBaseException:
+            continue
+        value = override.value()
+        said = isinstance(value, bool) or isinstance(value, str) and (
+            value.lower() in ("true", "false") or "${" in value)  # ('true', an interpolation)
+        if isinstance(node, BooleanNode) and not said:
+            raise config_error(key, value, "true or false")
 
 
 def config_error(key: str, value: Any, allowed: str) -> PipelineError:

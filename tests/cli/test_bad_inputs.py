@@ -446,6 +446,10 @@ CONFIG_CASES = {
     "scene file name too long": (["scene=file", f"scene.path={'b' * 300}.json"],
                                  ["input path bbb", "too long"]),
     "transfer scenes not a list": (["evaluate.transfer_scenes=5"], ["evaluate.transfer_scenes"]),
+    # omegaconf took these for true
+    "a number for a boolean": (["graph.medial_axis=2"],
+                               ["graph.medial_axis=2 is not allowed (allowed: true or false)"]),
+    "yes for a boolean": (["birl=mcmc", "birl.adapt=yes"], ["birl.adapt=yes", "true or false"]),
     # Hydra names the preset, the key and the option's schema on separate lines
     "a preset's setting the method lacks": (["experiment=quick", "birl=fixed"],
                                             ["experiment=quick sets birl.alternatives",

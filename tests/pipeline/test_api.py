@@ -424,6 +424,8 @@ def test_learn_refuses_bad_input(metropolis):
         api.learn(metropolis, [walk], method="nope")
     with pytest.raises(PipelineError, match="config error: birl.nope"):
         api.learn(metropolis, [walk], nope=1)
+    with pytest.raises(PipelineError, match="graph.medial_axis=2 is not allowed .*true or false"):
+        api.learn(metropolis, [walk], overrides=["graph.medial_axis=2"])  # (omegaconf: true)
     with pytest.raises(PipelineError, match="polyline of at least two"):
         api.learn(metropolis, [np.zeros((1, 2))], overrides=["graph=small"])
     # every mistake is one PipelineError line, not an error from deep inside
