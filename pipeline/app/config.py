@@ -465,8 +465,8 @@ def check_boolean_overrides(cfg: DictConfig, overrides: Sequence[str]) -> None:
         except OmegaConfBaseException:
             continue
         value = override.value()
-        said = isinstance(value, bool) or isinstance(value, str) and (
-            value.lower() in ("true", "false") or "${" in value)  # ('true', an interpolation)
+        said = isinstance(value, bool) or (isinstance(value, str) and (
+            value.lower() in ("true", "false") or "${" in value))  # ('true', an interpolation)
         if isinstance(node, BooleanNode) and not said:
             raise config_error(key, value, "true or false")
 

@@ -86,18 +86,17 @@ def decoded_columns(art: Artefact, topic: str, msg: dict) -> dict:
     for key, dtype in dtypes.items():
         if not isinstance(msg.get(key), str):  # absent, or null (no true reward)
             continue
+        if key == _FEATURE_COLUMN:  # one row per edge, also when there are no features
+            rows = reader.count(msg, "n_edges" if topic == topics.DEMOS_ROADMAP else "count")
+            d = reader.count(msg, "n_features")
+            out[key] = reader.array(msg, key, dtype, rows * d).reshape(rows, d)
+            continue
         try:
             n = len(binascii.a2b_base64(msg[key])) // np.dtype(dtype).itemsize
         except ValueError as e:
             raise reader.fail(f"whose column '{key}' is not valid base64 ({e})") from None
         values = reader.array(msg, key, dtype, n)
-        if key in _POINT_COLUMNS:
-            values = values.reshape(-1, 2)
-        elif key == _FEATURE_COLUMN:  # one row per edge, also when there are no features
-            rows = reader.count(msg, "n_edges" if topic == topics.DEMOS_ROADMAP else "count")
-            d = reader.count(msg, "n_features")
-            values = reader.array(msg, key, dtype, rows * d).reshape(rows, d)
-        out[key] = values
+        out[key] = values.reshape(-1, 2) if key in _POINT_COLUMNS else values
     return out
 
 
