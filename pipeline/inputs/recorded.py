@@ -763,9 +763,13 @@ def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
                     listed(found, 3, "; "))
 
 
-def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
-    """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 3: z minimising
-    |points - z|^2 + penalty |D z|^2 with D the second differences, one banded solve."""
+def whittaker(points: np.ndarray, penalty: float, keep_ends: bool = False) -> np.ndarray:
+    """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 4: z minimising
+    |points - z|^2 + penalty |D z|^2 with D the second differences, one banded solve.
+    keep_ends: z's first and last points are the polyline's, the others minimise the same
+    sum given them (not the free solution with its ends overwritten: at a large penalty that
+    is a straight line near each end, which a walk setting off from rest leaves behind its
+    first point, and the overwritten end then hooked back, away from the goal, by 13 cm)."""
     n = len(points)
     diagonal = np.full(n, 6.0)
     diagonal[[0, -1]], diagonal[[1, -2]] = 1.0, 5.0
@@ -775,7 +779,16 @@ def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
     banded[0, 2:] = penalty
     banded[1, 1:] = penalty * first
     banded[2] = 1.0 + penalty * diagonal
-    return scipy.linalg.solveh_banded(banded, points)
+    if not keep_ends:
+        return scipy.linalg.solveh_banded(banded, points)
+    p = np.asarray(points, dtype=float)
+    rhs = p[1:-1].copy()  # the ends' terms of (I + penalty D'D) z move to the right side
+    rhs[0] -= banded[1, 1] * p[0]
+    rhs[1] -= banded[0, 2] * p[0]
+    rhs[-2] -= banded[0, n - 1] * p[-1]
+    rhs[-1] -= banded[1, n - 1] * p[-1]
+    inner = scipy.linalg.solveh_banded(banded[:, 1:-1], rhs)
+    return np.vstack([p[:1], inner, p[-1:]])
 
 
 def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
@@ -784,20 +797,18 @@ def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
     the penalty is found by bisection over 10^-4..10^12, the departure growing with it);
     first and last point kept."""
     p = np.asarray(points, dtype=float)
-    if len(p) < 3 or not sigma > 0:
+    if len(p) < 4 or not sigma > 0:
         return p.copy()
     origin = p[0].copy()  # map coordinates (UTM: 10^6 m) lose no precision in the solve
     p = p - origin
     low, high = -4.0, 12.0
     for _ in range(30):
         mid = (low + high) / 2
-        if np.mean((whittaker(p, 10.0 ** mid) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
+        if np.mean((whittaker(p, 10.0 ** mid, True) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
             high = mid
         else:
             low = mid
-    out = whittaker(p, 10.0 ** low)
-    out[0], out[-1] = p[0], p[-1]
-    return out + origin
+    return whittaker(p, 10.0 ** low, True) + origin
 
 
 def smooth_jitter(tracks: Sequence[np.ndarray],

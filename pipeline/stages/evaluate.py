@@ -367,17 +367,10 @@ def weights_at_box(m: dict, learner_features: list[str], box: Prior,
     (where the default learner leaves what the demonstrations say nothing about, e.g. a
     feature that never differs between their paths and the alternatives)."""
     w = np.array([m.get(f"weight_{n}", np.nan) for n in learner_features], dtype=float)
-
-    def near(target: np.ndarray) -> np.ndarray:
-        return np.abs(w - target) <= BOX_TOLERANCE * (box.upper - box.lower)
-
     names = np.array(learner_features)
-    parts = [f"{', '.join(names[hit])} at its {where} ({meaning})"
-             for where, hit, meaning in (
-                 ("lower bound", near(box.lower), BOUND_MEANS),
-                 ("upper bound", near(box.upper), BOUND_MEANS),
-                 ("middle", near((box.lower + box.upper) / 2), "nothing moved it: unknown"))
-             if hit.any()]
+    parts = [f"{', '.join(names[hit])} at its {where} "
+             f"({'nothing moved it: unknown' if where == 'middle' else BOUND_MEANS})"
+             for where, hit in box.at_box(w).items() if hit.any()]
     return [f"  {label}  {'; '.join(parts)}"] if parts else []
 
 
@@ -387,8 +380,6 @@ STUCK_ACCEPTANCE = 0.01
 # above this one, chains that do not agree creep: their steps are too small to go anywhere
 # (proposal_step=1e-300 accepted every step, and "raise birl.max_samples" would not help)
 CREEPING_ACCEPTANCE = 0.95
-# weights_at_box: a weight this close to a bound or the middle, relative to the box's width
-BOX_TOLERANCE = 1e-6
 # print_summary: a weight that moved less than this share of the box's width over all
 # iterations never left its start (MaxEnt's untouched weight moved 2e-6 of it, the others
 # tenths)
@@ -513,14 +504,20 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
             lines.append(f"                   worst held-out Fréchet "
                          f"{fmt('heldout_frechet_m_max', '.2f')} m (shortest path "
                          f"{fmt('heldout_frechet_m_shortest_max', '.2f')} m)")
-        if m.get("heldout_frechet_m", 0.0) > m.get("heldout_frechet_m_shortest", np.inf):
-            lines.append("  warning          the learned paths are farther from the held-out "
-                         "demonstrations than the shortest paths are: on these scenes the "
-                         "learned reward predicts them worse than no reward does")
         if "heldout_log_likelihood" in m:
             lines.append(f"                   log likelihood per demonstration "
                          f"{fmt('heldout_log_likelihood', '.2f')} (shortest path's reward "
                          f"{fmt('heldout_log_likelihood_shortest', '.2f')})")
+        if m.get("heldout_frechet_m", 0.0) > m.get("heldout_frechet_m_shortest", np.inf):
+            lines.append("  warning          the learned paths are farther from the held-out "
+                         "demonstrations than the shortest paths are: on these scenes the "
+                         "learned reward predicts them worse than no reward does")
+        if m.get("heldout_min_distance_error_m", 0.0) > \
+                m.get("heldout_min_distance_error_m_shortest", np.inf):
+            lines.append("  warning          the learned paths' closest approach to a person "
+                         "differs more from the held-out demonstrations' than the shortest "
+                         "paths' does (min-distance error): on these scenes the learned reward "
+                         "predicts how closely they pass people worse than no reward does")
     if m.get("demos_unreached", 0) > 0:
         lines.append(f"  warning          {fmt('demos_unreached', '.0f')} of "
                      f"{fmt('demos_count', '.0f')} demonstrations learned from do not reach the "

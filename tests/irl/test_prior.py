@@ -120,3 +120,22 @@ def test_box_config_takes_one_number_or_one_per_feature():
         BoxConfig(lower=[-2.0, -1.0, -1.0]).make_prior(2)
     with pytest.raises(ParameterError, match="upper"):
         BoxConfig(upper=[0.0, 0.0]).make_prior(3)
+
+
+def test_weights_printed_at_a_bound_or_the_middle_are_at_the_box():
+    """The run summary names the weights at the box (Prior.at_box) as it prints them, to 3
+    decimals: the MAP's Newton steps stop a little short of a bound, and social -0.0003
+    (printed 0.000, the upper bound) and crossing -0.49987 (printed -0.500, the middle),
+    learned from a walker's paths, were not named."""
+    box = BoxConfig().make_prior(5)  # [-1, 0]^5
+    at = box.at_box([-0.804, -0.0003071, 0.0, -0.511, -0.4998713])
+    assert at["upper bound"].tolist() == [False, True, True, False, False]
+    assert at["middle"].tolist() == [False, False, False, False, True]
+    assert not at["lower bound"].any()
+    # learned weights: printed away from the box's corners and middle
+    assert not any(m.any() for m in box.at_box([-0.872, -0.209, -0.554, -0.39, -0.45]).values())
+    assert not any(m.any() for m in box.at_box([np.nan] * 5).values())
+    # relative to the box's width: 0.0009 from a bound of a box 2 wide is at it (0.00045 in
+    # the unit box), 0.0011 is not
+    wide = Prior("uniform", 1.0, np.array([-2.0, -2.0]), np.array([0.0, 0.0]))
+    assert wide.at_box([-1.9991, -1.9989])["lower bound"].tolist() == [True, False]

@@ -249,3 +249,26 @@ def test_a_scene_file_or_its_map_edited_since_its_run_is_not_reused(tmp_path):
     image.write_bytes(image.read_bytes()[:-1] + b"\x00")  # one pixel black
     with pytest.raises(PipelineError, match=refused):
         run_in_process(tmp_path / "redrawn", *QUICK, *again)
+
+
+def test_the_summary_warns_when_the_shortest_path_passes_people_more_like_them(tmp_path):
+    """The min-distance error has a warning of its own: demonstrators who walk straight past
+    a person 1.45 m off their line, held out, and a reward that keeps 3 m from everyone
+    (a hinge at 3 m, weight -20) detour round the person; the shortest path passes as they
+    do."""
+    scene = {"name": "pass", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 6},
+             "persons": [{"id": 1, "x": 5.0, "y": 3.2, "theta": -1.57}], "relations": [],
+             "starts": [[1.0, 1.5], [1.0, 2.0]], "goal": [9.0, 1.75]}
+    walks = [np.linspace(start, scene["goal"], 30).tolist()
+             for start in scene["starts"] for _ in "ab"]
+    (tmp_path / "scene.json").write_text(json.dumps(scene))
+    (tmp_path / "demos.json").write_text(json.dumps({"trajectories": walks,
+                                                     "subjects": ["a", "b"] * 2}))
+    m, out = run_in_process(tmp_path / "run", "graph=small", "scene=file",
+                            f"scene.path={tmp_path / 'scene.json'}", "expert=file",
+                            f"expert.path={tmp_path / 'demos.json'}", "evaluate.holdout=[b]",
+                            "birl=fixed", "birl.features=[social@3.0]", "birl.weights=[-20]",
+                            "birl.lower=[-100]")
+    assert m["heldout_min_distance_error_m"] > m["heldout_min_distance_error_m_shortest"] + 1
+    assert "closest approach to a person differs more from the held-out demonstrations' " \
+        "than the shortest paths' does (min-distance error)" in out

@@ -1,0 +1,58 @@
+"""A tracked walk that sets off from rest, densely sampled, smoothed of its tracking noise
+(pipeline/inputs/recorded.py `smooth_to_noise`): its first point is kept and the smoothed
+walk goes on from there. The free smoother's solution is a straight line near each end,
+which an accelerating walk leaves behind its first point; with that first point written
+over it, a 100 Hz walk with 2 cm of noise began with a 13 cm hook away from the goal, read
+by learning as goal deviation (its weight went to the box's bound, 0)."""
+
+import numpy as np
+
+from pipeline.inputs.recorded import noise_sigma, smooth_jitter, smooth_to_noise, whittaker
+
+START, GOAL = np.array([0.5, 0.5]), np.array([5.5, 9.0])
+
+
+def walk_from_rest(rate: float = 100.0, speed: float = 1.25, ramp: float = 0.8) -> np.ndarray:
+    """From START towards GOAL at `rate` Hz, accelerating from rest to `speed` over `ramp`
+    seconds, then at that speed until 0.3 m before the goal."""
+    heading = (GOAL - START) / np.linalg.norm(GOAL - START)
+    total = np.linalg.norm(GOAL - START) - 0.3
+    t = np.arange(0.0, 20.0, 1.0 / rate)
+    s = np.where(t < ramp, 0.5 * speed / ramp * t ** 2, speed * (t - ramp / 2))
+    s = s[s <= total]
+    return START + s[:, None] * heading
+
+
+def goal_deviation(points: np.ndarray) -> float:
+    """The total increase of the distance to the goal along the points (the feature)."""
+    return float(np.maximum(np.diff(np.linalg.norm(points - GOAL, axis=1)), 0.0).sum())
+
+
+def test_a_walk_from_rest_is_smoothed_without_a_hook_at_its_start():
+    true = walk_from_rest()
+    raw = true + np.random.default_rng(3).normal(0.0, 0.02, true.shape)
+    (out,), (smoothed,), _ = smooth_jitter([raw], "x")
+    assert smoothed
+    assert np.array_equal(out[[0, -1]], raw[[0, -1]])
+    # nowhere more than the noise farther from the goal than where it began (13 cm before)
+    start_gap = np.linalg.norm(raw[0] - GOAL)
+    assert np.linalg.norm(out - GOAL, axis=1).max() < start_gap + 0.02
+    assert goal_deviation(out) < 0.03  # 0.21 m before
+    true_length = np.linalg.norm(np.diff(true, axis=0), axis=1).sum()
+    assert np.linalg.norm(np.diff(out, axis=0), axis=1).sum() < 1.01 * true_length
+
+
+def test_kept_ends_minimise_the_same_sum_given_them():
+    rng = np.random.default_rng(0)
+    for n in (4, 5, 30):
+        y = rng.normal(size=(n, 2))
+        D = np.diff(np.eye(n), 2, axis=0)
+        A = np.eye(n) + 7.3 * D.T @ D
+        inner = np.arange(1, n - 1)
+        expected = y.copy()
+        expected[inner] = np.linalg.solve(A[np.ix_(inner, inner)],
+                                          y[inner] - A[np.ix_(inner, [0, n - 1])] @ y[[0, -1]])
+        np.testing.assert_allclose(whittaker(y, 7.3, keep_ends=True), expected, atol=1e-12)
+    raw = walk_from_rest() + np.random.default_rng(4).normal(0.0, 0.02, (1, 2))
+    assert noise_sigma([raw]) < 1e-3  # no noise read: nothing to smooth
+    np.testing.assert_array_equal(smooth_to_noise(raw, 0.0), raw)
