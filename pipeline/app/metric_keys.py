@@ -52,6 +52,9 @@ METRIC_KEYS: dict[str, str] = {
                                 "0.1 m, however densely either is sampled), m",
     r"demos_(count|unreached)": "demonstrations without a true reward: how many were learned "
                                 "from, and how many of them do not reach the goal",
+    r"demos_min_distance_to_person": "demonstrations without a true reward: the smallest "
+                                     "distance from any of them (held out or not) to a "
+                                     "person's centre, m",
     r"time_\w+_s": "wall-clock seconds of a stage (or a part of one); never in an artefact",
     r"graph_demo_node_share": "share of the adaptive graph's nodes that are demonstration "
                               "waypoints",

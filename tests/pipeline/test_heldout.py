@@ -272,3 +272,33 @@ def test_the_summary_warns_when_the_shortest_path_passes_people_more_like_them(t
     assert m["heldout_min_distance_error_m"] > m["heldout_min_distance_error_m_shortest"] + 1
     assert "closest approach to a person differs more from the held-out demonstrations' " \
         "than the shortest paths' does (min-distance error)" in out
+
+
+def test_the_summary_warns_when_the_learned_paths_pass_closer_than_every_demonstrator(
+        tmp_path):
+    """Demonstrators who go round a person standing on their straight line, 1.5 m off it,
+    and a reward deployed on their scene: with no person cost its roadmap paths go straight
+    through, closer than any of them (the summary says so and what to add); with a
+    strong one they keep their distance, and nothing is said."""
+    scene = {"name": "round", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 6},
+             "persons": [{"id": 1, "x": 5.0, "y": 2.0, "theta": 1.57}], "relations": [],
+             "starts": [[1.0, 2.0]], "goal": [9.0, 2.0]}
+    detour = [[1.0, 2.0], [3.0, 3.3], [5.0, 3.5], [7.0, 3.3], [9.0, 2.0]]
+    (tmp_path / "scene.json").write_text(json.dumps(scene))
+    (tmp_path / "demos.json").write_text(json.dumps({"trajectories": [detour, detour]}))
+    common = ("graph=small", "scene=file", f"scene.path={tmp_path / 'scene.json'}",
+              "expert=file", f"expert.path={tmp_path / 'demos.json'}", "birl=fixed",
+              "birl.features=[social@2.0,length]")
+    rude, out = run_in_process(tmp_path / "rude", *common, "birl.weights=[0,-1]")
+    # the detour's second segment, (3, 3.3) to (5, 3.5), passes the person at 1.49 m: the
+    # cross product of its direction (2, 0.2) with (5 - 3, 2 - 3.3), over its length
+    assert rude["demos_min_distance_to_person"] == pytest.approx(
+        abs(2.0 * -1.3 - 0.2 * 2.0) / np.hypot(2.0, 0.2), abs=1e-9)
+    assert rude["ref_min_distance_to_person"] < 0.5
+    assert f"the learned roadmap paths pass {rude['ref_min_distance_to_person']:.2f} m from " \
+        f"a person, closer than any demonstration " \
+        f"({rude['demos_min_distance_to_person']:.2f} m)" in out
+    assert "add social_squared to birl.features" in out
+    polite, out = run_in_process(tmp_path / "polite", *common, "birl.weights=[-1,-0.1]")
+    assert polite["ref_min_distance_to_person"] > 1.45
+    assert "closer than any demonstration" not in out
