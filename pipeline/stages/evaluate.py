@@ -380,10 +380,11 @@ def closer_than_demos(m: dict) -> list[str]:
     demos, learned = m.get("demos_min_distance_to_person"), m.get("ref_min_distance_to_person")
     if demos is None or learned is None or learned >= demos - CLOSER_THAN_DEMOS_M:
         return []
+    hint = ("" if "weight_social_squared" in m else "; the squared hinge lets it say how far "
+            "they keep (add social_squared to birl.features, see the methods docs)")
     return [f"  warning          the learned roadmap paths pass {learned:.2f} m from a person, "
             f"closer than any demonstration ({demos:.2f} m): the learned reward is ruder than "
-            "every demonstrator; the squared hinge lets it say how far they keep (add "
-            "social_squared to birl.features, see the methods docs)"]
+            f"every demonstrator{hint}"]
 
 
 def weights_at_box(m: dict, learner_features: list[str], box: Prior,
