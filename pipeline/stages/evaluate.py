@@ -366,15 +366,15 @@ def graph_less_polite(m: dict) -> list[str]:
 
 # closer_than_demos: how much closer to a person than every demonstration the learned
 # roadmap paths may pass before the summary warns; a roadmap path follows a demonstration's
-# distance only to about its lattice's resolution (a walker's paths on a random scene,
-# learned and deployed alike: 0.39 m against the learned 0.38 m)
+# distance only to about its lattice's resolution (a walker passed people at 0.39 m on a
+# random scene, the reward learned from its paths at 0.38 m)
 CLOSER_THAN_DEMOS_M = 0.05
 
 
 def closer_than_demos(m: dict) -> list[str]:
     """A warning line when the learned roadmap paths pass a person closer than every
     demonstration did: a reward learned from people that is ruder than all of them (the
-    planner's paths in the office, 0.63 m, taught paths of 0.39 m), which the held-out
+    planner's paths in the office, 0.62 m, taught paths of 0.39 m), which the held-out
     numbers need not show (no held-out demonstration, or none from the start that passes
     closest)."""
     demos, learned = m.get("demos_min_distance_to_person"), m.get("ref_min_distance_to_person")
