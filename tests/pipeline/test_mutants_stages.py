@@ -1,0 +1,272 @@
+"""What the evaluate and demos stages write, checked against what the artefacts say
+independently (eval.mcap's loss rows and paths, graph.mcap's nodes, demos.mcap's
+demonstrations), against runs whose answer is known (a contrast reward's normalised loss is
+1, a transfer to the run's own scene repeats its roadmap numbers) and against the summary's
+own rules for its lines and warnings (a mutation audit of pipeline/stages/evaluate.py and
+pipeline/stages/demos.py)."""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from pipeline.artefacts import codec, read_artefact, topics
+from pipeline.core.evaluation import frechet
+from pipeline.core.social import min_distance_to_person
+from tests.conftest import METROPOLIS, POLITE, RUDE, run_in_process
+
+QUICK = ("graph=small", "birl.n_iterations=3")
+# weights that lose on both graphs (test_run's normalised-loss case), crossing last
+LOSING = "birl.weights=[-0.2,-1,-0.1,-0.5,-0.5]"
+
+
+def _weights(values) -> str:
+    return "birl.weights=[" + ",".join(repr(float(v)) for v in values) + "]"
+
+
+@pytest.fixture(scope="module")
+def synth(tmp_path_factory):
+    """The optimal polite expert on metropolis, a few iterations."""
+    run_dir = tmp_path_factory.mktemp("synth")
+    m, out = run_in_process(run_dir, *QUICK)
+    return run_dir, m, out
+
+
+@pytest.fixture(scope="module")
+def losing(synth, tmp_path_factory):
+    """synth's graph and demonstrations, losing weights given, transferred to its own scene."""
+    run_dir = tmp_path_factory.mktemp("losing")
+    m, out = run_in_process(run_dir, "birl=fixed", LOSING, "graph=small", "stages=[birl,evaluate]",
+                            f"from_run={synth[0]}", f"evaluate.transfer_scenes=[{METROPOLIS}]")
+    return run_dir, m, out
+
+
+@pytest.fixture(scope="module")
+def planner(tmp_path_factory):
+    """Three planner subjects (no true reward), subject s2 held out."""
+    run_dir = tmp_path_factory.mktemp("planner")
+    m, out = run_in_process(run_dir, *QUICK, "expert=planner", "expert.n_subjects=3",
+                            "evaluate.holdout=[s2]")
+    return run_dir, m, out
+
+
+def check_summary(m: dict, out: str) -> None:
+    """The summary's lines say the metrics they name, and each warning is there exactly
+    when its rule holds (evaluate.summary_text's docstrings)."""
+    if "policy_loss" in m:
+        assert (f"  policy loss      roadmap {m['policy_loss_ref']:.4f}, normalised "
+                f"{m['policy_loss_norm']:.4f}, graph {m['policy_loss']:.4f} (initial "
+                f"{m['policy_loss_initial']:.4f})") in out
+        worse = (m["policy_loss_ref"] > m["policy_loss_ref_initial"] + 1e-9
+                 or m["policy_loss"] > m["policy_loss_initial"] + 1e-9)
+        assert ("lose more than the initial ones" in out) == worse
+    for label, p in (("  roadmap paths    ", "ref_"), ("  graph paths      ", "")):
+        assert (label + f"crossings {m[p + 'relation_crossings']:.0f}, "
+                f"intimate {m[p + 'intimate_intrusion_m']:.2f} m, personal "
+                f"{m[p + 'personal_intrusion_m']:.2f} m, min distance "
+                f"{m[p + 'min_distance_to_person']:.2f} m, success {m[p + 'success']:.2f}"
+                ) in out, label
+    ruder = (m.get("policy_loss", np.inf) > m.get("policy_loss_ref", -np.inf)
+             and any(m[k] > m["ref_" + k] + 1e-9
+                     for k in ("relation_crossings", "intimate_intrusion_m")))
+    assert ("ruder than the roadmap's" in out) == ruder
+    assert ("stop short of the goal" in out) == (m["success"] < 1 or m["ref_success"] < 1)
+    share = m["graph_demo_node_share"]
+    assert ("demonstration waypoints: these say little" in out) == (share > 0.5)
+    assert ("do not reach the goal" in out) == (m.get("demos_unreached", 0) > 0)
+    if "demos_min_distance_to_person" in m:
+        closer = m["ref_min_distance_to_person"] < m["demos_min_distance_to_person"] - 0.05
+        assert ("closer than any demonstration" in out) == closer
+    if "frechet_to_demos" in m:
+        assert f"discrete Fréchet mean {m['frechet_to_demos']:.3f} m" in out
+    else:
+        assert "vs demos" not in out
+
+
+def test_the_losses_are_eval_mcaps_rows(synth):
+    run_dir, m, out = synth
+    rows = read_artefact(run_dir / "eval.mcap").all(topics.EVAL_POLICY_LOSS)
+    assert [r["iteration"] for r in rows] == [0, 1, 2, 3]
+    assert m["policy_loss"] == rows[-1]["graph"] and m["policy_loss_ref"] == rows[-1]["ref"]
+    assert m["policy_loss_initial"] == rows[0]["graph"]
+    assert m["policy_loss_ref_initial"] == rows[0]["ref"]
+    for k, r in enumerate(rows):
+        assert m[f"policy_loss_iter_{k:02d}"] == r["graph"]
+        assert m[f"policy_loss_ref_iter_{k:02d}"] == r["ref"]
+        assert r["norm"] == pytest.approx(r["ref"] / m["policy_loss_ref_rude"], rel=1e-12)
+    # the final weights are the last iteration's
+    its = read_artefact(run_dir / "birl.mcap").all(topics.BIRL_ITERATION)
+    names = ["relation", "social", "goal_deviation", "length", "crossing"]
+    assert [m[f"weight_{n}"] for n in names] == its[-1]["weights"]
+    check_summary(m, out)
+
+
+def test_the_contrast_rewards_normalised_loss_is_one(synth, tmp_path):
+    """The rude preset given on a polite expert's run loses what policy_loss_ref_rude says,
+    so its normalised loss is 1; and on a rude expert's run, the polite preset's is."""
+    run_dir, m, _ = synth
+    rude, out = run_in_process(tmp_path / "rude", "birl=fixed", _weights([*RUDE, 0.0]),
+                               "graph=small", "stages=[birl,evaluate]", f"from_run={run_dir}")
+    assert rude["policy_loss_ref"] > 0
+    assert rude["policy_loss_ref"] == pytest.approx(m["policy_loss_ref_rude"], rel=1e-12)
+    assert rude["policy_loss_norm"] == pytest.approx(1.0, rel=1e-12)
+    check_summary(rude, out)  # one iteration: final = initial, no warning of it
+    polite, out = run_in_process(tmp_path / "polite", "reward=rude", "graph=small",
+                                 "birl=fixed", _weights([*POLITE, 0.0]))
+    assert "policy_loss_ref_rude" not in polite and polite["policy_loss_ref_polite"] > 0
+    assert polite["policy_loss_norm"] == pytest.approx(1.0, rel=1e-12)
+    check_summary(polite, out)
+
+
+def test_a_transfer_to_the_runs_own_scene_repeats_its_roadmap_numbers(losing):
+    """Same scene, same roadmap, same weights: every transfer_* metric is the run's own
+    (with weights that lose, so the normalised loss is no 0 = 0)."""
+    _, m, out = losing
+    assert m["policy_loss_ref"] > 0.05
+    assert m["transfer_metropolis_policy_loss"] == m["policy_loss_ref"]
+    assert m["transfer_metropolis_policy_loss_norm"] == pytest.approx(m["policy_loss_norm"],
+                                                                      rel=1e-12)
+    for key in ("relation_crossings", "intimate_intrusion_m", "personal_intrusion_m",
+                "min_distance_to_person", "path_length", "success"):
+        assert m[f"transfer_metropolis_{key}"] == pytest.approx(m[f"ref_{key}"], rel=1e-12)
+    assert "transfer_metropolis_time_to_goal" not in m  # DESIGN §9: not a transfer metric
+    check_summary(m, out)
+
+
+def test_path_metrics_are_those_of_eval_mcaps_paths(synth):
+    """The learned paths in eval.mcap: one per start of each graph, from that start; each
+    one's time to the goal its length over the speed (straight edges, 1 m/s); the run's
+    numbers their mean (time, length) or sum (crossings)."""
+    run_dir, m, _ = synth
+    scene = codec.decode_scene(read_artefact(run_dir / "scene.mcap"))
+    paths = read_artefact(run_dir / "eval.mcap").all(topics.EVAL_PATHS)
+    for where, prefix in (("graph", ""), ("ref", "ref_")):
+        mine = [p for p in paths if p["graph"] == where]
+        assert [p["start"] for p in mine] == list(range(len(scene.starts)))
+        for p in mine:
+            pts = np.asarray(p["points"], float)
+            assert np.linalg.norm(pts[0] - scene.starts[p["start"]]) < 0.5
+            length = np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()
+            assert len(pts) > 2 and p["time_to_goal"] == pytest.approx(length, rel=1e-9)
+            assert p["path_length"] == pytest.approx(length, rel=1e-9)
+        assert m[prefix + "time_to_goal"] == pytest.approx(
+            np.mean([p["time_to_goal"] for p in mine]), rel=1e-12)
+        assert m[prefix + "relation_crossings"] == sum(p["relation_crossings"] for p in mine)
+        assert m[prefix + "success"] == 1.0
+
+
+def test_the_demo_node_share_is_graph_mcaps(synth, planner):
+    for run_dir, m, _ in (synth, planner):
+        kinds = codec.decode_nodes(read_artefact(run_dir / "graph.mcap")).kind
+        assert m["graph_demo_node_share"] == pytest.approx(
+            np.count_nonzero(kinds == "demo") / len(kinds), rel=1e-12)
+    assert planner[1]["graph_demo_node_share"] > 0
+
+
+def test_a_synthetic_expert_reports_no_similarity_to_demonstrations(synth):
+    m = synth[1]
+    assert not {"frechet_to_demos", "frechet_to_demos_max", "demos_count",
+                "demos_unreached"} & set(m)
+
+
+def test_demonstration_metrics_count_only_what_learning_saw(planner):
+    """demos_* and frechet_to_demos: over the training demonstrations (held-out ones never
+    enter learning), against the learned graph path from each one's start; the smallest
+    distance to a person over every demonstration (docs/inputs.md)."""
+    run_dir, m, out = planner
+    demos = read_artefact(run_dir / "demos.mcap").all(topics.DEMOS)
+    kept = [d for d in demos if not d["heldout"]]
+    assert 0 < len(kept) < len(demos)
+    assert m["demos_count"] == len(kept)
+    assert m["demos_unreached"] == sum(not d["reached"] for d in kept)
+    scene = codec.decode_scene(read_artefact(run_dir / "scene.mcap"))
+    learned = {p["start"]: np.asarray(p["points"], float)
+               for p in read_artefact(run_dir / "eval.mcap").all(topics.EVAL_PATHS)
+               if p["graph"] == "graph"}
+    dists = [frechet(learned[d["start_index"]], np.asarray(d["points"], float)) for d in kept]
+    assert np.ptp(dists) > 0.01  # mean, median and largest differ
+    assert m["frechet_to_demos"] == pytest.approx(np.mean(dists), rel=1e-12)
+    assert m["frechet_to_demos_max"] == pytest.approx(np.max(dists), rel=1e-12)
+    assert m["demos_min_distance_to_person"] == pytest.approx(min(
+        min_distance_to_person(np.asarray(d["points"], float), scene.person_xy)
+        for d in demos), rel=1e-12)
+    check_summary(m, out)
+
+
+def test_the_held_out_lines_say_the_held_out_metrics(planner):
+    _, m, out = planner
+    assert (f"held out ({m['heldout_count']:.0f})    Fréchet {m['heldout_frechet_m']:.2f} m "
+            f"(shortest path {m['heldout_frechet_m_shortest']:.2f} m), min-distance error "
+            f"{m['heldout_min_distance_error_m']:.2f} m (shortest "
+            f"{m['heldout_min_distance_error_m_shortest']:.2f} m)") in out
+    assert (f"worst held-out Fréchet {m['heldout_frechet_m_max']:.2f} m (shortest path "
+            f"{m['heldout_frechet_m_shortest_max']:.2f} m)") in out
+    assert (f"log likelihood per demonstration {m['heldout_log_likelihood']:.2f} "
+            f"(shortest path's reward {m['heldout_log_likelihood_shortest']:.2f})") in out
+    # the shortest-path baselines differ from the learned ones (else no baseline)
+    assert m["heldout_frechet_m_shortest_max"] != m["heldout_frechet_m_shortest"]
+    assert m["heldout_min_distance_error_m_shortest"] > 0
+
+
+def test_a_weight_that_rounds_to_zero_is_shown_without_a_sign(synth, tmp_path):
+    _, out = run_in_process(tmp_path, "birl=fixed", _weights([*POLITE, -1e-4]),
+                            "graph=small", "stages=[birl,evaluate]", f"from_run={synth[0]}")
+    assert "crossing 0.000" in out and "-0.000" not in out
+
+
+def test_the_demonstrations_artefact_describes_its_expert(planner, tmp_path):
+    """demos.mcap of an expert without a true reward carries none; every demonstration's
+    duration is its length at the run's speed; the MDP and features are the run's."""
+    run_dir = planner[0]
+    art = read_artefact(run_dir / "demos.mcap")
+    cfg = yaml.safe_load(art.config_yaml)
+    expert = art.one(topics.DEMOS_EXPERT)
+    assert expert["true_weights"] is None and expert["reward"] is None
+    assert expert["feature_names"] == list(cfg["reward"]["features"])
+    assert (expert["gamma"], expert["time_cost"], expert["speed"]) == (
+        cfg["mdp"]["gamma"], cfg["mdp"]["time_cost"], cfg["mdp"]["speed"])
+    assert art.one(topics.DEMOS_ROADMAP)["true_values"] is None
+    scene = codec.decode_scene(read_artefact(run_dir / "scene.mcap"))
+    for d in art.all(topics.DEMOS):
+        pts = np.asarray(d["points"], float)
+        assert d["value_true"] is None
+        assert d["duration"] == pytest.approx(
+            np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() / cfg["mdp"]["speed"], rel=1e-9)
+        # its start index names the scene start it begins at
+        assert np.argmin(np.linalg.norm(scene.starts - pts[0], axis=1)) == d["start_index"]
+    # a Boltzmann expert's β, the paper's discounting: γ^T of each demonstration
+    run_in_process(tmp_path, "expert=boltzmann", "expert.beta=7", "mdp=paper",
+                   "stages=[scene,demos]")
+    art = read_artefact(tmp_path / "demos.mcap")
+    assert art.one(topics.DEMOS_EXPERT)["beta"] == 7
+    for d in art.all(topics.DEMOS):
+        assert d["end_discount"] == pytest.approx(0.95 ** d["duration"], rel=1e-9)
+
+
+def test_n_starts_keeps_the_first_starts_demonstrations(tmp_path):
+    run_in_process(tmp_path, "expert.n_starts=2", "stages=[scene,demos]")
+    demos = read_artefact(tmp_path / "demos.mcap").all(topics.DEMOS)
+    assert sorted(d["start_index"] for d in demos) == [0, 1]
+
+
+def test_the_closest_demonstration_counts_even_when_held_out(tmp_path):
+    """demos_min_distance_to_person: the smallest distance from any demonstration to a
+    person (docs/inputs.md), held-out ones too. Subject a keeps 1.49 m from the person at
+    (5, 2), subject b (held out) passes (5, 3): 1 m exactly."""
+    scene = {"name": "round", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 6},
+             "persons": [{"id": 1, "x": 5.0, "y": 2.0, "theta": 1.57}], "relations": [],
+             "starts": [[1.0, 2.0]], "goal": [9.0, 2.0]}
+    far = [[1.0, 2.0], [3.0, 3.3], [5.0, 3.5], [7.0, 3.3], [9.0, 2.0]]
+    near = [[1.0, 2.0], [3.0, 3.0], [5.0, 3.0], [7.0, 3.0], [9.0, 2.0]]
+    (tmp_path / "scene.json").write_text(json.dumps(scene))
+    (tmp_path / "demos.json").write_text(json.dumps({"trajectories": [far, near],
+                                                     "subjects": ["a", "b"]}))
+    m, out = run_in_process(tmp_path / "run", "graph=small", "scene=file",
+                            f"scene.path={tmp_path / 'scene.json'}", "expert=file",
+                            f"expert.path={tmp_path / 'demos.json'}", "evaluate.holdout=[b]",
+                            "birl=fixed", "birl.features=[social@2.0,length]",
+                            "birl.weights=[-1,-1]")
+    assert m["demos_count"] == 1 and m["heldout_count"] == 1
+    assert m["demos_min_distance_to_person"] == pytest.approx(1.0, abs=1e-9)
+    check_summary(m, out)
