@@ -306,3 +306,11 @@ def test_the_summary_warns_when_the_learned_paths_pass_closer_than_every_demonst
     polite, out = run_in_process(tmp_path / "polite", *common, "birl.weights=[-1,-0.1]")
     assert polite["ref_min_distance_to_person"] > 1.45
     assert "closer than any demonstration" not in out
+    # nor for paths a few centimetres closer than the demonstrations: the same reward keeps
+    # its hinge's 2 m, demonstrators who went round at 2.03 m
+    wide = [[1.0, 2.0], [1.0, 4.03], [9.0, 4.03], [9.0, 2.0]]
+    (tmp_path / "demos.json").write_text(json.dumps({"trajectories": [wide, wide]}))
+    close, out = run_in_process(tmp_path / "close", *common, "birl.weights=[-1,-0.1]")
+    assert close["demos_min_distance_to_person"] == pytest.approx(2.03, abs=1e-9)
+    assert 2.03 - 0.05 < close["ref_min_distance_to_person"] < 2.03
+    assert "closer than any demonstration" not in out

@@ -102,6 +102,8 @@ def test_mcmc_reports_posterior_spread(tmp_path_factory, likelihood, n_posterior
     assert all(m[f"weight_std_{n}"] > 0 for n in names)
     assert 0.2 <= m["mcmc_acceptance_rate"] <= 0.5  # the adapted step
     assert m["mcmc_rhat_max"] == max(post[-1]["rhat"]) and m["mcmc_ess_min"] > 0
+    assert m["mcmc_ess_min"] == min(post[-1]["ess"]) == min(m[f"weight_ess_{n}"] for n in names)
+    assert m["mcmc_rhat_max"] == max(m[f"weight_rhat_{n}"] for n in names)
     # 300 per chain, or more while the chains did not agree
     blocks, rest = divmod(len(post[-1]["samples"]), 4 * 300)
     assert rest == 0 and 1 <= blocks <= 4
