@@ -841,3 +841,28 @@ def test_a_stage_this_run_makes_is_read_from_this_run_the_others_from_from_run(t
     ctx = RunContext(settings("stages=[demos]"), run, earlier, {}, "", {})
     assert ctx.read("scene", ["/a"]).one("/a") == {"v": 2}
     assert os.path.samefile(run / "scene.mcap", earlier / "scene.mcap")  # linked in
+
+
+def test_a_run_that_makes_demonstrations_checks_the_planners_lattice(tmp_path, monkeypatch):
+    """Between the reference roadmap's need (150 MB + 25,600 edges × 509 B, 163.0 MB) and the
+    planner lattice's (150 MB + 10,000 points × 2.7 kB, 177.0 MB): only the lattice is
+    refused, by the run's start-up checks."""
+    _tiny_memory(monkeypatch, 170e6 / limits.MEMORY_SHARE)
+    with pytest.raises(PipelineError) as err:
+        _preflight(tmp_path / "run", "expert=planner", "stages=[scene,demos]")
+    assert one_line(err) == (
+        "the planner's lattice over scene 'metropolis' would need about 177.0 MB (10,000 "
+        "elements) but 212.5 MB are available: raise expert.spacing (now 0.1 m) or lower "
+        "expert.max_lattice_nodes (now 40000)")
+    _preflight(tmp_path / "run", "expert=planner", "stages=[scene,graph]")  # no demos made
+
+
+def test_a_given_graph_size_too_few_to_resolve_personal_space_is_refused_at_start_up(tmp_path):
+    """metropolis: 100 m² of free space, one node per 1.2 m × 1.2 m square: 70 nodes (the
+    stages would otherwise grow a graph that cannot route around people)."""
+    _preflight(tmp_path / "run", "graph.max_nodes=70")
+    with pytest.raises(PipelineError) as err:
+        _preflight(tmp_path / "run", "graph.max_nodes=69")
+    assert one_line(err) == (
+        "config error: graph.max_nodes=69 is too few for scene 'metropolis': 100 m² of free "
+        "space at one node per 1.2 m × 1.2 m (reward.rho_personal) needs graph.max_nodes >= 70")
