@@ -13,17 +13,7 @@ from pipeline.core.experts import choose_heldout
 from pipeline.core.social import min_distance_to_person
 from pipeline.errors import PipelineError
 from tests.conftest import ROOT, run_in_process
-
-QUICK = ("graph=small", "birl.n_iterations=3")
-
-
-@pytest.fixture(scope="module")
-def subjects_run(tmp_path_factory):
-    """Three planner subjects, subject s2 held out."""
-    run_dir = tmp_path_factory.mktemp("heldout")
-    metrics, out = run_in_process(run_dir, *QUICK, "expert=planner", "expert.n_subjects=3",
-                                  "evaluate.holdout=[s2]")
-    return run_dir, metrics, out
+from tests.pipeline.conftest import FAST
 
 
 def test_held_out_demonstrations_never_enter_the_graph_or_the_likelihood(subjects_run):
@@ -110,7 +100,7 @@ def test_one_held_out_likelihood_judges_every_method(subjects_run, tmp_path):
     """PolicyWalk's reward is scored by the same model: on the same demonstrations its
     baseline (w = 0) is the BIRL-G run's to the bit, and its own score is another."""
     run_dir, metrics, _ = subjects_run
-    walk, _ = run_in_process(tmp_path, *QUICK, "expert=planner", "expert.n_subjects=3",
+    walk, _ = run_in_process(tmp_path, *FAST, "expert=planner", "expert.n_subjects=3",
                              "evaluate.holdout=[s2]", "birl=policywalk",
                              "stages=[birl,evaluate]", f"from_run={run_dir}")
     assert walk["heldout_log_likelihood_shortest"] == metrics["heldout_log_likelihood_shortest"]
@@ -147,9 +137,9 @@ def test_choose_heldout_keeps_one_per_start_and_refuses_unknown_subjects():
 def test_the_learner_may_order_its_features_differently_from_the_true_reward(tmp_path):
     """A learner on the same features in another order learns the same reward: its policy
     loss, scored on the true reward's features, is the default run's."""
-    base, _ = run_in_process(tmp_path / "a", *QUICK,
+    base, _ = run_in_process(tmp_path / "a", *FAST,
                              "birl.init_weights=[-0.3,-0.5,-0.7,-0.2,-0.4]")
-    perm, _ = run_in_process(tmp_path / "b", *QUICK,
+    perm, _ = run_in_process(tmp_path / "b", *FAST,
                              "birl.init_weights=[-0.2,-0.4,-0.7,-0.5,-0.3]",
                              "birl.features=[length,crossing,goal_deviation,social,relation]")
     assert perm["policy_loss_norm"] == pytest.approx(base["policy_loss_norm"], abs=1e-6)
@@ -158,7 +148,7 @@ def test_the_learner_may_order_its_features_differently_from_the_true_reward(tmp
 
 
 def test_a_learner_with_more_features_is_scored_on_the_true_reward(tmp_path):
-    metrics, _ = run_in_process(tmp_path, *QUICK,
+    metrics, _ = run_in_process(tmp_path, *FAST,
                                 "birl.features=[relation,intimate,social,goal_deviation,length]")
     assert "weight_intimate" in metrics and metrics["policy_loss_norm"] >= 0
     names = read_artefact(tmp_path / "birl.mcap").one(topics.BIRL_EXPERT)["feature_names"]
@@ -181,7 +171,7 @@ def test_a_deployment_plans_on_the_features_its_reward_was_learned_on(tmp_path):
     (here six, one more than the default five)."""
     learned = tmp_path / "learned"
     six = "[relation,social,social_squared,goal_deviation,length,crossing]"
-    metrics, _ = run_in_process(learned, *QUICK, "expert=file",
+    metrics, _ = run_in_process(learned, *FAST, "expert=file",
                                 "expert.path=data/demos/metropolis_handdrawn.json",
                                 f"birl.features={six}")
     deployed, out = run_in_process(tmp_path / "deployed", "graph=small", "expert=none",
@@ -213,16 +203,16 @@ def test_a_demonstration_file_edited_since_its_run_is_not_reused(tmp_path):
     path = tmp_path / "walks.json"
     path.write_text(json.dumps(drawn))
     first = tmp_path / "first"
-    run_in_process(first, *QUICK, "expert=file", f"expert.path={path}")
+    run_in_process(first, *FAST, "expert=file", f"expert.path={path}")
     again = ("stages=[graph,birl,evaluate]", f"from_run={first}", "expert=file",
              f"expert.path={path}")
-    run_in_process(tmp_path / "same", *QUICK, *again)  # unchanged: reused
+    run_in_process(tmp_path / "same", *FAST, *again)  # unchanged: reused
     path.write_text(json.dumps({"trajectories": drawn["trajectories"][:10]}))
     with pytest.raises(PipelineError, match=r"demos\.mcap was made from other contents of "
                                             r"expert\.path than it names now \(another file, "
                                             r"or the file changed since\): add "
                                             r"'demos' to stages"):
-        run_in_process(tmp_path / "edited", *QUICK, *again)
+        run_in_process(tmp_path / "edited", *FAST, *again)
 
 
 def test_a_scene_file_or_its_map_edited_since_its_run_is_not_reused(tmp_path):
@@ -235,20 +225,20 @@ def test_a_scene_file_or_its_map_edited_since_its_run_is_not_reused(tmp_path):
     data = json.loads((ROOT / "data" / "scenes" / "office.json").read_text())
     scene.write_text(json.dumps(data))
     first = tmp_path / "first"
-    run_in_process(first, *QUICK, "scene=file", f"scene.path={scene}", "stages=[scene]")
+    run_in_process(first, *FAST, "scene=file", f"scene.path={scene}", "stages=[scene]")
     again = ("stages=[demos]", f"from_run={first}", "scene=file", f"scene.path={scene}")
-    run_in_process(tmp_path / "same", *QUICK, *again)  # unchanged: reused
+    run_in_process(tmp_path / "same", *FAST, *again)  # unchanged: reused
     data["persons"][0]["x"] += 0.5
     scene.write_text(json.dumps(data))
     refused = r"scene\.mcap was made from other contents of scene\.path than it names now"
     with pytest.raises(PipelineError, match=refused):
-        run_in_process(tmp_path / "moved", *QUICK, *again)
+        run_in_process(tmp_path / "moved", *FAST, *again)
     data["persons"][0]["x"] -= 0.5
     scene.write_text(json.dumps(data))
     image = tmp_path / "maps" / "office.pgm"
     image.write_bytes(image.read_bytes()[:-1] + b"\x00")  # one pixel black
     with pytest.raises(PipelineError, match=refused):
-        run_in_process(tmp_path / "redrawn", *QUICK, *again)
+        run_in_process(tmp_path / "redrawn", *FAST, *again)
 
 
 def test_the_summary_warns_when_the_shortest_path_passes_people_more_like_them(tmp_path):

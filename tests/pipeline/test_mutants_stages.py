@@ -15,8 +15,8 @@ from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.core.evaluation import frechet
 from pipeline.core.social import min_distance_to_person
 from tests.conftest import METROPOLIS, POLITE, RUDE, run_in_process
+from tests.pipeline.conftest import FAST
 
-QUICK = ("graph=small", "birl.n_iterations=3")
 # weights that lose on both graphs (test_run's normalised-loss case), crossing last
 LOSING = "birl.weights=[-0.2,-1,-0.1,-0.5,-0.5]"
 
@@ -29,7 +29,7 @@ def _weights(values) -> str:
 def synth(tmp_path_factory):
     """The optimal polite expert on metropolis, a few iterations."""
     run_dir = tmp_path_factory.mktemp("synth")
-    m, out = run_in_process(run_dir, *QUICK)
+    m, out = run_in_process(run_dir, *FAST)
     return run_dir, m, out
 
 
@@ -39,15 +39,6 @@ def losing(synth, tmp_path_factory):
     run_dir = tmp_path_factory.mktemp("losing")
     m, out = run_in_process(run_dir, "birl=fixed", LOSING, "graph=small", "stages=[birl,evaluate]",
                             f"from_run={synth[0]}", f"evaluate.transfer_scenes=[{METROPOLIS}]")
-    return run_dir, m, out
-
-
-@pytest.fixture(scope="module")
-def planner(tmp_path_factory):
-    """Three planner subjects (no true reward), subject s2 held out."""
-    run_dir = tmp_path_factory.mktemp("planner")
-    m, out = run_in_process(run_dir, *QUICK, "expert=planner", "expert.n_subjects=3",
-                            "evaluate.holdout=[s2]")
     return run_dir, m, out
 
 
@@ -156,12 +147,12 @@ def test_path_metrics_are_those_of_eval_mcaps_paths(synth):
         assert m[prefix + "success"] == 1.0
 
 
-def test_the_demo_node_share_is_graph_mcaps(synth, planner):
-    for run_dir, m, _ in (synth, planner):
+def test_the_demo_node_share_is_graph_mcaps(synth, subjects_run):
+    for run_dir, m, _ in (synth, subjects_run):
         kinds = codec.decode_nodes(read_artefact(run_dir / "graph.mcap")).kind
         assert m["graph_demo_node_share"] == pytest.approx(
             np.count_nonzero(kinds == "demo") / len(kinds), rel=1e-12)
-    assert planner[1]["graph_demo_node_share"] > 0
+    assert subjects_run[1]["graph_demo_node_share"] > 0
 
 
 def test_a_synthetic_expert_reports_no_similarity_to_demonstrations(synth):
@@ -170,11 +161,11 @@ def test_a_synthetic_expert_reports_no_similarity_to_demonstrations(synth):
                 "demos_unreached"} & set(m)
 
 
-def test_demonstration_metrics_count_only_what_learning_saw(planner):
+def test_demonstration_metrics_count_only_what_learning_saw(subjects_run):
     """demos_* and frechet_to_demos: over the training demonstrations (held-out ones never
     enter learning), against the learned graph path from each one's start; the smallest
     distance to a person over every demonstration (docs/inputs.md)."""
-    run_dir, m, out = planner
+    run_dir, m, out = subjects_run
     demos = read_artefact(run_dir / "demos.mcap").all(topics.DEMOS)
     kept = [d for d in demos if not d["heldout"]]
     assert 0 < len(kept) < len(demos)
@@ -194,8 +185,8 @@ def test_demonstration_metrics_count_only_what_learning_saw(planner):
     check_summary(m, out)
 
 
-def test_the_held_out_lines_say_the_held_out_metrics(planner):
-    _, m, out = planner
+def test_the_held_out_lines_say_the_held_out_metrics(subjects_run):
+    _, m, out = subjects_run
     assert (f"held out ({m['heldout_count']:.0f})    Fréchet {m['heldout_frechet_m']:.2f} m "
             f"(shortest path {m['heldout_frechet_m_shortest']:.2f} m), min-distance error "
             f"{m['heldout_min_distance_error_m']:.2f} m (shortest "
@@ -215,10 +206,10 @@ def test_a_weight_that_rounds_to_zero_is_shown_without_a_sign(synth, tmp_path):
     assert "crossing 0.000" in out and "-0.000" not in out
 
 
-def test_the_demonstrations_artefact_describes_its_expert(planner, tmp_path):
+def test_the_demonstrations_artefact_describes_its_expert(subjects_run, tmp_path):
     """demos.mcap of an expert without a true reward carries none; every demonstration's
     duration is its length at the run's speed; the MDP and features are the run's."""
-    run_dir = planner[0]
+    run_dir = subjects_run[0]
     art = read_artefact(run_dir / "demos.mcap")
     cfg = yaml.safe_load(art.config_yaml)
     expert = art.one(topics.DEMOS_EXPERT)
