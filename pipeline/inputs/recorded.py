@@ -763,13 +763,13 @@ def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
                     listed(found, 3, "; "))
 
 
-def whittaker(points: np.ndarray, penalty: float, keep_ends: bool = False) -> np.ndarray:
-    """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 4: z minimising
-    |points - z|^2 + penalty |D z|^2 with D the second differences, one banded solve.
-    keep_ends: z's first and last points are the polyline's, the others minimise the same
-    sum given them (not the free solution with its ends overwritten: at a large penalty that
-    is a straight line near each end, which a walk setting off from rest leaves behind its
-    first point, and the overwritten end then hooked back, away from the goal, by 13 cm)."""
+def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
+    """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 4, its ends held: z
+    with z's first and last points the polyline's, the others minimising
+    |points - z|^2 + penalty |D z|^2 (D the second differences) given them, one banded
+    solve. (Not the free solution with its ends overwritten: at a large penalty that is a
+    straight line near each end, which a walk setting off from rest leaves behind its first
+    point, and the overwritten end then hooked back, away from the goal, by 13 cm.)"""
     n = len(points)
     diagonal = np.full(n, 6.0)
     diagonal[[0, -1]], diagonal[[1, -2]] = 1.0, 5.0
@@ -779,8 +779,6 @@ def whittaker(points: np.ndarray, penalty: float, keep_ends: bool = False) -> np
     banded[0, 2:] = penalty
     banded[1, 1:] = penalty * first
     banded[2] = 1.0 + penalty * diagonal
-    if not keep_ends:
-        return scipy.linalg.solveh_banded(banded, points)
     p = np.asarray(points, dtype=float)
     rhs = p[1:-1].copy()  # the ends' terms of (I + penalty D'D) z move to the right side
     rhs[0] -= banded[1, 1] * p[0]
@@ -804,11 +802,11 @@ def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
     low, high = -4.0, 12.0
     for _ in range(30):
         mid = (low + high) / 2
-        if np.mean((whittaker(p, 10.0 ** mid, True) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
+        if np.mean((whittaker(p, 10.0 ** mid) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
             high = mid
         else:
             low = mid
-    return whittaker(p, 10.0 ** low, True) + origin
+    return whittaker(p, 10.0 ** low) + origin
 
 
 def smooth_jitter(tracks: Sequence[np.ndarray],

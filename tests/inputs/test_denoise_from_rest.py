@@ -52,7 +52,7 @@ def test_kept_ends_minimise_the_same_sum_given_them():
         expected = y.copy()
         expected[inner] = np.linalg.solve(A[np.ix_(inner, inner)],
                                           y[inner] - A[np.ix_(inner, [0, n - 1])] @ y[[0, -1]])
-        np.testing.assert_allclose(whittaker(y, 7.3, keep_ends=True), expected, atol=1e-12)
+        np.testing.assert_allclose(whittaker(y, 7.3), expected, atol=1e-12)
     raw = walk_from_rest() + np.random.default_rng(4).normal(0.0, 0.02, (1, 2))
     assert noise_sigma([raw]) < 1e-3  # no noise read: nothing to smooth
     np.testing.assert_array_equal(smooth_to_noise(raw, 0.0), raw)
