@@ -2,7 +2,8 @@
 
     python -m pipeline.tools.viewer RUN_DIR [--out FILE] [--no-open]
 
-Static: the scene, demonstrations, the final graph and the final learned paths (with
+Static: the scene, the demonstrations (held-out ones in their own colour), the final graph,
+the final learned paths (with
 `birl=mcmc`, also the paths under a few posterior samples: its uncertainty). BIRL replays
 on the `birl_iteration` timeline (learned paths and curves), which the layout selects, so
 scene, final graph, learned paths and curves show together; graph growth replays on the
@@ -49,13 +50,21 @@ except ModuleNotFoundError as e:
     raise ModuleNotFoundError(RERUN_MISSING, name="rerun") from None
 
 APP_ID = "birlg"
-HEADING_LEN = 0.4  # m, length of the person heading arrows
+# Marks (starts, arrows, line widths, label gaps) are sized for a room of this side and grow
+# with larger ones, so that they keep their size on screen: on a 30 x 50 m map the starts
+# were hidden under their own labels and the final paths were hair-thin.
+MARK_ROOM_SIDE = 10.0  # m
+HEADING_LEN = 0.3  # m, the person heading arrows, out from the disc's edge
 START_RADIUS = 0.12  # m, the start discs
 LABEL_GAP = 0.22  # m, from a disc's edge down to its label's anchor
+# Above this mark scale (rooms over 20 m) person ids overlap one another and the discs of
+# their group: they are then shown on hover only.
+PERSON_LABELS_UP_TO_SCALE = 2.0
 # What each thing is drawn in, on the viewer's near-black background; LEGEND names them.
 PERSON, LINK = (235, 130, 40), (210, 40, 40)  # as in the figures: orange persons, red links
 START, GOAL = (40, 180, 60), (240, 240, 240)
 DEMO = (240, 70, 200)  # magenta: apart from the persons' orange and the paths' green and cyan
+HELDOUT_DEMO = (255, 230, 90)  # pale yellow: held out of learning, only judged
 FINAL_PATHS, BIRL_PATHS = (30, 200, 30), (0, 190, 190)
 POSTERIOR_PATHS = (150, 150, 255)
 GRAPH_NODES, GRAPH_EDGES = (150, 150, 150), (190, 200, 225)
@@ -65,18 +74,23 @@ KIND_COLORS = {"start": START, "goal": GOAL, "voronoi": (60, 110, 230), "demo": 
                "medial": (40, 160, 170), "sampled": GRAPH_NODES}
 # Draw order, low to high: the demonstrations above the learned paths of the selected BIRL
 # iteration, both above the wide final paths (at the last iteration all three coincide).
-ORDER = {"obstacles": -10.0, "graph_edges": -5.0, "graph_nodes": -4.0, "final_paths": 20.0,
-         "birl_paths": 21.0, "demos": 22.0, "labels": 40.0}
+# Persons above the paths, their heading arrows above them (links passed over them); the graph
+# growth under the scene (at 5000 nodes it buried the goal), its best paths above it; the
+# posterior paths (MCMC) above the wide final paths they would otherwise lie under.
+ORDER = {"obstacles": -10.0, "graph_edges": -5.0, "graph_nodes": -4.0, "links": 19.0,
+         "final_paths": 20.0, "posterior_paths": 20.5, "birl_paths": 21.0, "demos": 22.0,
+         "best_paths": 23.0, "persons": 30.0, "headings": 31.0, "labels": 40.0}
 LEGEND = """\
-**Scene** orange discs: persons (number below; arrow: heading) · red lines: social links \
-(groups) · grey outlines: obstacles, map walls · green dots: starts s0, s1, … · white disc: goal
+**Scene** orange discs: persons (number below, or on hover in rooms over 20 m; arrow: \
+heading) · red lines: social links (groups) · grey outlines: obstacles, map walls · green \
+dots: starts s0, s1, … · white disc: goal
 
-**Paths** magenta: demonstrations · wide green: final learned paths · thin cyan: learned paths \
-at the BIRL iteration selected below · lavender: paths under posterior samples (MCMC) · grey: \
-the adaptive graph's nodes and edges
+**Paths** magenta: demonstrations · pale yellow: held-out ones (judged only) · wide green: \
+final learned paths · thin cyan: learned paths at the BIRL iteration selected below · \
+lavender: paths under posterior samples (MCMC) · grey: the adaptive graph's nodes and edges
 
-**Graph growth** (tab) nodes: green start, white goal, magenta on a demonstration, blue \
-Voronoi, teal medial axis, grey sampled · gold: best paths so far
+**Graph growth** (tab, on the `iteration` timeline) nodes: green start, white goal, magenta \
+on a demonstration, blue Voronoi, teal medial axis, grey sampled · gold: best paths so far
 """
 # Distinct series colours (matplotlib's tab10): curves that share a view never look alike.
 TAB10 = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -116,16 +130,22 @@ def obstacle_outlines(scene: Scene) -> list[np.ndarray]:
     return [np.asarray(line, float) for line in lines]
 
 
-def _log_obstacles(rec: rr.RecordingStream, outlines: list[np.ndarray]) -> None:
+def mark_scale(room: dict) -> float:
+    """How much larger than in a MARK_ROOM_SIDE room the marks are drawn (at least 1)."""
+    side = max(room["x_max"] - room["x_min"], room["y_max"] - room["y_min"])
+    return max(1.0, side / MARK_ROOM_SIDE)
+
+
+def _log_obstacles(rec: rr.RecordingStream, outlines: list[np.ndarray], scale: float) -> None:
     """The obstacle raster's outlines (map walls, polygons), under everything else."""
     if outlines:
-        rec.log("scene/obstacles", rr.LineStrips2D(_strips(outlines), radii=0.02,
+        rec.log("scene/obstacles", rr.LineStrips2D(_strips(outlines), radii=0.02 * scale,
                                                    colors=OBSTACLE,
                                                    draw_order=ORDER["obstacles"]),
                 static=True, strict=True)
 
 
-def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
+def _log_scene(rec: rr.RecordingStream, scene: dict, scale: float) -> None:
     r = scene["room"]
     room = [(r["x_min"], r["y_min"]), (r["x_max"], r["y_min"]), (r["x_max"], r["y_max"]),
             (r["x_min"], r["y_max"]), (r["x_min"], r["y_min"])]
@@ -133,38 +153,48 @@ def _log_scene(rec: rr.RecordingStream, scene: dict) -> None:
     pos = {p["id"]: (p["x"], p["y"]) for p in persons}
     xy = np.array([pos[p["id"]] for p in persons], dtype=float).reshape(-1, 2)
     theta = np.array([p["theta"] for p in persons], dtype=float)
-    rec.log("scene/room", rr.LineStrips2D(_strips([room]), colors=(80, 80, 80)), static=True,
-            strict=True)
+    rec.log("scene/room", rr.LineStrips2D(_strips([room]), radii=0.01 * scale,
+                                          colors=(80, 80, 80)), static=True, strict=True)
     ids = [str(p["id"]) for p in persons]
     # Every label (shown on hover) is also drawn below its disc by _log_labels: rerun draws a
     # label in its point's colour, on the point, which is unreadable on a disc of that colour.
     rec.log("scene/persons", rr.Points2D(_xy(xy), radii=scene["body_radius"], colors=PERSON,
-                                         labels=ids, show_labels=False),
+                                         labels=ids, show_labels=False,
+                                         draw_order=ORDER["persons"]),
             static=True, strict=True)
-    heading = HEADING_LEN * np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+    # From the disc's edge outwards: from the centre, only a stub showed beyond the disc.
+    facing = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
     # Light grey: the dark grey of the (white) figures is invisible on the viewer's black.
-    rec.log("scene/person_heading", rr.Arrows2D(origins=_xy(xy), vectors=_xy(heading),
-                                                colors=(170, 170, 170)), static=True, strict=True)
+    rec.log("scene/person_heading", rr.Arrows2D(
+        origins=_xy(xy + scene["body_radius"] * facing), vectors=_xy(HEADING_LEN * scale * facing),
+        radii=0.025 * scale, colors=(200, 200, 200), draw_order=ORDER["headings"]),
+        static=True, strict=True)
     links = [[pos[a], pos[b]] for a, b in scene["relations"]]
-    rec.log("scene/links", rr.LineStrips2D(_strips(links), colors=LINK, radii=0.03),
+    rec.log("scene/links", rr.LineStrips2D(_strips(links), colors=LINK, radii=0.03 * scale,
+                                           draw_order=ORDER["links"]),
             static=True, strict=True)
     starts = [f"s{k}" for k in range(len(scene["starts"]))]
-    rec.log("scene/starts", rr.Points2D(_xy(scene["starts"]), radii=START_RADIUS, colors=START,
-                                        labels=starts, show_labels=False),
+    start_radius = START_RADIUS * scale
+    rec.log("scene/starts", rr.Points2D(_xy(scene["starts"]), radii=start_radius, colors=START,
+                                        labels=starts, show_labels=False,
+                                        draw_order=ORDER["persons"]),
             static=True, strict=True)
     goal_radius = scene.get("goal_tolerance", 0.2)
     rec.log("scene/goal", rr.Points2D(_xy([scene["goal"]]), radii=goal_radius, colors=GOAL,
-                                      labels=["goal"], show_labels=False),
+                                      labels=["goal"], show_labels=False,
+                                      draw_order=ORDER["persons"]),
             static=True, strict=True)
-    _log_labels(rec, [(xy, scene["body_radius"], ids),
-                      (np.asarray(scene["starts"], float), START_RADIUS, starts),
-                      (np.asarray([scene["goal"]], float), goal_radius, ["goal"])])
+    person_labels = [(xy, scene["body_radius"], ids)] if scale <= PERSON_LABELS_UP_TO_SCALE else []
+    _log_labels(rec, [*person_labels,
+                      (np.asarray(scene["starts"], float), start_radius, starts),
+                      (np.asarray([scene["goal"]], float), goal_radius, ["goal"])],
+                LABEL_GAP * scale)
 
 
 def _log_labels(rec: rr.RecordingStream,
-                groups: list[tuple[np.ndarray, float, list[str]]]) -> None:
-    """The labels of discs (centres, radius, texts), light grey just below each disc."""
-    anchors = np.concatenate([np.asarray(xy, float).reshape(-1, 2) - [0.0, radius + LABEL_GAP]
+                groups: list[tuple[np.ndarray, float, list[str]]], gap: float) -> None:
+    """The labels of discs (centres, radius, texts), light grey `gap` below each disc."""
+    anchors = np.concatenate([np.asarray(xy, float).reshape(-1, 2) - [0.0, radius + gap]
                               for xy, radius, _ in groups])
     texts = [t for _, _, group in groups for t in group]
     rec.log("scene/labels", rr.Points2D(_xy(anchors), radii=0.001, colors=LABEL, labels=texts,
@@ -172,15 +202,15 @@ def _log_labels(rec: rr.RecordingStream,
             static=True, strict=True)
 
 
-def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
+def _log_graph(rec: rr.RecordingStream, graph: Artefact, scale: float) -> None:
     nodes, edges = codec.decode_nodes(graph), codec.decode_edges(graph)
     best = graph.all(topics.GRAPH_BEST_PATHS)
     pos = nodes.positions
     # The final graph, static: shown beside the BIRL timeline without switching timelines.
-    rec.log("graph/final/nodes", rr.Points2D(_xy(pos), radii=0.03, colors=GRAPH_NODES,
+    rec.log("graph/final/nodes", rr.Points2D(_xy(pos), radii=0.03 * scale, colors=GRAPH_NODES,
                                              draw_order=ORDER["graph_nodes"]),
             static=True, strict=True)
-    rec.log("graph/final/edges", rr.LineStrips2D(_strips(edges.waypoints), radii=0.005,
+    rec.log("graph/final/edges", rr.LineStrips2D(_strips(edges.waypoints), radii=0.005 * scale,
                                                  colors=GRAPH_EDGES,
                                                  draw_order=ORDER["graph_edges"]),
             static=True, strict=True)
@@ -197,16 +227,20 @@ def _log_graph(rec: rr.RecordingStream, graph: Artefact) -> None:
         # Nodes cumulative (cheap); edges only the new ones, made cumulative in the view by a
         # visible-time-range override: cumulative edges would grow quadratically in the file.
         grown = nodes.added_at <= k
-        rec.log("graph/nodes", rr.Points2D(_xy(pos[grown]), radii=0.05, colors=colors[grown]),
-                strict=True)
+        rec.log("graph/nodes", rr.Points2D(_xy(pos[grown]), radii=0.05 * scale,
+                                           colors=colors[grown],
+                                           draw_order=ORDER["graph_nodes"]), strict=True)
         new = [edges.waypoints[e] for e in by_iteration[bounds[0, j]:bounds[1, j]]]
         if new:
-            rec.log("graph/edges", rr.LineStrips2D(_strips(new), radii=0.01,
-                                                   colors=(120, 140, 200)), strict=True)
+            rec.log("graph/edges", rr.LineStrips2D(_strips(new), radii=0.01 * scale,
+                                                   colors=(120, 140, 200),
+                                                   draw_order=ORDER["graph_edges"]), strict=True)
         if k in best_at:  # one row per /graph/best_paths message, even if it has no paths
             paths = [pos[p] for p in best_at[k]["paths"] if p]
-            rec.log("graph/best_paths", rr.LineStrips2D(_strips(paths), radii=0.04,
-                                                        colors=(250, 200, 0)), strict=True)
+            rec.log("graph/best_paths", rr.LineStrips2D(_strips(paths), radii=0.04 * scale,
+                                                        colors=(250, 200, 0),
+                                                        draw_order=ORDER["best_paths"]),
+                    strict=True)
     rec.reset_time()
 
 
@@ -218,9 +252,11 @@ def _tint(colour: tuple[int, int, int]) -> tuple[int, ...]:
     return tuple((c + 255) // 2 for c in colour)
 
 
-def _log_series_styles(rec: rr.RecordingStream, names: list[str], true: dict[str, float]) -> None:
+def _log_series_styles(rec: rr.RecordingStream, names: list[str], true: dict[str, float],
+                       one_iteration: bool) -> None:
     """Names and distinct colours of the curves (static, so every view shows them); a true
-    weight thin, in its learned weight's colour lightened."""
+    weight thin, in its learned weight's colour lightened. With one BIRL iteration (e.g.
+    `birl=fixed`) each curve is one point, which a line does not draw: markers then."""
     styles = {f"curves/policy_loss/{k}": (TAB10[i], label, 2.0)
               for i, (k, label) in enumerate(LOSS_SERIES.items())}
     for i, n in enumerate(names):
@@ -229,8 +265,9 @@ def _log_series_styles(rec: rr.RecordingStream, names: list[str], true: dict[str
             styles[f"curves/weights_true/{n}"] = (_tint(TAB10[i % len(TAB10)]), f"{n} (true)", 1.0)
     styles["curves/log_posterior"] = (TAB10[4], "log posterior", 2.0)
     for path, (color, label, width) in styles.items():
-        rec.log(path, rr.SeriesLines(colors=[color], names=[label], widths=[width]), static=True,
-                strict=True)
+        style = rr.SeriesPoints(colors=[color], names=[label], marker_sizes=[3.0 * width]) \
+            if one_iteration else rr.SeriesLines(colors=[color], names=[label], widths=[width])
+        rec.log(path, style, static=True, strict=True)
 
 
 def true_weights(arts: dict[str, Artefact], names: list[str]) -> dict[str, float]:
@@ -246,14 +283,15 @@ def true_weights(arts: dict[str, Artefact], names: list[str]) -> dict[str, float
 
 
 def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | None,
-              names: list[str], true: dict[str, float]) -> None:
-    _log_series_styles(rec, names, true)
-    for it in birl.all(topics.BIRL_ITERATION) if birl else []:
+              names: list[str], true: dict[str, float], scale: float) -> None:
+    iterations = birl.all(topics.BIRL_ITERATION) if birl else []
+    _log_series_styles(rec, names, true, one_iteration=len(iterations) == 1)
+    for it in iterations:
         rec.set_time("birl_iteration", sequence=it["index"])
         paths = [g["points"] for g in it["generated"] if g.get("points")]
         # Thinner than and above the final paths (eval/paths): at the last iteration they are
         # the same paths, which would hide them entirely.
-        rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.03,
+        rec.log("birl/learned_paths", rr.LineStrips2D(_strips(paths), radii=0.03 * scale,
                                                       colors=BIRL_PATHS,
                                                       draw_order=ORDER["birl_paths"]),
                 strict=True)
@@ -272,13 +310,13 @@ def _log_birl(rec: rr.RecordingStream, birl: Artefact | None, ev: Artefact | Non
     rec.reset_time()
     if birl is not None and birl.messages.get(topics.BIRL_GRAPH_NODES):  # birl.grow_nodes > 0
         grown = codec.decode_nodes(birl, topics.BIRL_GRAPH_NODES, first_id=None)
-        rec.log("birl/grown_nodes", rr.Points2D(_xy(grown.positions), radii=0.05,
+        rec.log("birl/grown_nodes", rr.Points2D(_xy(grown.positions), radii=0.05 * scale,
                                                 colors=BIRL_PATHS), static=True, strict=True)
     if ev is not None and topics.EVAL_PATHS in ev.messages:
         final = [p for p in ev.all(topics.EVAL_PATHS) if p.get("graph") == "graph" and p["points"]]
         # No labels: the starts carry them (s0, s1, ...), path labels would overlap them.
         rec.log("eval/paths", rr.LineStrips2D(
-            _strips([p["points"] for p in final]), radii=0.06, colors=FINAL_PATHS,
+            _strips([p["points"] for p in final]), radii=0.06 * scale, colors=FINAL_PATHS,
             draw_order=ORDER["final_paths"]), static=True, strict=True)
 
 
@@ -288,7 +326,8 @@ GROWTH = ["/graph/nodes", "/graph/edges", "/graph/best_paths"]  # on the `iterat
 POSTERIOR_PATH_SAMPLES = 6
 
 
-def _log_posterior_paths(rec: rr.RecordingStream, arts: dict[str, Artefact]) -> None:
+def _log_posterior_paths(rec: rr.RecordingStream, arts: dict[str, Artefact],
+                         scale: float) -> None:
     """Posterior uncertainty (`birl=mcmc`): the greedy paths on the graph under a few
     samples of the last posterior, evenly spread over the kept samples."""
     birl, graph_art, demos = arts.get("birl"), arts.get("graph"), arts.get("demos")
@@ -303,8 +342,9 @@ def _log_posterior_paths(rec: rr.RecordingStream, arts: dict[str, Artefact]) -> 
     for w in samples[picks.astype(int)]:
         policy = graph.mdp.solve(w).policy
         paths += [graph.polyline(graph.mdp.follow(policy, int(s))) for s in graph.start_nodes]
-    rec.log("birl/posterior_paths", rr.LineStrips2D(_strips(paths), radii=0.02,
-                                                    colors=POSTERIOR_PATHS),
+    rec.log("birl/posterior_paths", rr.LineStrips2D(_strips(paths), radii=0.02 * scale,
+                                                    colors=POSTERIOR_PATHS,
+                                                    draw_order=ORDER["posterior_paths"]),
             static=True, strict=True)
 
 
@@ -348,8 +388,10 @@ def _curve_view(name: str, entity: str, y_range: tuple[float, float], last_itera
         plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop, visible=True))
 
 
-def _blueprint(room: dict, ranges: dict[str, tuple[float, float]],
-               last_iteration: int) -> rrb.Blueprint:
+def _blueprint(room: dict, ranges: dict[str, tuple[float, float]], last_iteration: int,
+               has_loss: bool, has_true: bool) -> rrb.Blueprint:
+    """The layout; the policy-loss view only when the run has a loss (a true reward), the
+    weights view titled for reference lines only when it has them."""
     margin = 0.5
     bounds = rrb.VisualBounds2D(  # y negated (Y_UP)
         x_range=[room["x_min"] - margin, room["x_max"] + margin],
@@ -367,12 +409,15 @@ def _blueprint(room: dict, ranges: dict[str, tuple[float, float]],
         contents=["+ /scene/**", *[f"+ {p}" for p in GROWTH]],
         overrides={"graph/edges": grown}, visual_bounds=bounds)
     legend = rrb.TextDocumentView(name="legend", origin="/legend")
-    curves = rrb.Vertical(
-        _curve_view("policy loss", "policy_loss", ranges["policy_loss"], last_iteration),
-        _curve_view("weights (thin: true)", "weights", ranges["weights"], last_iteration,
-                    ["+ /curves/weights/**", "+ /curves/weights_true/**"]),
-        _curve_view("log posterior", "log_posterior", ranges["log_posterior"], last_iteration),
-        row_shares=[2, 3, 2])  # the weights' legend has up to twice as many entries
+    views = [(2, _curve_view("policy loss", "policy_loss", ranges["policy_loss"],
+                             last_iteration))] if has_loss else []
+    views += [  # the weights' legend has up to twice as many entries: a larger share
+        (3, _curve_view("weights (thin: true)" if has_true else "weights", "weights",
+                        ranges["weights"], last_iteration,
+                        ["+ /curves/weights/**", "+ /curves/weights_true/**"])),
+        (2, _curve_view("log posterior", "log_posterior", ranges["log_posterior"],
+                        last_iteration))]
+    curves = rrb.Vertical(*(v for _, v in views), row_shares=[share for share, _ in views])
     return rrb.Blueprint(
         rrb.Horizontal(rrb.Vertical(rrb.Tabs(learning, growth), legend, row_shares=[4, 1]),
                        curves, column_shares=[3, 2]),
@@ -392,23 +437,31 @@ def _log_run(rec: rr.RecordingStream, scene_art: Artefact, decoded: Scene,
                   if a is not None and a.messages.get(t)), [])
     true = true_weights(arts, names)
     iterations = arts["birl"].all(topics.BIRL_ITERATION) if "birl" in arts else []
+    has_loss = "evaluate" in arts and any(
+        loss.get(k) is not None for loss in arts["evaluate"].all(topics.EVAL_POLICY_LOSS)
+        for k in LOSS_SERIES)
     rec.send_blueprint(_blueprint(scene["room"],
                                   curve_ranges(arts.get("birl"), arts.get("evaluate"), true),
-                                  iterations[-1]["index"] if iterations else 0))
+                                  iterations[-1]["index"] if iterations else 0,
+                                  has_loss=has_loss, has_true=bool(true)))
     rec.log("legend", rr.TextDocument(LEGEND, media_type=rr.MediaType.MARKDOWN), static=True,
             strict=True)
-    _log_scene(rec, scene)
-    _log_obstacles(rec, obstacle_outlines(decoded))
-    if "demos" in arts:
-        rec.log("demos/trajectories", rr.LineStrips2D(
-            # expert=none writes no /demos topic: nothing to draw
-            _strips([d["points"] for d in arts["demos"].messages.get(topics.DEMOS, [])]),
-            radii=0.025,
-            colors=DEMO, draw_order=ORDER["demos"]), static=True, strict=True)
+    scale = mark_scale(scene["room"])
+    _log_scene(rec, scene, scale)
+    _log_obstacles(rec, obstacle_outlines(decoded), scale)
+    if "demos" in arts:  # expert=none writes no /demos topic: nothing to draw
+        for entity, demos, colour in (
+                ("demos/trajectories", codec.training_demos(arts["demos"]), DEMO),
+                ("demos/heldout", codec.heldout_demos(arts["demos"]), HELDOUT_DEMO)):
+            if demos or entity == "demos/trajectories":
+                rec.log(entity, rr.LineStrips2D(_strips([d["points"] for d in demos]),
+                                                radii=0.025 * scale, colors=colour,
+                                                draw_order=ORDER["demos"]),
+                        static=True, strict=True)
     if "graph" in arts:
-        _log_graph(rec, arts["graph"])
-    _log_birl(rec, arts.get("birl"), arts.get("evaluate"), names, true)
-    _log_posterior_paths(rec, arts)
+        _log_graph(rec, arts["graph"], scale)
+    _log_birl(rec, arts.get("birl"), arts.get("evaluate"), names, true, scale)
+    _log_posterior_paths(rec, arts, scale)
 
 
 def _later_artefacts(run_dir: Path) -> dict[str, Artefact]:

@@ -265,6 +265,9 @@ def test_mcmc_run_shows_paths_under_posterior_samples(tmp_path):
     assert "/birl/posterior_paths" in chunks
     strips = column(chunks["/birl/posterior_paths"], "LineStrips2D:strips")
     assert len(strips) == 1 and len(strips[0]) == 6 * 7  # 6 posterior samples x 7 starts
+    # above the wide final paths, which hid them entirely
+    assert column(chunks["/birl/posterior_paths"], "LineStrips2D:draw_order")[0][0] > \
+        column(chunks["/eval/paths"], "LineStrips2D:draw_order")[0][0]
 
 
 def rgb(packed: int) -> tuple[int, int, int]:
@@ -295,7 +298,8 @@ def test_the_legend_names_every_kind_of_entity(rrd):
     assert all(static for static, _ in chunks["/legend"])
     assert column(chunks["/legend"], "TextDocument:media_type") == [["text/markdown"]]
     for thing in ("persons", "heading", "social links", "obstacles", "starts", "goal",
-                  "demonstrations", "final learned paths", "learned paths at the BIRL iteration",
+                  "demonstrations", "held-out", "final learned paths",
+                  "learned paths at the BIRL iteration",
                   "posterior", "nodes and edges"):
         assert thing in text[0], thing
     assert "/legend" in blueprint_views(rrd)
@@ -394,6 +398,18 @@ def test_a_run_without_demonstrations_is_shown(tmp_path):
     out = build_recording(tmp_path)
     paths = set(RrdReader(out).store().schema().entity_paths())
     assert "/eval/paths" in paths and "/graph/nodes" in paths
+    # One BIRL iteration (the fixed weights): a line through one point draws nothing, so
+    # the deployed weights were invisible; markers show them.
+    chunks = chunks_by_entity(out)
+    weights = [p for p in chunks if p.startswith("/curves/weights/")]
+    assert len(weights) == 5
+    for p in weights:
+        assert column(chunks[p], "SeriesPoints:names") and \
+            not column(chunks[p], "SeriesLines:names"), p
+    # No true reward, so no policy loss: no empty plot for it, no "thin: true" in a title
+    views = blueprint_views(out)
+    assert "/curves/policy_loss" not in views and "/curves/weights" in views
+    assert views["/curves/weights"]["ViewBlueprint:display_name"] == ["weights"]
 
 
 def test_an_output_that_is_not_an_rrd_file_is_refused_and_the_run_kept(run_dir, tmp_path):
@@ -468,3 +484,81 @@ def test_the_screenshot_checks_its_arguments_before_it_needs_xvfb(argv, says, tm
     except SystemExit as e:  # argparse's refusal
         status = e.code
     assert status == 2 and says.replace("NOPE", names["NOPE"]) in capsys.readouterr().err
+
+
+def test_held_out_demonstrations_are_drawn_apart(tmp_path):
+    """Held-out demonstrations are judged, never learned from: the viewer drew them in the
+    learned ones' magenta, so a reader could not tell which the reward was learned from."""
+    from pipeline.tools.viewer import DEMO, HELDOUT_DEMO
+
+    run_in_process(tmp_path, "graph=small", "birl.n_iterations=2", "expert=planner",
+                   "expert.n_subjects=3", "evaluate.holdout=[s2]", "stages=[scene,demos]")
+    demos = read_artefact(tmp_path / "demos.mcap").all("/demos")
+    held = [d["points"] for d in demos if d.get("heldout")]
+    learned = [d["points"] for d in demos if not d.get("heldout")]
+    assert held and learned
+    chunks = chunks_by_entity(build_recording(tmp_path))
+    for entity, want, colour in (("/demos/heldout", held, HELDOUT_DEMO),
+                                 ("/demos/trajectories", learned, DEMO)):
+        (strips,) = column(chunks[entity], "LineStrips2D:strips")
+        assert len(strips) == len(want), entity
+        for got, points in zip(strips, want, strict=True):
+            np.testing.assert_allclose(got, np.asarray(points) * [1, -1], rtol=1e-6)
+        assert {rgb(c) for c in column(chunks[entity], "LineStrips2D:colors")[0]} == {colour}
+
+
+def test_mark_scale_by_hand():
+    from pipeline.tools.viewer import mark_scale
+
+    assert mark_scale({"x_min": 0, "x_max": 10, "y_min": 0, "y_max": 10}) == 1.0
+    assert mark_scale({"x_min": 0, "x_max": 4, "y_min": -2, "y_max": 2}) == 1.0  # never smaller
+    assert mark_scale({"x_min": -5, "x_max": 25, "y_min": 0, "y_max": 50}) == 5.0  # longest side
+
+
+def test_marks_keep_their_size_on_screen_in_a_large_building(tmp_path):
+    """On the 30 x 50 m warehouse the 0.12 m starts hid under their own labels and the
+    person ids ran together: marks grow with the room, person ids go to hover."""
+    from pipeline.tools.viewer import HEADING_LEN, START_RADIUS, mark_scale
+
+    run_in_process(tmp_path, "scene=warehouse", "stages=[scene]")
+    scene = read_artefact(tmp_path / "scene.mcap").one("/scene")
+    scale = mark_scale(scene["room"])
+    assert scale > 2
+    chunks = chunks_by_entity(build_recording(tmp_path))
+    assert column(chunks["/scene/starts"], "Points2D:radii")[0] == \
+        pytest.approx([START_RADIUS * scale])  # one radius for every start
+    labels = column(chunks["/scene/labels"], "Points2D:labels")[0]
+    assert labels == [f"s{k}" for k in range(len(scene["starts"]))] + ["goal"]
+    assert column(chunks["/scene/persons"], "Points2D:labels")[0] == \
+        [str(p["id"]) for p in scene["persons"]]  # still on hover
+    lengths = np.linalg.norm(column(chunks["/scene/person_heading"], "Arrows2D:vectors")[0],
+                             axis=1)
+    np.testing.assert_allclose(lengths, HEADING_LEN * scale, rtol=1e-6)
+
+
+def test_headings_start_at_the_disc_edge_above_persons_and_links(run_dir, rrd):
+    scene = read_artefact(run_dir / "scene.mcap").one("/scene")
+    chunks = chunks_by_entity(rrd)
+    r = scene["body_radius"]
+    edge = [(p["x"] + r * np.cos(p["theta"]), -(p["y"] + r * np.sin(p["theta"])))
+            for p in scene["persons"]]
+    np.testing.assert_allclose(column(chunks["/scene/person_heading"], "Arrows2D:origins")[0],
+                               edge, rtol=1e-6, atol=1e-9)
+
+    def order(entity, kind):
+        return column(chunks[entity], f"{kind}:draw_order")[0][0]
+
+    assert order("/scene/person_heading", "Arrows2D") > order("/scene/persons", "Points2D") \
+        > order("/scene/links", "LineStrips2D")
+    assert order("/scene/persons", "Points2D") > order("/eval/paths", "LineStrips2D")
+
+
+def test_graph_growth_is_drawn_under_the_scene_and_its_best_paths_above_it(rrd):
+    chunks = chunks_by_entity(rrd)
+
+    def order(entity, kind):
+        return column(chunks[entity], f"{kind}:draw_order")[0][0]
+
+    goal = order("/scene/goal", "Points2D")
+    assert order("/graph/nodes", "Points2D") < goal and order("/graph/edges", "LineStrips2D") < goal
+    assert order("/graph/best_paths", "LineStrips2D") > order("/scene/links", "LineStrips2D")
