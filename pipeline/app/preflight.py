@@ -240,9 +240,10 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
     x0, y0, x1, y1 = header.extent()
     scenegen.check_fits(sc, Room(x0, y0, x1, y1), on_map=True)
 
-    def free_area() -> float:
-        grid = build.map_grid_of(sc.map)
-        return ObstacleMap(grid).free_area(sc.robot_radius)
+    def free_area() -> float:  # the scene's goal will lie in the largest region (scenegen)
+        obstacles = ObstacleMap(build.map_grid_of(sc.map))
+        return obstacles.free_area(sc.robot_radius,
+                                   blocked=~obstacles.largest_free_region(sc.robot_radius))
 
     return SceneFacts(f"random on {sc.map}", (x1 - x0) * (y1 - y0), n_persons, True,
                       free_area, map_header=header)

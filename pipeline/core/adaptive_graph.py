@@ -192,6 +192,8 @@ def medial_axis_points(scene: Scene, spacing: float) -> np.ndarray:
     if scene.obstacles is None:
         return np.zeros((0, 2))
     blocked = scene.obstacles.blocked_disks(scene.person_xy, scene.body_radius)
+    if scene.reachable_cells is not None:  # no nodes where the goal cannot be reached from
+        blocked = blocked | ~scene.reachable_cells
     return scene.obstacles.medial_axis(scene.robot_radius, spacing, scene.room.bounds, blocked)
 
 
@@ -207,7 +209,11 @@ def social_medial_points(scene: Scene, spacing: float) -> np.ndarray:
                      scene.room.bounds, resolution)
     bodies = grid.disks(scene.person_xy, scene.body_radius)
     social = ObstacleMap(OccupancyGrid(grid.occupied | bodies, grid.origin, grid.resolution))
-    return social.medial_axis(scene.robot_radius, spacing, scene.room.bounds)
+    points = social.medial_axis(scene.robot_radius, spacing, scene.room.bounds)
+    if scene.obstacles is not None:  # none behind walls, where the goal cannot be reached from
+        points = points[scene.obstacles.in_cells(points,
+                                                 scene.obstacles.region_of(scene.goal, 0.0))]
+    return points
 
 
 def merged_count(points: np.ndarray, separation: float) -> int:

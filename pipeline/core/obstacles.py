@@ -384,12 +384,14 @@ class ObstacleMap:
         x0, y0, x1, y1 = self.grid.extent()
         return f"x {x0:g}..{x1:g} m, y {y0:g}..{y1:g} m"
 
-    def largest_free_region(self) -> np.ndarray:
-        """(H, W) bool: the largest 8-connected region of cells not occupied. A SLAM map
-        holds free specks outside the building (laser returns through a window or a glass
-        door) and rooms no door leads to; a random scene's starts and goal must all lie in
-        one region. (Whether a robot fits through its gaps is the reachability test's.)"""
-        labels, n = ndimage.label(~self.grid.occupied, structure=np.ones((3, 3), bool))
+    def largest_free_region(self, radius: float = 0.0) -> np.ndarray:
+        """(H, W) bool: the largest 8-connected region of cells free with clearance >=
+        radius (radius 0: not occupied). A SLAM map holds free specks outside the building
+        (laser returns through a window or a glass door) and rooms no door leads to; a
+        random scene's starts and goal must all lie in one region. (Whether a robot fits
+        past the persons is the reachability test's.)"""
+        free = ~self.grid.occupied if radius == 0.0 else self.free_mask(radius)
+        labels, n = ndimage.label(free, structure=_EIGHT)
         if n == 0:
             return np.zeros(self.grid.shape, bool)
         return labels == 1 + int(np.argmax(np.bincount(labels.ravel())[1:]))
@@ -411,10 +413,12 @@ class ObstacleMap:
         return (x0 + cols[0] * r, y0 + rows[0] * r, x0 + (cols[-1] + 1) * r,
                 y0 + (rows[-1] + 1) * r)
 
-    def free_area(self, radius: float, bounds: Bounds | None = None) -> float:
-        """m² of the cells that are free with clearance >= radius, within `bounds` (x_min,
-        y_min, x_max, y_max; by cell centre) when given: what a graph must cover."""
-        free = self.free_mask(radius)
+    def free_area(self, radius: float, bounds: Bounds | None = None,
+                  blocked: np.ndarray | None = None) -> float:
+        """m² of the cells that are free with clearance >= radius and not `blocked` (H, W),
+        within `bounds` (x_min, y_min, x_max, y_max; by cell centre) when given: what a graph
+        must cover."""
+        free = self.free_mask(radius, blocked)
         if bounds is not None:
             h, w = self.grid.shape
             xs = self.grid.origin[0] + (np.arange(w) + 0.5) * self.resolution
@@ -469,16 +473,22 @@ class ObstacleMap:
             return float(self.clearance_at(p).min(initial=np.inf))
         return float(self.segments_min_clearance(p[:-1], p[1:]).min())
 
+    def region_of(self, a: np.ndarray, radius: float,
+                  blocked: np.ndarray | None = None) -> np.ndarray:
+        """(H, W) bool: the cells connected to `a` (2,) through 8-connected free cells
+        (clearance >= radius, not `blocked` (H, W)); none when `a` is off free cells."""
+        free = self.free_mask(radius, blocked)
+        labels: np.ndarray = ndimage.label(free, structure=_EIGHT)[0]  # (H, W), 0 = not free
+        rows, cols, inside = self.grid.cell_of(np.asarray(a, dtype=float).reshape(1, 2))
+        label = int(labels[rows[0], cols[0]]) if inside[0] else 0
+        region: np.ndarray = labels == label if label > 0 else np.zeros(self.grid.shape, bool)
+        return region
+
     def reachable(self, a: np.ndarray, targets: np.ndarray, radius: float,
                   blocked: np.ndarray | None = None) -> np.ndarray:
         """(m,) bool: each target (m, 2) is connected to `a` (2,) through 8-connected free
         cells (clearance >= radius, not `blocked` (H, W)); a point off free cells is not."""
-        free = self.free_mask(radius, blocked)
-        labels: np.ndarray = ndimage.label(free, structure=_EIGHT)[0]  # (H, W), 0 = not free
-        rows, cols, inside = self.grid.cell_of(np.asarray(a, dtype=float).reshape(1, 2))
-        start = int(labels[rows[0], cols[0]]) if inside[0] else 0
-        rows, cols, inside = self.grid.cell_of(targets)
-        reached: np.ndarray = inside & (labels[rows, cols] == start) & (start > 0)
+        reached: np.ndarray = self.in_cells(targets, self.region_of(a, radius, blocked))
         return reached
 
     def medial_axis(self, radius: float, spacing: float, bounds: Bounds | None = None,

@@ -258,14 +258,17 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
                 f"random scene: the map {map_source} is {room.x_max - room.x_min:g} x "
                 f"{room.y_max - room.y_min:g} m; persons stand {person_margin(spec):g} m from "
                 f"its edges, so both sides must be longer than {2 * person_margin(spec):g} m")
-        if empty.free_area <= 0:
+        # (not empty.free_area: that is the area connected to a goal, not drawn yet)
+        if obstacles is None or obstacles.free_area(spec.robot_radius, room.bounds) <= 0:
             raise PipelineError(f"random scene: the map {map_source} has no free cell "
                                 f"{spec.robot_radius:g} m (scene.robot_radius) from every "
                                 "obstacle and unknown cell")
     check_fits(spec, room, on_map=map_grid is not None)
     free_bounds, region = None, None
     if map_grid is not None and obstacles is not None:  # draws within the building
-        region = obstacles.largest_free_region()
+        # where the robot can stand: the goal's region, whose area sizes the graph (Scene.
+        # free_area), is then the one the config check estimated before the draws
+        region = obstacles.largest_free_region(spec.robot_radius)
         free_bounds = obstacles.free_bounds(region)
     for _ in range(spec.max_tries):
         placed = _place_persons(spec, rng, room, obstacles, free_bounds)
@@ -282,8 +285,10 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
             def free(p: np.ndarray, s: Scene = with_persons, on: ObstacleMap = obstacles,
                      region: np.ndarray = region) -> np.ndarray:
                 # clear of bodies by 0.1 m more, like the starts of a plain room below, and
-                # in the largest free region (others cannot reach its goal)
-                return s.free(p) & ~s.in_body(p, 0.1) & on.in_cells(p, region)
+                # in the largest free region (others cannot reach its goal); not s.free,
+                # which asks for the region of a goal, not drawn yet
+                return s.room.contains(p) & ~s.in_body(p, 0.1) \
+                    & on.points_free(p, s.robot_radius) & on.in_cells(p, region)
             ends = _starts_and_goal_on_map(spec, rng, free, room, free_bounds)
             if ends is None:
                 continue

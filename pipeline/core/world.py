@@ -162,13 +162,27 @@ class Scene:
         return obstacle_map(self.polygons, self.map_grid, self.room.bounds)
 
     @cached_property
-    def free_area(self) -> float:
-        """m² of the room the robot can stand in: the room less the cells closer than
-        robot_radius to an obstacle (body disks not subtracted); the room's area without
-        obstacles."""
+    def reachable_cells(self) -> np.ndarray | None:
+        """(H, W) bool, read-only: the obstacle raster's cells the robot can stand in
+        (clearance >= robot_radius) that connect to the goal; None without obstacles. Free
+        space behind walls (a locked room, a SLAM map's unknown margin read as free) took
+        graph nodes (51 of 460 in a locked room), counted as floor when sizing the graph and
+        changed the learned weights."""
         if self.obstacles is None:
+            return None
+        cells = self.obstacles.region_of(self.goal, self.robot_radius)
+        cells.flags.writeable = False
+        return cells
+
+    @cached_property
+    def free_area(self) -> float:
+        """m² of the room the robot can stand in and reach the goal from: the room less the
+        cells closer than robot_radius to an obstacle and those cut off from the goal by
+        obstacles (body disks not subtracted); the room's area without obstacles."""
+        if self.obstacles is None or self.reachable_cells is None:
             return self.room.area
-        return self.obstacles.free_area(self.robot_radius, self.room.bounds)
+        return self.obstacles.free_area(self.robot_radius, self.room.bounds,
+                                        blocked=~self.reachable_cells)
 
     @cached_property
     def person_xy(self) -> np.ndarray:
@@ -200,11 +214,11 @@ class Scene:
         return points_in_disks(p, self.person_xy, self.body_radius + clearance - TIE)
 
     def free(self, points: np.ndarray) -> np.ndarray:
-        """Mask (n,) of points (n, 2) inside the room, outside every body disk and at least
-        robot_radius from every obstacle."""
+        """Mask (n,) of points (n, 2) inside the room, outside every body disk, at least
+        robot_radius from every obstacle and connected to the goal (reachable_cells)."""
         ok = self.room.contains(points) & ~self.in_body(points)
-        if self.obstacles is not None:
-            ok &= self.obstacles.points_free(np.atleast_2d(points), self.robot_radius)
+        if self.obstacles is not None and self.reachable_cells is not None:
+            ok &= self.obstacles.in_cells(np.atleast_2d(points), self.reachable_cells)
         return ok
 
     def unreachable_starts(self) -> list[int]:

@@ -424,6 +424,40 @@ def test_without_demonstrations_the_medial_axis_leads_through_a_door():
     assert all(reached[True]) and not all(reached[False])
 
 
+def locked_room_scene() -> Scene:
+    """two_rooms() with a 3 m x 2 m room walled up in the goal's half (no door): free space
+    no start can reach, interior x 8..11 m, y 1.5..3.5 m, behind 0.15 m walls."""
+    scene = two_rooms()
+    box = (np.array([[7.85, 1.35], [11.15, 1.35], [11.15, 1.5], [7.85, 1.5]]),  # south
+           np.array([[7.85, 3.5], [11.15, 3.5], [11.15, 3.65], [7.85, 3.65]]),  # north
+           np.array([[7.85, 1.5], [8.0, 1.5], [8.0, 3.5], [7.85, 3.5]]),  # west
+           np.array([[11.0, 1.5], [11.15, 1.5], [11.15, 3.5], [11.0, 3.5]]))  # east
+    return dataclasses.replace(scene, polygons=scene.polygons + box)
+
+
+def test_free_space_cut_off_from_the_goal_gets_no_node_and_is_not_floor():
+    """A locked room (or a SLAM map's unknown margin read as free) took graph nodes and
+    counted as floor when sizing the graph (51 of 460 nodes in an unseen demonstrator's
+    building). Its interior, 3 x 2 m less robot_radius at each wall, is now neither."""
+    open_plan, locked = two_rooms(), locked_room_scene()
+    inside = np.array([[9.5, 2.5], [8.4, 1.9], [10.6, 3.1]])
+    assert locked.obstacles.points_free(inside, locked.robot_radius).all()  # free ...
+    assert not locked.free(inside).any()  # ... but cut off from the goal
+    assert open_plan.free(inside).all()
+    # Lost: the whole 3.3 x 2.3 m box grown by robot_radius, with rounded corners (walls,
+    # the margins on both sides of them, the interior); the raster's edges within a cell.
+    r = locked.robot_radius
+    lost = open_plan.free_area - locked.free_area
+    grown = (3.3 + 2 * r) * (2.3 + 2 * r) - (4 - math.pi) * r * r
+    perimeter = 2 * (3.3 + 2 * r + 2.3 + 2 * r)
+    assert abs(lost - grown) < perimeter * locked.obstacles.resolution, (lost, grown)
+    g = grow(locked, (), POLITE, seed=0, max_nodes=120)
+    in_room = (g.positions[:, 0] > 7.85) & (g.positions[:, 0] < 11.15) \
+        & (g.positions[:, 1] > 1.35) & (g.positions[:, 1] < 3.65)
+    assert not in_room.any() and MEDIAL in g.node_kind
+    assert g.best_reached.all()
+
+
 def test_medial_nodes_without_obstacles_only_for_a_graph_without_demonstrations(metropolis,
                                                                                  demos):
     assert len(medial_axis_points(metropolis, 1.0)) == 0

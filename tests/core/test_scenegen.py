@@ -4,7 +4,7 @@ reproducible from the seed, and a clear error when no scene fits."""
 import numpy as np
 import pytest
 
-from pipeline.core.obstacles import OccupancyGrid
+from pipeline.core.obstacles import ObstacleMap, OccupancyGrid
 from pipeline.core.scenegen import (
     RandomSceneSpec,
     all_starts_reach_goal,
@@ -259,8 +259,9 @@ def test_persons_on_a_map_keep_person_margin_from_its_walls():
 @pytest.mark.parametrize(("goal_tolerance", "n_starts"), [(0.3, 5), (5.5, 3)])
 def test_starts_on_a_map_keep_away_from_the_goal_and_from_each_other(goal_tolerance, n_starts):
     """On a map the starts lie at least a third of the draw box's diagonal (here the 12 m x
-    8 m building: 4.81 m) from the goal and outside its goal disk (a 5.5 m tolerance reaches
-    farther than that third), and MAP_START_GAP (1 m) from each other."""
+    8 m building less robot_radius at each wall: about 4.7 m) from the goal and outside its
+    goal disk (a 5.5 m tolerance reaches farther than that third), and MAP_START_GAP (1 m)
+    from each other."""
     from pipeline.core.scenegen import MAP_START_GAP
 
     occupied = np.ones((200, 200), dtype=bool)  # 0.1 m cells
@@ -268,7 +269,12 @@ def test_starts_on_a_map_keep_away_from_the_goal_and_from_each_other(goal_tolera
     grid = OccupancyGrid(occupied, (0.0, 0.0), 0.1)
     spec = RandomSceneSpec(n_groups=0, n_singles=1, n_starts=n_starts,
                            goal_tolerance=goal_tolerance)
-    third = np.hypot(12.0, 8.0) / 3
+    obstacles = ObstacleMap(grid)
+    x0, y0, x1, y1 = obstacles.free_bounds(obstacles.largest_free_region(spec.robot_radius))
+    inset = spec.robot_radius  # the box: where the robot can stand, to within a cell
+    np.testing.assert_allclose([x0, y0, x1, y1], [4 + inset, 5 + inset, 16 - inset, 13 - inset],
+                               atol=0.1 + 1e-9)
+    third = np.hypot(x1 - x0, y1 - y0) / 3
     for seed in range(3):
         scene = random_scene(spec, np.random.default_rng(seed), map_grid=grid, map_source="m")
         to_goal = np.linalg.norm(scene.starts - scene.goal, axis=1)
