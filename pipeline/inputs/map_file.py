@@ -177,6 +177,23 @@ def read_map_header(path: str | Path) -> MapHeader:
                      int(negate), occupied_thresh, free_thresh, mode, width, height)
 
 
+# map_saver writes unknown cells as grey 205; read with free_thresh above 50/255 = 0.196 (Nav2
+# map_saver's default 0.25 among them) they are free, in Nav2's map_server as here.
+MAP_SAVER_UNKNOWN = 205 / 255
+
+
+def _warn_unknown_read_as_free(header: MapHeader, grey_free: np.ndarray) -> None:
+    """One warning when map_saver's unknown grey reads as free: a building's unknown margin,
+    seen through its windows, would then be floor (nodes, free area, an exported costmap's
+    free cells)."""
+    if header.negate or not grey_free.any():
+        return
+    log.warning("map %s: %d cells of map_saver's unknown grey (205) read as free, since "
+                "free_thresh=%g is above 0.196 (Nav2's map_server reads them so too); if they "
+                "are unknown space, set free_thresh: 0.196 in the YAML", header.path,
+                int(grey_free.sum()), header.free_thresh)
+
+
 def load_map(path: str | Path,
              check_cells: Callable[[MapHeader], None] | None = None) -> OccupancyGrid:
     """Read a map_server YAML and its image into an OccupancyGrid (True = obstacle);
@@ -193,6 +210,7 @@ def load_map(path: str | Path,
         free = p < header.free_thresh
         if header.mode == "scale":
             free &= opaque
+        _warn_unknown_read_as_free(header, free & (np.abs(shade - MAP_SAVER_UNKNOWN) < 1e-9))
     if not free.any():  # else the first person or start "stands inside an obstacle"
         read_as = ("a pixel is free only at 0 (mode: raw)" if header.mode == "raw" else
                    f"a pixel is free where its occupancy p = {'s' if header.negate else '1 - s'}"

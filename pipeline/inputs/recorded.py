@@ -419,8 +419,8 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
         back = int(np.flatnonzero(np.diff(times) < 0)[0]) + 1
         raise PipelineError(
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
-            f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:g} to "
-            f"{times[back]:g} at {place(back)}); are several recordings appended? {fix}")
+            f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:.3f} to "
+            f"{times[back]:.3f} at {place(back)}); are several recordings appended? {fix}")
     return order
 
 
@@ -433,7 +433,9 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
             return sel
         return sel[clock_order(where, what, table[sel, :2], table[sel, 2], "t", "in file order",
                                lambda k: f"line {lines[sel[k]]}",
-                               "give each its own id in a trajectory column")]
+                               "give each walk (from a start to the goal) its own id in a "
+                               "trajectory column, or leave out t and give the rows in "
+                               "recorded order")]
 
     if "trajectory" not in col:
         order = ordered(np.arange(len(table)), "the pose stream")
@@ -742,8 +744,9 @@ def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: 
             found.append(f"{k} ({walks} walks)")
     if found:
         log.warning("%s: %d of %d trajectories go from a start to the goal more than once "
-                    "(one trajectory id for several walks, e.g. two sessions' ids in one "
-                    "file?): %s; each is cut at its first arrival, so only its first walk is "
+                    "(one trajectory id for several walks, e.g. one id per recording or two "
+                    "sessions' ids in one file?): trajectories %s, numbered from 0 in file "
+                    "order; each is cut at its first arrival, so only its first walk is "
                     "learned from: give every walk its own id", where, len(found), len(tracks),
                     listed(found, 5))
 

@@ -237,10 +237,13 @@ def run(ctx: RunContext) -> None:
         metrics["frechet_to_demos_max"] = float(np.max(dists))
         metrics["demos_unreached"] = float(sum(not d["reached"] for d in training))
         metrics["demos_count"] = float(len(training))
-        if len(scene.person_xy):
-            metrics["demos_min_distance_to_person"] = min(
-                min_distance_to_person(np.asarray(d["points"], float), scene.person_xy)
-                for d in demos_art.all(topics.DEMOS))
+    shown = demos_art.messages.get(topics.DEMOS, [])
+    # held-out ones too: judging a deployment (evaluate.holdout=all) holds out every one,
+    # and there a learned path ruder than every demonstrator matters most
+    if expert["true_weights"] is None and shown and len(scene.person_xy):
+        metrics["demos_min_distance_to_person"] = min(
+            min_distance_to_person(np.asarray(d["points"], float), scene.person_xy)
+            for d in shown)
     kinds = codec.decode_nodes(graph_art).kind
     metrics["graph_demo_node_share"] = int(np.count_nonzero(kinds == DEMO)) / max(len(kinds), 1)
 

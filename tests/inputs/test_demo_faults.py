@@ -38,9 +38,18 @@ def test_two_recordings_appended_with_restarting_clocks_are_refused(tmp_path):
                     + csv_rows(walk_b, np.arange(len(walk_b)) * 0.1 + 0.05))
     first_b = len(walk_a) + 2  # header, then walk_a's rows
     refused(rf"appended\.csv: ordered by t, the pose stream is \d+\.\d m long against "
-            rf"\d+\.\d m in file order \(t goes back from [\d.]+ to 0\.05 at line {first_b}\); "
-            r"are several recordings appended\? give each its own id in a trajectory column",
+            rf"\d+\.\d m in file order \(t goes back from [\d.]+ to 0\.050 at line {first_b}\); "
+            r"are several recordings appended\? give each walk \(from a start to the goal\) its "
+            r"own id in a trajectory column, or leave out t and give the rows in recorded order",
             read_tracks, path)
+    # UNIX stamps, each recording on its own clock: the two times named differ (with 6
+    # significant digits both read 1.73356e+09)
+    unix = tmp_path / "unix.csv"
+    unix.write_text("x,y,t\n" + csv_rows(walk_a, 1733560000.0 + np.arange(len(walk_a)) * 0.1)
+                    + csv_rows(walk_b, 1733560000.05 + np.arange(len(walk_b)) * 0.1))
+    last_a = 1733560000.0 + (len(walk_a) - 1) * 0.1
+    refused(rf"t goes back from {last_a:.3f} to 1733560000\.050 at line {first_b}", read_tracks,
+            unix)
     # the same rows with a trajectory id each are two demonstrations, read as they are
     ids = tmp_path / "two.csv"
     ids.write_text("x,y,t,trajectory\n" + "".join(

@@ -43,6 +43,25 @@ def test_trinary_classification_follows_map_server(tmp_path, fmt):
     assert _free_in_image_order(grid).tolist() == [[False, False, False, True], [True] * 4]
 
 
+def test_map_savers_unknown_grey_read_as_free_is_said(tmp_path, caplog):
+    """Nav2's map_saver writes unknown as grey 205 and free_thresh 0.25: reloaded, p =
+    50/255 = 0.196 < 0.25 reads as free (in Nav2's map_server too), and a building's unknown
+    margin became floor without a word. It is still read so, and said once."""
+    pixels = [[254, 254, 205, 205], [254, 0, 205, 205]]
+    with caplog.at_level("WARNING"):
+        grid = load_map(_write_map(tmp_path, pixels, free_thresh=0.25))
+    assert _free_in_image_order(grid).tolist() == [[True] * 4, [True, False, True, True]]
+    assert caplog.text.count("map_saver's unknown grey (205)") == 1
+    assert "4 cells of map_saver's unknown grey (205) read as free, since free_thresh=0.25" \
+        in caplog.text and "set free_thresh: 0.196" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):  # map_saver's ROS 1 threshold: unknown, nothing to say
+        grid = load_map(_write_map(tmp_path, pixels, free_thresh=0.196))
+    assert _free_in_image_order(grid).tolist() == [[True, True, False, False],
+                                                   [True, False, False, False]]
+    assert "unknown grey" not in caplog.text
+
+
 def test_negate_inverts_the_grey_values(tmp_path):
     grid = load_map(_write_map(tmp_path, GREYS, negate=1))  # p = v/255: 50 -> 0.19608
     assert _free_in_image_order(grid).tolist() == [[True, False, False, False], [False] * 4]

@@ -260,7 +260,7 @@ def test_a_bag_of_two_recordings_appended_or_with_a_clock_running_back_is_refuse
         with pytest.raises(PipelineError, match=(
                 r"topic /odom: ordered by header.stamp, the pose stream is [\d.]+ m long "
                 r"against [\d.]+ m in the order it was logged \(header.stamp goes back from "
-                rf"{1 + 0.1 * (n - 2):g} to 1.1 at message {len(first)}\); are several "
+                rf"{1 + 0.1 * (n - 2):.3f} to 1\.100 at message {len(first)}\); are several "
                 r"recordings appended\? record each in a bag of its own")):
             read_tracks(bag)
         name = "backwards.bag" if storage == "ros1" else "backwards"

@@ -289,6 +289,13 @@ def test_the_summary_warns_when_the_learned_paths_pass_closer_than_every_demonst
         f"a person, closer than any demonstration " \
         f"({rude['demos_min_distance_to_person']:.2f} m)" in out
     assert "add social_squared to birl.features" in out
+    # judging a deployment against new walks holds out every one of them: the check stayed
+    # silent there, where it matters most
+    judged, out = run_in_process(tmp_path / "judged", *common, "birl.weights=[0,-1]",
+                                 "evaluate.holdout=all")
+    assert judged["heldout_count"] == 2 and "demos_count" not in judged
+    assert judged["demos_min_distance_to_person"] == rude["demos_min_distance_to_person"]
+    assert "closer than any demonstration" in out
     # a learner that has the squared hinge already is not told to add it
     squared, out = run_in_process(tmp_path / "squared", *common[:-1],
                                   "birl.features=[social_squared,length]", "birl.weights=[0,-1]")
