@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from pathlib import Path
@@ -14,7 +15,15 @@ from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.social import min_distance_to_person
 from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError, listed
-from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, START_RADIUS, describe, load_recorded
+from pipeline.inputs.recorded import (
+    ROOM_EDGE_TOLERANCE,
+    START_RADIUS,
+    describe,
+    is_recording_folder,
+    load_recorded,
+    recording_subject,
+    recordings_in,
+)
 
 log = logging.getLogger(__name__)
 
@@ -31,8 +40,18 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     a warning); `topic` and `frame` select and check
     the bag topic (expert.topic, expert.frame); `denoise` smooths tracking noise
     (expert.denoise, `recorded.smooth_jitter`). A file's `subjects` become the demonstrations'
-    `subject`.
+    `subject`. A folder of recordings (no ROS 2 bag itself, `recorded.recordings_in`) is read
+    one recording after another, by name; a recording that names no subjects is taken to be
+    of one subject, its name without the extension (`ana.bag`: ana), since a bag cannot name
+    them.
     """
+    path = Path(path)
+    if is_recording_folder(path):
+        return [d if d.subject is not None
+                else dataclasses.replace(d, subject=recording_subject(entry))
+                for entry in recordings_in(path)
+                for d in load_demo_file(entry, scene, feature_model, speed, topic=topic,
+                                        frame=frame, start_radius=start_radius, denoise=denoise)]
     demos = []
     unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,

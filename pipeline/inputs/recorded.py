@@ -159,8 +159,29 @@ REVISIT_ARC = 2.0  # m
 REVISIT_STEP = 0.1  # m
 
 
+def is_recording_folder(path: Path) -> bool:
+    """A directory that is no ROS 2 bag (no metadata.yaml): a folder of recordings, e.g. one
+    bag per subject."""
+    return path.is_dir() and not (path / "metadata.yaml").exists()
+
+
+def recordings_in(folder: Path) -> list[Path]:
+    """The recordings a folder holds, by name: .json, .csv and bag files, ROS 2 bag
+    directories (hidden entries and other files left out)."""
+    return sorted(p for p in folder.iterdir() if not p.name.startswith(".") and (
+        (p.is_dir() and (p / "metadata.yaml").is_file())
+        or (p.is_file() and p.suffix.lower() in (".json", ".csv", *BAG_SUFFIXES))))
+
+
+def recording_subject(path: Path) -> str:
+    """Who a folder's recording is taken to be of: its name without the extension."""
+    return path.name if path.is_dir() else path.stem
+
+
 def describe(path: Path) -> str:
     """How error messages name a recorded demonstration."""
+    if is_recording_folder(path):
+        return f"demonstration folder {path}"
     if path.is_dir() or path.suffix.lower() in BAG_SUFFIXES:
         return f"demonstration bag {path}"
     return f"demonstration file {path}"
@@ -220,11 +241,19 @@ def check_readable(path: Path) -> None:
         if path.is_symlink():
             raise PipelineError(f"{where} is a symbolic link to nothing (or a loop of links)")
         raise PipelineError(f"{where} not found")
+    if is_recording_folder(path):
+        entries = recordings_in(path)
+        if not entries:
+            raise PipelineError(f"{where} is a directory without metadata.yaml (not a ROS 2 bag) "
+                                "and holds no recording: .json, .csv, .bag, .mcap or .db3 "
+                                "files, or ROS 2 bag directories")
+        for entry in entries:
+            check_readable(entry)
+        return
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():
-            what = "whose metadata.yaml is no file" if (path / "metadata.yaml").exists() \
-                else "without metadata.yaml"
-            raise PipelineError(f"{where} is a directory {what}, not a ROS 2 bag")
+            raise PipelineError(f"{where} is a directory whose metadata.yaml is no file, not a "
+                                "ROS 2 bag")
         return
     kind = file_kind(path)
     if kind is not None:

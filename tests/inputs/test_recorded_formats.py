@@ -253,6 +253,35 @@ def test_bad_subjects_are_refused(tmp_path):
     refused(r"line 2: empty subject", load, csv_path)
 
 
+def test_a_folder_of_recordings_reads_each_with_its_name_as_the_subject(tmp_path, metropolis):
+    """A lab records one bag per subject, and a bag names no subjects: a folder of them is
+    read bag after bag, by name, each bag's walks that subject's (a file that names its own
+    subjects keeps them); before, a folder was refused as a ROS 2 bag without metadata.yaml,
+    and holding out a subject of bags was impossible."""
+    folder = tmp_path / "walks"
+    folder.mkdir()
+    write_bag(folder / "bo", {"/odom": ("nav_msgs/msg/Odometry", list(odometry(CLEAN[1:])))})
+    write_bag(folder / "ann.bag", {"/odom": ("nav_msgs/msg/Odometry", list(odometry(CLEAN[:1])))},
+              storage="ros1")
+    (folder / "cy.json").write_text(json.dumps({"subjects": ["dee"],
+                                                "trajectories": [CLEAN[0].tolist()]}))
+    (folder / "notes.txt").write_text("not a recording")
+    (folder / ".hidden.csv").write_text("x,y\n")
+    fm = FeatureModel.from_scene(metropolis)
+    demos = load_demo_file(folder, metropolis, fm, 1.0)
+    one = {name: load_demo_file(folder / name, metropolis, fm, 1.0)
+           for name in ("ann.bag", "bo", "cy.json")}
+    assert [d.subject for d in demos] == \
+        ["ann"] * len(one["ann.bag"]) + ["bo"] * len(one["bo"]) + ["dee"]
+    assert len(one["ann.bag"]) == 1 and len(one["bo"]) == len(CLEAN) - 1
+    for got, want in zip(demos, [*one["ann.bag"], *one["bo"], *one["cy.json"]], strict=True):
+        assert got.start_index == want.start_index
+        np.testing.assert_array_equal(got.points, want.points)
+    # a file in it that is not what its name says is named, not the folder
+    (folder / "zed.csv").write_text("x;y\n0.5,0.5\n")
+    refused(r"zed\.csv: unknown column 'x;y'", load_demo_file, folder, metropolis, fm, 1.0)
+
+
 # -- what is not a file ------------------------------------------------------------------------
 
 
@@ -260,5 +289,6 @@ def test_a_device_or_a_directory_is_named_as_what_it_is(tmp_path):
     refused(r"demonstration file /dev/zero is a character device, not a demonstration file",
             load, Path("/dev/zero"))
     (tmp_path / "demos.json").mkdir()
-    refused(r"demos\.json is a directory without metadata\.yaml, not a ROS 2 bag", load,
-            tmp_path / "demos.json")
+    refused(r"demonstration folder .*demos\.json is a directory without metadata\.yaml \(not a "
+            r"ROS 2 bag\) and holds no recording: \.json, \.csv, \.bag, \.mcap or \.db3 files, or "
+            r"ROS 2 bag directories", load, tmp_path / "demos.json")

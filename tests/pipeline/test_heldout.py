@@ -12,7 +12,7 @@ from pipeline.core.evaluation import frechet
 from pipeline.core.experts import choose_heldout
 from pipeline.core.social import min_distance_to_person
 from pipeline.errors import PipelineError
-from tests.conftest import ROOT, run_in_process
+from tests.conftest import CLEAN_DRIVES, ROOT, odometry, run_in_process, write_bag
 from tests.pipeline.conftest import FAST
 
 
@@ -311,3 +311,18 @@ def test_the_summary_warns_when_the_learned_paths_pass_closer_than_every_demonst
     assert close["demos_min_distance_to_person"] == pytest.approx(2.03, abs=1e-9)
     assert 2.03 - 0.05 < close["ref_min_distance_to_person"] < 2.03
     assert "closer than any demonstration" not in out
+
+
+def test_a_subject_of_a_folder_of_bags_is_held_out(tmp_path):
+    """One bag per subject, the folder given as expert.path: `evaluate.holdout=[bo]` holds
+    out bo's bag, which named no subject (before: 'demonstrated nothing (subjects: none)')."""
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    for name, drives in (("ann", CLEAN_DRIVES), ("bo", CLEAN_DRIVES[:1])):
+        write_bag(folder / name, {"/odom": ("nav_msgs/msg/Odometry", list(odometry(drives)))})
+    m, _ = run_in_process(tmp_path / "run", *FAST, "expert=file", f"expert.path={folder}",
+                          "evaluate.holdout=[bo]")
+    demos = read_artefact(tmp_path / "run" / "demos.mcap")
+    held = codec.heldout_demos(demos)
+    assert [d["subject"] for d in held] == ["bo"] and m["heldout_count"] == 1
+    assert [d["subject"] for d in codec.training_demos(demos)] == ["ann", "ann"]
