@@ -182,7 +182,9 @@ def test_ctrl_c_during_an_api_run_is_a_keyboard_interrupt_naming_the_stage(tmp_p
     signal_once_running(run_dir, signal.SIGINT)
     with pytest.raises(KeyboardInterrupt, match=r"^interrupted by the user at stage \w+$") \
             as stopped:
-        api.run(list(FAST), run_dir=run_dir)
+        # a graph that takes far longer to grow than the signal to come: under load the
+        # quick run once finished before it did
+        api.run([*FAST, "graph.max_nodes=5000"], run_dir=run_dir)
     status = read_status(run_dir)
     assert status.state == "interrupted" and str(stopped.value) == status.error
 

@@ -14,6 +14,7 @@ import yaml
 from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.core.evaluation import frechet
 from pipeline.core.social import min_distance_to_person
+from pipeline.errors import PipelineError
 from tests.conftest import METROPOLIS, POLITE, RUDE, run_in_process
 from tests.pipeline.conftest import FAST
 
@@ -261,3 +262,160 @@ def test_the_closest_demonstration_counts_even_when_held_out(tmp_path):
     assert m["demos_count"] == 1 and m["heldout_count"] == 1
     assert m["demos_min_distance_to_person"] == pytest.approx(1.0, abs=1e-9)
     check_summary(m, out)
+
+
+# -- the second round of the audit: the held-out likelihood's β, the ruder warning's edges,
+# eval.mcap's metrics, the summary's naming of short roadmap paths and of two short chains
+
+# A hall with one person beside the way from the start to the goal: the learned reward is
+# length alone (w = -1), so the straight walk is better than the detour under every reward
+# the held-out likelihood weighs (w, and w = 0: the cost per second alone).
+HALL = {"name": "hall", "room": {"x_min": 0, "y_min": 0, "x_max": 8, "y_max": 4},
+        "persons": [{"id": 1, "x": 4.0, "y": 0.6, "theta": 1.57}], "relations": [],
+        "starts": [[1.0, 2.0]], "goal": [7.0, 2.0]}
+STRAIGHT = [[1.0, 2.0], [3.0, 2.3], [5.0, 2.3], [7.0, 2.0]]
+DETOUR = [[1.0, 2.0], [2.0, 3.3], [4.0, 3.5], [6.0, 3.3], [7.0, 2.0]]
+
+
+def _hall_run(root, name: str, trajectories: list, subjects: list, held: str):
+    (root / "scene.json").write_text(json.dumps(HALL))
+    demos = root / f"{name}.json"
+    demos.write_text(json.dumps({"trajectories": trajectories, "subjects": subjects}))
+    run_dir = root / name
+    m, out = run_in_process(run_dir, "graph=small", "graph.max_nodes=40", "scene=file",
+                            f"scene.path={root / 'scene.json'}", "expert=file",
+                            f"expert.path={demos}", f"evaluate.holdout=[{held}]",
+                            "birl=fixed", "birl.features=[length]", "birl.weights=[-1]")
+    return run_dir, m, out
+
+
+@pytest.fixture(scope="module")
+def hall(tmp_path_factory):
+    """Three runs of the hall, one demonstration learned from and one held out: the detour
+    learned from and the straight walk held out; the detour learned from and held out (a
+    copy); the straight walk learned from and the detour held out."""
+    root = tmp_path_factory.mktemp("hall")
+    return {"straight_held": _hall_run(root, "straight_held", [DETOUR, STRAIGHT], ["a", "b"], "b"),
+            "copy_held": _hall_run(root, "copy_held", [DETOUR, DETOUR], ["a", "c"], "c"),
+            "detour_held": _hall_run(root, "detour_held", [DETOUR, STRAIGHT], ["a", "b"], "a")}
+
+
+@pytest.mark.parametrize("key", ["heldout_log_likelihood", "heldout_log_likelihood_shortest"])
+def test_the_held_out_likelihood_is_at_the_beta_fitted_to_the_training_demonstrations(hall,
+                                                                                      key):
+    """DESIGN §9: the mean log likelihood of the held-out demonstrations at the β that makes
+    the training ones most likely. Per demonstration the Boltzmann model's log dP/dμ is
+    β·R(ξ) − V_β(start) (pipeline.irl.robust), so from one start, at every β, a walk of higher
+    reward is the likelier by β·ΔR: the straight walk held out is likelier than a copy of the
+    detour learned from, at the detour's β. And the detour's own β is its best: the straight
+    walk's (larger, its reward being higher) explains the detour worse, strictly (the log
+    likelihood is concave in β, the detour's best β inside [0.1, 1000])."""
+    straight_on_detour = hall["straight_held"][1][key]  # held out: straight; β: the detour's
+    detour_on_detour = hall["copy_held"][1][key]        # held out: the detour's copy
+    detour_on_straight = hall["detour_held"][1][key]    # held out: the detour; β: straight's
+    assert straight_on_detour > detour_on_detour
+    assert detour_on_detour > detour_on_straight + 1e-6  # by more than the fit's round-off
+    for _, m, out in hall.values():
+        assert m["heldout_count"] == m["demos_count"] == 1
+        check_summary(m, out)
+
+
+def test_eval_mcaps_metrics_are_metrics_json_but_the_wall_clock_times(synth):
+    """eval.mcap's /eval/metrics: every metric of metrics.json but the stages' wall-clock
+    times (time_<what>_s: the same seed makes the same bytes); the mean time to the goal of
+    the learned paths is a metric, not a wall-clock time."""
+    run_dir, m, _ = synth
+    stored = read_artefact(run_dir / "eval.mcap").one(topics.EVAL_METRICS)
+    clock = {k for k in m if k.startswith("time_") and k.endswith("_s")}
+    assert {"time_evaluate_s", "time_graph_s"} <= clock and "time_to_goal" in m
+    assert stored == {k: v for k, v in m.items() if k not in clock}
+
+
+def test_a_graph_that_loses_what_the_roadmap_loses_gets_no_ruder_warning(tmp_path):
+    """The true (rude) weights given: the learned paths are the optimal ones on both graphs,
+    policy loss 0 on each, so the graph's paths lose nothing more than the roadmap's however
+    they differ (here: further into intimate zones), and no warning says they are ruder."""
+    m, out = run_in_process(tmp_path, "reward=rude", "graph=small", "birl=fixed",
+                            _weights([*RUDE, 0.0]))
+    assert m["policy_loss"] == m["policy_loss_ref"] == 0.0
+    assert (m["relation_crossings"] > m["ref_relation_crossings"]  # the case: they differ
+            or m["intimate_intrusion_m"] > m["ref_intimate_intrusion_m"] + 1e-9)
+    assert "ruder than the roadmap's" not in out
+    check_summary(m, out)
+
+
+def test_a_graph_whose_paths_only_go_further_into_intimate_zones_is_ruder(tmp_path):
+    """No social link to cross (metropolis without its relations) and no true reward (no
+    demonstrations, expert=none): the graph's paths are ruder when they intrude further into
+    intimate zones alone. Without its medial-axis nodes the small graph of seed 0 lacks the
+    roadmap's detour round a person."""
+    data = json.loads(METROPOLIS.read_text())
+    data.update(name="unlinked", relations=[])
+    (tmp_path / "scene.json").write_text(json.dumps(data))
+    m, out = run_in_process(tmp_path / "run", "graph=small", "scene=file",
+                            f"scene.path={tmp_path / 'scene.json'}", "expert=none",
+                            "graph.medial_axis=false", "seed=0", "birl=fixed",
+                            _weights([*POLITE, -0.5]))
+    assert m["relation_crossings"] == m["ref_relation_crossings"] == 0  # no link to cross
+    assert m["intimate_intrusion_m"] > m["ref_intimate_intrusion_m"]  # the case
+    warning = [x for x in out.splitlines() if "ruder than the roadmap's" in x]
+    assert len(warning) == 1
+    assert (f"(intimate {m['intimate_intrusion_m']:.2f} m against "
+            f"{m['ref_intimate_intrusion_m']:.2f} m)") in warning[0]
+    check_summary(m, out)
+
+
+def test_roadmap_paths_that_stop_short_are_named_in_the_warning(tmp_path):
+    """mdp=paper (discounted, R_goal 1) and a reward that pays for being near a person: the
+    learned paths stay by the person rather than arrive, on the roadmap too, and the
+    warning names the roadmap's success beside the graph's."""
+    (tmp_path / "scene.json").write_text(json.dumps(HALL))
+    m, out = run_in_process(tmp_path / "run", "graph=small", "graph.max_nodes=40", "scene=file",
+                            f"scene.path={tmp_path / 'scene.json'}", "mdp=paper", "expert=none",
+                            "birl=fixed", "birl.features=[social@2.0]", "birl.weights=[0.5]",
+                            "birl.upper=[1]")
+    assert m["ref_success"] < 1  # the case
+    short = [f"roadmap {m['ref_success']:.2f}"] + (
+        [f"graph {m['success']:.2f}"] if m["success"] < 1 else [])
+    assert f"learned paths stop short of the goal (success {', '.join(short)})" in out
+    check_summary(m, out)
+
+
+def test_two_chains_too_short_for_r_hat_are_not_called_one_chain(tmp_path):
+    """Two chains (the fewest R-hat compares) of three samples each have no R-hat: too few
+    samples per chain, not one chain."""
+    m, out = run_in_process(tmp_path, "birl=mcmc", "birl.n_chains=2", "birl.n_samples=3",
+                            "birl.max_samples=3", "birl.n_iterations=2", "graph=small",
+                            "graph.max_nodes=70")
+    assert "mcmc_rhat_max" not in m and m["mcmc_chains"] == 2
+    assert "too few samples per chain" in out and "one chain" not in out
+
+
+def _hall_demos(tmp_path, trajectories: list, subjects: list, *overrides: str):
+    """The scene and demos stages alone on the hall with two starts (1, 2) and (1, 3)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "scene.json").write_text(json.dumps({**HALL, "starts": [[1.0, 2.0], [1.0, 3.0]]}))
+    (tmp_path / "demos.json").write_text(json.dumps({"trajectories": trajectories,
+                                                     "subjects": subjects}))
+    return run_in_process(tmp_path / "run", "scene=file", f"scene.path={tmp_path / 'scene.json'}",
+                          "expert=file", f"expert.path={tmp_path / 'demos.json'}",
+                          "stages=[scene,demos]", *overrides)
+
+
+def test_n_starts_that_keeps_no_demonstration_is_refused(tmp_path):
+    """Every demonstration begins at start 1: expert.n_starts=1 keeps none of them."""
+    from_second = [[1.0, 3.0], [4.0, 3.2], [7.0, 2.0]]
+    with pytest.raises(PipelineError, match=r"expert\.n_starts=1 leaves no demonstration"):
+        _hall_demos(tmp_path, [from_second, from_second], ["a", "b"], "expert.n_starts=1")
+
+
+def test_holding_out_every_subject_is_refused_but_holdout_all_is_not(tmp_path):
+    """evaluate.holdout naming every subject leaves nothing to learn from: refused. "all"
+    says so on purpose (a given reward judged on demonstrations it never saw, birl=fixed):
+    every demonstration held out."""
+    with pytest.raises(PipelineError, match=r"holds out every demonstration; keep some"):
+        _hall_demos(tmp_path / "named", [DETOUR, STRAIGHT], ["a", "b"], "evaluate.holdout=[a,b]")
+    _hall_demos(tmp_path / "all", [DETOUR, STRAIGHT], ["a", "b"], "evaluate.holdout=all",
+                "birl=fixed", "birl.features=[length]", "birl.weights=[-1]")
+    demos = read_artefact(tmp_path / "all" / "run" / "demos.mcap").all(topics.DEMOS)
+    assert [d["heldout"] for d in demos] == [True, True]
