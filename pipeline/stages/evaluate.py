@@ -344,9 +344,17 @@ def worse_than_initial(m: dict) -> list[str]:
             "demonstrations before reading this run's weights"]
 
 
+# How much closer to a person than every demonstration (closer_than_demos), or than the
+# roadmap's paths (graph_less_polite), learned paths may pass before the summary warns: a
+# path on a graph follows a distance only to about its resolution (a walker passed people at
+# 0.39 m on a random scene, the reward learned from its paths at 0.38 m)
+CLOSER_MARGIN_M = 0.05
+
+
 def graph_less_polite(m: dict) -> list[str]:
-    """A warning line when the graph's paths cross more social links or intrude further into
-    intimate zones than the same reward's roadmap paths: the graph's detours, if it has
+    """A warning line when the graph's paths cross more social links, intrude further into
+    intimate zones or pass a person closer (by over CLOSER_MARGIN_M) than the same
+    reward's roadmap paths: the graph's detours, if it has
     any, are worse under the reward than the roadmap's (a graph grown without
     demonstrations and without its medial-axis nodes, metropolis, 460 nodes: 0-18
     crossings over eight seeds, the roadmap's 0), and these are the paths a robot would be
@@ -359,19 +367,17 @@ def graph_less_polite(m: dict) -> list[str]:
              for what, key, spec, unit in (("crossings", "relation_crossings", ".0f", ""),
                                            ("intimate", "intimate_intrusion_m", ".2f", " m"))
              if key in m and "ref_" + key in m and m[key] > m["ref_" + key] + 1e-9]
+    # and closer to a person, by more than a roadmap path follows a distance (a deployment's
+    # graph paths passed 0.28 m from a person's centre, its roadmap's 0.34 m, unsaid)
+    closest = m.get("min_distance_to_person"), m.get("ref_min_distance_to_person")
+    if None not in closest and closest[0] < closest[1] - CLOSER_MARGIN_M:
+        worse.append(f"min distance {closest[0]:.2f} m against {closest[1]:.2f} m")
     if not worse:
         return []
     return ["  warning          the graph's paths are ruder than the roadmap's under the same "
             f"reward ({', '.join(worse)}): it lacks detours as good as the roadmap's; deploy "
             "the roadmap's paths "
             f"(birlg-export: {export_topics.LEARNED_REF}) or grow it further (graph.max_nodes)"]
-
-
-# closer_than_demos: how much closer to a person than every demonstration the learned
-# roadmap paths may pass before the summary warns; a roadmap path follows a demonstration's
-# distance only to about its lattice's resolution (a walker passed people at 0.39 m on a
-# random scene, the reward learned from its paths at 0.38 m)
-CLOSER_THAN_DEMOS_M = 0.05
 
 
 def closer_than_demos(m: dict) -> list[str]:
@@ -381,7 +387,7 @@ def closer_than_demos(m: dict) -> list[str]:
     numbers need not show (no held-out demonstration, or none from the start that passes
     closest)."""
     demos, learned = m.get("demos_min_distance_to_person"), m.get("ref_min_distance_to_person")
-    if demos is None or learned is None or learned >= demos - CLOSER_THAN_DEMOS_M:
+    if demos is None or learned is None or learned >= demos - CLOSER_MARGIN_M:
         return []
     # Two ways to say it, neither always the better: the squared hinge (an unseen walker's
     # 0.25 m paths went to 0.50 m) or a hinge where the demonstrators keep (another's 0.40 m

@@ -358,10 +358,14 @@ def test_a_graph_whose_paths_only_go_further_into_intimate_zones_is_ruder(tmp_pa
                             _weights([*POLITE, -0.5]))
     assert m["relation_crossings"] == m["ref_relation_crossings"] == 0  # no link to cross
     assert m["intimate_intrusion_m"] > m["ref_intimate_intrusion_m"]  # the case
+    # and they pass a person closer, by more than the 5 cm a path follows a distance to
+    assert m["min_distance_to_person"] < m["ref_min_distance_to_person"] - 0.05
     warning = [x for x in out.splitlines() if "ruder than the roadmap's" in x]
     assert len(warning) == 1
     assert (f"(intimate {m['intimate_intrusion_m']:.2f} m against "
-            f"{m['ref_intimate_intrusion_m']:.2f} m)") in warning[0]
+            f"{m['ref_intimate_intrusion_m']:.2f} m, min distance "
+            f"{m['min_distance_to_person']:.2f} m against "
+            f"{m['ref_min_distance_to_person']:.2f} m)") in warning[0]
     check_summary(m, out)
 
 
