@@ -132,8 +132,11 @@ def _draw_box(room: Room, margin: float,
 def _place_persons(
     spec: RandomSceneSpec, rng: np.random.Generator, room: Room,
     obstacles: ObstacleMap | None = None, free_bounds: Bounds | None = None,
+    region: np.ndarray | None = None,
 ) -> tuple[tuple[Person, ...], tuple[tuple[int, int], ...]] | None:
-    """Persons and relations, or None if they do not fit without overlapping."""
+    """Persons and relations, or None if they do not fit without overlapping; on a map, in
+    `region` ((H, W) bool of its raster) when given (its bounding box alone let them stand in
+    a room no door leads to)."""
     margin = person_margin(spec)
     lo, hi = _draw_box(room, margin, free_bounds)
     if (lo > hi).any():
@@ -145,6 +148,9 @@ def _place_persons(
         if not ((pts >= lo) & (pts <= hi)).all():
             return False
         if obstacles is not None and not obstacles.points_free(pts, margin).all():
+            return False
+        if obstacles is not None and region is not None \
+                and not obstacles.in_cells(pts, region).all():
             return False
         if placed:
             other = np.array([(x, y) for x, y, _ in placed])
@@ -271,7 +277,7 @@ def random_scene(spec: RandomSceneSpec, rng: np.random.Generator, name: str = "r
         region = obstacles.largest_free_region(spec.robot_radius)
         free_bounds = obstacles.free_bounds(region)
     for _ in range(spec.max_tries):
-        placed = _place_persons(spec, rng, room, obstacles, free_bounds)
+        placed = _place_persons(spec, rng, room, obstacles, free_bounds, region)
         if placed is None:
             continue
         persons, relations = placed

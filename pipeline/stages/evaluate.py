@@ -349,6 +349,8 @@ def worse_than_initial(m: dict) -> list[str]:
 # path on a graph follows a distance only to about its resolution (a walker passed people at
 # 0.39 m on a random scene, the reward learned from its paths at 0.38 m)
 CLOSER_MARGIN_M = 0.05
+# A learner's hinge this close to the demonstrators' closest approach already says it
+NEAR_HINGE_M = 0.25
 
 
 def graph_less_polite(m: dict) -> list[str]:
@@ -392,9 +394,17 @@ def closer_than_demos(m: dict) -> list[str]:
     # Two ways to say it, neither always the better: the squared hinge (an unseen walker's
     # 0.25 m paths went to 0.50 m) or a hinge where the demonstrators keep (another's 0.40 m
     # to 0.64 m with social@0.7, where social_squared kept 0.40 m)
+    # (a hinge only to a learner without one near that radius: one at 0.7 m already says
+    # what one at 0.52 m would; which of the two helps, or both, depends on the people)
     hinge = f"social@{max(demos, 0.1):.1f}"
-    ways = [f for f in ("social_squared", hinge) if f"weight_{f}" not in m]
-    hint = f"; add {' or '.join(ways)} to birl.features (see the methods docs)" if ways else ""
+    radii = [float(k.removeprefix("weight_social@")) for k in m if k.startswith("weight_social@")]
+    ways = [f for f, has in (("social_squared", "weight_social_squared" in m),
+                             (hinge, any(abs(r - demos) <= NEAR_HINGE_M for r in radii)))
+            if not has]
+    hint = f"; learn again with {', '.join(ways)} or both added to birl.features (see the " \
+        "methods docs)" if len(ways) == 2 else \
+        f"; learn again with {ways[0]} added to birl.features (see the methods docs)" \
+        if ways else ""
     return [f"  warning          the learned roadmap paths pass {learned:.2f} m from a person, "
             f"closer than any demonstration ({demos:.2f} m): the learned reward is ruder than "
             f"every demonstrator{hint}"]

@@ -126,6 +126,26 @@ def test_a_random_scene_on_a_slam_map_ignores_free_space_outside_its_building(sp
     assert ((points >= [20, 30]) & (points <= [32, 38])).all()
 
 
+def test_persons_on_a_map_stand_where_the_robot_can_go():
+    """A 12 m x 8 m building with a locked 4 m x 3 m room in it (walls 0.3 m, no door):
+    persons were drawn anywhere in the free region's bounding box, the locked room too (5 of
+    12 in a user's run); they now stand only in the region the starts and goal are in."""
+    occupied = np.ones((100, 140), dtype=bool)  # 0.1 m cells
+    occupied[10:90, 10:130] = False  # the building: x 1..13 m, y 1..9 m
+    occupied[50:83, 85:128] = True  # the locked room's walls: x 8.5..12.8 m, y 5..8.3 m
+    occupied[53:80, 88:125] = False  # its floor: x 8.8..12.5 m, y 5.3..8 m
+    grid = OccupancyGrid(occupied, (0.0, 0.0), 0.1)
+    spec = RandomSceneSpec(n_groups=2, n_singles=6, n_starts=3)
+    locked = 0
+    for seed in range(6):
+        scene = random_scene(spec, np.random.default_rng(seed), map_grid=grid, map_source="m")
+        xy = np.array([[p.x, p.y] for p in scene.persons])
+        inside = (xy[:, 0] > 8.5) & (xy[:, 0] < 12.8) & (xy[:, 1] > 5.0) & (xy[:, 1] < 8.3)
+        locked += int(inside.sum())
+        assert len(xy) >= 8
+    assert locked == 0
+
+
 def test_the_largest_free_region_by_hand():
     from pipeline.core.obstacles import ObstacleMap
     occupied = np.ones((6, 8), dtype=bool)

@@ -288,7 +288,7 @@ def test_the_summary_warns_when_the_learned_paths_pass_closer_than_every_demonst
     assert f"the learned roadmap paths pass {rude['ref_min_distance_to_person']:.2f} m from " \
         f"a person, closer than any demonstration " \
         f"({rude['demos_min_distance_to_person']:.2f} m)" in out
-    assert "add social_squared or social@1.5 to birl.features" in out
+    assert "learn again with social_squared, social@1.5 or both added to birl.features" in out
     # judging a deployment against new walks holds out every one of them: the check stayed
     # silent there, where it matters most
     judged, out = run_in_process(tmp_path / "judged", *common, "birl.weights=[0,-1]",
@@ -299,7 +299,13 @@ def test_the_summary_warns_when_the_learned_paths_pass_closer_than_every_demonst
     # a learner that has the squared hinge already is not told to add it
     squared, out = run_in_process(tmp_path / "squared", *common[:-1],
                                   "birl.features=[social_squared,length]", "birl.weights=[0,-1]")
-    assert "closer than any demonstration" in out and "add social@1.5 to birl.features" in out
+    assert "closer than any demonstration" in out and \
+        "learn again with social@1.5 added to birl.features" in out
+    # nor to one that has a hinge near their closest approach (1.49 m) of a hinge there
+    near, out = run_in_process(tmp_path / "near", *common[:-1], "birl.features=[social@1.3,length]",
+                               "birl.weights=[0,-1]")
+    assert "closer than any demonstration" in out and \
+        "learn again with social_squared added to birl.features" in out
     polite, out = run_in_process(tmp_path / "polite", *common, "birl.weights=[-1,-0.1]")
     assert polite["ref_min_distance_to_person"] > 1.45
     assert "closer than any demonstration" not in out
