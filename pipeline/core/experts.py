@@ -87,8 +87,10 @@ def choose_heldout(start_index: Sequence[int], subjects: Sequence[str | None],
     wanted = {_subject_id(sid) for sid in holdout}
     unknown = sorted(wanted - set(known))
     if unknown:
+        none = "none: the demonstrations name no subjects (a JSON file's `subjects`, a CSV's " \
+            "`subject` column, or a folder of recordings, one per subject, as expert.path)"
         raise PipelineError(f"evaluate.holdout names subject {unknown[0]!r}, which "
-                            f"demonstrated nothing (subjects: {', '.join(known) or 'none'})")
+                            f"demonstrated nothing (subjects: {', '.join(known) or none})")
     return np.array([s is not None and str(s) in wanted for s in subjects], dtype=bool)
 
 

@@ -132,6 +132,12 @@ def test_choose_heldout_keeps_one_per_start_and_refuses_unknown_subjects():
     assert held[:2].sum() == 1 and not held[2]  # start 1's only demonstration is kept
     with pytest.raises(PipelineError, match="subject 'zz'"):
         choose_heldout([0], ["a"], ["zz"], np.random.default_rng(0))
+    # a bag names no subjects: the message says where they come from
+    with pytest.raises(PipelineError, match=r"subject 'zz', which demonstrated nothing "
+                                            r"\(subjects: none: the demonstrations name no "
+                                            r"subjects .*a folder of recordings, one per "
+                                            r"subject, as expert.path\)"):
+        choose_heldout([0], [None], ["zz"], np.random.default_rng(0))
 
 
 def test_the_learner_may_order_its_features_differently_from_the_true_reward(tmp_path):
