@@ -21,8 +21,7 @@ from pipeline.inputs.recorded import (
     describe,
     is_recording_folder,
     load_recorded,
-    recording_subject,
-    recordings_in,
+    subject_recordings,
 )
 
 log = logging.getLogger(__name__)
@@ -40,17 +39,16 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     a warning); `topic` and `frame` select and check
     the bag topic (expert.topic, expert.frame); `denoise` smooths tracking noise
     (expert.denoise, `recorded.smooth_jitter`). A file's `subjects` become the demonstrations'
-    `subject`. A folder of recordings (no ROS 2 bag itself, `recorded.recordings_in`) is read
-    one recording after another, by name; a recording that names no subjects is taken to be
-    of one subject, its name without the extension (`ana.bag`: ana), since a bag cannot name
-    them.
+    `subject`. A folder of recordings (no ROS 2 bag itself) is read one recording after
+    another, by name; a recording that names no subjects (a bag cannot) is taken to be of
+    one subject, named by its file or by the folder in it that holds it
+    (`recorded.subject_recordings`).
     """
     path = Path(path)
     if is_recording_folder(path):
-        return [d if d.subject is not None
-                else dataclasses.replace(d, subject=recording_subject(entry))
-                for entry in recordings_in(path)
-                for d in load_demo_file(entry, scene, feature_model, speed, topic=topic,
+        return [d if d.subject is not None else dataclasses.replace(d, subject=subject)
+                for recording, subject in subject_recordings(path)
+                for d in load_demo_file(recording, scene, feature_model, speed, topic=topic,
                                         frame=frame, start_radius=start_radius, denoise=denoise)]
     demos = []
     unreached: list[str] = []

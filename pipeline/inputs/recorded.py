@@ -165,17 +165,24 @@ def is_recording_folder(path: Path) -> bool:
     return path.is_dir() and not (path / "metadata.yaml").exists()
 
 
-def recordings_in(folder: Path) -> list[Path]:
+def recordings_in(folder: Path, nested: bool = True) -> list[Path]:
     """The recordings a folder holds, by name: .json, .csv and bag files, ROS 2 bag
-    directories (hidden entries and other files left out)."""
+    directories and (`nested`) folders of them (hidden entries and other files left out)."""
     return sorted(p for p in folder.iterdir() if not p.name.startswith(".") and (
         (p.is_dir() and (p / "metadata.yaml").is_file())
+        or (nested and is_recording_folder(p) and bool(recordings_in(p, nested=False)))
         or (p.is_file() and p.suffix.lower() in (".json", ".csv", *BAG_SUFFIXES))))
 
 
-def recording_subject(path: Path) -> str:
-    """Who a folder's recording is taken to be of: its name without the extension."""
-    return path.name if path.is_dir() else path.stem
+def subject_recordings(folder: Path) -> list[tuple[Path, str]]:
+    """Each recording of a folder of recordings with the subject it is taken to be of when it
+    names none: its name without the extension (`ana.bag`: ana), or the name of the folder in
+    it that holds it (`ana/monday.bag`: ana, one subject's sessions)."""
+    return [(r, entry.name) if is_recording_folder(entry) else
+            (entry, entry.name if entry.is_dir() else entry.stem)
+            for entry in recordings_in(folder)
+            for r in (recordings_in(entry, nested=False) if is_recording_folder(entry)
+                      else [entry])]
 
 
 def describe(path: Path) -> str:
@@ -242,13 +249,13 @@ def check_readable(path: Path) -> None:
             raise PipelineError(f"{where} is a symbolic link to nothing (or a loop of links)")
         raise PipelineError(f"{where} not found")
     if is_recording_folder(path):
-        entries = recordings_in(path)
-        if not entries:
+        recordings = subject_recordings(path)
+        if not recordings:
             raise PipelineError(f"{where} is a directory without metadata.yaml (not a ROS 2 bag) "
                                 "and holds no recording: .json, .csv, .bag, .mcap or .db3 "
                                 "files, or ROS 2 bag directories")
-        for entry in entries:
-            check_readable(entry)
+        for recording, _ in recordings:
+            check_readable(recording)
         return
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():

@@ -277,6 +277,17 @@ def test_a_folder_of_recordings_reads_each_with_its_name_as_the_subject(tmp_path
     for got, want in zip(demos, [*one["ann.bag"], *one["bo"], *one["cy.json"]], strict=True):
         assert got.start_index == want.start_index
         np.testing.assert_array_equal(got.points, want.points)
+    # a folder in it is one subject's sessions, its name the subject
+    sessions = folder / "eve"
+    sessions.mkdir()
+    for day in ("mon", "tue"):
+        write_bag(sessions / f"{day}.bag",
+                  {"/odom": ("nav_msgs/msg/Odometry", list(odometry(CLEAN[:1])))}, storage="ros1")
+    (sessions / "deeper").mkdir()  # a folder in a subject's folder is not read
+    write_bag(sessions / "deeper" / "x.bag",
+              {"/odom": ("nav_msgs/msg/Odometry", list(odometry(CLEAN)))}, storage="ros1")
+    assert [d.subject for d in load_demo_file(folder, metropolis, fm, 1.0)] == \
+        [d.subject for d in demos[:1 + len(one["bo"])]] + ["dee", "eve", "eve"]
     # a file in it that is not what its name says is named, not the folder
     (folder / "zed.csv").write_text("x;y\n0.5,0.5\n")
     refused(r"zed\.csv: unknown column 'x;y'", load_demo_file, folder, metropolis, fm, 1.0)
