@@ -60,8 +60,9 @@ def check_summary(m: dict, out: str) -> None:
                 f"{m[p + 'min_distance_to_person']:.2f} m, success {m[p + 'success']:.2f}"
                 ) in out, label
     ruder = (m.get("policy_loss", np.inf) > m.get("policy_loss_ref", -np.inf)
-             and any(m[k] > m["ref_" + k] + 1e-9
-                     for k in ("relation_crossings", "intimate_intrusion_m")))
+             and (any(m[k] > m["ref_" + k] + 1e-9
+                      for k in ("relation_crossings", "intimate_intrusion_m"))
+                  or m["min_distance_to_person"] < m["ref_min_distance_to_person"] - 0.05))
     assert ("ruder than the roadmap's" in out) == ruder
     assert ("stop short of the goal" in out) == (m["success"] < 1 or m["ref_success"] < 1)
     share = m["graph_demo_node_share"]
