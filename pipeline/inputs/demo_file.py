@@ -46,10 +46,12 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     """
     path = Path(path)
     if is_recording_folder(path):
-        return [d if d.subject is not None else dataclasses.replace(d, subject=subject)
+        read = [(recording, d if d.subject is not None else dataclasses.replace(d, subject=subject))
                 for recording, subject in subject_recordings(path)
                 for d in load_demo_file(recording, scene, feature_model, speed, topic=topic,
                                         frame=frame, start_radius=start_radius, denoise=denoise)]
+        warn_repeated_recordings(path, read)
+        return [d for _, d in read]
     demos = []
     unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
@@ -82,6 +84,26 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                     listed(unreached, 5),
                     scene.goal_tolerance)
     return demos
+
+
+def warn_repeated_recordings(folder: Path, read: list[tuple[Path, Demonstration]]) -> None:
+    """One warning when a folder's recordings hold the same walks (an all-subjects bag beside
+    the per-subject ones): each would be learned from twice, and a held-out subject's walks
+    would stay in training under the other recording's subject."""
+    first: dict[bytes, Path] = {}
+    pairs: dict[tuple[str, str], int] = {}
+    for recording, demo in read:
+        key = np.round(demo.points, 6).tobytes()
+        seen = first.setdefault(key, recording)
+        if seen != recording:
+            pair = (seen.name, recording.name)
+            pairs[pair] = pairs.get(pair, 0) + 1
+    if pairs:
+        log.warning("%s: recordings repeat one another's walks (%s): each such walk is learned "
+                    "from twice, and holding out a subject may leave its walks in training "
+                    "under the other's name; keep one copy of each walk in the folder",
+                    describe(folder), listed([f"{n} in both {a} and {b}"
+                                              for (a, b), n in pairs.items()], 3))
 
 
 def metres_beside(value: float, limit: float) -> str:

@@ -293,6 +293,27 @@ def test_a_folder_of_recordings_reads_each_with_its_name_as_the_subject(tmp_path
     refused(r"zed\.csv: unknown column 'x;y'", load_demo_file, folder, metropolis, fm, 1.0)
 
 
+def test_a_folder_whose_recordings_repeat_walks_is_said_to(tmp_path, metropolis, caplog):
+    """An all-subjects bag beside the per-subject ones: every walk twice, and a held-out
+    subject's walks left in training under the other bag's name. Read, with one warning."""
+    folder = tmp_path / "walks"
+    folder.mkdir()
+    for name, drives in (("all", CLEAN), ("ann", CLEAN[:1]), ("bo", CLEAN[1:])):
+        write_bag(folder / name, {"/odom": ("nav_msgs/msg/Odometry", list(odometry(drives)))})
+    fm = FeatureModel.from_scene(metropolis)
+    with caplog.at_level(logging.WARNING):
+        demos = load_demo_file(folder, metropolis, fm, 1.0)
+    assert [d.subject for d in demos] == ["all", "all", "ann", "bo"]
+    assert caplog.text.count("recordings repeat one another's walks") == 1
+    assert "(1 in both all and ann, 1 in both all and bo)" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # each walk once: nothing said
+        load_demo_file(folder / "all", metropolis, fm, 1.0)
+        (folder / "all").rename(folder / ".all")  # hidden: not read
+        assert [d.subject for d in load_demo_file(folder, metropolis, fm, 1.0)] == ["ann", "bo"]
+    assert "repeat" not in caplog.text
+
+
 # -- what is not a file ------------------------------------------------------------------------
 
 
