@@ -167,10 +167,11 @@ def is_recording_folder(path: Path) -> bool:
 
 def recordings_in(folder: Path, nested: bool = True) -> list[Path]:
     """The recordings a folder holds, by name: .json, .csv and bag files, ROS 2 bag
-    directories and (`nested`) folders of them (hidden entries and other files left out)."""
+    directories and (`nested`) folders that may hold more (hidden entries and other files
+    left out)."""
     return sorted(p for p in folder.iterdir() if not p.name.startswith(".") and (
         (p.is_dir() and (p / "metadata.yaml").is_file())
-        or (nested and is_recording_folder(p) and bool(recordings_in(p, nested=False)))
+        or (nested and is_recording_folder(p))
         or (p.is_file() and p.suffix.lower() in (".json", ".csv", *BAG_SUFFIXES))))
 
 
@@ -178,11 +179,13 @@ def subject_recordings(folder: Path) -> list[tuple[Path, str]]:
     """Each recording of a folder of recordings with the subject it is taken to be of when it
     names none: its name without the extension (`ana.bag`: ana), or the name of the folder in
     it that holds it (`ana/monday.bag`: ana, one subject's sessions)."""
-    return [(r, entry.name) if is_recording_folder(entry) else
-            (entry, entry.name if entry.is_dir() else entry.stem)
-            for entry in recordings_in(folder)
-            for r in (recordings_in(entry, nested=False) if is_recording_folder(entry)
-                      else [entry])]
+    found: list[tuple[Path, str]] = []
+    for entry in recordings_in(folder):
+        if is_recording_folder(entry):  # one subject's sessions (none deeper down)
+            found += [(r, entry.name) for r in recordings_in(entry, nested=False)]
+        else:
+            found.append((entry, entry.name if entry.is_dir() else entry.stem))
+    return found
 
 
 def describe(path: Path) -> str:

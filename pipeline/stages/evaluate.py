@@ -391,19 +391,17 @@ def closer_than_demos(m: dict) -> list[str]:
     demos, learned = m.get("demos_min_distance_to_person"), m.get("ref_min_distance_to_person")
     if demos is None or learned is None or learned >= demos - CLOSER_MARGIN_M:
         return []
-    # Two ways to say it, neither always the better: the squared hinge (an unseen walker's
-    # 0.25 m paths went to 0.50 m) or a hinge where the demonstrators keep (another's 0.40 m
-    # to 0.64 m with social@0.7, where social_squared kept 0.40 m)
-    # (a hinge only to a learner without one near that radius: one at 0.7 m already says
-    # what one at 0.52 m would; which of the two helps, or both, depends on the people)
+    # Two ways to say it, neither always the better, sometimes only both: the squared hinge
+    # (an unseen walker's 0.25 m paths went to 0.50 m) and a hinge where the demonstrators
+    # keep (another's 0.40 m to 0.64 m with social@0.7). The hinge only to a learner without
+    # one near that radius: one at 0.7 m already says what one at 0.52 m would.
     hinge = f"social@{max(demos, 0.1):.1f}"
     radii = [float(k.removeprefix("weight_social@")) for k in m if k.startswith("weight_social@")]
     ways = [f for f, has in (("social_squared", "weight_social_squared" in m),
                              (hinge, any(abs(r - demos) <= NEAR_HINGE_M for r in radii)))
             if not has]
-    hint = f"; learn again with {', '.join(ways)} or both added to birl.features (see the " \
-        "methods docs)" if len(ways) == 2 else \
-        f"; learn again with {ways[0]} added to birl.features (see the methods docs)" \
+    named = " or ".join(ways) if len(ways) < 2 else f"{ways[0]}, {ways[1]} or both"
+    hint = f"; learn again with {named} added to birl.features (see the methods docs)" \
         if ways else ""
     return [f"  warning          the learned roadmap paths pass {learned:.2f} m from a person, "
             f"closer than any demonstration ({demos:.2f} m): the learned reward is ruder than "
