@@ -353,7 +353,7 @@ CLOSER_MARGIN_M = 0.05
 NEAR_HINGE_M = 0.25
 
 
-def graph_less_polite(m: dict) -> list[str]:
+def graph_less_polite(m: dict, roadmap_ruder_than_demos: bool = False) -> list[str]:
     """A warning line when the graph's paths cross more social links, intrude further into
     intimate zones or pass a person closer (by over CLOSER_MARGIN_M) than the same
     reward's roadmap paths: the graph's detours, if it has
@@ -362,7 +362,10 @@ def graph_less_polite(m: dict) -> list[str]:
     crossings over eight seeds, the roadmap's 0), and these are the paths a robot would be
     given. Not where a true reward says the graph's paths lose no more than the roadmap's
     (`reward=rude`, which no link or person costs: 15 crossings against 0, policy loss 0
-    against 0.06, and the advice to deploy the roadmap's paths was wrong)."""
+    against 0.06, and the advice to deploy the roadmap's paths was wrong). With
+    `roadmap_ruder_than_demos` (`closer_than_demos`' line follows) the roadmap's paths are
+    not offered as the ones to deploy: a deployment on a walker's scene was told to deploy
+    them, and on the next line that they are ruder than every demonstrator."""
     if m.get("policy_loss", np.inf) <= m.get("policy_loss_ref", -np.inf):
         return []
     worse = [f"{what} {m[key]:{spec}}{unit} against {m['ref_' + key]:{spec}}{unit}"
@@ -376,10 +379,14 @@ def graph_less_polite(m: dict) -> list[str]:
         worse.append(f"min distance {closest[0]:.2f} m against {closest[1]:.2f} m")
     if not worse:
         return []
+    roadmap = f"the roadmap's paths (birlg-export: {export_topics.LEARNED_REF})"
+    advice = (f"it lacks detours as good as the roadmap's (grow it further: graph.max_nodes); "
+              f"{roadmap} are the better ones, but see the next line"
+              if roadmap_ruder_than_demos else
+              f"it lacks detours as good as the roadmap's; deploy {roadmap} or grow it further "
+              "(graph.max_nodes)")
     return ["  warning          the graph's paths are ruder than the roadmap's under the same "
-            f"reward ({', '.join(worse)}): it lacks detours as good as the roadmap's; deploy "
-            "the roadmap's paths "
-            f"(birlg-export: {export_topics.LEARNED_REF}) or grow it further (graph.max_nodes)"]
+            f"reward ({', '.join(worse)}): {advice}"]
 
 
 def closer_than_demos(m: dict) -> list[str]:
@@ -583,8 +590,9 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
     lines.append(f"  graph paths      {paths('')}"
                  + (f" ({share:.0%} of its nodes are demonstration waypoints: these say "
                     "little)" if share > 0.5 else ""))
-    lines += graph_less_polite(m)
-    lines += closer_than_demos(m)
+    ruder_than_demos = closer_than_demos(m)
+    lines += graph_less_polite(m, roadmap_ruder_than_demos=bool(ruder_than_demos))
+    lines += ruder_than_demos
     for name in [k[len("transfer_"):-len("_success")] for k in m
                  if k.startswith("transfer_") and k.endswith("_success")]:  # config order
         prefix = f"transfer_{name}_"

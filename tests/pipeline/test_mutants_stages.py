@@ -15,11 +15,12 @@ from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.core.evaluation import frechet
 from pipeline.core.social import min_distance_to_person
 from pipeline.errors import PipelineError
-from tests.conftest import METROPOLIS, POLITE, RUDE, run_in_process
+from tests.conftest import METROPOLIS, POLITE, ROOT, RUDE, run_in_process
 from tests.pipeline.conftest import FAST
 
 # weights that lose on both graphs (test_run's normalised-loss case), crossing last
 LOSING = "birl.weights=[-0.2,-1,-0.1,-0.5,-0.5]"
+POLITE_DEMOS = ROOT / "data" / "demos" / "metropolis_polite_smoothed.json"
 
 
 def _weights(values) -> str:
@@ -64,13 +65,17 @@ def check_summary(m: dict, out: str) -> None:
                       for k in ("relation_crossings", "intimate_intrusion_m"))
                   or m["min_distance_to_person"] < m["ref_min_distance_to_person"] - 0.05))
     assert ("ruder than the roadmap's" in out) == ruder
+    closer = ("demos_min_distance_to_person" in m and m["ref_min_distance_to_person"]
+              < m["demos_min_distance_to_person"] - 0.05)
+    # the roadmap's paths are offered for deployment only when they are not ruder than
+    # every demonstrator
+    assert ("are the better ones, but see the next line" in out) == (ruder and closer)
+    assert ("; deploy the roadmap's paths" in out) == (ruder and not closer)
     assert ("stop short of the goal" in out) == (m["success"] < 1 or m["ref_success"] < 1)
     share = m["graph_demo_node_share"]
     assert ("demonstration waypoints: these say little" in out) == (share > 0.5)
     assert ("do not reach the goal" in out) == (m.get("demos_unreached", 0) > 0)
-    if "demos_min_distance_to_person" in m:
-        closer = m["ref_min_distance_to_person"] < m["demos_min_distance_to_person"] - 0.05
-        assert ("closer than any demonstration" in out) == closer
+    assert ("closer than any demonstration" in out) == closer
     if "frechet_to_demos" in m:
         assert f"discrete Fréchet mean {m['frechet_to_demos']:.3f} m" in out
     else:
@@ -424,3 +429,20 @@ def test_holding_out_every_subject_is_refused_but_holdout_all_is_not(tmp_path):
                 "birl=fixed", "birl.features=[length]", "birl.weights=[-1]")
     demos = read_artefact(tmp_path / "all" / "run" / "demos.mcap").all(topics.DEMOS)
     assert [d["heldout"] for d in demos] == [True, True]
+
+
+def test_roadmap_paths_ruder_than_every_demonstrator_are_not_offered_for_deployment(tmp_path):
+    """Weights that pass people closely, judged against the polite demonstrations
+    (evaluate.holdout=all) on a small graph without its medial-axis nodes: the graph's
+    paths are ruder than the roadmap's, and the roadmap's are ruder than every
+    demonstrator. The first warning no longer tells the user to deploy the roadmap's
+    paths that the second one says are too rude."""
+    m, out = run_in_process(tmp_path, "expert=file", f"expert.path={POLITE_DEMOS}",
+                            "evaluate.holdout=all", "birl=fixed", "graph=small",
+                            "graph.medial_axis=false", "seed=0", _weights([0, -0.1, 0, -1, 0]))
+    lines = out.splitlines()
+    first = next(k for k, x in enumerate(lines) if "ruder than the roadmap's" in x)
+    assert "closer than any demonstration" in lines[first + 1]  # the case, and its order
+    assert "/birlg/learned_paths_ref) are the better ones, but see the next line" in lines[first]
+    assert "deploy the roadmap's paths" not in out
+    check_summary(m, out)
