@@ -167,6 +167,9 @@ class FileExpertConfig(ExpertConfig):
     frame: Optional[str] = None  # required header.frame_id of bag messages; null: any
     start_radius: float = START_RADIUS  # m, a demonstration begins this close to a start
     denoise: bool = True  # smooth tracking noise that makes trajectories >3 % longer
+    # keep only each trajectory's walks from a start to the goal (a tracker's tracks of
+    # everyone in view); false: a trajectory that is no such walk is refused
+    select_walks: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -29,7 +29,8 @@ log = logging.getLogger(__name__)
 
 def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed: float, *,
                    topic: str | None = None, frame: str | None = None,
-                   start_radius: float = START_RADIUS, denoise: bool = True) -> list[Demonstration]:
+                   start_radius: float = START_RADIUS, denoise: bool = True,
+                   select_walks: bool = False) -> list[Demonstration]:
     """Read a demonstration file or bag (DESIGN §3, `pipeline.inputs.recorded.load_recorded`).
 
     Every trajectory is cut at the goal disk, must stay in the room, keep robot_radius from
@@ -38,7 +39,9 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     goal (one that ends outside the goal disk is a demonstration that does not reach it, with
     a warning); `topic` and `frame` select and check
     the bag topic (expert.topic, expert.frame); `denoise` smooths tracking noise
-    (expert.denoise, `recorded.smooth_jitter`). A file's `subjects` become the demonstrations'
+    (expert.denoise, `recorded.smooth_jitter`); `select_walks` keeps only the walks from a
+    start to the goal in each trajectory (expert.select_walks,
+    `recorded.select_track_walks`). A file's `subjects` become the demonstrations'
     `subject`. A folder of recordings (no ROS 2 bag itself) is read one recording after
     another, by name; a recording that names no subjects (a bag cannot) is taken to be of
     one subject, named by its file or by the folder in it that holds it
@@ -49,14 +52,15 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
         read = [(recording, d if d.subject is not None else dataclasses.replace(d, subject=subject))
                 for recording, subject in subject_recordings(path)
                 for d in load_demo_file(recording, scene, feature_model, speed, topic=topic,
-                                        frame=frame, start_radius=start_radius, denoise=denoise)]
+                                        frame=frame, start_radius=start_radius, denoise=denoise,
+                                        select_walks=select_walks)]
         warn_repeated_recordings(path, read)
         return [d for _, d in read]
     demos = []
     unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room,
-                           denoise=denoise)
+                           denoise=denoise, select_walks=select_walks)
     pushed: list[str] = []
     for k, (start, points, subject) in enumerate(tracks):
         if scene.obstacles is not None:  # tracking noise along a wall, as at the room's edge

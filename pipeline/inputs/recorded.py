@@ -786,8 +786,59 @@ def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: 
                     "(one trajectory id for several walks, e.g. one id per recording or two "
                     "sessions' ids in one file?): trajectories %s, numbered from 0 in file "
                     "order; each is cut at its first arrival, so only its first walk is "
-                    "learned from: give every walk its own id", where, len(found), len(tracks),
+                    "learned from: give every walk its own id, or learn from every walk with "
+                    "expert.select_walks=true", where, len(found), len(tracks),
                     listed(found, 5))
+
+
+def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | None] | None,
+                       starts: np.ndarray, goal: np.ndarray, start_radius: float,
+                       goal_tolerance: float, where: str
+                       ) -> tuple[list[np.ndarray], list[str | None]]:
+    """The walks from a start to the goal in each track, cut as a pose stream is
+    (`stream_spans`), each of its track's subject: a tracker follows everyone in view, and
+    only some go from a start to the goal (others go elsewhere, come into view mid-room or
+    are lost and found again under a new id). One warning counts the tracks that hold no
+    such walk and names the ones that hold several; none in any track is refused."""
+    walks: list[np.ndarray] = []
+    walk_subjects: list[str | None] = []
+    without, several = [], []
+    for k, track in enumerate(tracks):
+        with np.errstate(over="ignore", invalid="ignore"):
+            spans = stream_spans(track, starts, goal, start_radius, goal_tolerance)
+        walks += [track[b:g + 1] for b, g in spans]
+        walk_subjects += [subjects[k] if subjects else None] * len(spans)
+        if not spans:
+            without.append(str(k))
+        elif len(spans) > 1:
+            several.append(f"{k} ({len(spans)} walks)")
+    if not walks:
+        raise PipelineError(
+            f"{where}: none of the {len(tracks)} trajectories goes from a start (within "
+            f"{start_radius:g} m, expert.start_radius) to the goal (within {goal_tolerance:g} "
+            "m): check the scene's starts and goal, and the recording's frame")
+    if without or several:
+        log.warning("%s: expert.select_walks: %d walks from a start to the goal read from %d "
+                    "of %d trajectories (numbered from 0 in file order)%s%s", where,
+                    len(walks), len(tracks) - len(without), len(tracks),
+                    f"; {len(without)} hold none and are dropped: {listed(without, 8)}"
+                    if without else "",
+                    f"; several in {listed(several, 5)}" if several else "")
+    return walks, walk_subjects
+
+
+def without_walks_hint(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
+                       start_radius: float, goal_tolerance: float) -> str:
+    """What to add to a refused trajectory's line when other trajectories too go from no
+    start to the goal (a tracker's tracks): the option that keeps only the walks."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        without = sum(not stream_spans(t, starts, goal, start_radius, goal_tolerance)
+                      for t in tracks)
+    if without < 2:
+        return ""
+    return (f"; {without} of {len(tracks)} trajectories hold no walk from a start to the goal "
+            "(a tracker's tracks of everyone in view?): expert.select_walks=true learns from "
+            "the walks alone")
 
 
 def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
@@ -1229,7 +1280,8 @@ def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance:
 def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tolerance: float,
                   topic: str | None = None, frame: str | None = None,
                   start_radius: float = START_RADIUS, spacing: float = RESAMPLE_SPACING,
-                  room: Room | None = None, denoise: bool = True) -> list[Recorded]:
+                  room: Room | None = None, denoise: bool = True,
+                  select_walks: bool = False) -> list[Recorded]:
     """Read a recorded demonstration into its demonstrations (matched start, polyline, subject).
 
     Whatever the format, every trajectory is cut at the goal disk (`cut_at_goal`): recordings
@@ -1244,7 +1296,10 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     trajectories' length by more than JITTER_INFLATION is smoothed out first (`smooth_jitter`)
     and the smoothed polylines are resampled like a pose stream. With `room`, every
     trajectory must stay inside it. Each is then matched with `match_to_starts`; a start no
-    demonstration begins at is named in one warning line.
+    demonstration begins at is named in one warning line. With `select_walks`, trajectories
+    are cut like a pose stream (`select_track_walks`: a tracker's tracks, of which only some
+    go from a start to the goal); without it, a trajectory that is no such walk is refused,
+    and the refusal says how many others are none either.
     """
     path = Path(path)
     where = describe(path)
@@ -1274,17 +1329,27 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         subjects = [_span_subject(recording.subjects, b, g, where, i)
                     for i, (b, g) in enumerate(spans)]
         warn_jumps(tracks, where, [b for b, _ in spans])
+    elif select_walks:
+        tracks, subjects = select_track_walks(recording.tracks, recording.subjects, starts, goal,
+                                              start_radius, goal_tolerance, where)
+        warn_jumps(tracks, where)
     else:
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
         # what follows the goal is cut away: a jump there is no jump in a demonstration
         warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
         warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
-    cleaned = clean_tracks(tracks, goal, goal_tolerance, room, where,
-                           [f"{where}: trajectory {i}" for i in range(len(tracks))],
-                           denoise=denoise, resample=recording.is_stream, spacing=spacing)
-    warn_revisits(cleaned, where)
-    matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
+    try:
+        cleaned = clean_tracks(tracks, goal, goal_tolerance, room, where,
+                               [f"{where}: trajectory {i}" for i in range(len(tracks))],
+                               denoise=denoise, resample=recording.is_stream, spacing=spacing)
+        warn_revisits(cleaned, where)
+        matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
+    except PipelineError as e:
+        if recording.is_stream or select_walks:
+            raise
+        raise PipelineError(str(e) + without_walks_hint(tracks, starts, goal, start_radius,
+                                                        goal_tolerance)) from None
     without = sorted(set(range(len(np.asarray(starts).reshape(-1, 2)))) - set(matched))
     if without:
         log.warning("%s: no demonstration begins at start(s) %s (%d demonstrations read)",

@@ -44,7 +44,8 @@ def run(ctx: RunContext) -> None:
     if isinstance(expert, FileExpertConfig):  # read first: a bad file fails before the roadmap
         recorded = load_demo_file(resolve_path(expert.path), scene, features, md.speed,
                                   topic=expert.topic, frame=expert.frame,
-                                  start_radius=expert.start_radius, denoise=expert.denoise)
+                                  start_radius=expert.start_radius, denoise=expert.denoise,
+                                  select_walks=expert.select_walks)
 
     t0 = time.perf_counter()
     roadmap = build.reference_roadmap(cfg, scene, features)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline.app.context import PACKAGE_ROOT
+from pipeline.errors import PipelineError
 from pipeline.inputs.recorded import (
     DISCREPANCY,
     JITTER_INFLATION,
@@ -250,7 +251,6 @@ def test_a_recording_in_another_frame_is_said_to_be_one(tmp_path):
     """Every pose 100 m off (another frame or origin): named as such, not as a pose that
     leaves the room, nor only as no trajectory found."""
     from pipeline.core.world import Room
-    from pipeline.errors import PipelineError
     room = Room(0, 0, 10, 10)
     shifted = walk(0.1) + 100.0
     path = tmp_path / "far.json"
@@ -313,3 +313,55 @@ def test_a_walk_beginning_far_from_its_start_or_between_two_is_named(caplog):
         assert match_to_starts(ways, starts, goal, 1.0, 0.3, "demo X") == [0, 0, 2, 2]
     assert "trajectories 0 (1.00 m from start 0, 1.00 m from start 1); 1 (0.95 m from " \
            "start 0, 1.05 m from start 1); 2 (0.80 m from start 2) begin far" in caplog.text
+
+
+def _tracker_csv(tmp_path, tracks: dict[str, np.ndarray], subjects: dict[str, str]):
+    path = tmp_path / "tracker.csv"
+    path.write_text("trajectory,subject,x,y\n" + "".join(
+        f"{k},{subjects[k]},{x!r},{y!r}\n" for k, pts in tracks.items() for x, y in pts.tolist()))
+    return path
+
+
+def test_select_walks_keeps_each_tracks_walks_from_a_start_to_the_goal(tmp_path, caplog):
+    """A tracker's file: a walk, a track that comes into view mid-room, one that goes to
+    another exit, one that walks to the goal twice and one that begins at the goal. Read as
+    trajectories it is refused, and the refusal counts the tracks that hold no walk and names
+    the option; with expert.select_walks the three walks are read, each with its track's
+    subject, and the two tracks' walks are the same as read on their own."""
+    first = walk(0.1)
+    late = first[30:]  # came into view mid-room
+    elsewhere = np.linspace(START, START + [0.0, 4.0], 40)  # to another exit
+    back = np.linspace(GOAL, START, 60)
+    twice = np.vstack([first, back[1:], first[1:] + [0.0, 0.05]])
+    from_goal = np.linspace(GOAL, GOAL + [0.0, -4.0], 40)
+    tracks = {"a": first, "b": late, "c": elsewhere, "d": twice, "e": from_goal}
+    subjects = {"a": "ana", "b": "ana", "c": "ben", "d": "ben", "e": "chen"}
+    path = _tracker_csv(tmp_path, tracks, subjects)
+    with pytest.raises(PipelineError, match=r"3 of 5 trajectories hold no walk from a start to "
+                                            r"the goal .*expert\.select_walks=true"):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    with caplog.at_level(logging.WARNING):
+        demos = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    assert [d.subject for d in demos] == ["ana", "ben", "ben"]
+    assert re.search(r"select_walks: 3 walks from a start to the goal read from 2 of 5 "
+                     r"trajectories .*3 hold none and are dropped: 1, 2, 4; several in "
+                     r"3 \(2 walks\)", caplog.text)
+    alone = load_recorded(_tracker_csv(tmp_path, {"a": first}, {"a": "ana"}), START[None],
+                          GOAL, goal_tolerance=0.2)
+    np.testing.assert_array_equal(demos[0].points, alone[0].points)
+    for d in demos:  # every walk begins at the start and ends in the goal disk
+        assert np.linalg.norm(d.points[0] - START) < 0.1
+        assert np.linalg.norm(d.points[-1] - GOAL) <= 0.2 + 1e-9
+
+
+def test_select_walks_refuses_tracks_without_any_walk_and_a_lone_bad_track_gets_no_hint(
+        tmp_path):
+    elsewhere = np.linspace(START, START + [0.0, 4.0], 40)
+    path = _tracker_csv(tmp_path, {"c": elsewhere, "e": elsewhere[::-1]}, {"c": "a", "e": "b"})
+    with pytest.raises(PipelineError, match=r"none of the 2 trajectories goes from a start"):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    # one bad trajectory among walks is a mistake to correct, not a tracker's file
+    path = _tracker_csv(tmp_path, {"a": walk(0.1), "c": elsewhere}, {"a": "a", "c": "b"})
+    with pytest.raises(PipelineError, match=r"trajectory 1 ends .* from the goal") as e:
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    assert "expert.select_walks" not in str(e.value)

@@ -446,3 +446,17 @@ def test_roadmap_paths_ruder_than_every_demonstrator_are_not_offered_for_deploym
     assert "/birlg/learned_paths_ref) are the better ones, but see the next line" in lines[first]
     assert "deploy the roadmap's paths" not in out
     check_summary(m, out)
+
+
+def test_expert_select_walks_reaches_the_reader_through_the_config(tmp_path):
+    """The demos stage gives expert.select_walks to the reader: of a walk, a track that came
+    into view mid-room and one bound elsewhere, the walk alone is learned from; without it
+    the file is refused, naming the option."""
+    late, elsewhere = [[3.0, 3.0], [5.0, 2.5], [7.0, 2.0]], [[1.0, 2.0], [1.0, 3.5], [3.0, 3.7]]
+    with pytest.raises(PipelineError, match=r"expert\.select_walks=true"):
+        _hall_demos(tmp_path / "strict", [DETOUR, late, elsewhere], ["a", "b", "c"])
+    _hall_demos(tmp_path / "select", [DETOUR, late, elsewhere], ["a", "b", "c"],
+                "expert.select_walks=true")
+    demos = read_artefact(tmp_path / "select" / "run" / "demos.mcap").all(topics.DEMOS)
+    assert [d["subject"] for d in demos] == ["a"]
+    np.testing.assert_allclose(demos[0]["points"][:-1], DETOUR[:-1])
