@@ -793,7 +793,7 @@ def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: 
 
 def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | None] | None,
                        starts: np.ndarray, goal: np.ndarray, start_radius: float,
-                       goal_tolerance: float, where: str
+                       goal_tolerance: float, where: str, room: Room | None = None
                        ) -> tuple[list[np.ndarray], list[str | None]]:
     """The walks from a start to the goal in each track, cut as a pose stream is
     (`stream_spans`), each of its track's subject: a tracker follows everyone in view, and
@@ -813,10 +813,7 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
         elif len(spans) > 1:
             several.append(f"{k} ({len(spans)} walks)")
     if not walks:
-        raise PipelineError(
-            f"{where}: none of the {len(tracks)} trajectories goes from a start (within "
-            f"{start_radius:g} m, expert.start_radius) to the goal (within {goal_tolerance:g} "
-            "m): check the scene's starts and goal, and the recording's frame")
+        raise no_walk_found(where, tracks, room, start_radius, goal_tolerance)
     if without or several:
         log.warning("%s: expert.select_walks: %d walks from a start to the goal read from %d "
                     "of %d trajectories (numbered from 0 in file order)%s%s", where,
@@ -825,6 +822,23 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
                     if without else "",
                     f"; several in {listed(several, 5)}" if several else "")
     return walks, walk_subjects
+
+
+def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
+                  start_radius: float, goal_tolerance: float) -> PipelineError:
+    """The error for a recording whose tracks hold no walk from a start to the goal, with
+    the extent of their poses (and a hint at another frame when none is in `room`)."""
+    poses = np.vstack(tracks)
+    with np.errstate(invalid="ignore"):
+        lo, hi = np.nanmin(poses, axis=0), np.nanmax(poses, axis=0)
+    span = f"x {metres(lo[0])}..{metres(hi[0])}, y {metres(lo[1])}..{metres(hi[1])}"
+    outside = "" if room is None or room.contains(poses).any() else \
+        f", all outside the room {room.describe()}: another frame or origin?"
+    of = "" if len(tracks) == 1 else f" of {len(tracks)} trajectories"
+    return PipelineError(
+        f"{where}: found no trajectory from a start (within {start_radius:g} m, "
+        f"expert.start_radius) to the goal (within {goal_tolerance:g} m) in the "
+        f"{len(poses)} poses{of} read ({span}{outside})")
 
 
 def without_walks_hint(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
@@ -1316,22 +1330,14 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         stream = recording.tracks[0]
         spans = stream_spans(stream, starts, goal, start_radius, goal_tolerance)
         if not spans:
-            with np.errstate(invalid="ignore"):
-                lo, hi = np.nanmin(stream, axis=0), np.nanmax(stream, axis=0)
-            span = f"x {metres(lo[0])}..{metres(hi[0])}, y {metres(lo[1])}..{metres(hi[1])}"
-            outside = "" if room is None or room.contains(stream).any() else \
-                f", all outside the room {room.describe()}: another frame or origin?"
-            raise PipelineError(
-                f"{where}: found no trajectory from a start (within {start_radius:g} m, "
-                f"expert.start_radius) to the goal (within {goal_tolerance:g} m) in the "
-                f"{len(stream)} poses read ({span}{outside})")
+            raise no_walk_found(where, [stream], room, start_radius, goal_tolerance)
         tracks = [stream[b:g + 1] for b, g in spans]
         subjects = [_span_subject(recording.subjects, b, g, where, i)
                     for i, (b, g) in enumerate(spans)]
         warn_jumps(tracks, where, [b for b, _ in spans])
     elif select_walks:
         tracks, subjects = select_track_walks(recording.tracks, recording.subjects, starts, goal,
-                                              start_radius, goal_tolerance, where)
+                                              start_radius, goal_tolerance, where, room)
         warn_jumps(tracks, where)
     else:
         tracks = recording.tracks

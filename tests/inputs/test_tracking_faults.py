@@ -358,8 +358,15 @@ def test_select_walks_refuses_tracks_without_any_walk_and_a_lone_bad_track_gets_
         tmp_path):
     elsewhere = np.linspace(START, START + [0.0, 4.0], 40)
     path = _tracker_csv(tmp_path, {"c": elsewhere, "e": elsewhere[::-1]}, {"c": "a", "e": "b"})
-    with pytest.raises(PipelineError, match=r"none of the 2 trajectories goes from a start"):
+    with pytest.raises(PipelineError, match=r"found no trajectory from a start .* in the 80 "
+                                            r"poses of 2 trajectories read \(x 0\.5\.\.0\.5, "
+                                            r"y 0\.5\.\.4\.5\)"):
         load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    from pipeline.core.world import Room
+    with pytest.raises(PipelineError, match=r"y 0\.5\.\.4\.5, all outside the room .*another "
+                                            r"frame or origin\?\)"):  # millimetres, say
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True,
+                      room=Room(10, 10, 20, 20))
     # one bad trajectory among walks is a mistake to correct, not a tracker's file
     path = _tracker_csv(tmp_path, {"a": walk(0.1), "c": elsewhere}, {"a": "a", "c": "b"})
     with pytest.raises(PipelineError, match=r"trajectory 1 ends .* from the goal") as e:
