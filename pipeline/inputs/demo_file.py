@@ -62,17 +62,17 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room,
                            denoise=denoise, select_walks=select_walks)
     pushed: list[str] = []
-    for k, (start, points, subject) in enumerate(tracks):
+    for start, points, subject, label in tracks:
         if scene.obstacles is not None:  # tracking noise along a wall, as at the room's edge
             clear = clear_of_walls(points, scene)
             if clear is not points:
-                pushed.append(str(k))
+                pushed.append(label)
                 points = clear
         demo = checked_demonstration(start, points, subject, scene, feature_model, speed,
-                                     f"{describe(path)}: trajectory {k}")
+                                     f"{describe(path)}: trajectory {label}")
         if not demo.reached:
             end_gap = float(np.linalg.norm(points[-1] - scene.goal))
-            unreached.append(f"{k} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
+            unreached.append(f"{label} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
         demos.append(demo)
     if pushed:
         log.warning("%s: trajectories %s come closer to an obstacle than robot_radius=%g m by "

@@ -103,6 +103,10 @@ VISIT_SLACK = 0.25  # m
 # inflates by more than JITTER_INFLATION (3 %) are smoothed; the shipped hand-drawn paths
 # (1 cm tremor at 10 cm) are inflated by 1 % and kept as they are.
 JITTER_INFLATION = 1.03
+# The lengthening is not said of a track shorter than this once smoothed: a person standing
+# in a tracker's view, whose 5 cm of jitter made a stay of a centimetre "11191.92 times as
+# long as the path it follows"
+INFLATION_MIN_LENGTH = 1.0
 # `smooth_to_noise` departs from the points by this many times the estimated noise (Morozov's
 # discrepancy principle takes a factor above 1: an estimate a little low, as one trajectory's
 # few hundred points give, must not leave some of the noise in)
@@ -212,17 +216,20 @@ class Recorded(NamedTuple):
     start: int
     points: np.ndarray  # (K, 2), ends at the goal when it reached the goal disk
     subject: str | None
+    label: str  # its name in messages: its number in the file (`label`)
 
 
 # ---------------------------------------------------------------------------------------------
 # Reading
 
 
-def read_recording(path: Path, *, topic: str | None = None,
-                   frame: str | None = None) -> Recording:
+def read_recording(path: Path, *, topic: str | None = None, frame: str | None = None,
+                   single_rows: bool = False) -> Recording:
     """Read the tracks (and subjects) of a recorded demonstration.
 
-    `topic` and `frame` apply to ROS bags only (see the module docstring).
+    `topic` and `frame` apply to ROS bags only (see the module docstring). With
+    `single_rows`, a CSV trajectory of one row is a track of one pose (a tracker's glimpse of
+    someone, which `expert.select_walks` drops), not refused.
     """
     path = Path(path)
     where = describe(path)
@@ -237,7 +244,8 @@ def read_recording(path: Path, *, topic: str | None = None,
                         " and ".join(given), *(("applies", "is") if len(given) == 1
                                                else ("apply", "are")))
         _check_text(path, where)
-        return _read_json(path, where) if suffix == ".json" else _read_csv(path, where)
+        return _read_json(path, where) if suffix == ".json" else \
+            _read_csv(path, where, single_rows)
     raise PipelineError(f"{where}: unknown format {path.suffix or '(no extension)'!r}; expected "
                         f".json, .csv, a ROS 2 bag directory, .mcap, .db3 or a ROS 1 .bag")
 
@@ -375,7 +383,7 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _read_csv(path: Path, where: str) -> Recording:
+def _read_csv(path: Path, where: str, single_rows: bool = False) -> Recording:
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
         with path.open(newline="", encoding="utf-8-sig") as f:
@@ -384,7 +392,7 @@ def _read_csv(path: Path, where: str) -> Recording:
         raise PipelineError(f"{where} is not UTF-8 text") from None
     except csv.Error as e:
         raise PipelineError(f"{where}: not valid CSV ({e})") from None
-    return _csv_recording(col, table, lines, ids, subjects, where)
+    return _csv_recording(col, table, lines, ids, subjects, where, single_rows)
 
 
 def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarray, list[str],
@@ -464,9 +472,9 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
 
 
 def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, ids: list[str],
-                   subjects: list[str], where: str) -> Recording:
+                   subjects: list[str], where: str, single_rows: bool = False) -> Recording:
     """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given
-    (`clock_order`)."""
+    (`clock_order`); a trajectory of one row refused unless `single_rows`."""
     def ordered(sel: np.ndarray, what: str) -> np.ndarray:
         if "t" not in col:
             return sel
@@ -489,7 +497,7 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
     tracks = []
     track_subjects: list[str | None] = []
     for i, (ident, members) in enumerate(groups.items()):
-        if len(members) < 2:
+        if len(members) < 2 and not single_rows:
             raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has 1 row; a trajectory "
                                 f"needs at least two")
         tracks.append(table[ordered(np.array(members), f"trajectory {i} (id {ident!r})"), :2])
@@ -722,8 +730,15 @@ def largest_jump(track: np.ndarray) -> tuple[int, float, float] | None:
     return (i, float(steps[i]), usual) if steps[i] > max(JUMP_MIN, JUMP_STEPS * usual) else None
 
 
+def label(labels: Sequence[str] | None, k: int) -> str:
+    """Trajectory k's name in messages: its number in the file, or `labels[k]` (a walk
+    `expert.select_walks` cut from a trajectory is named by that trajectory's number)."""
+    return labels[k] if labels is not None else str(k)
+
+
 def warn_jumps(tracks: Sequence[np.ndarray], where: str,
-               offsets: Sequence[int] | None = None) -> None:
+               offsets: Sequence[int] | None = None,
+               labels: Sequence[str] | None = None) -> None:
     """One warning naming the trajectories with a jump (`largest_jump`), at their pose numbers
     in the file (`offsets`: where each begins in a pose stream). They are kept, the jump a
     straight segment: a polyline may be drawn with long straight segments, and a short loss
@@ -734,7 +749,8 @@ def warn_jumps(tracks: Sequence[np.ndarray], where: str,
         if jump is not None:
             i, size, usual = jump
             i += offsets[k] if offsets is not None else 0
-            found.append(f"{k} ({size:.2f} m from pose {i} to {i + 1}, usually {usual:.2f} m)")
+            found.append(f"{label(labels, k)} ({size:.2f} m from pose {i} to {i + 1}, "
+                         f"usually {usual:.2f} m)")
     if found:
         log.warning("%s: %d of %d trajectories jump, each kept with a straight segment there "
                     "(was tracking lost?): %s", where, len(found), len(tracks),
@@ -794,20 +810,28 @@ def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: 
 def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | None] | None,
                        starts: np.ndarray, goal: np.ndarray, start_radius: float,
                        goal_tolerance: float, where: str, room: Room | None = None
-                       ) -> tuple[list[np.ndarray], list[str | None]]:
+                       ) -> tuple[list[np.ndarray], list[str | None], list[str], list[int]]:
     """The walks from a start to the goal in each track, cut as a pose stream is
-    (`stream_spans`), each of its track's subject: a tracker follows everyone in view, and
-    only some go from a start to the goal (others go elsewhere, come into view mid-room or
-    are lost and found again under a new id). One warning counts the tracks that hold no
-    such walk and names the ones that hold several; none in any track is refused."""
+    (`stream_spans`): their polylines, subjects (their track's), labels (their track's
+    number in file order, and "/2" for its second walk, ...) and first poses' numbers in
+    their track. A tracker follows everyone in view, and only some go from a start to the
+    goal (others go elsewhere, come into view mid-room or are lost and found again under a
+    new id). One warning counts the tracks that hold no such walk and names the ones that
+    hold several; none in any track is refused."""
     walks: list[np.ndarray] = []
     walk_subjects: list[str | None] = []
+    labels: list[str] = []
+    offsets: list[int] = []
     without, several = [], []
     for k, track in enumerate(tracks):
         with np.errstate(over="ignore", invalid="ignore"):
             spans = stream_spans(track, starts, goal, start_radius, goal_tolerance)
+        if len(spans) > 1 and not several:
+            example = f"{k}/1, {k}/2"
         walks += [track[b:g + 1] for b, g in spans]
         walk_subjects += [subjects[k] if subjects else None] * len(spans)
+        labels += [str(k)] if len(spans) == 1 else [f"{k}/{j + 1}" for j in range(len(spans))]
+        offsets += [b for b, _ in spans]
         if not spans:
             without.append(str(k))
         elif len(spans) > 1:
@@ -816,12 +840,14 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
         raise no_walk_found(where, tracks, room, start_radius, goal_tolerance)
     if without or several:
         log.warning("%s: expert.select_walks: %d walks from a start to the goal read from %d "
-                    "of %d trajectories (numbered from 0 in file order)%s%s", where,
+                    "of %d trajectories (numbered from 0 in file order; a walk is named by "
+                    "its trajectory's number)%s%s", where,
                     len(walks), len(tracks) - len(without), len(tracks),
                     f"; {len(without)} hold none and are dropped: {listed(without, 8)}"
                     if without else "",
-                    f"; several in {listed(several, 5)}" if several else "")
-    return walks, walk_subjects
+                    f"; several in {listed(several, 5)}, whose walks are named "
+                    f"{example}, ..." if several else "")
+    return walks, walk_subjects, labels, offsets
 
 
 def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
@@ -833,7 +859,8 @@ def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
         lo, hi = np.nanmin(poses, axis=0), np.nanmax(poses, axis=0)
     span = f"x {metres(lo[0])}..{metres(hi[0])}, y {metres(lo[1])}..{metres(hi[1])}"
     outside = "" if room is None or room.contains(poses).any() else \
-        f", all outside the room {room.describe()}: another frame or origin?"
+        f", all outside the room {room.describe()}: recorded in another frame, with another " \
+        "origin or in other units than the scene's (metres)?"
     of = "" if len(tracks) == 1 else f" of {len(tracks)} trajectories"
     return PipelineError(
         f"{where}: found no trajectory from a start (within {start_radius:g} m, "
@@ -848,21 +875,22 @@ def without_walks_hint(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: n
     with np.errstate(over="ignore", invalid="ignore"):
         without = sum(not stream_spans(t, starts, goal, start_radius, goal_tolerance)
                       for t in tracks)
-    if without < 2:
+    if without < 2 or without == len(tracks):  # none holds a walk: selecting cannot help
         return ""
     return (f"; {without} of {len(tracks)} trajectories hold no walk from a start to the goal "
             "(a tracker's tracks of everyone in view?): expert.select_walks=true learns from "
             "the walks alone")
 
 
-def warn_revisits(tracks: Sequence[np.ndarray], where: str) -> None:
+def warn_revisits(tracks: Sequence[np.ndarray], where: str,
+                  labels: Sequence[str] | None = None) -> None:
     """One warning naming the trajectories that come back to their own route (`revisit`):
     learned as they are, a loop reads as a longer, more winding walk."""
     found = []
     for k, track in enumerate(tracks):
         hit = revisit(track)
         if hit is not None:
-            found.append(f"{k} (back at {point(*hit[0])} after {hit[1]:.1f} m)")
+            found.append(f"{label(labels, k)} (back at {point(*hit[0])} after {hit[1]:.1f} m)")
     if found:
         log.warning("%s: %d of %d trajectories come back to their own route (a loop, a walk out "
                     "and back): %s; they are learned as they are, so cut out what is not part "
@@ -938,13 +966,15 @@ def smooth_jitter(tracks: Sequence[np.ndarray],
         noise.append(sigma)
         if changed:
             sigmas.append(sigma)
-            inflation.append(ratio)
+            if _polyline_length(smooth) >= INFLATION_MIN_LENGTH:
+                inflation.append(ratio)
     if sigmas:
         log.warning("%s: %d of %d trajectories zig-zag by about %.1f cm from point to point "
-                    "(tracking noise, the median) and are up to %.2f times as long as the "
-                    "paths they follow: smoothed to that noise and resampled (expert.denoise="
-                    "false keeps them as recorded)", where, len(sigmas), len(tracks),
-                    100 * float(np.median(sigmas)), max(inflation))
+                    "(tracking noise, the median)%s: smoothed to that noise and resampled "
+                    "(expert.denoise=false keeps them as recorded)", where, len(sigmas),
+                    len(tracks), 100 * float(np.median(sigmas)),
+                    f" and are up to {max(inflation):.2f} times as long as the paths they "
+                    "follow" if inflation else "")
     return out, smoothed, noise
 
 
@@ -1086,7 +1116,8 @@ def cut_stream(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_ra
 
 
 def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
-                    start_radius: float, goal_tolerance: float, source: str) -> list[int]:
+                    start_radius: float, goal_tolerance: float, source: str,
+                    labels: Sequence[str] | None = None) -> list[int]:
     """Index of the start nearest to each track's first point.
 
     Each track must begin within `start_radius` of its nearest start and end within
@@ -1104,21 +1135,23 @@ def match_to_starts(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.n
         k = int(np.argmin(gaps))
         if gaps[k] > start_radius:
             raise PipelineError(
-                f"{source}: trajectory {i} starts {gaps[k]:.2f} m from the nearest start "
+                f"{source}: trajectory {label(labels, i)} starts {gaps[k]:.2f} m from the "
+                f"nearest start "
                 f"{point(*starts[k])}; at most {start_radius:g} m "
                 f"(expert.start_radius)")
         end_gap = float(np.linalg.norm(t[-1] - goal))
         if end_gap > goal_limit:
-            raise PipelineError(f"{source}: trajectory {i} ends {end_gap:.2f} m from the goal "
+            raise PipelineError(f"{source}: trajectory {label(labels, i)} ends {end_gap:.2f} m "
+                                f"from the goal "
                                 f"{point(*goal)}; at most {goal_limit:g} m (extend "
                                 "it to the goal, or check that it belongs to this scene)")
         matched.append(k)
         second = int(np.argsort(gaps, kind="stable")[1]) if len(gaps) > 1 else k
         if second != k and gaps[second] - gaps[k] < START_TIE:
-            doubtful.append(f"{i} ({gaps[k]:.2f} m from start {k}, {gaps[second]:.2f} m from "
-                            f"start {second})")
+            doubtful.append(f"{label(labels, i)} ({gaps[k]:.2f} m from start {k}, "
+                            f"{gaps[second]:.2f} m from start {second})")
         elif gaps[k] > start_radius / 2:
-            doubtful.append(f"{i} ({gaps[k]:.2f} m from start {k})")
+            doubtful.append(f"{label(labels, i)} ({gaps[k]:.2f} m from start {k})")
     if doubtful:
         log.warning("%s: trajectories %s begin far from the start they are assigned to, or as "
                     "near another: check that they begin where the scene's starts are "
@@ -1214,7 +1247,8 @@ def refuse_other_frames(tracks: Sequence[np.ndarray], room: Room, names: Sequenc
                 raise other_frame(name, room, t)
 
 
-def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list[np.ndarray]:
+def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str,
+                   labels: Sequence[str] | None = None) -> list[np.ndarray]:
     """The tracks, those that stray at most ROOM_EDGE_TOLERANCE outside `room` moved onto its
     edge there (one warning for all of them); farther out, left for cut_trajectory to
     refuse."""
@@ -1224,7 +1258,7 @@ def onto_room_edge(tracks: Sequence[np.ndarray], room: Room, where: str) -> list
             stray = float(room.outside_distance(t).max(initial=0.0))
         if 0.0 < stray <= ROOM_EDGE_TOLERANCE:
             t = room.clip(t)
-            moved.append(i)
+            moved.append(label(labels, i))
             farthest = max(farthest, stray)
         out.append(t)
     if moved:
@@ -1246,7 +1280,8 @@ def goal_margin(sigma: float) -> float:
 
 
 def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
-                    goal: np.ndarray, goal_tolerance: float, where: str) -> None:
+                    goal: np.ndarray, goal_tolerance: float, where: str,
+                    labels: Sequence[str] | None = None) -> None:
     """One warning naming the trajectories that end outside the goal disk within their
     tracking noise and so reach the goal (`cut_trajectory`'s goal_margin, `goal_margin`)."""
     found = []
@@ -1257,7 +1292,7 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
             plain = cut_at_goal(drop_repeats(track), goal, goal_tolerance)
         if plain is not None and not in_goal_disk(plain[-1], goal, goal_tolerance):
             gap = float(np.linalg.norm(plain[-1] - goal)) - goal_tolerance
-            found.append(f"{k} ({1000 * gap:.1f} mm)")
+            found.append(f"{label(labels, k)} ({1000 * gap:.1f} mm)")
     if found:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m) by "
                     "less than their tracking noise (%g cm, or %g times the noise, at most "
@@ -1269,25 +1304,26 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
 
 def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance: float,
                  room: Room | None, where: str, names: Sequence[str], *, denoise: bool = True,
-                 resample: bool = False, spacing: float = RESAMPLE_SPACING) -> list[np.ndarray]:
+                 resample: bool = False, spacing: float = RESAMPLE_SPACING,
+                 labels: Sequence[str] | None = None) -> list[np.ndarray]:
     """Tracks read from a recording (`names` name each in errors, `where` the recording in
     warnings) as they are learned from: one wholly outside `room` refused at once; with
     `denoise` smoothed of tracking noise (`smooth_jitter`); those straying a few centimetres
     out of `room` moved onto its edge; each cut at the goal disk (`cut_trajectory`), one
     that ends outside it within its noise (`goal_margin`) taken to reach it; resampled
     every `spacing` m when smoothed, or all of them with `resample` (a pose stream);
-    positions rounded to COORDINATE_DECIMALS."""
+    positions rounded to COORDINATE_DECIMALS. `labels` name the tracks in warnings (`label`)."""
     smoothed, noise = [False] * len(tracks), [0.0] * len(tracks)
     if room is not None:
         refuse_other_frames(tracks, room, names)
     if denoise:
         tracks, smoothed, noise = smooth_jitter(tracks, where)
     if room is not None:
-        tracks = onto_room_edge(tracks, room, where)
+        tracks = onto_room_edge(tracks, room, where, labels)
     cleaned = [cut_trajectory(t, goal, goal_tolerance, room, name,
                               spacing if resample or smoothed[i] else None, goal_margin(noise[i]))
                for i, (name, t) in enumerate(zip(names, tracks, strict=True))]
-    warn_noisy_ends(tracks, cleaned, goal, goal_tolerance, where)
+    warn_noisy_ends(tracks, cleaned, goal, goal_tolerance, where, labels)
     return [np.round(c, COORDINATE_DECIMALS) for c in cleaned]
 
 
@@ -1317,7 +1353,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     """
     path = Path(path)
     where = describe(path)
-    recording = read_recording(path, topic=topic, frame=frame)
+    recording = read_recording(path, topic=topic, frame=frame, single_rows=select_walks)
     goal = np.asarray(goal, dtype=float)
     if recording.is_stream:
         reach = np.linalg.norm(np.asarray(starts, float).reshape(-1, 2) - goal, axis=1)
@@ -1336,21 +1372,25 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
                     for i, (b, g) in enumerate(spans)]
         warn_jumps(tracks, where, [b for b, _ in spans])
     elif select_walks:
-        tracks, subjects = select_track_walks(recording.tracks, recording.subjects, starts, goal,
-                                              start_radius, goal_tolerance, where, room)
-        warn_jumps(tracks, where)
+        tracks, subjects, labels, offsets = select_track_walks(
+            recording.tracks, recording.subjects, starts, goal, start_radius, goal_tolerance,
+            where, room)
+        warn_jumps(tracks, where, offsets, labels)
     else:
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
         # what follows the goal is cut away: a jump there is no jump in a demonstration
         warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
         warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
+    if not select_walks or recording.is_stream:
+        labels = [str(i) for i in range(len(tracks))]
     try:
         cleaned = clean_tracks(tracks, goal, goal_tolerance, room, where,
-                               [f"{where}: trajectory {i}" for i in range(len(tracks))],
-                               denoise=denoise, resample=recording.is_stream, spacing=spacing)
-        warn_revisits(cleaned, where)
-        matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where)
+                               [f"{where}: trajectory {n}" for n in labels], denoise=denoise,
+                               resample=recording.is_stream, spacing=spacing, labels=labels)
+        warn_revisits(cleaned, where, labels)
+        matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where,
+                                  labels)
     except PipelineError as e:
         if recording.is_stream or select_walks:
             raise
@@ -1360,4 +1400,5 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     if without:
         log.warning("%s: no demonstration begins at start(s) %s (%d demonstrations read)",
                     where, without, len(cleaned))
-    return [Recorded(k, p, s) for k, p, s in zip(matched, cleaned, subjects, strict=True)]
+    return [Recorded(k, p, s, n)
+            for k, p, s, n in zip(matched, cleaned, subjects, labels, strict=True)]

@@ -190,7 +190,7 @@ def test_points_a_little_outside_the_room_are_moved_onto_its_edge(tmp_path, capl
     path = tmp_path / "wall.json"
     path.write_text(json.dumps({"trajectories": [polyline]}))
     with caplog.at_level(logging.WARNING):
-        [(start, points, _)] = load_recorded(path, STARTS, GOAL, goal_tolerance=0.3, room=room)
+        [(start, points, *_)] = load_recorded(path, STARTS, GOAL, goal_tolerance=0.3, room=room)
     assert start == 0 and np.array_equal(points, [[0.5, 0.5], [0, 3.0], [0, 6.0], [5.5, 9.0]])
     assert "1 trajectory (0) strays up to 0.040 m outside the room [0, 10] x [0, 10]" \
         in caplog.text
@@ -199,7 +199,7 @@ def test_points_a_little_outside_the_room_are_moved_onto_its_edge(tmp_path, capl
                       np.column_stack([np.full(30, -0.04), np.linspace(3.0, 6.0, 30)]),
                       [[5.5, 9.0]]])
     stream.write_text("x,y\n" + "".join(f"{x},{y}\n" for x, y in walk))
-    [(_, points, _)] = load_recorded(stream, STARTS, GOAL, goal_tolerance=0.3, room=room)
+    [(_, points, *_)] = load_recorded(stream, STARTS, GOAL, goal_tolerance=0.3, room=room)
     assert room.contains(points).all() and points[:, 0].min() == 0.0
     assert ROOM_EDGE_TOLERANCE < 0.15
     polyline[1] = [-0.15, 3.0]

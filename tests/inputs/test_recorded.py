@@ -179,7 +179,7 @@ def test_odometry_stream_is_cut_into_two_trajectories(tmp_path):
     # came closest to its start (not 1 m away, where it leaves the start's vicinity); it ends
     # at its first pose in the goal disk
     pieces = cut_stream(run, STARTS, GOAL, 1.0, TOL)
-    for (_, p, _), piece, k in zip(demos, pieces, (0, 2), strict=True):
+    for (_, p, *_), piece, k in zip(demos, pieces, (0, 2), strict=True):
         assert np.array_equal(p[0], piece[0].round(COORDINATE_DECIMALS))
         assert np.array_equal(p[-1], piece[-1].round(COORDINATE_DECIMALS))
         assert np.linalg.norm(piece[0] - STARTS[k]) <= STOP_TOLERANCE
@@ -337,14 +337,14 @@ def test_pose_streams_from_sqlite3_and_ros1(tmp_path):
     run = np.concatenate([line(STARTS[1], np.array([5.5, 5.0])), line(np.array([5.5, 5.0]), GOAL)])
     bag = write_bag(tmp_path / "pose", {"/pose": ("geometry_msgs/msg/PoseStamped", list(run))},
                     storage="sqlite3")
-    [(k, p, _)] = load(bag, topic="/pose")
+    [(k, p, *_)] = load(bag, topic="/pose")
     # it ends at its first pose in the goal disk: 0.3 m from the goal, up to round-off
     assert k == 1 and np.linalg.norm(p[-1] - GOAL) <= TOL + 1e-12
     assert on_polyline(p, run).max() < 1e-9
     bag1 = write_bag(tmp_path / "amcl.bag",
                      {"/amcl_pose": ("geometry_msgs/msg/PoseWithCovarianceStamped", list(run))},
                      storage="ros1")
-    [(k1, p1, _)] = load(bag1)
+    [(k1, p1, *_)] = load(bag1)
     assert k1 == 1 and np.array_equal(p1, p)
 
 

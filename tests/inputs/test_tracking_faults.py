@@ -262,8 +262,9 @@ def test_a_recording_in_another_frame_is_said_to_be_one(tmp_path):
     stream = tmp_path / "far.csv"
     stream.write_text("x,y\n" + "".join(f"{x!r},{y!r}\n" for x, y in shifted.tolist()))
     with pytest.raises(PipelineError, match=r"found no trajectory .* \(x 100\.5\.\.106, "
-                       r"y 100\.5\.\.105, all outside the room \[0, 10\] x \[0, 10\]: another "
-                       r"frame or origin\?\)"):
+                       r"y 100\.5\.\.105, all outside the room \[0, 10\] x \[0, 10\]: recorded "
+                       r"in another frame, with another origin or in other units than the "
+                       r"scene's \(metres\)\?\)"):
         load_recorded(stream, START[None], GOAL, goal_tolerance=0.2, room=room)
 
 
@@ -364,7 +365,7 @@ def test_select_walks_refuses_tracks_without_any_walk_and_a_lone_bad_track_gets_
         load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
     from pipeline.core.world import Room
     with pytest.raises(PipelineError, match=r"y 0\.5\.\.4\.5, all outside the room .*another "
-                                            r"frame or origin\?\)"):  # millimetres, say
+                                            r"frame.*other units than the scene's \(metres\)\?\)"):
         load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True,
                       room=Room(10, 10, 20, 20))
     # one bad trajectory among walks is a mistake to correct, not a tracker's file
@@ -372,3 +373,62 @@ def test_select_walks_refuses_tracks_without_any_walk_and_a_lone_bad_track_gets_
     with pytest.raises(PipelineError, match=r"trajectory 1 ends .* from the goal") as e:
         load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
     assert "expert.select_walks" not in str(e.value)
+
+
+def test_select_walks_names_each_walk_by_its_trajectory_and_drops_one_row_tracks(tmp_path,
+                                                                               caplog):
+    """Warnings after the selection name a walk by its trajectory's number in the file, not
+    by its place among the walks (trajectory 3 was named 0 when the three before it held no
+    walk); a one-row track (a tracker's glimpse) is dropped, not refused."""
+    glimpse = START[None] + [[3.0, 3.0]]
+    elsewhere = np.linspace(START, START + [0.0, 4.0], 40)
+    wide = walk(0.1) + [0.0, 0.6]  # passes its start 0.6 m off: a doubtful start
+    tracks = {"a": glimpse, "b": elsewhere, "c": elsewhere[::-1], "d": wide}
+    path = _tracker_csv(tmp_path, tracks, dict.fromkeys(tracks, "x"))
+    with pytest.raises(PipelineError, match=r"trajectory 0 \(id 'a'\) has 1 row"):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    assert "3 hold none and are dropped: 0, 1, 2" in caplog.text
+    assert re.search(r"trajectories 3 \(0\.6\d m from start 0\) begin far", caplog.text)
+    assert demo.label == "3"
+
+
+def test_a_walks_several_walks_are_named_by_its_number_and_their_order(tmp_path, caplog):
+    first = walk(0.1)
+    twice = np.vstack([first, np.linspace(GOAL, START + [0.0, 0.6], 60)[1:], first[1:] + [0, 0.6]])
+    path = _tracker_csv(tmp_path, {"a": np.linspace(START, START + [0.0, 4.0], 40), "b": twice},
+                        {"a": "x", "b": "x"})
+    with caplog.at_level(logging.WARNING):
+        demos = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    assert [d.label for d in demos] == ["1/1", "1/2"]
+    assert "several in 1 (2 walks), whose walks are named 1/1, 1/2, ..." in caplog.text
+    assert re.search(r"trajectories 1/2 \(0\.6\d m from start 0\) begin far", caplog.text)
+
+
+def test_no_select_hint_where_no_trajectory_holds_a_walk(tmp_path):
+    """Positions in millimetres: every trajectory lies outside the room, and selecting walks
+    would find none; the refusal says so and suggests no option that cannot help."""
+    from pipeline.core.world import Room
+    tracks = {k: 1000 * walk(0.1) for k in "abc"}
+    path = _tracker_csv(tmp_path, tracks, dict.fromkeys(tracks, "x"))
+    with pytest.raises(PipelineError, match=r"other units than the scene's") as e:
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2, room=Room(0, 0, 10, 10))
+    assert "select_walks" not in str(e.value)
+
+
+def test_a_standing_persons_jitter_is_smoothed_without_an_absurd_lengthening(caplog):
+    """A person standing in view, 5 cm of noise on a stay of a centimetre: the warning's "up
+    to N times as long" is the walks', not the stay's thousands."""
+    rng = np.random.default_rng(0)
+    stay = START + rng.normal(0.0, 0.05, (200, 2))
+    noisy_walk = walk(0.05) + rng.normal(0.0, 0.03, walk(0.05).shape)
+    with caplog.at_level(logging.WARNING):
+        _, smoothed, _ = smooth_jitter([stay, noisy_walk], "tracker.csv")
+    assert smoothed == [True, True]
+    ratio = float(re.search(r"up to (\d+\.\d+) times as long", caplog.text).group(1))
+    assert 1.03 < ratio < 5
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        smooth_jitter([stay], "tracker.csv")
+    assert "zig-zag" in caplog.text and "times as long" not in caplog.text
