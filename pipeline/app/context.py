@@ -132,7 +132,7 @@ class RunContext:
         linked = self.from_run is not None and stage not in self.cfg.stages
         source = self.from_run / path.name if self.from_run is not None and linked else path
         artefact = self._read_cached(source, required_topics, stage)
-        check_config(stage, artefact, self.config)
+        check_config(stage, artefact, self.config, self.cfg)
         self.inputs[stage] = artefact
         check_inputs(self.inputs)
         if linked:  # checked first: a refused input never lands in this run dir

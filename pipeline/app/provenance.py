@@ -9,6 +9,7 @@ config digest only covers the path), in the artefacts made with those weights.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from collections.abc import Mapping
@@ -76,6 +77,13 @@ def _lookup(config: Mapping, key: str):
     return value
 
 
+def _lookup_typed(settings, key: str):
+    """settings.<key> for a dotted key (None if absent or without `settings`)."""
+    for part in key.split("."):
+        settings = getattr(settings, part, None)
+    return settings
+
+
 def _digest(value) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, separators=(",", ":"))
                           .encode()).hexdigest()[:16]
@@ -118,9 +126,26 @@ def _first_difference(key: str, made_with, now) -> tuple[str, object, object]:
 UNSET = "<unset>"  # _first_difference: a key one of the two configs does not have
 
 
-def check_config(stage: str, artefact: Artefact, config: Mapping) -> None:
+def without_added_defaults(now, made_with, settings) -> object:
+    """`now` (a config section as plain data) without the keys that `made_with` (the same
+    section of an older artefact's config) lacks and that hold their field's default in
+    `settings` (the typed section): a key added to the pipeline since, at the value that
+    keeps the old behaviour, is no difference (a run re-using demonstrations read before
+    expert.select_walks existed was refused for "expert.select_walks=<unset>")."""
+    if not isinstance(now, Mapping) or not isinstance(made_with, Mapping):
+        return now
+    defaults = {f.name: f.default for f in dataclasses.fields(settings)} \
+        if dataclasses.is_dataclass(settings) else {}
+    return {k: without_added_defaults(v, made_with.get(k), getattr(settings, k, None))
+            for k, v in now.items()
+            if k in made_with or k not in defaults or defaults[k] != v}
+
+
+def check_config(stage: str, artefact: Artefact, config: Mapping, settings=None) -> None:
     """Refuse `artefact` (of `stage`) when it was made with other config values than this
-    run has for the keys it depends on. Artefacts without digests (older versions) pass."""
+    run has for the keys it depends on (`config`, plain data; `settings`, the same typed,
+    knows which keys were added since at their default: `without_added_defaults`).
+    Artefacts without digests (older versions) pass."""
     recorded = artefact.metadata
     if not any(k.startswith(CONFIG_KEY) for k in recorded):
         return
@@ -131,7 +156,11 @@ def check_config(stage: str, artefact: Artefact, config: Mapping) -> None:
             made_with = _lookup(yaml.safe_load(artefact.config_yaml) or {}, key)
         except yaml.YAMLError:
             made_with = "<unreadable>"
-        path, old, new = _first_difference(key, made_with, _lookup(config, key))
+        now = without_added_defaults(_lookup(config, key), made_with,
+                                     _lookup_typed(settings, key))
+        if recorded.get(CONFIG_KEY + key) == _digest(now):
+            continue
+        path, old, new = _first_difference(key, made_with, now)
         # a key the run's settings do not have cannot be set to match: re-making is the way
         settable = old != UNSET and new != UNSET and not isinstance(old, Mapping)
         raise PipelineError(

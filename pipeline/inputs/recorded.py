@@ -533,7 +533,8 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                 msg: Any = reader.deserialize(raw, conn.msgtype)
                 at = (count - 1, "use")
                 found = msg.header.frame_id
-                if frame is not None and found != frame:
+                # ROS 1's tf named frames with a leading slash ("/map"); tf2 drops it
+                if frame is not None and found.lstrip("/") != frame.lstrip("/"):
                     raise PipelineError(f"{what} has frame_id {found!r}, not "
                                         f"expert.frame={frame!r}")
                 frames.setdefault(found, count - 1)
@@ -565,6 +566,9 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                             f"damaged or incomplete ({detail[:160]})") from None
     if count == 0:
         raise PipelineError(f"{where}: topic {topic} has no messages")
+    if len(frames) == 1 and frame is None:  # taken to be the scene's frame: say which it is
+        log.info("%s: topic %s, %d %s messages in frame_id %r, read as the scene's frame "
+                 "(expert.frame=... checks it)", where, topic, count, msgtype, *frames)
     if len(frames) > 1:
         log.warning("%s: topic %s mixes frame_ids %s (first in messages %s); positions are "
                     "read as they are, all in the scene's frame (expert.frame=... keeps one)",

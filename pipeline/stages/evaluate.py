@@ -389,6 +389,23 @@ def graph_less_polite(m: dict, roadmap_ruder_than_demos: bool = False) -> list[s
             f"reward ({', '.join(worse)}): {advice}"]
 
 
+def heldout_no_better(m: dict) -> list[str]:
+    """A warning line when the learned paths predict the held-out demonstrations exactly as
+    well as the shortest paths (median Fréchet distance and min-distance error equal, as
+    where the learned reward plans the shortest paths from the held-out starts): a Nav2-like
+    planner that keeps off walls, learned without a wall feature, was told nothing, and
+    its held-out log likelihood above the shortest path's suggested the opposite."""
+    pairs = [(m.get(k), m.get(k + "_shortest"))
+             for k in ("heldout_frechet_m", "heldout_min_distance_error_m")]
+    pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
+    if not pairs or any(abs(a - b) > 1e-9 * (1 + abs(b)) for a, b in pairs):
+        return []
+    return ["  warning          the learned paths are as far from the held-out demonstrations "
+            "as the shortest paths are: on these scenes the learned reward predicts them no "
+            "better than no reward does (the demonstrators may keep to something the "
+            "learner's features cannot say: see the features docs and birl.features)"]
+
+
 def closer_than_demos(m: dict) -> list[str]:
     """A warning line when the learned roadmap paths pass a person closer than every
     demonstration did: a reward learned from people that is ruder than all of them (the
@@ -550,7 +567,7 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
                      f"{fmt('policy_loss_initial')})")
         lines += worse_than_initial(m)
     if "heldout_count" in m:
-        lines.append(f"  held out ({fmt('heldout_count', '.0f')})    Fréchet "
+        lines.append(f"  {'held out (' + fmt('heldout_count', '.0f') + ')':<17}Fréchet "
                      f"{fmt('heldout_frechet_m', '.2f')} m (shortest path "
                      f"{fmt('heldout_frechet_m_shortest', '.2f')} m), min-distance error "
                      f"{fmt('heldout_min_distance_error_m', '.2f')} m (shortest "
@@ -563,6 +580,7 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
             lines.append(f"                   log likelihood per demonstration "
                          f"{fmt('heldout_log_likelihood', '.2f')} (shortest path's reward "
                          f"{fmt('heldout_log_likelihood_shortest', '.2f')})")
+        lines += heldout_no_better(m)
         if m.get("heldout_frechet_m", 0.0) > m.get("heldout_frechet_m_shortest", np.inf):
             lines.append("  warning          the learned paths are farther from the held-out "
                          "demonstrations than the shortest paths are: on these scenes the "

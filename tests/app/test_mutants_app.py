@@ -866,3 +866,31 @@ def test_a_given_graph_size_too_few_to_resolve_personal_space_is_refused_at_star
     assert one_line(err) == (
         "config error: graph.max_nodes=69 is too few for scene 'metropolis': 100 m² of free "
         "space at one node per 1.2 m × 1.2 m (reward.rho_personal) needs graph.max_nodes >= 70")
+
+
+def test_an_artefact_made_before_a_key_was_added_is_read_while_the_key_keeps_its_default(
+        tmp_path):
+    """demos.mcap made by a pipeline without expert.select_walks (its config and digests lack
+    the key): a run at the key's default reads it; a run that sets the key otherwise, or
+    changes a key the artefact has, is refused naming the key."""
+    from pipeline.app.provenance import check_config, provenance_metadata
+    from pipeline.artefacts.store import read_artefact
+
+    def config(*overrides: str) -> tuple[dict, object]:
+        composed = compose_config("expert=file", "expert.path=walks.csv", *overrides)
+        return OmegaConf.to_container(composed, resolve=True), load_settings(composed)
+
+    now, typed = config()
+    older = json.loads(json.dumps(now))
+    del older["expert"]["select_walks"]
+    made = write_artefact(tmp_path / "demos.mcap", [("/x", "X", {"a": 1}, 0)],
+                          config_yaml=OmegaConf.to_yaml(older),
+                          metadata=provenance_metadata("demos", older, {}))
+    artefact = read_artefact(made)
+    check_config("demos", artefact, now, typed)  # the default: the old behaviour
+    with pytest.raises(PipelineError, match=r"expert\.select_walks=<unset> but this run has "
+                                            r"expert\.select_walks=true"):
+        check_config("demos", artefact, *config("expert.select_walks=true"))
+    with pytest.raises(PipelineError, match=r"expert\.start_radius=1\.0? but this run has "
+                                            r"expert\.start_radius=0\.5"):
+        check_config("demos", artefact, *config("expert.start_radius=0.5"))

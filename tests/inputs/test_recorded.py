@@ -2,6 +2,7 @@
 written with rosbags' own writers, cut into trajectories from the scene's starts to its goal:
 pose streams where the motion begins, every format at the goal disk."""
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -386,6 +387,20 @@ def test_wrong_frame_is_refused(tmp_path):
     bag1 = write_bag(tmp_path / "b.bag", {"/odom": ("nav_msgs/msg/Odometry", [[0.5, 0.5]] * 3)},
                      frame="odom", storage="ros1")
     refused(r"frame_id 'odom', not expert\.frame='map'", read_tracks, bag1, frame="map")
+
+
+def test_a_ros1_frame_with_a_leading_slash_is_that_frame(tmp_path, caplog):
+    """ROS 1's tf named frames "/map"; tf2, and expert.frame, drop the slash. Without
+    expert.frame the log says which frame the positions were taken in."""
+    bag = write_bag(tmp_path / "b.bag", {"/plan": ("nav_msgs/msg/Path", [PATH_A])},
+                    frame="/map", storage="ros1")
+    [track], _ = read_tracks(bag, frame="map")
+    np.testing.assert_allclose(track, PATH_A)
+    refused(r"frame_id '/map', not expert\.frame='odom'", read_tracks, bag, frame="odom")
+    with caplog.at_level(logging.INFO, logger="pipeline.inputs.recorded"):
+        read_tracks(bag)
+    assert "topic /plan, 1 nav_msgs/msg/Path messages in frame_id '/map', read as the " \
+        "scene's frame" in caplog.text
 
 
 def test_topic_choice(tmp_path):

@@ -96,6 +96,24 @@ def test_the_summary_warns_when_the_shortest_path_predicts_better(subjects_run, 
         "shortest paths are" in out
 
 
+def test_the_summary_warns_when_the_learned_paths_predict_no_better_than_the_shortest(
+        subjects_run, tmp_path):
+    """Weights that plan the shortest paths (all zero) predict the held-out demonstrations
+    exactly as well as the shortest paths: neither "worse" warning holds, and the summary
+    still says that the reward adds nothing (a Nav2-like planner's walks, learned without a
+    wall feature, were told nothing)."""
+    run_dir, _, _ = subjects_run
+    m, out = run_in_process(tmp_path, "graph=small", "expert=planner", "expert.n_subjects=3",
+                            "evaluate.holdout=[s2]", "birl=fixed",
+                            "birl.weights=[0,0,0,0,0]", "stages=[birl,evaluate]",
+                            f"from_run={run_dir}")
+    assert m["heldout_frechet_m"] == m["heldout_frechet_m_shortest"]  # the case
+    assert m["heldout_min_distance_error_m"] == m["heldout_min_distance_error_m_shortest"]
+    assert "as far from the held-out demonstrations as the shortest paths are" in out
+    assert "worse than no reward does" not in out
+    assert "as far from the held-out" not in subjects_run[2]
+
+
 def test_one_held_out_likelihood_judges_every_method(subjects_run, tmp_path):
     """PolicyWalk's reward is scored by the same model: on the same demonstrations its
     baseline (w = 0) is the BIRL-G run's to the bit, and its own score is another."""

@@ -76,6 +76,10 @@ def check_summary(m: dict, out: str) -> None:
     assert ("demonstration waypoints: these say little" in out) == (share > 0.5)
     assert ("do not reach the goal" in out) == (m.get("demos_unreached", 0) > 0)
     assert ("closer than any demonstration" in out) == closer
+    same = "heldout_count" in m and all(
+        abs(m[k] - m[k + "_shortest"]) <= 1e-9 * (1 + abs(m[k + "_shortest"]))
+        for k in ("heldout_frechet_m", "heldout_min_distance_error_m") if k in m)
+    assert ("as far from the held-out demonstrations as the shortest paths" in out) == same
     if "frechet_to_demos" in m:
         assert f"discrete Fréchet mean {m['frechet_to_demos']:.3f} m" in out
     else:
@@ -194,7 +198,9 @@ def test_demonstration_metrics_count_only_what_learning_saw(subjects_run):
 
 def test_the_held_out_lines_say_the_held_out_metrics(subjects_run):
     _, m, out = subjects_run
-    assert (f"held out ({m['heldout_count']:.0f})    Fréchet {m['heldout_frechet_m']:.2f} m "
+    # in the column of the other lines' values, whatever the count's digits
+    assert ("  " + f"held out ({m['heldout_count']:.0f})".ljust(17)
+            + f"Fréchet {m['heldout_frechet_m']:.2f} m "
             f"(shortest path {m['heldout_frechet_m_shortest']:.2f} m), min-distance error "
             f"{m['heldout_min_distance_error_m']:.2f} m (shortest "
             f"{m['heldout_min_distance_error_m_shortest']:.2f} m)") in out
