@@ -161,6 +161,12 @@ START_TIE = 0.2  # m
 REVISIT_RADIUS = 0.25  # m
 REVISIT_ARC = 2.0  # m
 REVISIT_STEP = 0.1  # m
+# `warn_replans`: a trajectory that begins within REPLAN_RADIUS of the one before it, more
+# than REPLAN_ARC along that one's route, is a plan made on the way (a robot's /plan topic:
+# Nav2 plans again every second as it drives, each from where the robot is); walks of people
+# begin where they stood still, at the start
+REPLAN_RADIUS = 0.1  # m
+REPLAN_ARC = 0.3  # m
 
 
 def is_recording_folder(path: Path) -> bool:
@@ -902,6 +908,30 @@ def warn_revisits(tracks: Sequence[np.ndarray], where: str,
                     listed(found, 3, "; "))
 
 
+def warn_replans(tracks: Sequence[np.ndarray], where: str,
+                 labels: Sequence[str] | None = None) -> None:
+    """One warning naming the trajectories that begin on the route of the one before them,
+    some way along it (REPLAN_RADIUS, REPLAN_ARC): a planner's replans, each of which would
+    be learned from as a walk of its own, so that one route counts several times."""
+    found = []
+    for k in range(1, len(tracks)):
+        route = clean_track(tracks[k - 1], REVISIT_STEP)
+        if len(route) < 2 or not np.isfinite(route).all() or not np.isfinite(tracks[k][0]).all():
+            continue
+        gaps = np.linalg.norm(route - tracks[k][0], axis=1)
+        i = int(np.argmin(gaps))
+        if gaps[i] <= REPLAN_RADIUS and i * REVISIT_STEP > REPLAN_ARC:
+            found.append(f"{label(labels, k)} ({i * REVISIT_STEP:.1f} m along "
+                         f"{label(labels, k - 1)}'s route)")
+    if found:
+        log.warning("%s: %d of %d trajectories begin on the route of the one before them, some "
+                    "way along it: %s; are they a planner's replans (a robot's /plan topic)? "
+                    "Each is learned from as a walk of its own, so one route counts several "
+                    "times: record the robot's pose instead (Odometry, "
+                    "PoseWithCovarianceStamped)", where, len(found), len(tracks),
+                    listed(found, 3, "; "))
+
+
 def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
     """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 4, its ends held: z
     with z's first and last points the polyline's, the others minimising
@@ -1393,6 +1423,8 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
                                [f"{where}: trajectory {n}" for n in labels], denoise=denoise,
                                resample=recording.is_stream, spacing=spacing, labels=labels)
         warn_revisits(cleaned, where, labels)
+        if not recording.is_stream:  # a stream's trajectories follow one another
+            warn_replans(cleaned, where, labels)
         matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where,
                                   labels)
     except PipelineError as e:

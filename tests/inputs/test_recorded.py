@@ -2,7 +2,9 @@
 written with rosbags' own writers, cut into trajectories from the scene's starts to its goal:
 pose streams where the motion begins, every format at the goal disk."""
 
+import json
 import logging
+import re
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +27,7 @@ from pipeline.inputs.recorded import (
     motion_begin,
     read_tracks,
 )
-from tests.conftest import ROS2, make_msg, write_bag
+from tests.conftest import METROPOLIS, ROOT, ROS2, make_msg, write_bag
 from tests.inputs.conftest import refused
 
 STARTS = np.array([[0.5, 0.5], [4.0, 0.1], [2.0, 3.0], [8.5, 5.2]])
@@ -536,3 +538,26 @@ def test_a_stream_vertex_just_outside_the_room_is_judged_after_resampling():
     outside[2] = [9.0, 10.5]  # half a metre out: resampled points lie outside too
     refused(r"trajectory 0 leaves the room", cut_trajectory, outside, np.array([9.0, 5.0]),
             0.3, room, "trajectory 0", resample=0.1)
+
+
+def test_a_planners_replans_are_named(tmp_path, caplog):
+    """A robot's /plan topic: the planner plans again as the robot drives, each plan from
+    where it is. Plans that begin on the route of the one before, some way along it, are
+    named (each would count as a walk of its own); walks from the starts are not, nor the
+    shipped hand-drawn paths."""
+    replan = np.array([[0.5, 1.3], [0.5, 4.0], [3.0, 8.5], [5.5, 9.0]])  # 0.8 m on
+    other = np.array([[2.0, 3.0], [4.0, 6.0], [5.5, 9.0]])
+    bag = write_bag(tmp_path / "plans.bag",
+                    {"/plan": ("nav_msgs/msg/Path", [PATH_A, replan, other, PATH_A])},
+                    storage="ros1")
+    with caplog.at_level(logging.WARNING):
+        load(bag, select_walks=True)
+    assert re.search(r"1 \(0\.[78] m along 0's route\); are they a planner's replans",
+                     caplog.text)
+    assert "2 of 4 trajectories" not in caplog.text and "1 of 4 trajectories" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        scene = json.loads(METROPOLIS.read_text())
+        load_recorded(ROOT / "data" / "demos" / "metropolis_handdrawn.json",
+                      np.array(scene["starts"]), np.array(scene["goal"]), goal_tolerance=0.3)
+    assert "replans" not in caplog.text
