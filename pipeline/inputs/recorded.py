@@ -68,7 +68,8 @@ START_RADIUS = 1.0  # m, by default a demonstration begins this close to a start
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 # other usual names of those columns: refused with the name to use rather than left unread
 # (an unread time column would leave the rows in file order, an unread id one stream)
-CSV_COLUMN_ALIASES = {"time": "t", "timestamp": "t", "stamp": "t", "time_s": "t",
+CSV_COLUMN_ALIASES = {"time": "t", "timestamp": "t", "stamp": "t", "time_s": "t", "frame": "t",
+                      "frame_number": "t",
                       "traj": "trajectory", "track": "trajectory", "track_id": "trajectory",
                       "trajectory_id": "trajectory", "id": "trajectory",
                       "person": "subject", "person_id": "subject", "subject_id": "subject",
@@ -344,7 +345,7 @@ def _csv_header(header: list[str], where: str) -> list[str]:
     header that is no header."""
     names = [h.strip().lower() for h in header]
     shown = ",".join(h.strip() for h in header)
-    ignored = []
+    ignored, renames = [], []
     for i, name in enumerate(names):
         if name in CSV_COLUMNS:
             continue
@@ -355,8 +356,9 @@ def _csv_header(header: list[str], where: str) -> list[str]:
             hint = "; the columns must be separated by commas"
         elif all(_is_number(h) for h in header if h.strip()):
             hint = "; the first line must be a header naming the columns"
-        elif meant is not None:
-            hint = f"; name it {meant!r} if it is meant as that column, or rename it"
+        elif meant is not None:  # said with every other such column, in one line
+            renames.append((header[i].strip(), meant))
+            continue
         elif not name.isprintable():  # e.g. a second byte-order mark: shown, not unread
             hint = "; the name holds characters that do not print"
         elif name:
@@ -366,6 +368,14 @@ def _csv_header(header: list[str], where: str) -> list[str]:
             f"column {i + 1} of the header has no name"
         raise PipelineError(f"{where}: {problem} (header: {shown[:80]}); expected x,y and "
                             f"optionally trajectory,t,subject{hint}")
+    if renames:
+        given, meant = (", ".join(repr(r[k]) for r in renames) for k in (0, 1))
+        one = len(renames) == 1
+        these = ("it", "it is", "that column") if one else ("them", "they are", "those columns")
+        raise PipelineError(f"{where}: unknown column{'' if one else 's'} {given} (header: "
+                            f"{shown[:80]}); expected x,y and optionally trajectory,t,subject; "
+                            f"name {these[0]} {meant} if {these[1]} meant as {these[2]}, or "
+                            f"rename {these[0]}")
     if ignored:
         log.warning("%s: column%s %s not read (the reader reads x, y, trajectory, t and "
                     "subject)", where, "s" if len(ignored) > 1 else "",

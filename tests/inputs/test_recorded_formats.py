@@ -198,6 +198,10 @@ def test_other_csv_columns_are_not_read_with_one_warning(tmp_path, caplog):
     ("x,y,subjet", r"unknown column 'subjet' \(header: x,y,subjet\).*name it 'subject'"),
     ("time,x,y", r"unknown column 'time' .*name it 't' if it is meant as that column"),
     ("track_id,x,y", r"unknown column 'track_id' .*name it 'trajectory'"),
+    # a tracker's export: every column to rename in one line, not one run each
+    ("timestamp,track_id,pos_x,pos_y", r"unknown columns 'timestamp', 'track_id', 'pos_x', "
+     r"'pos_y' .*name them 't', 'trajectory', 'x', 'y' if they are meant as those columns"),
+    ("frame,id,x,y", r"unknown columns 'frame', 'id' .*name them 't', 'trajectory'"),
     ("trajectory,x,y,", r"column 4 of the header has no name"),
     ("x;y", r"unknown column 'x;y' .*the columns must be separated by commas"),
     ("0.5,0.5", r"unknown column '0\.5' .*the first line must be a header"),
