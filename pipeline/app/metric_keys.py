@@ -61,6 +61,12 @@ METRIC_KEYS: dict[str, str] = {
     r"heldout_(count|(frechet_m|min_distance_error_m)(_shortest)?)": "`evaluate.holdout`: "
         "the held-out demonstrations, their median Fréchet distance to the learned paths and "
         "median error of the smallest distance to a person (`_shortest`: of the fastest path)",
+    r"heldout_(frechet_m|min_distance_error_m)(_shortest)?_taut": "`evaluate.holdout`, "
+        "undiscounted MDPs: the same medians for the learned (`_shortest`: fastest) roadmap "
+        "paths pulled taut under their own reward (straight on wherever a straight segment is "
+        "feasible and costs no more): what a planner not held to the lattice would drive; "
+        "where the comparison with the shortest path differs from the lattice paths', the "
+        "summary warns that the lattice's tie-breaking decided it",
     r"heldout_frechet_m(_shortest)?_max": "`evaluate.holdout`: the largest Fréchet distance of "
         "a held-out demonstration to its learned path (`_shortest`: to the fastest path); a "
         "start whose paths go the other way round shows here, not in the median",

@@ -6,6 +6,7 @@ to make expert demonstrations, stage 5 evaluates learned rewards on it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,6 +75,57 @@ def segments_feasible(scene: Scene, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if len(scene.persons) and len(a):
         ok &= segments_clear_of_disks(a, b, scene.person_xy, scene.body_radius - TIE)
     return ok
+
+
+# `pulled_taut`: a straight segment across collinear path vertices costs what they cost, up
+# to round-off (relative to the path's cost so far)
+TAUT_TOLERANCE = 1e-9
+TAUT_CHUNK = 16  # shortcuts costed at a time, from the farthest
+SegmentCost = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def segment_cost(features: FeatureModel, params: MDPParams, w: np.ndarray) -> SegmentCost:
+    """The cost (n,) of straight segments a[i] → b[i] under weights w, as the undiscounted
+    MDP counts a straight edge's: c · length / speed − w · φ."""
+    w = np.asarray(w, dtype=float)
+
+    def cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        out = params.time_cost * np.linalg.norm(b - a, axis=1) / params.speed
+        return out - features.segments(a, b) @ w if w.any() else out
+    return cost
+
+
+def pulled_taut(scene: Scene, points: np.ndarray,
+                cost: SegmentCost) -> np.ndarray:
+    """A roadmap path (K, 2) pulled taut under the reward it was planned with: from each kept
+    vertex, straight on to the farthest later vertex the straight segment to which is
+    feasible (`segments_feasible`) and costs no more (`cost`: the costs (n,) of the
+    straight segments a[i] → b[i], `segment_cost`) than the stretch of path it replaces.
+    Same ends, never costlier; under length alone, never longer. The lattice's paths are
+    staircases of its directions, and among equally good ones the solver's tie-breaking
+    picks one that can stray a metre from the straight line across a 16 m lobby."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(p) < 3:
+        return p
+    walked = np.concatenate([[0.0], np.cumsum(cost(p[:-1], p[1:]))])
+    kept, i = [0], 0
+    while i < len(p) - 1:
+        later = np.arange(i + 2, len(p))
+        feasible = later[segments_feasible(scene, np.repeat(p[i:i + 1], len(later), axis=0),
+                                           p[later])][::-1]
+        step = i + 1
+        # the farthest feasible vertex reached no more costly: costed from the far end in
+        # chunks (a feature integral per segment is most of the time)
+        for chunk in np.array_split(feasible, max(1, len(feasible) // TAUT_CHUNK)):
+            ends = p[chunk]
+            ok = cost(np.repeat(p[i:i + 1], len(chunk), axis=0), ends) <= \
+                walked[chunk] - walked[i] + TAUT_TOLERANCE * (1 + np.abs(walked[chunk]))
+            if ok.any():
+                step = int(chunk[np.argmax(ok)])
+                break
+        i = step
+        kept.append(i)
+    return p[kept]
 
 
 def lattice_graph(scene: Scene, spacing: float = 0.25,

@@ -9,6 +9,7 @@ from pipeline.core.adaptive_graph import voronoi_centroids
 from pipeline.core.features import FeatureModel, FeatureParams
 from pipeline.core.nearby import PAIR_BUDGET, points_in_disks, segments_clear_of_disks
 from pipeline.core.roadmap import RoadmapParams, build_roadmap, lattice_graph, segments_feasible
+from pipeline.core.social import min_distance_to_person
 from tests.conftest import moved_metropolis
 
 
@@ -270,3 +271,53 @@ def test_starts_without_path_follow_the_edges_direction():
                                      np.array([False, False, True, False]),
                                      start_nodes=np.array([0, 3]), goal_node=2)
     assert roadmap.starts_without_path_to_goal() == [1]
+
+
+def _staircase(a, b, step=0.25):
+    """A lattice staircase from a to b: first along x as far as the x gap exceeds the y
+    gap, then diagonally (the shape a lattice's shortest path takes)."""
+    (x0, y0), (x1, y1) = a, b
+    flat = (x1 - x0) - (y1 - y0)
+    n_flat, n_diag = round(flat / step), round((y1 - y0) / step)
+    pts = [[x0 + k * step, y0] for k in range(n_flat + 1)]
+    pts += [[x0 + flat + k * step, y0 + k * step] for k in range(1, n_diag + 1)]
+    return np.array(pts)
+
+
+def test_a_staircase_pulled_taut_by_length_is_the_straight_line():
+    """In an empty room, under length alone (the shortest path's reward), a staircase from
+    (0.5, 0.5) to (4.5, 2.5) pulls taut to the straight segment between its ends."""
+    scene = world_module.Scene("open", world_module.Room(0.0, 0.0, 5.0, 3.0), (), (),
+                               np.array([[0.5, 0.5]]), np.array([4.5, 2.5]))
+    stairs = _staircase([0.5, 0.5], [4.5, 2.5])
+    np.testing.assert_allclose(stairs[-1], [4.5, 2.5])
+    cost = roadmap_module.segment_cost(FeatureModel.from_scene(scene),
+                                       roadmap_module.MDPParams(), np.zeros(4))
+    np.testing.assert_allclose(roadmap_module.pulled_taut(scene, stairs, cost),
+                               [[0.5, 0.5], [4.5, 2.5]])
+
+
+def test_pulled_taut_keeps_round_a_person_and_never_costs_more():
+    """A person in the way: pulled taut by length, the path still keeps out of the body disk
+    (every segment feasible), keeps its ends and gets no longer; under a reward that costs
+    passing near people, it costs no more than before under that reward, and passes the
+    person no closer than the straight line by length does."""
+    person = world_module.Person(1, 2.5, 1.5, 0.0)
+    scene = world_module.Scene("open", world_module.Room(0.0, 0.0, 5.0, 3.0), (person,), (),
+                               np.array([[0.5, 0.5]]), np.array([4.5, 2.5]))
+    fm = FeatureModel.from_scene(scene)
+    detour = np.array([[0.5, 0.5], [1.5, 0.25], [2.5, 0.25], [3.5, 0.25], [4.25, 1.0],
+                       [4.5, 1.75], [4.5, 2.5]])
+    assert segments_feasible(scene, detour[:-1], detour[1:]).all()
+    length = roadmap_module.segment_cost(fm, roadmap_module.MDPParams(), np.zeros(4))
+    social = roadmap_module.segment_cost(fm, roadmap_module.MDPParams(), [0.0, -5.0, 0.0, 0.0])
+    by_length = roadmap_module.pulled_taut(scene, detour, length)
+    by_social = roadmap_module.pulled_taut(scene, detour, social)
+    for taut, cost in ((by_length, length), (by_social, social)):
+        np.testing.assert_array_equal(taut[[0, -1]], detour[[0, -1]])
+        assert segments_feasible(scene, taut[:-1], taut[1:]).all()
+        assert cost(taut[:-1], taut[1:]).sum() <= cost(detour[:-1], detour[1:]).sum() + 1e-12
+        assert len(taut) < len(detour)  # something was pulled
+    assert length(by_length[:-1], by_length[1:]).sum() < length(detour[:-1], detour[1:]).sum()
+    near = [min_distance_to_person(t, scene.person_xy) for t in (by_length, by_social)]
+    assert near[0] < 1.2 <= near[1]  # the social hinge (1.2 m) keeps the detour wide

@@ -10,6 +10,9 @@ import pytest
 from pipeline.artefacts import codec, read_artefact, topics
 from pipeline.core.evaluation import frechet
 from pipeline.core.experts import choose_heldout
+from pipeline.core.features import FeatureModel, FeatureParams
+from pipeline.core.graph_mdp import MDPParams
+from pipeline.core.roadmap import pulled_taut, segment_cost
 from pipeline.core.social import min_distance_to_person
 from pipeline.errors import PipelineError
 from tests.conftest import CLEAN_DRIVES, ROOT, odometry, run_in_process, write_bag
@@ -79,6 +82,57 @@ def test_held_out_distances_are_medians_over_the_held_out_demonstrations(subject
     assert metrics["heldout_frechet_m_max"] == pytest.approx(max(frechets), rel=1e-12)
     assert metrics["heldout_min_distance_error_m"] == pytest.approx(np.median(errors),
                                                                     rel=1e-12, abs=1e-15)
+
+
+def test_held_out_distances_of_the_paths_pulled_taut_are_recomputed_from_the_artefacts(
+        subjects_run):
+    """heldout_*_taut: the learned roadmap paths (eval.mcap) pulled taut under the learned
+    weights on the learner's features, and the same medians as for the lattice paths."""
+    run_dir, metrics, _ = subjects_run
+    scene = codec.decode_scene(read_artefact(run_dir / "scene.mcap"))
+    names = read_artefact(run_dir / "birl.mcap").one(topics.BIRL_EXPERT)["feature_names"]
+    w = np.array([metrics[f"weight_{n}"] for n in names])
+    cost = segment_cost(FeatureModel.from_scene(scene, FeatureParams(features=list(names))),
+                        MDPParams(), w)
+    learned = {p["start"]: pulled_taut(scene, np.asarray(p["points"], float), cost)
+               for p in read_artefact(run_dir / "eval.mcap").all(topics.EVAL_PATHS)
+               if p["graph"] == "ref"}
+    held = [d for d in read_artefact(run_dir / "demos.mcap").all(topics.DEMOS) if d["heldout"]]
+    frechets = [frechet(learned[d["start_index"]], np.asarray(d["points"], float))
+                for d in held]
+    assert metrics["heldout_frechet_m_taut"] == pytest.approx(np.median(frechets), rel=1e-12)
+    # on metropolis the lattice's tie-breaking decides nothing: no warning
+    assert metrics["heldout_frechet_m_taut"] < metrics["heldout_frechet_m_shortest_taut"]
+    assert "tie-breaking" not in subjects_run[2]
+
+
+def test_the_summary_warns_when_the_lattices_tie_breaking_decides_the_comparison(tmp_path):
+    """Held-out walks that are the learned roadmap paths themselves (staircases a hinge of
+    the social feature chose among equally short ones, to keep 1.2 m from a person the
+    straight line passes farther from): on the lattice the learned paths predict them
+    perfectly and the shortest paths do not; pulled taut under their own reward, both are
+    the straight line, equally far from them. The summary says the lead is the lattice's."""
+    hall = {"name": "hall", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 9},
+            "persons": [{"id": 1, "x": 3.0, "y": 7.9, "theta": 0.0}], "relations": [],
+            "starts": [[1.0, 1.0], [1.0, 7.0]], "goal": [9.0, 4.5]}
+    scene = tmp_path / "hall.json"
+    scene.write_text(json.dumps(hall))
+    lines = [np.linspace(s, hall["goal"], 30).tolist() for s in hall["starts"]]
+    walks = tmp_path / "lines.json"
+    walks.write_text(json.dumps({"trajectories": lines * 2, "subjects": ["a", "a", "b", "b"]}))
+    args = ("scene=file", f"scene.path={scene}", "expert=file", "evaluate.holdout=[b]",
+            "graph=small", "birl=fixed", "birl.weights=[0,-0.3,0,-1,0]")
+    run_in_process(tmp_path / "first", *args, f"expert.path={walks}")
+    learned = [p["points"] for p in read_artefact(tmp_path / "first" / "eval.mcap")
+               .all(topics.EVAL_PATHS) if p["graph"] == "ref"]
+    walks.write_text(json.dumps({"trajectories": learned * 2, "subjects": ["a", "a", "b", "b"]}))
+    m, out = run_in_process(tmp_path / "second", *args, f"expert.path={walks}")
+    assert m["heldout_frechet_m"] < m["heldout_frechet_m_shortest"]  # the case
+    assert m["heldout_frechet_m_taut"] == pytest.approx(m["heldout_frechet_m_shortest_taut"])
+    assert (f"the learned paths predict the held-out demonstrations no better than the "
+            f"shortest paths (Fréchet {m['heldout_frechet_m_taut']:.2f} m against "
+            f"{m['heldout_frechet_m_shortest_taut']:.2f} m") in out
+    assert "owe their lead to the lattice's tie-breaking, not to the learned reward" in out
 
 
 def test_the_summary_warns_when_the_shortest_path_predicts_better(subjects_run, tmp_path):

@@ -80,6 +80,10 @@ def check_summary(m: dict, out: str) -> None:
         abs(m[k] - m[k + "_shortest"]) <= 1e-9 * (1 + abs(m[k + "_shortest"]))
         for k in ("heldout_frechet_m", "heldout_min_distance_error_m") if k in m)
     assert ("as far from the held-out demonstrations as the shortest paths" in out) == same
+    flipped = any(k + "_taut" in m and m[k] < m[k + "_shortest"]
+                  and m[k + "_taut"] >= m[k + "_shortest_taut"]
+                  for k in ("heldout_frechet_m", "heldout_min_distance_error_m"))
+    assert ("lead to the lattice's tie-breaking" in out) == flipped
     if "frechet_to_demos" in m:
         assert f"discrete Fréchet mean {m['frechet_to_demos']:.3f} m" in out
     else:
