@@ -516,15 +516,18 @@ def print_summary(m: dict, ctx: RunContext, weights: np.ndarray | None = None) -
         unmoved = [name for name, moved_it in zip(ctx.cfg.learner_features, moved,
                                                    strict=True) if not moved_it]
     print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features, box,
-                       None if learned else given_weights_origin(ctx.cfg), unmoved),
+                       None if learned else given_weights_origin(ctx.cfg, m), unmoved),
           flush=True)
 
 
-def given_weights_origin(cfg: Config) -> list[str]:
+def given_weights_origin(cfg: Config, here: dict | None = None) -> list[str]:
     """birl=fixed: where its weights come from, and with birl.from_run=RUN which of them
     RUN's learner left at its weight box's bounds or middle (RUN's metrics.json and the
     box of its birl.mcap's config): a deployment of a weight nothing moved would otherwise
-    show it as any other."""
+    show it as any other. With this run's metrics `here` and no demonstrations of its own
+    to compare with (`closer_than_demos`), a warning when its roadmap paths pass a person
+    closer than any of RUN's demonstrations did (a lobby's learned reward, deployed on
+    another layout, passed 0.67 m from a person, its walkers 0.74 m and more, unsaid)."""
     run = getattr(cfg.birl, "from_run", None)
     if run is None:
         return ["  weights from     birl.weights (given)"]
@@ -548,7 +551,15 @@ def given_weights_origin(cfg: Config) -> list[str]:
                     broadcast(birl_cfg["upper"], len(names), "upper"))
     except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError):
         return lines  # no metrics.json (a run without its evaluate stage): nothing to carry
-    return lines + weights_at_box(m, names, box, label="its weight box ")
+    lines += weights_at_box(m, names, box, label="its weight box ")
+    demos, learned = m.get("demos_min_distance_to_person"), (here or {}).get(
+        "ref_min_distance_to_person")
+    if demos is not None and learned is not None and "demos_min_distance_to_person" not in \
+            (here or {}) and learned < demos - CLOSER_MARGIN_M:
+        lines.append(f"  warning          the roadmap paths pass {learned:.2f} m from a person; "
+                     f"the demonstrations the weights were learned from kept {demos:.2f} m or "
+                     "more: on this scene the reward is ruder than its demonstrators were")
+    return lines
 
 
 def summary_text(m: dict, run_dir: str, learner_features: list[str],

@@ -470,3 +470,33 @@ def test_expert_select_walks_reaches_the_reader_through_the_config(tmp_path):
     demos = read_artefact(tmp_path / "select" / "run" / "demos.mcap").all(topics.DEMOS)
     assert [d["subject"] for d in demos] == ["a"]
     np.testing.assert_allclose(demos[0]["points"][:-1], DETOUR[:-1])
+
+
+def test_a_deployment_ruder_than_the_demonstrators_it_was_learned_from_is_said(tmp_path):
+    """Demonstrators who kept 2.5 m from the one person in a hall, a learner whose hinge
+    (1.2 m) cannot say more: its roadmap paths pass 1.2 m from the person. Deployed without
+    demonstrations (expert=none), the summary still says the reward is ruder than the
+    demonstrators it was learned from (the learning run's metrics.json)."""
+    hall = {**HALL, "room": {"x_min": 0, "y_min": 0, "x_max": 8, "y_max": 6},
+            "persons": [{"id": 1, "x": 4.0, "y": 2.0, "theta": 1.57}]}
+    (tmp_path / "hall.json").write_text(json.dumps(hall))
+    wide = [[[1.0, 2.0], [2.0, 4.2], [4.0, 4.6], [6.0, 4.2], [7.0, 2.0]],
+            [[1.0, 2.0], [2.2, 4.3], [4.0, 4.7], [6.1, 4.1], [7.0, 2.0]]]
+    (tmp_path / "wide.json").write_text(json.dumps({"trajectories": wide}))
+    scene = ("scene=file", f"scene.path={tmp_path / 'hall.json'}", "graph=small")
+    learned, _ = run_in_process(tmp_path / "learn", *scene, "expert=file",
+                                f"expert.path={tmp_path / 'wide.json'}")
+    assert learned["ref_min_distance_to_person"] < \
+        learned["demos_min_distance_to_person"] - 0.05  # the case
+    m, out = run_in_process(tmp_path / "deploy", *scene, "expert=none", "birl=fixed",
+                            f"birl.from_run={tmp_path / 'learn'}")
+    assert (f"the roadmap paths pass {m['ref_min_distance_to_person']:.2f} m from a person; "
+            "the demonstrations the weights were learned from kept "
+            f"{learned['demos_min_distance_to_person']:.2f} m or more") in out
+    check_summary(m, out)
+    # judged against new walks, the run's own demonstrations say it (closer_than_demos)
+    m, out = run_in_process(tmp_path / "judged", *scene, "expert=file",
+                            f"expert.path={tmp_path / 'wide.json'}", "evaluate.holdout=all",
+                            "birl=fixed", f"birl.from_run={tmp_path / 'learn'}")
+    assert "closer than any demonstration" in out
+    assert "the weights were learned from kept" not in out
