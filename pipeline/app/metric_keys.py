@@ -67,6 +67,10 @@ METRIC_KEYS: dict[str, str] = {
         "feasible and costs no more): what a planner not held to the lattice would drive; "
         "where the comparison with the shortest path differs from the lattice paths', the "
         "summary warns that the lattice's tie-breaking decided it",
+    r"ref_min_distance_to_person_taut": "undiscounted MDPs: the smallest distance to a "
+        "person's centre of the learned roadmap paths pulled taut under the learned reward "
+        "(as `heldout_*_taut`), m; the summary warns when it is over 5 cm below "
+        "`ref_min_distance_to_person`",
     r"heldout_frechet_m(_shortest)?_max": "`evaluate.holdout`: the largest Fréchet distance of "
         "a held-out demonstration to its learned path (`_shortest`: to the fastest path); a "
         "start whose paths go the other way round shows here, not in the median",

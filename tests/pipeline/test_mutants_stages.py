@@ -84,6 +84,9 @@ def check_summary(m: dict, out: str) -> None:
                   and m[k + "_taut"] >= m[k + "_shortest_taut"]
                   for k in ("heldout_frechet_m", "heldout_min_distance_error_m"))
     assert ("lead to the lattice's tie-breaking" in out) == flipped
+    kept = m.get("ref_min_distance_to_person_taut", np.inf) < \
+        m["ref_min_distance_to_person"] - 0.05
+    assert ("their distance from people is the lattice's tie-breaking" in out) == kept
     if "frechet_to_demos" in m:
         assert f"discrete Fréchet mean {m['frechet_to_demos']:.3f} m" in out
     else:
@@ -500,3 +503,24 @@ def test_a_deployment_ruder_than_the_demonstrators_it_was_learned_from_is_said(t
                             "birl=fixed", f"birl.from_run={tmp_path / 'learn'}")
     assert "closer than any demonstration" in out
     assert "the weights were learned from kept" not in out
+
+
+def test_roadmap_paths_kept_from_people_by_the_lattice_alone_are_said(tmp_path):
+    """Weights on length alone, a person 0.75 m off the straight line from start 1 to the
+    goal: the lattice's shortest staircase happens to pass it at 1.4 m; pulled taut, as a
+    planner off the lattice would drive, the path passes at about 0.72 m. The summary says
+    that the distance is the lattice's, not the reward's."""
+    hall = {"name": "hall", "room": {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 9},
+            "persons": [{"id": 1, "x": 3.0, "y": 5.6, "theta": 0.0}], "relations": [],
+            "starts": [[1.0, 1.0], [1.0, 7.0]], "goal": [9.0, 4.5]}
+    (tmp_path / "hall.json").write_text(json.dumps(hall))
+    m, out = run_in_process(tmp_path / "run", "scene=file", f"scene.path={tmp_path / 'hall.json'}",
+                            "expert=none", "graph=small", "birl=fixed",
+                            _weights([0, 0, 0, -1, 0]))
+    straight = np.array([[1.0, 7.0], [8.7, 4.6]])  # about the taut path from start 1
+    assert m["ref_min_distance_to_person_taut"] == pytest.approx(
+        min_distance_to_person(straight, np.array([[3.0, 5.6]])), abs=0.05)
+    assert m["ref_min_distance_to_person"] > m["ref_min_distance_to_person_taut"] + 0.5
+    assert (f"the roadmap paths pass {m['ref_min_distance_to_person_taut']:.2f} m from a "
+            f"person, not {m['ref_min_distance_to_person']:.2f} m") in out
+    check_summary(m, out)
