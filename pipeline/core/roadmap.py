@@ -116,7 +116,9 @@ def pulled_taut(scene: Scene, points: np.ndarray,
         step = i + 1
         # the farthest feasible vertex reached no more costly: costed from the far end in
         # chunks (a feature integral per segment is most of the time)
-        for chunk in np.array_split(feasible, max(1, len(feasible) // TAUT_CHUNK)):
+        chunks = np.array_split(feasible, max(1, len(feasible) // TAUT_CHUNK)) \
+            if len(feasible) else []
+        for chunk in chunks:
             ends = p[chunk]
             ok = cost(np.repeat(p[i:i + 1], len(chunk), axis=0), ends) <= \
                 walked[chunk] - walked[i] + TAUT_TOLERANCE * (1 + np.abs(walked[chunk]))

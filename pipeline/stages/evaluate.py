@@ -7,6 +7,7 @@ true weights) the similarity of the learned paths to the demonstrations.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -237,12 +238,9 @@ def run(ctx: RunContext) -> None:
     social_ref, ref_paths = summed_path_metrics(ref.learner, ref_policy, scene, prefix="ref_")
     metrics.update(social)
     metrics.update(social_ref)
-    taut = None
-    if md.undiscounted:  # a path's cost is the sum of its segments' only without discounting
-        learner_features = build.learner_feature_model(cfg, scene)
-
-        def taut(w: np.ndarray) -> SegmentCost:
-            return segment_cost(learner_features, md, w)
+    # a path's cost is the sum of its segments' only without discounting
+    taut = functools.partial(segment_cost, build.learner_feature_model(cfg, scene), md) \
+        if md.undiscounted else None
     metrics.update(heldout_metrics(ref.learner, ref_policy, codec.heldout_demos(demos_art),
                                    scene, taut, w_final))
     if taut is not None and len(scene.persons):  # what a planner off the lattice would keep
