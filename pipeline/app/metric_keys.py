@@ -66,7 +66,7 @@ METRIC_KEYS: dict[str, str] = {
         "paths pulled taut under their own reward (straight on wherever a straight segment is "
         "feasible and costs no more): what a planner not held to the lattice would drive; "
         "where the comparison with the shortest path differs from the lattice paths', the "
-        "summary warns that the lattice's tie-breaking decided it",
+        "summary warns that the lattice decided it",
     r"ref_min_distance_to_person_taut": "undiscounted MDPs: the smallest distance to a "
         "person's centre of the learned roadmap paths pulled taut under the learned reward "
         "(as `heldout_*_taut`), m; the summary warns when it is over 5 cm below "

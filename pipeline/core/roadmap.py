@@ -102,8 +102,8 @@ def pulled_taut(scene: Scene, points: np.ndarray,
     feasible (`segments_feasible`) and costs no more (`cost`: the costs (n,) of the
     straight segments a[i] → b[i], `segment_cost`) than the stretch of path it replaces.
     Same ends, never costlier; under length alone, never longer. The lattice's paths are
-    staircases of its directions, and among equally good ones the solver's tie-breaking
-    picks one that can stray a metre from the straight line across a 16 m lobby."""
+    staircases of its directions, which can stray a metre from the straight line across a
+    16 m lobby (which staircase, among about equally good ones, is the solver's choice)."""
     p = np.asarray(points, dtype=float).reshape(-1, 2)
     if len(p) < 3:
         return p

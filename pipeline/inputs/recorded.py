@@ -216,6 +216,7 @@ class Recording:
     # who demonstrated: one per track (polylines) or one per pose (a stream); None: unknown
     subjects: list[str | None] | None = None
     source: str | None = None  # a JSON file's "source"
+    planned: bool = False  # nav_msgs/Path messages: a planner's paths (`warn_replans`)
 
 
 class Recorded(NamedTuple):
@@ -597,7 +598,7 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
             log.warning("%s: skipped %d of %d path messages of topic %s with fewer than two "
                         "poses (messages %s)", where, len(too_short), count, topic,
                         too_short[:5])
-        return Recording(tracks, False)
+        return Recording(tracks, False, planned=True)
     if len(stream) < 2:
         raise PipelineError(f"{where}: topic {topic} has 1 message; a pose stream needs at "
                             f"least two")
@@ -889,14 +890,20 @@ def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
 
 
 def without_walks_hint(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
-                       start_radius: float, goal_tolerance: float) -> str:
+                       start_radius: float, goal_tolerance: float, planned: bool = False) -> str:
     """What to add to a refused trajectory's line when other trajectories too go from no
-    start to the goal (a tracker's tracks): the option that keeps only the walks."""
+    start to the goal: for a tracker's tracks the option that keeps only the walks, for a
+    planner's paths (`planned`: its replans, which that option would keep several of per
+    walk) the robot's pose to record instead."""
     with np.errstate(over="ignore", invalid="ignore"):
         without = sum(not stream_spans(t, starts, goal, start_radius, goal_tolerance)
                       for t in tracks)
     if without < 2 or without == len(tracks):  # none holds a walk: selecting cannot help
         return ""
+    if planned:
+        return (f"; {without} of {len(tracks)} paths hold no walk from a start to the goal (a "
+                "planner's replans, a robot's /plan topic?): record the robot's pose instead "
+                "(Odometry, PoseWithCovarianceStamped)")
     return (f"; {without} of {len(tracks)} trajectories hold no walk from a start to the goal "
             "(a tracker's tracks of everyone in view?): expert.select_walks=true learns from "
             "the walks alone")
@@ -1433,7 +1440,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
                                [f"{where}: trajectory {n}" for n in labels], denoise=denoise,
                                resample=recording.is_stream, spacing=spacing, labels=labels)
         warn_revisits(cleaned, where, labels)
-        if not recording.is_stream:  # a stream's trajectories follow one another
+        if recording.planned:
             warn_replans(cleaned, where, labels)
         matched = match_to_starts(cleaned, starts, goal, start_radius, goal_tolerance, where,
                                   labels)
@@ -1441,7 +1448,8 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         if recording.is_stream or select_walks:
             raise
         raise PipelineError(str(e) + without_walks_hint(tracks, starts, goal, start_radius,
-                                                        goal_tolerance)) from None
+                                                        goal_tolerance, recording.planned)) \
+            from None
     without = sorted(set(range(len(np.asarray(starts).reshape(-1, 2)))) - set(matched))
     if without:
         log.warning("%s: no demonstration begins at start(s) %s (%d demonstrations read)",

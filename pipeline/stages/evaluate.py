@@ -137,7 +137,7 @@ def heldout_metrics(ref: SpatialGraph, policy: np.ndarray, demos: list[dict], sc
     With `taut` (the segment cost under given weights, `roadmap.segment_cost`) and the
     learned weights `w`, the same medians of the paths pulled taut under their own reward
     (`roadmap.pulled_taut`), as heldout_*_taut and heldout_*_shortest_taut: a lattice path
-    is a staircase whose tie-breaking decides how far it strays from the straight line."""
+    is a staircase of the lattice's directions, which can stray far from the straight line."""
     if not demos:
         return {}
     mdp = ref.mdp
@@ -429,37 +429,32 @@ def heldout_no_better(m: dict) -> list[str]:
             "learner's features cannot say: see the features docs and birl.features)"]
 
 
-def heldout_by_tie_breaking(m: dict) -> list[str]:
+def heldout_by_lattice(m: dict) -> list[str]:
     """A warning line when the learned paths predict the held-out demonstrations better than
     the shortest paths do (Fréchet distance or min-distance error), but no longer once both
     are pulled taut under their own reward (heldout_*_taut): the roadmap lattice's
-    tie-breaking made the difference, not the learned reward (a lobby's learned paths kept
-    1.0 m from people by it, and 0.29 m pulled taut; the shortest path pulled taut predicted
-    the walkers as well as the learned one: 1.07 m against 1.07 m)."""
-    flipped = [what for what, key in (("Fréchet", "heldout_frechet_m"),
-                                      ("min-distance error", "heldout_min_distance_error_m"))
+    staircases made the difference, not the learned reward (a lobby's learned paths kept
+    1.0 m from people by them, and 0.29 m pulled taut; the shortest path pulled taut
+    predicted the walkers as well as the learned one: 1.07 m against 1.07 m)."""
+    flipped = [f"{what} {m[key + '_taut']:.2f} m against {m[key + '_shortest_taut']:.2f} m"
+               for what, key in (("Fréchet", "heldout_frechet_m"),
+                                 ("min-distance error", "heldout_min_distance_error_m"))
                if key + "_taut" in m and key + "_shortest_taut" in m
                and m[key] < m[key + "_shortest"] and m[key + "_taut"] >= m[key + "_shortest_taut"]]
     if not flipped:
         return []
     return ["  warning          pulled taut under their own reward, as a planner that is not "
             "held to the roadmap's lattice would drive them, the learned paths predict the "
-            "held-out demonstrations no better than the shortest paths (Fréchet "
-            f"{m['heldout_frechet_m_taut']:.2f} m against "
-            f"{m['heldout_frechet_m_shortest_taut']:.2f} m"
-            + (f", min-distance error {m['heldout_min_distance_error_m_taut']:.2f} m against "
-               f"{m['heldout_min_distance_error_m_shortest_taut']:.2f} m"
-               if "heldout_min_distance_error_m_taut" in m else "")
-            + f"): the {' and '.join(flipped)} above owe{'s' if len(flipped) == 1 else ''} "
-            "their lead to the lattice's tie-breaking, not to the learned reward"]
+            f"held-out demonstrations no better than the shortest paths ({', '.join(flipped)}): "
+            "their lead above is the lattice's doing, not the learned reward's"]
 
 
-def kept_by_tie_breaking(m: dict) -> list[str]:
+def kept_by_lattice(m: dict) -> list[str]:
     """A warning line when the learned roadmap paths, pulled taut under the learned reward
     (ref_min_distance_to_person_taut), pass a person closer, by over CLOSER_MARGIN_M, than
-    on the lattice: their distance from people came from the lattice's tie-breaking among
-    equally good staircases, and a planner not held to the lattice (Nav2 on the exported
-    costmap) would pass closer (a lobby's learned paths: 1.0 m on the lattice, 0.29 m
+    on the lattice: their distance from people came from the lattice's staircases, not from
+    the reward, and a planner not held to the lattice (Nav2 on the exported costmap) would
+    pass closer (a lobby's learned paths: 1.0 m on the lattice, 0.29 m
     pulled taut)."""
     raw, taut = m.get("ref_min_distance_to_person"), m.get("ref_min_distance_to_person_taut")
     if raw is None or taut is None or taut >= raw - CLOSER_MARGIN_M:
@@ -467,16 +462,21 @@ def kept_by_tie_breaking(m: dict) -> list[str]:
     return [f"  warning          pulled taut under the learned reward, as a planner that is "
             f"not held to the roadmap's lattice would drive them, the roadmap paths pass "
             f"{taut:.2f} m from a person, not {raw:.2f} m: their distance from people is the "
-            "lattice's tie-breaking, not the learned reward's"]
+            "lattice's doing, not the learned reward's"]
 
 
-def closer_than_demos(m: dict) -> list[str]:
+def closer_than_demos(m: dict, learned_from: float | None = None) -> list[str]:
     """A warning line when the learned roadmap paths pass a person closer than every
     demonstration did: a reward learned from people that is ruder than all of them (the
     planner's paths in the office, 0.62 m, taught paths of 0.39 m), which the held-out
     numbers need not show (no held-out demonstration, or none from the start that passes
-    closest)."""
-    demos, learned = m.get("demos_min_distance_to_person"), m.get("ref_min_distance_to_person")
+    closest). A deployment without demonstrations of its own compares with `learned_from`,
+    the demonstrations' closest approach in the run its weights were learned in (a lobby's
+    reward, deployed on another layout, passed 0.67 m from a person, its walkers 0.74 m
+    and more, unsaid)."""
+    own = m.get("demos_min_distance_to_person")
+    demos, learned = own if own is not None else learned_from, \
+        m.get("ref_min_distance_to_person")
     if demos is None or learned is None or learned >= demos - CLOSER_MARGIN_M:
         return []
     # Two ways to say it, neither always the better, sometimes only both: the squared hinge
@@ -491,6 +491,10 @@ def closer_than_demos(m: dict) -> list[str]:
     named = " or ".join(ways) if len(ways) < 2 else f"{ways[0]}, {ways[1]} or both"
     hint = f"; learn again with {named} added to birl.features (see the methods docs)" \
         if ways else ""
+    if own is None:
+        return [f"  warning          the roadmap paths pass {learned:.2f} m from a person; the "
+                f"demonstrations the weights were learned from kept {demos:.2f} m or more: on "
+                f"this scene the reward is ruder than its demonstrators were{hint}"]
     return [f"  warning          the learned roadmap paths pass {learned:.2f} m from a person, "
             f"closer than any demonstration ({demos:.2f} m): the learned reward is ruder than "
             f"every demonstrator{hint}"]
@@ -534,34 +538,32 @@ def print_summary(m: dict, ctx: RunContext, weights: np.ndarray | None = None) -
         moved = np.ptp(weights, axis=0) > UNMOVED_SHARE * (box.upper - box.lower)
         unmoved = [name for name, moved_it in zip(ctx.cfg.learner_features, moved,
                                                    strict=True) if not moved_it]
-    print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features, box,
-                       None if learned else given_weights_origin(ctx.cfg, m), unmoved),
-          flush=True)
+    given, learned_from = (None, None) if learned else given_weights_origin(ctx.cfg)
+    print(summary_text(m, str(ctx.run_dir), ctx.cfg.learner_features, box, given, unmoved,
+                       learned_from), flush=True)
 
 
-def given_weights_origin(cfg: Config, here: dict | None = None) -> list[str]:
+def given_weights_origin(cfg: Config) -> tuple[list[str], float | None]:
     """birl=fixed: where its weights come from, and with birl.from_run=RUN which of them
     RUN's learner left at its weight box's bounds or middle (RUN's metrics.json and the
     box of its birl.mcap's config): a deployment of a weight nothing moved would otherwise
-    show it as any other. With this run's metrics `here` and no demonstrations of its own
-    to compare with (`closer_than_demos`), a warning when its roadmap paths pass a person
-    closer than any of RUN's demonstrations did (a lobby's learned reward, deployed on
-    another layout, passed 0.67 m from a person, its walkers 0.74 m and more, unsaid)."""
+    show it as any other. Also RUN's demonstrations' closest approach to a person (its
+    demos_min_distance_to_person, None where it has none), for `closer_than_demos`."""
     run = getattr(cfg.birl, "from_run", None)
     if run is None:
-        return ["  weights from     birl.weights (given)"]
+        return ["  weights from     birl.weights (given)"], None
     try:
         source = resolve_path(run)
         birl_cfg = yaml.safe_load(read_artefact(source / topics.ARTEFACT_FILE["birl"])
                                   .config_yaml)["birl"]
     except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError,
             yaml.YAMLError):
-        return [f"  weights from     {run}"]
+        return [f"  weights from     {run}"], None
     if not isinstance(birl_cfg, dict):
-        return [f"  weights from     {run}"]
+        return [f"  weights from     {run}"], None
     if birl_cfg.get("kind") == "fixed":  # a deployment of a deployment: nothing learned there
         origin = birl_cfg.get("from_run") or "its birl.weights"
-        return [f"  weights from     {run} (given there too: birl=fixed, {origin})"]
+        return [f"  weights from     {run} (given there too: birl=fixed, {origin})"], None
     lines = [f"  weights from     {run} (learned there)"]
     try:
         m = read_metrics(source / METRICS_FILE)
@@ -569,26 +571,20 @@ def given_weights_origin(cfg: Config, here: dict | None = None) -> list[str]:
         box = Prior("uniform", 1.0, broadcast(birl_cfg["lower"], len(names), "lower"),
                     broadcast(birl_cfg["upper"], len(names), "upper"))
     except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError):
-        return lines  # no metrics.json (a run without its evaluate stage): nothing to carry
-    lines += weights_at_box(m, names, box, label="its weight box ")
-    demos, learned = m.get("demos_min_distance_to_person"), (here or {}).get(
-        "ref_min_distance_to_person")
-    if demos is not None and learned is not None and "demos_min_distance_to_person" not in \
-            (here or {}) and learned < demos - CLOSER_MARGIN_M:
-        lines.append(f"  warning          the roadmap paths pass {learned:.2f} m from a person; "
-                     f"the demonstrations the weights were learned from kept {demos:.2f} m or "
-                     "more: on this scene the reward is ruder than its demonstrators were")
-    return lines
+        return lines, None  # no metrics.json (a run without its evaluate stage)
+    return (lines + weights_at_box(m, names, box, label="its weight box "),
+            m.get("demos_min_distance_to_person"))
 
 
 def summary_text(m: dict, run_dir: str, learner_features: list[str],
                  box: Prior | None = None, given: list[str] | None = None,
-                 unmoved: list[str] | None = None) -> str:
+                 unmoved: list[str] | None = None, learned_from: float | None = None) -> str:
     """The one screen a run ends with, from its metrics (the docs generator prints the same
     for the README's sample output). box: the learner's weight box, to say which learned
     weights lie at its bounds or its middle (None: the weights were given, not learned);
     given: for given weights, where they come from (`given_weights_origin`); unmoved: the
-    learned weights no iteration moved from their start."""
+    learned weights no iteration moved from their start; learned_from: for given weights,
+    how close the demonstrations they were learned from came to a person."""
     def fmt(key: str, spec: str = ".4f", unit: str = "") -> str:
         v = m.get(key)
         return "n/a" if v is None else format(v, spec) + unit
@@ -656,7 +652,7 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
                          f"{fmt('heldout_log_likelihood', '.2f')} (shortest path's reward "
                          f"{fmt('heldout_log_likelihood_shortest', '.2f')})")
         lines += heldout_no_better(m)
-        lines += heldout_by_tie_breaking(m)
+        lines += heldout_by_lattice(m)
         if m.get("heldout_frechet_m", 0.0) > m.get("heldout_frechet_m_shortest", np.inf):
             lines.append("  warning          the learned paths are farther from the held-out "
                          "demonstrations than the shortest paths are: on these scenes the "
@@ -684,10 +680,10 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
     lines.append(f"  graph paths      {paths('')}"
                  + (f" ({share:.0%} of its nodes are demonstration waypoints: these say "
                     "little)" if share > 0.5 else ""))
-    ruder_than_demos = closer_than_demos(m)
+    ruder_than_demos = closer_than_demos(m, learned_from)
     lines += graph_less_polite(m, roadmap_ruder_than_demos=bool(ruder_than_demos))
-    lines += kept_by_tie_breaking(m)
     lines += ruder_than_demos
+    lines += kept_by_lattice(m)
     for name in [k[len("transfer_"):-len("_success")] for k in m
                  if k.startswith("transfer_") and k.endswith("_success")]:  # config order
         prefix = f"transfer_{name}_"

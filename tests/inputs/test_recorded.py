@@ -560,4 +560,18 @@ def test_a_planners_replans_are_named(tmp_path, caplog):
         scene = json.loads(METROPOLIS.read_text())
         load_recorded(ROOT / "data" / "demos" / "metropolis_handdrawn.json",
                       np.array(scene["starts"]), np.array(scene["goal"]), goal_tolerance=0.3)
-    assert "replans" not in caplog.text
+        # a tracker's tracks that begin on another's route are people, not replans
+        tracks = tmp_path / "tracks.csv"
+        tracks.write_text("trajectory,x,y\n" + "".join(
+            f"{k},{x!r},{y!r}\n" for k, t in enumerate([PATH_A, replan, other])
+            for x, y in t.tolist()))
+        load(tracks, select_walks=True)
+    assert "a planner's replans" not in caplog.text
+    # refused without the option (the replans that begin far from a start): the advice is
+    # to record the pose, not to select walks, which would keep the replans
+    far = np.array([[0.5, 3.0], [0.5, 4.0], [3.0, 8.5], [5.5, 9.0]])
+    bag = write_bag(tmp_path / "replans.bag",
+                    {"/plan": ("nav_msgs/msg/Path", [PATH_A, replan, far, far + [0.0, 0.2]])},
+                    storage="ros1")
+    text = refused(r"2 of 4 paths hold no walk .*record the robot's pose instead", load, bag)
+    assert "select_walks" not in text
