@@ -340,11 +340,17 @@ def also_in_log_file(line: str) -> None:
     if SweepOutcome.sweep_dir is not None or _Progress.multirun:
         return
     record = logging.LogRecord("pipeline", logging.ERROR, __file__, 0, line, None, None)
-    for handler in logging.getLogger().handlers:
-        if isinstance(handler, logging.FileHandler):
-            with suppress(Exception):  # a log that cannot be written: stderr has said it
-                handler.handle(record)
-                handler.flush()
+    # a log that cannot be written (the disk is full): stderr has said it. A handler does not
+    # raise but prints "--- Logging error ---" and a traceback, unless told not to
+    raising, logging.raiseExceptions = logging.raiseExceptions, False
+    try:
+        for handler in logging.getLogger().handlers:
+            if isinstance(handler, logging.FileHandler):
+                with suppress(Exception):
+                    handler.handle(record)
+                    handler.flush()
+    finally:
+        logging.raiseExceptions = raising
 
 
 # Packages a sweep hands its settings to (Hydra's launcher and sweeper plugins, what they
