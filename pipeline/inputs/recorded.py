@@ -217,6 +217,7 @@ class Recording:
     subjects: list[str | None] | None = None
     source: str | None = None  # a JSON file's "source"
     planned: bool = False  # nav_msgs/Path messages: a planner's paths (`warn_replans`)
+    ids: list[str] | None = None  # a CSV's trajectory ids, one per track
 
 
 class Recorded(NamedTuple):
@@ -524,7 +525,7 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
                 raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has rows of several "
                                     f"subjects: {', '.join(repr(n) for n in names_here[:3])}")
             track_subjects.append(names_here[0])
-    return Recording(tracks, False, track_subjects if subjects else None)
+    return Recording(tracks, False, track_subjects if subjects else None, ids=list(groups))
 
 
 def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> Recording:
@@ -830,12 +831,14 @@ def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: 
 
 def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | None] | None,
                        starts: np.ndarray, goal: np.ndarray, start_radius: float,
-                       goal_tolerance: float, where: str, room: Room | None = None
+                       goal_tolerance: float, where: str, room: Room | None = None,
+                       ids: Sequence[str] | None = None
                        ) -> tuple[list[np.ndarray], list[str | None], list[str], list[int]]:
     """The walks from a start to the goal in each track, cut as a pose stream is
     (`stream_spans`): their polylines, subjects (their track's), labels (their track's
-    number in file order, and "/2" for its second walk, ...) and first poses' numbers in
-    their track. A tracker follows everyone in view, and only some go from a start to the
+    number in file order, "/2" for its second walk, ..., and its id in the file where
+    `ids` gives them: what a user finds in their file) and first poses' numbers in their
+    track. A tracker follows everyone in view, and only some go from a start to the
     goal (others go elsewhere, come into view mid-room or are lost and found again under a
     new id). One warning counts the tracks that hold no such walk and names the ones that
     hold several; none in any track is refused."""
@@ -851,7 +854,9 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
             example = f"{k}/1, {k}/2"
         walks += [track[b:g + 1] for b, g in spans]
         walk_subjects += [subjects[k] if subjects else None] * len(spans)
-        labels += [str(k)] if len(spans) == 1 else [f"{k}/{j + 1}" for j in range(len(spans))]
+        named = f" (id {ids[k]!r})" if ids is not None else ""
+        labels += [f"{k}{named}"] if len(spans) == 1 else \
+            [f"{k}/{j + 1}{named}" for j in range(len(spans))]
         offsets += [b for b, _ in spans]
         if not spans:
             without.append(str(k))
@@ -1425,7 +1430,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     elif select_walks:
         tracks, subjects, labels, offsets = select_track_walks(
             recording.tracks, recording.subjects, starts, goal, start_radius, goal_tolerance,
-            where, room)
+            where, room, recording.ids)
         warn_jumps(tracks, where, offsets, labels)
     else:
         tracks = recording.tracks

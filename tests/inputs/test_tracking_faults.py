@@ -390,8 +390,10 @@ def test_select_walks_names_each_walk_by_its_trajectory_and_drops_one_row_tracks
     with caplog.at_level(logging.WARNING):
         [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
     assert "3 hold none and are dropped: 0, 1, 2" in caplog.text
-    assert re.search(r"trajectories 3 \(0\.6\d m from start 0\) begin far", caplog.text)
-    assert demo.label == "3"
+    # by its number in the file and its id there
+    assert re.search(r"trajectories 3 \(id 'd'\) \(0\.6\d m from start 0\) begin far",
+                     caplog.text)
+    assert demo.label == "3 (id 'd')"
 
 
 def test_a_walks_several_walks_are_named_by_its_number_and_their_order(tmp_path, caplog):
@@ -401,9 +403,10 @@ def test_a_walks_several_walks_are_named_by_its_number_and_their_order(tmp_path,
                         {"a": "x", "b": "x"})
     with caplog.at_level(logging.WARNING):
         demos = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
-    assert [d.label for d in demos] == ["1/1", "1/2"]
+    assert [d.label for d in demos] == ["1/1 (id 'b')", "1/2 (id 'b')"]
     assert "several in 1 (2 walks), whose walks are named 1/1, 1/2, ..." in caplog.text
-    assert re.search(r"trajectories 1/2 \(0\.6\d m from start 0\) begin far", caplog.text)
+    assert re.search(r"trajectories 1/2 \(id 'b'\) \(0\.6\d m from start 0\) begin far",
+                     caplog.text)
 
 
 def test_no_select_hint_where_no_trajectory_holds_a_walk(tmp_path):
