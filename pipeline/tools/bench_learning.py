@@ -6,6 +6,9 @@ learning.png.
     python -m pipeline.tools.bench_learning                     # everything (~15 min on 2 cores)
     python -m pipeline.tools.bench_learning --demonstrators optimal boltzmann20 --seeds 0 1
     python -m pipeline.tools.bench_learning --learners policywalk maxent --merge  # add rows
+    python -m pipeline.tools.bench_learning --learners default --merge \
+        --demonstrators handdrawn_heldout planner_heldout planner_transfer planner_hallway
+        # the default learner's held-out rows again, with the paths pulled taut (*_taut)
     python -m pipeline.tools.bench_learning --table learner_features \
         --demonstrators handdrawn handdrawn_heldout planner_heldout planner_transfer \
         planner_hallway \
@@ -145,7 +148,12 @@ KEYS = ("policy_loss_norm", "ref_relation_crossings", "ref_intimate_intrusion_m"
         "ref_min_distance_to_person", "ref_success", "heldout_frechet_m",
         "heldout_frechet_m_shortest", "heldout_min_distance_error_m",
         "heldout_min_distance_error_m_shortest", "heldout_log_likelihood",
-        "heldout_log_likelihood_shortest", "time_birl_learn_s")
+        "heldout_log_likelihood_shortest", "time_birl_learn_s", "heldout_frechet_m_taut",
+        "heldout_frechet_m_shortest_taut", "heldout_min_distance_error_m_taut",
+        "heldout_min_distance_error_m_shortest_taut", "ref_min_distance_to_person_taut")
+# the held-out medians of the paths pulled taut under their own reward (evaluate's
+# heldout_*_taut): rows made before them have none
+TAUT_KEYS = KEYS[-5:]
 
 
 def one_case(tmp: Path, demonstrator: str, seed: int, learners: dict[str, list[str]],
@@ -368,6 +376,12 @@ def summary(table: pd.DataFrame) -> pd.DataFrame:
             heldout_log_likelihood=("heldout_log_likelihood", "median"),
             heldout_log_likelihood_shortest=("heldout_log_likelihood_shortest", "median")))
     out["heldout_frechet_ratio"] = out["heldout_frechet_m"] / out["heldout_frechet_m_shortest"]
+    taut = [k for k in TAUT_KEYS if k in ok and ok[k].notna().any()]
+    if taut:
+        out = out.join(ok.groupby(["demonstrator", "learner"], sort=False)[taut].median())
+        if {"heldout_frechet_m_taut", "heldout_frechet_m_shortest_taut"} <= set(taut):
+            out["heldout_frechet_ratio_taut"] = \
+                out["heldout_frechet_m_taut"] / out["heldout_frechet_m_shortest_taut"]
     return out.reset_index()
 
 

@@ -480,8 +480,11 @@ the committed tables under `results/bench/` (the [tables page](tables.md) shows 
 with the command that made each) and, where a table holds one, the floor or anchor it is
 measured against: a floor is what the machine takes for the work no implementation can skip
 (importing the libraries a run needs, scikit-learn's GP in graph growth), an anchor what the
-planner's own cost reaches where a learned reward is judged. What the benchmarks measure is
-on the [benchmarks page](index.md); timings were taken on 2 shared cores.
+planner's own cost reaches where a learned reward is judged. Held-out values are the
+roadmap lattice's paths; "pulled taut" beside them is the same for the paths pulled taut
+under their own reward, as a planner not held to the lattice would drive them (see the
+methods page). What the benchmarks measure is on the [benchmarks page](index.md); timings
+were taken on 2 shared cores.
 """
 
 

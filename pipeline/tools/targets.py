@@ -97,10 +97,18 @@ def _learned_well(demonstrator: str) -> Callable[[Tables], Reading]:
     return read
 
 
+def _pulled_taut(row: pd.Series, column: str) -> str:
+    """The same column for the paths pulled taut under their own reward (evaluate's
+    heldout_*_taut), where the table has it."""
+    taut = float(row.get(column + "_taut", math.nan))
+    return "" if math.isnan(taut) else f"pulled taut: {_num(taut)}"
+
+
 def _column(demonstrator: str, column: str, unit: str = "") -> Callable[[Tables], Reading]:
     def read(t: Tables) -> Reading:
-        value = float(t.default_learner(demonstrator)[column])
-        return Reading(value, f"{_num(value)}{unit}")
+        row = t.default_learner(demonstrator)
+        value = float(row[column])
+        return Reading(value, f"{_num(value)}{unit}", _pulled_taut(row, column))
     return read
 
 
@@ -119,19 +127,25 @@ def _boltzmann(column: str) -> Callable[[Tables], Reading]:
 def _against_planner(column: str, unit: str) -> Callable[[Tables], Reading]:
     """The default learner on the transfer scenes, beside the planner's own cost there."""
     def read(t: Tables) -> Reading:
-        value = float(t.default_learner("planner_transfer")[column])
+        row = t.default_learner("planner_transfer")
+        value = float(row[column])
         anchor = t.learner("planner_transfer", "planner_cost")
         beside = math.nan if anchor is None else float(anchor[column])
-        return Reading(value, f"{_num(value)}{unit}", f"the planner's own cost: {_num(beside)}")
+        taut = _pulled_taut(row, column)
+        return Reading(value, f"{_num(value)}{unit}", f"the planner's own cost: {_num(beside)}"
+                       + (f"; {taut}" if taut else ""))
     return read
 
 
 def _hallway_outside_range(t: Tables) -> Reading:
     row = t.default_learner("planner_hallway")
     low, high, median = row.people_pass_p10_m, row.people_pass_p90_m, row.ref_pass_median_m
+    taut = float(row.get("ref_min_distance_to_person_taut", math.nan))
     return Reading(max(0.0, low - median, median - high),
                    f"median {_num(median)} m, people {_num(low)}-{_num(high)} m; "
-                   f"{_num(row.ref_pass_in_range)} of the paths in range")
+                   f"{_num(row.ref_pass_in_range)} of the paths in range",
+                   "" if math.isnan(taut) else
+                   f"pulled taut under the learned reward, the closest pass: {_num(taut)} m")
 
 
 def _birl_stage(t: Tables) -> Reading:
