@@ -449,20 +449,42 @@ def heldout_by_lattice(m: dict) -> list[str]:
             "their lead above is the lattice's doing, not the learned reward's"]
 
 
-def kept_by_lattice(m: dict) -> list[str]:
+def kept_by_lattice(m: dict, learned_from: float | None = None) -> list[str]:
     """A warning line when the learned roadmap paths, pulled taut under the learned reward
     (ref_min_distance_to_person_taut), pass a person closer, by over CLOSER_MARGIN_M, than
     on the lattice: their distance from people came from the lattice's staircases, not from
     the reward, and a planner not held to the lattice (Nav2 on the exported costmap) would
-    pass closer (a lobby's learned paths: 1.0 m on the lattice, 0.29 m
-    pulled taut)."""
+    pass closer (a lobby's learned paths: 1.0 m on the lattice, 0.29 m pulled taut). Where
+    that is closer than every demonstration (`closer_than_demos`, which looks at the
+    lattice paths, said nothing: the lobby's walkers kept 0.77 m), it says so, with the
+    same advice."""
     raw, taut = m.get("ref_min_distance_to_person"), m.get("ref_min_distance_to_person_taut")
     if raw is None or taut is None or taut >= raw - CLOSER_MARGIN_M:
         return []
+    demos = m.get("demos_min_distance_to_person", learned_from)
+    ruder = "" if demos is None or not taut < demos - CLOSER_MARGIN_M <= raw else \
+        f", closer than any demonstration ({demos:.2f} m){relearn_hint(m, demos)}"
     return [f"  warning          pulled taut under the learned reward, as a planner that is "
             f"not held to the roadmap's lattice would drive them, the roadmap paths pass "
             f"{taut:.2f} m from a person, not {raw:.2f} m: their distance from people is the "
-            "lattice's doing, not the learned reward's"]
+            f"lattice's doing, not the learned reward's{ruder}"]
+
+
+def relearn_hint(m: dict, demos: float) -> str:
+    """"; learn again with ..." for a learned reward ruder than demonstrators who kept
+    `demos` m from people, naming the features the learner lacks ('' if it has them)."""
+    # Two ways to say it, neither always the better, sometimes only both: the squared hinge
+    # (an unseen walker's 0.25 m paths went to 0.50 m) and a hinge where the demonstrators
+    # keep (another's 0.40 m to 0.64 m with social@0.7). The hinge only to a learner without
+    # one near that radius: one at 0.7 m already says what one at 0.52 m would.
+    hinge = f"social@{max(demos, 0.1):.1f}"
+    radii = [float(k.removeprefix("weight_social@")) for k in m if k.startswith("weight_social@")]
+    ways = [f for f, has in (("social_squared", "weight_social_squared" in m),
+                             (hinge, any(abs(r - demos) <= NEAR_HINGE_M for r in radii)))
+            if not has]
+    named = " or ".join(ways) if len(ways) < 2 else f"{ways[0]}, {ways[1]} or both"
+    return f"; learn again with {named} added to birl.features (see the methods docs)" \
+        if ways else ""
 
 
 def closer_than_demos(m: dict, learned_from: float | None = None) -> list[str]:
@@ -479,18 +501,7 @@ def closer_than_demos(m: dict, learned_from: float | None = None) -> list[str]:
         m.get("ref_min_distance_to_person")
     if demos is None or learned is None or learned >= demos - CLOSER_MARGIN_M:
         return []
-    # Two ways to say it, neither always the better, sometimes only both: the squared hinge
-    # (an unseen walker's 0.25 m paths went to 0.50 m) and a hinge where the demonstrators
-    # keep (another's 0.40 m to 0.64 m with social@0.7). The hinge only to a learner without
-    # one near that radius: one at 0.7 m already says what one at 0.52 m would.
-    hinge = f"social@{max(demos, 0.1):.1f}"
-    radii = [float(k.removeprefix("weight_social@")) for k in m if k.startswith("weight_social@")]
-    ways = [f for f, has in (("social_squared", "weight_social_squared" in m),
-                             (hinge, any(abs(r - demos) <= NEAR_HINGE_M for r in radii)))
-            if not has]
-    named = " or ".join(ways) if len(ways) < 2 else f"{ways[0]}, {ways[1]} or both"
-    hint = f"; learn again with {named} added to birl.features (see the methods docs)" \
-        if ways else ""
+    hint = relearn_hint(m, demos)
     if own is None:
         return [f"  warning          the roadmap paths pass {learned:.2f} m from a person; the "
                 f"demonstrations the weights were learned from kept {demos:.2f} m or more: on "
@@ -683,7 +694,7 @@ def summary_text(m: dict, run_dir: str, learner_features: list[str],
     ruder_than_demos = closer_than_demos(m, learned_from)
     lines += graph_less_polite(m, roadmap_ruder_than_demos=bool(ruder_than_demos))
     lines += ruder_than_demos
-    lines += kept_by_lattice(m)
+    lines += kept_by_lattice(m, learned_from)
     for name in [k[len("transfer_"):-len("_success")] for k in m
                  if k.startswith("transfer_") and k.endswith("_success")]:  # config order
         prefix = f"transfer_{name}_"

@@ -77,8 +77,8 @@ def check_summary(m: dict, out: str, learned_from: float | None = None) -> None:
     share = m["graph_demo_node_share"]
     assert ("demonstration waypoints: these say little" in out) == (share > 0.5)
     assert ("do not reach the goal" in out) == (m.get("demos_unreached", 0) > 0)
-    assert ("closer than any demonstration" in out or "the weights were learned from kept"
-            in out) == closer
+    assert ("the learned roadmap paths pass" in out and "closer than any demonstration" in out
+            or "the weights were learned from kept" in out) == closer
     same = "heldout_count" in m and all(
         abs(m[k] - m[k + "_shortest"]) <= 1e-9 * (1 + abs(m[k + "_shortest"]))
         for k in ("heldout_frechet_m", "heldout_min_distance_error_m") if k in m)
@@ -90,6 +90,10 @@ def check_summary(m: dict, out: str, learned_from: float | None = None) -> None:
     kept = m.get("ref_min_distance_to_person_taut", np.inf) < \
         m["ref_min_distance_to_person"] - 0.05
     assert ("their distance from people is the lattice's doing" in out) == kept
+    demos = m.get("demos_min_distance_to_person", learned_from)
+    taut_ruder = kept and demos is not None and \
+        m["ref_min_distance_to_person_taut"] < demos - 0.05 <= m["ref_min_distance_to_person"]
+    assert ("the learned reward's, closer than any demonstration" in out) == taut_ruder
     if "frechet_to_demos" in m:
         assert f"discrete Fréchet mean {m['frechet_to_demos']:.3f} m" in out
     else:
@@ -527,4 +531,17 @@ def test_roadmap_paths_kept_from_people_by_the_lattice_alone_are_said(tmp_path):
     assert m["ref_min_distance_to_person"] > m["ref_min_distance_to_person_taut"] + 0.5
     assert (f"the roadmap paths pass {m['ref_min_distance_to_person_taut']:.2f} m from a "
             f"person, not {m['ref_min_distance_to_person']:.2f} m") in out
+    check_summary(m, out)
+    # judged on walks that keep about 1.1 m from the person: the lattice paths (1.4 m) look
+    # polite, the taut ones (0.7 m) are closer than any of them, which the line says
+    walks = {"trajectories": [[[1.0, 1.0], [9.0, 4.5]], [[1.0, 7.0], [3.0, 6.8], [9.0, 4.5]]]}
+    (tmp_path / "walks.json").write_text(json.dumps(walks))
+    m, out = run_in_process(tmp_path / "judged", "scene=file",
+                            f"scene.path={tmp_path / 'hall.json'}", "expert=file",
+                            f"expert.path={tmp_path / 'walks.json'}", "evaluate.holdout=all",
+                            "graph=small", "birl=fixed", _weights([0, 0, 0, -1, 0]))
+    assert m["ref_min_distance_to_person_taut"] < m["demos_min_distance_to_person"] - 0.05 \
+        <= m["ref_min_distance_to_person"]  # the case
+    assert (f"not the learned reward's, closer than any demonstration "
+            f"({m['demos_min_distance_to_person']:.2f} m); learn again with") in out
     check_summary(m, out)
