@@ -1438,8 +1438,11 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         # what follows the goal is cut away: a jump there is no jump in a demonstration
         warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
         warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
-    if not select_walks or recording.is_stream:
+    if recording.is_stream:
         labels = [str(i) for i in range(len(tracks))]
+    elif not select_walks:  # a CSV's ids are what the user finds in the file
+        labels = [str(i) if recording.ids is None else f"{i} (id {recording.ids[i]!r})"
+                  for i in range(len(tracks))]
     try:
         cleaned = clean_tracks(tracks, goal, goal_tolerance, room, where,
                                [f"{where}: trajectory {n}" for n in labels], denoise=denoise,

@@ -494,7 +494,9 @@ def test_demonstration_far_from_every_start_is_refused(tmp_path):
     far = line(np.array([7.0, 1.0]), GOAL, 0.5)
     path.write_text("trajectory,x,y\n" + "".join(f"1,{x},{y}\n" for x, y in line(STARTS[0], GOAL))
                     + "".join(f"2,{x},{y}\n" for x, y in far))
-    refused(rf"demonstration file {path}: trajectory 1 starts 3\.13 m from the nearest start "
+    # numbered in file order, and named by its id in the file
+    refused(rf"demonstration file {path}: trajectory 1 \(id '2'\) starts 3\.13 m from the "
+            r"nearest start "
             r"\(4, 0\.1\)", load, path)
 
 

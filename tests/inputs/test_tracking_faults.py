@@ -370,7 +370,7 @@ def test_select_walks_refuses_tracks_without_any_walk_and_a_lone_bad_track_gets_
                       room=Room(10, 10, 20, 20))
     # one bad trajectory among walks is a mistake to correct, not a tracker's file
     path = _tracker_csv(tmp_path, {"a": walk(0.1), "c": elsewhere}, {"a": "a", "c": "b"})
-    with pytest.raises(PipelineError, match=r"trajectory 1 ends .* from the goal") as e:
+    with pytest.raises(PipelineError, match=r"trajectory 1 \(id 'c'\) ends .* from the goal") as e:
         load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
     assert "expert.select_walks" not in str(e.value)
 
