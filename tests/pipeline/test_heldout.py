@@ -129,14 +129,29 @@ def test_the_summary_warns_when_the_lattice_decides_the_comparison(tmp_path):
     m, out = run_in_process(tmp_path / "second", *args, f"expert.path={walks}")
     assert m["heldout_frechet_m"] < m["heldout_frechet_m_shortest"]  # the case
     assert m["heldout_frechet_m_taut"] == pytest.approx(m["heldout_frechet_m_shortest_taut"])
-    assert (f"the learned paths predict the held-out demonstrations no better than the "
-            f"shortest paths (Fréchet {m['heldout_frechet_m_taut']:.2f} m against "
+    assert (f"the learned paths predict the held-out demonstrations no better (Fréchet "
+            f"{m['heldout_frechet_m_taut']:.2f} m against "
             f"{m['heldout_frechet_m_shortest_taut']:.2f} m") in out
-    assert "their lead above is the lattice's doing, not the learned reward's" in out
-    # only the measures whose lead went are named: the min-distance errors lead neither way
+    assert "the difference above is the lattice's doing, not the learned reward's" in out
+    # only the measures whose comparison turned are named
     assert m["heldout_min_distance_error_m"] < m["heldout_min_distance_error_m_shortest"]
     assert ("min-distance error" in out.split("pulled taut")[1].split("\n")[0]) == (
         m["heldout_min_distance_error_m_taut"] >= m["heldout_min_distance_error_m_shortest_taut"])
+    # the other way round: held-out walks that are the shortest paths' staircases, the
+    # learned ones another: on the lattice the learned paths predict them worse (the summary
+    # says so), pulled taut no worse, and the summary says that too
+    run_in_process(tmp_path / "fastest", *args[:-1], "birl.weights=[0,0,0,0,0]",
+                   f"expert.path={walks}")
+    fastest = [p["points"] for p in read_artefact(tmp_path / "fastest" / "eval.mcap")
+               .all(topics.EVAL_PATHS) if p["graph"] == "ref"]
+    walks.write_text(json.dumps({"trajectories": fastest * 2, "subjects": ["a", "a", "b", "b"]}))
+    m, out = run_in_process(tmp_path / "third", *args, f"expert.path={walks}")
+    assert m["heldout_frechet_m"] > m["heldout_frechet_m_shortest"]  # the case
+    assert m["heldout_frechet_m_taut"] <= m["heldout_frechet_m_shortest_taut"]
+    assert "the learned paths are farther from the held-out demonstrations" in out
+    assert (f"predict the held-out demonstrations no worse (Fréchet "
+            f"{m['heldout_frechet_m_taut']:.2f} m against "
+            f"{m['heldout_frechet_m_shortest_taut']:.2f} m") in out
 
 
 def test_the_summary_warns_when_the_shortest_path_predicts_better(subjects_run, tmp_path):
