@@ -829,6 +829,14 @@ def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: 
                     listed(found, 5))
 
 
+def track_name(k: int, ids: Sequence[str] | None, walk: int | None = None) -> str:
+    """Track k's name in messages: its number in the file, "/2" for its second walk (cut
+    by `select_track_walks`), and its id in the file where `ids` gives them (what a user
+    finds there)."""
+    number = str(k) if walk is None else f"{k}/{walk}"
+    return number if ids is None else f"{number} (id {ids[k]!r})"
+
+
 def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | None] | None,
                        starts: np.ndarray, goal: np.ndarray, start_radius: float,
                        goal_tolerance: float, where: str, room: Room | None = None,
@@ -846,22 +854,20 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
     walk_subjects: list[str | None] = []
     labels: list[str] = []
     offsets: list[int] = []
-    without, several = [], []
+    without: list[str] = []
+    several: list[tuple[int, int]] = []  # (track, its walks)
     for k, track in enumerate(tracks):
         with np.errstate(over="ignore", invalid="ignore"):
             spans = stream_spans(track, starts, goal, start_radius, goal_tolerance)
-        if len(spans) > 1 and not several:
-            example = f"{k}/1, {k}/2"
         walks += [track[b:g + 1] for b, g in spans]
         walk_subjects += [subjects[k] if subjects else None] * len(spans)
-        named = f" (id {ids[k]!r})" if ids is not None else ""
-        labels += [f"{k}{named}"] if len(spans) == 1 else \
-            [f"{k}/{j + 1}{named}" for j in range(len(spans))]
+        labels += [track_name(k, ids)] if len(spans) == 1 else \
+            [track_name(k, ids, j + 1) for j in range(len(spans))]
         offsets += [b for b, _ in spans]
         if not spans:
             without.append(str(k))
         elif len(spans) > 1:
-            several.append(f"{k} ({len(spans)} walks)")
+            several.append((k, len(spans)))
     if not walks:
         raise no_walk_found(where, tracks, room, start_radius, goal_tolerance)
     if without or several:
@@ -871,8 +877,9 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
                     len(walks), len(tracks) - len(without), len(tracks),
                     f"; {len(without)} hold none and are dropped: {listed(without, 8)}"
                     if without else "",
-                    f"; several in {listed(several, 5)}, whose walks are named "
-                    f"{example}, ..." if several else "")
+                    f"; several in {listed([f'{k} ({n} walks)' for k, n in several], 5)}, whose "
+                    f"walks are named {several[0][0]}/1, {several[0][0]}/2, ..."
+                    if several else "")
     return walks, walk_subjects, labels, offsets
 
 
@@ -1426,6 +1433,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         tracks = [stream[b:g + 1] for b, g in spans]
         subjects = [_span_subject(recording.subjects, b, g, where, i)
                     for i, (b, g) in enumerate(spans)]
+        labels = [str(i) for i in range(len(tracks))]
         warn_jumps(tracks, where, [b for b, _ in spans])
     elif select_walks:
         tracks, subjects, labels, offsets = select_track_walks(
@@ -1435,14 +1443,10 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     else:
         tracks = recording.tracks
         subjects = recording.subjects or [None] * len(tracks)
+        labels = [track_name(i, recording.ids) for i in range(len(tracks))]
         # what follows the goal is cut away: a jump there is no jump in a demonstration
         warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
         warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
-    if recording.is_stream:
-        labels = [str(i) for i in range(len(tracks))]
-    elif not select_walks:  # a CSV's ids are what the user finds in the file
-        labels = [str(i) if recording.ids is None else f"{i} (id {recording.ids[i]!r})"
-                  for i in range(len(tracks))]
     try:
         cleaned = clean_tracks(tracks, goal, goal_tolerance, room, where,
                                [f"{where}: trajectory {n}" for n in labels], denoise=denoise,
