@@ -396,10 +396,9 @@ def graph_less_polite(m: dict, roadmap_ruder_than_demos: bool = False) -> list[s
                                            ("intimate", "intimate_intrusion_m", ".2f", " m"))
              if key in m and "ref_" + key in m and m[key] > m["ref_" + key] + 1e-9]
     # and closer to a person, by more than a roadmap path follows a distance (a deployment's
-    # graph paths passed 0.28 m from a person's centre, its roadmap's 0.34 m, unsaid)
-    # pulled taut, the roadmap's paths may pass closer than on its lattice: what a planner
-    # would drive them at (a room's graph paths at 0.83 m were "ruder" than the roadmap's
-    # 1.20 m, which were 0.87 m pulled taut)
+    # graph paths passed 0.28 m from a person's centre, its roadmap's 0.34 m, unsaid), than
+    # the roadmap's paths on the lattice or pulled taut, whichever passes closer (a room's
+    # graph paths at 0.83 m were "ruder" than the roadmap's 1.20 m, 0.87 m pulled taut)
     closest = m.get("min_distance_to_person"), min(
         m.get("ref_min_distance_to_person", np.inf), m.get("ref_min_distance_to_person_taut",
                                                            np.inf))
