@@ -189,6 +189,10 @@ def test_a_boolean_override_takes_true_false_a_sweep_or_an_interpolation():
     assert one_line(err) == ("config error: expert.denoise=yes is not allowed (allowed: true "
                              "or false)")
     check_boolean_overrides(cfg, ["expert.path=yes"])  # a string setting takes any word
+    with pytest.raises(PipelineError) as err:  # the option added for a tracker's files
+        check_boolean_overrides(cfg, ["expert.select_walks=on"])
+    assert one_line(err) == ("config error: expert.select_walks=on is not allowed (allowed: "
+                             "true or false)")
 
 
 def test_a_long_value_is_cut_from_101_characters_on():
