@@ -435,3 +435,85 @@ def test_a_standing_persons_jitter_is_smoothed_without_an_absurd_lengthening(cap
     with caplog.at_level(logging.WARNING):
         smooth_jitter([stay], "tracker.csv")
     assert "zig-zag" in caplog.text and "times as long" not in caplog.text
+
+
+def _timed_csv(tmp_path, tracks: dict[str, tuple[np.ndarray, np.ndarray]],
+               subjects: dict[str, str] | None = None):
+    """A tracker's CSV with times: {id: (points, their times)}."""
+    path = tmp_path / "timed.csv"
+    path.write_text("t,trajectory,x,y" + (",subject" if subjects else "") + "\n" + "".join(
+        f"{t!r},{k},{x!r},{y!r}" + (f",{subjects[k]}" if subjects else "") + "\n"
+        for k, (pts, ts) in tracks.items() for (x, y), t in zip(pts.tolist(), ts.tolist())))
+    return path
+
+
+def _walked(points: np.ndarray, speed: float = 1.25, t0: float = 0.0) -> np.ndarray:
+    """The times at which a walker at `speed` passes `points`."""
+    return t0 + np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0),
+                                                                axis=1))]) / speed
+
+
+def test_a_track_lost_and_found_again_under_a_new_id_is_one_walk(tmp_path, caplog):
+    """A tracker loses a walker for a second (poses 40-50 missing) and finds them again
+    under a new id: with expert.select_walks the two tracks are joined into the walk, named
+    by both, the gap bridged by poses on the straight line at the track's interval (no jump
+    to warn of); without times nothing is joined and no walk is found."""
+    full = walk(0.1)
+    times = _walked(full)
+    before, after = slice(0, 40), slice(50, None)
+    tracks = {"7": (full[before], times[before]), "9": (full[after], times[after]),
+              "3": (np.linspace(START, START + [0.0, 4.0], 40), times[:40])}
+    path = _timed_csv(tmp_path, tracks)
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    assert demo.label == "0+1 (ids '7', '9')"
+    assert "2 tracks lost and found again under a new id are joined into 1 " in caplog.text
+    assert "0+1 (ids '7', '9')" in caplog.text
+    assert "jump" not in caplog.text
+    assert "read from 2 of 3 trajectories" in caplog.text
+    # the nine lost poses are bridged on the chord between the two tracks' ends
+    from pipeline.inputs.recorded import join_chain
+    joined = join_chain([full[before], full[after]], [times[before], times[after]], [0, 1])
+    assert len(joined) == len(full)
+    chord = joined[39:50]
+    (ax, ay), (bx, by) = (chord[1:] - chord[0]).T, full[50] - full[39]
+    cross = ax * by - ay * bx
+    np.testing.assert_allclose(cross, 0.0, atol=1e-12)
+    # read as the walk with the lost poses on the chord is, cut at the goal disk
+    [alone] = load_recorded(_tracker_csv(tmp_path, {"a": joined}, {"a": "x"}), START[None],
+                            GOAL, goal_tolerance=0.2)
+    np.testing.assert_array_equal(demo.points, alone.points)
+    untimed = _tracker_csv(tmp_path, {k: p for k, (p, _) in tracks.items()},
+                           dict.fromkeys(tracks, "x"))
+    with pytest.raises(PipelineError, match=r"found no trajectory from a start"):
+        load_recorded(untimed, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+
+
+def test_only_an_unambiguous_continuation_is_joined():
+    """Track 0 ends heading east at t = 10 s. Each case adds tracks beginning after it:
+    one where it was heading (joined), one heading back west, one 3 s later or 2 m off, one
+    of another subject (none joined), and two where it was heading (neither: which one is
+    the walker is a guess)."""
+    from pipeline.inputs.recorded import broken_track_chains
+    east = np.array([1.25, 0.0])
+
+    def track(p0, velocity, t0, n=20):
+        ts = t0 + 0.1 * np.arange(n)
+        return np.asarray(p0, float) + (ts - t0)[:, None] * velocity, ts
+
+    lost = track([0.0, 0.0], east, 8.1)  # ends at (2.375, 0) at t = 10.0
+    there = [3.625, 0.0]  # where it would be 1 s later
+    cases = {
+        "heading on": ([track(there, east, 11.0)], [[0, 1]]),
+        "turned back": ([track(there, -east, 11.0)], [[0], [1]]),
+        "too late": ([track([6.125, 0.0], east, 13.0)], [[0], [1]]),
+        "too far off": ([track([3.625, 2.0], east, 11.0)], [[0], [1]]),
+        "two candidates": ([track(there, east, 11.0), track([3.625, 0.4], east, 11.1)],
+                           [[0], [1], [2]]),
+    }
+    for name, (others, chains) in cases.items():
+        tracks, times = zip(*([lost] + others), strict=True)
+        assert broken_track_chains(tracks, times, None) == chains, name
+    tracks, times = zip(lost, track(there, east, 11.0), strict=True)
+    assert broken_track_chains(tracks, times, ["ana", "ben"]) == [[0], [1]]
+    assert broken_track_chains(tracks, times, ["ana", "ana"]) == [[0, 1]]
