@@ -443,7 +443,8 @@ def _timed_csv(tmp_path, tracks: dict[str, tuple[np.ndarray, np.ndarray]],
     path = tmp_path / "timed.csv"
     path.write_text("t,trajectory,x,y" + (",subject" if subjects else "") + "\n" + "".join(
         f"{t!r},{k},{x!r},{y!r}" + (f",{subjects[k]}" if subjects else "") + "\n"
-        for k, (pts, ts) in tracks.items() for (x, y), t in zip(pts.tolist(), ts.tolist(), strict=True)))
+        for k, (pts, ts) in tracks.items()
+        for (x, y), t in zip(pts.tolist(), ts.tolist(), strict=True)))
     return path
 
 
