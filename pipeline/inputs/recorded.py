@@ -183,6 +183,10 @@ REJOIN_SPREAD = 1.0  # m/s
 MOTION_WINDOW = 1.0  # s
 MOVING = 0.3  # m/s
 AMBIGUITY = 1.5
+# `select_track_walks` names the tracks that set off from a start and come within NEAR_MISS
+# times the goal tolerance of the goal but never into its disk: walkers bound for the goal
+# whom a tolerance a little too small loses (a tracker's people pass a goal point by 0.3 m)
+NEAR_MISS = 2.0
 
 
 def is_recording_folder(path: Path) -> bool:
@@ -977,6 +981,7 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
     offsets: list[int] = []
     without: list[str] = []
     several: list[tuple[str, int]] = []  # (track, its walks)
+    near_misses: list[tuple[str, float]] = []  # (track, its closest approach to the goal)
     chains = chains if chains is not None else [[k] for k in range(len(tracks))]
     in_file, with_walks = sum(map(len, chains)), 0  # trajectories in the file
     for k, track in enumerate(tracks):
@@ -990,6 +995,9 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
         with_walks += len(chains[k]) if spans else 0
         if not spans:
             without.append(track_name(chains[k], None))
+            closest = _closest_after_a_start(track, starts, goal, start_radius)
+            if closest <= NEAR_MISS * goal_tolerance:
+                near_misses.append((track_name(chains[k], ids), closest))
         elif len(spans) > 1:
             several.append((track_name(chains[k], None), len(spans)))
     if not walks:
@@ -1004,7 +1012,25 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
                     f"; several in {listed([f'{k} ({n} walks)' for k, n in several], 5)}, whose "
                     f"walks are named {several[0][0]}/1, {several[0][0]}/2, ..."
                     if several else "")
+    if near_misses:
+        log.warning("%s: expert.select_walks: %d trajectories set off from a start and pass "
+                    "%.2f-%.2f m from the goal, never into its disk of %g m (scene."
+                    "goal_tolerance), so hold no walk: %s", where, len(near_misses),
+                    min(d for _, d in near_misses), max(d for _, d in near_misses),
+                    goal_tolerance, listed([n for n, _ in near_misses], 5))
     return walks, walk_subjects, labels, offsets
+
+
+def _closest_after_a_start(track: np.ndarray, starts: np.ndarray, goal: np.ndarray,
+                           start_radius: float) -> float:
+    """How close a track comes to the goal after it is first near a start (inf if never)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        near = (np.linalg.norm(track[:, None, :] - np.reshape(starts, (1, -1, 2)), axis=2)
+                <= start_radius).any(axis=1)
+        if not near.any():
+            return math.inf
+        return float(np.nanmin(np.linalg.norm(track[int(np.argmax(near)):] - goal, axis=1),
+                               initial=math.inf))
 
 
 def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,

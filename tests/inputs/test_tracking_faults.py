@@ -518,3 +518,21 @@ def test_only_an_unambiguous_continuation_is_joined():
     tracks, times = zip(lost, track(there, east, 11.0), strict=True)
     assert broken_track_chains(tracks, times, ["ana", "ben"]) == [[0], [1]]
     assert broken_track_chains(tracks, times, ["ana", "ana"]) == [[0, 1]]
+
+
+def test_tracks_that_pass_just_outside_the_goal_disk_are_named(tmp_path, caplog):
+    """A walker bound for the goal who passes it 0.35 m off, outside its 0.3 m disk, holds
+    no walk: the warning names the track and how close it came, and scene.goal_tolerance;
+    one that never set off from a start, or passes far off, is not named."""
+    first = walk(0.1)
+    short = first[np.linalg.norm(first - GOAL, axis=1) > 0.5]
+    bypass = np.vstack([short, GOAL + [0.35, 0.0], GOAL + [0.35, 2.0]])
+    wanderer = np.linspace(GOAL + [-3.0, 0.35], GOAL + [3.0, 0.35], 60)  # from no start
+    far = np.vstack([first[np.linalg.norm(first - GOAL, axis=1) > 1.5], GOAL + [1.5, -1.0]])
+    tracks = {"a": first, "b": bypass, "c": wanderer, "d": far}
+    path = _tracker_csv(tmp_path, tracks, dict.fromkeys(tracks, "x"))
+    with caplog.at_level(logging.WARNING):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.3, select_walks=True)
+    assert re.search(r"1 trajectories set off from a start and pass 0\.35-0\.35 m from the "
+                     r"goal, never into its disk of 0\.3 m \(scene\.goal_tolerance\), so hold "
+                     r"no walk: 1 \(id 'b'\)$", caplog.text, re.MULTILINE)
