@@ -183,6 +183,10 @@ REJOIN_SPREAD = 1.0  # m/s
 MOTION_WINDOW = 1.0  # s
 MOVING = 0.3  # m/s
 AMBIGUITY = 1.5
+# `id_switches`: a pose this far from where its track's motion predicted is a jump; two
+# tracks that jump at one time, each to where the other was heading, exchanged whom they
+# follow (5 cm of tracking noise misses the prediction by about 7 cm)
+SWITCH_MISS = 0.3  # m
 # `select_track_walks` names the tracks that set off from a start and come within NEAR_MISS
 # times the goal tolerance of the goal but never into its disk: walkers bound for the goal
 # whom a tolerance a little too small loses (a tracker's people pass a goal point by 0.3 m)
@@ -941,15 +945,74 @@ def join_chain(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     return np.vstack(parts)
 
 
-def rejoin_broken_tracks(recording: Recording, where: str
-                         ) -> tuple[list[np.ndarray], list[str | None] | None, list[list[int]]]:
-    """A tracker's tracks with the broken ones joined (`broken_track_chains`, which needs
-    the times of a CSV's t column; without them every track stays as it is): the tracks,
-    their subjects and the chain of file tracks each is made of. One line names the joins."""
+def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Where each pose of a track would be, moved on from the pose before at the velocity of
+    the MOTION_WINDOW seconds before that (the first pose: where it is)."""
+    prev = np.arange(len(points) - 1)
+    first = np.searchsorted(times, times[prev] - MOTION_WINDOW, side="left")
+    dt = (times[prev] - times[first])[:, None]
+    velocity = np.divide(points[prev] - points[first], dt, out=np.zeros((len(prev), 2)),
+                         where=dt > 0)
+    return np.vstack([points[:1], points[prev] + velocity * (times[1:] - times[prev])[:, None]])
+
+
+def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
+                subjects: Sequence[str | None] | None) -> list[tuple[float, int, int]]:
+    """The id switches of a tracker's tracks, as (time, a, b): from that time on, track a
+    follows whom b followed before and b whom a did. At that time both jump SWITCH_MISS or
+    more from where their motion predicted (`_predicted`), each to within SWITCH_MISS of the
+    other's prediction; no third track does so with either, and the two have the same
+    subject. Tracks that jump at different times (a tracker that does not report every
+    track at every frame) are never taken for a switch."""
+    jumps: dict[float, list[tuple[int, int, np.ndarray]]] = {}  # time: (track, pose, predicted)
+    for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
+        predicted = _predicted(points, ts)
+        for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > SWITCH_MISS):
+            jumps.setdefault(float(ts[i]), []).append((k, int(i), predicted[i]))
+    switches = []
+    for t, jumped in jumps.items():
+        pairs = [(a, b) for (a, i, pa), (b, j, pb) in itertools.combinations(jumped, 2)
+                 if max(np.linalg.norm(tracks[a][i] - pb), np.linalg.norm(tracks[b][j] - pa))
+                 <= SWITCH_MISS and (subjects is None or subjects[a] == subjects[b])]
+        partners = np.bincount(np.ravel(pairs).astype(int), minlength=len(tracks))
+        switches += [(t, a, b) for a, b in pairs if partners[a] == partners[b] == 1]
+    return sorted(switches)
+
+
+def undo_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
+                  switches: Sequence[tuple[float, int, int]]
+                  ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The tracks (and times) with each switch's tails exchanged back. The latest first: an
+    earlier exchange then carries the later ones' corrected tails along with its own."""
+    tracks, times = list(tracks), list(times)
+    for t, a, b in sorted(switches, reverse=True):
+        i, j = np.searchsorted(times[a], t), np.searchsorted(times[b], t)
+        tracks[a], tracks[b] = (np.vstack([tracks[a][:i], tracks[b][j:]]),
+                                np.vstack([tracks[b][:j], tracks[a][i:]]))
+        times[a], times[b] = (np.concatenate([times[a][:i], times[b][j:]]),
+                              np.concatenate([times[b][:j], times[a][i:]]))
+    return tracks, times
+
+
+def mend_tracks(recording: Recording, where: str
+                ) -> tuple[list[np.ndarray], list[str | None] | None, list[list[int]]]:
+    """A tracker's tracks mended where a CSV's t column gives their times (without them
+    every track stays as it is): id switches undone (`id_switches`), then the tracks lost
+    and found again under a new id joined (`broken_track_chains`). Returns the tracks, their
+    subjects and the chain of file tracks each is made of; one line names each kind of
+    mending."""
     tracks, subjects = recording.tracks, recording.subjects
     if recording.times is None:
         return list(tracks), subjects, [[k] for k in range(len(tracks))]
-    chains = broken_track_chains(tracks, recording.times, subjects)
+    switches = id_switches(tracks, recording.times, subjects)
+    if switches:
+        log.warning("%s: expert.select_walks: %d pairs of tracks exchange whom they follow "
+                    "(an id switch: at one time each jumps to where the other was heading), "
+                    "exchanged back from then on: %s", where, len(switches),
+                    listed([f"{track_name([a, b], recording.ids).replace('+', ' and ')} at "
+                            f"t={t:.3f}" for t, a, b in switches], 5, "; "))
+    tracks, times = undo_switches(tracks, recording.times, switches)
+    chains = broken_track_chains(tracks, times, subjects)
     joined = [c for c in chains if len(c) > 1]
     if joined:
         log.warning("%s: expert.select_walks: %d tracks lost and found again under a new id "
@@ -957,7 +1020,7 @@ def rejoin_broken_tracks(recording: Recording, where: str
                     "was heading, and no other did): %s", where,
                     sum(map(len, joined)), len(joined), REJOIN_GAP,
                     listed([track_name(c, recording.ids) for c in joined], 5))
-    return ([join_chain(tracks, recording.times, c) for c in chains],
+    return ([join_chain(tracks, times, c) for c in chains],
             None if subjects is None else [subjects[c[0]] for c in chains], chains)
 
 
@@ -1586,7 +1649,7 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         labels = [str(i) for i in range(len(tracks))]
         warn_jumps(tracks, where, [b for b, _ in spans])
     elif select_walks:
-        tracks, subjects, chains = rejoin_broken_tracks(recording, where)
+        tracks, subjects, chains = mend_tracks(recording, where)
         tracks, subjects, labels, offsets = select_track_walks(
             tracks, subjects, starts, goal, start_radius, goal_tolerance, where, room,
             recording.ids, chains)

@@ -536,3 +536,35 @@ def test_tracks_that_pass_just_outside_the_goal_disk_are_named(tmp_path, caplog)
     assert re.search(r"1 trajectories set off from a start and pass 0\.35-0\.35 m from the "
                      r"goal, never into its disk of 0\.3 m \(scene\.goal_tolerance\), so hold "
                      r"no walk: 1 \(id 'b'\)$", caplog.text, re.MULTILINE)
+
+
+def test_an_id_switch_is_undone_so_no_walk_is_made_of_two_people(tmp_path, caplog):
+    """Ana walks from the start to the goal, Ben beside her, 0.6 m to the side, to another
+    exit; at t = 2 s the tracker swaps their ids. Read as filed, ben's track would be a walk
+    from the start to the goal made of both; with the switch undone, the one walk read is
+    ana's own, whole, and one warning names the switch with its time."""
+    from pipeline.inputs.recorded import id_switches, undo_switches
+    ts = np.arange(0.0, 6.0, 0.08)
+    ana = START + (GOAL - START) * (ts / ts[-1])[:, None]
+    side = np.array([-(GOAL - START)[1], (GOAL - START)[0]]) / np.linalg.norm(GOAL - START)
+    ben = ana[:, :] + 0.6 * side
+    ben[ts >= 4.0] = ben[ts < 4.0][-1] + 1.2 * side * (ts[ts >= 4.0] - 4.0)[:, None]
+    swap = ts >= 2.0
+    filed_a, filed_b = ana.copy(), ben.copy()
+    filed_a[swap], filed_b[swap] = ben[swap], ana[swap]
+    assert id_switches([filed_a, filed_b], [ts, ts], None) == [(float(ts[swap][0]), 0, 1)]
+    (a, b), _ = undo_switches([filed_a, filed_b], [ts, ts], [(float(ts[swap][0]), 0, 1)])
+    np.testing.assert_array_equal(a, ana)
+    np.testing.assert_array_equal(b, ben)
+    # no switch between tracks with different subjects, or jumping at different times
+    assert id_switches([filed_a, filed_b], [ts, ts], ["ana", "ben"]) == []
+    assert id_switches([filed_a, filed_b], [ts, ts + 0.04], None) == []
+    path = _timed_csv(tmp_path, {"1": (filed_a, ts), "2": (filed_b, ts)})
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True,
+                               denoise=False)
+    assert re.search(r"1 pairs of tracks exchange whom they follow .*: 0 and 1 \(ids '1', "
+                     r"'2'\) at t=2\.000", caplog.text)
+    assert demo.label == "0 (id '1')"
+    inside = np.linalg.norm(ana - GOAL, axis=1) > 0.2
+    np.testing.assert_allclose(demo.points[:inside.sum()], ana[inside], atol=1e-9)
