@@ -542,8 +542,12 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
     track_subjects: list[str | None] = []
     for i, (ident, members) in enumerate(groups.items()):
         if len(members) < 2 and not single_rows:
+            glimpses = sum(len(m) == 1 for m in groups.values())
+            hint = "" if glimpses < 2 else \
+                f"; {glimpses} trajectories have 1 row (a tracker's glimpses of people?): " \
+                "expert.select_walks=true drops them and keeps the walks from a start to the goal"
             raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has 1 row; a trajectory "
-                                f"needs at least two")
+                                f"needs at least two{hint}")
         rows = table[ordered(np.array(members), f"trajectory {i} (id {ident!r})")]
         tracks.append(rows[:, :2])
         times.append(rows[:, 2])
@@ -947,13 +951,15 @@ def join_chain(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
 
 def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
     """Where each pose of a track would be, moved on from the pose before at the velocity of
-    the MOTION_WINDOW seconds before that (the first pose: where it is)."""
+    the MOTION_WINDOW seconds before that; where it is, where those hold one time (the first
+    two poses): no motion is known to predict from, so no jump is seen."""
     prev = np.arange(len(points) - 1)
     first = np.searchsorted(times, times[prev] - MOTION_WINDOW, side="left")
     dt = (times[prev] - times[first])[:, None]
     velocity = np.divide(points[prev] - points[first], dt, out=np.zeros((len(prev), 2)),
                          where=dt > 0)
-    return np.vstack([points[:1], points[prev] + velocity * (times[1:] - times[prev])[:, None]])
+    moved_on = points[prev] + velocity * (times[1:] - times[prev])[:, None]
+    return np.vstack([points[:1], np.where(dt > 0, moved_on, points[1:])])
 
 
 def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
@@ -994,24 +1000,52 @@ def undo_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     return tracks, times
 
 
+def drop_shared_times(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]
+                      ) -> tuple[list[np.ndarray], list[np.ndarray], dict[int, np.ndarray]]:
+    """The tracks (and times) without their rows at a time that holds several rows at
+    different places: a tracker that gave two people one id for a while (a track of one
+    person has one place at a time). Returns the tracks, times and, by track, the shared
+    times dropped; a track that would keep fewer than two rows is kept whole."""
+    tracks, times = list(tracks), list(times)
+    dropped = {}
+    for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
+        values, counts = np.unique(ts, return_counts=True)
+        shared = [v for v in values[counts > 1]
+                  if np.ptp(points[ts == v], axis=0).max() > REPEAT_TOLERANCE]
+        if shared:
+            keep = ~np.isin(ts, shared)
+            if keep.sum() >= 2:
+                tracks[k], times[k] = points[keep], ts[keep]
+            dropped[k] = np.array(shared)
+    return tracks, times, dropped
+
+
 def mend_tracks(recording: Recording, where: str
                 ) -> tuple[list[np.ndarray], list[str | None] | None, list[list[int]]]:
     """A tracker's tracks mended where a CSV's t column gives their times (without them
-    every track stays as it is): id switches undone (`id_switches`), then the tracks lost
+    every track stays as it is): rows of two people under one id dropped
+    (`drop_shared_times`), id switches undone (`id_switches`), then the tracks lost
     and found again under a new id joined (`broken_track_chains`). Returns the tracks, their
     subjects and the chain of file tracks each is made of; one line names each kind of
     mending."""
     tracks, subjects = recording.tracks, recording.subjects
     if recording.times is None:
         return list(tracks), subjects, [[k] for k in range(len(tracks))]
-    switches = id_switches(tracks, recording.times, subjects)
+    tracks, times, shared = drop_shared_times(tracks, recording.times)
+    if shared:
+        log.warning("%s: expert.select_walks: trajectories with several rows at one time at "
+                    "different places (two people under one id?) lose their rows at those "
+                    "times (%d): %s", where, len(shared),
+                    listed([f"{track_name(k, recording.ids)} ({len(v)} times from t={v[0]:.3f})"
+                            for k, v in shared.items()], 5, "; "))
+    switches = id_switches(tracks, times, subjects)
     if switches:
-        log.warning("%s: expert.select_walks: %d pairs of tracks exchange whom they follow "
-                    "(an id switch: at one time each jumps to where the other was heading), "
-                    "exchanged back from then on: %s", where, len(switches),
+        log.warning("%s: expert.select_walks: pairs of tracks that exchange whom they follow "
+                    "(an id switch: at one time each jumps to where the other was heading) are "
+                    "exchanged back from then on (%d): %s", where, len(switches),
                     listed([f"{track_name([a, b], recording.ids).replace('+', ' and ')} at "
                             f"t={t:.3f}" for t, a, b in switches], 5, "; "))
-    tracks, times = undo_switches(tracks, recording.times, switches)
+    tracks, times = undo_switches(tracks, times, switches)
     chains = broken_track_chains(tracks, times, subjects)
     joined = [c for c in chains if len(c) > 1]
     if joined:
@@ -1076,11 +1110,11 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
                     f"walks are named {several[0][0]}/1, {several[0][0]}/2, ..."
                     if several else "")
     if near_misses:
-        log.warning("%s: expert.select_walks: %d trajectories set off from a start and pass "
-                    "%.2f-%.2f m from the goal, never into its disk of %g m (scene."
-                    "goal_tolerance), so hold no walk: %s", where, len(near_misses),
-                    min(d for _, d in near_misses), max(d for _, d in near_misses),
-                    goal_tolerance, listed([n for n, _ in near_misses], 5))
+        lo, hi = (f"{f(d for _, d in near_misses):.2f}" for f in (min, max))
+        log.warning("%s: expert.select_walks: trajectories that set off from a start and pass "
+                    "%s m from the goal, never into its disk of %g m (scene.goal_tolerance), "
+                    "hold no walk (%d): %s", where, lo if lo == hi else f"{lo}-{hi}",
+                    goal_tolerance, len(near_misses), listed([n for n, _ in near_misses], 5))
     return walks, walk_subjects, labels, offsets
 
 

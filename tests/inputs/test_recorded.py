@@ -481,7 +481,12 @@ def test_csv_without_trajectory_is_a_stream(tmp_path):
     ("x,y\n0.5,0.5\n1\n", r"line 3: 1 fields, the header has 2"),
     ("", r"is empty"),
     ("x,y\n", r"has no rows"),
-    ("trajectory,x,y\na,0.5,0.5\na,5.5,9\nb,1,1\n", r"trajectory 1 \(id 'b'\) has 1 row"),
+    ("trajectory,x,y\na,0.5,0.5\na,5.5,9\nb,1,1\n", r"trajectory 1 \(id 'b'\) has 1 row; a "
+     r"trajectory needs at least two$"),
+    # several: a tracker's glimpses, which the option that keeps only the walks drops
+    ("trajectory,x,y\na,0.5,0.5\na,5.5,9\nb,1,1\nc,2,2\n", r"trajectory 1 \(id 'b'\) has 1 "
+     r"row; a trajectory needs at least two; 2 trajectories have 1 row .*expert\.select_walks="
+     r"true drops them"),
 ])
 def test_malformed_csv_is_one_line(tmp_path, text, match):
     path = tmp_path / "bad.csv"
