@@ -374,12 +374,20 @@ def worse_than_initial(m: dict) -> list[str]:
 CLOSER_MARGIN_M = 0.05
 # A learner's hinge this close to the demonstrators' closest approach already says it
 NEAR_HINGE_M = 0.25
+# How much further into personal zones than the roadmap's paths the graph's may go before
+# the summary warns (graph_less_polite): more than this, and half as far again. Resolution
+# alone moves it by tenths of a metre (metropolis' default run: 9.19 m against 9.89 m); a
+# deployment's graph paths went 3.22 m in against the roadmap's 0.90 m, predicting the
+# walkers 4.41 m away (median Fréchet) against the roadmap's 1.18 m, unsaid
+PERSONAL_MARGIN_M = 1.0
+PERSONAL_RATIO = 1.5
 
 
 def graph_less_polite(m: dict, roadmap_ruder_than_demos: bool = False) -> list[str]:
     """A warning line when the graph's paths cross more social links, intrude further into
-    intimate zones or pass a person closer (by over CLOSER_MARGIN_M) than the same
-    reward's roadmap paths: the graph's detours, if it has
+    intimate zones, pass a person closer (by over CLOSER_MARGIN_M) or go much further into
+    personal zones (PERSONAL_MARGIN_M, PERSONAL_RATIO) than the same reward's roadmap
+    paths: the graph's detours, if it has
     any, are worse under the reward than the roadmap's (a graph grown without
     demonstrations and without its medial-axis nodes, metropolis, 460 nodes: 0-18
     crossings over eight seeds, the roadmap's 0), and these are the paths a robot would be
@@ -405,6 +413,10 @@ def graph_less_polite(m: dict, roadmap_ruder_than_demos: bool = False) -> list[s
     if closest[0] is not None and np.isfinite(closest[1]) and \
             closest[0] < closest[1] - CLOSER_MARGIN_M:
         worse.append(f"min distance {closest[0]:.2f} m against {closest[1]:.2f} m")
+    personal = m.get("personal_intrusion_m"), m.get("ref_personal_intrusion_m")
+    if None not in personal and personal[0] > max(personal[1] + PERSONAL_MARGIN_M,
+                                                  PERSONAL_RATIO * personal[1]):
+        worse.append(f"personal {personal[0]:.2f} m against {personal[1]:.2f} m")
     if not worse:
         return []
     roadmap = f"the roadmap's paths (birlg-export: {export_topics.LEARNED_REF})"

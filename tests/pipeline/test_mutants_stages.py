@@ -65,7 +65,9 @@ def check_summary(m: dict, out: str, learned_from: float | None = None) -> None:
                       for k in ("relation_crossings", "intimate_intrusion_m"))
                   or m["min_distance_to_person"] < min(
                       m["ref_min_distance_to_person"],
-                      m.get("ref_min_distance_to_person_taut", np.inf)) - 0.05))
+                      m.get("ref_min_distance_to_person_taut", np.inf)) - 0.05
+                  or m["personal_intrusion_m"] > max(m["ref_personal_intrusion_m"] + 1.0,
+                                                     1.5 * m["ref_personal_intrusion_m"])))
     assert ("ruder than the roadmap's" in out) == ruder
     closer = ("demos_min_distance_to_person" in m and m["ref_min_distance_to_person"]
               < m["demos_min_distance_to_person"] - 0.05) or learned_from is not None and \
@@ -374,6 +376,26 @@ def test_a_graph_that_loses_what_the_roadmap_loses_gets_no_ruder_warning(tmp_pat
     check_summary(m, out)
 
 
+def test_a_graph_whose_paths_only_go_much_further_into_personal_zones_is_ruder(tmp_path):
+    """No true reward (expert=none): the small graph of metropolis' seed 0 crosses no link,
+    enters no intimate zone and passes people as closely as the roadmap's paths (within
+    5 cm), but its paths go about twice as far into personal zones: they are ruder, and the
+    deployment is told to take the roadmap's paths (a walker's scene, 3.22 m against
+    0.90 m, was not)."""
+    m, out = run_in_process(tmp_path, "graph=small", "expert=none", "seed=0", "birl=fixed",
+                            _weights([*POLITE, -0.5]))
+    assert m["relation_crossings"] == m["ref_relation_crossings"]  # the case
+    assert m["intimate_intrusion_m"] == m["ref_intimate_intrusion_m"]
+    assert m["min_distance_to_person"] >= m["ref_min_distance_to_person"] - 0.05
+    assert m["personal_intrusion_m"] > 1.5 * m["ref_personal_intrusion_m"] + 1.0
+    warning = [x for x in out.splitlines() if "ruder than the roadmap's" in x]
+    assert len(warning) == 1
+    assert (f"(personal {m['personal_intrusion_m']:.2f} m against "
+            f"{m['ref_personal_intrusion_m']:.2f} m): " in warning[0])
+    assert "deploy the roadmap's paths" in warning[0]
+    check_summary(m, out)
+
+
 def test_a_graph_whose_paths_only_go_further_into_intimate_zones_is_ruder(tmp_path):
     """No social link to cross (metropolis without its relations) and no true reward (no
     demonstrations, expert=none): the graph's paths are ruder when they intrude further into
@@ -395,7 +417,9 @@ def test_a_graph_whose_paths_only_go_further_into_intimate_zones_is_ruder(tmp_pa
     assert (f"(intimate {m['intimate_intrusion_m']:.2f} m against "
             f"{m['ref_intimate_intrusion_m']:.2f} m, min distance "
             f"{m['min_distance_to_person']:.2f} m against "
-            f"{m['ref_min_distance_to_person']:.2f} m)") in warning[0]
+            f"{m['ref_min_distance_to_person']:.2f} m, personal "
+            f"{m['personal_intrusion_m']:.2f} m against "
+            f"{m['ref_personal_intrusion_m']:.2f} m)") in warning[0]
     check_summary(m, out)
 
 
