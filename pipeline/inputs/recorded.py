@@ -1005,7 +1005,8 @@ def drop_shared_times(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]
     """The tracks (and times) without their rows at a time that holds several rows at
     different places: a tracker that gave two people one id for a while (a track of one
     person has one place at a time). Returns the tracks, times and, by track, the shared
-    times dropped; a track that would keep fewer than two rows is kept whole."""
+    times dropped; a track that would keep fewer than two rows (a t column that is no
+    clock) is kept whole."""
     tracks, times = list(tracks), list(times)
     dropped = {}
     for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
@@ -1016,7 +1017,7 @@ def drop_shared_times(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]
             keep = ~np.isin(ts, shared)
             if keep.sum() >= 2:
                 tracks[k], times[k] = points[keep], ts[keep]
-            dropped[k] = np.array(shared)
+                dropped[k] = np.array(shared)
     return tracks, times, dropped
 
 

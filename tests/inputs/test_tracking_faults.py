@@ -590,6 +590,10 @@ def test_rows_of_two_people_under_one_id_are_dropped(tmp_path, caplog):
     np.testing.assert_array_equal(times[0], ts[~shared])
     assert list(dropped) == [0] and len(dropped[0]) == shared.sum()
     np.testing.assert_array_equal(tracks[1], repeated[0])
+    # a t column that is no clock (one value throughout) drops nothing, and says nothing
+    tracks, _, dropped = drop_shared_times([ana], [np.zeros(len(ana))])
+    np.testing.assert_array_equal(tracks[0], ana)
+    assert dropped == {}
     path = _timed_csv(tmp_path, {"ana": (filed[order], filed_t[order])})
     with caplog.at_level(logging.WARNING):
         [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
