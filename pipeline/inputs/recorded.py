@@ -1134,14 +1134,20 @@ def _closest_after_a_start(track: np.ndarray, starts: np.ndarray, goal: np.ndarr
 def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
                   start_radius: float, goal_tolerance: float) -> PipelineError:
     """The error for a recording whose tracks hold no walk from a start to the goal, with
-    the extent of their poses (and a hint at another frame when none is in `room`)."""
+    the extent of their poses (and a hint at another frame when none is in `room`, at x and
+    y swapped when only that puts them all in it)."""
     poses = np.vstack(tracks)
     with np.errstate(invalid="ignore"):
         lo, hi = np.nanmin(poses, axis=0), np.nanmax(poses, axis=0)
     span = f"x {metres(lo[0])}..{metres(hi[0])}, y {metres(lo[1])}..{metres(hi[1])}"
-    outside = "" if room is None or room.contains(poses).any() else \
-        f", all outside the room {room.describe()}: recorded in another frame, with another " \
-        "origin or in other units than the scene's (metres)?"
+    outside = ""
+    if room is not None and not room.contains(poses).any():
+        outside = f", all outside the room {room.describe()}: recorded in another frame, " \
+            "with another origin or in other units than the scene's (metres)?"
+    elif room is not None and not room.contains(poses).all() and \
+            room.contains(poses[:, ::-1]).all():
+        outside = f", some outside the room {room.describe()}, which would hold them all " \
+            "with x and y exchanged: are the columns swapped?"
     of = "" if len(tracks) == 1 else f" of {len(tracks)} trajectories"
     return PipelineError(
         f"{where}: found no trajectory from a start (within {start_radius:g} m, "

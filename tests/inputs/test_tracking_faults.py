@@ -600,3 +600,23 @@ def test_rows_of_two_people_under_one_id_are_dropped(tmp_path, caplog):
     assert re.search(r"trajectories with several rows at one time at different places .* "
                      r"\(1\): 0 \(id 'ana'\) \(15 times from t=2\.000\)", caplog.text)
     assert length(demo.points) < 1.01 * np.linalg.norm(GOAL - START)
+
+
+def test_x_and_y_swapped_is_suggested_when_only_that_puts_every_pose_in_the_room(tmp_path):
+    """A 20 x 14 m room; the tracker's x and y columns exchanged: some poses lie outside
+    the room (y up to 19), none would with x and y swapped back, and the refusal says so."""
+    from pipeline.core.world import Room
+    start, goal = np.array([1.0, 2.0]), np.array([19.0, 12.0])
+    walk_there = np.linspace(start, goal, 80)
+    path = _tracker_csv(tmp_path, {"a": walk_there[:, ::-1], "b": walk_there[::-1, ::-1]},
+                        {"a": "x", "b": "x"})
+    with pytest.raises(PipelineError, match=r"some outside the room .*with x and y exchanged: "
+                                            r"are the columns swapped\?\)$"):
+        load_recorded(path, start[None], goal, goal_tolerance=0.3, select_walks=True,
+                      room=Room(0, 0, 20, 14))
+    # in the room as given: no such hint
+    path = _tracker_csv(tmp_path, {"a": walk_there[:, ::-1] * 0.5 + 1.0}, {"a": "x"})
+    with pytest.raises(PipelineError) as e:
+        load_recorded(path, start[None], goal, goal_tolerance=0.3, select_walks=True,
+                      room=Room(0, 0, 20, 14))
+    assert "x and y exchanged" not in str(e.value)
