@@ -604,14 +604,17 @@ def test_rows_of_two_people_under_one_id_are_dropped(tmp_path, caplog):
 
 def test_x_and_y_swapped_is_suggested_when_only_that_puts_every_pose_in_the_room(tmp_path):
     """A 20 x 14 m room; the tracker's x and y columns exchanged: some poses lie outside
-    the room (y up to 19), none would with x and y swapped back, and the refusal says so."""
+    the room (y up to 19), and with x and y swapped back all but one would (tracking noise
+    takes it 3 cm past a wall); the refusal says so."""
     from pipeline.core.world import Room
     start, goal = np.array([1.0, 2.0]), np.array([19.0, 12.0])
     walk_there = np.linspace(start, goal, 80)
-    path = _tracker_csv(tmp_path, {"a": walk_there[:, ::-1], "b": walk_there[::-1, ::-1]},
+    past_the_wall = np.vstack([walk_there, [[20.03, 12.0]]])
+    path = _tracker_csv(tmp_path, {"a": past_the_wall[:, ::-1], "b": walk_there[::-1, ::-1]},
                         {"a": "x", "b": "x"})
-    with pytest.raises(PipelineError, match=r"some outside the room .*with x and y exchanged: "
-                                            r"are the columns swapped\?\)$"):
+    with pytest.raises(PipelineError, match=r"some outside the room .*which would hold them "
+                                            r"with x and y exchanged: are the columns "
+                                            r"swapped\?\)$"):
         load_recorded(path, start[None], goal, goal_tolerance=0.3, select_walks=True,
                       room=Room(0, 0, 20, 14))
     # in the room as given: no such hint
