@@ -1116,10 +1116,13 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
                     if several else "")
     if near_misses:
         lo, hi = (f"{f(d for _, d in near_misses):.2f}" for f in (min, max))
+        wider = math.ceil(max(d for _, d in near_misses) * 20 - 1e-9) / 20  # up to 5 cm
         log.warning("%s: expert.select_walks: trajectories that set off from a start and pass "
                     "%s m from the goal, never into its disk of %g m (scene.goal_tolerance), "
-                    "hold no walk (%d): %s", where, lo if lo == hi else f"{lo}-{hi}",
-                    goal_tolerance, len(near_misses), listed([n for n, _ in near_misses], 5))
+                    "hold no walk (%d; walks read: %d; scene.goal_tolerance=%g takes them "
+                    "in): %s", where, lo if lo == hi else f"{lo}-{hi}", goal_tolerance,
+                    len(near_misses), len(walks), wider,
+                    listed([n for n, _ in near_misses], 5))
     return walks, walk_subjects, labels, offsets
 
 

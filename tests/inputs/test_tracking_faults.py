@@ -535,7 +535,8 @@ def test_tracks_that_pass_just_outside_the_goal_disk_are_named(tmp_path, caplog)
         load_recorded(path, START[None], GOAL, goal_tolerance=0.3, select_walks=True)
     assert re.search(r"trajectories that set off from a start and pass 0\.35 m from the goal, "
                      r"never into its disk of 0\.3 m \(scene\.goal_tolerance\), hold no walk "
-                     r"\(1\): 1 \(id 'b'\)$", caplog.text, re.MULTILINE)
+                     r"\(1; walks read: 1; scene\.goal_tolerance=0\.35 takes them in\): "
+                     r"1 \(id 'b'\)$", caplog.text, re.MULTILINE)
 
 
 def test_an_id_switch_is_undone_so_no_walk_is_made_of_two_people(tmp_path, caplog):
