@@ -1368,7 +1368,7 @@ def motion_begin(gaps: np.ndarray, start_radius: float) -> int:
     taken for the visit, its stop of 60 poses ignored); only each start's last visit in the
     stretch counts (the robot came back to it). The visit's closest
     approach is its smallest distance to that start, and the robot *stops* there at the poses
-    within STOP_TOLERANCE of it. Among the visits that come within VISIT_SLACK of the closest
+    within STOP_TOLERANCE of it and within `start_radius`. Among the visits that come within VISIT_SLACK of the closest
     approach of any of them, the one with the longest stop wins (then the closer one, then the
     later one): passing near another start on the way, before or after the stop, does not
     begin a demonstration. It begins at the winner's last stop pose, where the robot moves
@@ -1383,7 +1383,9 @@ def motion_begin(gaps: np.ndarray, start_radius: float) -> int:
         r0, r1 = visits[-1]
         d = gaps[r0:r1, s]
         closest = float(d.min())
-        stop = np.flatnonzero(d <= closest + STOP_TOLERANCE)
+        # within the radius too: a stop at 0.99 m jittering to 1.004 m began a demonstration
+        # that matching then refused for starting too far off, and with it the whole file
+        stop = np.flatnonzero(d <= min(closest + STOP_TOLERANCE, start_radius))
         candidates.append((len(stop), -closest, r0 + int(stop[-1])))
     best = max(c[1] for c in candidates)
     return max(c for c in candidates if c[1] >= best - VISIT_SLACK)[2]

@@ -211,6 +211,23 @@ def test_noise_at_the_start_radius_does_not_move_where_the_walk_begins():
     assert motion_begin(earlier, 1.0) == 10 + 59
 
 
+def test_a_walk_begins_within_the_start_radius_even_where_its_stop_jitters_past_it(tmp_path):
+    """A tracked person waits 0.99 m from the start, jittering out to 1.004 m (within the
+    stop's 5 cm), then walks off. The walk began at the stop's last pose, 1.004 m off, and
+    matching then refused it for starting beyond the 1 m radius (with it, a whole tracker
+    file). It begins at the stop's last pose within the radius, and is read."""
+    gaps = np.column_stack([np.r_[0.99, 1.0, 0.995, 1.004, np.linspace(1.2, 4.0, 10)],
+                            np.full(14, 5.0)])
+    assert motion_begin(gaps, 1.0) == 2
+    away = (GOAL - STARTS[1]) / np.linalg.norm(GOAL - STARTS[1])  # passing no other start
+    wait = STARTS[1] + np.array([0.99, 1.0, 0.995, 1.004])[:, None] * away
+    walk = np.vstack([wait, line(wait[-1], GOAL)[1:]])
+    path = tmp_path / "waits.csv"
+    path.write_text("x,y\n" + "".join(f"{x!r},{y!r}\n" for x, y in walk.tolist()))
+    [demo] = load(path)
+    assert demo.start == 1 and np.linalg.norm(demo.points[0] - STARTS[1]) <= 1.0
+
+
 def test_a_start_only_passed_outside_its_radius_is_no_visit():
     """The slack joins a visit's re-entries; it does not make one. Three poses 0.95 m from
     start 0 (inside the 1 m radius), then a 60-pose stop 1.1 m from start 1 (inside radius +
