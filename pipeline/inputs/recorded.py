@@ -900,7 +900,8 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
     would be; when the two do not head apart by more than 90 degrees (both moving); and when
     they have the same subject. Only an unambiguous pair is joined: no other track comes
     within AMBIGUITY times those limits of continuing i, and i is the only track j comes that
-    close to continuing. A guess could make one walk of two people."""
+    close to continuing, apart from the tracks that would continue j or be continued by i
+    in turn (the same person lost again). A guess could make one walk of two people."""
     n = len(tracks)
     ends = np.array([t[-1] for t in times], dtype=float)
     begins = np.array([t[0] for t in times], dtype=float)
@@ -923,10 +924,17 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
                 continue
             pairs.append((i, int(j)))
             within_limits.append(miss <= 1.0 and gap <= REJOIN_GAP)
-    successors = np.bincount([i for i, _ in pairs], minlength=n)
-    predecessors = np.bincount([j for _, j in pairs], minlength=n)
+    # a rival of pair (i, j): another track that could continue i, or be continued by j,
+    # except the piece that follows j or precedes i (one person lost twice in a row)
+    candidates = set(pairs)
+    successors: dict[int, set[int]] = {}
+    predecessors: dict[int, set[int]] = {}
+    for i, j in pairs:
+        successors.setdefault(i, set()).add(j)
+        predecessors.setdefault(j, set()).add(i)
     after = {i: j for (i, j), close in zip(pairs, within_limits, strict=True)
-             if close and successors[i] == 1 and predecessors[j] == 1}
+             if close and all((j, k) in candidates for k in successors[i] - {j})
+             and all((h, i) in candidates for h in predecessors[j] - {i})}
     continuing = set(after.values())
     chains = []
     for i in range(n):
@@ -1366,13 +1374,13 @@ def motion_begin(gaps: np.ndarray, start_radius: float) -> int:
     that comes within `start_radius` of it (the slack: a noisy track that leaves a start
     crosses the radius several times, and a last re-entry of one pose at the radius was
     taken for the visit, its stop of 60 poses ignored); only each start's last visit in the
-    stretch counts (the robot came back to it). The visit's closest
-    approach is its smallest distance to that start, and the robot *stops* there at the poses
-    within STOP_TOLERANCE of it and within `start_radius`. Among the visits that come within VISIT_SLACK of the closest
-    approach of any of them, the one with the longest stop wins (then the closer one, then the
-    later one): passing near another start on the way, before or after the stop, does not
-    begin a demonstration. It begins at the winner's last stop pose, where the robot moves
-    away towards the goal.
+    stretch counts (the robot came back to it). The visit's closest approach is its smallest
+    distance to that start, and the robot *stops* there at the poses within STOP_TOLERANCE
+    of it and within `start_radius`. Among the visits that come within VISIT_SLACK of the
+    closest approach of any of them, the one with the longest stop wins (then the closer
+    one, then the later one): passing near another start on the way, before or after the
+    stop, does not begin a demonstration. It begins at the winner's last stop pose, where the
+    robot moves away towards the goal.
     """
     candidates = []  # (stop length, -closest approach, last stop pose)
     for s in range(gaps.shape[1]):

@@ -493,8 +493,8 @@ def test_a_track_lost_and_found_again_under_a_new_id_is_one_walk(tmp_path, caplo
 def test_only_an_unambiguous_continuation_is_joined():
     """Track 0 ends heading east at t = 10 s. Each case adds tracks beginning after it:
     one where it was heading (joined), one heading back west, one 3 s later or 2 m off, one
-    of another subject (none joined), and two where it was heading (neither: which one is
-    the walker is a guess)."""
+    of another subject (none joined), two where it was heading (neither: which one is
+    the walker is a guess), and two in a row (both: the walker lost twice)."""
     from pipeline.inputs.recorded import broken_track_chains
     east = np.array([1.25, 0.0])
 
@@ -511,6 +511,10 @@ def test_only_an_unambiguous_continuation_is_joined():
         "too far off": ([track([3.625, 2.0], east, 11.0)], [[0], [1]]),
         "two candidates": ([track(there, east, 11.0), track([3.625, 0.4], east, 11.1)],
                            [[0], [1], [2]]),
+        # lost again 0.4 s later: the third piece could continue the first too, but it
+        # continues the second, so it is no rival (one person lost twice in a row)
+        "lost twice": ([track(there, east, 11.0, n=5), track([4.875, 0.0], east, 12.0)],
+                       [[0, 1, 2]]),
     }
     for name, (others, chains) in cases.items():
         tracks, times = zip(*([lost] + others), strict=True)
