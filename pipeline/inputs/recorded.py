@@ -187,6 +187,14 @@ AMBIGUITY = 1.5
 # tracks that jump at one time, each to where the other was heading, exchanged whom they
 # follow (5 cm of tracking noise misses the prediction by about 7 cm)
 SWITCH_MISS = 0.3  # m
+# `mend_tracks` mends only tracks whose t is in seconds: the median speed of the tracks that
+# move WALKED_AT_LEAST metres lies in WALKING_SPEEDS (frame numbers at 12.5 Hz give 0.1, ms
+# 0.0013; a frame number's gap of 2 read as 2 s joined friends walking side by side)
+WALKED_AT_LEAST = 2.0  # m
+WALKING_SPEEDS = (0.2, 5.0)  # m/s
+# `drop_shared_times`: two people's positions at one time are at least this far apart;
+# rows of one track at one time closer than this are one person measured twice
+BODIES_APART = 0.3  # m
 # `select_track_walks` names the tracks that set off from a start and come within NEAR_MISS
 # times the goal tolerance of the goal but never into its disk: walkers bound for the goal
 # whom a tolerance a little too small loses (a tracker's people pass a goal point by 0.3 m)
@@ -1014,43 +1022,71 @@ def undo_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
 
 def drop_shared_times(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]
                       ) -> tuple[list[np.ndarray], list[np.ndarray], dict[int, np.ndarray]]:
-    """The tracks (and times) without their rows at a time that holds several rows at
-    different places: a tracker that gave two people one id for a while (a track of one
-    person has one place at a time). Returns the tracks, times and, by track, the shared
-    times dropped; a track that would keep fewer than two rows (a t column that is no
-    clock) is kept whole."""
+    """The tracks (and times) with one row at each time. Rows at one time within
+    BODIES_APART of the first are one person measured twice (logged twice, rounded): the
+    first is kept. Rows farther apart are two people under one id (a tracker that gave
+    two friends one id for a while): the row nearest the track's pose before is kept, the
+    person the track follows; at its first time, none. Returns the tracks, times and, by
+    track, its times of two people; a track that would keep fewer than two rows (a t
+    column that is no clock) is kept whole."""
     tracks, times = list(tracks), list(times)
-    dropped = {}
+    two_people = {}
     for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
-        values, counts = np.unique(ts, return_counts=True)
-        shared = [v for v in values[counts > 1]
-                  if np.ptp(points[ts == v], axis=0).max() > REPEAT_TOLERANCE]
-        if shared:
-            keep = ~np.isin(ts, shared)
-            if keep.sum() >= 2:
-                tracks[k], times[k] = points[keep], ts[keep]
-                dropped[k] = np.array(shared)
-    return tracks, times, dropped
+        first = np.flatnonzero(np.r_[True, np.diff(ts) != 0])  # each time's first row
+        if len(first) == len(ts):
+            continue
+        keep: list[int] = []
+        shared = []
+        for a, b in itertools.pairwise(np.r_[first, len(ts)]):
+            rows = points[a:b]
+            if np.linalg.norm(rows - rows[0], axis=1).max() < BODIES_APART:
+                keep.append(int(a))
+                continue
+            shared.append(ts[a])
+            if keep:
+                keep.append(int(a) + int(np.argmin(np.linalg.norm(rows - points[keep[-1]],
+                                                                  axis=1))))
+        if len(keep) >= 2:
+            tracks[k], times[k] = points[keep], ts[keep]
+            if shared:
+                two_people[k] = np.array(shared)
+    return tracks, times, two_people
+
+
+def walking_speed(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]) -> float:
+    """The median over the tracks that move WALKED_AT_LEAST metres of their length over
+    their duration, in metres per unit of t (NaN where none does)."""
+    speeds = [_polyline_length(p) / (t[-1] - t[0]) for p, t in zip(tracks, times, strict=True)
+              if t[-1] > t[0] and _polyline_length(p) >= WALKED_AT_LEAST]
+    return float(np.median(speeds)) if speeds else math.nan
 
 
 def mend_tracks(recording: Recording, where: str
                 ) -> tuple[list[np.ndarray], list[str | None] | None, list[list[int]]]:
     """A tracker's tracks mended where a CSV's t column gives their times (without them
-    every track stays as it is): rows of two people under one id dropped
+    every track stays as it is): rows of a second person under its id dropped
     (`drop_shared_times`), id switches undone (`id_switches`), then the tracks lost
     and found again under a new id joined (`broken_track_chains`). Returns the tracks, their
     subjects and the chain of file tracks each is made of; one line names each kind of
     mending."""
     tracks, subjects = recording.tracks, recording.subjects
+    alone = [[k] for k in range(len(tracks))]  # each track its own chain
     if recording.times is None:
-        return list(tracks), subjects, [[k] for k in range(len(tracks))]
+        return list(tracks), subjects, alone
     tracks, times, shared = drop_shared_times(tracks, recording.times)
     if shared:
-        log.warning("%s: expert.select_walks: trajectories with several rows at one time at "
-                    "different places (two people under one id?) lose their rows at those "
-                    "times (%d): %s", where, len(shared),
+        log.warning("%s: expert.select_walks: trajectories with rows at one time %g m or more "
+                    "apart (two people under one id?) keep, at those times, the row nearest "
+                    "their pose before (%d): %s", where, BODIES_APART, len(shared),
                     listed([f"{track_name(k, recording.ids)} ({len(v)} times from t={v[0]:.3f})"
                             for k, v in shared.items()], 5, "; "))
+    speed = walking_speed(tracks, times)
+    if not math.isnan(speed) and not WALKING_SPEEDS[0] <= speed <= WALKING_SPEEDS[1]:
+        log.warning("%s: expert.select_walks: the tracks that move go %.3g m per unit of t "
+                    "(the median), where people walk %g-%g m/s: is t in frames or "
+                    "milliseconds? The tracks are not mended (broken tracks joined, id "
+                    "switches undone) until t is in seconds", where, speed, *WALKING_SPEEDS)
+        return tracks, subjects, alone
     switches = id_switches(tracks, times, subjects)
     if switches:
         log.warning("%s: expert.select_walks: pairs of tracks that exchange whom they follow "

@@ -488,6 +488,16 @@ def test_a_track_lost_and_found_again_under_a_new_id_is_one_walk(tmp_path, caplo
                            dict.fromkeys(tracks, "x"))
     with pytest.raises(PipelineError, match=r"found no trajectory from a start"):
         load_recorded(untimed, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    # t in frame numbers (12.5 a second): the walker goes 0.1 m per unit of t; nothing is
+    # joined, and one warning says why
+    caplog.clear()
+    framed = _timed_csv(tmp_path, {k: (p, np.round(t / 0.08)) for k, (p, t) in tracks.items()})
+    with caplog.at_level(logging.WARNING), \
+            pytest.raises(PipelineError, match=r"found no trajectory from a start"):
+        load_recorded(framed, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    assert re.search(r"the tracks that move go 0\.\d+ m per unit of t \(the median\), where people "
+                     r"walk 0\.2-5 m/s: is t in frames or milliseconds\? The tracks are not "
+                     r"mended", caplog.text)
 
 
 def test_only_an_unambiguous_continuation_is_joined():
@@ -575,35 +585,40 @@ def test_an_id_switch_is_undone_so_no_walk_is_made_of_two_people(tmp_path, caplo
     np.testing.assert_allclose(demo.points[:inside.sum()], ana[inside], atol=1e-9)
 
 
-def test_rows_of_two_people_under_one_id_are_dropped(tmp_path, caplog):
+def test_rows_of_two_people_under_one_id_keep_the_tracks_own_person(tmp_path, caplog):
     """For 1.2 s a tracker gives Ben's rows Ana's id as well as his own: Ana's track holds
-    two rows at each of those times, 0.8 m apart. Her rows at those times are dropped (with
-    one warning naming the track and the times), not read as a zig-zag between the two
-    people; rows repeated at one time and place are kept."""
+    two rows at each of those times, 0.8 m apart. At those times the track keeps the row
+    nearest its pose before, Ana's (with one warning naming the track and the times), and
+    is not read as a zig-zag between the two people; rows repeated at one time within a
+    few millimetres (a log that rounds) are one person, the first kept, without a word."""
     from pipeline.inputs.recorded import drop_shared_times
     ts = np.arange(0.0, 6.0, 0.08)
     ana = START + (GOAL - START) * (ts / ts[-1])[:, None]
     ben = ana + [0.0, 0.8]
     shared = (ts >= 2.0) & (ts < 3.2)
-    filed = np.vstack([ana, ben[shared]])
-    filed_t = np.concatenate([ts, ts[shared]])
-    order = np.argsort(filed_t, kind="stable")
-    repeated = np.vstack([ana, ana[:3]]), np.concatenate([ts, ts[:3]])
-    tracks, times, dropped = drop_shared_times([filed[order], repeated[0]],
-                                               [filed_t[order], repeated[1]])
-    np.testing.assert_array_equal(tracks[0], ana[~shared])
-    np.testing.assert_array_equal(times[0], ts[~shared])
-    assert list(dropped) == [0] and len(dropped[0]) == shared.sum()
-    np.testing.assert_array_equal(tracks[1], repeated[0])
+    for ben_first in (False, True):  # Ben's row before or after Ana's in the file
+        filed = np.vstack([ben[shared], ana] if ben_first else [ana, ben[shared]])
+        filed_t = np.concatenate([ts[shared], ts] if ben_first else [ts, ts[shared]])
+        order = np.argsort(filed_t, kind="stable")
+        rounded = np.vstack([ana, ana[:3] + 0.002]), np.concatenate([ts, ts[:3]])
+        rounded_order = np.argsort(rounded[1], kind="stable")
+        tracks, times, two = drop_shared_times(
+            [filed[order], rounded[0][rounded_order]], [filed_t[order],
+                                                        rounded[1][rounded_order]])
+        np.testing.assert_array_equal(tracks[0], ana)
+        np.testing.assert_array_equal(times[0], ts)
+        assert list(two) == [0] and len(two[0]) == shared.sum()
+        np.testing.assert_array_equal(tracks[1], ana)
     # a t column that is no clock (one value throughout) drops nothing, and says nothing
-    tracks, _, dropped = drop_shared_times([ana], [np.zeros(len(ana))])
+    tracks, _, two = drop_shared_times([ana], [np.zeros(len(ana))])
     np.testing.assert_array_equal(tracks[0], ana)
-    assert dropped == {}
+    assert two == {}
     path = _timed_csv(tmp_path, {"ana": (filed[order], filed_t[order])})
     with caplog.at_level(logging.WARNING):
         [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
-    assert re.search(r"trajectories with several rows at one time at different places .* "
-                     r"\(1\): 0 \(id 'ana'\) \(15 times from t=2\.000\)", caplog.text)
+    assert re.search(r"trajectories with rows at one time 0\.3 m or more apart \(two people "
+                     r"under one id\?\) keep, at those times, the row nearest their pose "
+                     r"before \(1\): 0 \(id 'ana'\) \(15 times from t=2\.000\)", caplog.text)
     assert length(demo.points) < 1.01 * np.linalg.norm(GOAL - START)
 
 
