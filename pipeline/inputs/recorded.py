@@ -913,25 +913,31 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
     n = len(tracks)
     ends = np.array([t[-1] for t in times], dtype=float)
     begins = np.array([t[0] for t in times], dtype=float)
+    end_at = np.array([p[-1] for p in tracks], dtype=float).reshape(-1, 2)
+    begin_at = np.array([p[0] for p in tracks], dtype=float).reshape(-1, 2)
     by_begin = np.argsort(begins, kind="stable")
-    velocity_out = [_motion(p, t, at_end=True) for p, t in zip(tracks, times, strict=True)]
-    velocity_in = [_motion(p, t, at_end=False) for p, t in zip(tracks, times, strict=True)]
+    velocity_out = np.array([_motion(p, t, at_end=True) for p, t in zip(tracks, times,
+                                                                         strict=True)])
+    velocity_in = np.array([_motion(p, t, at_end=False) for p, t in zip(tracks, times,
+                                                                         strict=True)])
+    moving_in = np.linalg.norm(velocity_in.reshape(-1, 2), axis=1) >= MOVING
+    who = np.array(subjects, dtype=object) if subjects is not None else None
     pairs, within_limits = [], []  # pairs within AMBIGUITY times the limits; within them
     for i in range(n):
         lo, hi = np.searchsorted(begins[by_begin], [ends[i], ends[i] + AMBIGUITY * REJOIN_GAP],
                                  side="right")  # begins after i's end
-        for j in by_begin[lo:hi]:
-            gap = begins[j] - ends[i]
-            heading_for = tracks[i][-1] + velocity_out[i] * gap
-            miss = np.linalg.norm(tracks[j][0] - heading_for) / (REJOIN_REACH
-                                                                  + REJOIN_SPREAD * gap)
-            out, into = velocity_out[i], velocity_in[j]
-            turned = min(np.linalg.norm(out), np.linalg.norm(into)) >= MOVING and out @ into < 0
-            if miss > AMBIGUITY or turned or (subjects is not None
-                                              and subjects[i] != subjects[j]):
-                continue
-            pairs.append((i, int(j)))
-            within_limits.append(miss <= 1.0 and gap <= REJOIN_GAP)
+        js = by_begin[lo:hi]
+        gap = begins[js] - ends[i]
+        heading_for = end_at[i] + velocity_out[i] * gap[:, None]
+        miss = np.linalg.norm(begin_at[js] - heading_for, axis=1) / (REJOIN_REACH
+                                                                     + REJOIN_SPREAD * gap)
+        turned = (np.linalg.norm(velocity_out[i]) >= MOVING) & moving_in[js] & \
+            (velocity_in[js] @ velocity_out[i] < 0)
+        kept = (miss <= AMBIGUITY) & ~turned
+        if who is not None:
+            kept &= who[js] == who[i]
+        pairs += [(i, int(j)) for j in js[kept]]
+        within_limits += list((miss[kept] <= 1.0) & (gap[kept] <= REJOIN_GAP))
     # a rival of pair (i, j): another track that could continue i, or be continued by j,
     # except the piece that follows j or precedes i (one person lost twice in a row)
     candidates = set(pairs)
