@@ -34,7 +34,7 @@ from pipeline.inputs.scene_file import SceneExtent, load_scene_file, read_scene_
 from pipeline.irl import methods
 from pipeline.irl.base import Method
 from pipeline.irl.fixed import FixedConfig
-from pipeline.irl.prior import Prior
+from pipeline.irl.prior import Prior, broadcast
 
 log = logging.getLogger(__name__)
 
@@ -311,6 +311,15 @@ def controller(cfg: Config) -> Controller:
 
 def prior(cfg: Config) -> Prior:
     return cfg.birl.make_prior(cfg.n_features)
+
+
+def learned_weight_box(birl_cfg: dict, n: int) -> Prior:
+    """The weight box a finished run's learner searched, from the `birl` part of its
+    artefacts' config (its lower and upper bounds, for `n` weights): which of its weights
+    lie at the box's bounds or middle (`Prior.at_box`). A KeyError, TypeError or
+    ValueError where that config holds no such bounds."""
+    return Prior("uniform", 1.0, broadcast(birl_cfg["lower"], n, "lower"),
+                 broadcast(birl_cfg["upper"], n, "upper"))
 
 
 def initial_weights(cfg: Config, rng: np.random.Generator) -> tuple[np.ndarray, str]:

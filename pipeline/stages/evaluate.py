@@ -46,7 +46,7 @@ from pipeline.errors import PipelineError
 from pipeline.irl.birl import BirlMapConfig, stop_nodes
 from pipeline.irl.diagnostics import AGREED_ESS, AGREED_RHAT, MIN_DRAWS, chains_agree
 from pipeline.irl.fixed import FixedConfig
-from pipeline.irl.prior import Prior, broadcast
+from pipeline.irl.prior import Prior
 from pipeline.irl.robust import Demonstrations, heldout_log_likelihood
 
 log = logging.getLogger(__name__)
@@ -606,8 +606,7 @@ def given_weights_origin(cfg: Config) -> tuple[list[str], float | None]:
     try:
         m = read_metrics(source / METRICS_FILE)
         names = cfg.learner_features
-        box = Prior("uniform", 1.0, broadcast(birl_cfg["lower"], len(names), "lower"),
-                    broadcast(birl_cfg["upper"], len(names), "upper"))
+        box = build.learned_weight_box(birl_cfg, len(names))
     except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError):
         return lines, None  # no metrics.json (a run without its evaluate stage)
     return (lines + weights_at_box(m, names, box, label="its weight box "),

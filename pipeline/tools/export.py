@@ -39,6 +39,7 @@ import os
 import shutil
 import sys
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,8 +58,8 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from pipeline.app.build import learned_feature_params
-from pipeline.app.context import input_path_exists
+from pipeline.app.build import learned_feature_params, learned_weight_box
+from pipeline.app.context import input_path_exists, resolve_path
 from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, STATUS_FILE, UNKNOWN, acquire_lock, read_status
 from pipeline.artefacts import Artefact, codec, export_topics, read_artefact, topics
@@ -196,7 +197,7 @@ def _num(x: float) -> str:
 
 
 def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
-                 about: list[str]) -> str:
+                 about: list[str], unmoved: Sequence[str] = ()) -> str:
     """The map_server YAML, its comment lines saying what the map holds."""
     g = costmap.grid
     w = ", ".join(f"{n}={_num(v)}" for n, v in zip(names, weights, strict=True))
@@ -204,6 +205,10 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
     lines = ["# BIRL-G learned-reward costmap, written by birlg-export (ROS map_server format)"]
     lines += [f"# {line}" for line in about]
     lines.append(f"# learned weights: {w}")
+    if unmoved:
+        lines.append(f"# not learned: {', '.join(unmoved)} (left at the middle of the weight "
+                     "box, no demonstration moved them: in the mask, their cost is the box's "
+                     "guess)")
     lines.append(f"# features in the mask: {', '.join(costmap.in_mask) or 'none'}")
     for name, why in costmap.left_out.items():
         lines.append(f"# left out: {name}: {why}")
@@ -378,6 +383,8 @@ class RunReward:
     demos: list[np.ndarray]
     about: list[str]  # lines naming the run
     short: dict[str, list[int]]  # "graph" / "ref" -> the starts whose path stops short
+    # the weights the learner left at the middle of its box: nothing moved them
+    unmoved: list[str] = dataclasses.field(default_factory=list)
 
 
 def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
@@ -413,6 +420,27 @@ def _given_weights(config_yaml: str) -> str:
     source = birl.get("from_run")
     return (f"given (birl=fixed), from the run {source}" if source
             else "given (birl=fixed birl.weights)")
+
+
+def _left_at_the_middle(birl: Artefact, names: list[str], weights: np.ndarray) -> list[str]:
+    """The weights the learner left at the middle of its weight box (this run's, or for
+    birl=fixed birl.from_run=RUN the box RUN learned in): no demonstration moved them, so
+    their cost in the costmap is the box's guess. None where that box cannot be read."""
+    try:
+        cfg = yaml.safe_load(birl.config_yaml)["birl"]
+        if cfg.get("kind") == "fixed":
+            source = cfg.get("from_run")
+            if not source:
+                return []
+            cfg = yaml.safe_load(read_artefact(resolve_path(source) / ARTEFACT_FILE["birl"])
+                                 .config_yaml)["birl"]
+            if cfg.get("kind") == "fixed":
+                return []
+        middle = learned_weight_box(cfg, len(names)).at_box(weights)["middle"]
+    except (PipelineError, OSError, yaml.YAMLError, KeyError, TypeError, ValueError,
+            AttributeError):
+        return []
+    return [n for n, at in zip(names, middle, strict=True) if at]
 
 
 def read_run(run_dir: Path) -> RunReward:
@@ -463,7 +491,8 @@ def read_run(run_dir: Path) -> RunReward:
     if given:  # a deployment: its weights were given, not learned in this run
         about.append(f"weights: {given}")
     return RunReward(scene, params, weights, paths, demos, about,
-                     {k: sorted(v) for k, v in short.items()})
+                     {k: sorted(v) for k, v in short.items()},
+                     _left_at_the_middle(birl, names, weights))
 
 
 # -- writing the export ------------------------------------------------------------------------
@@ -520,7 +549,7 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int], list[str]]
         partial.mkdir()
         (partial / COSTMAP_IMAGE).write_bytes(costmap_pgm(costmap))
         (partial / COSTMAP_YAML).write_text(costmap_yaml(
-            costmap, tuple(run.params.features), run.weights, run.about))
+            costmap, tuple(run.params.features), run.weights, run.about, run.unmoved))
         short = {topic: " ".join(map(str, run.short[where]))
                  for where, topic in LEARNED_TOPICS.items() if run.short[where]}
         about = {f"birlg.{k}": v for k, v in (line.split(": ", 1) for line in run.about)}

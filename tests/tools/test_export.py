@@ -192,6 +192,11 @@ def test_costmap_yaml_is_a_scale_mode_map_server_map_with_its_comments(exported,
     assert dict((k, float(v)) for k, v in (kv.split("=") for kv in weights.split(", "))) \
         == learned  # every weight, named, exactly
     assert "features in the mask: relation, social" in comments
+    # the default box is [-1, 0]: a weight at -0.5 is one nothing moved, and is named so
+    unmoved = [n for n, w in learned.items() if abs(w + 0.5) <= 5e-4]
+    assert unmoved == ["crossing"]  # the case: no polite demonstration crosses a link
+    assert f"not learned: {', '.join(unmoved)} (left at the middle of the weight box, no " \
+           "demonstration moved them: in the mask, their cost is the box's guess)" in comments
     assert any(c.startswith("left out: goal_deviation: not a density of position")
                for c in comments)
     assert any(c.startswith("left out: length: uniform") for c in comments)
@@ -199,6 +204,25 @@ def test_costmap_yaml_is_a_scale_mode_map_server_map_with_its_comments(exported,
     assert scene.name in text
     digests = [read_artefact(run_dir / f).digest[:16] for f in ("birl.mcap", "eval.mcap")]
     assert f"from: birl.mcap content {digests[0]}, eval.mcap content {digests[1]}" in comments
+
+
+def test_a_deployment_names_the_weights_its_source_run_did_not_learn(exported, tmp_path):
+    """birl=fixed birl.from_run=RUN: the weights are RUN's, and so is the box they were
+    learned in: the one nothing moved is named as in RUN's export. Weights given by hand
+    were learned nowhere: no such line."""
+    run_dir, _ = exported
+    deployed = tmp_path / "deployed"
+    run_in_process(deployed, "graph=small", "expert=none", "birl=fixed",
+                   f"birl.from_run={run_dir}")
+    assert export.main([str(deployed)]) == 0
+    _, comments = read_yaml_and_comments(deployed / "export" / "costmap.yaml")
+    assert any(c.startswith("not learned: crossing (left at the middle") for c in comments)
+    given = tmp_path / "given"
+    run_in_process(given, "graph=small", "expert=none", "birl=fixed",
+                   "birl.weights=[-1.0,-0.5,-0.5,-0.1,-0.5]")
+    assert export.main([str(given)]) == 0
+    _, comments = read_yaml_and_comments(given / "export" / "costmap.yaml")
+    assert not any(c.startswith("not learned") for c in comments)
 
 
 def test_costmap_values_match_a_hand_computation_at_every_cell(exported, learned, scene):
