@@ -188,14 +188,21 @@ AMBIGUITY = 1.5
 # tracks that jump at one time, each to where the other was heading, exchanged whom they
 # follow (5 cm of tracking noise misses the prediction by about 7 cm)
 SWITCH_MISS = 0.3  # m
+# ... and at least this many times what the tracks' noise misses a prediction by (a second
+# sensor 0.2 m off in random directions, averaged in, made 9 cm of noise and 6 false switches)
+SWITCH_NOISES = 4.0
 # `mend_tracks` mends only tracks whose t is in seconds: the median speed of the tracks that
-# move WALKED_AT_LEAST metres lies in WALKING_SPEEDS (frame numbers at 12.5 Hz give 0.1, ms
-# 0.0013; a frame number's gap of 2 read as 2 s joined friends walking side by side)
+# end WALKED_AT_LEAST metres from their beginning lies in WALKING_SPEEDS (frame numbers at
+# 12.5 Hz give 0.1, ms 0.0013; a frame number's gap of 2 read as 2 s joined friends walking
+# side by side)
 WALKED_AT_LEAST = 2.0  # m
 WALKING_SPEEDS = (0.2, 5.0)  # m/s
 # `drop_shared_times`: two people's positions at one time are at least this far apart;
 # rows of one track at one time closer than this are one person measured twice
 BODIES_APART = 0.3  # m
+# `_same_time`: rows of one track closer in time than this share of its frame interval are
+# at one time
+SAME_TIME = 0.25
 # `select_track_walks` names the tracks that set off from a start and come within NEAR_MISS
 # times the goal tolerance of the goal but never into its disk: walkers bound for the goal
 # whom a tolerance a little too small loses (a tracker's people pass a goal point by 0.3 m)
@@ -993,22 +1000,34 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
                 subjects: Sequence[str | None] | None) -> list[tuple[float, int, int]]:
     """The id switches of a tracker's tracks, as (time, a, b): from that time on, track a
     follows whom b followed before and b whom a did. At that time both jump SWITCH_MISS or
-    more from where their motion predicted (`_predicted`), each to within SWITCH_MISS of the
-    other's prediction; no third track does so with either, and the two have the same
-    subject. Tracks that jump at different times (a tracker that does not report every
-    track at every frame) are never taken for a switch."""
-    jumps: dict[float, list[tuple[int, int, np.ndarray]]] = {}  # time: (track, pose, predicted)
+    more from where their motion predicted (`_predicted`; more on noisier tracks:
+    SWITCH_NOISES times what their noise misses by), each to within that of the other's
+    prediction; no third track does so with either, and the two have the same
+    subject. One time: stamps within SAME_TIME of a frame interval (a tracker that stamps
+    each person's row a few milliseconds apart); tracks that jump frames apart are never
+    taken for a switch. The time given is the earlier of the two jumps'."""
+    # noise misses a prediction by sqrt(2) sigma on each coordinate: a jump is well above it
+    miss_limit = max(SWITCH_MISS, SWITCH_NOISES * math.sqrt(2.0) * noise_sigma(tracks))
+    jumps = []  # (time, track, pose, predicted)
     for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
         predicted = _predicted(points, ts)
-        for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > SWITCH_MISS):
-            jumps.setdefault(float(ts[i]), []).append((k, int(i), predicted[i]))
+        for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > miss_limit):
+            jumps.append((float(ts[i]), k, int(i), predicted[i]))
+    steps = np.concatenate([np.diff(ts) for ts in times] + [np.zeros(0)])
+    frame = np.percentile(steps[steps > 0], 75) if (steps > 0).any() else 0.0
+    jumps.sort(key=lambda jump: (jump[0], jump[1]))
+    at = np.array([jump[0] for jump in jumps])
+    cuts = [0, *(np.flatnonzero(np.diff(at) > SAME_TIME * frame) + 1), len(jumps)]
+    moments = [jumps[a:b] for a, b in itertools.pairwise(cuts)]
     switches = []
-    for t, jumped in jumps.items():
-        pairs = [(a, b) for (a, i, pa), (b, j, pb) in itertools.combinations(jumped, 2)
-                 if max(np.linalg.norm(tracks[a][i] - pb), np.linalg.norm(tracks[b][j] - pa))
-                 <= SWITCH_MISS and (subjects is None or subjects[a] == subjects[b])]
-        partners = np.bincount(np.ravel(pairs).astype(int), minlength=len(tracks))
-        switches += [(t, a, b) for a, b in pairs if partners[a] == partners[b] == 1]
+    for jumped in moments:
+        pairs = [(min(ta, tb), min(a, b), max(a, b)) for (ta, a, i, pa), (tb, b, j, pb)
+                 in itertools.combinations(jumped, 2)
+                 if a != b and max(np.linalg.norm(tracks[a][i] - pb),
+                                   np.linalg.norm(tracks[b][j] - pa)) <= miss_limit
+                 and (subjects is None or subjects[a] == subjects[b])]
+        partners = np.bincount([k for _, a, b in pairs for k in (a, b)], minlength=len(tracks))
+        switches += [(t, a, b) for t, a, b in pairs if partners[a] == partners[b] == 1]
     return sorted(switches)
 
 
@@ -1027,44 +1046,59 @@ def undo_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     return tracks, times
 
 
+def _same_time(ts: np.ndarray) -> np.ndarray:
+    """Each row's group of rows at one time (ids 0, 1, ... in order): times closer than
+    SAME_TIME of the track's frame interval (the 75th percentile of its time steps) are one
+    (a tracker that stamps each person's row a few milliseconds apart within one frame)."""
+    steps = np.diff(ts)
+    frame = np.percentile(steps[steps > 0], 75) if (steps > 0).any() else 0.0
+    return np.r_[0, np.cumsum(steps > SAME_TIME * frame)]
+
+
+def _nearest(rows: np.ndarray, to: np.ndarray) -> np.ndarray:
+    return rows[int(np.argmin(np.linalg.norm(rows - to, axis=1)))]
+
+
 def drop_shared_times(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]
                       ) -> tuple[list[np.ndarray], list[np.ndarray], dict[int, np.ndarray]]:
-    """The tracks (and times) with one row at each time. Rows at one time within
-    BODIES_APART of the first are one person measured twice (logged twice, rounded): the
-    first is kept. Rows farther apart are two people under one id (a tracker that gave
-    two friends one id for a while): the row nearest the track's pose before is kept, the
-    person the track follows; at its first time, none. Returns the tracks, times and, by
-    track, its times of two people; a track that would keep fewer than two rows (a t
-    column that is no clock) is kept whole."""
+    """The tracks (and times) with one row at each time (`_same_time`). Rows at one time
+    within BODIES_APART of the first are one person measured twice (logged twice, rounded,
+    two sensors fused): their mean is kept. Rows farther apart are two people under one id
+    (a tracker that gave two friends one id for a while): the track keeps the row nearest
+    its pose at the time before (at times before any of one person, the time after; where
+    every time holds two people, it follows the first row's). Returns the tracks, times
+    and, by track, its times of two people; a track of fewer than two times (a t column
+    that is no clock) is kept whole."""
     tracks, times = list(tracks), list(times)
     two_people = {}
     for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
-        first = np.flatnonzero(np.r_[True, np.diff(ts) != 0])  # each time's first row
-        if len(first) == len(ts):
+        group = _same_time(ts)
+        if group[-1] + 1 == len(ts) or group[-1] == 0:
             continue
-        keep: list[int] = []
-        shared = []
-        for a, b in itertools.pairwise(np.r_[first, len(ts)]):
-            rows = points[a:b]
-            if np.linalg.norm(rows - rows[0], axis=1).max() < BODIES_APART:
-                keep.append(int(a))
-                continue
-            shared.append(ts[a])
-            if keep:
-                keep.append(int(a) + int(np.argmin(np.linalg.norm(rows - points[keep[-1]],
-                                                                  axis=1))))
-        if len(keep) >= 2:
-            tracks[k], times[k] = points[keep], ts[keep]
-            if shared:
-                two_people[k] = np.array(shared)
+        bounds = np.flatnonzero(np.r_[True, np.diff(group) > 0, True])
+        rows = [points[a:b] for a, b in itertools.pairwise(bounds)]
+        one = [np.linalg.norm(r - r[0], axis=1).max() < BODIES_APART for r in rows]
+        kept: list[np.ndarray | None] = [r.mean(axis=0) if o else None
+                                         for r, o in zip(rows, one, strict=True)]
+        first = next((g for g, o in enumerate(one) if o), 0)
+        kept[first] = kept[first] if one[first] else rows[first][0]
+        for g in range(first + 1, len(rows)):
+            kept[g] = kept[g] if one[g] else _nearest(rows[g], kept[g - 1])
+        for g in range(first - 1, -1, -1):
+            kept[g] = _nearest(rows[g], kept[g + 1])
+        tracks[k], times[k] = np.array(kept, dtype=float), ts[bounds[:-1]]
+        if not all(one):
+            two_people[k] = ts[bounds[:-1]][~np.array(one)]
     return tracks, times, two_people
 
 
 def walking_speed(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]) -> float:
-    """The median over the tracks that move WALKED_AT_LEAST metres of their length over
-    their duration, in metres per unit of t (NaN where none does)."""
-    speeds = [_polyline_length(p) / (t[-1] - t[0]) for p, t in zip(tracks, times, strict=True)
-              if t[-1] > t[0] and _polyline_length(p) >= WALKED_AT_LEAST]
+    """The median over the tracks that end WALKED_AT_LEAST metres from where they began of
+    that distance over their duration, in metres per unit of t (NaN where none does). Not
+    their length: a 100 Hz tracker's 4 cm of noise made people walk 7 m/s."""
+    speeds = [float(np.linalg.norm(p[-1] - p[0])) / (t[-1] - t[0])
+              for p, t in zip(tracks, times, strict=True)
+              if t[-1] > t[0] and np.linalg.norm(p[-1] - p[0]) >= WALKED_AT_LEAST]
     return float(np.median(speeds)) if speeds else math.nan
 
 
@@ -1083,8 +1117,8 @@ def mend_tracks(recording: Recording, where: str
     tracks, times, shared = drop_shared_times(tracks, recording.times)
     if shared:
         log.warning("%s: expert.select_walks: trajectories with rows at one time %g m or more "
-                    "apart (two people under one id?) keep, at those times, the row nearest "
-                    "their pose before (%d): %s", where, BODIES_APART, len(shared),
+                    "apart (two people under one id?) keep, at those times, the row that "
+                    "continues their own (%d): %s", where, BODIES_APART, len(shared),
                     listed([f"{track_name(k, recording.ids)} ({len(v)} times from t={v[0]:.3f})"
                             for k, v in shared.items()], 5, "; "))
     speed = walking_speed(tracks, times)
