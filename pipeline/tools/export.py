@@ -207,8 +207,8 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
     lines.append(f"# learned weights: {w}")
     if unmoved:
         lines.append(f"# not learned: {', '.join(unmoved)} (left at the middle of the weight "
-                     "box, no demonstration moved them: in the mask, their cost is the box's "
-                     "guess)")
+                     "box, no demonstration moved them: where in the mask, their cost is the "
+                     "box's guess)")
     lines.append(f"# features in the mask: {', '.join(costmap.in_mask) or 'none'}")
     for name, why in costmap.left_out.items():
         lines.append(f"# left out: {name}: {why}")

@@ -196,7 +196,8 @@ def test_costmap_yaml_is_a_scale_mode_map_server_map_with_its_comments(exported,
     unmoved = [n for n, w in learned.items() if abs(w + 0.5) <= 5e-4]
     assert unmoved == ["crossing"]  # the case: no polite demonstration crosses a link
     assert f"not learned: {', '.join(unmoved)} (left at the middle of the weight box, no " \
-           "demonstration moved them: in the mask, their cost is the box's guess)" in comments
+           "demonstration moved them: where in the mask, their cost is the box's guess)" \
+        in comments
     assert any(c.startswith("left out: goal_deviation: not a density of position")
                for c in comments)
     assert any(c.startswith("left out: length: uniform") for c in comments)
