@@ -1169,6 +1169,7 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
     without: list[str] = []
     several: list[tuple[str, int]] = []  # (track, its walks)
     near_misses: list[tuple[str, float]] = []  # (track, its closest approach to the goal)
+    from_afar: list[tuple[str, float]] = []  # (track, its closest approach to a start)
     chains = chains if chains is not None else [[k] for k in range(len(tracks))]
     in_file, with_walks = sum(map(len, chains)), 0  # trajectories in the file
     for k, track in enumerate(tracks):
@@ -1185,6 +1186,11 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
             closest = _closest_after_a_start(track, starts, goal, start_radius)
             if closest <= NEAR_MISS * goal_tolerance:
                 near_misses.append((track_name(chains[k], ids), closest))
+            arrival = np.flatnonzero(in_goal_disk(track, goal, goal_tolerance))
+            if len(arrival) and arrival[0] > 0:  # came to the goal from no start
+                before = np.linalg.norm(track[:arrival[0] + 1, None, :]
+                                        - np.reshape(starts, (1, -1, 2)), axis=2)
+                from_afar.append((track_name(chains[k], ids), float(before.min())))
         elif len(spans) > 1:
             several.append((track_name(chains[k], None), len(spans)))
     if not walks:
@@ -1208,6 +1214,13 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
                     "in): %s", where, lo if lo == hi else f"{lo}-{hi}", goal_tolerance,
                     len(near_misses), len(walks), wider,
                     listed([n for n, _ in near_misses], 5))
+    if from_afar:
+        lo, hi = (f"{f(d for _, d in from_afar):.2f}" for f in (min, max))
+        log.warning("%s: expert.select_walks: trajectories that reach the goal but come no "
+                    "nearer a start than %s m (expert.start_radius=%g), so hold no walk "
+                    "(%d): %s; came into view mid-room, or from where the scene has no "
+                    "start?", where, lo if lo == hi else f"{lo}-{hi}", start_radius,
+                    len(from_afar), listed([n for n, _ in from_afar], 5))
     return walks, walk_subjects, labels, offsets
 
 

@@ -347,6 +347,11 @@ def test_select_walks_keeps_each_tracks_walks_from_a_start_to_the_goal(tmp_path,
     assert re.search(r"select_walks: 3 walks from a start to the goal read from 2 of 5 "
                      r"trajectories .*3 hold none and are dropped: 1, 2, 4; several in "
                      r"3 \(2 walks\)", caplog.text)
+    # the one that came into view mid-room reaches the goal: named, with how near a start
+    # it came; the one that begins at the goal and leaves is not
+    assert re.search(r"trajectories that reach the goal but come no nearer a start than "
+                     r"3\.00 m \(expert\.start_radius=1\), so hold no walk \(1\): 1 "
+                     r"\(id 'b'\); came into view mid-room", caplog.text)
     alone = load_recorded(_tracker_csv(tmp_path, {"a": first}, {"a": "ana"}), START[None],
                           GOAL, goal_tolerance=0.2)
     np.testing.assert_array_equal(demos[0].points, alone[0].points)
