@@ -168,7 +168,7 @@ class FileExpertConfig(ExpertConfig):
     start_radius: float = START_RADIUS  # m, a demonstration begins this close to a start
     denoise: bool = True  # smooth tracking noise that makes trajectories >3 % longer
     # keep only each trajectory's walks from a start to the goal (a tracker's tracks of
-    # everyone in view; with times, a track lost and found under a new id is joined);
+    # everyone in view; with times, broken tracks are joined and id switches undone);
     # false: a trajectory that is no such walk is refused
     select_walks: bool = False
 
