@@ -908,9 +908,10 @@ def _motion(points: np.ndarray, times: np.ndarray, at_end: bool) -> np.ndarray:
 
 
 def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
-                        subjects: Sequence[str | None] | None) -> list[list[int]]:
-    """The tracks that continue one another, as chains of track numbers: every track is in
-    one chain, and the chains are in the order of their first tracks. Track j continues
+                        subjects: Sequence[str | None] | None) -> tuple[list[list[int]], int]:
+    """The tracks that continue one another, as chains of track numbers (every track is in
+    one chain, and the chains are in the order of their first tracks), and how many tracks
+    are left apart from a continuation for its rivals. Track j continues
     track i when j begins within REJOIN_GAP seconds after i ends, within REJOIN_REACH +
     REJOIN_SPREAD per second of the gap of where i's end, moved on at its final velocity,
     would be; when the two do not head apart by more than 90 degrees (both moving); and when
@@ -964,7 +965,9 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
             chains.append([i])
             while chains[-1][-1] in after:
                 chains[-1].append(after[chains[-1][-1]])
-    return chains
+    ambiguous = {i for (i, _), close in zip(pairs, within_limits, strict=True) if close} \
+        - set(after)
+    return chains, len(ambiguous)
 
 
 def join_chain(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
@@ -1136,14 +1139,19 @@ def mend_tracks(recording: Recording, where: str
                     listed([f"{track_name([a, b], recording.ids).replace('+', ' and ')} at "
                             f"t={t:.3f}" for t, a, b in switches], 5, "; "))
     tracks, times = undo_switches(tracks, times, switches)
-    chains = broken_track_chains(tracks, times, subjects)
+    chains, ambiguous = broken_track_chains(tracks, times, subjects)
     joined = [c for c in chains if len(c) > 1]
+    apart = f"{ambiguous} broken tracks left apart: more than one track could continue " \
+        "each" if ambiguous else ""
     if joined:
         log.warning("%s: expert.select_walks: %d tracks lost and found again under a new id "
                     "are joined into %d (each began within %g s of one ending, where that one "
-                    "was heading, and no other did): %s", where,
+                    "was heading, and no other did): %s%s", where,
                     sum(map(len, joined)), len(joined), REJOIN_GAP,
-                    listed([track_name(c, recording.ids) for c in joined], 5))
+                    listed([track_name(c, recording.ids) for c in joined], 5),
+                    f"; {apart}" if apart else "")
+    elif apart:
+        log.warning("%s: expert.select_walks: %s", where, apart)
     return ([join_chain(tracks, times, c) for c in chains],
             None if subjects is None else [subjects[c[0]] for c in chains], chains)
 

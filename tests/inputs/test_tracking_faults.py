@@ -489,6 +489,14 @@ def test_a_track_lost_and_found_again_under_a_new_id_is_one_walk(tmp_path, caplo
     [alone] = load_recorded(_tracker_csv(tmp_path, {"a": joined}, {"a": "x"}), START[None],
                             GOAL, goal_tolerance=0.2)
     np.testing.assert_array_equal(demo.points, alone.points)
+    # someone else appears beside where the walker reappears: a guess, left apart, and said
+    caplog.clear()
+    rival = _timed_csv(tmp_path, {**tracks, "8": (full[after] + [0.0, 0.3], times[after])})
+    with caplog.at_level(logging.WARNING), \
+            pytest.raises(PipelineError, match=r"found no trajectory from a start"):
+        load_recorded(rival, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
+    assert "select_walks: 1 broken tracks left apart: more than one track could continue " \
+           "each" in caplog.text
     untimed = _tracker_csv(tmp_path, {k: p for k, (p, _) in tracks.items()},
                            dict.fromkeys(tracks, "x"))
     with pytest.raises(PipelineError, match=r"found no trajectory from a start"):
@@ -533,10 +541,11 @@ def test_only_an_unambiguous_continuation_is_joined():
     }
     for name, (others, chains) in cases.items():
         tracks, times = zip(*([lost] + others), strict=True)
-        assert broken_track_chains(tracks, times, None) == chains, name
+        ambiguous = 1 if name == "two candidates" else 0  # left apart for its rival
+        assert broken_track_chains(tracks, times, None) == (chains, ambiguous), name
     tracks, times = zip(lost, track(there, east, 11.0), strict=True)
-    assert broken_track_chains(tracks, times, ["ana", "ben"]) == [[0], [1]]
-    assert broken_track_chains(tracks, times, ["ana", "ana"]) == [[0, 1]]
+    assert broken_track_chains(tracks, times, ["ana", "ben"]) == ([[0], [1]], 0)
+    assert broken_track_chains(tracks, times, ["ana", "ana"]) == ([[0, 1]], 0)
 
 
 def test_tracks_that_pass_just_outside_the_goal_disk_are_named(tmp_path, caplog):
