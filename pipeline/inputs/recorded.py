@@ -925,6 +925,7 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
     end_at = np.array([p[-1] for p in tracks], dtype=float).reshape(-1, 2)
     begin_at = np.array([p[0] for p in tracks], dtype=float).reshape(-1, 2)
     by_begin = np.argsort(begins, kind="stable")
+    sorted_begins = begins[by_begin]
     velocity_out = np.array([_motion(p, t, at_end=True) for p, t in zip(tracks, times,
                                                                          strict=True)])
     velocity_in = np.array([_motion(p, t, at_end=False) for p, t in zip(tracks, times,
@@ -933,7 +934,7 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
     who = np.array(subjects, dtype=object) if subjects is not None else None
     pairs, within_limits = [], []  # pairs within AMBIGUITY times the limits; within them
     for i in range(n):
-        lo, hi = np.searchsorted(begins[by_begin], [ends[i], ends[i] + AMBIGUITY * REJOIN_GAP],
+        lo, hi = np.searchsorted(sorted_begins, [ends[i], ends[i] + AMBIGUITY * REJOIN_GAP],
                                  side="right")  # begins after i's end
         js = by_begin[lo:hi]
         gap = begins[js] - ends[i]
@@ -1016,8 +1017,7 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
         predicted = _predicted(points, ts)
         for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > miss_limit):
             jumps.append((float(ts[i]), k, int(i), predicted[i]))
-    steps = np.concatenate([np.diff(ts) for ts in times] + [np.zeros(0)])
-    frame = np.percentile(steps[steps > 0], 75) if (steps > 0).any() else 0.0
+    frame = _frame_interval(np.concatenate([np.diff(ts) for ts in times] + [np.zeros(0)]))
     jumps.sort(key=lambda jump: (jump[0], jump[1]))
     at = np.array([jump[0] for jump in jumps])
     cuts = [0, *(np.flatnonzero(np.diff(at) > SAME_TIME * frame) + 1), len(jumps)]
@@ -1049,13 +1049,18 @@ def undo_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     return tracks, times
 
 
+def _frame_interval(steps: np.ndarray) -> float:
+    """A tracker's frame interval from its time steps: their 75th percentile of those above
+    0 (0 without any), which rows stamped milliseconds apart within a frame do not lower."""
+    return float(np.percentile(steps[steps > 0], 75)) if (steps > 0).any() else 0.0
+
+
 def _same_time(ts: np.ndarray) -> np.ndarray:
     """Each row's group of rows at one time (ids 0, 1, ... in order): times closer than
-    SAME_TIME of the track's frame interval (the 75th percentile of its time steps) are one
-    (a tracker that stamps each person's row a few milliseconds apart within one frame)."""
+    SAME_TIME of the track's frame interval (`_frame_interval`) are one (a tracker that
+    stamps each person's row a few milliseconds apart within one frame)."""
     steps = np.diff(ts)
-    frame = np.percentile(steps[steps > 0], 75) if (steps > 0).any() else 0.0
-    return np.r_[0, np.cumsum(steps > SAME_TIME * frame)]
+    return np.r_[0, np.cumsum(steps > SAME_TIME * _frame_interval(steps))]
 
 
 def _nearest(rows: np.ndarray, to: np.ndarray) -> np.ndarray:
@@ -1191,14 +1196,16 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
         with_walks += len(chains[k]) if spans else 0
         if not spans:
             without.append(track_name(chains[k], None))
-            closest = _closest_after_a_start(track, starts, goal, start_radius)
+            with np.errstate(over="ignore", invalid="ignore"):
+                to_start = np.linalg.norm(track[:, None, :] - np.reshape(starts, (1, -1, 2)),
+                                          axis=2).min(axis=1, initial=math.inf)
+            closest = _closest_after_a_start(track, to_start, goal, start_radius)
             if closest <= NEAR_MISS * goal_tolerance:
                 near_misses.append((track_name(chains[k], ids), closest))
             arrival = np.flatnonzero(in_goal_disk(track, goal, goal_tolerance))
             if len(arrival) and arrival[0] > 0:  # came to the goal from no start
-                before = np.linalg.norm(track[:arrival[0] + 1, None, :]
-                                        - np.reshape(starts, (1, -1, 2)), axis=2)
-                from_afar.append((track_name(chains[k], ids), float(before.min())))
+                from_afar.append((track_name(chains[k], ids),
+                                  float(to_start[:arrival[0] + 1].min())))
         elif len(spans) > 1:
             several.append((track_name(chains[k], None), len(spans)))
     if not walks:
@@ -1214,30 +1221,34 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
                     f"walks are named {several[0][0]}/1, {several[0][0]}/2, ..."
                     if several else "")
     if near_misses:
-        lo, hi = (f"{f(d for _, d in near_misses):.2f}" for f in (min, max))
         wider = math.ceil(max(d for _, d in near_misses) * 20 - 1e-9) / 20  # up to 5 cm
         log.warning("%s: expert.select_walks: trajectories that set off from a start and pass "
                     "%s m from the goal, never into its disk of %g m (scene.goal_tolerance), "
                     "hold no walk (%d; walks read: %d; scene.goal_tolerance=%g takes them "
-                    "in): %s", where, lo if lo == hi else f"{lo}-{hi}", goal_tolerance,
+                    "in): %s", where, _metres_range([d for _, d in near_misses]), goal_tolerance,
                     len(near_misses), len(walks), wider,
                     listed([n for n, _ in near_misses], 5))
     if from_afar:
-        lo, hi = (f"{f(d for _, d in from_afar):.2f}" for f in (min, max))
         log.warning("%s: expert.select_walks: trajectories that reach the goal but come no "
                     "nearer a start than %s m (expert.start_radius=%g), so hold no walk "
                     "(%d): %s; came into view mid-room, or from where the scene has no "
-                    "start?", where, lo if lo == hi else f"{lo}-{hi}", start_radius,
+                    "start?", where, _metres_range([d for _, d in from_afar]), start_radius,
                     len(from_afar), listed([n for n, _ in from_afar], 5))
     return walks, walk_subjects, labels, offsets
 
 
-def _closest_after_a_start(track: np.ndarray, starts: np.ndarray, goal: np.ndarray,
+def _metres_range(values: Sequence[float]) -> str:
+    """'0.32-0.36' (or '0.35' where they round alike), for a warning's "… m"."""
+    lo, hi = (f"{f(values):.2f}" for f in (min, max))
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _closest_after_a_start(track: np.ndarray, to_start: np.ndarray, goal: np.ndarray,
                            start_radius: float) -> float:
-    """How close a track comes to the goal after it is first near a start (inf if never)."""
+    """How close a track comes to the goal after it is first near a start (inf if never);
+    `to_start`: each pose's distance to its nearest start."""
     with np.errstate(over="ignore", invalid="ignore"):
-        near = (np.linalg.norm(track[:, None, :] - np.reshape(starts, (1, -1, 2)), axis=2)
-                <= start_radius).any(axis=1)
+        near = to_start <= start_radius
         if not near.any():
             return math.inf
         return float(np.nanmin(np.linalg.norm(track[int(np.argmax(near)):] - goal, axis=1),
@@ -1254,10 +1265,11 @@ def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
         lo, hi = np.nanmin(poses, axis=0), np.nanmax(poses, axis=0)
     span = f"x {metres(lo[0])}..{metres(hi[0])}, y {metres(lo[1])}..{metres(hi[1])}"
     outside = ""
-    if room is not None and not room.contains(poses).any():
+    inside = room.contains(poses) if room is not None else None
+    if room is not None and not inside.any():
         outside = f", all outside the room {room.describe()}: recorded in another frame, " \
             "with another origin or in other units than the scene's (metres)?"
-    elif room is not None and room.contains(poses).mean() < SWAPPED_INSIDE[0] and \
+    elif room is not None and inside.mean() < SWAPPED_INSIDE[0] and \
             room.contains(poses[:, ::-1]).mean() >= SWAPPED_INSIDE[1]:
         outside = f", some outside the room {room.describe()}, which would hold them " \
             "with x and y exchanged: are the columns swapped?"
