@@ -23,6 +23,12 @@ free_thresh)). With the thresholds below a white cell is free, black is 100 and 
 levels written for occupancy 1..99 decode to exactly that occupancy, so no learned cost
 becomes lethal. Costmap2D and the KeepoutFilter then read occupancy k as cost
 round(254 k / 100): 99 is 251, below the inscribed cost 253.
+
+How a planner weighs the mask against distance: Smac 2D (nav2_smac_planner node_2d.cpp)
+charges a step of length s onto a cell of cost c as s (1 + cost_travel_multiplier c / 252);
+the learned reward charges s (|w_length| + cost). With cost_travel_multiplier = (cost of
+occupancy 99 / |w_length|) 252 / 251 the two agree up to the 1..99 quantisation, and the
+YAML says so. NavFn (navfn.cpp) charges 50 + 0.8 c per cell, a fixed factor.
 """
 
 from __future__ import annotations
@@ -86,6 +92,10 @@ TOPIC_DEMOS, TOPIC_PEOPLE = export_topics.DEMOS, export_topics.PEOPLE
 FREE_THRESH, OCCUPIED_THRESH = 0.001, 0.999
 COSTMAP_CHUNK_CELLS = 250_000  # cells whose densities are computed at once
 LETHAL, MAX_LEARNED = 100, 99  # occupancy of obstacles and bodies; of the costliest learned cell
+NAV2_LETHAL = 254  # Costmap2D's cost of occupancy 100; occupancy k is round(254 k / 100)
+SMAC_COST_DIVISOR = 252.0  # Smac 2D normalises a cell's cost by 252 (node_2d.cpp)
+SMAC_DEFAULT_MULTIPLIER = 2.0  # Smac 2D's cost_travel_multiplier default
+NAVFN_NEUTRAL, NAVFN_FACTOR = 50.0, 0.8  # NavFn: a cell of cost c costs 50 + 0.8 c (navfn.cpp)
 
 PERSON_HEIGHT = 1.7  # m, drawn height of the body cylinders
 ARROW_LENGTH, ARROW_SHAFT, ARROW_HEAD = 0.6, 0.06, 0.12  # m, person heading arrows
@@ -120,6 +130,16 @@ class Costmap:
     in_mask: tuple[str, ...]  # features whose densities make up the cost
     left_out: dict[str, str]  # feature -> why it is not in the mask
     n_negative: int  # free cells whose cost was negative (a rewarding feature), shown as 0
+    # the learned cost of a metre anywhere (−w_length), None when the learner has no length
+    # cost: the unit that makes the mask's costs a trade-off a planner can copy
+    free_metre: float | None = None
+
+    def smac_multiplier(self) -> float | None:
+        """Smac 2D's cost_travel_multiplier that weighs the mask against distance as the
+        learned reward does (None without a scale or a length cost)."""
+        if not self.scale > 0 or self.free_metre is None:
+            return None
+        return self.scale / self.free_metre * SMAC_COST_DIVISOR / nav2_cost(MAX_LEARNED)
 
     def no_cost(self) -> str:
         """Why a costmap without scale (`scale` 0) is free outside obstacles and bodies."""
@@ -127,6 +147,11 @@ class Costmap:
             return (f"the learned cost is nowhere positive: it is negative (the reward attracts "
                     f"the robot) in {self.n_negative} cells, shown as free, and 0 elsewhere")
         return "the learned cost is 0 everywhere"
+
+
+def nav2_cost(occupancy: int) -> int:
+    """The Costmap2D cost of a map cell of this occupancy (0..100)."""
+    return round(NAV2_LETHAL * occupancy / LETHAL)
 
 
 def export_grid(scene: Scene) -> OccupancyGrid:
@@ -175,8 +200,10 @@ def build_costmap(scene: Scene, params: FeatureParams, weights: np.ndarray) -> C
     if scale > 0:
         occupancy = np.rint(MAX_LEARNED * positive / scale).astype(np.uint8)
     occupancy[lethal] = LETHAL
+    length = -sum(weights[j] for j, feature in enumerate(params.selected())
+                  if feature.kind == "length")
     return Costmap(grid, cost, occupancy, lethal, scale, tuple(names[j] for j in in_mask),
-                   left_out, int((cost[free] < 0).sum()))
+                   left_out, int((cost[free] < 0).sum()), length if length > 0 else None)
 
 
 def body_cells(scene: Scene, grid: OccupancyGrid) -> np.ndarray:
@@ -220,6 +247,7 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
     else:
         lines.append(f"# scale: {costmap.no_cost()} (occupancy 0 outside obstacles and "
                      "bodies)")
+    lines += [f"# {line}" for line in trade_off(costmap)]
     lines.append(f"# occupancy 0 = free (white); {LETHAL} = obstacle or person body disk (black)")
     if costmap.n_negative:
         lines.append(f"# {costmap.n_negative} cells with a negative cost (a rewarding feature) "
@@ -233,6 +261,31 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
               f"origin: [{_num(g.origin[0])}, {_num(g.origin[1])}, 0.0]", "negate: 0",
               f"occupied_thresh: {_num(OCCUPIED_THRESH)}", f"free_thresh: {_num(FREE_THRESH)}"]
     return "\n".join(lines) + "\n"
+
+
+def trade_off(costmap: Costmap) -> list[str]:
+    """How to weigh the mask against distance as the learned reward does (nothing when the
+    mask is free or the learner has no length cost)."""
+    multiplier = costmap.smac_multiplier()
+    if multiplier is None or costmap.free_metre is None:
+        return []
+    ratio = costmap.scale / costmap.free_metre
+    navfn = NAVFN_FACTOR * nav2_cost(MAX_LEARNED) / NAVFN_NEUTRAL
+    return [f"trade-off: a metre at occupancy {MAX_LEARNED} adds {ratio:.3g} times the cost of a "
+            f"metre of free path (-w_length = {_num(costmap.free_metre)} per m)",
+            f"Smac 2D weighs it so with cost_travel_multiplier: {multiplier:.4g} (its default "
+            f"{SMAC_DEFAULT_MULTIPLIER:g} weighs it {_times(SMAC_DEFAULT_MULTIPLIER / multiplier)}"
+            f"); NavFn, whose factor is fixed, adds {navfn:.3g} times a free step "
+            f"({_times(navfn / ratio)})"]
+
+
+def _times(factor: float) -> str:
+    """A planner's weight of the mask against the learned one, in words."""
+    if 0.9 <= factor <= 1.1:
+        return "about as learned"
+    if factor > 1:
+        return f"{factor:.2g} times as much as learned"
+    return f"{1 / factor:.2g} times too little"
 
 
 def costmap_pgm(costmap: Costmap) -> bytes:
@@ -634,6 +687,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {final / COSTMAP_YAML} ({w} x {h} cells at {costmap.grid.resolution:g} m; "
           f"features {', '.join(costmap.in_mask) or 'none'}; {scale})")
     print(f"wrote {final / BAG_DIR} (" + ", ".join(f"{t} {n}" for t, n in counts.items()) + ")")
+    if (multiplier := costmap.smac_multiplier()) is not None:
+        print(f"planner: Smac 2D weighs the mask against distance as learned with "
+              f"cost_travel_multiplier: {multiplier:.3g} (see {COSTMAP_YAML})")
     for warning in warnings:
         print(warning, file=sys.stderr)
     return 0

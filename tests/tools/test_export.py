@@ -330,6 +330,57 @@ def test_a_costmap_in_row_blocks_is_the_costmap_at_once(scene, monkeypatch):
     assert (in_blocks.cost != 0).mean() > 0.05
 
 
+def smac_step_cost(nav2_cost: np.ndarray, multiplier: float) -> np.ndarray:
+    """Smac 2D's cost of a unit step onto cells of these Costmap2D costs (nav2_smac_planner
+    node_2d.cpp getTraversalCost): 1 + cost_travel_multiplier * cost / 252."""
+    return 1.0 + multiplier * nav2_cost / 252.0
+
+
+def test_the_smac_multiplier_in_the_yaml_weighs_the_mask_as_the_learned_reward(scene, tmp_path):
+    """Read back as Nav2 does (PGM grey -> occupancy -> Costmap2D cost round(254 k / 100)),
+    with the YAML's cost_travel_multiplier, Smac 2D's cost of a metre at every free cell is
+    the learned reward's (|w_length| + the hand-computed cost), in units of |w_length|, up
+    to the mask's 99 levels and the 3 digits printed."""
+    weights = dict(zip(FeatureParams().features, POLITE, strict=True))
+    costmap = export.build_costmap(scene, FeatureParams(), POLITE)
+    (tmp_path / "costmap.pgm").write_bytes(export.costmap_pgm(costmap))
+    (tmp_path / "costmap.yaml").write_text(export.costmap_yaml(
+        costmap, tuple(FeatureParams().features), POLITE, []))
+    data, comments = read_yaml_and_comments(tmp_path / "costmap.yaml")
+    said = [re.search(r"cost_travel_multiplier: ([0-9.e+]+)", c) for c in comments]
+    multiplier = float(next(m for m in said if m).group(1))
+    occupancy = nav2_scale_occupancy(read_pgm(tmp_path / "costmap.pgm"), data["free_thresh"],
+                                     data["occupied_thresh"])
+    nav2 = np.rint(254 * occupancy / 100).reshape(-1)
+    hand, body, on_end = hand_cost(scene, weights, centres_of(
+        costmap.grid.shape, costmap.grid.origin, costmap.grid.resolution))
+    free = ~body & ~on_end & (occupancy.reshape(-1) < 100)
+    w_length = -weights["length"]
+    learned = 1.0 + hand[free] / w_length
+    planned = smac_step_cost(nav2[free], multiplier)
+    level = costmap.scale / 99 / w_length  # one occupancy level, in units of |w_length|
+    assert np.abs(planned - learned).max() <= 0.5 * level + 0.005 * learned.max()
+    # the rounding to levels averages out: what is left is the slope (a 252 for a 254 in
+    # the multiplier is 0.7 % off)
+    costly = occupancy.reshape(-1)[free] >= 10
+    slope = (planned[costly] - 1.0) / (learned[costly] - 1.0)
+    assert abs(slope.mean() - 1.0) < 0.003
+    assert learned.max() > 5  # a real trade-off: the costliest cell far above a free metre
+    # the default multiplier does not: the costliest cells weigh several times too little
+    assert smac_step_cost(nav2[free], 2.0).max() < learned.max() / 2
+
+
+def test_no_trade_off_is_said_without_a_length_cost(scene):
+    """A learner without a length cost (or one that rewards length) gives the mask no unit
+    to compare with: no multiplier is offered."""
+    no_length = POLITE * np.array([1.0, 1.0, 1.0, 0.0])
+    for weights in (no_length, POLITE * np.array([1.0, 1.0, 1.0, -1.0])):
+        costmap = export.build_costmap(scene, FeatureParams(), weights)
+        assert costmap.scale > 0 and costmap.smac_multiplier() is None
+        text = export.costmap_yaml(costmap, tuple(FeatureParams().features), weights, [])
+        assert "trade-off" not in text and "cost_travel_multiplier" not in text
+
+
 def test_zero_weights_give_an_all_free_mask_with_the_bodies_lethal(scene):
     costmap = export.build_costmap(scene, FeatureParams(), np.zeros(4))
     assert costmap.scale == 0
