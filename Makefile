@@ -145,6 +145,7 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench graph_io
 	$(PY) -m pipeline.tools.bench experiment
 	$(PY) -m pipeline.tools.bench_buildings
+	$(PY) -m pipeline.tools.bench_export
 	$(PY) -m pipeline.tools.bench irl
 	$(PY) -m pipeline.tools.bench obstacles
 	$(PY) -m pipeline.tools.bench imperfect

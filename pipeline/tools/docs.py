@@ -412,6 +412,7 @@ ALTERNATIVES_SPACING_COMMAND = (
 # other tools' tables are these.
 OTHER_MAKERS = {
     "buildings.csv": "python -m pipeline.tools.bench_buildings",
+    "export_planner.csv": "python -m pipeline.tools.bench_export",
     "scaling.csv": "python -m pipeline.tools.bench_scaling",
     "scaling_exponents.csv": "python -m pipeline.tools.bench_scaling",
     "scaling_growth.csv": "python -m pipeline.tools.bench_scaling",

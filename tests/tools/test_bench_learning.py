@@ -67,7 +67,7 @@ def test_an_unknown_demonstrator_is_refused_in_one_line(capsys):
     assert "invalid choice: 'handrawn'" in err[-1] and "handdrawn_heldout" in err[-1]
 
 
-@pytest.mark.parametrize("tool", ["bench_learning", "bench_buildings"])
+@pytest.mark.parametrize("tool", ["bench_learning", "bench_buildings", "bench_export"])
 def test_an_output_path_that_is_a_file_is_refused_before_any_run(tool, tmp_path, capsys):
     import importlib
 
