@@ -1827,7 +1827,8 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         subjects = recording.subjects or [None] * len(tracks)
         labels = [track_name(i, recording.ids) for i in range(len(tracks))]
         # what follows the goal is cut away: a jump there is no jump in a demonstration
-        warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where)
+        warn_jumps([t[:_first_at_goal(t, goal, goal_tolerance) + 1] for t in tracks], where,
+                   labels=labels)
         warn_repeated_walks(tracks, starts, goal, start_radius, goal_tolerance, where)
     try:
         cleaned = clean_tracks(tracks, goal, goal_tolerance, room, where,

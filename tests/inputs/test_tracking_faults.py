@@ -224,6 +224,20 @@ def test_a_jump_where_tracking_was_lost_is_found_and_named(tmp_path, caplog):
                      r"usually 0\.10 m\)", caplog.text)
 
 
+def test_a_jump_in_a_csv_with_ids_names_the_trajectory_by_its_id(tmp_path, caplog):
+    """Without expert.select_walks the jump warning named a CSV trajectory by its number in
+    the file only; the id is what a user finds there."""
+    true = walk(0.1)
+    gap = np.vstack([true[:40], true[90:]])
+    path = tmp_path / "tracks.csv"
+    rows = [("ped_7", x, y) for x, y in true.tolist()] + [("ped_9", x, y) for x, y in gap.tolist()]
+    path.write_text("trajectory,x,y\n" + "".join(f"{k},{x!r},{y!r}\n" for k, x, y in rows))
+    with caplog.at_level(logging.WARNING):
+        load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
+    assert re.search(r"1 of 2 trajectories jump.*: 1 \(id 'ped_9'\) \(\d\.\d\d m from pose 39 "
+                     r"to 40", caplog.text)
+
+
 def test_two_walks_under_one_id_are_named_and_no_jump_is_claimed(tmp_path, caplog):
     """Two sessions' CSVs appended, both numbering their walks from 0, and no time column:
     each id holds two walks. The cut at the goal keeps the first; the second was dropped
