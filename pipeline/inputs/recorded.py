@@ -88,6 +88,10 @@ MAX_RESAMPLED_POINTS = 10_000_000
 # many times longer than as given (`clock_order`): sorting fixes poses exported or logged
 # out of order, it does not turn a walk into a zig-zag.
 T_ORDER_GROWTH = 2.0
+# Ordering that makes a track longer than as given by more than this fraction and distance
+# is not done: the clock stepped back (a clock set back mid-recording), the rows are in
+# order (a timestamp jittering a frame against its neighbour stays within it)
+T_ORDER_SLACK, T_ORDER_SLACK_M = 0.05, 0.2
 # Positions are rounded to this many decimals of a metre (a nanometre, far below any sensor):
 # formats reach the same polyline by different float arithmetic (an odometry stream's 0.6 is
 # 0.5999999999999999), and learning should not tell them apart.
@@ -516,40 +520,80 @@ def _polyline_length(points: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
 
 
+class ClockOrder(NamedTuple):
+    """How a track's poses are ordered (`clock_order`)."""
+    order: np.ndarray  # indices of the poses, as given, in the order read
+    stepped_back: str | None  # where the clock stepped back, the poses kept as given; else None
+
+
 def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
-                clock: str, as_given: str, place: Callable[[int], str], fix: str) -> np.ndarray:
+                clock: str, as_given: str, place: Callable[[int], str], fix: str) -> ClockOrder:
     """The order of a track's poses by their clock (`points` and their `times`, as given;
     stable). Ordering must make the track more coherent, never less: poses exported or
     logged out of order fall into place, but two recordings appended with clocks that both
-    start at 0 would be interleaved into one zig-zag many times longer than either. A track
-    that ordering makes more than T_ORDER_GROWTH times longer than as given is refused;
-    `place(k)` names the k-th pose."""
+    start at 0 would be interleaved into one zig-zag many times longer than either (refused
+    when more than T_ORDER_GROWTH times). Where ordering makes the track longer by more than
+    T_ORDER_SLACK (and T_ORDER_SLACK_M) and, as given, no jump (`is_jump`) comes where the
+    clock goes back furthest, the clock was set back mid-walk (1 s at walking pace
+    interleaves 10 rows into a zig-zag that looked like two people under one id): the track
+    is kept as given and `stepped_back` says where. `place(k)` names the k-th pose."""
     order = np.argsort(times, kind="stable")
     as_filed, as_timed = _polyline_length(points), _polyline_length(points[order])
-    if as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
-        back = int(np.flatnonzero(np.diff(times) < 0)[0]) + 1
+    if as_timed <= as_filed * (1 + T_ORDER_SLACK) + T_ORDER_SLACK_M:
+        return ClockOrder(order, None)
+    back = int(np.argmin(np.diff(times))) + 1  # the largest step back
+    steps, usual = _steps_and_usual(points)
+    set_back = usual is not None and not is_jump(float(steps[back - 1]), usual)
+    if not set_back and as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
         raise PipelineError(
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
             f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:.3f} to "
             f"{times[back]:.3f} at {place(back)}); are several recordings appended? {fix}")
-    return order
+    if not set_back:
+        return ClockOrder(order, None)
+    return ClockOrder(np.arange(len(times)), (
+        f"{clock} goes back from {times[back - 1]:.3f} to {times[back]:.3f} at {place(back)} "
+        f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"))
+
+
+def stepped_forward(times: np.ndarray) -> np.ndarray:
+    """Times that go back (a clock set back mid-track, `clock_order`) moved on so they never
+    do: after each step back, by its size and one usual interval."""
+    steps = np.diff(times)
+    forward = steps[steps > 0]
+    usual = float(np.median(forward)) if len(forward) else 0.0
+    lift = np.cumsum(np.where(steps < 0, usual - steps, 0.0))
+    return np.concatenate([times[:1], times[1:] + lift])
 
 
 def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, ids: list[str],
                    subjects: list[str], where: str, single_rows: bool = False) -> Recording:
     """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given
     (`clock_order`); a trajectory of one row refused unless `single_rows`."""
+    stepped_back: list[str] = []  # trajectories whose clock stepped back, kept in file order
+
     def ordered(sel: np.ndarray, what: str) -> np.ndarray:
         if "t" not in col:
             return sel
-        return sel[clock_order(where, what, table[sel, :2], table[sel, 2], "t", "in file order",
-                               lambda k: f"line {lines[sel[k]]}",
-                               "give each walk (from a start to the goal) its own id in a "
-                               "trajectory column, or leave out t and give the rows in "
-                               "recorded order")]
+        order, stepped = clock_order(
+            where, what, table[sel, :2], table[sel, 2], "t", "in file order",
+            lambda k: f"line {lines[sel[k]]}", "give each walk (from a start to the goal) its "
+            "own id in a trajectory column, or leave out t and give the rows in recorded order")
+        if stepped is not None:
+            stepped_back.append(f"{what}: {stepped}")
+        return sel[order]
+
+    def warn_stepped_back() -> None:
+        if stepped_back:
+            several = len(stepped_back) > 1
+            log.warning("%s: ordered by t, %d %s would zig-zag back over %s own route: read "
+                        "in file order (was the clock set back while recording?): %s", where,
+                        len(stepped_back), "trajectories" if several else "trajectory",
+                        "their" if several else "its", listed(stepped_back, 3, "; "))
 
     if "trajectory" not in col:
         order = ordered(np.arange(len(table)), "the pose stream")
+        warn_stepped_back()
         if len(order) < 2:
             raise PipelineError(f"{where} has 1 row; a pose stream needs at least two")
         stream_subjects: list[str | None] | None = \
@@ -570,13 +614,14 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
                                 f"needs at least two{hint}")
         rows = table[ordered(np.array(members), f"trajectory {i} (id {ident!r})")]
         tracks.append(rows[:, :2])
-        times.append(rows[:, 2])
+        times.append(stepped_forward(rows[:, 2]))  # the mending reads them in pose order
         if subjects:
             names_here = sorted({subjects[k] for k in members})
             if len(names_here) > 1:
                 raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has rows of several "
                                     f"subjects: {', '.join(repr(n) for n in names_here[:3])}")
             track_subjects.append(names_here[0])
+    warn_stepped_back()
     return Recording(tracks, False, track_subjects if subjects else None, ids=list(groups),
                      times=times if "t" in col else None)
 
@@ -668,12 +713,17 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                 f"{where}: topic {topic}'s header.stamp goes back at {backwards} of "
                 f"{len(when) - 1} steps in the order its messages were logged; is the "
                 f"recording's clock wrong? (poses are read in header.stamp order)")
-        order = clock_order(f"{where}: topic {topic}", "the pose stream", poses, when,
-                            "header.stamp", "in the order it was logged",
-                            lambda k: f"message {k}", "record each in a bag of its own")
-        moved = int(np.count_nonzero(order != np.arange(len(order))))
-        log.warning("%s: %d of %d messages of topic %s arrived out of the order of their "
-                    "header.stamp; read in stamp order", where, moved, len(order), topic)
+        order, stepped = clock_order(f"{where}: topic {topic}", "the pose stream", poses,
+                                     when, "header.stamp", "in the order it was logged",
+                                     lambda k: f"message {k}", "record each in a bag of its own")
+        if stepped is not None:
+            log.warning("%s: topic %s: %s; ordered by it the pose stream would zig-zag back "
+                        "over its own route: read in the order logged (was the clock set back "
+                        "while recording?)", where, topic, stepped)
+        else:
+            moved = int(np.count_nonzero(order != np.arange(len(order))))
+            log.warning("%s: %d of %d messages of topic %s arrived out of the order of their "
+                        "header.stamp; read in stamp order", where, moved, len(order), topic)
         poses = poses[order]
     return Recording([poses], True)
 
@@ -792,17 +842,30 @@ def straight_share(track: np.ndarray) -> float:
                          * np.linalg.norm(b, axis=1)))
 
 
-def largest_jump(track: np.ndarray) -> tuple[int, float, float] | None:
-    """The largest jump of a trajectory (see JUMP_STEPS) as (i, its length, the usual step):
-    poses i and i + 1 are that far apart; None without one or with fewer than three steps."""
+def _steps_and_usual(track: np.ndarray) -> tuple[np.ndarray, float | None]:
+    """A trajectory's steps and its usual step (the 75th percentile of those that move; None
+    with fewer than three or a step that is not finite)."""
     with np.errstate(over="ignore", invalid="ignore"):
         steps = np.linalg.norm(np.diff(track, axis=0), axis=1)
     moving = steps[steps >= REPEAT_TOLERANCE]
     if len(moving) < 3 or not np.isfinite(moving).all():
+        return steps, None
+    return steps, float(np.percentile(moving, 75))
+
+
+def is_jump(step: float, usual: float) -> bool:
+    """Whether a step is a jump (see JUMP_STEPS) on a trajectory of this usual step."""
+    return step > max(JUMP_MIN, JUMP_STEPS * usual)
+
+
+def largest_jump(track: np.ndarray) -> tuple[int, float, float] | None:
+    """The largest jump of a trajectory (see JUMP_STEPS) as (i, its length, the usual step):
+    poses i and i + 1 are that far apart; None without one or with fewer than three steps."""
+    steps, usual = _steps_and_usual(track)
+    if usual is None:
         return None
-    usual = float(np.percentile(moving, 75))
     i = int(np.argmax(steps))
-    return (i, float(steps[i]), usual) if steps[i] > max(JUMP_MIN, JUMP_STEPS * usual) else None
+    return (i, float(steps[i]), usual) if is_jump(float(steps[i]), usual) else None
 
 
 def label(labels: Sequence[str] | None, k: int) -> str:

@@ -11,7 +11,7 @@ import pytest
 
 from pipeline.core.features import FeatureModel
 from pipeline.inputs.demo_file import load_demo_file
-from pipeline.inputs.recorded import read_recording, read_tracks
+from pipeline.inputs.recorded import load_recorded, read_recording, read_tracks, stepped_forward
 from tests.conftest import write_bag
 from tests.inputs.conftest import refused
 from tests.inputs.test_recorded import PATH_A, STARTS, line, load
@@ -74,6 +74,64 @@ def test_rows_out_of_order_or_with_a_clock_glitch_are_still_ordered_by_t(tmp_pat
     path.write_text("x,y,t\n" + csv_rows(walk, times))
     [track], _ = read_tracks(path)
     assert np.array_equal(track[[10, 11]], walk[[11, 10]])  # ordered by t, as documented
+
+
+def test_a_clock_set_back_mid_walk_keeps_the_file_order_and_says_so(tmp_path, caplog):
+    """A tracker's clock set back 1 s mid-walk (a time server's correction): ordered by t, the
+    10 rows after it interleave with the 10 before, a zig-zag back over the walk's own route
+    that expert.select_walks took for two people under one id. Read in file order with one
+    warning naming the line, and the times after the step moved on, so the mending sees one
+    person walking."""
+    walk = line(STARTS[0], GOAL)
+    times = np.arange(len(walk)) * 0.1
+    times[60:] -= 1.0
+    path = tmp_path / "clock.csv"
+    path.write_text("trajectory,x,y,t\n" + "".join(f"p1,{r}" for r in csv_rows(walk, times)
+                                                   .splitlines(keepends=True)))
+    with caplog.at_level(logging.WARNING):
+        [track], _ = read_tracks(path)
+    assert np.array_equal(track, walk)
+    assert re.search(r"clock\.csv: ordered by t, 1 trajectory would zig-zag back over its own "
+                     r"route: read in file order \(was the clock set back while recording\?\): "
+                     r"trajectory 0 \(id 'p1'\): t goes back from 5\.900 to 5\.000 at line 62 "
+                     r"\([\d.]+ m ordered by it, [\d.]+ m in file order\)", caplog.text)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_recorded(path, STARTS, GOAL, goal_tolerance=0.3, select_walks=True)
+    assert "two people under one id" not in caplog.text
+    assert "come back to their own route" not in caplog.text
+    steady = tmp_path / "steady.csv"  # the same walk on a clock that was not set back
+    steady.write_text("trajectory,x,y,t\n" + "".join(
+        f"p1,{r}" for r in csv_rows(walk, np.arange(len(walk)) * 0.1).splitlines(keepends=True)))
+    [expected] = load_recorded(steady, STARTS, GOAL, goal_tolerance=0.3, select_walks=True)
+    np.testing.assert_allclose(demo.points, expected.points)
+
+
+def test_times_that_go_back_are_moved_on_by_the_step_and_one_interval():
+    np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.1, 0.2, 0.0, 0.1])),
+                               [0.0, 0.1, 0.2, 0.3, 0.4])
+    np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.2, 0.4])), [0.0, 0.2, 0.4])
+
+
+def test_a_bag_whose_clock_was_set_back_is_read_in_the_order_logged(tmp_path, caplog):
+    """The same clock step in a pose stream's header stamps: read as logged, said once."""
+    drive = line(STARTS[0], GOAL)
+    stamp = np.arange(len(drive), dtype=float)
+    stamp[60:] -= 10.5  # 1.05 s back at 0.1 s per message
+    by_stamp = np.argsort(stamp, kind="stable")
+    rank = np.empty_like(by_stamp)
+    rank[by_stamp] = np.arange(len(drive))
+    bag = write_bag(tmp_path / "clock", {"/odom": ("nav_msgs/msg/Odometry",
+                                                   list(drive[by_stamp]))},
+                    arrival=[int(r) for r in rank])
+    with caplog.at_level(logging.WARNING):
+        [track], _ = read_tracks(bag)
+    assert np.array_equal(track, drive)
+    assert re.search(r"topic /odom: header\.stamp goes back from [\d.]+ to [\d.]+ at message 60 "
+                     r"\([\d.]+ m ordered by it, [\d.]+ m in the order it was logged\); ordered "
+                     r"by it the pose stream would zig-zag back over its own route: read in the "
+                     r"order logged", caplog.text)
+    assert "arrived out of the order" not in caplog.text
 
 
 # -- JSON numbers, keys and subjects --------------------------------------------------------
