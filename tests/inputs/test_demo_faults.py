@@ -5,6 +5,7 @@ demonstration is still usable. Written as a user's files would be, read by the r
 import json
 import logging
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -85,9 +86,13 @@ def test_a_clock_set_back_mid_walk_keeps_the_file_order_and_says_so(tmp_path, ca
     walk = line(STARTS[0], GOAL)
     times = np.arange(len(walk)) * 0.1
     times[60:] -= 1.0
-    path = tmp_path / "clock.csv"
-    path.write_text("trajectory,x,y,t\n" + "".join(f"p1,{r}" for r in csv_rows(walk, times)
-                                                   .splitlines(keepends=True)))
+    def one_track(name: str, times: np.ndarray) -> Path:
+        path = tmp_path / name
+        path.write_text("trajectory,x,y,t\n" + "".join(
+            f"p1,{r}" for r in csv_rows(walk, times).splitlines(keepends=True)))
+        return path
+
+    path = one_track("clock.csv", times)
     with caplog.at_level(logging.WARNING):
         [track], _ = read_tracks(path)
     assert np.array_equal(track, walk)
@@ -100,9 +105,7 @@ def test_a_clock_set_back_mid_walk_keeps_the_file_order_and_says_so(tmp_path, ca
         [demo] = load_recorded(path, STARTS, GOAL, goal_tolerance=0.3, select_walks=True)
     assert "two people under one id" not in caplog.text
     assert "come back to their own route" not in caplog.text
-    steady = tmp_path / "steady.csv"  # the same walk on a clock that was not set back
-    steady.write_text("trajectory,x,y,t\n" + "".join(
-        f"p1,{r}" for r in csv_rows(walk, np.arange(len(walk)) * 0.1).splitlines(keepends=True)))
+    steady = one_track("steady.csv", np.arange(len(walk)) * 0.1)  # a clock not set back
     [expected] = load_recorded(steady, STARTS, GOAL, goal_tolerance=0.3, select_walks=True)
     np.testing.assert_allclose(demo.points, expected.points)
 
