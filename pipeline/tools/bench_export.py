@@ -38,10 +38,14 @@ CASES = {
     "random scene seed 0": ("scene=random", "seed=0"),
     "random scene seed 1": ("scene=random", "seed=1"),
     "random scene seed 2": ("scene=random", "seed=2"),
+    "random scene seed 3": ("scene=random", "seed=3"),
     "office": ("scene=office",),
+    "warehouse": ("scene=warehouse",),
     "hand-drawn": ("expert=file", f"expert.path={HANDDRAWN}"),
+    # given weights without a length cost: a metre's cost is the MDP's cost per second alone
+    "given weights without length": ("expert=none", "birl=fixed",
+                                      "birl.weights=[-1.0,-0.7,-0.85,0.0,-0.5]"),
 }
-SMAC_DEFAULT = export.SMAC_DEFAULT_MULTIPLIER
 INSCRIBED = 253  # Costmap2D: a robot centred here collides; the planners never enter it
 NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, -1), (-1, 0), (-1, -1), (-1, 1))
 
@@ -92,7 +96,9 @@ def one_case(run_dir: Path, case: str, overrides: tuple[str, ...]) -> list[dict]
                if m["graph"] == "ref"}
     nav2_cost = np.rint(export.NAV2_LETHAL * costmap.occupancy.astype(float) / export.LETHAL)
     given = costmap.smac_multiplier()
-    multipliers = {"shortest (0)": 0.0, f"Smac default ({SMAC_DEFAULT:g})": SMAC_DEFAULT}
+    multipliers = {"shortest (0)": 0.0,
+                   f"unset: Nav2's code ({export.SMAC_UNSET_NOW:g})": export.SMAC_UNSET_NOW,
+                   f"unset: older releases ({export.SMAC_UNSET_OLDER:g})": export.SMAC_UNSET_OLDER}
     if given is not None:
         multipliers["the export's"] = float(f"{given:.4g}")  # as printed in the YAML
     learned_distance = np.mean([min_distance_to_person(p, scene.person_xy)

@@ -26,9 +26,10 @@ round(254 k / 100): 99 is 251, below the inscribed cost 253.
 
 How a planner weighs the mask against distance: Smac 2D (nav2_smac_planner node_2d.cpp)
 charges a step of length s onto a cell of cost c as s (1 + cost_travel_multiplier c / 252);
-the learned reward charges s (|w_length| + cost). With cost_travel_multiplier = (cost of
-occupancy 99 / |w_length|) 252 / 251 the two agree up to the 1..99 quantisation, and the
-YAML says so. NavFn (navfn.cpp) charges 50 + 0.8 c per cell, a fixed factor.
+the learned reward (undiscounted) charges s (f + cost), f = time_cost / speed − w_length the
+cost of a free metre. With cost_travel_multiplier = (cost of occupancy 99 / f) 252 / 251 the
+two agree up to the 1..99 quantisation, and the YAML says so. NavFn (navfn.cpp) charges
+int(50 + 0.8 c) per cell, a fixed factor.
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ from pipeline.app.rundir import COMPLETE, STATUS_FILE, UNKNOWN, acquire_lock, re
 from pipeline.artefacts import Artefact, codec, export_topics, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.features import NOT_A_DENSITY, FeatureModel, FeatureParams
+from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.obstacles import OccupancyGrid, rasterise
 from pipeline.core.world import OBSTACLE_RESOLUTION, Scene
 from pipeline.errors import PipelineError, report
@@ -94,8 +96,10 @@ COSTMAP_CHUNK_CELLS = 250_000  # cells whose densities are computed at once
 LETHAL, MAX_LEARNED = 100, 99  # occupancy of obstacles and bodies; of the costliest learned cell
 NAV2_LETHAL = 254  # Costmap2D's cost of occupancy 100; occupancy k is round(254 k / 100)
 SMAC_COST_DIVISOR = 252.0  # Smac 2D normalises a cell's cost by 252 (node_2d.cpp)
-SMAC_DEFAULT_MULTIPLIER = 2.0  # Smac 2D's cost_travel_multiplier default
-NAVFN_NEUTRAL, NAVFN_FACTOR = 50.0, 0.8  # NavFn: a cell of cost c costs 50 + 0.8 c (navfn.cpp)
+# Smac 2D's cost_travel_multiplier when left unset: in Nav2's code (smac_planner_2d.cpp); in
+# older releases and in its documentation
+SMAC_UNSET_NOW, SMAC_UNSET_OLDER = 1.0, 2.0
+NAVFN_NEUTRAL, NAVFN_FACTOR = 50, 0.8  # NavFn: a cell of cost c costs int(50 + 0.8 c) (navfn.cpp)
 
 PERSON_HEIGHT = 1.7  # m, drawn height of the body cylinders
 ARROW_LENGTH, ARROW_SHAFT, ARROW_HEAD = 0.6, 0.06, 0.12  # m, person heading arrows
@@ -130,14 +134,15 @@ class Costmap:
     in_mask: tuple[str, ...]  # features whose densities make up the cost
     left_out: dict[str, str]  # feature -> why it is not in the mask
     n_negative: int  # free cells whose cost was negative (a rewarding feature), shown as 0
-    # the learned cost of a metre anywhere (−w_length), None when the learner has no length
-    # cost: the unit that makes the mask's costs a trade-off a planner can copy
-    free_metre: float | None = None
+    # the learned reward's cost of a metre anywhere, the MDP's cost per second at its speed
+    # less w_length: the unit that makes the mask's costs a trade-off a planner can copy
+    free_metre: float = 0.0
+    discounted: bool = False  # the MDP discounts (mdp.gamma < 1): no cost per metre holds
 
     def smac_multiplier(self) -> float | None:
         """Smac 2D's cost_travel_multiplier that weighs the mask against distance as the
-        learned reward does (None without a scale or a length cost)."""
-        if not self.scale > 0 or self.free_metre is None:
+        learned reward does (None without a scale, or without a cost per metre)."""
+        if not self.scale > 0 or self.discounted or not self.free_metre > 0:
             return None
         return self.scale / self.free_metre * SMAC_COST_DIVISOR / nav2_cost(MAX_LEARNED)
 
@@ -162,8 +167,12 @@ def export_grid(scene: Scene) -> OccupancyGrid:
     return rasterise([], None, scene.room.bounds, OBSTACLE_RESOLUTION)
 
 
-def build_costmap(scene: Scene, params: FeatureParams, weights: np.ndarray) -> Costmap:
-    """The cost per metre of the learned reward's position-only features at every cell."""
+def build_costmap(scene: Scene, params: FeatureParams, weights: np.ndarray,
+                  mdp: MDPParams | None = None) -> Costmap:
+    """The cost per metre of the learned reward's position-only features at every cell; `mdp`
+    the formulation it was planned with (its cost per second is part of a metre's cost;
+    default: the pipeline's default, goal reaching)."""
+    mdp = mdp or MDPParams()
     weights = np.asarray(weights, dtype=float)
     names = tuple(params.features)
     if weights.shape != (len(names),):
@@ -203,7 +212,8 @@ def build_costmap(scene: Scene, params: FeatureParams, weights: np.ndarray) -> C
     length = -sum(weights[j] for j, feature in enumerate(params.selected())
                   if feature.kind == "length")
     return Costmap(grid, cost, occupancy, lethal, scale, tuple(names[j] for j in in_mask),
-                   left_out, int((cost[free] < 0).sum()), length if length > 0 else None)
+                   left_out, int((cost[free] < 0).sum()),
+                   float(mdp.time_cost / mdp.speed + length), not mdp.undiscounted)
 
 
 def body_cells(scene: Scene, grid: OccupancyGrid) -> np.ndarray:
@@ -264,19 +274,29 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
 
 
 def trade_off(costmap: Costmap) -> list[str]:
-    """How to weigh the mask against distance as the learned reward does (nothing when the
-    mask is free or the learner has no length cost)."""
-    multiplier = costmap.smac_multiplier()
-    if multiplier is None or costmap.free_metre is None:
+    """How to weigh the mask against distance as the learned reward does, or why no planner
+    setting can (nothing when the mask is free)."""
+    if not costmap.scale > 0:
         return []
+    if costmap.discounted:
+        return ["trade-off: none: the learned reward discounts (mdp.gamma < 1), which no "
+                "planner's cost per metre reproduces"]
+    multiplier = costmap.smac_multiplier()
+    if multiplier is None:
+        return [f"trade-off: none: a metre of free path gains reward ({_num(-costmap.free_metre)} "
+                "per m: w_length outweighs the cost per second), so the learned reward has no "
+                "cost of distance to weigh the mask against"]
     ratio = costmap.scale / costmap.free_metre
-    navfn = NAVFN_FACTOR * nav2_cost(MAX_LEARNED) / NAVFN_NEUTRAL
+    navfn = (int(NAVFN_NEUTRAL + NAVFN_FACTOR * nav2_cost(MAX_LEARNED)) - NAVFN_NEUTRAL) \
+        / NAVFN_NEUTRAL
     return [f"trade-off: a metre at occupancy {MAX_LEARNED} adds {ratio:.3g} times the cost of a "
-            f"metre of free path (-w_length = {_num(costmap.free_metre)} per m)",
-            f"Smac 2D weighs it so with cost_travel_multiplier: {multiplier:.4g} (its default "
-            f"{SMAC_DEFAULT_MULTIPLIER:g} weighs it {_times(SMAC_DEFAULT_MULTIPLIER / multiplier)}"
-            f"); NavFn, whose factor is fixed, adds {navfn:.3g} times a free step "
-            f"({_times(navfn / ratio)})"]
+            f"metre of free path ({_num(costmap.free_metre)} per m: the cost per second at the "
+            "MDP's speed, less w_length)",
+            f"Smac 2D weighs it so with cost_travel_multiplier: {multiplier:.4g} (left unset, "
+            f"{SMAC_UNSET_NOW:g} in Nav2's code and {SMAC_UNSET_OLDER:g} in older releases, it "
+            f"weighs the mask {_times(SMAC_UNSET_NOW / multiplier)} and "
+            f"{_times(SMAC_UNSET_OLDER / multiplier)}); NavFn, whose factor is fixed, adds "
+            f"{navfn:.3g} times a free step ({_times(navfn / ratio)})"]
 
 
 def _times(factor: float) -> str:
@@ -438,6 +458,7 @@ class RunReward:
     short: dict[str, list[int]]  # "graph" / "ref" -> the starts whose path stops short
     # the weights the learner left at the middle of its box: nothing moved them
     unmoved: list[str] = dataclasses.field(default_factory=list)
+    mdp: MDPParams = dataclasses.field(default_factory=MDPParams)  # as the paths were planned
 
 
 def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
@@ -533,6 +554,11 @@ def read_run(run_dir: Path) -> RunReward:
     check_inputs({"scene": scene_art, "demos": demos_art, "birl": birl,
                   "evaluate": evaluation})
     demos = [_points(demos_art, topics.DEMOS, m) for m in demos_art.messages.get(topics.DEMOS, [])]
+    try:
+        mdp = codec.decode_mdp_params(demos_art.one(topics.DEMOS_EXPERT))
+    except (KeyError, TypeError, ValueError):  # ParameterError is a ValueError
+        raise PipelineError(f"artefact {demos_art.path}: its '{topics.DEMOS_EXPERT}' message has "
+                            "no valid MDP settings (gamma, time_cost, r_goal, speed)") from None
     meta = birl.metadata
     about = [f"run: {run_dir.resolve()}",
              f"scene: {scene.name}, seed {meta.get('seed', '?')}, git revision "
@@ -545,7 +571,7 @@ def read_run(run_dir: Path) -> RunReward:
         about.append(f"weights: {given}")
     return RunReward(scene, params, weights, paths, demos, about,
                      {k: sorted(v) for k, v in short.items()},
-                     _left_at_the_middle(birl, names, weights))
+                     _left_at_the_middle(birl, names, weights), mdp)
 
 
 # -- writing the export ------------------------------------------------------------------------
@@ -594,7 +620,7 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int], list[str]]
     bag's message counts and its warnings (`short_of_goal`). The new export is built beside
     the old one and swapped in."""
     run = read_run(run_dir)
-    costmap = build_costmap(run.scene, run.params, run.weights)
+    costmap = build_costmap(run.scene, run.params, run.weights, run.mdp)
     final = run_dir / EXPORT_DIR
     partial = _partial_name(run_dir, "partial")
     old = _partial_name(run_dir, "old")
@@ -689,7 +715,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {final / BAG_DIR} (" + ", ".join(f"{t} {n}" for t, n in counts.items()) + ")")
     if (multiplier := costmap.smac_multiplier()) is not None:
         print(f"planner: Smac 2D weighs the mask against distance as learned with "
-              f"cost_travel_multiplier: {multiplier:.3g} (see {COSTMAP_YAML})")
+              f"cost_travel_multiplier: {multiplier:.4g} (see {COSTMAP_YAML})")
     for warning in warnings:
         print(warning, file=sys.stderr)
     return 0

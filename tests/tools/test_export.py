@@ -26,6 +26,7 @@ from rosbags.typesys import Stores, get_typestore
 from pipeline.app.rundir import FAILED, RUNNING, write_status
 from pipeline.artefacts import codec, read_artefact, topics, write_artefact
 from pipeline.core.features import FeatureParams
+from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.world import Scene, scene_from_dict
 from pipeline.inputs.map_file import load_map
 from pipeline.inputs.recorded import read_tracks
@@ -339,8 +340,9 @@ def smac_step_cost(nav2_cost: np.ndarray, multiplier: float) -> np.ndarray:
 def test_the_smac_multiplier_in_the_yaml_weighs_the_mask_as_the_learned_reward(scene, tmp_path):
     """Read back as Nav2 does (PGM grey -> occupancy -> Costmap2D cost round(254 k / 100)),
     with the YAML's cost_travel_multiplier, Smac 2D's cost of a metre at every free cell is
-    the learned reward's (|w_length| + the hand-computed cost), in units of |w_length|, up
-    to the mask's 99 levels and the 3 digits printed."""
+    the learned reward's (the goal MDP's 0.01 per second at 1 m/s, |w_length| and the
+    hand-computed cost), in units of a free metre, up to the mask's 99 levels and the 4
+    digits printed."""
     weights = dict(zip(FeatureParams().features, POLITE, strict=True))
     costmap = export.build_costmap(scene, FeatureParams(), POLITE)
     (tmp_path / "costmap.pgm").write_bytes(export.costmap_pgm(costmap))
@@ -355,10 +357,10 @@ def test_the_smac_multiplier_in_the_yaml_weighs_the_mask_as_the_learned_reward(s
     hand, body, on_end = hand_cost(scene, weights, centres_of(
         costmap.grid.shape, costmap.grid.origin, costmap.grid.resolution))
     free = ~body & ~on_end & (occupancy.reshape(-1) < 100)
-    w_length = -weights["length"]
-    learned = 1.0 + hand[free] / w_length
+    free_metre = 0.01 / 1.0 - weights["length"]
+    learned = 1.0 + hand[free] / free_metre
     planned = smac_step_cost(nav2[free], multiplier)
-    level = costmap.scale / 99 / w_length  # one occupancy level, in units of |w_length|
+    level = costmap.scale / 99 / free_metre  # one occupancy level, in free metres
     assert np.abs(planned - learned).max() <= 0.5 * level + 0.005 * learned.max()
     # the rounding to levels averages out: what is left is the slope (a 252 for a 254 in
     # the multiplier is 0.7 % off)
@@ -366,19 +368,31 @@ def test_the_smac_multiplier_in_the_yaml_weighs_the_mask_as_the_learned_reward(s
     slope = (planned[costly] - 1.0) / (learned[costly] - 1.0)
     assert abs(slope.mean() - 1.0) < 0.003
     assert learned.max() > 5  # a real trade-off: the costliest cell far above a free metre
-    # the default multiplier does not: the costliest cells weigh several times too little
+    # the multiplier left unset does not: the costliest cells weigh several times too little
     assert smac_step_cost(nav2[free], 2.0).max() < learned.max() / 2
 
 
-def test_no_trade_off_is_said_without_a_length_cost(scene):
-    """A learner without a length cost (or one that rewards length) gives the mask no unit
-    to compare with: no multiplier is offered."""
-    no_length = POLITE * np.array([1.0, 1.0, 1.0, 0.0])
-    for weights in (no_length, POLITE * np.array([1.0, 1.0, 1.0, -1.0])):
-        costmap = export.build_costmap(scene, FeatureParams(), weights)
+def test_a_metre_costs_the_time_it_takes_too(scene):
+    """Without a length cost a metre still costs the MDP's cost per second: the multiplier
+    is the costliest cell's cost over time_cost / speed."""
+    weights = POLITE * np.array([1.0, 1.0, 1.0, 0.0])
+    mdp = MDPParams(time_cost=0.02, speed=0.5)  # 0.04 per metre
+    costmap = export.build_costmap(scene, FeatureParams(), weights, mdp)
+    assert costmap.smac_multiplier() == pytest.approx(costmap.scale / 0.04 * 252 / 251)
+    assert export.build_costmap(scene, FeatureParams(), weights).smac_multiplier() == \
+        pytest.approx(costmap.scale / 0.01 * 252 / 251)
+
+
+def test_no_multiplier_is_offered_where_none_can_hold_and_the_yaml_says_why(scene):
+    """A reward that pays for length beyond the cost of time has no cost of distance to
+    weigh the mask against; a discounted one has no cost per metre at all."""
+    for weights, mdp, why in (
+            (POLITE * np.array([1.0, 1.0, 1.0, -1.0]), None, "a metre of free path gains reward"),
+            (POLITE, MDPParams(gamma=0.95, time_cost=0.0), "the learned reward discounts")):
+        costmap = export.build_costmap(scene, FeatureParams(), weights, mdp)
         assert costmap.scale > 0 and costmap.smac_multiplier() is None
         text = export.costmap_yaml(costmap, tuple(FeatureParams().features), weights, [])
-        assert "trade-off" not in text and "cost_travel_multiplier" not in text
+        assert f"# trade-off: none: {why}" in text and "cost_travel_multiplier" not in text
 
 
 def test_zero_weights_give_an_all_free_mask_with_the_bodies_lethal(scene):
