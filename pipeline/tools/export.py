@@ -273,19 +273,27 @@ def costmap_yaml(costmap: Costmap, names: tuple[str, ...], weights: np.ndarray,
     return "\n".join(lines) + "\n"
 
 
+def no_trade_off(costmap: Costmap) -> str | None:
+    """Why no planner setting weighs the mask against distance as learned (None when one
+    does, or the mask is free)."""
+    if not costmap.scale > 0:
+        return None
+    if costmap.discounted:
+        return "the learned reward discounts (mdp.gamma < 1), which no cost per metre reproduces"
+    if not costmap.free_metre > 0:
+        return (f"a metre of free path gains reward ({_num(-costmap.free_metre)} per m: w_length "
+                "outweighs the cost per second), so the learned reward has no cost of distance "
+                "to weigh the mask against")
+    return None
+
+
 def trade_off(costmap: Costmap) -> list[str]:
     """How to weigh the mask against distance as the learned reward does, or why no planner
     setting can (nothing when the mask is free)."""
-    if not costmap.scale > 0:
-        return []
-    if costmap.discounted:
-        return ["trade-off: none: the learned reward discounts (mdp.gamma < 1), which no "
-                "planner's cost per metre reproduces"]
     multiplier = costmap.smac_multiplier()
     if multiplier is None:
-        return [f"trade-off: none: a metre of free path gains reward ({_num(-costmap.free_metre)} "
-                "per m: w_length outweighs the cost per second), so the learned reward has no "
-                "cost of distance to weigh the mask against"]
+        reason = no_trade_off(costmap)
+        return [] if reason is None else [f"trade-off: none: {reason}"]
     ratio = costmap.scale / costmap.free_metre
     navfn = (int(NAVFN_NEUTRAL + NAVFN_FACTOR * nav2_cost(MAX_LEARNED)) - NAVFN_NEUTRAL) \
         / NAVFN_NEUTRAL
@@ -716,6 +724,8 @@ def main(argv: list[str] | None = None) -> int:
     if (multiplier := costmap.smac_multiplier()) is not None:
         print(f"planner: Smac 2D weighs the mask against distance as learned with "
               f"cost_travel_multiplier: {multiplier:.4g} (see {COSTMAP_YAML})")
+    elif (reason := no_trade_off(costmap)) is not None:
+        print(f"planner: no cost_travel_multiplier weighs the mask as learned: {reason}")
     for warning in warnings:
         print(warning, file=sys.stderr)
     return 0

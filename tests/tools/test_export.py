@@ -227,6 +227,33 @@ def test_a_deployment_names_the_weights_its_source_run_did_not_learn(exported, t
     assert not any(c.startswith("not learned") for c in comments)
 
 
+def test_the_run_s_mdp_sets_the_multiplier_and_a_discounted_run_gets_none(tmp_path, capsys):
+    """The export reads the MDP the run planned with: given weights under a cost per second
+    of 0.04 at 0.5 m/s (0.08 per metre, less w_length) print the multiplier of that cost;
+    under the paper's discounted MDP no multiplier holds, and stdout and the YAML say why."""
+    weights = "birl.weights=[-1.0,-0.5,-0.5,-0.1,-0.5]"
+    slow = tmp_path / "slow"
+    run_in_process(slow, "graph=small", "expert=none", "birl=fixed", weights,
+                   "mdp.time_cost=0.04", "mdp.speed=0.5")
+    capsys.readouterr()
+    assert export.main([str(slow)]) == 0
+    said = re.search(r"cost_travel_multiplier: ([0-9.e+]+)", capsys.readouterr().out)
+    _, comments = read_yaml_and_comments(slow / "export" / "costmap.yaml")
+    scale = float(re.search(r"occupancy 99 = cost ([0-9.e-]+) per m", "\n".join(comments))
+                  .group(1))
+    assert float(said.group(1)) == pytest.approx(scale / (0.04 / 0.5 + 0.1) * 252 / 251,
+                                                 rel=1e-3)
+    discounted = tmp_path / "discounted"
+    run_in_process(discounted, "graph=small", "expert=none", "birl=fixed", weights, "mdp=paper")
+    capsys.readouterr()
+    assert export.main([str(discounted)]) == 0
+    out = capsys.readouterr().out
+    assert "planner: no cost_travel_multiplier weighs the mask as learned: the learned reward " \
+        "discounts" in out and "cost_travel_multiplier:" not in out
+    _, comments = read_yaml_and_comments(discounted / "export" / "costmap.yaml")
+    assert any(c.startswith("trade-off: none: the learned reward discounts") for c in comments)
+
+
 def test_costmap_values_match_a_hand_computation_at_every_cell(exported, learned, scene):
     _, out = exported
     data, comments = read_yaml_and_comments(out / "costmap.yaml")
