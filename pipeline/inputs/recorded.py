@@ -570,7 +570,8 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
                    subjects: list[str], where: str, single_rows: bool = False) -> Recording:
     """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given
     (`clock_order`); a trajectory of one row refused unless `single_rows`."""
-    stepped_back: list[str] = []  # trajectories whose clock stepped back, kept in file order
+    # (what, where) of the tracks whose clock was set back, kept in file order
+    stepped_back: list[tuple[str, str]] = []
 
     def ordered(sel: np.ndarray, what: str) -> np.ndarray:
         if "t" not in col:
@@ -580,16 +581,21 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
             lambda k: f"line {lines[sel[k]]}", "give each walk (from a start to the goal) its "
             "own id in a trajectory column, or leave out t and give the rows in recorded order")
         if stepped is not None:
-            stepped_back.append(f"{what}: {stepped}")
+            stepped_back.append((what, stepped))
         return sel[order]
 
     def warn_stepped_back() -> None:
-        if stepped_back:
-            several = len(stepped_back) > 1
-            log.warning("%s: ordered by t, %d %s would zig-zag back over %s own route: read "
-                        "in file order (was the clock set back while recording?): %s", where,
-                        len(stepped_back), "trajectories" if several else "trajectory",
-                        "their" if several else "its", listed(stepped_back, 3, "; "))
+        if not stepped_back:
+            return
+        if "trajectory" not in col:
+            [(what, stepped)] = stepped_back
+        else:
+            n = len(stepped_back)
+            what = "1 trajectory" if n == 1 else f"{n} trajectories"
+            stepped = listed([f"{w}: {s}" for w, s in stepped_back], 3, "; ")
+        log.warning("%s: ordered by t, %s would zig-zag back over %s own route: read in file "
+                    "order (was the clock set back while recording?): %s", where, what,
+                    "their" if len(stepped_back) > 1 else "its", stepped)
 
     if "trajectory" not in col:
         order = ordered(np.arange(len(table)), "the pose stream")

@@ -94,7 +94,9 @@ def one_case(run_dir: Path, case: str, overrides: tuple[str, ...]) -> list[dict]
     learned = {m["start"]: np.asarray(m["points"], dtype=float)
                for m in read_artefact(run_dir / ARTEFACT_FILE["evaluate"]).all(topics.EVAL_PATHS)
                if m["graph"] == "ref"}
-    nav2_cost = np.rint(export.NAV2_LETHAL * costmap.occupancy.astype(float) / export.LETHAL)
+    # Costmap2D rounds halves away from zero (np.rint takes them to even)
+    nav2_cost = np.floor(export.NAV2_LETHAL * costmap.occupancy.astype(float) / export.LETHAL
+                         + 0.5)
     given = costmap.smac_multiplier()
     multipliers = {"shortest (0)": 0.0,
                    f"unset: Nav2's code ({export.SMAC_UNSET_NOW:g})": export.SMAC_UNSET_NOW,

@@ -155,8 +155,9 @@ class Costmap:
 
 
 def nav2_cost(occupancy: int) -> int:
-    """The Costmap2D cost of a map cell of this occupancy (0..100)."""
-    return round(NAV2_LETHAL * occupancy / LETHAL)
+    """The Costmap2D cost of a map cell of this occupancy (0..100): std::round, halves away
+    from zero (Python's round takes them to even: 190 for occupancy 75, not Nav2's 191)."""
+    return math.floor(NAV2_LETHAL * occupancy / LETHAL + 0.5)
 
 
 def export_grid(scene: Scene) -> OccupancyGrid:
@@ -280,7 +281,10 @@ def no_trade_off(costmap: Costmap) -> str | None:
         return None
     if costmap.discounted:
         return "the learned reward discounts (mdp.gamma < 1), which no cost per metre reproduces"
-    if not costmap.free_metre > 0:
+    if costmap.free_metre == 0:
+        return ("a metre of free path costs nothing (w_length cancels the cost per second), so "
+                "the learned reward has no cost of distance to weigh the mask against")
+    if costmap.free_metre < 0:
         return (f"a metre of free path gains reward ({_num(-costmap.free_metre)} per m: w_length "
                 "outweighs the cost per second), so the learned reward has no cost of distance "
                 "to weigh the mask against")

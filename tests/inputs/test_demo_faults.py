@@ -21,9 +21,11 @@ GOAL = np.array([5.5, 9.0])
 CLEAR = [[0.5, 0.5], [1.0, 8.0], [5.5, 9.0]]  # on metropolis: clear of every person
 
 
-def csv_rows(points: np.ndarray, times: np.ndarray) -> str:
-    return "".join(f"{x!r},{y!r},{t!r}\n" for (x, y), t in zip(points.tolist(), times.tolist(),
-                                                             strict=True))
+def csv_rows(points: np.ndarray, times: np.ndarray, ident: str | None = None) -> str:
+    """Rows `x,y,t`, or `ident,x,y,t` under a trajectory column."""
+    pre = "" if ident is None else f"{ident},"
+    return "".join(f"{pre}{x!r},{y!r},{t!r}\n" for (x, y), t in zip(points.tolist(),
+                                                                   times.tolist(), strict=True))
 
 
 # -- CSV time -------------------------------------------------------------------------------
@@ -88,8 +90,7 @@ def test_a_clock_set_back_mid_walk_keeps_the_file_order_and_says_so(tmp_path, ca
     times[60:] -= 1.0
     def one_track(name: str, times: np.ndarray) -> Path:
         path = tmp_path / name
-        path.write_text("trajectory,x,y,t\n" + "".join(
-            f"p1,{r}" for r in csv_rows(walk, times).splitlines(keepends=True)))
+        path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "p1"))
         return path
 
     path = one_track("clock.csv", times)
@@ -135,6 +136,83 @@ def test_a_bag_whose_clock_was_set_back_is_read_in_the_order_logged(tmp_path, ca
                      r"by it the pose stream would zig-zag back over its own route: read in the "
                      r"order logged", caplog.text)
     assert "arrived out of the order" not in caplog.text
+
+
+def test_a_clock_set_back_half_a_second_is_kept_in_file_order(tmp_path, caplog):
+    """0.5 s back at 0.05 m per 0.1 s makes the walk 16 % longer ordered by t (11.5 m against
+    9.9 m): beyond the 5 % and 0.2 m a timestamp's jitter stays within."""
+    walk = line(STARTS[0], GOAL)
+    times = np.arange(len(walk)) * 0.1
+    times[60:] -= 0.5
+    path = tmp_path / "half.csv"
+    path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "p1"))
+    with caplog.at_level(logging.WARNING):
+        [track], _ = read_tracks(path)
+    assert np.array_equal(track, walk)
+    assert "1 trajectory would zig-zag back over its own route" in caplog.text
+
+
+def test_appended_recordings_are_refused_also_with_an_earlier_stamp_jitter(tmp_path):
+    """A pair of swapped stamps early in the first walk does not hide the clock's restart at
+    the second, where the track jumps back to a start: the largest step back is judged."""
+    walk_a, walk_b = line(STARTS[0], GOAL), line(STARTS[2], GOAL)
+    times_a = np.arange(len(walk_a)) * 0.1
+    times_a[[10, 11]] = times_a[[11, 10]]
+    path = tmp_path / "appended.csv"
+    path.write_text("x,y,t\n" + csv_rows(walk_a, times_a)
+                    + csv_rows(walk_b, np.arange(len(walk_b)) * 0.1 + 0.05))
+    refused(rf"t goes back from [\d.]+ to 0\.050 at line {len(walk_a) + 2}\); are several "
+            r"recordings appended\?", read_tracks, path)
+
+
+def test_a_three_row_trajectory_whose_clock_goes_back_is_ordered_by_it(tmp_path, caplog):
+    """With fewer than three steps there is no usual step to tell a jump by, so nothing says
+    the clock is wrong: the rows are read by t."""
+    path = tmp_path / "three.csv"
+    path.write_text("trajectory,x,y,t\np,0.0,0.0,0.0\np,1.0,0.0,2.0\np,2.0,0.0,1.0\n")
+    with caplog.at_level(logging.WARNING):
+        [track], _ = read_tracks(path)
+    np.testing.assert_array_equal(track, [[0.0, 0.0], [2.0, 0.0], [1.0, 0.0]])
+    assert "zig-zag" not in caplog.text
+
+
+def test_a_pose_stream_whose_clock_was_set_back_is_read_in_file_order_with_a_warning(
+        tmp_path, caplog):
+    """A CSV pose stream (no trajectory column) is kept in file order as a trajectory is,
+    and said so."""
+    walk = line(STARTS[0], GOAL)
+    times = np.arange(len(walk)) * 0.1
+    times[60:] -= 1.0
+    path = tmp_path / "stream.csv"
+    path.write_text("x,y,t\n" + csv_rows(walk, times))
+    with caplog.at_level(logging.WARNING):
+        [track], _ = read_tracks(path)
+    assert np.array_equal(track, walk)
+    assert re.search(r"stream\.csv: ordered by t, the pose stream would zig-zag back over its "
+                     r"own route: read in file order \(was the clock set back while recording\?\): "
+                     r"t goes back from 5\.900 to 5\.000 at line 62", caplog.text)
+
+
+def test_two_trajectories_whose_clocks_were_set_back_are_counted_in_one_warning(tmp_path, caplog):
+    """Several trajectories whose clock was set back: one warning counting them."""
+    walk = line(STARTS[0], GOAL)
+    times = np.arange(len(walk)) * 0.1
+    times[60:] -= 1.0
+    path = tmp_path / "two.csv"
+    path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "a") + csv_rows(walk, times, "b"))
+    with caplog.at_level(logging.WARNING):
+        tracks, _ = read_tracks(path)
+    assert len(tracks) == 2
+    assert "2 trajectories would zig-zag back over their own route" in caplog.text
+
+
+def test_stepped_forward_moves_on_by_the_median_positive_interval():
+    """The usual interval is the median of the intervals that move on: repeated stamps (0 s)
+    and one long pause (0.3 s) do not change it."""
+    np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.0, 0.1, 0.1, 0.2, 0.2, 0.0])),
+                               [0.0, 0.0, 0.1, 0.1, 0.2, 0.2, 0.3])
+    np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.1, 0.2, 0.5, 0.0])),
+                               [0.0, 0.1, 0.2, 0.5, 0.6])
 
 
 # -- JSON numbers, keys and subjects --------------------------------------------------------

@@ -206,6 +206,29 @@ def test_a_jump_is_measured_against_the_75th_percentile_step():
     assert largest_jump(steps(5.5)) == (5, 5.5, 0.5)
 
 
+def test_a_step_of_exactly_ten_usual_steps_is_no_jump():
+    """Steps 0.25, 0.25, 0.25, 0.5, 0.5 m (usual step 0.5 m) then exactly 10 x 0.5 m: a jump
+    is longer than that."""
+    x = np.cumsum([0.0, 0.25, 0.25, 0.25, 0.5, 0.5, 5.0])
+    assert largest_jump(np.column_stack([x, np.zeros_like(x)])) is None
+
+
+def test_a_gap_under_a_metre_is_no_jump_on_a_dense_track():
+    """A jump is also over 1 m: 0.8 m is 16 usual steps of 5 cm, but no jump; 1.2 m is."""
+    x = np.concatenate([np.arange(0.0, 2.0001, 0.05), np.arange(2.8, 5.0001, 0.05)])
+    assert largest_jump(np.column_stack([x, np.zeros_like(x)])) is None
+    x = np.concatenate([np.arange(0.0, 2.0001, 0.05), np.arange(3.2, 5.0001, 0.05)])
+    assert largest_jump(np.column_stack([x, np.zeros_like(x)]))[1] == pytest.approx(1.2)
+
+
+def test_the_usual_step_leaves_out_a_long_wait():
+    """400 repeated poses (a wait at the start) do not make the usual step 0, which would make
+    every step a jump."""
+    x = np.concatenate([np.zeros(400), np.arange(0.0, 4.0001, 0.1), np.arange(9.0, 12.0001, 0.1)])
+    i, size, usual = largest_jump(np.column_stack([x, np.zeros_like(x)]))
+    assert size == pytest.approx(5.0) and usual == pytest.approx(0.1)
+
+
 def test_a_jump_where_tracking_was_lost_is_found_and_named(tmp_path, caplog):
     true = walk(0.1)
     gap = np.vstack([true[:40], true[90:]])  # 5 m of the walk missing

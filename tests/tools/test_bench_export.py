@@ -43,3 +43,37 @@ def test_inscribed_and_lethal_cells_are_closed():
     wall[0, 2] = 252  # the costliest open cost: a way through the bottom row
     path = plan(smac_grid(wall, 1.0), GRID, START, GOAL)
     assert path is not None and [2.5, 0.5] in path.tolist()
+
+
+def test_a_step_is_charged_the_cost_of_the_cell_it_enters():
+    """Smac 2D charges a step the cost of the cell it enters, not of the one it leaves."""
+    graph = smac_grid(COST, 2.0)
+    assert graph[5, 6] == pytest.approx(2.0)  # (1, 0) -> (1, 1): onto cost 126
+    assert graph[6, 5] == pytest.approx(1.0)  # back onto the free cell
+    # (1, 0) to (1, 3) at m = 0.5: three steps onto cost 126, 3 x 1.25 (round by an outer row
+    # costs more, 4.54)
+    assert dijkstra(smac_grid(COST, 0.5), indices=5)[8] == pytest.approx(3.75)
+
+
+def test_the_grid_is_8_connected_both_ways():
+    """The way back costs as the way there, and every inner cell of a free grid has 8 steps
+    out."""
+    graph = smac_grid(COST, 2.0)
+    assert dijkstra(graph, indices=9)[5] == pytest.approx(2 + 2 * math.sqrt(2))
+    free = smac_grid(np.zeros((3, 5)), 1.0)
+    assert (free != free.T).nnz == 0
+    assert free.getnnz(axis=1).reshape(3, 5)[1, 1:4].tolist() == [8, 8, 8]
+
+
+def test_nothing_is_planned_from_a_closed_cell():
+    """No step leaves a closed cell: Smac 2D refuses a start in collision."""
+    closed = COST.copy()
+    closed[1, 0] = 254
+    assert smac_grid(closed, 1.0)[5].nnz == 0
+    assert plan(smac_grid(closed, 1.0), GRID, START, GOAL) is None
+
+
+def test_a_start_in_the_goal_s_cell_is_a_path_of_one_cell():
+    """A goal in the start's cell is reached at once, not unreachable."""
+    path = plan(smac_grid(COST, 1.0), GRID, START, START + 0.2)
+    np.testing.assert_allclose(path, [START])

@@ -6,6 +6,7 @@ the reward features at every cell."""
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import json
 import math
@@ -420,6 +421,71 @@ def test_no_multiplier_is_offered_where_none_can_hold_and_the_yaml_says_why(scen
         assert costmap.scale > 0 and costmap.smac_multiplier() is None
         text = export.costmap_yaml(costmap, tuple(FeatureParams().features), weights, [])
         assert f"# trade-off: none: {why}" in text and "cost_travel_multiplier" not in text
+
+
+def test_a_free_metre_costing_exactly_nothing_gets_no_multiplier_and_a_reason(scene):
+    """w_length = +time_cost / speed: a free metre costs exactly 0, so no multiplier (it would
+    divide by 0), and the YAML says why."""
+    weights = POLITE * np.array([1.0, 1.0, 1.0, 0.0]) + np.array([0.0, 0.0, 0.0, 0.01])
+    costmap = export.build_costmap(scene, FeatureParams(), weights)
+    assert costmap.scale > 0 and costmap.free_metre == 0.0
+    assert costmap.smac_multiplier() is None
+    text = export.costmap_yaml(costmap, tuple(FeatureParams().features), weights, [])
+    assert "# trade-off: none: a metre of free path costs nothing" in text
+    assert "cost_travel_multiplier" not in text
+
+
+def test_a_free_mask_says_nothing_of_a_trade_off_even_under_a_discounted_mdp(scene):
+    """A free mask has nothing to weigh: no trade-off line, not even the discounted run's
+    "none"."""
+    costmap = export.build_costmap(scene, FeatureParams(), np.zeros(4),
+                                   MDPParams(gamma=0.95, time_cost=0.0))
+    assert costmap.scale == 0 and costmap.discounted
+    assert export.no_trade_off(costmap) is None
+    text = export.costmap_yaml(costmap, tuple(FeatureParams().features), np.zeros(4), [])
+    assert "trade-off" not in text
+
+
+def test_the_gain_of_a_free_metre_is_said_as_a_positive_number(scene):
+    """The gain of a free metre is said as a positive number."""
+    weights = POLITE * np.array([1.0, 1.0, 1.0, -1.0])  # w_length = +0.1 > time cost 0.01
+    costmap = export.build_costmap(scene, FeatureParams(), weights)
+    gain = -costmap.free_metre
+    assert gain == pytest.approx(0.09)
+    assert f"gains reward ({gain!r} per m" in export.no_trade_off(costmap)
+
+
+def test_the_trade_off_lines_say_the_ratio_the_multiplier_and_how_far_off_the_defaults_are(scene):
+    """Scale and free metre chosen so the multiplier is 4 (the unset values 1 and 2 weigh the
+    mask 4 and 2 times too little; NavFn's int(50 + 0.8 * 251) = 250 adds 4 free steps, about
+    the learned 3.98), then 0.5 (all of them too much)."""
+    base = export.build_costmap(scene, FeatureParams(), POLITE)
+    four = dataclasses.replace(base, scale=4 * 251 / 252, free_metre=1.0)
+    assert four.smac_multiplier() == pytest.approx(4.0)
+    first, second = export.trade_off(four)
+    assert first.startswith("trade-off: a metre at occupancy 99 adds 3.98 times the cost of a "
+                            "metre of free path (1.0 per m:")
+    assert "cost_travel_multiplier: 4 (left unset, 1 in Nav2's code and 2 in older releases, it " \
+        "weighs the mask 4 times too little and 2 times too little); NavFn, whose factor is " \
+        "fixed, adds 4 times a free step (about as learned)" in second
+    half = dataclasses.replace(base, scale=0.5 * 251 / 252, free_metre=1.0)
+    _, second = export.trade_off(half)
+    assert "weighs the mask 2 times as much as learned and 4 times as much as learned" in second
+    assert "adds 4 times a free step (8 times as much as learned)" in second
+
+
+def test_a_run_whose_demos_carry_an_invalid_mdp_is_refused_in_one_line(tmp_path, capsys,
+                                                                        monkeypatch):
+    """An out-of-range MDP in demos.mcap is one line, not a ParameterError traceback. The
+    invalid message is simulated through the decoder's own validation (MDPParams refuses
+    gamma 2): a rewritten demos.mcap would fail its digest check first."""
+    run = tmp_path / "run"
+    run_in_process(run, "graph=small", "birl.n_iterations=3")
+    monkeypatch.setattr(codec, "decode_mdp_params", lambda msg: MDPParams(gamma=2.0))
+    assert export.main([str(run)]) == 2
+    err = capsys.readouterr().err
+    assert "'/demos/expert' message has no valid MDP settings" in err
+    assert "Traceback" not in err
 
 
 def test_zero_weights_give_an_all_free_mask_with_the_bodies_lethal(scene):
