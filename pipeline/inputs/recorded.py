@@ -530,27 +530,27 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
                 clock: str, as_given: str, place: Callable[[int], str], fix: str) -> ClockOrder:
     """The order of a track's poses by their clock (`points` and their `times`, as given;
     stable). Ordering must make the track more coherent, never less: poses exported or
-    logged out of order fall into place, but two recordings appended with clocks that both
-    start at 0 would be interleaved into one zig-zag many times longer than either (refused
-    when more than T_ORDER_GROWTH times). Where ordering makes the track longer by more than
-    T_ORDER_SLACK (and T_ORDER_SLACK_M) and, as given, no jump (`is_jump`) comes where the
-    clock goes back furthest, the clock was set back mid-walk (1 s at walking pace
-    interleaves 10 rows into a zig-zag that looked like two people under one id): the track
-    is kept as given and `stepped_back` says where. `place(k)` names the k-th pose."""
+    logged out of order fall into place. Where ordering makes the track longer than as given
+    by more than T_ORDER_SLACK (and T_ORDER_SLACK_M), the order as given is the coherent one
+    and is kept, and `stepped_back` says where the clock goes back furthest: the clock was
+    set back mid-walk (1 s at walking pace interleaves 10 rows into a zig-zag that looked
+    like two people under one id), or went back where tracking was lost. Refused instead:
+    ordering that makes the track more than T_ORDER_GROWTH times longer where the clock goes
+    back at a jump (`is_jump`), or on a track too short to tell one: two recordings appended
+    with clocks that both start at 0, one walk's end followed by the other's start, each
+    read alone would be many times shorter. `place(k)` names the k-th pose."""
     order = np.argsort(times, kind="stable")
     as_filed, as_timed = _polyline_length(points), _polyline_length(points[order])
     if as_timed <= as_filed * (1 + T_ORDER_SLACK) + T_ORDER_SLACK_M:
         return ClockOrder(order, None)
     back = int(np.argmin(np.diff(times))) + 1  # the largest step back
     steps, usual = _steps_and_usual(points)
-    set_back = usual is not None and not is_jump(float(steps[back - 1]), usual)
-    if not set_back and as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
+    at_a_jump = usual is None or is_jump(float(steps[back - 1]), usual)
+    if at_a_jump and as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
         raise PipelineError(
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
             f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:.3f} to "
             f"{times[back]:.3f} at {place(back)}); are several recordings appended? {fix}")
-    if not set_back:
-        return ClockOrder(order, None)
     return ClockOrder(np.arange(len(times)), (
         f"{clock} goes back from {times[back - 1]:.3f} to {times[back]:.3f} at {place(back)} "
         f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"))

@@ -165,16 +165,32 @@ def test_appended_recordings_are_refused_also_with_an_earlier_stamp_jitter(tmp_p
             r"recordings appended\?", read_tracks, path)
 
 
-def test_a_three_row_trajectory_whose_clock_goes_back_is_ordered_by_it(tmp_path, caplog):
-    """With fewer than three steps there is no usual step to tell a jump by, so nothing says
-    the clock is wrong: the rows are read by t."""
+def test_a_short_track_whose_clock_goes_back_is_kept_as_given(tmp_path, caplog):
+    """Three rows along a line, t = 0, 2, 1: ordered by t the track doubles back (3 m against
+    2 m), so it is read as given, with the warning."""
     path = tmp_path / "three.csv"
     path.write_text("trajectory,x,y,t\np,0.0,0.0,0.0\np,1.0,0.0,2.0\np,2.0,0.0,1.0\n")
     with caplog.at_level(logging.WARNING):
         [track], _ = read_tracks(path)
-    np.testing.assert_array_equal(track, [[0.0, 0.0], [2.0, 0.0], [1.0, 0.0]])
-    assert "zig-zag" not in caplog.text
+    np.testing.assert_array_equal(track, [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    assert "t goes back from 2.000 to 1.000 at line 4 (3.0 m ordered by it, 2.0 m in file " \
+        "order)" in caplog.text
 
+
+def test_a_clock_going_back_where_tracking_was_lost_keeps_the_file_order(tmp_path, caplog):
+    """A walk with 3 m lost (a jump) where the clock also goes back 0.05 s: ordered by t one
+    row crosses the gap and back, 1.6 times the walk (it was read so, silently); read as
+    given, with the warning."""
+    walk = line(STARTS[0], GOAL)
+    kept = np.vstack([walk[:40], walk[100:]])  # 0.05 m steps: rows 40-99 lost
+    times = np.arange(len(kept)) * 0.1
+    times[40:] -= 0.15
+    path = tmp_path / "lost.csv"
+    path.write_text("trajectory,x,y,t\n" + csv_rows(kept, times, "p1"))
+    with caplog.at_level(logging.WARNING):
+        [track], _ = read_tracks(path)
+    assert np.array_equal(track, kept)
+    assert "1 trajectory would zig-zag back over its own route" in caplog.text
 
 def test_a_pose_stream_whose_clock_was_set_back_is_read_in_file_order_with_a_warning(
         tmp_path, caplog):
