@@ -3,7 +3,8 @@ Writes results/bench/export_planner.csv. Each case is learned, exported (`birlg-
 planned on the exported mask by a grid search that charges what Nav2's Smac 2D planner
 charges (8-connected; a step of length s onto a cell of Costmap2D cost c costs
 s (1 + m c / 252), cells of cost 253 and 254 closed), from every start to the goal, for
-m = 0 (the shortest path), Smac 2D's default 2.0 and the multiplier the export's YAML gives.
+m = 0 (the shortest path), Smac 2D's value left unset (1.0 in Nav2's code, 2.0 in older
+releases) and the multiplier the export's YAML gives.
 Columns: per case and m, the mean discrete Fréchet distance of the planned paths to the
 run's learned paths on the reference roadmap, and the mean closest approach to a person of
 the planned and of the learned paths.
@@ -94,9 +95,7 @@ def one_case(run_dir: Path, case: str, overrides: tuple[str, ...]) -> list[dict]
     learned = {m["start"]: np.asarray(m["points"], dtype=float)
                for m in read_artefact(run_dir / ARTEFACT_FILE["evaluate"]).all(topics.EVAL_PATHS)
                if m["graph"] == "ref"}
-    # Costmap2D rounds halves away from zero (np.rint takes them to even)
-    nav2_cost = np.floor(export.NAV2_LETHAL * costmap.occupancy.astype(float) / export.LETHAL
-                         + 0.5)
+    nav2_cost = export.nav2_cost(costmap.occupancy)
     given = costmap.smac_multiplier()
     multipliers = {"shortest (0)": 0.0,
                    f"unset: Nav2's code ({export.SMAC_UNSET_NOW:g})": export.SMAC_UNSET_NOW,

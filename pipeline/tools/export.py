@@ -52,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from numpy.typing import ArrayLike
 from PIL import Image
 from rosbags.interfaces import (
     Qos,
@@ -154,10 +155,10 @@ class Costmap:
         return "the learned cost is 0 everywhere"
 
 
-def nav2_cost(occupancy: int) -> int:
-    """The Costmap2D cost of a map cell of this occupancy (0..100): std::round, halves away
-    from zero (Python's round takes them to even: 190 for occupancy 75, not Nav2's 191)."""
-    return math.floor(NAV2_LETHAL * occupancy / LETHAL + 0.5)
+def nav2_cost(occupancy: ArrayLike) -> np.ndarray:
+    """The Costmap2D cost of map cells of these occupancies (0..100): std::round, halves away
+    from zero (numpy's rint takes them to even: 190 for occupancy 75, not Nav2's 191)."""
+    return np.floor(NAV2_LETHAL * np.asarray(occupancy, dtype=float) / LETHAL + 0.5)
 
 
 def export_grid(scene: Scene) -> OccupancyGrid:
