@@ -51,7 +51,7 @@ def test_a_step_is_charged_the_cost_of_the_cell_it_enters():
     assert graph[5, 6] == pytest.approx(2.0)  # (1, 0) -> (1, 1): onto cost 126
     assert graph[6, 5] == pytest.approx(1.0)  # back onto the free cell
     # (1, 0) to (1, 3) at m = 0.5: three steps onto cost 126, 3 x 1.25 (round by an outer row
-    # costs more, 4.54)
+    # and diagonally onto (1, 3): sqrt 2 + 1 + 1.25 sqrt 2 = 4.18)
     assert dijkstra(smac_grid(COST, 0.5), indices=5)[8] == pytest.approx(3.75)
 
 
