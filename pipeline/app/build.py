@@ -394,18 +394,26 @@ def _fixed(cfg: Config) -> tuple[np.ndarray, str | None] | None:
     return w, digest
 
 
+def config_section(art: Artefact, section: str) -> dict:
+    """A section (`reward`, `birl`, ...) of the resolved config an artefact was made with (its
+    config.yaml attachment); one line where that is not YAML or holds no such section."""
+    where = f"artefact {art.path} (attachment config.yaml)"
+    try:
+        config = yaml.safe_load(art.config_yaml) or {}
+    except yaml.YAMLError as e:
+        raise PipelineError(f"{where} is not valid YAML ({' '.join(str(e).split())})") from None
+    part = config.get(section) if isinstance(config, dict) else None
+    if not isinstance(part, dict):
+        raise PipelineError(f"{where} has no {section!r} section")
+    return part
+
+
 def learned_feature_params(birl: Artefact, names: list[str]) -> FeatureParams:
     """The learner's FeatureParams: the features the weights belong to (`names`, from
     /birl/expert) with the constants (ρ_r, ρ_p, σ, ...) of the `reward` section of
     birl.mcap's resolved config."""
     where = f"artefact {birl.path} (attachment config.yaml)"
-    try:
-        config = yaml.safe_load(birl.config_yaml) or {}
-    except yaml.YAMLError as e:
-        raise PipelineError(f"{where} is not valid YAML ({' '.join(str(e).split())})") from None
-    reward = config.get("reward") if isinstance(config, dict) else None
-    if not isinstance(reward, dict):
-        raise PipelineError(f"{where} has no 'reward' section")
+    reward = config_section(birl, "reward")
     known = {f.name for f in dataclasses.fields(FeatureParams)}
     values = {k: v for k, v in reward.items() if k in known}
     values["features"] = list(names)

@@ -14,7 +14,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import yaml
 
 from pipeline.app import build
 from pipeline.app.build import preset_weights
@@ -592,12 +591,9 @@ def given_weights_origin(cfg: Config) -> tuple[list[str], float | None]:
         return ["  weights from     birl.weights (given)"], None
     try:
         source = resolve_path(run)
-        birl_cfg = yaml.safe_load(read_artefact(source / topics.ARTEFACT_FILE["birl"])
-                                  .config_yaml)["birl"]
-    except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError,
-            yaml.YAMLError):
-        return [f"  weights from     {run}"], None
-    if not isinstance(birl_cfg, dict):
+        birl_cfg = build.config_section(read_artefact(source / topics.ARTEFACT_FILE["birl"]),
+                                        "birl")
+    except (PipelineError, Unreadable, OSError, ValueError, KeyError, TypeError):
         return [f"  weights from     {run}"], None
     if birl_cfg.get("kind") == "fixed":  # a deployment of a deployment: nothing learned there
         origin = birl_cfg.get("from_run") or "its birl.weights"

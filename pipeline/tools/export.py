@@ -51,7 +51,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike
 from PIL import Image
 from rosbags.interfaces import (
@@ -66,7 +65,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from pipeline.app.build import learned_feature_params, learned_weight_box
+from pipeline.app.build import config_section, learned_feature_params, learned_weight_box
 from pipeline.app.context import input_path_exists, resolve_path
 from pipeline.app.provenance import check_inputs
 from pipeline.app.rundir import COMPLETE, STATUS_FILE, UNKNOWN, acquire_lock, read_status
@@ -496,36 +495,30 @@ def read_run_files(run_dir: Path) -> None:
                             "run through the birl and evaluate stages")
 
 
-def _given_weights(config_yaml: str) -> str:
+def _given_weights(birl_cfg: dict) -> str:
     """Where a birl=fixed run's weights came from ('' for a run that learned them)."""
-    try:
-        birl = yaml.safe_load(config_yaml)["birl"]
-    except (yaml.YAMLError, KeyError, TypeError):
+    if birl_cfg.get("kind") != "fixed":
         return ""
-    if not isinstance(birl, dict) or birl.get("kind") != "fixed":
-        return ""
-    source = birl.get("from_run")
+    source = birl_cfg.get("from_run")
     return (f"given (birl=fixed), from the run {source}" if source
             else "given (birl=fixed birl.weights)")
 
 
-def _left_at_the_middle(birl: Artefact, names: list[str], weights: np.ndarray) -> list[str]:
+def _left_at_the_middle(birl_cfg: dict, names: list[str], weights: np.ndarray) -> list[str]:
     """The weights the learner left at the middle of its weight box (this run's, or for
     birl=fixed birl.from_run=RUN the box RUN learned in): no demonstration moved them, so
     their cost in the costmap is the box's guess. None where that box cannot be read."""
     try:
-        cfg = yaml.safe_load(birl.config_yaml)["birl"]
-        if cfg.get("kind") == "fixed":
-            source = cfg.get("from_run")
+        if birl_cfg.get("kind") == "fixed":
+            source = birl_cfg.get("from_run")
             if not source:
                 return []
-            cfg = yaml.safe_load(read_artefact(resolve_path(source) / ARTEFACT_FILE["birl"])
-                                 .config_yaml)["birl"]
-            if cfg.get("kind") == "fixed":
+            birl_cfg = config_section(read_artefact(resolve_path(source)
+                                                    / ARTEFACT_FILE["birl"]), "birl")
+            if birl_cfg.get("kind") == "fixed":
                 return []
-        middle = learned_weight_box(cfg, len(names)).at_box(weights)["middle"]
-    except (PipelineError, OSError, yaml.YAMLError, KeyError, TypeError, ValueError,
-            AttributeError):
+        middle = learned_weight_box(birl_cfg, len(names)).at_box(weights)["middle"]
+    except (PipelineError, OSError, KeyError, TypeError, ValueError):
         return []
     return [n for n, at in zip(names, middle, strict=True) if at]
 
@@ -579,12 +572,16 @@ def read_run(run_dir: Path) -> RunReward:
              # what the export was made from: a later run into the dir changes these
              f"from: birl.mcap content {birl.digest[:16] or '?'}, eval.mcap content "
              f"{evaluation.digest[:16] or '?'}"]
-    given = _given_weights(birl.config_yaml)
+    try:
+        birl_cfg = config_section(birl, "birl")
+    except PipelineError:  # an older or damaged config: no origin or box to tell of
+        birl_cfg = {}
+    given = _given_weights(birl_cfg)
     if given:  # a deployment: its weights were given, not learned in this run
         about.append(f"weights: {given}")
     return RunReward(scene, params, weights, paths, demos, about,
                      {k: sorted(v) for k, v in short.items()},
-                     _left_at_the_middle(birl, names, weights), mdp)
+                     _left_at_the_middle(birl_cfg, names, weights), mdp)
 
 
 # -- writing the export ------------------------------------------------------------------------
