@@ -556,12 +556,18 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
         f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"))
 
 
+def _usual_interval(steps: np.ndarray) -> float | None:
+    """A track's usual time step: the median of its time steps that move on (None without
+    any)."""
+    forward = steps[steps > 0]
+    return float(np.median(forward)) if len(forward) else None
+
+
 def stepped_forward(times: np.ndarray) -> np.ndarray:
     """Times that go back (a clock set back mid-track, `clock_order`) moved on so they never
     do: after each step back, by its size and one usual interval."""
     steps = np.diff(times)
-    forward = steps[steps > 0]
-    usual = float(np.median(forward)) if len(forward) else 0.0
+    usual = _usual_interval(steps) or 0.0
     lift = np.cumsum(np.where(steps < 0, usual - steps, 0.0))
     return np.concatenate([times[:1], times[1:] + lift])
 
@@ -1048,8 +1054,7 @@ def join_chain(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     parts = [tracks[chain[0]]]
     for i, j in itertools.pairwise(chain):
         a, b, e, s = tracks[i][-1], tracks[j][0], times[i][-1], times[j][0]
-        steps = np.diff(times[i])
-        interval = float(np.median(steps[steps > 0])) if (steps > 0).any() else s - e
+        interval = _usual_interval(np.diff(times[i])) or s - e
         # not within half an interval of the next track's first pose: no near-repeat
         share = np.arange(interval, s - e - interval / 2, interval)[:, None] / (s - e)
         parts += [a + share * (b - a), tracks[j]]
