@@ -281,14 +281,13 @@ def no_trade_off(costmap: Costmap) -> str | None:
         return None
     if costmap.discounted:
         return "the learned reward discounts (mdp.gamma < 1), which no cost per metre reproduces"
-    if costmap.free_metre == 0:
-        return ("a metre of free path costs nothing (w_length cancels the cost per second), so "
-                "the learned reward has no cost of distance to weigh the mask against")
-    if costmap.free_metre < 0:
-        return (f"a metre of free path gains reward ({_num(-costmap.free_metre)} per m: w_length "
-                "outweighs the cost per second), so the learned reward has no cost of distance "
-                "to weigh the mask against")
-    return None
+    if costmap.free_metre > 0:
+        return None
+    free = "costs nothing (w_length cancels the cost per second)" if costmap.free_metre == 0 \
+        else (f"gains reward ({_num(-costmap.free_metre)} per m: w_length outweighs the cost per "
+              "second)")
+    return (f"a metre of free path {free}, so the learned reward has no cost of distance to "
+            "weigh the mask against")
 
 
 def trade_off(costmap: Costmap) -> list[str]:
