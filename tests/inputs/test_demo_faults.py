@@ -79,24 +79,37 @@ def test_rows_out_of_order_or_with_a_clock_glitch_are_still_ordered_by_t(tmp_pat
     assert np.array_equal(track[[10, 11]], walk[[11, 10]])  # ordered by t, as documented
 
 
+def walk_set_back(seconds: float) -> tuple[np.ndarray, np.ndarray]:
+    """The walk from start 0 to the goal at 0.05 m per 0.1 s and its times, the clock set back
+    `seconds` at row 60 (line 62 of a file with a header), from 6.0 s."""
+    walk = line(STARTS[0], GOAL)
+    times = np.arange(len(walk)) * 0.1
+    times[60:] -= seconds
+    return walk, times
+
+
+def read_one_track(path: Path, caplog) -> np.ndarray:
+    """The file's one track, its warnings in caplog."""
+    with caplog.at_level(logging.WARNING):
+        [track], _ = read_tracks(path)
+    return track
+
+
 def test_a_clock_set_back_mid_walk_keeps_the_file_order_and_says_so(tmp_path, caplog):
     """A tracker's clock set back 1 s mid-walk (a time server's correction): ordered by t, the
     10 rows after it interleave with the 10 before, a zig-zag back over the walk's own route
     that expert.select_walks took for two people under one id. Read in file order with one
     warning naming the line, and the times after the step moved on, so the mending sees one
     person walking."""
-    walk = line(STARTS[0], GOAL)
-    times = np.arange(len(walk)) * 0.1
-    times[60:] -= 1.0
+    walk, times = walk_set_back(1.0)
+
     def one_track(name: str, times: np.ndarray) -> Path:
         path = tmp_path / name
         path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "p1"))
         return path
 
     path = one_track("clock.csv", times)
-    with caplog.at_level(logging.WARNING):
-        [track], _ = read_tracks(path)
-    assert np.array_equal(track, walk)
+    assert np.array_equal(read_one_track(path, caplog), walk)
     assert re.search(r"clock\.csv: ordered by t, 1 trajectory would zig-zag back over its own "
                      r"route: read in file order \(was the clock set back while recording\?\): "
                      r"trajectory 0 \(id 'p1'\): t goes back from 5\.900 to 5\.000 at line 62 "
@@ -128,9 +141,7 @@ def test_a_bag_whose_clock_was_set_back_is_read_in_the_order_logged(tmp_path, ca
     bag = write_bag(tmp_path / "clock", {"/odom": ("nav_msgs/msg/Odometry",
                                                    list(drive[by_stamp]))},
                     arrival=[int(r) for r in rank])
-    with caplog.at_level(logging.WARNING):
-        [track], _ = read_tracks(bag)
-    assert np.array_equal(track, drive)
+    assert np.array_equal(read_one_track(bag, caplog), drive)
     assert re.search(r"topic /odom: header\.stamp goes back from [\d.]+ to [\d.]+ at message 60 "
                      r"\([\d.]+ m ordered by it, [\d.]+ m in the order it was logged\); ordered "
                      r"by it the pose stream would zig-zag back over its own route: read in the "
@@ -141,14 +152,10 @@ def test_a_bag_whose_clock_was_set_back_is_read_in_the_order_logged(tmp_path, ca
 def test_a_clock_set_back_half_a_second_is_kept_in_file_order(tmp_path, caplog):
     """0.5 s back at 0.05 m per 0.1 s makes the walk 16 % longer ordered by t (11.5 m against
     9.9 m): beyond the 5 % and 0.2 m a timestamp's jitter stays within."""
-    walk = line(STARTS[0], GOAL)
-    times = np.arange(len(walk)) * 0.1
-    times[60:] -= 0.5
+    walk, times = walk_set_back(0.5)
     path = tmp_path / "half.csv"
     path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "p1"))
-    with caplog.at_level(logging.WARNING):
-        [track], _ = read_tracks(path)
-    assert np.array_equal(track, walk)
+    assert np.array_equal(read_one_track(path, caplog), walk)
     assert "1 trajectory would zig-zag back over its own route" in caplog.text
 
 
@@ -170,9 +177,8 @@ def test_a_short_track_whose_clock_goes_back_is_kept_as_given(tmp_path, caplog):
     2 m), so it is read as given, with the warning."""
     path = tmp_path / "three.csv"
     path.write_text("trajectory,x,y,t\np,0.0,0.0,0.0\np,1.0,0.0,2.0\np,2.0,0.0,1.0\n")
-    with caplog.at_level(logging.WARNING):
-        [track], _ = read_tracks(path)
-    np.testing.assert_array_equal(track, [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    np.testing.assert_array_equal(read_one_track(path, caplog),
+                                  [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     assert "t goes back from 2.000 to 1.000 at line 4 (3.0 m ordered by it, 2.0 m in file " \
         "order)" in caplog.text
 
@@ -187,23 +193,18 @@ def test_a_clock_going_back_where_tracking_was_lost_keeps_the_file_order(tmp_pat
     times[40:] -= 0.15
     path = tmp_path / "lost.csv"
     path.write_text("trajectory,x,y,t\n" + csv_rows(kept, times, "p1"))
-    with caplog.at_level(logging.WARNING):
-        [track], _ = read_tracks(path)
-    assert np.array_equal(track, kept)
+    assert np.array_equal(read_one_track(path, caplog), kept)
     assert "1 trajectory would zig-zag back over its own route" in caplog.text
+
 
 def test_a_pose_stream_whose_clock_was_set_back_is_read_in_file_order_with_a_warning(
         tmp_path, caplog):
     """A CSV pose stream (no trajectory column) is kept in file order as a trajectory is,
     and said so."""
-    walk = line(STARTS[0], GOAL)
-    times = np.arange(len(walk)) * 0.1
-    times[60:] -= 1.0
+    walk, times = walk_set_back(1.0)
     path = tmp_path / "stream.csv"
     path.write_text("x,y,t\n" + csv_rows(walk, times))
-    with caplog.at_level(logging.WARNING):
-        [track], _ = read_tracks(path)
-    assert np.array_equal(track, walk)
+    assert np.array_equal(read_one_track(path, caplog), walk)
     assert re.search(r"stream\.csv: ordered by t, the pose stream would zig-zag back over its "
                      r"own route: read in file order \(was the clock set back while recording\?\): "
                      r"t goes back from 5\.900 to 5\.000 at line 62", caplog.text)
@@ -211,9 +212,7 @@ def test_a_pose_stream_whose_clock_was_set_back_is_read_in_file_order_with_a_war
 
 def test_two_trajectories_whose_clocks_were_set_back_are_counted_in_one_warning(tmp_path, caplog):
     """Several trajectories whose clock was set back: one warning counting them."""
-    walk = line(STARTS[0], GOAL)
-    times = np.arange(len(walk)) * 0.1
-    times[60:] -= 1.0
+    walk, times = walk_set_back(1.0)
     path = tmp_path / "two.csv"
     path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "a") + csv_rows(walk, times, "b"))
     with caplog.at_level(logging.WARNING):
