@@ -82,7 +82,9 @@ def wait_until_it_takes_the_signals(proc: subprocess.Popen) -> None:
 ])
 def test_a_signal_stops_the_run_in_one_line(tmp_path, sig, code, says):
     d = tmp_path / "run"
-    proc = start_run(d)  # the default graph grows for several seconds
+    # 5000 nodes grow for several seconds; the default's 460 took about one, and on a loaded
+    # machine the signal came after the whole artefact was written (which then stays)
+    proc = start_run(d, "graph.max_nodes=5000")
     wait_for_stage(d, "graph", proc)
     time.sleep(0.3)
     proc.send_signal(sig)
