@@ -12,7 +12,8 @@ Writes RUN_DIR/export/ (replaced as a whole, never left half-written):
   for a static layer; the YAML's comment lines give the run, the weights and the scale.
 - `paths/`: a ROS 2 bag (mcap storage, written with rosbags) with the learned paths
   (nav_msgs/msg/Path, one per start: adaptive graph on /birlg/learned_paths, reference
-  roadmap on /birlg/learned_paths_ref), the demonstrations on /birlg/demos and the people as
+  roadmap on /birlg/learned_paths_ref), the demonstrations on /birlg/demos (the held-out
+  ones too: the bag's metadata names them, and who demonstrated each) and the people as
   visualization_msgs/msg/MarkerArray on /birlg/people, all in frame `map`; message k of a
   topic is stamped k seconds, so the same run gives the same bag.
 
@@ -470,6 +471,7 @@ class RunReward:
     # the weights the learner left at the middle of its box: nothing moved them
     unmoved: list[str] = dataclasses.field(default_factory=list)
     mdp: MDPParams = dataclasses.field(default_factory=MDPParams)  # as the paths were planned
+    demos_about: dict[str, str] = dataclasses.field(default_factory=dict)  # `demos_about`
 
 
 def _points(art: Artefact, topic: str, msg: dict) -> np.ndarray:
@@ -558,7 +560,8 @@ def read_run(run_dir: Path) -> RunReward:
     # weights and paths of another: refused as the stages refuse them
     check_inputs({"scene": scene_art, "demos": demos_art, "birl": birl,
                   "evaluate": evaluation})
-    demos = [_points(demos_art, topics.DEMOS, m) for m in demos_art.messages.get(topics.DEMOS, [])]
+    demo_msgs = demos_art.messages.get(topics.DEMOS, [])
+    demos = [_points(demos_art, topics.DEMOS, m) for m in demo_msgs]
     try:
         mdp = codec.decode_mdp_params(demos_art.one(topics.DEMOS_EXPERT))
     except (KeyError, TypeError, ValueError):  # ParameterError is a ValueError
@@ -580,7 +583,23 @@ def read_run(run_dir: Path) -> RunReward:
         about.append(f"weights: {given}")
     return RunReward(scene, params, weights, paths, demos, about,
                      {k: sorted(v) for k, v in short.items()},
-                     _left_at_the_middle(birl_cfg, names, weights), mdp)
+                     _left_at_the_middle(birl_cfg, names, weights), mdp,
+                     demos_about(demo_msgs))
+
+
+def demos_about(demo_msgs: list[dict]) -> dict[str, str]:
+    """The bag metadata that tells the demonstrations on /birlg/demos apart (message k is
+    demonstration k): who demonstrated each (where the demonstrations name subjects) and which
+    were held out of learning (evaluate.holdout), since a Path message has room for neither."""
+    about = {}
+    subjects = [m.get("subject") for m in demo_msgs]
+    if any(isinstance(s, str) for s in subjects):
+        about["birlg.demo_subjects"] = "; ".join(f"{k}: {s}" for k, s in enumerate(subjects)
+                                                 if isinstance(s, str))
+    heldout = [k for k, m in enumerate(demo_msgs) if m.get("heldout") is True]
+    if heldout:
+        about["birlg.demos_heldout"] = " ".join(map(str, heldout))
+    return about
 
 
 # -- writing the export ------------------------------------------------------------------------
@@ -643,6 +662,7 @@ def export_run(run_dir: Path) -> tuple[Path, Costmap, dict[str, int], list[str]]
         about = {f"birlg.{k}": v for k, v in (line.split(": ", 1) for line in run.about)}
         if short:  # topic: start indices (message k of a topic is start k's path)
             about["birlg.short_of_goal"] = "; ".join(f"{t}: {v}" for t, v in short.items())
+        about.update(run.demos_about)
         counts = write_bag(partial / BAG_DIR, run.scene, run.learned, run.demos, about)
         _sync_tree(partial)
         if final.exists():

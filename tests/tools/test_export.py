@@ -682,14 +682,28 @@ def test_stale_partial_dirs_of_a_killed_export_are_removed(exported, tmp_path):
 
 @pytest.mark.slow  # a second pipeline run: 5-7 s measured on the shared 2-core machine
 def test_an_expert_file_run_exports_the_same_way(tmp_path):
+    """...and the bag's metadata says who drew each path on /birlg/demos and which were held
+    out of learning (a Path message has room for neither)."""
+    drawn = json.loads((ROOT / "data/demos/metropolis_handdrawn.json").read_text())
+    names = ["ann", "bo", "cy", "dee"]
+    drawn["subjects"] = [names[k % 4] for k in range(len(drawn["trajectories"]))]
+    (tmp_path / "drawn.json").write_text(json.dumps(drawn))
     run_dir = tmp_path / "file_run"
     run_in_process(run_dir, "graph=small", "graph.max_nodes=80", "birl.n_iterations=1",
-                   "expert=file", "expert.path=data/demos/metropolis_handdrawn.json")
+                   "expert=file", f"expert.path={tmp_path / 'drawn.json'}",
+                   "evaluate.holdout=[bo]")
     assert export.main([str(run_dir)]) == 0
-    n_demos = len(read_artefact(run_dir / "demos.mcap").all(topics.DEMOS))
+    demos = read_artefact(run_dir / "demos.mcap").all(topics.DEMOS)
     counts = {t: len(m) for t, m in bag_messages(run_dir / "export" / "paths").items()}
-    assert counts["/birlg/demos"] == n_demos and counts["/birlg/people"] == 1
+    assert counts["/birlg/demos"] == len(demos) and counts["/birlg/people"] == 1
     assert load_map(run_dir / "export" / "costmap.yaml").shape == (200, 200)
+    custom = yaml.safe_load((run_dir / "export/paths/metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"]["custom_data"]
+    said = dict(pair.split(": ") for pair in custom["birlg.demo_subjects"].split("; "))
+    assert said == {str(k): m["subject"] for k, m in enumerate(demos)}
+    assert set(said.values()) == set(names)
+    held = [int(k) for k in custom["birlg.demos_heldout"].split()]
+    assert held == [k for k, m in enumerate(demos) if m["subject"] == "bo"] and held
 
 
 def _one_error_line(capsys) -> str:
