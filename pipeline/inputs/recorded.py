@@ -524,6 +524,7 @@ class ClockOrder(NamedTuple):
     """How a track's poses are ordered (`clock_order`)."""
     order: np.ndarray  # indices of the poses, as given, in the order read
     stepped_back: str | None  # where the clock stepped back, the poses kept as given; else None
+    why: str = ""  # what the step back looks like: set back, or jitter of under a time step
 
 
 def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
@@ -551,9 +552,13 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
             f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:.3f} to "
             f"{times[back]:.3f} at {place(back)}); are several recordings appended? {fix}")
+    # a time stamp jittering against its neighbours goes back by less than one time step
+    jitter = -float(np.diff(times)[back - 1]) <= (_usual_interval(np.diff(times)) or 0.0)
     return ClockOrder(np.arange(len(times)), (
         f"{clock} goes back from {times[back - 1]:.3f} to {times[back]:.3f} at {place(back)} "
-        f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"))
+        f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"),
+        "its times jitter back by less than one time step" if jitter
+        else "was the clock set back while recording?")
 
 
 def _usual_interval(steps: np.ndarray) -> float | None:
@@ -563,45 +568,68 @@ def _usual_interval(steps: np.ndarray) -> float | None:
     return float(np.median(forward)) if len(forward) else None
 
 
+def set_backs(times: np.ndarray) -> int:
+    """How many times the clock goes back by more than a usual time step (`stepped_forward`)."""
+    steps = np.diff(times)
+    return int(np.count_nonzero(steps < -(_usual_interval(steps) or 0.0)))
+
+
 def stepped_forward(times: np.ndarray) -> np.ndarray:
-    """Times that go back (a clock set back mid-track, `clock_order`) moved on so they never
-    do: after each step back, by its size and one usual interval."""
+    """Times in the order recorded that never go back: after each step back of more than a
+    usual interval (a clock set back, `clock_order`) the rest moved on by its size and one
+    usual interval; a smaller one (a stamp's jitter) held at the time before it, so that the
+    times do not drift."""
     steps = np.diff(times)
     usual = _usual_interval(steps) or 0.0
-    lift = np.cumsum(np.where(steps < 0, usual - steps, 0.0))
-    return np.concatenate([times[:1], times[1:] + lift])
+    lift = np.cumsum(np.where(steps < -usual, usual - steps, 0.0))
+    return np.maximum.accumulate(np.concatenate([times[:1], times[1:] + lift]))
+
+
+def one_clock(table_times: np.ndarray, stepped_tracks: list[np.ndarray]) -> np.ndarray | None:
+    """The times of a file's rows on one clock, where the tracks' clock was set back
+    (`stepped_tracks`, their rows' times in file order): a tracker's clock is set back for
+    every track at once, and the mending compares times across tracks, so the times after
+    the step are moved on in every track alike. That needs the rows in the order recorded
+    (by frame, or walk after walk): only where the file's times go back at no more places
+    than those tracks' do (a file grouped by id goes back where each track begins) is it so;
+    else None (each track is moved on alone)."""
+    if set_backs(table_times) > sum(set_backs(t) for t in stepped_tracks):
+        return None
+    return stepped_forward(table_times)
 
 
 def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, ids: list[str],
                    subjects: list[str], where: str, single_rows: bool = False) -> Recording:
     """Rows grouped into trajectories by id (a pose stream without ids), ordered by t if given
     (`clock_order`); a trajectory of one row refused unless `single_rows`."""
-    # (what, where) of the tracks whose clock was set back, kept in file order
-    stepped_back: list[tuple[str, str]] = []
+    # (what, where, why, rows) of the tracks whose clock stepped back, kept in file order
+    stepped_back: list[tuple[str, str, str, np.ndarray]] = []
 
     def ordered(sel: np.ndarray, what: str) -> np.ndarray:
         if "t" not in col:
             return sel
-        order, stepped = clock_order(
+        order, stepped, why = clock_order(
             where, what, table[sel, :2], table[sel, 2], "t", "in file order",
             lambda k: f"line {lines[sel[k]]}", "give each walk (from a start to the goal) its "
             "own id in a trajectory column, or leave out t and give the rows in recorded order")
         if stepped is not None:
-            stepped_back.append((what, stepped))
+            stepped_back.append((what, stepped, why, sel))
         return sel[order]
 
     def warn_stepped_back() -> None:
         if not stepped_back:
             return
         if "trajectory" not in col:
-            [(what, stepped)] = stepped_back
+            [(what, stepped, why, _)] = stepped_back
         else:
             n = len(stepped_back)
             what = "1 trajectory" if n == 1 else f"{n} trajectories"
-            stepped = listed([f"{w}: {s}" for w, s in stepped_back], 3, "; ")
+            stepped = listed([f"{w}: {s}" for w, s, _, _ in stepped_back], 3, "; ")
+            whys = {y for _, _, y, _ in stepped_back}
+            why = whys.pop() if len(whys) == 1 else "a clock set back, or jittering times?"
         log.warning("%s: ordered by t, %s would zig-zag back over %s own route: read in file "
-                    "order (was the clock set back while recording?): %s", where, what,
-                    "their" if len(stepped_back) > 1 else "its", stepped)
+                    "order (%s): %s", where, what,
+                    "their" if len(stepped_back) > 1 else "its", why, stepped)
 
     if "trajectory" not in col:
         order = ordered(np.arange(len(table)), "the pose stream")
@@ -614,7 +642,7 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
     groups: dict[str, list[int]] = {}
     for k, ident in enumerate(ids):
         groups.setdefault(ident, []).append(k)
-    tracks, times = [], []
+    rows_read: list[np.ndarray] = []
     track_subjects: list[str | None] = []
     for i, (ident, members) in enumerate(groups.items()):
         if len(members) < 2 and not single_rows:
@@ -624,9 +652,7 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
                 "expert.select_walks=true drops them and keeps the walks from a start to the goal"
             raise PipelineError(f"{where}: trajectory {i} (id {ident!r}) has 1 row; a trajectory "
                                 f"needs at least two{hint}")
-        rows = table[ordered(np.array(members), f"trajectory {i} (id {ident!r})")]
-        tracks.append(rows[:, :2])
-        times.append(stepped_forward(rows[:, 2]))  # the mending reads them in pose order
+        rows_read.append(ordered(np.array(members), f"trajectory {i} (id {ident!r})"))
         if subjects:
             names_here = sorted({subjects[k] for k in members})
             if len(names_here) > 1:
@@ -634,6 +660,14 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
                                     f"subjects: {', '.join(repr(n) for n in names_here[:3])}")
             track_subjects.append(names_here[0])
     warn_stepped_back()
+    # the mending reads the times in pose order, and compares them across tracks
+    clock = one_clock(table[:, 2], [table[sel, 2] for *_, sel in stepped_back]) \
+        if stepped_back else None
+    if clock is not None:  # the file in the order recorded: each track's rows too
+        rows_read = [np.sort(sel) for sel in rows_read]
+    times = [clock[sel] if clock is not None else stepped_forward(table[sel, 2])
+             for sel in rows_read]
+    tracks = [table[sel, :2] for sel in rows_read]
     return Recording(tracks, False, track_subjects if subjects else None, ids=list(groups),
                      times=times if "t" in col else None)
 
@@ -725,13 +759,14 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
                 f"{where}: topic {topic}'s header.stamp goes back at {backwards} of "
                 f"{len(when) - 1} steps in the order its messages were logged; is the "
                 f"recording's clock wrong? (poses are read in header.stamp order)")
-        order, stepped = clock_order(f"{where}: topic {topic}", "the pose stream", poses,
-                                     when, "header.stamp", "in the order it was logged",
-                                     lambda k: f"message {k}", "record each in a bag of its own")
+        order, stepped, why = clock_order(
+            f"{where}: topic {topic}", "the pose stream", poses, when, "header.stamp",
+            "in the order it was logged", lambda k: f"message {k}",
+            "record each in a bag of its own")
         if stepped is not None:
             log.warning("%s: topic %s: %s; ordered by it the pose stream would zig-zag back "
-                        "over its own route: read in the order logged (was the clock set back "
-                        "while recording?)", where, topic, stepped)
+                        "over its own route: read in the order logged (%s)", where, topic,
+                        stepped, why)
         else:
             moved = int(np.count_nonzero(order != np.arange(len(order))))
             log.warning("%s: %d of %d messages of topic %s arrived out of the order of their "

@@ -12,7 +12,13 @@ import pytest
 
 from pipeline.core.features import FeatureModel
 from pipeline.inputs.demo_file import load_demo_file
-from pipeline.inputs.recorded import load_recorded, read_recording, read_tracks, stepped_forward
+from pipeline.inputs.recorded import (
+    load_recorded,
+    one_clock,
+    read_recording,
+    read_tracks,
+    stepped_forward,
+)
 from tests.conftest import write_bag
 from tests.inputs.conftest import refused
 from tests.inputs.test_recorded import PATH_A, STARTS, line, load
@@ -228,6 +234,73 @@ def test_stepped_forward_moves_on_by_the_median_positive_interval():
                                [0.0, 0.0, 0.1, 0.1, 0.2, 0.2, 0.3])
     np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.1, 0.2, 0.5, 0.0])),
                                [0.0, 0.1, 0.2, 0.5, 0.6])
+
+
+@pytest.mark.parametrize("seconds", [0.5, 1.0, 2.0])
+def test_a_clock_set_back_moves_every_track_on_so_a_lost_walk_is_still_rejoined(tmp_path,
+                                                                                seconds):
+    """The tracker's clock is set back for every track at once: one walk lost at row 100 and
+    found again under a new id at row 110, the clock set back at row 60. Only the set-back
+    track's times were moved on, so the found track seemed to begin before the lost one
+    ended (2 s: refused, no walk found) or the gap looked shorter than it was (1 s, 0.5 s: a
+    bridge 5-10 points short). Now every row after the step is moved on alike."""
+    walk, times = walk_set_back(seconds)
+
+    def lost_and_found(name: str, times: np.ndarray) -> Path:
+        path = tmp_path / name
+        path.write_text("trajectory,x,y,t\n" + csv_rows(walk[:100], times[:100], "p1")
+                        + csv_rows(walk[110:], times[110:], "p2"))
+        return path
+
+    [steady] = load_recorded(lost_and_found("steady.csv", np.arange(len(walk)) * 0.1), STARTS,
+                             GOAL, goal_tolerance=0.3, select_walks=True)
+    [stepped] = load_recorded(lost_and_found("stepped.csv", times), STARTS, GOAL,
+                              goal_tolerance=0.3, select_walks=True)
+    np.testing.assert_allclose(stepped.points, steady.points)
+
+
+def test_one_clock_only_for_a_file_in_the_order_recorded():
+    """A file in the order recorded (frame by frame) goes back only where its tracks' clock
+    was set back: its rows get one clock. A file grouped by id also goes back where each
+    track begins: its rows' order says nothing of when, so each track is moved on alone."""
+    t = np.arange(10) * 0.1
+    t[6:] -= 0.4
+    by_frame = np.repeat(t, 2)  # two people, frame by frame
+    np.testing.assert_allclose(one_clock(by_frame, [t]), np.repeat(np.arange(10) * 0.1, 2))
+    assert one_clock(np.concatenate([t, t]), [t]) is None  # grouped: goes back at row 10 too
+
+
+def test_a_stamp_s_jitter_is_held_not_moved_on_and_named_as_jitter(tmp_path, caplog):
+    """Stamps jittering 40 ms on a 10 Hz tracker: ordered by t the walk zig-zags (read in file
+    order), but no clock was set back. A step back of less than one interval is held at the
+    time before it, not moved on by an interval (the track's clock ended 0.85 s late), and the
+    warning says jitter."""
+    np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.1, 0.25, 0.2, 0.4])),
+                               [0.0, 0.1, 0.25, 0.25, 0.4])
+    n = 200
+    times = np.arange(n) * 0.1 + np.random.default_rng(0).normal(0.0, 0.04, n)
+    walk = np.column_stack([np.arange(n) * 0.05, np.ones(n)])
+    path = tmp_path / "jitter.csv"
+    path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "p"))
+    with caplog.at_level(logging.WARNING):
+        recording = read_recording(path)
+    assert np.diff(times).min() < 0  # the case: stamps out of order, by under an interval
+    assert recording.times[0][-1] == times[-1]  # no drift
+    assert "(its times jitter back by less than one time step)" in caplog.text
+    assert "set back" not in caplog.text
+
+
+def test_a_track_too_short_to_tell_a_jump_is_refused_when_ordering_multiplies_it(tmp_path):
+    """Three places, three rows each, along a line (two moving steps: too few for a usual
+    step, so no jump can be told): ordered by t the track goes back and forth 5.5 times its
+    length. Refused as appended recordings would be, not read either way."""
+    xs = [0.0] * 3 + [1.0] * 3 + [2.0] * 3
+    ts = [0, 2, 4, 6, 7, 8, 1, 3, 5]  # by t: 0, 2, 0, 2, 0, 2, 1, 1, 1
+    path = tmp_path / "few.csv"
+    path.write_text("trajectory,x,y,t\n" + "".join(f"p,{x},0.0,{t}\n"
+                                                    for x, t in zip(xs, ts, strict=True)))
+    refused(r"few\.csv: ordered by t, trajectory 0 \(id 'p'\) is 11\.0 m long against 2\.0 m "
+            r"in file order .*are several recordings appended\?", read_tracks, path)
 
 
 # -- JSON numbers, keys and subjects --------------------------------------------------------
