@@ -301,14 +301,27 @@ def trade_off(costmap: Costmap) -> list[str]:
     ratio = costmap.scale / costmap.free_metre
     navfn = (int(NAVFN_NEUTRAL + NAVFN_FACTOR * nav2_cost(MAX_LEARNED)) - NAVFN_NEUTRAL) \
         / NAVFN_NEUTRAL
-    return [f"trade-off: a metre at occupancy {MAX_LEARNED} adds {ratio:.3g} times the cost of a "
-            f"metre of free path ({_num(costmap.free_metre)} per m: the cost per second at the "
-            "MDP's speed, less w_length)",
-            f"Smac 2D weighs it so with cost_travel_multiplier: {multiplier:.4g} (left unset, "
-            f"{SMAC_UNSET_NOW:g} in Nav2's code and {SMAC_UNSET_OLDER:g} in older releases, it "
+    return [f"trade-off: a metre at occupancy {MAX_LEARNED} adds {significant(ratio, 3)} times "
+            f"the cost of a metre of free path ({_num(costmap.free_metre)} per m: the cost per "
+            "second at the MDP's speed, less w_length)",
+            "Smac 2D weighs it so with cost_travel_multiplier: "
+            f"{ros_double(multiplier)} (left unset, {SMAC_UNSET_NOW:g} in Nav2's code and "
+            f"{SMAC_UNSET_OLDER:g} in older releases, it "
             f"weighs the mask {_times(SMAC_UNSET_NOW / multiplier)} and "
             f"{_times(SMAC_UNSET_OLDER / multiplier)}); NavFn, whose factor is fixed, adds "
             f"{navfn:.3g} times a free step ({_times(navfn / ratio)})"]
+
+
+def ros_double(x: float) -> str:
+    """`x` to 4 significant digits as a ROS parameter file reads a double: with a decimal
+    point and no exponent (`24` would be an integer, which a double parameter refuses)."""
+    text = significant(x, 4)
+    return text if "." in text else f"{text}.0"
+
+
+def significant(x: float, digits: int) -> str:
+    """`x` to this many significant digits, never with an exponent (1.49e+03 reads badly)."""
+    return np.format_float_positional(x, precision=digits, fractional=False, trim="-")
 
 
 def _times(factor: float) -> str:
@@ -316,8 +329,13 @@ def _times(factor: float) -> str:
     if 0.9 <= factor <= 1.1:
         return "about as learned"
     if factor > 1:
-        return f"{factor:.2g} times as much as learned"
-    return f"{1 / factor:.2g} times too little"
+        return f"{_factor(factor)} times as much as learned"
+    return f"{_factor(1 / factor)} times too little"
+
+
+def _factor(x: float) -> str:
+    """Two significant digits below 10, whole numbers above (never an exponent: 2.1e+02)."""
+    return f"{x:.2g}" if x < 10 else f"{x:.0f}"
 
 
 def costmap_pgm(costmap: Costmap) -> bytes:
@@ -744,7 +762,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {final / BAG_DIR} (" + ", ".join(f"{t} {n}" for t, n in counts.items()) + ")")
     if (multiplier := costmap.smac_multiplier()) is not None:
         print(f"planner: Smac 2D weighs the mask against distance as learned with "
-              f"cost_travel_multiplier: {multiplier:.4g} (see {COSTMAP_YAML})")
+              f"cost_travel_multiplier: {ros_double(multiplier)} (see {COSTMAP_YAML})")
     elif (reason := no_trade_off(costmap)) is not None:
         print(f"planner: no cost_travel_multiplier weighs the mask as learned: {reason}")
     for warning in warnings:

@@ -465,13 +465,28 @@ def test_the_trade_off_lines_say_the_ratio_the_multiplier_and_how_far_off_the_de
     first, second = export.trade_off(four)
     assert first.startswith("trade-off: a metre at occupancy 99 adds 3.98 times the cost of a "
                             "metre of free path (1.0 per m:")
-    assert "cost_travel_multiplier: 4 (left unset, 1 in Nav2's code and 2 in older releases, it " \
-        "weighs the mask 4 times too little and 2 times too little); NavFn, whose factor is " \
+    assert "cost_travel_multiplier: 4.0 (left unset, 1 in Nav2's code and 2 in older releases, " \
+        "it weighs the mask 4 times too little and 2 times too little); NavFn, whose factor is " \
         "fixed, adds 4 times a free step (about as learned)" in second
     half = dataclasses.replace(base, scale=0.5 * 251 / 252, free_metre=1.0)
     _, second = export.trade_off(half)
     assert "weighs the mask 2 times as much as learned and 4 times as much as learned" in second
     assert "adds 4 times a free step (8 times as much as learned)" in second
+
+
+@pytest.mark.parametrize("multiplier, shown", [(24.1, "24.1"), (24.0, "24.0"), (214.96, "215.0"),
+                                               (1500.0, "1500.0"), (12346.0, "12350.0")])
+def test_the_multiplier_reads_as_a_ros_double_and_the_factors_without_exponents(
+        scene, multiplier, shown):
+    """Nav2 declares cost_travel_multiplier a double: `24` or `215` pasted into a params file
+    is an integer, which it refuses; and `2.1e+02 times too little` is no way to say it."""
+    base = export.build_costmap(scene, FeatureParams(), np.array([-1.0, -0.7, -0.85, 0.0]))
+    costmap = dataclasses.replace(base, scale=multiplier * 251 / 252 * base.free_metre)
+    text = " ".join(export.trade_off(costmap))
+    value = re.search(r"cost_travel_multiplier: (\S+) ", text).group(1)
+    assert value == shown
+    assert isinstance(yaml.safe_load(f"v: {value}")["v"], float)
+    assert not re.search(r"\de[+-]\d", text), text
 
 
 def test_a_run_whose_demos_carry_an_invalid_mdp_is_refused_in_one_line(tmp_path, capsys,
