@@ -26,12 +26,15 @@ from tests.conftest import compose_config, run_in_process, write_json
 register_configs()
 QUICK = ("graph=small", "birl.n_iterations=2")
 # Refused from the files' headers alone: milliseconds on an idle machine (before the start-up
-# checks, 56-120 s of rasterising); the bound leaves room for a loaded test machine.
-REFUSED_WITHIN_S = 5.0
+# checks, 56-120 s of rasterising); the bound leaves room for a loaded test machine (a
+# 2-core machine under load took 8.9 s with Hydra's first compose counted, now not counted)
+# and stays well below the work it guards against.
+REFUSED_WITHIN_S = 20.0
 ROOM = {"x_min": 0, "y_min": 0, "x_max": 10, "y_max": 10}
 
 
 def refused_before_any_stage(run: Path, match: str, *overrides: str) -> float:
+    compose_config(*overrides)  # Hydra's first compose in this process (imports) not timed
     t0 = time.perf_counter()
     with pytest.raises(PipelineError, match=match):
         run_in_process(run, *overrides)
