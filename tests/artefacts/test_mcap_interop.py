@@ -6,8 +6,10 @@ log_time is index × 1 s; `python -m pipeline.tools.mcapinfo` describes and chec
 import ast
 import base64
 import copy
+import errno
 import json
 import re
+import time
 from pathlib import Path
 
 import pytest
@@ -347,7 +349,19 @@ def test_mcapinfo_on_a_named_pipe_of_a_cut_file_ends_in_one_line(runs, tmp_path)
     proc = subprocess.Popen([sys.executable, "-m", "pipeline.tools.mcapinfo", str(fifo)],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     data = (runs["default"] / "scene.mcap").read_bytes()
-    with open(fifo, "wb") as writer:
+    # opened without blocking (ENXIO until the reader opens it): a command that died before
+    # opening the pipe fails the test rather than leaving it waiting for ever
+    deadline = time.monotonic() + 120
+    while True:
+        try:
+            fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+            break
+        except OSError as e:
+            assert e.errno == errno.ENXIO and proc.poll() is None \
+                and time.monotonic() < deadline, (e, proc.poll())
+            time.sleep(0.01)
+    os.set_blocking(fd, True)
+    with open(fd, "wb") as writer:
         writer.write(data[:len(data) // 2])
     err = proc.communicate(timeout=60)[1].decode()
     assert proc.returncode == 2 and "cannot be read as MCAP" in err and err.count("\n") == 1
