@@ -42,6 +42,7 @@ _HANDLERS_BEFORE_IMPORTS = stop_quietly_while_starting()  # rosbags, PIL, scipy:
 import argparse
 import dataclasses
 import io
+import json
 import math
 import os
 import shutil
@@ -611,9 +612,9 @@ def demos_about(demo_msgs: list[dict]) -> dict[str, str]:
     were held out of learning (evaluate.holdout), since a Path message has room for neither."""
     about = {}
     subjects = [m.get("subject") for m in demo_msgs]
-    if any(isinstance(s, str) for s in subjects):
-        about["birlg.demo_subjects"] = "; ".join(f"{k}: {s}" for k, s in enumerate(subjects)
-                                                 if isinstance(s, str))
+    if any(isinstance(s, str) for s in subjects):  # JSON: any id reads back as it was
+        about["birlg.demo_subjects"] = json.dumps(
+            [s if isinstance(s, str) else None for s in subjects], ensure_ascii=False)
     heldout = [k for k, m in enumerate(demo_msgs) if m.get("heldout") is True]
     if heldout:
         about["birlg.demos_heldout"] = " ".join(map(str, heldout))

@@ -614,6 +614,22 @@ def test_bag_demos_are_the_demonstrations_and_the_pipeline_reads_them_back(expor
         np.testing.assert_array_equal(track, demo)
 
 
+def test_the_bag_metadata_names_the_demos_subjects_and_the_held_out_ones(exported):
+    """Message k of /birlg/demos is demonstration k: its subject (JSON, so that any id reads
+    back as it was) and whether it was held out go in the metadata; a run whose
+    demonstrations name no subject and hold none out (the synthetic default) gets neither."""
+    msgs = [{"subject": "ann; 1: b\u00f6"}, {"subject": None, "heldout": True},
+            {"subject": "cy", "heldout": False}, {"subject": "ann; 1: b\u00f6", "heldout": True}]
+    about = export.demos_about(msgs)
+    assert json.loads(about["birlg.demo_subjects"]) == ["ann; 1: b\u00f6", None, "cy",
+                                                        "ann; 1: b\u00f6"]
+    assert about["birlg.demos_heldout"] == "1 3"
+    assert export.demos_about([{"subject": None}, {}]) == {}
+    custom = yaml.safe_load((exported[1] / "paths/metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"]["custom_data"]
+    assert not {"birlg.demo_subjects", "birlg.demos_heldout"} & set(custom)
+
+
 def test_path_headings_skip_repeated_points():
     pts = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 2.0]])
     # each point heads along the segment leaving it; a zero-length one takes the one before
@@ -714,9 +730,8 @@ def test_an_expert_file_run_exports_the_same_way(tmp_path):
     assert load_map(run_dir / "export" / "costmap.yaml").shape == (200, 200)
     custom = yaml.safe_load((run_dir / "export/paths/metadata.yaml").read_text())[
         "rosbag2_bagfile_information"]["custom_data"]
-    said = dict(pair.split(": ") for pair in custom["birlg.demo_subjects"].split("; "))
-    assert said == {str(k): m["subject"] for k, m in enumerate(demos)}
-    assert set(said.values()) == set(names)
+    said = json.loads(custom["birlg.demo_subjects"])  # message k: demonstration k's subject
+    assert said == [m["subject"] for m in demos] and set(said) == set(names)
     held = [int(k) for k in custom["birlg.demos_heldout"].split()]
     assert held == [k for k, m in enumerate(demos) if m["subject"] == "bo"] and held
 
