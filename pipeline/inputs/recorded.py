@@ -544,7 +544,8 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
     as_filed, as_timed = _polyline_length(points), _polyline_length(points[order])
     if as_timed <= as_filed * (1 + T_ORDER_SLACK) + T_ORDER_SLACK_M:
         return ClockOrder(order, None)
-    back = int(np.argmin(np.diff(times))) + 1  # the largest step back
+    time_steps = np.diff(times)
+    back = int(np.argmin(time_steps)) + 1  # the largest step back
     steps, usual = _steps_and_usual(points)
     at_a_jump = usual is None or is_jump(float(steps[back - 1]), usual)
     if at_a_jump and as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
@@ -552,8 +553,7 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
             f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:.3f} to "
             f"{times[back]:.3f} at {place(back)}); are several recordings appended? {fix}")
-    # a time stamp jittering against its neighbours goes back by less than one time step
-    jitter = -float(np.diff(times)[back - 1]) <= (_usual_interval(np.diff(times)) or 0.0)
+    jitter = not _set_back_steps(time_steps)[0][back - 1]
     return ClockOrder(np.arange(len(times)), (
         f"{clock} goes back from {times[back - 1]:.3f} to {times[back]:.3f} at {place(back)} "
         f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"),
@@ -568,20 +568,25 @@ def _usual_interval(steps: np.ndarray) -> float | None:
     return float(np.median(forward)) if len(forward) else None
 
 
+def _set_back_steps(steps: np.ndarray) -> tuple[np.ndarray, float]:
+    """Which time steps set the clock back: back by more than a usual interval (a smaller step
+    back is a stamp jittering against its neighbours); and that usual interval (0 without)."""
+    usual = _usual_interval(steps) or 0.0
+    return steps < -usual, usual
+
+
 def set_backs(times: np.ndarray) -> int:
-    """How many times the clock goes back by more than a usual time step (`stepped_forward`)."""
-    steps = np.diff(times)
-    return int(np.count_nonzero(steps < -(_usual_interval(steps) or 0.0)))
+    """How many times the clock is set back (`_set_back_steps`)."""
+    return int(np.count_nonzero(_set_back_steps(np.diff(times))[0]))
 
 
 def stepped_forward(times: np.ndarray) -> np.ndarray:
-    """Times in the order recorded that never go back: after each step back of more than a
-    usual interval (a clock set back, `clock_order`) the rest moved on by its size and one
-    usual interval; a smaller one (a stamp's jitter) held at the time before it, so that the
-    times do not drift."""
+    """Times in the order recorded that never go back: after each set back (`_set_back_steps`,
+    `clock_order`) the rest moved on by its size and one usual interval; a smaller step back
+    (a stamp's jitter) held at the time before it, so that the times do not drift."""
     steps = np.diff(times)
-    usual = _usual_interval(steps) or 0.0
-    lift = np.cumsum(np.where(steps < -usual, usual - steps, 0.0))
+    set_back, usual = _set_back_steps(steps)
+    lift = np.cumsum(np.where(set_back, usual - steps, 0.0))
     return np.maximum.accumulate(np.concatenate([times[:1], times[1:] + lift]))
 
 
