@@ -101,7 +101,7 @@ def one_case(run_dir: Path, case: str, overrides: tuple[str, ...]) -> list[dict]
                    f"unset: Nav2's code ({export.SMAC_UNSET_NOW:g})": export.SMAC_UNSET_NOW,
                    f"unset: older releases ({export.SMAC_UNSET_OLDER:g})": export.SMAC_UNSET_OLDER}
     if given is not None:
-        multipliers["the export's"] = float(f"{given:.4g}")  # as printed in the YAML
+        multipliers["the export's"] = float(export.ros_double(given))  # as the YAML prints it
     learned_distance = np.mean([min_distance_to_person(p, scene.person_xy)
                                 for p in learned.values()])
     rows = []
