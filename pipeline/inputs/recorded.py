@@ -537,7 +537,8 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
     set back mid-walk (1 s at walking pace interleaves 10 rows into a zig-zag that looked
     like two people under one id), or went back where tracking was lost. Refused instead:
     ordering that makes the track more than T_ORDER_GROWTH times longer where the clock goes
-    back at a jump (`is_jump`), or on a track too short to tell one: two recordings appended
+    back at a jump (`is_jump`; at any set-back or the largest step back), or on a track too
+    short to tell one: two recordings appended
     with clocks that both start at 0, one walk's end followed by the other's start, each
     read alone would be many times shorter. `place(k)` names the k-th pose."""
     order = np.argsort(times, kind="stable")
@@ -546,14 +547,19 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
         return ClockOrder(order, None)
     time_steps = np.diff(times)
     back = int(np.argmin(time_steps)) + 1  # the largest step back
+    set_back = _set_back_steps(time_steps)[0]
     steps, usual = _steps_and_usual(points)
-    at_a_jump = usual is None or is_jump(float(steps[back - 1]), usual)
-    if at_a_jump and as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
+    # every set-back is judged, not the largest alone: a mid-walk set-back larger than an
+    # appended recording's restart would otherwise let the recordings through
+    judged = np.union1d(np.flatnonzero(set_back) + 1, [back])
+    at_jumps = [k for k in judged if usual is None or is_jump(float(steps[k - 1]), usual)]
+    if at_jumps and as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
+        k = min(at_jumps, key=lambda k: time_steps[k - 1])  # the largest step back at a jump
         raise PipelineError(
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
-            f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[back - 1]:.3f} to "
-            f"{times[back]:.3f} at {place(back)}); are several recordings appended? {fix}")
-    jitter = not _set_back_steps(time_steps)[0][back - 1]
+            f"{as_filed:.1f} m {as_given} ({clock} goes back from {times[k - 1]:.3f} to "
+            f"{times[k]:.3f} at {place(k)}); are several recordings appended? {fix}")
+    jitter = not set_back[back - 1]
     return ClockOrder(np.arange(len(times)), (
         f"{clock} goes back from {times[back - 1]:.3f} to {times[back]:.3f} at {place(back)} "
         f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"),

@@ -178,6 +178,20 @@ def test_appended_recordings_are_refused_also_with_an_earlier_stamp_jitter(tmp_p
             r"recordings appended\?", read_tracks, path)
 
 
+def test_appended_recordings_are_refused_also_behind_a_larger_set_back_mid_walk(tmp_path):
+    """The first walk's clock set back 3 s mid-walk (no jump there), the second walk appended
+    with its clock 1 s behind the first's end (a jump back to a start): only the largest step
+    back was judged, the mid-walk one, so the two walks were read as one in file order with a
+    warning. Every set-back is judged: refused at the restart."""
+    walk_a, times_a = walk_set_back(3.0)
+    walk_b = line(STARTS[2], GOAL)
+    times_b = times_a[-1] - 1.0 + np.arange(len(walk_b)) * 0.1
+    path = tmp_path / "appended.csv"
+    path.write_text("x,y,t\n" + csv_rows(walk_a, times_a) + csv_rows(walk_b, times_b))
+    refused(rf"t goes back from {times_a[-1]:.3f} to {times_b[0]:.3f} at line "
+            rf"{len(walk_a) + 2}\); are several recordings appended\?", read_tracks, path)
+
+
 def test_a_short_track_whose_clock_goes_back_is_kept_as_given(tmp_path, caplog):
     """Three rows along a line, t = 0, 2, 1: ordered by t the track doubles back (3 m against
     2 m), so it is read as given, with the warning."""
