@@ -22,7 +22,8 @@ Path forms read by `read_recording`:
   `geometry_msgs/msg/PoseStamped`, `geometry_msgs/msg/PoseWithCovarianceStamped` and
   `nav_msgs/msg/Odometry` (all messages of the topic, in the order of their bag time stamps,
   make one track that `stream_spans` cuts into trajectories). rosbags names ROS 1 types the
-  ROS 2 way (`nav_msgs/Path` is read as `nav_msgs/msg/Path`), so one set of names serves both.
+  ROS 2 way (`nav_msgs/Path` is read as `nav_msgs/msg/Path`), so one set of names serves both;
+  messages to the user name them as the bag's ROS does (`ros_type_name`).
 
 Then, whatever the format (`load_recorded`): a pose stream is cut into trajectories, every
 trajectory is cut at the goal disk (`cut_at_goal`: it ends at its first point in the disk,
@@ -692,6 +693,7 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     try:
         with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
             topic, msgtype = _bag_topic(reader, where, topic)
+            type_name = ros_type_name(msgtype, reader.is2)
             connections = [c for c in reader.connections if c.topic == topic]
             tracks: list[np.ndarray] = []
             stream: list[tuple[float, float]] = []
@@ -730,8 +732,8 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
         detail = str(e).splitlines()[0] if str(e) else type(e).__name__
         if at is not None:  # the bag opened; one message is damaged or of another type
             index, step = at
-            failed = {"read": "cannot be read", "decode": f"cannot be decoded as {msgtype}",
-                      "use": f"({msgtype}) is not as ROS defines it"}[step]
+            failed = {"read": "cannot be read", "decode": f"cannot be decoded as {type_name}",
+                      "use": f"({type_name}) is not as ROS defines it"}[step]
             raise PipelineError(f"{where}: topic {topic} message {index} {failed}: damaged, or "
                                 f"its type is defined differently in the bag ({detail[:120]})") \
                 from None
@@ -741,7 +743,7 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
         raise PipelineError(f"{where}: topic {topic} has no messages")
     if len(frames) == 1 and frame is None:  # taken to be the scene's frame: say which it is
         log.info("%s: topic %s, %d %s messages in frame_id %r, read as the scene's frame "
-                 "(expert.frame=... checks it)", where, topic, count, msgtype, *frames)
+                 "(expert.frame=... checks it)", where, topic, count, type_name, *frames)
     if len(frames) > 1:
         log.warning("%s: topic %s mixes frame_ids %s (first in messages %s); positions are "
                     "read as they are, all in the scene's frame (expert.frame=... keeps one)",
@@ -786,15 +788,23 @@ def _read_bag(path: Path, where: str, topic: str | None, frame: str | None) -> R
     return Recording([poses], True)
 
 
+def ros_type_name(msgtype: str, ros2: bool) -> str:
+    """A message type as the bag's ROS names it: rosbags names every type the ROS 2 way
+    (`nav_msgs/msg/Path`), ROS 1 without `msg` (`nav_msgs/Path`)."""
+    return msgtype if ros2 else msgtype.replace("/msg/", "/", 1)
+
+
 def _bag_topic(reader: Any, where: str, topic: str | None) -> tuple[str, str]:
     """The topic to read (`topic`, or the bag's one topic of a supported type) and its type."""
     topics = {name: info.msgtype or "(several types)" for name, info in reader.topics.items()}
-    listing = ", ".join(f"{n} ({t})" for n, t in topics.items()) or "none"
+    listing = ", ".join(f"{n} ({ros_type_name(t, reader.is2)})"
+                        for n, t in topics.items()) or "none"
+    supported = ", ".join(ros_type_name(t, reader.is2) for t in SUPPORTED_TYPES)
     if topic is None:
         usable = [n for n, t in topics.items() if t in SUPPORTED_TYPES]
         if not usable:
             raise PipelineError(f"{where} has no topic of a supported type "
-                                f"({', '.join(SUPPORTED_TYPES)}); its topics: {listing}")
+                                f"({supported}); its topics: {listing}")
         if len(usable) > 1:
             raise PipelineError(f"{where} has several usable topics: {', '.join(usable)}; "
                                 f"choose one with expert.topic=...")
@@ -803,8 +813,8 @@ def _bag_topic(reader: Any, where: str, topic: str | None) -> tuple[str, str]:
         raise PipelineError(f"{where} has no topic {topic!r} (expert.topic); its topics: "
                             f"{listing}")
     if topics[topic] not in SUPPORTED_TYPES:
-        raise PipelineError(f"{where}: topic {topic} has type {topics[topic]}; supported: "
-                            f"{', '.join(SUPPORTED_TYPES)}")
+        raise PipelineError(f"{where}: topic {topic} has type "
+                            f"{ros_type_name(topics[topic], reader.is2)}; supported: {supported}")
     return topic, topics[topic]
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 
@@ -27,7 +28,7 @@ from pipeline.inputs.recorded import (
     motion_begin,
     read_tracks,
 )
-from tests.conftest import METROPOLIS, ROOT, ROS2, make_msg, write_bag
+from tests.conftest import METROPOLIS, ROOT, ROS1, ROS2, make_msg, write_bag
 from tests.inputs.conftest import refused
 
 STARTS = np.array([[0.5, 0.5], [4.0, 0.1], [2.0, 3.0], [8.5, 5.2]])
@@ -418,8 +419,8 @@ def test_a_ros1_frame_with_a_leading_slash_is_that_frame(tmp_path, caplog):
     refused(r"frame_id '/map', not expert\.frame='odom'", read_tracks, bag, frame="odom")
     with caplog.at_level(logging.INFO, logger="pipeline.inputs.recorded"):
         read_tracks(bag)
-    assert "topic /plan, 1 nav_msgs/msg/Path messages in frame_id '/map', read as the " \
-        "scene's frame" in caplog.text
+    assert "topic /plan, 1 nav_msgs/Path messages in frame_id '/map', read as the " \
+        "scene's frame" in caplog.text  # named as ROS 1 names it (ROS 2: nav_msgs/msg/Path)
 
 
 def test_topic_choice(tmp_path):
@@ -438,6 +439,16 @@ def test_topic_choice(tmp_path):
     refused(r"no topic of a supported type .*; its topics: /chatter \(std_msgs/msg/String\)",
             load, other)
     refused(r"topic /chatter has type std_msgs/msg/String; supported", load, other,
+            topic="/chatter")
+    # a ROS 1 bag's types are named as ROS 1 names them
+    ros1 = tmp_path / "other.bag"
+    with Writer1(ros1) as w:
+        c = w.add_connection("/chatter", "std_msgs/msg/String", typestore=ROS1)
+        w.write(c, 1, ROS1.serialize_ros1(ROS1.types["std_msgs/msg/String"](data="hi"),
+                                          "std_msgs/msg/String"))
+    refused(r"no topic of a supported type \(nav_msgs/Path, geometry_msgs/PoseStamped, .*\); "
+            r"its topics: /chatter \(std_msgs/String\)$", load, ros1)
+    refused(r"topic /chatter has type std_msgs/String; supported: nav_msgs/Path, ", load, ros1,
             topic="/chatter")
 
 
