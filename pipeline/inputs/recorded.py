@@ -196,6 +196,9 @@ SWITCH_MISS = 0.3  # m
 # ... and at least this many times what the tracks' noise misses a prediction by (a second
 # sensor 0.2 m off in random directions, averaged in, made 9 cm of noise and 6 false switches)
 SWITCH_NOISES = 4.0
+# ... and do not each go on their own way more nearly than the other's by this much (m/s of
+# velocity difference; a walk is about 1.2 m/s)
+SWITCH_HEADING_MARGIN = 0.25
 # `mend_tracks` mends only tracks whose t is in seconds: the median speed of the tracks that
 # end WALKED_AT_LEAST metres from their beginning lies in WALKING_SPEEDS (frame numbers at
 # 12.5 Hz give 0.1, ms 0.0013; a frame number's gap of 2 read as 2 s joined friends walking
@@ -1117,17 +1120,47 @@ def join_chain(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     return np.vstack(parts)
 
 
-def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Where each pose of a track would be, moved on from the pose before at the velocity of
-    the MOTION_WINDOW seconds before that; where it is, where those hold one time (the first
-    two poses): no motion is known to predict from, so no jump is seen."""
+def _velocity_before(points: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """For each pose, the velocity (n, 2) over the MOTION_WINDOW seconds up to the pose before
+    it; NaN where those hold one time (the first two poses): no motion is known."""
     prev = np.arange(len(points) - 1)
     first = np.searchsorted(times, times[prev] - MOTION_WINDOW, side="left")
     dt = (times[prev] - times[first])[:, None]
-    velocity = np.divide(points[prev] - points[first], dt, out=np.zeros((len(prev), 2)),
+    velocity = np.divide(points[prev] - points[first], dt, out=np.full((len(prev), 2), np.nan),
                          where=dt > 0)
-    moved_on = points[prev] + velocity * (times[1:] - times[prev])[:, None]
-    return np.vstack([points[:1], np.where(dt > 0, moved_on, points[1:])])
+    return np.vstack([np.full((1, 2), np.nan), velocity])
+
+
+def _velocity_after(points: np.ndarray, times: np.ndarray, i: int) -> np.ndarray | None:
+    """A track's velocity (2,) over the MOTION_WINDOW seconds from pose i on (None at its
+    last time)."""
+    j = int(np.searchsorted(times, times[i] + MOTION_WINDOW, side="right")) - 1
+    return (points[j] - points[i]) / (times[j] - times[i]) if times[j] > times[i] else None
+
+
+def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Where each pose of a track would be, moved on from the pose before at the velocity of
+    the MOTION_WINDOW seconds before that (`_velocity_before`); where it is, where no motion
+    is known to predict from (the first two poses), so no jump is seen there."""
+    velocity = _velocity_before(points, times)[1:]
+    moved_on = points[:-1] + velocity * np.diff(times)[:, None]
+    return np.vstack([points[:1], np.where(np.isnan(velocity), points[1:], moved_on)])
+
+
+def _each_walks_on_its_own_way(a: tuple[np.ndarray, np.ndarray | None],
+                               b: tuple[np.ndarray, np.ndarray | None]) -> bool:
+    """Whether each of two tracks, given as its velocity before a jump and after it, goes on
+    the way it was going more nearly (by SWITCH_HEADING_MARGIN) than the way the other was:
+    two people who meet head-on, stop and walk on (at 2.5 Hz a frame's stop misses a
+    prediction by half a metre, where the other's predicted it) swapped no ids. Both must:
+    in a crowd, one person turning as the ids switch is common. Unknown without both
+    velocities after."""
+    (before_a, after_a), (before_b, after_b) = a, b
+    if after_a is None or after_b is None:
+        return False
+    return all(np.linalg.norm(after - own) + SWITCH_HEADING_MARGIN < np.linalg.norm(after - other)
+               for after, own, other in ((after_a, before_a, before_b),
+                                         (after_b, before_b, before_a)))
 
 
 def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
@@ -1136,17 +1169,18 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     follows whom b followed before and b whom a did. At that time both jump SWITCH_MISS or
     more from where their motion predicted (`_predicted`; more on noisier tracks:
     SWITCH_NOISES times what their noise misses by), each to within that of the other's
-    prediction; no third track does so with either, and the two have the same
-    subject. One time: stamps within SAME_TIME of a frame interval (a tracker that stamps
+    prediction, and go on the other's way, not each its own (`_each_walks_on_its_own_way`);
+    no third track does so with either, and the two have the same subject. One time: stamps within SAME_TIME of a frame interval (a tracker that stamps
     each person's row a few milliseconds apart); tracks that jump frames apart are never
     taken for a switch. The time given is the earlier of the two jumps'."""
     # noise misses a prediction by sqrt(2) sigma on each coordinate: a jump is well above it
     miss_limit = max(SWITCH_MISS, SWITCH_NOISES * math.sqrt(2.0) * noise_sigma(tracks))
-    jumps = []  # (time, track, pose, predicted)
+    jumps = []  # (time, track, pose, predicted, (velocity before, velocity after))
     for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
-        predicted = _predicted(points, ts)
+        predicted, before = _predicted(points, ts), _velocity_before(points, ts)
         for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > miss_limit):
-            jumps.append((float(ts[i]), k, int(i), predicted[i]))
+            jumps.append((float(ts[i]), k, int(i), predicted[i],
+                          (before[i], _velocity_after(points, ts, int(i)))))
     frame = _frame_interval(np.concatenate([np.diff(ts) for ts in times] + [np.zeros(0)]))
     jumps.sort(key=lambda jump: (jump[0], jump[1]))
     at = np.array([jump[0] for jump in jumps])
@@ -1154,11 +1188,12 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     moments = [jumps[a:b] for a, b in itertools.pairwise(cuts)]
     switches = []
     for jumped in moments:
-        pairs = [(min(ta, tb), min(a, b), max(a, b)) for (ta, a, i, pa), (tb, b, j, pb)
-                 in itertools.combinations(jumped, 2)
+        pairs = [(min(ta, tb), min(a, b), max(a, b))
+                 for (ta, a, i, pa, va), (tb, b, j, pb, vb) in itertools.combinations(jumped, 2)
                  if a != b and max(np.linalg.norm(tracks[a][i] - pb),
                                    np.linalg.norm(tracks[b][j] - pa)) <= miss_limit
-                 and (subjects is None or subjects[a] == subjects[b])]
+                 and (subjects is None or subjects[a] == subjects[b])
+                 and not _each_walks_on_its_own_way(va, vb)]
         partners = np.bincount([k for _, a, b in pairs for k in (a, b)], minlength=len(tracks))
         switches += [(t, a, b) for t, a, b in pairs if partners[a] == partners[b] == 1]
     return sorted(switches)

@@ -643,6 +643,29 @@ def test_an_id_switch_is_undone_so_no_walk_is_made_of_two_people(tmp_path, caplo
     np.testing.assert_allclose(demo.points[:inside.sum()], ana[inside], atol=1e-9)
 
 
+def test_two_people_who_meet_head_on_stop_and_walk_on_are_no_id_switch():
+    """A tracker at 2.5 Hz: Ana walks east, Ben west 0.2 m to her side; they meet, both stop
+    for a frame, step aside and walk on their own ways. At the stop each misses its
+    prediction by a frame's walk (0.48 m) and stands where the other's predicted it: by
+    place alone an id switch, and undoing it turned both walks into U-turns (a walk lost).
+    Each goes on the way it was going, not the way the other was: no switch. Swapped for
+    real a frame earlier (0.5 m apart), each tail goes the other's way, and it is one."""
+    from pipeline.inputs.recorded import id_switches
+    ts = np.arange(0.0, 8.0, 0.4)
+    stop = 10  # the frame both stand still at
+    ana_x = np.where(np.arange(len(ts)) < stop, 1.2 * ts, 1.2 * (ts - 0.4))
+    ana = np.column_stack([ana_x, np.where(ts > ts[stop], -0.3, 0.0)])
+    meet = ana_x[stop - 1] + 0.48  # Ben's place at the frame before the stop
+    ben_x = np.where(np.arange(len(ts)) < stop, meet + 1.2 * (ts[stop - 1] - ts),
+                     meet - 1.2 * (ts - ts[stop]))
+    ben = np.column_stack([ben_x, np.where(ts > ts[stop], 0.5, 0.2)])
+    assert id_switches([ana, ben], [ts, ts], None) == []
+    swap = stop - 1
+    swapped_a = np.vstack([ana[:swap], ben[swap:]])
+    swapped_b = np.vstack([ben[:swap], ana[swap:]])
+    assert id_switches([swapped_a, swapped_b], [ts, ts], None) == [(float(ts[swap]), 0, 1)]
+
+
 def test_rows_of_two_people_under_one_id_keep_the_tracks_own_person(tmp_path, caplog):
     """For 1.2 s a tracker gives Ben's rows Ana's id as well as his own: Ana's track holds
     two rows at each of those times, 0.8 m apart. At those times the track keeps the row
