@@ -1169,10 +1169,11 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     follows whom b followed before and b whom a did. At that time both jump SWITCH_MISS or
     more from where their motion predicted (`_predicted`; more on noisier tracks:
     SWITCH_NOISES times what their noise misses by), each to within that of the other's
-    prediction, and go on the other's way, not each its own (`_each_walks_on_its_own_way`);
-    no third track does so with either, and the two have the same subject. One time: stamps within SAME_TIME of a frame interval (a tracker that stamps
-    each person's row a few milliseconds apart); tracks that jump frames apart are never
-    taken for a switch. The time given is the earlier of the two jumps'."""
+    prediction, and do not each go on their own way (`_each_walks_on_its_own_way`); no
+    third track does so with either, and the two have the same subject. One time: stamps
+    within SAME_TIME of a frame interval (a tracker that stamps each person's row a few
+    milliseconds apart); tracks that jump frames apart are never taken for a switch. The
+    time given is the earlier of the two jumps'."""
     # noise misses a prediction by sqrt(2) sigma on each coordinate: a jump is well above it
     miss_limit = max(SWITCH_MISS, SWITCH_NOISES * math.sqrt(2.0) * noise_sigma(tracks))
     jumps = []  # (time, track, pose, predicted, (velocity before, velocity after))
