@@ -70,12 +70,18 @@ START_RADIUS = 1.0  # m, by default a demonstration begins this close to a start
 CSV_COLUMNS = ("x", "y", "trajectory", "t", "subject")
 # other usual names of those columns: refused with the name to use rather than left unread
 # (an unread time column would leave the rows in file order, an unread id one stream)
-CSV_COLUMN_ALIASES = {"time": "t", "timestamp": "t", "stamp": "t", "time_s": "t", "frame": "t",
-                      "frame_number": "t",
-                      "traj": "trajectory", "track": "trajectory", "track_id": "trajectory",
-                      "trajectory_id": "trajectory", "id": "trajectory",
-                      "person": "subject", "person_id": "subject", "subject_id": "subject",
-                      "pos_x": "x", "pos_y": "y"}
+# A person's id names a track in a tracker's file (ATC's, THOR's) and who walked in a lab's:
+# either may be meant
+PERSON_ID = ("trajectory", "subject")
+CSV_COLUMN_ALIASES: dict[str, str | tuple[str, ...]] = {
+    "time": "t", "timestamp": "t", "stamp": "t", "time_s": "t", "frame": "t",
+    "frame_number": "t",
+    "traj": "trajectory", "track": "trajectory", "track_id": "trajectory",
+    "trajectory_id": "trajectory", "id": "trajectory", "ped_id": "trajectory",
+    "pedestrian_id": "trajectory", "agent_id": "trajectory",
+    "person": PERSON_ID, "person_id": PERSON_ID,
+    "subject_id": "subject", "participant": "subject", "participant_id": "subject",
+    "pos_x": "x", "pos_y": "y"}
 CSV_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
 # m: how far outside the room a recorded point may stray and be moved onto its edge (with a
@@ -425,7 +431,10 @@ def _csv_header(header: list[str], where: str) -> list[str]:
         raise PipelineError(f"{where}: {problem} (header: {shown[:80]}); expected x,y and "
                             f"optionally trajectory,t,subject{hint}")
     if renames:
-        given, meant = (", ".join(repr(r[k]) for r in renames) for k in (0, 1))
+        given = ", ".join(repr(r[0]) for r in renames)
+        meant = ", ".join(repr(m) if isinstance(m, str) else
+                          " or ".join(map(repr, m)) + " (a track's id, or who walked it)"
+                          for _, m in renames)
         one = len(renames) == 1
         these = ("it", "it is", "that column") if one else ("them", "they are", "those columns")
         raise PipelineError(f"{where}: unknown column{'' if one else 's'} {given} (header: "
@@ -495,7 +504,9 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarr
                 ident = row[col[name]].strip()
                 what = "trajectory id" if name == "trajectory" else "subject"
                 if not ident:
-                    raise PipelineError(f"{where}, line {line}: empty {what}")
+                    raise PipelineError(f"{where}, line {line}: empty {what}: every row of a "
+                                        f"{name} column needs one (leave the column out if "
+                                        f"none is known)")
                 refuse_unprintable(ident, f"{where}, line {line}: {what}")
                 out.append(ident)
     if not rows:
@@ -1778,7 +1789,9 @@ def _span_subject(subjects: list[str | None] | None, b: int, g: int, where: str,
     found = sorted({s for s in subjects[b:g + 1] if s is not None})
     if len(found) > 1:
         raise PipelineError(f"{where}: trajectory {i} (cut from the pose stream) has rows of "
-                            f"several subjects: {', '.join(repr(n) for n in found[:3])}")
+                            f"several subjects: {', '.join(repr(n) for n in found[:3])}; a "
+                            f"file of several people's tracks gives each track's id in a "
+                            f"trajectory column")
     return found[0] if found else None
 
 

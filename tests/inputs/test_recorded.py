@@ -337,7 +337,8 @@ def test_a_stream_whose_goal_pose_has_another_subject_is_refused(tmp_path):
     path.write_text("x,y,subject\n" + "".join(f"{x!r},{y!r},{s}\n" for (x, y), s in
                                               zip(run.tolist(), subjects, strict=True)))
     refused(r"trajectory 0 \(cut from the pose stream\) has rows of several subjects: "
-            r"'ann', 'bo'", load, path)
+            r"'ann', 'bo'; a file of several people's tracks gives each track's id in a "
+            r"trajectory column$", load, path)
     path.write_text("x,y,subject\n" + "".join(f"{x!r},{y!r},ann\n" for x, y in run.tolist()))
     assert [d.subject for d in load(path)] == ["ann"]
 

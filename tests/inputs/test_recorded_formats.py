@@ -202,6 +202,10 @@ def test_other_csv_columns_are_not_read_with_one_warning(tmp_path, caplog):
     ("timestamp,track_id,pos_x,pos_y", r"unknown columns 'timestamp', 'track_id', 'pos_x', "
      r"'pos_y' .*name them 't', 'trajectory', 'x', 'y' if they are meant as those columns"),
     ("frame,id,x,y", r"unknown columns 'frame', 'id' .*name them 't', 'trajectory'"),
+    # a person's id: a track's in a tracker's file, who walked in a lab's (either is said)
+    ("time,person_id,x,y,participant", r"unknown columns 'time', 'person_id', 'participant' "
+     r".*name them 't', 'trajectory' or 'subject' \(a track's id, or who walked it\), "
+     r"'subject' if they are meant as those columns"),
     ("trajectory,x,y,", r"column 4 of the header has no name"),
     ("x;y", r"unknown column 'x;y' .*the columns must be separated by commas"),
     ("0.5,0.5", r"unknown column '0\.5' .*the first line must be a header"),
@@ -254,7 +258,8 @@ def test_bad_subjects_are_refused(tmp_path):
         f"0,{x!r},{y!r},{'ann' if i else 'bo'}\n" for i, (x, y) in enumerate(CLEAN[0].tolist())))
     refused(r"trajectory 0 \(id '0'\) has rows of several subjects: 'ann', 'bo'", load, csv_path)
     csv_path.write_text("trajectory,x,y,subject\n0,0.5,0.5,\n0,5.5,9,\n")
-    refused(r"line 2: empty subject", load, csv_path)
+    refused(r"line 2: empty subject: every row of a subject column needs one \(leave the "
+            r"column out if none is known\)$", load, csv_path)
 
 
 def test_a_folder_of_recordings_reads_each_with_its_name_as_the_subject(tmp_path, metropolis):
