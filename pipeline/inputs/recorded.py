@@ -1056,14 +1056,15 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
                         subjects: Sequence[str | None] | None) -> tuple[list[list[int]], int]:
     """The tracks that continue one another, as chains of track numbers (every track is in
     one chain, and the chains are in the order of their first tracks), and how many tracks
-    are left apart from a continuation for its rivals. Track j continues
-    track i when j begins within REJOIN_GAP seconds after i ends, within REJOIN_REACH +
-    REJOIN_SPREAD per second of the gap of where i's end, moved on at its final velocity,
-    would be; when the two do not head apart by more than 90 degrees (both moving); and when
-    they have the same subject. Only an unambiguous pair is joined: no other track comes
-    within AMBIGUITY times those limits of continuing i, and i is the only track j comes that
-    close to continuing, apart from the tracks that would continue j or be continued by i
-    in turn (the same person lost again). A guess could make one walk of two people."""
+    are left apart from a continuation for its rivals. Track j continues track i when j
+    begins within REJOIN_GAP seconds (and a stamp's jitter: SAME_TIME of a frame) after i
+    ends, within REJOIN_REACH + REJOIN_SPREAD per second of the gap of where i's end, moved
+    on at its final velocity, would be; when the two do not head apart by more than 90
+    degrees (both moving); and when they have the same subject. Only an unambiguous pair is
+    joined: no other track comes within AMBIGUITY times those limits of continuing i, and i
+    is the only track j comes that close to continuing, apart from the tracks that would
+    continue j or be continued by i in turn (the same person lost again). A guess could
+    make one walk of two people."""
     n = len(tracks)
     ends = np.array([t[-1] for t in times], dtype=float)
     begins = np.array([t[0] for t in times], dtype=float)
@@ -1077,9 +1078,13 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
                                                                          strict=True)])
     moving_in = np.linalg.norm(velocity_in.reshape(-1, 2), axis=1) >= MOVING
     who = np.array(subjects, dtype=object) if subjects is not None else None
+    # a gap of whole frames at the limit is within it, whatever its stamps' jitter (4 frames
+    # lost at 2.5 Hz: 2.002 s)
+    gap_limit = REJOIN_GAP + SAME_TIME * _frame_interval(
+        np.concatenate([np.diff(t) for t in times] + [np.zeros(0)]))
     pairs, within_limits = [], []  # pairs within AMBIGUITY times the limits; within them
     for i in range(n):
-        lo, hi = np.searchsorted(sorted_begins, [ends[i], ends[i] + AMBIGUITY * REJOIN_GAP],
+        lo, hi = np.searchsorted(sorted_begins, [ends[i], ends[i] + AMBIGUITY * gap_limit],
                                  side="right")  # begins after i's end
         js = by_begin[lo:hi]
         gap = begins[js] - ends[i]
@@ -1092,7 +1097,7 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
         if who is not None:
             kept &= who[js] == who[i]
         pairs += [(i, int(j)) for j in js[kept]]
-        within_limits += list((miss[kept] <= 1.0) & (gap[kept] <= REJOIN_GAP))
+        within_limits += list((miss[kept] <= 1.0) & (gap[kept] <= gap_limit))
     # a rival of pair (i, j): another track that could continue i, or be continued by j,
     # except the piece that follows j or precedes i (one person lost twice in a row)
     candidates = set(pairs)

@@ -585,6 +585,26 @@ def test_only_an_unambiguous_continuation_is_joined():
     assert broken_track_chains(tracks, times, ["ana", "ana"]) == ([[0, 1]], 0)
 
 
+def test_a_gap_of_whole_frames_at_the_limit_is_within_it_whatever_the_jitter():
+    """A 2.5 Hz tracker loses a walker for 4 frames: the gap is 5 intervals, 2 s, the limit;
+    its stamps' 2 ms of jitter made it 2.002 s, and the pieces stayed apart. Within a quarter
+    frame of the limit a gap is within it; 5 frames lost (2.4 s) is not."""
+    from pipeline.inputs.recorded import broken_track_chains
+    east = np.array([1.25, 0.0])
+
+    def piece(first: int, last: int, jitter: float = 0.0):
+        frames = np.arange(first, last + 1)
+        ts = 0.4 * frames + jitter
+        return np.outer(0.4 * frames, east), ts
+
+    lost = piece(0, 20)
+    for frames_lost, jitter, chains in ((4, 0.002, [[0, 1]]), (4, -0.002, [[0, 1]]),
+                                        (5, 0.0, [[0], [1]])):
+        found = piece(21 + frames_lost, 40, jitter)
+        tracks, times = zip(lost, found, strict=True)
+        assert broken_track_chains(tracks, times, None) == (chains, 0), (frames_lost, jitter)
+
+
 def test_tracks_that_pass_just_outside_the_goal_disk_are_named(tmp_path, caplog):
     """A walker bound for the goal who passes it 0.35 m off, outside its 0.3 m disk, holds
     no walk: the warning names the track and how close it came, and scene.goal_tolerance;
