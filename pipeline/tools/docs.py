@@ -522,7 +522,7 @@ def sample_output(metrics: dict[str, float]) -> str:
     """The summary `make experiment` prints for these metrics, with the run dir's line
     made a placeholder."""
     from pipeline.app.build import prior
-    from pipeline.stages.evaluate import summary_text
+    from pipeline.app.run_summary import summary_text
 
     settings = load_settings(compose_config())
     return summary_text(metrics, SAMPLE_RUN_DIR, settings.learner_features, prior(settings))

@@ -1,0 +1,37 @@
+"""The run summary's held-out warnings, from metrics alone: the learned paths against the
+shortest paths on the held-out demonstrations, a tie within HELDOUT_TIE_M."""
+
+from pipeline.app.run_summary import HELDOUT_TIE_M, summary_text
+
+AS_FAR = "as far from the held-out demonstrations as the shortest paths are (within 0.05 m)"
+WORSE = "predicts them worse than no reward does"
+WORSE_PASSING = "predicts how closely they pass people worse than no reward does"
+
+
+def summary(frechet: float, frechet_shortest: float, error: float,
+            error_shortest: float) -> str:
+    m = {"heldout_count": 9.0, "heldout_frechet_m": frechet,
+         "heldout_frechet_m_shortest": frechet_shortest,
+         "heldout_min_distance_error_m": error,
+         "heldout_min_distance_error_m_shortest": error_shortest}
+    return summary_text(m, "RUN", ["relation", "social", "goal_deviation", "length"])
+
+
+def test_a_difference_below_the_tie_is_no_better_not_worse():
+    """A hall's learned paths were 7 mm farther from the held-out walks than the shortest
+    (2.49 m each, as printed): the summary called them "worse than no reward". They are
+    as far, within the tie."""
+    assert HELDOUT_TIE_M == 0.05  # the message's "within 0.05 m"
+    out = summary(2.4949, 2.4881, 0.20, 0.21)
+    assert AS_FAR in out
+    assert WORSE not in out and WORSE_PASSING not in out
+    assert AS_FAR in summary(1.0, 1.0, 0.3, 0.3)  # exactly as far
+
+
+def test_worse_beyond_the_tie_is_said_per_measure_and_better_is_not_as_far():
+    out = summary(2.6, 2.4881, 0.20, 0.21)
+    assert WORSE in out and WORSE_PASSING not in out and AS_FAR not in out
+    out = summary(2.49, 2.49, 0.30, 0.21)
+    assert WORSE_PASSING in out and WORSE not in out and AS_FAR not in out
+    out = summary(0.40, 2.49, 0.20, 0.21)  # better in Fréchet, a tie in the other
+    assert AS_FAR not in out and WORSE not in out and WORSE_PASSING not in out
