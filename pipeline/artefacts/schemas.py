@@ -164,11 +164,16 @@ DEMONSTRATION = _message("Demonstration", "One expert demonstration (log_time = 
     "reached": REACHED,
     "subject": _nullable(_str("Who demonstrated it (a demonstration file's `subjects`, or a "
                               "synthetic subject)."), "when unknown"),
+    "source": _nullable(_str("Where it came from in the demonstration file: its trajectory's "
+                             "number there, from 0, and its id (`17 (id '117')`; `17/2` for "
+                             "the second walk expert.select_walks cut from it), behind the "
+                             "recording's name in a folder (`ben.bag: 3`)."),
+                        "for synthetic demonstrations (absent in artefacts written before it)"),
     "heldout": _bool("Held out of learning (evaluate.holdout): never in the graph nor in the "
                      "likelihood, only compared with the learned paths."),
     "value_true": _nullable(_num("Quality of the path under w*: w*·Φ + offset."),
                             "for file, planner and none demonstrations"),
-})
+}, optional=("source",))
 
 def _column(dtype: str, desc: str, per: str = "node") -> Schema:
     """A column of a columnar message: one value per row, as the base64 of a little-endian

@@ -37,6 +37,8 @@ class Demonstration:
     durations: np.ndarray  # (K,) seconds
     reached: bool  # ends at the goal
     subject: str | None = None  # who demonstrated it (a demonstration file's `subjects`)
+    # where it came from in its file: its trajectory's number and id (`17 (id '117')`)
+    source: str | None = None
 
     @classmethod
     def from_points(cls, start_index: int, points: np.ndarray, feature_model: FeatureModel,

@@ -49,7 +49,9 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     """
     path = Path(path)
     if is_recording_folder(path):
-        read = [(recording, d if d.subject is not None else dataclasses.replace(d, subject=subject))
+        read = [(recording, dataclasses.replace(
+                    d, subject=subject if d.subject is None else d.subject,
+                    source=f"{recording.relative_to(path)}: {d.source}"))
                 for recording, subject in subject_recordings(path)
                 for d in load_demo_file(recording, scene, feature_model, speed, topic=topic,
                                         frame=frame, start_radius=start_radius, denoise=denoise,
@@ -69,7 +71,7 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                 pushed.append(label)
                 points = clear
         demo = checked_demonstration(start, points, subject, scene, feature_model, speed,
-                                     f"{describe(path)}: trajectory {label}")
+                                     f"{describe(path)}: trajectory {label}", source=label)
         if not demo.reached:
             end_gap = float(np.linalg.norm(points[-1] - scene.goal))
             unreached.append(f"{label} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
@@ -146,7 +148,7 @@ def clear_of_walls(points: np.ndarray, scene: Scene) -> np.ndarray:
 
 def checked_demonstration(start: int, points: np.ndarray, subject: str | None, scene: Scene,
                           feature_model: FeatureModel, speed: float,
-                          what: str) -> Demonstration:
+                          what: str, source: str | None = None) -> Demonstration:
     """A trajectory (already cut at the goal, `recorded.cut_trajectory`) as a Demonstration,
     refused (naming `what`) where it comes closer than robot_radius to an obstacle or enters
     a body disk; it reaches the goal when it ends within goal_tolerance of it."""
@@ -165,7 +167,7 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
     reached = bool(scene.at_goal(points[-1])[0])
     feats = feature_model.segments(points[:-1], points[1:])
     durations = np.linalg.norm(np.diff(points, axis=0), axis=1) / speed
-    return Demonstration(start, points, feats, durations, reached, subject)
+    return Demonstration(start, points, feats, durations, reached, subject, source)
 
 
 def check_clear_of_bodies(what: str, points: np.ndarray, scene: Scene) -> None:

@@ -1377,7 +1377,7 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
         offsets += [b for b, _ in spans]
         with_walks += len(chains[k]) if spans else 0
         if not spans:
-            without.append(track_name(chains[k], None))
+            without.append(track_name(chains[k], ids))
             with np.errstate(over="ignore", invalid="ignore"):
                 to_start = np.linalg.norm(track[:, None, :] - np.reshape(starts, (1, -1, 2)),
                                           axis=2).min(axis=1, initial=math.inf)

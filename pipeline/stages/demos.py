@@ -144,7 +144,8 @@ def write_demos(ctx: RunContext, demos: list[Demonstration], heldout: np.ndarray
                 "start_index": d.start_index, "points": d.points, "features": d.features,
                 "discounted_features": stats.phi, "end_discount": stats.end_discount,
                 "offset": stats.offset, "duration": float(d.durations.sum()),
-                "reached": d.reached, "subject": d.subject, "heldout": bool(heldout[i]),
+                "reached": d.reached, "subject": d.subject, "source": d.source,
+                "heldout": bool(heldout[i]),
                 "value_true": stats.quality(w_true) if synthetic else None}, log_time=i)
         w.add(topics.DEMOS_ROADMAP, "Roadmap",
               codec.roadmap_message(roadmap, cfg.roadmap, solution if synthetic else None, mdp),

@@ -286,6 +286,10 @@ def test_a_folder_of_recordings_reads_each_with_its_name_as_the_subject(tmp_path
     for got, want in zip(demos, [*one["ann.bag"], *one["bo"], *one["cy.json"]], strict=True):
         assert got.start_index == want.start_index
         np.testing.assert_array_equal(got.points, want.points)
+    # each says where it came from: its recording in the folder and its number there
+    assert [d.source for d in one["bo"]] == [str(k) for k in range(len(CLEAN) - 1)]
+    assert [d.source for d in demos] == ["ann.bag: 0"] + [f"bo: {k}" for k in range(
+        len(CLEAN) - 1)] + ["cy.json: 0"]
     # a folder in it is one subject's sessions, its name the subject
     sessions = folder / "eve"
     sessions.mkdir()
@@ -295,8 +299,10 @@ def test_a_folder_of_recordings_reads_each_with_its_name_as_the_subject(tmp_path
     (sessions / "deeper").mkdir()  # a folder in a subject's folder is not read
     write_bag(sessions / "deeper" / "x.bag",
               {"/odom": ("nav_msgs/msg/Odometry", list(odometry(CLEAN)))}, storage="ros1")
-    assert [d.subject for d in load_demo_file(folder, metropolis, fm, 1.0)] == \
+    with_sessions = load_demo_file(folder, metropolis, fm, 1.0)
+    assert [d.subject for d in with_sessions] == \
         [d.subject for d in demos[:1 + len(one["bo"])]] + ["dee", "eve", "eve"]
+    assert [d.source for d in with_sessions[-2:]] == ["eve/mon.bag: 0", "eve/tue.bag: 0"]
     # a file in it that is not what its name says is named, not the folder
     (folder / "zed.csv").write_text("x;y\n0.5,0.5\n")
     refused(r"zed\.csv: unknown column 'x;y'", load_demo_file, folder, metropolis, fm, 1.0)

@@ -382,7 +382,8 @@ def test_select_walks_keeps_each_tracks_walks_from_a_start_to_the_goal(tmp_path,
         demos = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
     assert [d.subject for d in demos] == ["ana", "ben", "ben"]
     assert re.search(r"select_walks: 3 walks from a start to the goal read from 2 of 5 "
-                     r"trajectories .*3 hold none and are dropped: 1, 2, 4; several in "
+                     r"trajectories .*3 hold none and are dropped: 1 \(id 'b'\), 2 \(id 'c'\), "
+                     r"4 \(id 'e'\); several in "
                      r"3 \(2 walks\)", caplog.text)
     # the one that came into view mid-room reaches the goal: named, with how near a start
     # it came; the one that begins at the goal and leaves is not
@@ -431,7 +432,7 @@ def test_select_walks_names_each_walk_by_its_trajectory_and_drops_one_row_tracks
         load_recorded(path, START[None], GOAL, goal_tolerance=0.2)
     with caplog.at_level(logging.WARNING):
         [demo] = load_recorded(path, START[None], GOAL, goal_tolerance=0.2, select_walks=True)
-    assert "3 hold none and are dropped: 0, 1, 2" in caplog.text
+    assert "3 hold none and are dropped: 0 (id 'a'), 1 (id 'b'), 2 (id 'c')" in caplog.text
     # by its number in the file and its id there
     assert re.search(r"trajectories 3 \(id 'd'\) \(0\.6\d m from start 0\) begin far",
                      caplog.text)

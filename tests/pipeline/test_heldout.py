@@ -25,6 +25,7 @@ def test_held_out_demonstrations_never_enter_the_graph_or_the_likelihood(subject
     held = [d for d in demos if d["heldout"]]
     kept = [d for d in demos if not d["heldout"]]
     assert {d["subject"] for d in held} == {"s2"} and len(held) == 7 and len(kept) == 14
+    assert {d["source"] for d in demos} == {None}  # synthetic: no file to trace back to
     nodes = codec.decode_nodes(read_artefact(run_dir / "graph.mcap"))
     demo_nodes = nodes.positions[nodes.kind == "demo"]
     # every demonstration node is a waypoint of a kept demonstration, none only of a held one
@@ -429,3 +430,6 @@ def test_a_subject_of_a_folder_of_bags_is_held_out(tmp_path):
     held = codec.heldout_demos(demos)
     assert [d["subject"] for d in held] == ["bo"] and m["heldout_count"] == 1
     assert [d["subject"] for d in codec.training_demos(demos)] == ["ann", "ann"]
+    # each demonstration says where it came from, so a held-out walk can be traced back
+    assert [d["source"] for d in held] == ["bo: 0"]
+    assert [d["source"] for d in codec.training_demos(demos)] == ["ann: 0", "ann: 1"]
