@@ -56,6 +56,39 @@ def expert_stats(ctx: RunContext, demos: list[dict], scene: Scene) -> list[Traje
                                       m["reached"]).stats(cfg.mdp) for m in demos]
 
 
+class IterationLog:
+    """The learner's progress lines. Iterations that repeat the line logged before them (the
+    default learner keeps its MAP from iteration 1 on: 19 identical lines) are said in one
+    line, before the next other line."""
+
+    def __init__(self) -> None:
+        self.last: str | None = None  # the last iteration line logged
+        self.repeated: list[int] = []  # the iterations since that repeat it
+
+    def iteration(self, it: Iteration) -> None:
+        reached = sum(t.reached for t in it.generated)
+        line = (f"w = {np.round(it.weights, 3).tolist()}, log likelihood {it.log_likelihood:.3f}"
+                f", log prior {it.log_prior:.3f}, {reached}/{len(it.generated)} reach goal")
+        if line == self.last:
+            self.repeated.append(it.index)
+            return
+        self.flush()
+        self.last = line
+        log.info("  iteration %2d: %s", it.index, line)
+
+    def other(self, msg: str, *args: object) -> None:
+        self.flush()
+        log.info(msg, *args)
+
+    def flush(self) -> None:
+        """Say the repeated iterations not said yet."""
+        if self.repeated:
+            first, last = self.repeated[0], self.repeated[-1]
+            log.info("  iteration%s: as iteration %d", f" {first:2d}" if first == last else
+                     f"s {first}-{last}", first - 1)
+            self.repeated.clear()
+
+
 def run(ctx: RunContext) -> None:
     cfg, b = ctx.cfg, ctx.cfg.birl
     demos = codec.training_demos(ctx.read("demos", required_topics=[topics.DEMOS_EXPERT]))
@@ -65,11 +98,12 @@ def run(ctx: RunContext) -> None:
     rng = ctx.rng("birl")
     w0, w0_source = build.initial_weights(cfg, rng)  # birl=fixed: given or transferred
     grow_nodes = build.learning_growth(cfg, scene)
+    lines = IterationLog()
     env: GraphEnvironment
     if grow_nodes > 0:
         def grown(added: int, n_nodes: int) -> None:
-            log.info("    graph grown by %d nodes under the current weights (%d nodes)",
-                     added, n_nodes)
+            lines.other("    graph grown by %d nodes under the current weights (%d nodes)",
+                        added, n_nodes)
 
         env = GrowingGraphEnvironment(restore_adaptive_graph(ctx, scene), cfg.mdp, grow_nodes,
                                       grown)
@@ -83,20 +117,16 @@ def run(ctx: RunContext) -> None:
         return build.with_named_features(cfg, scene, codec.decode_roadmap(art, cfg.mdp),
                                          list(cfg.reward.features), cfg.learner_features)
 
-    def progress(it: Iteration) -> None:
-        reached = sum(t.reached for t in it.generated)
-        log.info("  iteration %2d: w = %s, log likelihood %.3f, log prior %.3f, %d/%d reach goal",
-                 it.index, np.round(it.weights, 3).tolist(), it.log_likelihood, it.log_prior,
-                 reached, len(it.generated))
-
     problem = IRLProblem(expert, [np.asarray(d["points"], float) for d in demos], env, prior,
-                         w0, rng, roadmap, progress, status=lambda msg: log.info("  %s", msg),
+                         w0, rng, roadmap, lines.iteration,
+                         status=lambda msg: lines.other("  %s", msg),
                          lattice=build.alternatives_lattice(cfg, scene))
     log.info("IRL method %s: %d demonstrations, %d-node graph, %s; starts from w0 = %s (%s)",
              b.kind, len(expert), env.graph.mdp.n_nodes, b.describe_prior(),
              np.round(w0, 3).tolist(), w0_source)
     t0 = time.perf_counter()
     result = build.irl_method(cfg).fit(problem, b)
+    lines.flush()
     # The learning alone (optimisation and MDP solves), without artefact I/O.
     learn = time.perf_counter() - t0
     ctx.timings["time_birl_learn_s"] = round(learn, 4)

@@ -336,6 +336,12 @@ def test_the_default_learner_is_the_boltzmann_map(tmp_path, caplog):
     birl = read_artefact(tmp_path / "birl.mcap").all("/birl/iteration")
     assert len(birl) == 4 and birl[0]["weights"] != birl[1]["weights"]
     assert birl[1]["weights"] == birl[2]["weights"] == birl[3]["weights"]
+    # the log says the repeats in one line, not one line each
+    said = [r.getMessage() for r in caplog.records if "iteration" in r.getMessage()
+            and r.name == "pipeline.stages.birl"]
+    assert [m.split(":")[0].strip() for m in said] == ["iteration  0", "iteration  1",
+                                                       "iterations 2-3"], said
+    assert said[-1].endswith("iterations 2-3: as iteration 1")
 
 
 @pytest.mark.parametrize("shift, drawn", [((500_000.0, 5_600_000.0), True),
