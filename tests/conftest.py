@@ -251,8 +251,9 @@ def write_bag(path: Path, topics: dict[str, tuple[str, list[np.ndarray]]],
               arrival: list[int] | None = None) -> Path:
     """Write `topics` {name: (msgtype, [data per message])}; storage mcap|sqlite3|ros1;
     `frame` is every message's frame_id, or one per message. Message k's header stamp is
-    1 s + k·0.1 s; `arrival` (a permutation of the messages) is the order they arrive in,
-    the bag's log times (default: in stamp order)."""
+    1 s + k·0.1 s; `arrival` (a permutation of the messages, or of some of them: the others
+    are not written) is the order they arrive in, the bag's log times (default: in stamp
+    order)."""
     ts = ROS1 if storage == "ros1" else ROS2
     if storage == "ros1":
         writer = Writer1(path)

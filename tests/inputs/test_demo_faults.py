@@ -85,6 +85,21 @@ def test_rows_out_of_order_or_with_a_clock_glitch_are_still_ordered_by_t(tmp_pat
     assert np.array_equal(track[[10, 11]], walk[[11, 10]])  # ordered by t, as documented
 
 
+def test_a_trajectory_s_late_stamp_is_ordered_by_t_where_no_clock_was_set_back(tmp_path):
+    """A trajectory's row stamped 150 ms late on a 10 Hz tracker (50 ms after the next row's):
+    ordering by t moves it one place on, a glitch ordering mends, and no clock was set back
+    in the file, so the track is read by t as a pose stream is (not in file order)."""
+    walk = line(STARTS[0], GOAL)
+    times = np.arange(len(walk)) * 0.1
+    times[10] += 0.15
+    path = tmp_path / "late.csv"
+    path.write_text("trajectory,x,y,t\n" + csv_rows(walk, times, "p"))
+    recording = read_recording(path)
+    [track] = recording.tracks
+    assert np.array_equal(track[[10, 11]], walk[[11, 10]])
+    np.testing.assert_array_equal(recording.times[0], np.sort(times))
+
+
 def walk_set_back(seconds: float) -> tuple[np.ndarray, np.ndarray]:
     """The walk from start 0 to the goal at 0.05 m per 0.1 s and its times, the clock set back
     `seconds` at row 60 (line 62 of a file with a header), from 6.0 s."""
@@ -134,6 +149,18 @@ def test_times_that_go_back_are_moved_on_by_the_step_and_one_interval():
     np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.1, 0.2, 0.0, 0.1])),
                                [0.0, 0.1, 0.2, 0.3, 0.4])
     np.testing.assert_allclose(stepped_forward(np.array([0.0, 0.2, 0.4])), [0.0, 0.2, 0.4])
+
+
+def test_a_step_back_of_one_interval_is_held_and_a_clock_that_never_moves_on_moves_by_the_step():
+    """A set-back is a step back of more than one usual interval: on a clock of whole seconds,
+    a step back of exactly 1 s is a stamp's jitter, held at the time before it. A clock that
+    never moves on has no usual interval (0 s): a step back is moved on by its size alone."""
+    np.testing.assert_array_equal(stepped_forward(np.array([0.0, 1.0, 2.0, 1.0, 2.0, 3.0])),
+                                  [0.0, 1.0, 2.0, 2.0, 2.0, 3.0])
+    np.testing.assert_array_equal(stepped_forward(np.array([0.0, 1.0, 2.0, 0.5, 1.5, 2.5])),
+                                  [0.0, 1.0, 2.0, 3.0, 4.0, 5.0])  # 1.5 s back: set back
+    np.testing.assert_array_equal(stepped_forward(np.array([0.0, 0.0, -2.0, -2.0])),
+                                  [0.0, 0.0, 0.0, 0.0])
 
 
 def test_a_bag_whose_clock_was_set_back_is_read_in_the_order_logged(tmp_path, caplog):
@@ -190,6 +217,36 @@ def test_appended_recordings_are_refused_also_behind_a_larger_set_back_mid_walk(
     path.write_text("x,y,t\n" + csv_rows(walk_a, times_a) + csv_rows(walk_b, times_b))
     refused(rf"t goes back from {times_a[-1]:.3f} to {times_b[0]:.3f} at line "
             rf"{len(walk_a) + 2}\); are several recordings appended\?", read_tracks, path)
+
+
+def test_appended_recordings_are_refused_also_where_the_clock_restarts_under_a_step_back(
+        tmp_path):
+    """Two short walks 2.5 m apart appended, the second's clock starting 50 ms behind the
+    first's end: less than one time step back, no set-back, but the largest step back, and at
+    a jump; ordered by t one row crosses the gap and back (2.5 times the length as given).
+    Refused as appended recordings, not read as one track with a jitter warning."""
+    walk_a, walk_b = line(STARTS[0], GOAL)[:10], line(STARTS[2], GOAL)[:10]
+    times_a = np.arange(10) * 0.1
+    path = tmp_path / "appended.csv"
+    path.write_text("x,y,t\n" + csv_rows(walk_a, times_a) + csv_rows(walk_b, times_a + 0.85))
+    refused(r"t goes back from 0\.900 to 0\.850 at line 12\); are several recordings "
+            r"appended\?", read_tracks, path)
+
+
+def test_three_appended_recordings_are_refused_naming_the_largest_restart(tmp_path):
+    """Three walks appended: the second's clock 1 s behind the first's end, the third's
+    restarting at 0. Both restarts are jumps back to a start; the refusal names the larger
+    step back (the third walk's first line), not the first one found."""
+    walks = [line(STARTS[0], GOAL), line(STARTS[2], GOAL), line(STARTS[1], GOAL)]
+    times_a = np.arange(len(walks[0])) * 0.1
+    times_b = times_a[-1] - 1.0 + np.arange(len(walks[1])) * 0.1
+    times_c = 0.05 + np.arange(len(walks[2])) * 0.1
+    path = tmp_path / "appended.csv"
+    path.write_text("x,y,t\n" + "".join(csv_rows(w, t) for w, t in
+                                         zip(walks, (times_a, times_b, times_c), strict=True)))
+    refused(rf"t goes back from {times_b[-1]:.3f} to 0\.050 at line "
+            rf"{len(walks[0]) + len(walks[1]) + 2}\); are several recordings appended\?",
+            read_tracks, path)
 
 
 def test_a_short_track_whose_clock_goes_back_is_kept_as_given(tmp_path, caplog):
@@ -259,18 +316,50 @@ def test_a_clock_set_back_moves_every_track_on_so_a_lost_walk_is_still_rejoined(
     ended (2 s: refused, no walk found) or the gap looked shorter than it was (1 s, 0.5 s: a
     bridge 5-10 points short). Now every row after the step is moved on alike."""
     walk, times = walk_set_back(seconds)
-
-    def lost_and_found(name: str, times: np.ndarray) -> Path:
-        path = tmp_path / name
-        path.write_text("trajectory,x,y,t\n" + csv_rows(walk[:100], times[:100], "p1")
-                        + csv_rows(walk[110:], times[110:], "p2"))
-        return path
-
-    [steady] = load_recorded(lost_and_found("steady.csv", np.arange(len(walk)) * 0.1), STARTS,
+    [steady] = load_recorded(lost_and_found(tmp_path / "steady.csv", walk,
+                                            np.arange(len(walk)) * 0.1), STARTS,
                              GOAL, goal_tolerance=0.3, select_walks=True)
-    [stepped] = load_recorded(lost_and_found("stepped.csv", times), STARTS, GOAL,
-                              goal_tolerance=0.3, select_walks=True)
+    [stepped] = load_recorded(lost_and_found(tmp_path / "stepped.csv", walk, times), STARTS,
+                              GOAL, goal_tolerance=0.3, select_walks=True)
     np.testing.assert_allclose(stepped.points, steady.points)
+
+
+def lost_and_found(path: Path, walk: np.ndarray, times: np.ndarray) -> Path:
+    """The walk and its times written as lost at row 100 (id p1) and found again at row 110
+    under a new id (p2): rows 100-109 missing."""
+    path.write_text("trajectory,x,y,t\n" + csv_rows(walk[:100], times[:100], "p1")
+                    + csv_rows(walk[110:], times[110:], "p2"))
+    return path
+
+
+def test_a_clock_set_back_once_in_each_of_two_walks_moves_the_later_walk_on_by_both(tmp_path):
+    """The clock set back 2 s in the lost walk (row 60) and again 1 s in the found one (row
+    150), the file in the order recorded: the found walk's times are moved on by both steps,
+    not by its own alone (it would seem to begin 2 s before the lost one ended, and no walk
+    would be found), so the walk is rejoined as if no clock had been set back."""
+    walk, times = walk_set_back(2.0)
+    times[150:] -= 1.0
+    [steady] = load_recorded(lost_and_found(tmp_path / "steady.csv", walk,
+                                            np.arange(len(walk)) * 0.1), STARTS,
+                             GOAL, goal_tolerance=0.3, select_walks=True)
+    [stepped] = load_recorded(lost_and_found(tmp_path / "stepped.csv", walk, times), STARTS,
+                              GOAL, goal_tolerance=0.3, select_walks=True)
+    np.testing.assert_allclose(stepped.points, steady.points)
+
+
+def test_a_found_walk_s_late_stamp_does_not_undo_the_one_clock(tmp_path):
+    """The clock set back 1 s in the lost walk, and one row of the found walk stamped 150 ms
+    late (a jitter of 50 ms past the next row, not a set-back): the file is still in the
+    order recorded, so the found walk's times are moved on with the lost one's (it begins
+    after the lost one ended), its rows read in file order, the late stamp held."""
+    walk, times = walk_set_back(1.0)
+    times[120] += 0.15
+    recording = read_recording(lost_and_found(tmp_path / "late.csv", walk, times))
+    np.testing.assert_array_equal(recording.tracks[1], walk[110:])
+    expected = np.arange(110, len(walk)) * 0.1
+    expected[[10, 11]] = 12.15  # row 120 late, row 121 held at it
+    np.testing.assert_allclose(recording.times[1], expected)
+    np.testing.assert_allclose(recording.times[0], np.arange(100) * 0.1)
 
 
 def test_one_clock_only_for_a_file_in_the_order_recorded():
@@ -282,6 +371,8 @@ def test_one_clock_only_for_a_file_in_the_order_recorded():
     by_frame = np.repeat(t, 2)  # two people, frame by frame
     np.testing.assert_allclose(one_clock(by_frame, [t]), np.repeat(np.arange(10) * 0.1, 2))
     assert one_clock(np.concatenate([t, t]), [t]) is None  # grouped: goes back at row 10 too
+    # so it is where both tracks were set back: their two set-backs, and the second's start
+    assert one_clock(np.concatenate([t, t]), [t, t]) is None
 
 
 def test_a_stamp_s_jitter_is_held_not_moved_on_and_named_as_jitter(tmp_path, caplog):
@@ -301,6 +392,33 @@ def test_a_stamp_s_jitter_is_held_not_moved_on_and_named_as_jitter(tmp_path, cap
     assert np.diff(times).min() < 0  # the case: stamps out of order, by under an interval
     assert recording.times[0][-1] == times[-1]  # no drift
     assert "(its times jitter back by less than one time step)" in caplog.text
+    assert "set back" not in caplog.text
+    # so does a pose stream's (no trajectory column)
+    stream = tmp_path / "stream.csv"
+    stream.write_text("x,y,t\n" + csv_rows(walk, times))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        read_recording(stream)
+    assert "read in file order (its times jitter back by less than one time step)" in caplog.text
+    assert "set back" not in caplog.text
+
+
+def test_a_bag_whose_stamps_jitter_says_jitter(tmp_path, caplog):
+    """A pose stream logged at 5 Hz, every tenth message stamped 0.3 s late (0.1 s past the
+    next one's: a step back of half an interval): ordered by stamp the walk zig-zags, so it is
+    read in the order logged, and the warning says jitter, not a clock set back."""
+    n = 200
+    walk = np.column_stack([np.arange(n) * 0.05, np.ones(n)])
+    stamp = np.arange(n) * 2  # stamps of 0.1 s each (write_bag): 0.2 s apart
+    stamp[10::10] += 3
+    items = [np.zeros(2)] * (int(stamp.max()) + 1)  # message k is stamped k; some are not sent
+    for k, pose in zip(stamp, walk, strict=True):
+        items[k] = pose
+    bag = write_bag(tmp_path / "jitter", {"/odom": ("nav_msgs/msg/Odometry", items)},
+                    arrival=[int(k) for k in stamp])
+    assert np.array_equal(read_one_track(bag, caplog), walk)
+    assert "read in the order logged (its times jitter back by less than one time step)" \
+        in caplog.text
     assert "set back" not in caplog.text
 
 

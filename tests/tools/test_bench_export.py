@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
 from pipeline.core.obstacles import OccupancyGrid
-from pipeline.tools.bench_export import plan, smac_grid
+from pipeline.tools.bench_export import one_case, plan, smac_grid
 
 # 3 rows x 5 columns of 1 m cells; the middle row's three inner cells cost 126 (half of 252)
 COST = np.zeros((3, 5))
@@ -77,3 +78,15 @@ def test_a_start_in_the_goal_s_cell_is_a_path_of_one_cell():
     """A goal in the start's cell is reached at once, not unreachable."""
     path = plan(smac_grid(COST, 1.0), GRID, START, START + 0.2)
     np.testing.assert_allclose(path, [START])
+
+
+def test_the_export_s_multiplier_is_benchmarked_as_the_yaml_prints_it(tmp_path):
+    """The benchmark plans with the export's cost_travel_multiplier as a user pastes it from
+    costmap.yaml (4 significant digits), not with the unrounded value."""
+    rows = one_case(tmp_path / "run", "given", (
+        "graph=small", "expert=none", "birl=fixed", "birl.weights=[-1.0,-0.5,-0.5,-0.1,-0.5]",
+        "mdp.time_cost=0.04", "mdp.speed=0.5"))
+    [m] = [row["m"] for row in rows if row["multiplier"] == "the export's"]
+    printed = re.search(r"^# .*cost_travel_multiplier: (\S+) ",
+                        (tmp_path / "run" / "export" / "costmap.yaml").read_text(), re.M).group(1)
+    assert m == float(printed)

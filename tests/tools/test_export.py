@@ -228,7 +228,8 @@ def test_a_deployment_names_the_weights_its_source_run_did_not_learn(exported, t
     assert not any(c.startswith("not learned") for c in comments)
 
 
-def test_the_run_s_mdp_sets_the_multiplier_and_a_discounted_run_gets_none(tmp_path, capsys):
+def test_the_run_s_mdp_sets_the_multiplier_and_a_discounted_run_gets_none(tmp_path, capsys,
+                                                                         monkeypatch):
     """The export reads the MDP the run planned with: given weights under a cost per second
     of 0.04 at 0.5 m/s (0.08 per metre, less w_length) print the multiplier of that cost;
     under the paper's discounted MDP no multiplier holds, and stdout and the YAML say why."""
@@ -244,6 +245,13 @@ def test_the_run_s_mdp_sets_the_multiplier_and_a_discounted_run_gets_none(tmp_pa
                   .group(1))
     assert float(said.group(1)) == pytest.approx(scale / (0.04 / 0.5 + 0.1) * 252 / 251,
                                                  rel=1e-3)
+    # printed as the YAML prints it, a double: a multiplier of 24 is 24.0 on stdout too
+    monkeypatch.setattr(export.Costmap, "smac_multiplier", lambda self: 24.0)
+    assert export.main([str(slow)]) == 0
+    assert "cost_travel_multiplier: 24.0 (see costmap.yaml)" in capsys.readouterr().out
+    _, comments = read_yaml_and_comments(slow / "export" / "costmap.yaml")
+    assert any("cost_travel_multiplier: 24.0 (left unset" in c for c in comments)
+    monkeypatch.undo()
     discounted = tmp_path / "discounted"
     run_in_process(discounted, "graph=small", "expert=none", "birl=fixed", weights, "mdp=paper")
     capsys.readouterr()
@@ -472,6 +480,11 @@ def test_the_trade_off_lines_say_the_ratio_the_multiplier_and_how_far_off_the_de
     _, second = export.trade_off(half)
     assert "weighs the mask 2 times as much as learned and 4 times as much as learned" in second
     assert "adds 4 times a free step (8 times as much as learned)" in second
+    # factors of 10 and more in whole numbers: 99.7 is 100, not 1e+02 (nor 99.7)
+    near_100 = dataclasses.replace(base, scale=99.7 * 251 / 252, free_metre=1.0)
+    _, second = export.trade_off(near_100)
+    assert "cost_travel_multiplier: 99.7 (left unset, 1 in Nav2's code and 2 in older " \
+        "releases, it weighs the mask 100 times too little and 50 times too little)" in second
 
 
 @pytest.mark.parametrize("multiplier, shown", [(24.1, "24.1"), (24.0, "24.0"), (214.96, "215.0"),
@@ -623,6 +636,7 @@ def test_the_bag_metadata_names_the_demos_subjects_and_the_held_out_ones(exporte
     about = export.demos_about(msgs)
     assert json.loads(about["birlg.demo_subjects"]) == ["ann; 1: b\u00f6", None, "cy",
                                                         "ann; 1: b\u00f6"]
+    assert "b\u00f6" in about["birlg.demo_subjects"]  # readable as written, not \\u00f6
     assert about["birlg.demos_heldout"] == "1 3"
     assert export.demos_about([{"subject": None}, {}]) == {}
     custom = yaml.safe_load((exported[1] / "paths/metadata.yaml").read_text())[
