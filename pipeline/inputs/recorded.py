@@ -589,24 +589,28 @@ def _usual_interval(steps: np.ndarray) -> float | None:
     return float(np.median(forward)) if len(forward) else None
 
 
-def _set_back_steps(steps: np.ndarray) -> tuple[np.ndarray, float]:
+def _set_back_steps(steps: np.ndarray, usual: float | None = None
+                    ) -> tuple[np.ndarray, float]:
     """Which time steps set the clock back: back by more than a usual interval (a smaller step
-    back is a stamp jittering against its neighbours); and that usual interval (0 without)."""
-    usual = _usual_interval(steps) or 0.0
+    back is a stamp jittering against its neighbours); and that usual interval (`usual` if
+    given, else the steps' own; 0 without)."""
+    if usual is None:
+        usual = _usual_interval(steps) or 0.0
     return steps < -usual, usual
 
 
-def set_backs(times: np.ndarray) -> int:
+def set_backs(times: np.ndarray, usual: float | None = None) -> int:
     """How many times the clock is set back (`_set_back_steps`)."""
-    return int(np.count_nonzero(_set_back_steps(np.diff(times))[0]))
+    return int(np.count_nonzero(_set_back_steps(np.diff(times), usual)[0]))
 
 
-def stepped_forward(times: np.ndarray) -> np.ndarray:
+def stepped_forward(times: np.ndarray, usual: float | None = None) -> np.ndarray:
     """Times in the order recorded that never go back: after each set back (`_set_back_steps`,
-    `clock_order`) the rest moved on by its size and one usual interval; a smaller step back
-    (a stamp's jitter) held at the time before it, so that the times do not drift."""
+    `clock_order`) the rest moved on by its size and one usual interval (`usual` if given,
+    else the times' own); a smaller step back (a stamp's jitter) held at the time before it,
+    so that the times do not drift."""
     steps = np.diff(times)
-    set_back, usual = _set_back_steps(steps)
+    set_back, usual = _set_back_steps(steps, usual)
     lift = np.cumsum(np.where(set_back, usual - steps, 0.0))
     return np.maximum.accumulate(np.concatenate([times[:1], times[1:] + lift]))
 
@@ -618,10 +622,14 @@ def one_clock(table_times: np.ndarray, stepped_tracks: list[np.ndarray]) -> np.n
     the step are moved on in every track alike. That needs the rows in the order recorded
     (by frame, or walk after walk): only where the file's times go back at no more places
     than those tracks' do (a file grouped by id goes back where each track begins) is it so;
-    else None (each track is moved on alone)."""
-    if set_backs(table_times) > sum(set_backs(t) for t in stepped_tracks):
+    else None (each track is moved on alone). The usual interval is the tracks' (a frame's):
+    the file's own steps are mostly the milliseconds between people's rows within a frame
+    where a tracker stamps each row apart."""
+    intervals = [i for t in stepped_tracks if (i := _usual_interval(np.diff(t))) is not None]
+    usual = float(np.median(intervals)) if intervals else None
+    if set_backs(table_times, usual) > sum(set_backs(t) for t in stepped_tracks):
         return None
-    return stepped_forward(table_times)
+    return stepped_forward(table_times, usual)
 
 
 def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, ids: list[str],

@@ -347,6 +347,38 @@ def test_a_clock_set_back_once_in_each_of_two_walks_moves_the_later_walk_on_by_b
     np.testing.assert_allclose(stepped.points, steady.points)
 
 
+@pytest.mark.parametrize("offsets", [(0.003, 0.006), (0.002, 0.004, 0.008, 0.001)])
+def test_a_clock_set_back_under_rows_stamped_apart_within_a_frame_moves_on_by_a_frame(
+        tmp_path, offsets):
+    """A tracker that stamps each person's row milliseconds after the walker's within a frame
+    (the walker, lost at row 100 and found at row 110, and people standing by), frame by
+    frame, its clock set back 1 s at frame 60. Most of the file's time steps are those
+    milliseconds: taken for its usual interval, the rows after the step were moved on one
+    frame too little (91 ms early), or, with one row listed after later-stamped ones,
+    every frame seemed a set-back and the found walk was not moved on at all. The file's
+    rows are judged and moved on by the tracks' interval, a frame: the times read are the
+    steady clock's (within the rows' milliseconds), the walk found is the same."""
+    walk, times = walk_set_back(1.0)
+
+    def by_frame(path: Path, times: np.ndarray) -> Path:
+        rows = []
+        for k, ((x, y), t) in enumerate(zip(walk.tolist(), times.tolist(), strict=True)):
+            if not 100 <= k < 110:
+                rows.append(f"{'p1' if k < 100 else 'p2'},{x!r},{y!r},{t!r}\n")
+            rows += [f"b{j},9.0,{1.0 + j!r},{t + dt!r}\n" for j, dt in enumerate(offsets)]
+        path.write_text("trajectory,x,y,t\n" + "".join(rows))
+        return path
+
+    steady, stepped = (by_frame(tmp_path / "steady.csv", np.arange(len(walk)) * 0.1),
+                       by_frame(tmp_path / "stepped.csv", times))
+    for want, got in zip(read_recording(steady).times, read_recording(stepped).times,
+                         strict=True):
+        np.testing.assert_allclose(got, want, atol=0.02)
+    [expected] = load_recorded(steady, STARTS, GOAL, goal_tolerance=0.3, select_walks=True)
+    [demo] = load_recorded(stepped, STARTS, GOAL, goal_tolerance=0.3, select_walks=True)
+    np.testing.assert_allclose(demo.points, expected.points)
+
+
 def test_a_found_walk_s_late_stamp_does_not_undo_the_one_clock(tmp_path):
     """The clock set back 1 s in the lost walk, and one row of the found walk stamped 150 ms
     late (a jitter of 50 ms past the next row, not a set-back): the file is still in the
