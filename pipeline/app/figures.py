@@ -9,14 +9,31 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.app.figure_style import COLUMN_IN, OKABE_ITO
+from pipeline.app.figure_style import COLUMN_IN, OKABE_ITO, PAGE_IN
 from pipeline.core.social import PERSONAL_ZONE
 
 # What each thing of the scene is drawn in: the same in the sweep's scene.png and Run.plot.
 SCENE_COLOURS = {"person": OKABE_ITO["orange"], "link": OKABE_ITO["vermillion"],
-                 "demo": OKABE_ITO["green"], "learned": OKABE_ITO["sky"],
-                 "start": OKABE_ITO["purple"], "goal": OKABE_ITO["yellow"], "node": "0.65"}
-SCENE_SIZE_IN = (COLUMN_IN, 4.4)  # a square room with its legend below
+                 "demo": OKABE_ITO["green"], "heldout": OKABE_ITO["blue"],
+                 "learned": OKABE_ITO["sky"], "start": OKABE_ITO["purple"],
+                 "goal": OKABE_ITO["yellow"], "node": "0.65"}
+# the room's plot is the figure less these (inches): the y axis' labels beside it; the
+# title, the x axis' labels and the legend below it
+BESIDE_IN, AROUND_IN = 0.55, 1.5
+
+
+def scene_size_in(run_dir: Path) -> tuple[float, float]:
+    """A figure size (inches) for the run's scene with its legend below, shaped as its room:
+    a column wide for a room about square or taller, the page wide for a wide one (a
+    30 x 14 m hall in a column's portrait figure was a thin strip)."""
+    from pipeline.artefacts import read_artefact, topics
+    from pipeline.artefacts.topics import ARTEFACT_FILE
+
+    room = read_artefact(Path(run_dir) / ARTEFACT_FILE["scene"],
+                         producer_stage="scene").one(topics.SCENE)["room"]
+    shape = (room["y_max"] - room["y_min"]) / (room["x_max"] - room["x_min"])
+    width = COLUMN_IN if shape >= 0.75 else PAGE_IN
+    return width, float(np.clip((width - BESIDE_IN) * shape, 1.0, 8.0)) + AROUND_IN
 
 
 def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
@@ -56,10 +73,15 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
                     label="learned paths" if i == 0 else None)
     if (run_dir / ARTEFACT_FILE["demos"]).exists():
         demos = read_artefact(run_dir / ARTEFACT_FILE["demos"]).messages.get(topics.DEMOS, [])
-        for i, d in enumerate(demos):
+        labelled = set()
+        for d in demos:  # held out of learning (evaluate.holdout): dotted, in their colour
+            kind = "heldout" if d.get("heldout") else "demo"
             pts = np.asarray(d["points"])
-            ax.plot(pts[:, 0], pts[:, 1], "--", color=SCENE_COLOURS["demo"], lw=1.1, zorder=4,
-                    label="demonstrations" if i == 0 else None)
+            ax.plot(pts[:, 0], pts[:, 1], ":" if kind == "heldout" else "--",
+                    color=SCENE_COLOURS[kind], lw=1.1, zorder=4,
+                    label=None if kind in labelled else
+                    {"demo": "demonstrations", "heldout": "held out"}[kind])
+            labelled.add(kind)
     starts = np.asarray(scene["starts"])
     ax.plot(starts[:, 0], starts[:, 1], "s", color=SCENE_COLOURS["start"], ms=4, zorder=5,
             label="starts")

@@ -145,10 +145,10 @@ def plot_policy_loss(summary_csv: Path, path: Path) -> bool:
 
 def plot_scene(job: Path, path: Path) -> None:
     # the artefact readers: only for this figure
-    from pipeline.app.figures import SCENE_SIZE_IN, draw_scene
+    from pipeline.app.figures import draw_scene, scene_size_in
 
     with paper_style():
-        fig = new_figure(*SCENE_SIZE_IN)
+        fig = new_figure(*scene_size_in(job))
         draw_scene(fig.subplots(), job)
         save_figure(fig, path)
 

@@ -690,3 +690,31 @@ def test_learning_from_a_held_out_runs_rows_gives_its_weights(tmp_path):
     assert 0 < sum(r["heldout"] for r in rows) < len(rows)
     learned = api.learn(run.scene(), rows, overrides=settings, n_iterations=3)
     assert np.array_equal(learned.weights, birl_weights(run.dir)[-1])
+
+
+def test_plot_of_a_wide_room_is_page_wide_and_shows_held_out_walks_apart(tmp_path):
+    """A 12 x 3 m hallway is drawn page wide, about as high as its shape (in a column's
+    portrait figure it was a thin strip), a square room a column wide; held-out
+    demonstrations are dotted in their own colour with their own legend entry."""
+    from pipeline.app.figure_style import COLUMN_IN, PAGE_IN
+    from pipeline.app.figures import AROUND_IN, BESIDE_IN, SCENE_COLOURS
+
+    hall = api.run(["stages=[scene,demos]", "scene=hallway", "expert=planner",
+                    "expert.n_subjects=2", "evaluate.holdout=[s1]"], run_dir=tmp_path / "hall")
+    demos = raw(hall.dir, "demos", topics.DEMOS)
+    held = [d for d in demos if d["heldout"]]
+    assert held and len(held) < len(demos)
+    try:
+        ax = hall.plot()
+        width, height = ax.figure.get_size_inches()
+        assert width == PAGE_IN
+        assert height == pytest.approx((PAGE_IN - BESIDE_IN) * 3 / 12 + AROUND_IN)
+        dotted = [line for line in ax.lines if line.get_linestyle() == ":"]
+        assert len(dotted) == len(held)
+        assert {matplotlib.colors.to_hex(line.get_color()) for line in dotted} == \
+            {SCENE_COLOURS["heldout"].lower()}
+        assert [t.get_text() for t in ax.get_legend().get_texts()].count("held out") == 1
+        square = api.run(["stages=[scene]"], run_dir=tmp_path / "square").plot()
+        assert square.figure.get_size_inches()[0] == COLUMN_IN
+    finally:
+        plt.close("all")
