@@ -608,13 +608,15 @@ def read_run(run_dir: Path) -> RunReward:
 
 def demos_about(demo_msgs: list[dict]) -> dict[str, str]:
     """The bag metadata that tells the demonstrations on /birlg/demos apart (message k is
-    demonstration k): who demonstrated each (where the demonstrations name subjects) and which
-    were held out of learning (evaluate.holdout), since a Path message has room for neither."""
+    demonstration k): who demonstrated each (where the demonstrations name subjects), where
+    each came from in its file (where they were read from one) and which were held out of
+    learning (evaluate.holdout), since a Path message has room for none of these."""
     about = {}
-    subjects = [m.get("subject") for m in demo_msgs]
-    if any(isinstance(s, str) for s in subjects):  # JSON: any id reads back as it was
-        about["birlg.demo_subjects"] = json.dumps(
-            [s if isinstance(s, str) else None for s in subjects], ensure_ascii=False)
+    for field, key in (("subject", "birlg.demo_subjects"), ("source", "birlg.demo_sources")):
+        said = [m.get(field) for m in demo_msgs]
+        if any(isinstance(s, str) for s in said):  # JSON: any id reads back as it was
+            about[key] = json.dumps([s if isinstance(s, str) else None for s in said],
+                                    ensure_ascii=False)
     heldout = [k for k, m in enumerate(demo_msgs) if m.get("heldout") is True]
     if heldout:
         about["birlg.demos_heldout"] = " ".join(map(str, heldout))

@@ -634,6 +634,9 @@ def test_the_bag_metadata_names_the_demos_subjects_and_the_held_out_ones(exporte
     msgs = [{"subject": "ann; 1: b\u00f6"}, {"subject": None, "heldout": True},
             {"subject": "cy", "heldout": False}, {"subject": "ann; 1: b\u00f6", "heldout": True}]
     about = export.demos_about(msgs)
+    assert "birlg.demo_sources" not in about  # none says where it came from
+    sourced = export.demos_about([{"source": "ben.bag: 3 (id '1\u00f6')"}, {"source": None}])
+    assert json.loads(sourced["birlg.demo_sources"]) == ["ben.bag: 3 (id '1\u00f6')", None]
     assert json.loads(about["birlg.demo_subjects"]) == ["ann; 1: b\u00f6", None, "cy",
                                                         "ann; 1: b\u00f6"]
     assert "b\u00f6" in about["birlg.demo_subjects"]  # readable as written, not \\u00f6
@@ -641,7 +644,7 @@ def test_the_bag_metadata_names_the_demos_subjects_and_the_held_out_ones(exporte
     assert export.demos_about([{"subject": None}, {}]) == {}
     custom = yaml.safe_load((exported[1] / "paths/metadata.yaml").read_text())[
         "rosbag2_bagfile_information"]["custom_data"]
-    assert not {"birlg.demo_subjects", "birlg.demos_heldout"} & set(custom)
+    assert not {"birlg.demo_subjects", "birlg.demo_sources", "birlg.demos_heldout"} & set(custom)
 
 
 def test_path_headings_skip_repeated_points():
@@ -748,6 +751,7 @@ def test_an_expert_file_run_exports_the_same_way(tmp_path):
     assert said == [m["subject"] for m in demos] and set(said) == set(names)
     held = [int(k) for k in custom["birlg.demos_heldout"].split()]
     assert held == [k for k, m in enumerate(demos) if m["subject"] == "bo"] and held
+    assert json.loads(custom["birlg.demo_sources"]) == [str(k) for k in range(len(demos))]
 
 
 def _one_error_line(capsys) -> str:
