@@ -436,11 +436,12 @@ def test_a_signal_while_the_pool_forks_its_workers_stops_the_sweep(tmp_path, sig
     """Ctrl-C reaching the whole group just as the pool forks its workers (within ~15 ms of
     its first log line): it was swallowed inside the fork (Python's "Exception ignored"),
     the sweep ran on and exited 0, or a half-made worker printed a traceback. Signals are
-    held during the forks, so the sweep stops, in one line. (Twelve jobs: with four, a
-    loaded machine's test process once read the log line after the sweep had run them all.)"""
+    held during the forks, so the sweep stops, in one line. (48 jobs, which cost nothing
+    when the signal comes: with four, and then twelve, a loaded machine's test process read
+    the log line after the sweep had run them all.)"""
     for k, delay in enumerate((0.004, 0.008, 0.012, 0.016)):
         proc = subprocess.Popen([sys.executable, "-m", "pipeline", "-m", "experiment=quick",
-                                 "seed=range(12)", "reward=polite", "hydra.launcher.n_jobs=2",
+                                 "seed=range(48)", "reward=polite", "hydra.launcher.n_jobs=2",
                                  f"hydra.sweep.dir={tmp_path / str(k)}"], cwd=ROOT,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 start_new_session=True)
