@@ -35,3 +35,15 @@ def test_worse_beyond_the_tie_is_said_per_measure_and_better_is_not_as_far():
     assert WORSE_PASSING in out and WORSE not in out and AS_FAR not in out
     out = summary(0.40, 2.49, 0.20, 0.21)  # better in Fréchet, a tie in the other
     assert AS_FAR not in out and WORSE not in out and WORSE_PASSING not in out
+
+
+def test_a_difference_of_exactly_the_tie_is_a_tie():
+    """0.14 m against 0.09 m is a difference of 0.05 m as printed, the tie itself, but
+    0.14 - 0.09 is 0.05000000000000002 and 0.09 + 0.05 is 0.14: the tie's rule (|a - b| >
+    0.05) and the worse rule (a > b + 0.05) each said no, and the summary said neither "as
+    far" nor "worse". Within the tie, with a rounding's slack, is a tie."""
+    out = summary(0.14, 0.09, 0.20, 0.20)
+    assert AS_FAR in out and WORSE not in out
+    out = summary(0.20, 0.20, 0.14, 0.09)
+    assert AS_FAR in out and WORSE_PASSING not in out
+    assert WORSE in summary(0.1401, 0.09, 0.20, 0.20)  # past it: worse

@@ -84,12 +84,12 @@ def check_summary(m: dict, out: str, learned_from: float | None = None) -> None:
     assert ("the learned roadmap paths pass" in out and "closer than any demonstration" in out
             or "the weights were learned from kept" in out) == closer
     same = "heldout_count" in m and all(
-        abs(m[k] - m[k + "_shortest"]) <= 0.05
+        abs(m[k] - m[k + "_shortest"]) <= 0.05 + 1e-9
         for k in ("heldout_frechet_m", "heldout_min_distance_error_m") if k in m)
     assert ("as far from the held-out demonstrations as the shortest paths" in out) == same
     for k, said in (("heldout_frechet_m", "predicts them worse than no reward does"),
                     ("heldout_min_distance_error_m", "pass people worse than no reward does")):
-        assert (said in out) == (k in m and m[k] > m[k + "_shortest"] + 0.05), k
+        assert (said in out) == (k in m and m[k] - m[k + "_shortest"] > 0.05 + 1e-9), k
     def turned(k: str) -> bool:
         raw, taut = m[k] - m[k + "_shortest"], m[k + "_taut"] - m[k + "_shortest_taut"]
         return raw < 0 <= taut or raw > 0 >= taut
