@@ -151,13 +151,17 @@ def heldout_by_lattice(m: dict) -> list[str]:
     predicted the walkers as well as the shortest path: 1.07 m against 1.07 m), or a lag
     that goes (a room where the "worse than no reward" warning on the min-distance error,
     0.71 m against 0.56 m, was 0.03 m against 0.03 m pulled taut): the roadmap lattice made
-    the difference, not the learned reward."""
+    the difference, not the learned reward. A lead or a lag on the lattice is one beyond
+    HELDOUT_TIE_M (`heldout_verdict`): a hall's 7 mm lag, a tie, was said to be the
+    lattice's doing on the line after the one that called it none."""
     turned = {"no better": [], "no worse": []}
     for what, key in (("Fréchet", "heldout_frechet_m"),
                       ("min-distance error", "heldout_min_distance_error_m")):
         if key + "_taut" not in m or key + "_shortest_taut" not in m:
             continue
-        raw = m[key] - m[key + "_shortest"]
+        # on the lattice a lead or a lag beyond the tie: one within it was said to be none
+        # (`heldout_no_better`), and no difference above can be the lattice's doing
+        raw = heldout_verdict(m[key], m[key + "_shortest"])
         taut = m[key + "_taut"] - m[key + "_shortest_taut"]
         pair = f"{what} {m[key + '_taut']:.2f} m against {m[key + '_shortest_taut']:.2f} m"
         if raw < 0 <= taut:

@@ -47,3 +47,24 @@ def test_a_difference_of_exactly_the_tie_is_a_tie():
     out = summary(0.20, 0.20, 0.14, 0.09)
     assert AS_FAR in out and WORSE_PASSING not in out
     assert WORSE in summary(0.1401, 0.09, 0.20, 0.20)  # past it: worse
+
+
+def test_a_tie_on_the_lattice_is_no_difference_the_lattice_made():
+    """The hall's 7 mm lag, a tie ("as far ... within 0.05 m"), was followed by "pulled taut
+    ... no worse than the shortest paths: the difference above is the lattice's doing",
+    where the line above had said there was none. Only a lead or a lag beyond the tie
+    turns; one that does (0.71 m against 0.56 m, 0.03 m each pulled taut) is still said."""
+    taut = {"heldout_frechet_m_taut": 2.40, "heldout_frechet_m_shortest_taut": 2.41,
+            "heldout_min_distance_error_m_taut": 0.20,
+            "heldout_min_distance_error_m_shortest_taut": 0.21}
+    m = {"heldout_count": 9.0, "heldout_frechet_m": 2.4949, "heldout_frechet_m_shortest": 2.4881,
+         "heldout_min_distance_error_m": 0.20, "heldout_min_distance_error_m_shortest": 0.21,
+         **taut}
+    out = summary_text(m, "RUN", ["relation"])
+    assert AS_FAR in out and "lattice's doing" not in out
+    m.update(heldout_min_distance_error_m=0.71, heldout_min_distance_error_m_shortest=0.56,
+             heldout_min_distance_error_m_taut=0.03,
+             heldout_min_distance_error_m_shortest_taut=0.03)
+    out = summary_text(m, "RUN", ["relation"])
+    assert "no worse (min-distance error 0.03 m against 0.03 m) than the shortest paths: the " \
+        "difference above is the lattice's doing" in out
