@@ -419,6 +419,9 @@ def _csv_header(header: list[str], where: str) -> list[str]:
         elif all(_is_number(h) for h in header if h.strip()):
             hint = "; the first line must be a header naming the columns"
         elif meant is not None:  # said with every other such column, in one line
+            if not isinstance(meant, str):  # a person's id: not as a column already given
+                meant = tuple(m for m in meant if m not in names) or meant
+                meant = meant[0] if len(meant) == 1 else meant
             renames.append((header[i].strip(), meant))
             continue
         elif not name.isprintable():  # e.g. a second byte-order mark: shown, not unread

@@ -206,6 +206,9 @@ def test_other_csv_columns_are_not_read_with_one_warning(tmp_path, caplog):
     ("time,person_id,x,y,participant", r"unknown columns 'time', 'person_id', 'participant' "
      r".*name them 't', 'trajectory' or 'subject' \(a track's id, or who walked it\), "
      r"'subject' if they are meant as those columns"),
+    # beside a trajectory column it can only be who walked (a second trajectory is refused)
+    ("trajectory,t,x,y,person_id", r"unknown column 'person_id' .*name it 'subject' if it is "
+     r"meant as that column"),
     ("trajectory,x,y,", r"column 4 of the header has no name"),
     ("x;y", r"unknown column 'x;y' .*the columns must be separated by commas"),
     ("0.5,0.5", r"unknown column '0\.5' .*the first line must be a header"),
