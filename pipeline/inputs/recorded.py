@@ -555,8 +555,9 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
     set back mid-walk (1 s at walking pace interleaves 10 rows into a zig-zag that looked
     like two people under one id), or went back where tracking was lost. Refused instead:
     ordering that makes the track more than T_ORDER_GROWTH times longer where the clock goes
-    back at a jump (`is_jump`; at any set-back or the largest step back), or on a track too
-    short to tell one: two recordings appended
+    back at a jump (`is_jump`; at any set-back or the largest step back; the set-backs at no
+    jump moved on first, whose zig-zag is no restart's), or on a track too short to tell
+    one: two recordings appended
     with clocks that both start at 0, one walk's end followed by the other's start, each
     read alone would be many times shorter. `place(k)` names the k-th pose."""
     order = np.argsort(times, kind="stable")
@@ -568,10 +569,15 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
     set_back = _set_back_steps(time_steps)[0]
     steps, usual = _steps_and_usual(points)
     # every set-back is judged, not the largest alone: a mid-walk set-back larger than an
-    # appended recording's restart would otherwise let the recordings through
+    # appended recording's restart would otherwise let the recordings through; by the
+    # length ordering gives with the set-backs at no jump moved on (`stepped_forward`), so
+    # that a step back where tracking was lost is not refused for a mid-walk one's zig-zag
     judged = np.union1d(np.flatnonzero(set_back) + 1, [back])
     at_jumps = [k for k in judged if usual is None or is_jump(float(steps[k - 1]), usual)]
-    if at_jumps and as_timed > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
+    mid_walk = set_back.copy()
+    mid_walk[np.array(at_jumps, dtype=int) - 1] = False
+    as_jumped = _polyline_length(points[np.argsort(_moved_on(times, mid_walk), kind="stable")])
+    if at_jumps and as_jumped > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
         k = min(at_jumps, key=lambda k: time_steps[k - 1])  # the largest step back at a jump
         raise PipelineError(
             f"{where}: ordered by {clock}, {what} is {as_timed:.1f} m long against "
@@ -583,6 +589,15 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
         f"({as_timed:.1f} m ordered by it, {as_filed:.1f} m {as_given})"),
         "its times jitter back by less than one time step" if jitter
         else "was the clock set back while recording?")
+
+
+def _moved_on(times: np.ndarray, steps_moved: np.ndarray) -> np.ndarray:
+    """The times with the steps back `steps_moved` (a bool per time step) moved on by their
+    size and one usual interval, as `stepped_forward` moves a set-back; the rest as given."""
+    steps = np.diff(times)
+    usual = _usual_interval(steps) or 0.0
+    return np.concatenate([times[:1], times[1:] + np.cumsum(np.where(steps_moved,
+                                                                     usual - steps, 0.0))])
 
 
 def _usual_interval(steps: np.ndarray) -> float | None:

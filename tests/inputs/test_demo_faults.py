@@ -219,6 +219,26 @@ def test_appended_recordings_are_refused_also_behind_a_larger_set_back_mid_walk(
             rf"{len(walk_a) + 2}\); are several recordings appended\?", read_tracks, path)
 
 
+def test_a_mid_walk_set_back_and_a_step_back_where_tracking_was_lost_are_not_appended(
+        tmp_path, caplog):
+    """The clock set back 3 s mid-walk (no jump), and later the walker lost and found 1 m on
+    with a stamp 0.3 s back (a set-back at a jump). Ordered by t the walk is many times
+    longer, all of it the mid-walk set-back's zig-zag: moved on, the step back at the jump
+    alone orders two rows. Judged by the largest step back only, this was read in file order
+    with a warning; judging every set-back refused it as appended recordings. It is read as
+    given, with the warning."""
+    walk, times = walk_set_back(3.0)
+    walk = walk[:200].copy()
+    times = times[:200].copy()
+    walk[150:] += (walk[1] - walk[0]) / np.linalg.norm(walk[1] - walk[0])  # found 1 m on
+    times[150:] -= 0.3
+    path = tmp_path / "lost.csv"
+    path.write_text("x,y,t\n" + csv_rows(walk, times))
+    np.testing.assert_array_equal(read_one_track(path, caplog), walk)
+    assert "t goes back from 5.900 to 3.000 at line 62" in caplog.text
+    assert "appended" not in caplog.text
+
+
 def test_appended_recordings_are_refused_also_where_the_clock_restarts_under_a_step_back(
         tmp_path):
     """Two short walks 2.5 m apart appended, the second's clock starting 50 ms behind the
