@@ -125,8 +125,10 @@ def run(ctx: RunContext) -> None:
              b.kind, len(expert), env.graph.mdp.n_nodes, b.describe_prior(),
              np.round(w0, 3).tolist(), w0_source)
     t0 = time.perf_counter()
-    result = build.irl_method(cfg).fit(problem, b)
-    lines.flush()
+    try:
+        result = build.irl_method(cfg).fit(problem, b)
+    finally:  # interrupted or failed, the log still says how far learning got
+        lines.flush()
     # The learning alone (optimisation and MDP solves), without artefact I/O.
     learn = time.perf_counter() - t0
     ctx.timings["time_birl_learn_s"] = round(learn, 4)

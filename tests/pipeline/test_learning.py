@@ -383,3 +383,29 @@ def test_a_scene_moved_anywhere_learns_the_same(tmp_path, shift, drawn):
     assert weights
     np.testing.assert_allclose([there[k] for k in weights], [here[k] for k in weights],
                                rtol=0, atol=1e-6)
+
+
+def test_a_learner_that_fails_after_repeated_iterations_still_logs_them(tmp_path, caplog,
+                                                                       monkeypatch):
+    """Iterations that repeat the one before are said in one line before the next other
+    line; a learner stopped after them (an error, Ctrl-C) had its log end at iteration 1,
+    as if it had stopped there. They are said before the error."""
+    from types import SimpleNamespace
+
+    from pipeline.app import build
+    from pipeline.errors import PipelineError
+
+    class Stops:
+        def fit(self, problem, config):
+            for index in range(4):
+                problem.progress(SimpleNamespace(
+                    index=index, weights=np.zeros(problem.prior.dim), log_likelihood=-1.0,
+                    log_prior=0.0, generated=[]))
+            raise PipelineError("stopped at iteration 3")
+
+    monkeypatch.setattr(build, "irl_method", lambda cfg: Stops())
+    with caplog.at_level("INFO"), pytest.raises(PipelineError, match="stopped at iteration 3"):
+        run_in_process(tmp_path, "graph=small", "stages=[scene,demos,graph,birl]")
+    said = [r.getMessage() for r in caplog.records if "iteration" in r.getMessage()
+            and r.name == "pipeline.stages.birl"]
+    assert said[-1].endswith("iterations 1-3: as iteration 0"), said
