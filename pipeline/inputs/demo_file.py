@@ -51,7 +51,7 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     if is_recording_folder(path):
         read = [(recording, dataclasses.replace(
                     d, subject=subject if d.subject is None else d.subject,
-                    source=f"{recording.relative_to(path)}: {d.source}"))
+                    source=f"{recording.relative_to(path).as_posix()}: {d.source}"))
                 for recording, subject in subject_recordings(path)
                 for d in load_demo_file(recording, scene, feature_model, speed, topic=topic,
                                         frame=frame, start_radius=start_radius, denoise=denoise,

@@ -591,11 +591,13 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
         else "was the clock set back while recording?")
 
 
-def _moved_on(times: np.ndarray, steps_moved: np.ndarray) -> np.ndarray:
+def _moved_on(times: np.ndarray, steps_moved: np.ndarray, usual: float | None = None
+              ) -> np.ndarray:
     """The times with the steps back `steps_moved` (a bool per time step) moved on by their
-    size and one usual interval, as `stepped_forward` moves a set-back; the rest as given."""
+    size and one usual interval (`usual` if given, else the times' own); the rest as given."""
     steps = np.diff(times)
-    usual = _usual_interval(steps) or 0.0
+    if usual is None:
+        usual = _usual_interval(steps) or 0.0
     return np.concatenate([times[:1], times[1:] + np.cumsum(np.where(steps_moved,
                                                                      usual - steps, 0.0))])
 
@@ -627,10 +629,8 @@ def stepped_forward(times: np.ndarray, usual: float | None = None) -> np.ndarray
     `clock_order`) the rest moved on by its size and one usual interval (`usual` if given,
     else the times' own); a smaller step back (a stamp's jitter) held at the time before it,
     so that the times do not drift."""
-    steps = np.diff(times)
-    set_back, usual = _set_back_steps(steps, usual)
-    lift = np.cumsum(np.where(set_back, usual - steps, 0.0))
-    return np.maximum.accumulate(np.concatenate([times[:1], times[1:] + lift]))
+    set_back, usual = _set_back_steps(np.diff(times), usual)
+    return np.maximum.accumulate(_moved_on(times, set_back, usual))
 
 
 def one_clock(table_times: np.ndarray, stepped_tracks: list[np.ndarray]) -> np.ndarray | None:
@@ -1106,8 +1106,7 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
     who = np.array(subjects, dtype=object) if subjects is not None else None
     # a gap of whole frames at the limit is within it, whatever its stamps' jitter (4 frames
     # lost at 2.5 Hz: 2.002 s)
-    gap_limit = REJOIN_GAP + SAME_TIME * _frame_interval(
-        np.concatenate([np.diff(t) for t in times] + [np.zeros(0)]))
+    gap_limit = REJOIN_GAP + SAME_TIME * _tracks_frame_interval(times)
     pairs, within_limits = [], []  # pairs within AMBIGUITY times the limits; within them
     for i in range(n):
         lo, hi = np.searchsorted(sorted_begins, [ends[i], ends[i] + AMBIGUITY * gap_limit],
@@ -1224,7 +1223,7 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
         for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > miss_limit):
             jumps.append((float(ts[i]), k, int(i), predicted[i],
                           (before[i], _velocity_after(points, ts, int(i)))))
-    frame = _frame_interval(np.concatenate([np.diff(ts) for ts in times] + [np.zeros(0)]))
+    frame = _tracks_frame_interval(times)
     jumps.sort(key=lambda jump: (jump[0], jump[1]))
     at = np.array([jump[0] for jump in jumps])
     cuts = [0, *(np.flatnonzero(np.diff(at) > SAME_TIME * frame) + 1), len(jumps)]
@@ -1255,6 +1254,11 @@ def undo_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
         times[a], times[b] = (np.concatenate([times[a][:i], times[b][j:]]),
                               np.concatenate([times[b][:j], times[a][i:]]))
     return tracks, times
+
+
+def _tracks_frame_interval(times: Sequence[np.ndarray]) -> float:
+    """The tracker's frame interval (`_frame_interval`) from the time steps of all its tracks."""
+    return _frame_interval(np.concatenate([np.diff(t) for t in times] + [np.zeros(0)]))
 
 
 def _frame_interval(steps: np.ndarray) -> float:
