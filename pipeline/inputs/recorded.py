@@ -570,7 +570,7 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
     steps, usual = _steps_and_usual(points)
     # every set-back is judged, not the largest alone: a mid-walk set-back larger than an
     # appended recording's restart would otherwise let the recordings through; by the
-    # length ordering gives with the set-backs at no jump moved on (`stepped_forward`), so
+    # length ordering gives with the set-backs at no jump moved on (`_moved_on`), so
     # that a step back where tracking was lost is not refused for a mid-walk one's zig-zag
     judged = np.union1d(np.flatnonzero(set_back) + 1, [back])
     at_jumps = [k for k in judged if usual is None or is_jump(float(steps[k - 1]), usual)]
