@@ -202,9 +202,11 @@ SWITCH_MISS = 0.3  # m
 # ... and at least this many times what the tracks' noise misses a prediction by (a second
 # sensor 0.2 m off in random directions, averaged in, made 9 cm of noise and 6 false switches)
 SWITCH_NOISES = 4.0
-# ... and do not each go on their own way more nearly than the other's by this much (m/s of
-# velocity difference; a walk is about 1.2 m/s)
-SWITCH_HEADING_MARGIN = 0.25
+# ... and do not each go on their own way more nearly than the other's by this much (the
+# distance of unit headings: 0.5 is 29 degrees), a heading being the direction of the last
+# (or first) HEADING_REACH metres of motion
+SWITCH_HEADING_MARGIN = 0.5
+HEADING_REACH = 0.5  # m
 # `mend_tracks` mends only tracks whose t is in seconds: the median speed of the tracks that
 # end WALKED_AT_LEAST metres from their beginning lies in WALKING_SPEEDS (frame numbers at
 # 12.5 Hz give 0.1, ms 0.0013; a frame number's gap of 2 read as 2 s joined friends walking
@@ -1172,11 +1174,18 @@ def _velocity_before(points: np.ndarray, times: np.ndarray) -> np.ndarray:
     return np.vstack([np.full((1, 2), np.nan), velocity])
 
 
-def _velocity_after(points: np.ndarray, times: np.ndarray, i: int) -> np.ndarray | None:
-    """A track's velocity (2,) over the MOTION_WINDOW seconds from pose i on (None at its
-    last time)."""
-    j = int(np.searchsorted(times, times[i] + MOTION_WINDOW, side="right")) - 1
-    return (points[j] - points[i]) / (times[j] - times[i]) if times[j] > times[i] else None
+def _headings(points: np.ndarray, i: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """A track's heading (a unit vector) into pose i - 1 and out of pose i: along its last
+    HEADING_REACH of motion before, and its first after (standing still in between says
+    nothing of where a person goes); None where the track never moves that far."""
+    def along(ahead: np.ndarray, at: np.ndarray) -> np.ndarray | None:
+        far = np.flatnonzero(np.linalg.norm(ahead - at, axis=1) >= HEADING_REACH)
+        if not len(far):
+            return None
+        step = ahead[far[0]] - at
+        return step / np.linalg.norm(step)
+    into = along(points[:i][::-1], points[i - 1]) if i >= 1 else None
+    return (None if into is None else -into), along(points[i:], points[i])
 
 
 def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
@@ -1188,20 +1197,19 @@ def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
     return np.vstack([points[:1], np.where(np.isnan(velocity), points[1:], moved_on)])
 
 
-def _each_walks_on_its_own_way(a: tuple[np.ndarray, np.ndarray | None],
-                               b: tuple[np.ndarray, np.ndarray | None]) -> bool:
-    """Whether each of two tracks, given as its velocity before a jump and after it, goes on
-    the way it was going more nearly (by SWITCH_HEADING_MARGIN) than the way the other was:
-    two people who meet head-on, stop and walk on (at 2.5 Hz a frame's stop misses a
-    prediction by half a metre, where the other's predicted it) swapped no ids. Both must:
-    in a crowd, one person turning as the ids switch is common. Unknown without both
-    velocities after."""
-    (before_a, after_a), (before_b, after_b) = a, b
-    if after_a is None or after_b is None:
+def _each_walks_on_its_own_way(a: tuple[np.ndarray | None, np.ndarray | None],
+                               b: tuple[np.ndarray | None, np.ndarray | None]) -> bool:
+    """Whether each of two tracks, given as its heading into a jump and out of it
+    (`_headings`), goes on the way it was going more nearly (by SWITCH_HEADING_MARGIN) than
+    the way the other was: two people who meet head-on, stop and walk on (at 2.5 Hz a
+    frame's stop misses a prediction by half a metre, where the other's predicted it)
+    swapped no ids, however long they stood. Both must: in a crowd, one person turning as
+    the ids switch is common. Unknown without all four headings."""
+    (into_a, out_a), (into_b, out_b) = a, b
+    if into_a is None or into_b is None or out_a is None or out_b is None:
         return False
-    return all(np.linalg.norm(after - own) + SWITCH_HEADING_MARGIN < np.linalg.norm(after - other)
-               for after, own, other in ((after_a, before_a, before_b),
-                                         (after_b, before_b, before_a)))
+    return all(np.linalg.norm(out - own) + SWITCH_HEADING_MARGIN < np.linalg.norm(out - other)
+               for out, own, other in ((out_a, into_a, into_b), (out_b, into_b, into_a)))
 
 
 def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
@@ -1217,12 +1225,11 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     time given is the earlier of the two jumps'."""
     # noise misses a prediction by sqrt(2) sigma on each coordinate: a jump is well above it
     miss_limit = max(SWITCH_MISS, SWITCH_NOISES * math.sqrt(2.0) * noise_sigma(tracks))
-    jumps = []  # (time, track, pose, predicted, (velocity before, velocity after))
+    jumps = []  # (time, track, pose, predicted, (heading into it, heading out))
     for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
-        predicted, before = _predicted(points, ts), _velocity_before(points, ts)
+        predicted = _predicted(points, ts)
         for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > miss_limit):
-            jumps.append((float(ts[i]), k, int(i), predicted[i],
-                          (before[i], _velocity_after(points, ts, int(i)))))
+            jumps.append((float(ts[i]), k, int(i), predicted[i], _headings(points, int(i))))
     frame = _tracks_frame_interval(times)
     jumps.sort(key=lambda jump: (jump[0], jump[1]))
     at = np.array([jump[0] for jump in jumps])

@@ -687,6 +687,31 @@ def test_two_people_who_meet_head_on_stop_and_walk_on_are_no_id_switch():
     assert id_switches([swapped_a, swapped_b], [ts, ts], None) == [(float(ts[swap]), 0, 1)]
 
 
+def test_two_people_who_stand_face_to_face_and_walk_on_are_no_id_switch():
+    """At 2.5 Hz Ana walks east to x = 5 and Ben west to x = 5.5; they stand face to face for
+    four frames, step aside and walk on their own ways. At the stop each misses its
+    prediction and stands where the other's predicted it; the second after it (standing)
+    said nothing of where either went, so it was taken for a switch. Their headings along
+    their last and first half metre of motion say they go on their own ways: no switch."""
+    from pipeline.inputs.recorded import id_switches
+    ts = np.arange(30) * 0.4
+
+    def walker(x: float, speed: float, stop_at: float, y: float, aside: float) -> np.ndarray:
+        poses, stood = [], 0
+        for _ in ts:
+            poses.append([x, aside if stood >= 4 else y])
+            if stood < 4 and (x + 0.4 * speed - stop_at) * np.sign(speed) >= 0:
+                x, stood = stop_at, stood + 1
+            else:
+                x += 0.4 * speed
+        return np.array(poses)
+
+    ana = walker(0.2, 1.2, 5.0, 0.0, -0.3)
+    ben = walker(10.3, -1.2, 5.5, 0.2, 0.5)
+    assert np.ptp(ana[10:13, 0]) == 0.0 and np.ptp(ben[10:13, 0]) == 0.0  # the case: standing
+    assert id_switches([ana, ben], [ts, ts], None) == []
+
+
 def test_rows_of_two_people_under_one_id_keep_the_tracks_own_person(tmp_path, caplog):
     """For 1.2 s a tracker gives Ben's rows Ana's id as well as his own: Ana's track holds
     two rows at each of those times, 0.8 m apart. At those times the track keeps the row
