@@ -568,7 +568,7 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
         return ClockOrder(order, None)
     time_steps = np.diff(times)
     back = int(np.argmin(time_steps)) + 1  # the largest step back
-    set_back = _set_back_steps(time_steps)[0]
+    set_back, interval = _set_back_steps(time_steps)
     steps, usual = _steps_and_usual(points)
     # every set-back is judged, not the largest alone: a mid-walk set-back larger than an
     # appended recording's restart would otherwise let the recordings through; by the
@@ -578,7 +578,8 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
     at_jumps = [k for k in judged if usual is None or is_jump(float(steps[k - 1]), usual)]
     mid_walk = set_back.copy()
     mid_walk[np.array(at_jumps, dtype=int) - 1] = False
-    as_jumped = _polyline_length(points[np.argsort(_moved_on(times, mid_walk), kind="stable")])
+    as_jumped = _polyline_length(points[np.argsort(_moved_on(times, mid_walk, interval),
+                                                   kind="stable")])
     if at_jumps and as_jumped > T_ORDER_GROWTH * as_filed + REPEAT_TOLERANCE:
         k = min(at_jumps, key=lambda k: time_steps[k - 1])  # the largest step back at a jump
         raise PipelineError(
@@ -1163,17 +1164,6 @@ def join_chain(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     return np.vstack(parts)
 
 
-def _velocity_before(points: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """For each pose, the velocity (n, 2) over the MOTION_WINDOW seconds up to the pose before
-    it; NaN where those hold one time (the first two poses): no motion is known."""
-    prev = np.arange(len(points) - 1)
-    first = np.searchsorted(times, times[prev] - MOTION_WINDOW, side="left")
-    dt = (times[prev] - times[first])[:, None]
-    velocity = np.divide(points[prev] - points[first], dt, out=np.full((len(prev), 2), np.nan),
-                         where=dt > 0)
-    return np.vstack([np.full((1, 2), np.nan), velocity])
-
-
 def _headings(points: np.ndarray, i: int) -> tuple[np.ndarray | None, np.ndarray | None]:
     """A track's heading (a unit vector) into pose i - 1 and out of pose i: along its last
     HEADING_REACH of motion before, and its first after (standing still in between says
@@ -1190,11 +1180,15 @@ def _headings(points: np.ndarray, i: int) -> tuple[np.ndarray | None, np.ndarray
 
 def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
     """Where each pose of a track would be, moved on from the pose before at the velocity of
-    the MOTION_WINDOW seconds before that (`_velocity_before`); where it is, where no motion
-    is known to predict from (the first two poses), so no jump is seen there."""
-    velocity = _velocity_before(points, times)[1:]
-    moved_on = points[:-1] + velocity * np.diff(times)[:, None]
-    return np.vstack([points[:1], np.where(np.isnan(velocity), points[1:], moved_on)])
+    the MOTION_WINDOW seconds before that; where it is, where those hold one time (the first
+    two poses): no motion is known to predict from, so no jump is seen."""
+    prev = np.arange(len(points) - 1)
+    first = np.searchsorted(times, times[prev] - MOTION_WINDOW, side="left")
+    dt = (times[prev] - times[first])[:, None]
+    velocity = np.divide(points[prev] - points[first], dt, out=np.zeros((len(prev), 2)),
+                         where=dt > 0)
+    moved_on = points[prev] + velocity * (times[1:] - times[prev])[:, None]
+    return np.vstack([points[:1], np.where(dt > 0, moved_on, points[1:])])
 
 
 def _each_walks_on_its_own_way(a: tuple[np.ndarray | None, np.ndarray | None],
@@ -1238,11 +1232,11 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     switches = []
     for jumped in moments:
         pairs = [(min(ta, tb), min(a, b), max(a, b))
-                 for (ta, a, i, pa, va), (tb, b, j, pb, vb) in itertools.combinations(jumped, 2)
+                 for (ta, a, i, pa, ha), (tb, b, j, pb, hb) in itertools.combinations(jumped, 2)
                  if a != b and max(np.linalg.norm(tracks[a][i] - pb),
                                    np.linalg.norm(tracks[b][j] - pa)) <= miss_limit
                  and (subjects is None or subjects[a] == subjects[b])
-                 and not _each_walks_on_its_own_way(va, vb)]
+                 and not _each_walks_on_its_own_way(ha, hb)]
         partners = np.bincount([k for _, a, b in pairs for k in (a, b)], minlength=len(tracks))
         switches += [(t, a, b) for t, a, b in pairs if partners[a] == partners[b] == 1]
     return sorted(switches)
