@@ -57,7 +57,7 @@ from pipeline.app.config import (
 )
 from pipeline.app.context import stage_rng
 from pipeline.app.figure_style import paper_style
-from pipeline.app.figures import draw_scene, scene_size_in
+from pipeline.app.figures import draw_scene
 from pipeline.app.rundir import (
     HYDRA_FILES,
     METRICS_FILE,
@@ -193,8 +193,8 @@ class Run:
         import matplotlib.pyplot as plt
 
         with paper_style():  # as the sweep's scene.png
-            _, ax = plt.subplots(figsize=scene_size_in(self.dir), layout="constrained")
-            return draw_scene(ax, self.dir, paths)
+            _, ax = plt.subplots(layout="constrained")
+            return draw_scene(ax, self.dir, paths, fit_figure=True)
 
 
 def _cell(value: Any) -> Any:

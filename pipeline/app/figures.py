@@ -22,25 +22,21 @@ SCENE_COLOURS = {"person": OKABE_ITO["orange"], "link": OKABE_ITO["vermillion"],
 BESIDE_IN, AROUND_IN = 0.55, 1.5
 
 
-def scene_size_in(run_dir: Path) -> tuple[float, float]:
-    """A figure size (inches) for the run's scene with its legend below, shaped as its room:
-    a column wide for a room about square or taller, the page wide for a wide one (a
-    30 x 14 m hall in a column's portrait figure was a thin strip)."""
-    from pipeline.artefacts import read_artefact, topics
-    from pipeline.artefacts.topics import ARTEFACT_FILE
-
-    room = read_artefact(Path(run_dir) / ARTEFACT_FILE["scene"],
-                         producer_stage="scene").one(topics.SCENE)["room"]
+def scene_size_in(room: dict) -> tuple[float, float]:
+    """A figure size (inches) for a scene with its legend below, shaped as its room (the
+    scene message's): a column wide for a room about square or taller, the page wide for a
+    wide one (a 30 x 14 m hall in a column's portrait figure was a thin strip)."""
     shape = (room["y_max"] - room["y_min"]) / (room["x_max"] - room["x_min"])
     width = COLUMN_IN if shape >= 0.75 else PAGE_IN
     return width, float(np.clip((width - BESIDE_IN) * shape, 1.0, 8.0)) + AROUND_IN
 
 
-def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
+def draw_scene(ax: Any, run_dir: Path, paths: str = "graph", fit_figure: bool = False) -> Any:
     """The scene of `run_dir` (room, map, persons with their personal zones and headings,
     social links, starts, goal) with the graph's nodes, the demonstrations and the learned
     paths (`paths`: "graph" for the adaptive graph's, "ref" for the reference roadmap's)
-    when the run has them; returns `ax`."""
+    when the run has them; returns `ax`. `fit_figure`: the figure (the caller's new one) is
+    sized to the room (`scene_size_in`)."""
     # Here, not at the top: the artefact readers import the run's modules (scipy, ...), which
     # the sweep table (make aggregate) does not need.
     from pipeline.artefacts import codec, read_artefact, topics
@@ -49,6 +45,8 @@ def draw_scene(ax: Any, run_dir: Path, paths: str = "graph") -> Any:
     run_dir = Path(run_dir)
     art = read_artefact(run_dir / ARTEFACT_FILE["scene"], producer_stage="scene")
     scene = art.one(topics.SCENE)
+    if fit_figure:
+        ax.figure.set_size_inches(scene_size_in(scene["room"]))
     obstacles = codec.decode_scene(art).obstacles
     if obstacles is not None:  # the map and polygons under the scene
         x0, y0, x1, y1 = obstacles.grid.extent()

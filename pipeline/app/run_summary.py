@@ -47,6 +47,8 @@ def heldout_verdict(learned: float, shortest: float) -> int:
     not a difference "as far" and "worse" both left unsaid."""
     lag = learned - shortest
     return 0 if abs(lag) <= HELDOUT_TIE_M + 1e-9 else (1 if lag > 0 else -1)
+
+
 # A learner's hinge this close to the demonstrators' closest approach already says it
 NEAR_HINGE_M = 0.25
 # How much further into personal zones than the roadmap's paths the graph's may go before

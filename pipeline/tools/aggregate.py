@@ -145,11 +145,11 @@ def plot_policy_loss(summary_csv: Path, path: Path) -> bool:
 
 def plot_scene(job: Path, path: Path) -> None:
     # the artefact readers: only for this figure
-    from pipeline.app.figures import draw_scene, scene_size_in
+    from pipeline.app.figures import draw_scene
 
     with paper_style():
-        fig = new_figure(*scene_size_in(job))
-        draw_scene(fig.subplots(), job)
+        fig = new_figure(PAGE_IN, PAGE_IN)  # resized to the room by draw_scene
+        draw_scene(fig.subplots(), job, fit_figure=True)
         save_figure(fig, path)
 
 
