@@ -64,14 +64,26 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room,
                            denoise=denoise, select_walks=select_walks)
     pushed: list[str] = []
+    blocked: list[str] = []  # walks cut from tracks that no robot path could follow
+    first_refusal = ""
     for start, points, subject, label in tracks:
         if scene.obstacles is not None:  # tracking noise along a wall, as at the room's edge
             clear = clear_of_walls(points, scene)
             if clear is not points:
                 pushed.append(label)
                 points = clear
-        demo = checked_demonstration(start, points, subject, scene, feature_model, speed,
-                                     f"{describe(path)}: trajectory {label}", source=label)
+        what = f"{describe(path)}: trajectory {label}"
+        fault = walk_fault(points, scene) if select_walks else None
+        if fault is not None:
+            first_refusal = first_refusal or f"{what} {fault[0]}{fault[1]}"
+            blocked.append(f"{label} ({fault[0]})")
+            if len(blocked) == len(tracks):  # none is left: refused as one file would be
+                raise PipelineError(first_refusal + (
+                    f"; so do all the other {len(blocked) - 1} walks read "
+                    "(expert.select_walks)" if len(blocked) > 1 else ""))
+            continue
+        demo = checked_demonstration(start, points, subject, scene, feature_model, speed, what,
+                                     source=label)
         if not demo.reached:
             end_gap = float(np.linalg.norm(points[-1] - scene.goal))
             unreached.append(f"{label} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
@@ -82,6 +94,17 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                     "away from it to robot_radius (closer is refused)", describe(path),
                     listed(pushed, 5),
                     scene.robot_radius, ROOM_EDGE_TOLERANCE)
+    if blocked:
+        # A tracker's hundreds of walks and a scene of who stood where at one moment: a few
+        # walks pass where someone stood at another time, or a ghost track crosses a wall.
+        walls = "" if scene.obstacles is None else \
+            f" or closer to an obstacle than robot_radius={scene.robot_radius:g} m"
+        emptied = sorted({t.start for t in tracks} - {d.start_index for d in demos})
+        log.warning("%s: expert.select_walks: %d of %d walks pass through a person's body "
+                    "disk (body_radius=%g m)%s, where no robot path may go, and are dropped: "
+                    "%s%s", describe(path), len(blocked), len(tracks), scene.body_radius, walls,
+                    listed(blocked, 5),
+                    f"; no walk is left that begins at start(s) {emptied}" if emptied else "")
     if unreached:
         log.warning("%s: trajectories %s end outside the goal disk (goal_tolerance=%g m): they "
                     "are learned from as walks to the goal whose end was not recorded; extend "
@@ -151,18 +174,10 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
                           what: str, source: str | None = None) -> Demonstration:
     """A trajectory (already cut at the goal, `recorded.cut_trajectory`) as a Demonstration,
     refused (naming `what`) where it comes closer than robot_radius to an obstacle or enters
-    a body disk; it reaches the goal when it ends within goal_tolerance of it."""
-    if scene.obstacles is not None:
-        clearance = scene.obstacles.segments_min_clearance(points[:-1], points[1:])
-        worst = int(np.argmin(clearance))
-        if clearance[worst] < scene.robot_radius:
-            x, y = points[worst]
-            raise PipelineError(
-                f"{what} comes {metres_beside(clearance[worst], scene.robot_radius)} m from "
-                f"an obstacle after ({x:.2f}, "
-                f"{y:.2f}); the robot needs robot_radius={scene.robot_radius:g} m (lower it "
-                "in the scene file or with scene.robot_radius)")
-    check_clear_of_bodies(what, points, scene)
+    a body disk (`walk_fault`); it reaches the goal when it ends within goal_tolerance of it."""
+    fault = walk_fault(points, scene)
+    if fault is not None:
+        raise PipelineError(f"{what} {fault[0]}{fault[1]}")
     # cut_at_goal ends a trajectory that entered the goal disk at its first point there
     reached = bool(scene.at_goal(points[-1])[0])
     feats = feature_model.segments(points[:-1], points[1:])
@@ -170,21 +185,31 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
     return Demonstration(start, points, feats, durations, reached, subject, source)
 
 
-def check_clear_of_bodies(what: str, points: np.ndarray, scene: Scene) -> None:
-    """Refuse a trajectory (`what`) when it enters a person's body disk: no robot path may
-    (its segments would be graph edges no planned path could take)."""
+def walk_fault(points: np.ndarray, scene: Scene) -> tuple[str, str] | None:
+    """What keeps a trajectory from being a robot's path: coming closer than robot_radius to
+    an obstacle, or entering a person's body disk (its segments would be graph edges no
+    planned path could take). The end of a sentence about it in two parts, what it does
+    ("passes 0.21 m from person 4") and where and what to do; None when nothing does."""
+    if scene.obstacles is not None:
+        clearance = scene.obstacles.segments_min_clearance(points[:-1], points[1:])
+        worst = int(np.argmin(clearance))
+        if clearance[worst] < scene.robot_radius:
+            x, y = points[worst]
+            return (f"comes {metres_beside(clearance[worst], scene.robot_radius)} m from "
+                    "an obstacle", f" after ({x:.2f}, {y:.2f}); the robot needs "
+                    f"robot_radius={scene.robot_radius:g} m (lower it in the scene file or "
+                    "with scene.robot_radius)")
     if not len(scene.persons):
-        return
+        return None
     clear = segments_clear_of_disks(points[:-1], points[1:], scene.person_xy, scene.body_radius)
     if clear.all():
-        return
+        return None
     seg = int(np.argmin(clear))
     gaps = [min_distance_to_person(points[seg:seg + 2], xy[None]) for xy in scene.person_xy]
     who = int(np.argmin(gaps))
     person = scene.persons[who]
     x, y = points[seg]
-    raise PipelineError(
-        f"{what} passes {gaps[who]:.2f} m from person {person.id} at "
-        f"{point(person.x, person.y)} after ({x:.2f}, {y:.2f}), inside the body disk "
-        f"(body_radius={scene.body_radius:g} m) no robot path may enter (lower it with "
-        "scene.body_radius or correct the trajectory)")
+    return (f"passes {gaps[who]:.2f} m from person {person.id}",
+            f" at {point(person.x, person.y)} after ({x:.2f}, {y:.2f}), inside the body disk "
+            f"(body_radius={scene.body_radius:g} m) no robot path may enter (lower it with "
+            "scene.body_radius or correct the trajectory)")

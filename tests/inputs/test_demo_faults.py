@@ -563,6 +563,36 @@ def test_a_trajectory_through_a_person_is_refused(tmp_path, metropolis, trajecto
     assert len(load_demo_file(clear, metropolis, fm, 1.0)) == 2
 
 
+def test_select_walks_drops_the_walks_no_robot_path_could_follow(tmp_path, metropolis, caplog):
+    """A tracker's file read with expert.select_walks: its walks through a person's body disk
+    are dropped with one warning naming them, not a refusal of the whole file (a scene holds
+    who stood where at one moment; hundreds of walks from other moments pass there). Read as
+    curated demonstrations, the same file is refused at the first; with every walk through a
+    person, select_walks refuses too, naming the first and counting the others."""
+    fm = FeatureModel.from_scene(metropolis)  # person 1 stands at (2, 5), body radius 0.25
+    through = [[2.0, 3.0], [2.0, 5.0], [5.5, 9.0]]  # from start 2, a waypoint on person 1
+    rows = ["trajectory,x,y"] + [f"{ident},{x},{y}" for ident, walk in
+                                 (("a", CLEAR), ("b", through), ("c", through))
+                                 for x, y in walk]
+    path = tmp_path / "tracks.csv"
+    path.write_text("\n".join(rows) + "\n")
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_demo_file(path, metropolis, fm, 1.0, select_walks=True)
+    assert demo.source == "0 (id 'a')" and np.array_equal(demo.points, CLEAR)
+    assert ("expert.select_walks: 2 of 3 walks pass through a person's body disk "
+            "(body_radius=0.25 m), where no robot path may go, and are dropped: "
+            "1 (id 'b') (passes 0.00 m from person 1), "
+            "2 (id 'c') (passes 0.00 m from person 1); no walk is left that begins at "
+            "start(s) [2]") in caplog.text
+    refused(r"tracks\.csv: trajectory 1 \(id 'b'\) passes 0\.00 m from person 1 at \(2, 5\) after "
+            r"\(2\.00, 3\.00\), inside the body disk", load_demo_file, path, metropolis, fm, 1.0)
+    path.write_text("\n".join(r for r in rows if not r.startswith("a,")) + "\n")
+    refused(r"tracks\.csv: trajectory 0 \(id 'b'\) passes 0\.00 m from person 1 at \(2, 5\) after "
+            r"\(2\.00, 3\.00\), inside the body disk .*; so do all the other 1 walks read "
+            r"\(expert\.select_walks\)$", load_demo_file, path, metropolis, fm, 1.0,
+            select_walks=True)
+
+
 def test_a_trajectory_starting_inside_a_person_is_refused(tmp_path, metropolis):
     fm = FeatureModel.from_scene(metropolis)  # person 2 stands at (5, 3.5), start 6 is (4, 3)
     path = demo_file(tmp_path, [[4.85, 3.45], [4.0, 5.5], [5.5, 9.0]])
