@@ -523,6 +523,37 @@ def test_malformed_csv_is_one_line(tmp_path, text, match):
     assert str(path) in refused(match, load, path)
 
 
+@pytest.mark.parametrize("rows, match", [
+    # the first line at fault is named, whatever is wrong further down
+    (["a,1,1", "", "a,1", "b,x,2"], r"line 4: 2 fields, the header has 3"),
+    (["a,1,1", "a,x,2", "a,1"], r"line 3: x='x' is not a number"),
+    (["a,1,1", ",1,2", "a,x,2"], r"line 3: empty trajectory id"),
+    (["a,1,1", "a,1,1e999", "a\tb,1,2"], r"line 3: y='1e999' is not finite"),
+    (["a,1,1", "a\tb,1,2", "a,0_5,2"], r"line 3: trajectory id 'a\\tb' holds a control"),
+    # of one line's fields, the first in the order count, x, y, trajectory
+    (["a,1,1", ",-,+"], r"line 3: x='-' is not a number"),
+    (["a,1,1", ",1,inf"], r"line 3: y='inf' is not finite"),
+    (["a,1,1", "a,1,1", ", 1 ,1.5e-3"], r"line 4: empty trajectory id"),
+])
+def test_a_csv_is_refused_at_its_first_fault(tmp_path, rows, match):
+    """The fields are read a column at a time; the refusal still names the first line at
+    fault in the file and its first field at fault, as reading a row at a time would."""
+    path = tmp_path / "bad.csv"
+    path.write_text("trajectory,x,y\n" + "\n".join(rows) + "\n")
+    refused(match, read_tracks, path)
+
+
+def test_a_csv_column_of_plain_decimals_reads_as_python_reads_them(tmp_path):
+    """Every form of a plain decimal number is read to the bit as float() reads it."""
+    texts = ["1.5", "-2", "+3.25", ".5", "7.", "1e3", "2.5E-2", " 4 ", "0.1", "-0.0",
+             "123456789.123456789", "1e-320"]
+    path = tmp_path / "plain.csv"
+    path.write_text("x,y\n" + "".join(f"{t},{t}\n" for t in texts))
+    [track], _ = read_tracks(path)
+    expected = [float(t) for t in texts]
+    assert track[:, 0].tobytes() == np.array(expected).tobytes()
+
+
 def test_demonstration_far_from_every_start_is_refused(tmp_path):
     path = tmp_path / "far.csv"
     far = line(np.array([7.0, 1.0]), GOAL, 0.5)
