@@ -1595,23 +1595,37 @@ def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
     solve. (Not the free solution with its ends overwritten: at a large penalty that is a
     straight line near each end, which a walk setting off from rest leaves behind its first
     point, and the overwritten end then hooked back, away from the goal, by 13 cm.)"""
-    n = len(points)
+    return whittaker_of(points)(penalty)
+
+
+def whittaker_of(points: np.ndarray) -> Callable[[float], np.ndarray]:
+    """`whittaker` of one polyline (n, 2) at any penalty: what does not depend on the
+    penalty is built once (`smooth_to_noise` tries 30 penalties; built each time, it was
+    half of a tracker file's reading)."""
+    p = np.asarray(points, dtype=float)
+    n = len(p)
     diagonal = np.full(n, 6.0)
     diagonal[[0, -1]], diagonal[[1, -2]] = 1.0, 5.0
     first = np.full(n - 1, -4.0)
     first[[0, -1]] = -2.0
-    banded = np.zeros((3, n))  # (I + penalty D'D), upper form for solveh_banded
-    banded[0, 2:] = penalty
-    banded[1, 1:] = penalty * first
-    banded[2] = 1.0 + penalty * diagonal
-    p = np.asarray(points, dtype=float)
-    rhs = p[1:-1].copy()  # the ends' terms of (I + penalty D'D) z move to the right side
-    rhs[0] -= banded[1, 1] * p[0]
-    rhs[1] -= banded[0, 2] * p[0]
-    rhs[-2] -= banded[0, n - 1] * p[-1]
-    rhs[-1] -= banded[1, n - 1] * p[-1]
-    inner = scipy.linalg.solveh_banded(banded[:, 1:-1], rhs)
-    return np.vstack([p[:1], inner, p[-1:]])
+    banded = np.zeros((3, n))  # (I + penalty D'D), upper form for LAPACK's pbsv
+    pbsv, = scipy.linalg.get_lapack_funcs(("pbsv",), (banded,))
+
+    def smoothed(penalty: float) -> np.ndarray:
+        banded[0, 2:] = penalty
+        banded[1, 1:] = penalty * first
+        banded[2] = 1.0 + penalty * diagonal
+        rhs = p[1:-1].copy()  # the ends' terms of (I + penalty D'D) z move to the right side
+        rhs[0] -= banded[1, 1] * p[0]
+        rhs[1] -= banded[0, 2] * p[0]
+        rhs[-2] -= banded[0, n - 1] * p[-1]
+        rhs[-1] -= banded[1, n - 1] * p[-1]
+        # scipy.linalg.solveh_banded's own call, without its checks of our finite arrays
+        _, inner, info = pbsv(banded[:, 1:-1], rhs, lower=0)
+        if info != 0:  # never: the matrix is I plus a semi-definite one
+            raise np.linalg.LinAlgError(f"pbsv failed ({info})")
+        return np.vstack([p[:1], inner, p[-1:]])
+    return smoothed
 
 
 def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
@@ -1624,14 +1638,15 @@ def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
         return p.copy()
     origin = p[0].copy()  # map coordinates (UTM: 10^6 m) lose no precision in the solve
     p = p - origin
+    smoothed = whittaker_of(p)
     low, high = -4.0, 12.0
     for _ in range(30):
         mid = (low + high) / 2
-        if np.mean((whittaker(p, 10.0 ** mid) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
+        if np.mean((smoothed(10.0 ** mid) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
             high = mid
         else:
             low = mid
-    return whittaker(p, 10.0 ** low) + origin
+    return smoothed(10.0 ** low) + origin
 
 
 def smooth_jitter(tracks: Sequence[np.ndarray],
