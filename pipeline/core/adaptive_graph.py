@@ -219,14 +219,14 @@ def social_medial_points(scene: Scene, spacing: float) -> np.ndarray:
 def merged_count(points: np.ndarray, separation: float) -> int:
     """How many of `points` (n, 2), taken in order, become nodes when each merges into an
     earlier kept point closer than `separation` (`_add_demo`'s rule, without the walls)."""
-    cells: dict[tuple[int, int], list[np.ndarray]] = {}
+    cells: dict[tuple[int, int], list[tuple[float, float]]] = {}
     kept = 0
-    for p in points:
-        i, j = int(math.floor(p[0] / separation)), int(math.floor(p[1] / separation))
-        if any(np.hypot(*(q - p)) < separation for di in (-1, 0, 1) for dj in (-1, 0, 1)
-               for q in cells.get((i + di, j + dj), ())):
+    for x, y in np.asarray(points, float).tolist():  # floats: a tracker's 300 000 waypoints
+        i, j = math.floor(x / separation), math.floor(y / separation)
+        if any(math.hypot(qx - x, qy - y) < separation for di in (-1, 0, 1)
+               for dj in (-1, 0, 1) for qx, qy in cells.get((i + di, j + dj), ())):
             continue
-        cells.setdefault((i, j), []).append(p)
+        cells.setdefault((i, j), []).append((x, y))
         kept += 1
     return kept
 
