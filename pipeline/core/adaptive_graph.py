@@ -275,11 +275,12 @@ class AdaptiveGraph(StateGraph):
         self.exhausted = False  # every non-terminal node is saturated: growth is over
 
     # -- initialisation ------------------------------------------------------------------
-    def initialise(self, demos: Sequence[Demonstration] = ()) -> None:
+    def initialise(self, demos: Sequence[Demonstration] = (),
+                   progress: Callable[[int], None] | None = None) -> None:
         """Starts, goal, Voronoi centroids, demo waypoints and demo edges, with obstacles
         points along the medial axis of the free space, without demonstrations along that of
         the space between obstacles, people and links (`medial_points`); then connect and
-        solve."""
+        solve. `progress(k)` is called before the k-th demonstration is added."""
         scene = self.scene
 
         def heading_to_goal(p: np.ndarray) -> float:
@@ -291,7 +292,9 @@ class AdaptiveGraph(StateGraph):
         for c in voronoi_centroids(scene.person_xy, scene.room):
             if scene.free(c)[0] and not self.too_close(c):
                 self.add_node([*c, heading_to_goal(c)], VORONOI)
-        for demo in demos:
+        for k, demo in enumerate(demos):
+            if progress is not None:
+                progress(k)
             self._add_demo(demo)
         for m in self.medial_points(social=not demos):
             if not self.too_close(m):

@@ -18,6 +18,7 @@ from pipeline.errors import PipelineError, listed
 from pipeline.inputs.recorded import (
     ROOM_EDGE_TOLERANCE,
     START_RADIUS,
+    Progress,
     describe,
     is_recording_folder,
     load_recorded,
@@ -66,7 +67,9 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     pushed: list[str] = []
     blocked: list[str] = []  # walks cut from tracks that no robot path could follow
     first_refusal = ""
+    progress = Progress(f"{describe(path)}: checking walks against the scene", len(tracks))
     for start, points, subject, label in tracks:
+        progress(len(demos) + len(blocked))
         if scene.obstacles is not None:  # tracking noise along a wall, as at the room's edge
             clear = clear_of_walls(points, scene)
             if clear is not points:

@@ -41,6 +41,7 @@ import itertools
 import logging
 import math
 import re
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,6 +57,28 @@ from pipeline.errors import PipelineError, file_kind, listed
 from pipeline.inputs.schemas import read_json
 
 log = logging.getLogger(__name__)
+
+
+# s: reading a tracker's file of millions of rows says how far it is at least this often
+PROGRESS_SECONDS = 10.0
+LARGE_FILE_BYTES = 20_000_000  # a CSV file this large is said to be read, and when it is
+
+
+class Progress:
+    """Info lines on long work: called with how much is done, it says so at most every
+    PROGRESS_SECONDS (`what` names the work and what `total` counts), and never on work
+    done sooner."""
+
+    def __init__(self, what: str, total: int, logger: logging.Logger = log) -> None:
+        self.what, self.total, self.log = what, total, logger
+        self.started = self.said = time.perf_counter()
+
+    def __call__(self, done: int) -> None:
+        now = time.perf_counter()
+        if now - self.said >= PROGRESS_SECONDS:
+            self.said = now
+            self.log.info("  %s: %d of %d, %.0f s", self.what, done, self.total,
+                          now - self.started)
 
 PATH_TYPE = "nav_msgs/msg/Path"
 # Pose stream message types and how to find the position in each.
@@ -470,10 +493,16 @@ def _is_number(text: str) -> bool:
 
 
 def _read_csv(path: Path, where: str, single_rows: bool = False) -> Recording:
+    size = path.stat().st_size
+    if size >= LARGE_FILE_BYTES:  # a tracker's day: a few seconds a million rows
+        log.info("reading %s (%.0f MB) ...", where, size / 1e6)
+    started = time.perf_counter()
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
         with path.open(newline="", encoding="utf-8-sig") as f:
             col, table, lines, ids, subjects = _csv_table(csv.reader(f), where)
+        if size >= LARGE_FILE_BYTES:
+            log.info("  %d rows read in %.0f s", len(table), time.perf_counter() - started)
     except UnicodeDecodeError:
         raise PipelineError(f"{where} is not UTF-8 text") from None
     except csv.Error as e:
@@ -1658,7 +1687,9 @@ def smooth_jitter(tracks: Sequence[np.ndarray],
     far-off points are left for the checks that refuse them. Returns (tracks, smoothed,
     each track's noise σ in m: 0 where none is found)."""
     out, smoothed, noise, sigmas, inflation = [], [], [], [], []
-    for t in tracks:
+    progress = Progress(f"{where}: denoising trajectories", len(tracks))
+    for k, t in enumerate(tracks):
+        progress(k)
         with np.errstate(over="ignore", invalid="ignore"):
             usable = np.isfinite(t).all() and np.abs(t).max(initial=0.0) < 1e9
         p = drop_repeats(t) if usable else t

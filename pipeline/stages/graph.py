@@ -21,9 +21,9 @@ from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
 from pipeline.core.state_graph import DEMO
+from pipeline.inputs.recorded import PROGRESS_SECONDS, Progress
 
 log = logging.getLogger(__name__)
-PROGRESS_SECONDS = 10.0  # growth of many thousand nodes logs its progress at least this often
 # from this many demonstrations on, the graph's initialisation is said before it starts
 # (7000 Boltzmann walks took 27 s to connect)
 MANY_DEMONSTRATIONS = 100
@@ -52,10 +52,12 @@ def run(ctx: RunContext) -> None:
                           ctx.rng("graph"), cfg.mdp)
     t0 = time.perf_counter()
     training = demos_for_graph(codec.training_demos(demos_art), features, cfg.mdp.speed)
+    adding = None
     if len(training) >= MANY_DEMONSTRATIONS:  # their waypoints take a while to connect
         log.info("graph: initialising from the waypoints of %d demonstrations ...",
                  len(training))
-    graph.initialise(training)
+        adding = Progress("graph: demonstrations' waypoints added", len(training), log)
+    graph.initialise(training, adding)
     left_out = [n for n, w in zip(cfg.learner_features, weights, strict=True)
                 if w == 0 and n not in cfg.reward.features]
     if graph.n_nodes >= cfg.graph.max_nodes:  # the demonstrations' waypoints alone

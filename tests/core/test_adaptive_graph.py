@@ -282,6 +282,17 @@ def test_a_densely_sampled_demonstration_keeps_all_its_features_on_the_graph(met
     assert np.all(g.duration[on_demo] >= hops - 2 * g.min_separation)
 
 
+def test_initialise_says_before_each_demonstration_it_adds(metropolis, demos):
+    """`progress(k)` before the k-th demonstration (a stage's progress lines on thousands)."""
+    fm = FeatureModel.from_scene(metropolis)
+    g = AdaptiveGraph(metropolis, fm, LinearController(), PRIOR_MEAN, GraphParams(),
+                      np.random.default_rng(0))
+    told: list[tuple[int, int]] = []
+    g.initialise(demos[:3], lambda k: told.append((k, g.node_kind.count("demo"))))
+    assert [k for k, _ in told] == [0, 1, 2]
+    assert told[0][1] == 0 < told[1][1] <= told[2][1]  # said before, not after, adding
+
+
 def _distance_to_paths(points, paths):
     d = np.full(len(points), np.inf)
     for path in paths:

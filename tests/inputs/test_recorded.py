@@ -16,6 +16,7 @@ from rosbags.rosbag2 import Writer as Writer2
 from pipeline.core.features import FeatureModel
 from pipeline.core.world import Room
 from pipeline.errors import PipelineError
+from pipeline.inputs import recorded
 from pipeline.inputs.demo_file import load_demo_file
 from pipeline.inputs.recorded import (
     COORDINATE_DECIMALS,
@@ -28,6 +29,7 @@ from pipeline.inputs.recorded import (
     motion_begin,
     read_tracks,
 )
+from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import METROPOLIS, ROOT, ROS1, ROS2, make_msg, write_bag
 from tests.inputs.conftest import refused
 
@@ -642,3 +644,27 @@ def test_a_planners_replans_are_named(tmp_path, caplog):
                     storage="ros1")
     text = refused(r"2 of 4 paths hold no walk .*record the robot's pose instead", load, bag)
     assert "select_walks" not in text
+
+
+def test_long_reading_says_how_far_it_is(tmp_path, monkeypatch, caplog):
+    """A tracker's large file is said to be read, with its rows, and its trajectories'
+    denoising and checking say how far they are (every PROGRESS_SECONDS; here at every
+    step); a small file read at once says nothing of it."""
+    path = tmp_path / "tracks.csv"
+    rows = [f"{k},{x},{y}" for k in range(2) for x, y in line(STARTS[0], GOAL, 0.1).tolist()]
+    path.write_text("trajectory,x,y\n" + "\n".join(rows) + "\n")
+    scene = load_scene_file(METROPOLIS)
+    with caplog.at_level(logging.INFO):
+        load_demo_file(path, scene, FeatureModel.from_scene(scene), 1.0)
+    assert not [m for m in caplog.messages if m.startswith("reading") or " of 2, " in m]
+    caplog.clear()
+    monkeypatch.setattr(recorded, "PROGRESS_SECONDS", 0.0)
+    monkeypatch.setattr(recorded, "LARGE_FILE_BYTES", 1)
+    with caplog.at_level(logging.INFO):
+        load_demo_file(path, scene, FeatureModel.from_scene(scene), 1.0)
+    size = path.stat().st_size / 1e6
+    assert f"reading demonstration file {path} ({size:.0f} MB) ..." in caplog.messages
+    assert f"  {len(rows)} rows read in 0 s" in caplog.messages
+    for k in range(2):
+        for what in ("denoising trajectories", "checking walks against the scene"):
+            assert f"  demonstration file {path}: {what}: {k} of 2, 0 s" in caplog.messages
