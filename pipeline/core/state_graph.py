@@ -132,16 +132,29 @@ class SpatialIndex:
 
     def nearest(self, p: np.ndarray, k: int, r: float) -> np.ndarray:
         """Up to k indices within r of p, nearest first."""
+        return self.nearest_many(np.asarray(p)[None], k, r)[0][0]
+
+    def nearest_many(self, ps: np.ndarray, k: int,
+                     r: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """`nearest(p, k, r)` of each row p of ps (m, 2 or 3) and their distances, nearest
+        first, in one batched query."""
         r += TIE
-        idx, dist = self._recent(p, r)
+        ps = ps[:, :2]
+        recent = _lengths(self.points.a[self.n_tree:][None, :, :] - ps[:, None, :])
         if self.tree is not None:
-            d_old, i_old = self.tree.query(p[:2], k=min(k, self.n_tree), distance_upper_bound=r)
-            d_old, i_old = np.atleast_1d(d_old), np.atleast_1d(i_old)
-            ok = np.isfinite(d_old)
-            idx = np.concatenate([i_old[ok].astype(np.int64), idx])
-            dist = np.concatenate([d_old[ok], dist])
-        order = np.lexsort((idx, dist))[:k]
-        return idx[order]
+            d_old, i_old = self.tree.query(ps, k=min(k, self.n_tree), distance_upper_bound=r)
+            d_old, i_old = d_old.reshape(len(ps), -1), i_old.reshape(len(ps), -1)
+        found = []
+        for j in range(len(ps)):
+            keep = np.flatnonzero(recent[j] <= r)
+            idx, dist = keep + self.n_tree, recent[j, keep]
+            if self.tree is not None:
+                ok = np.isfinite(d_old[j])
+                idx = np.concatenate([i_old[j, ok].astype(np.int64), idx])
+                dist = np.concatenate([d_old[j, ok], dist])
+            order = np.lexsort((idx, dist))[:k]
+            found.append((idx[order], dist[order]))
+        return found
 
     def count_within(self, p: np.ndarray, r: float) -> int:
         r += TIE
@@ -277,6 +290,21 @@ class StateGraph:
         if k is None:
             return self._index.within(p, radius)
         return self._index.nearest(p, k, radius)
+
+    def nearest_many(self, ps: np.ndarray, radius: float,
+                     k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """`neighbours(p, radius, k)` of each row p of ps (m, 2 or 3), with their distances,
+        in one batched query."""
+        return self._index.nearest_many(np.asarray(ps, float), k, radius)
+
+    def among_within(self, nodes: Sequence[int], p: np.ndarray,
+                     radius: float) -> tuple[np.ndarray, np.ndarray]:
+        """Those of `nodes` within `radius` of the point p (2,) and their distances, measured
+        as `neighbours` measures them."""
+        ids = np.asarray(nodes, np.int64)
+        gaps = _lengths(self.positions[ids] - np.asarray(p, float)[:2])
+        close = gaps <= radius + TIE
+        return ids[close], gaps[close]
 
     def too_close(self, p: np.ndarray) -> bool:
         return len(self._index.nearest(np.asarray(p, float), 1, self.min_separation)) > 0
