@@ -9,6 +9,8 @@ same graph with the learner's features, scored on the true reward's.
 from __future__ import annotations
 
 import itertools
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -88,6 +90,60 @@ def frechet(p: np.ndarray, q: np.ndarray, spacing: float = 0.1) -> float:
     return discrete_frechet(resample(p, spacing), resample(q, spacing))
 
 
+def frechet_to_paths(paths: Mapping[int, np.ndarray], starts: Sequence[int],
+                     qs: Sequence[np.ndarray], spacing: float = 0.1) -> np.ndarray:
+    """`frechet(paths[starts[k]], qs[k], spacing)` of each polyline qs[k] (len(qs),): those
+    of one start together (`frechet_to_each`)."""
+    out = np.empty(len(qs))
+    of_start = np.asarray(starts, np.int64)
+    for start in np.unique(of_start):
+        at = np.flatnonzero(of_start == start)
+        out[at] = frechet_to_each(paths[int(start)], [qs[int(k)] for k in at], spacing)
+    return out
+
+
+FRECHET_GROUP = 64  # polylines of similar lengths in one table (little of it padding)
+
+
+def frechet_to_each(p: np.ndarray, qs: Sequence[np.ndarray], spacing: float = 0.1) -> np.ndarray:
+    """`frechet(p, q, spacing)` of one polyline p and each of the polylines `qs`, (len(qs),):
+    to the bit the same, with p resampled once and the polylines of similar lengths taken
+    together (`discrete_frechet_to_each`): a run's thousands of recorded walks were 20 s."""
+    p = resample(p, spacing)
+    qs = [resample(q, spacing) for q in qs]
+    out = np.empty(len(qs))
+    if not qs:
+        return out
+    order = np.argsort([len(q) for q in qs], kind="stable")
+    for group in np.array_split(order, max(1, math.ceil(len(order) / FRECHET_GROUP))):
+        out[group] = discrete_frechet_to_each(p, [qs[k] for k in group])
+    return out
+
+
+def discrete_frechet_to_each(p: np.ndarray, qs: Sequence[np.ndarray]) -> np.ndarray:
+    """`discrete_frechet(p, q)` for each q of `qs` (each (m_k, 2)), in one table: the
+    shorter ones padded at their ends, which no cell of theirs depends on, so each is read
+    at its own corner."""
+    p = np.asarray(p, float).reshape(-1, 2)
+    lengths = np.array([len(q) for q in qs])
+    n, m = len(p), int(lengths.max())
+    padded = np.zeros((len(qs), m, 2))
+    for k, q in enumerate(qs):
+        padded[k, :len(q)] = q
+    d = np.linalg.norm(p[None, :, None] - padded[:, None], axis=3)  # (K, n, m)
+    table = np.full((len(qs), n + 1, m + 1), np.inf)
+    table[:, 0, 0] = -np.inf
+    flat, width = table.reshape(len(qs), -1), m + 1
+    for k in range(n + m - 1):
+        i = np.arange(max(0, k - m + 1), min(n - 1, k) + 1)
+        j = k - i
+        at = (i + 1) * width + (j + 1)
+        before = np.minimum(np.minimum(flat[:, at - width - 1], flat[:, at - width]),
+                            flat[:, at - 1])
+        flat[:, at] = np.maximum(before, d[:, i, j])
+    return table[np.arange(len(qs)), n, lengths]
+
+
 def discrete_frechet(p: np.ndarray, q: np.ndarray) -> float:
     """Discrete Fréchet distance between polylines p (n, 2) and q (m, 2) (Eiter & Mannila
     1994): ca(i, j) = max(min(ca(i−1, j−1), ca(i−1, j), ca(i, j−1)), |p_i − q_j|).
@@ -96,16 +152,4 @@ def discrete_frechet(p: np.ndarray, q: np.ndarray) -> float:
     anti-diagonal is one vector step (twice as fast as a cell-by-cell sweep on 100-point
     paths, with the same min and max of the same numbers: the same result to the bit). The
     table carries a border of inf, with −inf before (0, 0) so that ca(0, 0) = |p_0 − q_0|."""
-    p, q = np.asarray(p, float).reshape(-1, 2), np.asarray(q, float).reshape(-1, 2)
-    n, m = len(p), len(q)
-    d = np.linalg.norm(p[:, None] - q[None], axis=2)
-    table = np.full((n + 1, m + 1), np.inf)
-    table[0, 0] = -np.inf
-    flat, width = table.reshape(-1), m + 1
-    for k in range(n + m - 1):
-        i = np.arange(max(0, k - m + 1), min(n - 1, k) + 1)
-        j = k - i
-        at = (i + 1) * width + (j + 1)  # (i, j) in the bordered table
-        before = np.minimum(np.minimum(flat[at - width - 1], flat[at - width]), flat[at - 1])
-        flat[at] = np.maximum(before, d[i, j])
-    return float(table[n, m])
+    return float(discrete_frechet_to_each(p, [np.asarray(q, float).reshape(-1, 2)])[0])

@@ -26,7 +26,7 @@ from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import Artefact, read_artefact, write_json_atomic
 from pipeline.core.evaluation import (
     follow_all,
-    frechet,
+    frechet_to_paths,
     loss_curve,
     policy_loss,
 )
@@ -149,13 +149,13 @@ def heldout_metrics(ref: SpatialGraph, policy: np.ndarray, demos: list[dict], sc
         if taut is not None and weights is not None:
             cost = taut(weights)
             variants.append(("_taut", {k: pulled_taut(scene, p, cost) for k, p in paths.items()}))
+        starts = [int(d["start_index"]) for d in demos]
+        shown = [np.asarray(d["points"], float) for d in demos]
         for variant, by_start in variants:
-            frechets, errors = [], []
-            for d in demos:
-                path, shown = by_start[int(d["start_index"])], np.asarray(d["points"], float)
-                frechets.append(frechet(path, shown))
-                errors.append(abs(min_distance_to_person(path, persons)
-                                  - min_distance_to_person(shown, persons)))
+            frechets = frechet_to_paths(by_start, starts, shown)
+            errors = [abs(min_distance_to_person(by_start[k], persons)
+                          - min_distance_to_person(points, persons))
+                      for k, points in zip(starts, shown, strict=True)]
             out[f"heldout_frechet_m{suffix}{variant}"] = float(np.median(frechets))
             if not variant:  # a median hides a start whose paths go the other way round
                 out[f"heldout_frechet_m{suffix}_max"] = float(np.max(frechets))
@@ -252,7 +252,9 @@ def run(ctx: RunContext) -> None:
     if expert["true_weights"] is None and training:  # file or planner demonstrations
         # both resampled (as the held-out distances are): the raw vertices would make a
         # densely sampled demonstration look farther from the same path than a sparse one
-        dists = [frechet(graph_paths[d["start_index"]][0], d["points"]) for d in training]
+        dists = frechet_to_paths({k: points for k, (points, _) in enumerate(graph_paths)},
+                                 [d["start_index"] for d in training],
+                                 [np.asarray(d["points"], float) for d in training])
         metrics["frechet_to_demos"] = float(np.mean(dists))
         metrics["frechet_to_demos_max"] = float(np.max(dists))
         metrics["demos_unreached"] = float(sum(not d["reached"] for d in training))
