@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from pipeline.core.evaluation import discrete_frechet, frechet, loss_curve, policy_loss
+from pipeline.core.evaluation import (
+    discrete_frechet,
+    frechet,
+    frechet_to_paths,
+    loss_curve,
+    policy_loss,
+)
 from pipeline.core.graph_mdp import GraphMDP, MDPParams
 from tests.conftest import POLITE, RUDE
 from tests.core.conftest import random_graph
@@ -125,3 +131,16 @@ def test_frechet_does_not_depend_on_how_densely_a_polyline_is_sampled():
     assert discrete_frechet(sparse, bump) - discrete_frechet(dense, bump) > 0.9
     assert abs(frechet(sparse, bump) - frechet(dense, bump)) < 0.1
     assert frechet(dense, bump) == pytest.approx(1.0, abs=0.1)
+
+
+def test_frechet_to_many_polylines_at_once_is_each_one_to_the_bit():
+    """`frechet_to_paths` (one table for the polylines of one start, padded to the longest)
+    gives each polyline's own `frechet`, to the bit, whatever their lengths and order; a
+    start without polylines is no table."""
+    rng = np.random.default_rng(3)
+    paths = {0: np.cumsum(rng.normal(0, 0.3, (30, 2)), 0), 2: np.array([[1.0, 1.0]])}
+    qs = [np.cumsum(rng.normal(0, 0.3, (rng.integers(1, 70), 2)), 0) for _ in range(150)]
+    starts = rng.choice([0, 2], len(qs))
+    expected = [frechet(paths[s], q) for s, q in zip(starts, qs, strict=True)]
+    assert frechet_to_paths(paths, starts, qs).tobytes() == np.array(expected).tobytes()
+    assert frechet_to_paths(paths, [], []).shape == (0,)
