@@ -1,6 +1,8 @@
 """The run summary's held-out warnings, from metrics alone: the learned paths against the
 shortest paths on the held-out demonstrations, a tie within HELDOUT_TIE_M."""
 
+import pytest
+
 from pipeline.app.run_summary import HELDOUT_TIE_M, summary_text
 
 AS_FAR = "as far from the held-out demonstrations as the shortest paths are (within 0.05 m)"
@@ -68,3 +70,34 @@ def test_a_tie_on_the_lattice_is_no_difference_the_lattice_made():
     out = summary_text(m, "RUN", ["relation"])
     assert "no worse (min-distance error 0.03 m against 0.03 m) than the shortest paths: the " \
         "difference above is the lattice's doing" in out
+
+
+POSTERIOR_CASES = [
+    # (metrics, the verdict in parentheses): each rule of the posterior line, at its bounds
+    ({"mcmc_acceptance_rate": 0.005, "mcmc_rhat_max": 1.0, "mcmc_ess_min": 500.0},
+     "the chains barely moved: lower birl.proposal_step, or leave birl.adapt=true to size "
+     "the proposals"),
+    ({"mcmc_acceptance_rate": 0.3, "mcmc_chains": 1},
+     "one chain: convergence untested; R-hat needs birl.n_chains ≥ 2"),
+    ({"mcmc_acceptance_rate": 0.3, "mcmc_chains": 4},
+     "too few samples per chain to compare the chains (R-hat needs 4): raise birl.n_samples"),
+    ({"mcmc_acceptance_rate": 0.01, "mcmc_rhat_max": 1.05, "mcmc_ess_min": 100.0},
+     "the chains agree"),
+    ({"mcmc_acceptance_rate": 0.96, "mcmc_rhat_max": 1.3, "mcmc_ess_min": 500.0},
+     "the chains do not agree and nearly every step is accepted: the steps are too small to "
+     "explore; raise birl.proposal_step"),
+    ({"mcmc_acceptance_rate": 0.95, "mcmc_rhat_max": 1.02, "mcmc_ess_min": 99.0},
+     "the chains do not agree yet: R-hat above 1.05 or ESS below 100 after birl.max_samples "
+     "samples per chain; raise it"),
+]
+
+
+@pytest.mark.parametrize("metrics, verdict", POSTERIOR_CASES)
+def test_the_posterior_line_gives_the_verdict_of_its_rule(metrics, verdict):
+    """Stuck below an acceptance of 0.01; one chain, or too few samples, without R-hat; agreed
+    at R-hat <= 1.05 and ESS >= 100 (both bounds included); creeping only above 0.95."""
+    out = summary_text(metrics, "RUN", ["relation"])
+    line = next(x for x in out.splitlines() if x.startswith("  posterior        "))
+    assert line.endswith(f"({verdict})"), line
+    rhat = metrics.get("mcmc_rhat_max")
+    assert f"R-hat max {'n/a' if rhat is None else format(rhat, '.3f')}, " in line
