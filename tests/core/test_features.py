@@ -98,3 +98,19 @@ def test_tiled_densities_equal_the_sums_over_every_link_and_person():
     assert len(scene.relations) > 8 and (relation > 0).sum() > 100 and (social > 0).sum() > 100
     np.testing.assert_array_equal(relation, fm.relation_density(points))
     np.testing.assert_array_equal(social, fm.social_density(points))
+
+
+def test_no_polylines_and_no_edges_give_empty_feature_tables(metropolis):
+    """An empty batch is a (0, d) table, as a batch of one is a (1, d) one: a graph with no
+    edges yet, or a scene without demonstrations, asks for none."""
+    model = FeatureModel.from_scene(metropolis, FeatureParams())
+    assert model.polylines([]).shape == (0, len(FEATURE_NAMES))
+    positions = np.array([[0.5, 0.5], [5.5, 9.0]])
+    none = np.zeros(0, dtype=np.int64)
+    assert model.edge_features(positions, none, none).shape == (0, len(FEATURE_NAMES))
+    # and one edge each way is the edge's own features both ways but goal_deviation
+    both = model.edge_features(positions, np.array([0, 1]), np.array([1, 0]))
+    np.testing.assert_array_equal(both[0], model.segments(positions[:1], positions[1:])[0])
+    assert both[0, FEATURE_NAMES.index("goal_deviation")] == 0.0  # straight at the goal
+    assert both[1, FEATURE_NAMES.index("goal_deviation")] == pytest.approx(
+        float(np.linalg.norm(positions[1] - positions[0])))  # straight away from it
