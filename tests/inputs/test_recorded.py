@@ -24,10 +24,13 @@ from pipeline.inputs.recorded import (
     clean_track,
     cut_stream,
     cut_trajectory,
+    drop_repeats,
     load_recorded,
     match_to_starts,
     motion_begin,
     read_tracks,
+    revisit,
+    straight_share,
 )
 from pipeline.inputs.scene_file import load_scene_file
 from tests.conftest import METROPOLIS, ROOT, ROS1, ROS2, make_msg, write_bag
@@ -668,3 +671,67 @@ def test_long_reading_says_how_far_it_is(tmp_path, monkeypatch, caplog):
     for k in range(2):
         for what in ("denoising trajectories", "checking walks against the scene"):
             assert f"  demonstration file {path}: {what}: {k} of 2, 0 s" in caplog.messages
+
+
+def test_a_damaged_bag_message_is_named_by_topic_and_index_in_one_line(tmp_path):
+    """A bag that opens but one of whose messages is cut short (a recorder killed while
+    writing): the message is named, not a rosbags traceback or "cannot be read as a bag"."""
+    bag = tmp_path / "cut"
+    with Writer2(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection("/plan", "nav_msgs/msg/Path", typestore=ROS2)
+        raw = ROS2.serialize_cdr(make_msg(ROS2, "nav_msgs/msg/Path", 10**9, "map", PATH_A),
+                                 "nav_msgs/msg/Path")
+        writer.write(conn, 10**9, raw)
+        writer.write(conn, 2 * 10**9, raw[:10])  # message 1: ten bytes of a Path
+    text = refused(r"topic /plan message 1 cannot be decoded as nav_msgs/msg/Path: damaged, "
+                   r"or its type is defined differently in the bag \(", load, bag)
+    assert text.startswith(f"demonstration bag {bag}: ")
+
+
+def test_a_bag_topic_without_messages_is_refused(tmp_path):
+    bag = tmp_path / "silent"
+    with Writer2(bag, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        writer.add_connection("/plan", "nav_msgs/msg/Path", typestore=ROS2)
+    assert refused(r"topic /plan has no messages$", load, bag) \
+        == f"demonstration bag {bag}: topic /plan has no messages"
+
+
+def test_a_csv_field_beyond_the_csv_module_s_limit_is_refused_as_not_valid_csv(tmp_path):
+    """A quote left open swallows the rest of the file into one field: past the csv module's
+    131072 characters it is no valid CSV, said in one line (the csv module's reason)."""
+    path = tmp_path / "open_quote.csv"
+    path.write_text('x,y\n0.5,"0.5\n' + "1,1\n" * 40_000)
+    assert refused(r"not valid CSV", load, path) == (
+        f"demonstration file {path}: not valid CSV (field larger than field limit (131072))")
+
+
+def test_a_last_point_repeating_kept_points_takes_their_place():
+    """drop_repeats: a track whose last points come back within 1e-6 m of kept ones ends at
+    its own last point, exactly, in place of the kept points it repeats; a track that comes
+    back to its first point becomes that point alone; clean_track refuses a spacing <= 0."""
+    out = drop_repeats(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 3e-7],
+                                 [2.0, 6e-7]]))
+    np.testing.assert_array_equal(out, [[0.0, 0.0], [1.0, 0.0], [2.0, 6e-7]])
+    out = drop_repeats(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 5e-7], [1.0, 9e-7]]))
+    np.testing.assert_array_equal(out, [[0.0, 0.0], [1.0, 9e-7]])  # in (1, 0)'s place
+    # 1.2 um on, 0.6 um back: the last point repeats both kept points and replaces them both
+    out = drop_repeats(np.array([[0.0, 0.0], [1.0, 0.0], [1.0 + 1.2e-6, 0.0], [1.0 + 6e-7, 0.0]]))
+    np.testing.assert_array_equal(out, [[0.0, 0.0], [1.0 + 6e-7, 0.0]])
+    back = drop_repeats(np.array([[0.0, 0.0], [1e-6, 0.0], [5e-7, 0.0]]))  # 1 um out, back
+    np.testing.assert_array_equal(back, [[0.0, 0.0]])
+    assert drop_repeats(np.array([[3.0, 4.0]])).tolist() == [[3.0, 4.0]]
+    for spacing in (0.0, -0.1, float("nan")):
+        refused(rf"resampling spacing must be positive, got {spacing}", clean_track,
+                PATH_A, spacing)
+
+
+def test_a_track_too_short_or_never_coming_back_has_no_revisit_and_no_straight_share():
+    assert revisit(np.array([[0.0, 0.0], [0.0, 0.0]])) is None  # never moves
+    assert revisit(np.array([[0.0, 0.0], [5.0, 0.0]])) is None  # straight on
+    # out 3 m, up 1 m, back 3 m and down through the start: back at (0, 0.2) after 7.8 m
+    where, walked = revisit(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 1.0], [0.0, 1.0],
+                                      [0.0, -1.0]]))
+    np.testing.assert_allclose(where, [0.0, 0.2], atol=1e-12)
+    assert walked == pytest.approx(7.7)  # from (0, 0.1), the point 0.1 m away
+    assert straight_share(np.array([[0.0, 0.0], [1.0, 0.0]])) == 0.0  # no interior point
+    assert straight_share(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0]])) == 0.5
