@@ -917,3 +917,98 @@ def test_an_export_that_would_delete_user_files_is_refused(exported, tmp_path, c
     assert export.main([str(run_dir)]) == 2
     assert "is a directory but not an earlier export" in _one_error_line(capsys)
     assert (run_dir / "export" / "figure.png").read_bytes() == b"mine"
+
+
+def test_weights_not_one_per_feature_are_refused_in_one_line(scene):
+    with pytest.raises(export.PipelineError) as info:
+        export.build_costmap(scene, FeatureParams(), np.array([-1.0, -0.5, -0.1]))
+    assert str(info.value) == ("3 learned weights for 4 features ['relation', 'social', "
+                               "'goal_deviation', 'length']")
+
+
+def test_a_reward_of_length_alone_gives_a_free_mask_that_says_why(scene):
+    """No feature of the reward is a density of position (length costs the same per metre
+    everywhere): nothing is in the mask, the cost is 0 at every cell, the bodies stay lethal
+    and the YAML names the feature left out and the empty sum."""
+    params = FeatureParams(features=["length"])
+    costmap = export.build_costmap(scene, params, np.array([-0.1]))
+    assert costmap.in_mask == () and costmap.scale == 0.0
+    assert costmap.left_out == {"length": "uniform (the same cost per metre everywhere)"}
+    assert not costmap.cost.any() and set(np.unique(costmap.occupancy)) == {0, 100}
+    text = export.costmap_yaml(costmap, ("length",), np.array([-0.1]), [])
+    assert "# features in the mask: none\n" in text
+    assert "# left out: length: uniform (the same cost per metre everywhere)\n" in text
+    assert "# cost per metre of path at a cell centre = -(0), reward units per m\n" in text
+    assert "# scale: the learned cost is 0 everywhere (occupancy 0 outside" in text
+    assert costmap.free_metre == pytest.approx(0.01 + 0.1) and "trade-off" not in text
+
+
+def test_learned_paths_that_are_not_xy_pairs_are_refused_naming_the_artefact(exported,
+                                                                            tmp_path, capsys):
+    for points, shape in (([[1.0, 2.0, 3.0]], "(1, 3)"), ([1.0, 2.0], "(2,)")):
+        run_dir = copy_run(exported, tmp_path / shape)
+        write_artefact(run_dir / "eval.mcap", [(topics.EVAL_PATHS, "LearnedPath",
+                                                {"graph": "ref", "start": 0, "points": points},
+                                                0)], config_yaml="", metadata={})
+        assert export.main([str(run_dir)]) == 2
+        assert _one_error_line(capsys) == (
+            f"error: artefact {run_dir / 'eval.mcap'}: a message on "
+            f"'/eval/paths' has points of shape {shape}, not finite [x, y] pairs")
+
+
+def test_learned_weights_that_do_not_match_the_feature_names_are_refused(exported, tmp_path,
+                                                                         capsys):
+    run_dir = copy_run(exported, tmp_path)
+    birl = read_artefact(run_dir / "birl.mcap")
+    names = birl.one(topics.BIRL_EXPERT)["feature_names"]
+    for last in ([-1.0, -0.5], [-1.0] * (len(names) - 1) + ["heavy"], None):
+        write_artefact(run_dir / "birl.mcap",
+                       [(topics.BIRL_EXPERT, "BirlExpert", {"feature_names": names}, 0),
+                        (topics.BIRL_ITERATION, "BirlIteration", {"weights": last}, 1)],
+                       config_yaml="", metadata={})
+        assert export.main([str(run_dir)]) == 2
+        line = _one_error_line(capsys)
+        assert f"artefact {run_dir / 'birl.mcap'}: the last '/birl/iteration' weights " \
+            f"{last} do not match the feature names {names} of '/birl/expert'" in line
+    assert not (run_dir / "export").exists()
+
+
+def test_a_failed_swap_puts_the_previous_export_back(exported, tmp_path, monkeypatch, capsys):
+    """The new export is built, the old one moved aside, and then the move of the new one
+    into place fails (e.g. EXDEV, EACCES): the old export is moved back, whole, and no
+    partial or old dir is left."""
+    run_dir = copy_run(exported, tmp_path)
+    assert export.main([str(run_dir)]) == 0
+    before = {p.relative_to(run_dir): p.read_bytes() for p in (run_dir / "export").rglob("*")
+              if p.is_file()}
+    capsys.readouterr()
+    real_replace = os.replace
+
+    def failing_swap(src, dst):
+        if Path(src).name.endswith(".partial"):
+            raise OSError(errno.EACCES, os.strerror(errno.EACCES), str(dst))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", failing_swap)
+    assert export.main([str(run_dir)]) == 2
+    monkeypatch.undo()
+    assert "Permission denied" in _one_error_line(capsys)
+    after = {p.relative_to(run_dir): p.read_bytes() for p in (run_dir / "export").rglob("*")
+             if p.is_file()}
+    assert after == before and before
+    assert not [p for p in run_dir.iterdir() if p.name.startswith(".export")]
+
+
+def test_only_dirs_named_by_a_dead_pid_are_taken_for_a_killed_export_s(tmp_path):
+    """_remove_stale_partials: a file of that name, or a dir whose pid is no number, is
+    not an export's and stays."""
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    stale = tmp_path / f".export.{dead}-0123abcd.partial"
+    stale.mkdir()
+    a_file = tmp_path / f".export.{dead}-0123abcd.old"
+    a_file.write_text("notes")
+    no_pid = tmp_path / ".export.mine-0123abcd.partial"
+    no_pid.mkdir()
+    export._remove_stale_partials(tmp_path)
+    assert not stale.exists() and a_file.read_text() == "notes" and no_pid.is_dir()
