@@ -107,6 +107,8 @@ CSV_COLUMN_ALIASES: dict[str, str | tuple[str, ...]] = {
     "pos_x": "x", "pos_y": "y"}
 CSV_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
 REPEAT_TOLERANCE = 1e-6  # m: consecutive points closer than this are one point
+# m: no coordinate of a recording lies this far from its origin (UTM: under 10^7 m)
+FARTHEST_COORDINATE = 1e9
 # m: how far outside the room a recorded point may stray and be moved onto its edge (with a
 # warning) rather than refused: tracking noise (laser trackers err by a few centimetres,
 # camera trackers by about ten) of a person walking along a wall the room was drawn at
@@ -955,7 +957,6 @@ def drop_repeats(points: np.ndarray, tolerance: float = REPEAT_TOLERANCE) -> np.
             keep.append(i)
             last = p[i]
     if keep[-1] != len(p) - 1:  # the last point repeats a kept one: it takes that one's place
-        keep.pop()
         while len(keep) > 1 and np.linalg.norm(p[-1] - p[keep[-1]]) < tolerance:
             keep.pop()
         if len(keep) == 1 and np.linalg.norm(p[-1] - p[0]) < tolerance:
@@ -1075,8 +1076,11 @@ def revisit(track: np.ndarray) -> tuple[np.ndarray, float] | None:
     sampled every REVISIT_STEP) within REVISIT_RADIUS of a point more than REVISIT_ARC metres
     of walking earlier, with that walk; None when it never does (a loop, a walk out and
     back, a U-turn do)."""
+    with np.errstate(over="ignore", invalid="ignore"):  # a glitch at 1e300 m: no length
+        if not np.isfinite(_polyline_length(np.asarray(track, float).reshape(-1, 2))):
+            return None
     p = clean_track(track, REVISIT_STEP)
-    if len(p) < 3 or not np.isfinite(p).all():
+    if len(p) < 3:
         return None
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
     pairs = cKDTree(p).query_pairs(REVISIT_RADIUS, output_type="ndarray")
@@ -1691,7 +1695,7 @@ def smooth_jitter(tracks: Sequence[np.ndarray],
     for k, t in enumerate(tracks):
         progress(k)
         with np.errstate(over="ignore", invalid="ignore"):
-            usable = np.isfinite(t).all() and np.abs(t).max(initial=0.0) < 1e9
+            usable = np.isfinite(t).all() and np.abs(t).max(initial=0.0) < FARTHEST_COORDINATE
         p = drop_repeats(t) if usable else t
         sigma = noise_sigma([p]) if usable else 0.0
         smooth = smooth_to_noise(p, sigma) if sigma > 0 else p
@@ -2056,6 +2060,13 @@ def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance:
     smoothed, noise = [False] * len(tracks), [0.0] * len(tracks)
     if room is not None:
         refuse_other_frames(tracks, room, names)
+    for name, t in zip(names, tracks, strict=True):  # without a room: a glitch at 1e300 m
+        with np.errstate(invalid="ignore"):
+            far = np.flatnonzero(~(np.abs(t) < FARTHEST_COORDINATE).all(axis=1))
+        if len(far):
+            raise PipelineError(f"{name} has a point at {point(*t[far[0]])}: no map is that "
+                                f"large (over {FARTHEST_COORDINATE:g} m from the origin); a "
+                                "glitched pose?")
     if denoise:
         tracks, smoothed, noise = smooth_jitter(tracks, where)
     if room is not None:

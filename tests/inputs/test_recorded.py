@@ -735,3 +735,23 @@ def test_a_track_too_short_or_never_coming_back_has_no_revisit_and_no_straight_s
     assert walked == pytest.approx(7.7)  # from (0, 0.1), the point 0.1 m away
     assert straight_share(np.array([[0.0, 0.0], [1.0, 0.0]])) == 0.0  # no interior point
     assert straight_share(np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0]])) == 0.5
+
+
+def test_a_track_that_never_moves_becomes_its_first_point_alone():
+    """drop_repeats: no point after the first moves 1e-6 m from it: the first point alone
+    (the last had taken its place)."""
+    track = np.array([[0.0, 0.0], [1e-7, 0.0], [0.0, 2e-7]])
+    assert drop_repeats(track).tolist() == [[0.0, 0.0]]
+
+
+def test_a_glitched_pose_far_off_is_refused_in_one_line_also_without_a_room(tmp_path):
+    """A pose at x = 1e300 (a tracker's glitch) read without a room (the library's default)
+    is refused naming it; it overflowed to a traceback in the search for revisits, whose
+    own answer for a track of no finite length is none."""
+    path = tmp_path / "glitch.csv"
+    path.write_text("trajectory,x,y\n1,0.5,0.5\n1,1e300,0.5\n1,5.5,9\n")
+    refused(r"glitch\.csv: trajectory 0 \(id '1'\) has a point at \(1e\+300, 0\.5\): no map is "
+            r"that large \(over 1e\+09 m from the origin\); a glitched pose\?$",
+            load_recorded, path, STARTS, GOAL, goal_tolerance=0.3)
+    assert revisit(np.array([[0.0, 0.0], [0.0, np.inf]])) is None
+    assert revisit(np.array([[0.0, 0.0], [0.0, 1e300], [0.0, -1e300]])) is None
