@@ -28,8 +28,9 @@ def test_spatial_index_matches_brute_force_across_rebuilds():
 
 
 def test_batched_queries_equal_the_single_point_queries():
-    """any_within_many and count_within_many (one query for a batch of candidates) answer
-    exactly as nearest(p, 1, r) and count_within(p, r) do point by point, before and after
+    """any_within_many, count_within_many and nearest_many (one query for a batch of
+    candidates) answer exactly as nearest(p, k, r) and count_within(p, r) do point by
+    point, before and after
     the k-d tree's first build and with points since its last build."""
     rng = np.random.default_rng(5)
     index = SpatialIndex()
@@ -44,6 +45,11 @@ def test_batched_queries_equal_the_single_point_queries():
                     [len(index.nearest(q, 1, r)) > 0 for q in queries]
                 assert index.count_within_many(poses, r).tolist() == \
                     [index.count_within(q, r) for q in queries]
+                for k in (1, 2, 5):  # nearest_many: the same nodes, with their distances
+                    found = index.nearest_many(poses, k, r)
+                    for q, (near, dist) in zip(queries, found, strict=True):
+                        assert near.tolist() == index.nearest(q, k, r).tolist()
+                        assert dist.tolist() == np.linalg.norm(points[near] - q, axis=1).tolist()
 
 
 def test_a_point_exactly_a_radius_away_is_within_it_wherever_the_points_lie():
