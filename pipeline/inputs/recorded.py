@@ -517,38 +517,57 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarr
     """The CSV's columns (name -> index), its rows as (x, y, t) (t 0 without a t column), the
     file line of each row, and its trajectory ids and subjects (empty without those columns).
     A refusal names the first line at fault and, of its fields, the first in the order
-    count, x, y, t, trajectory, subject. The fields are read a column at a time (a
-    tracker's file has millions of rows; a row at a time took 11 µs a row, now 4)."""
+    count, x, y, t, trajectory, subject. Rows are read CSV_CHUNK_ROWS at a time, each field
+    a column at a time (`_csv_chunk`; a tracker's file has millions of rows: a row at a time
+    took 11 µs a row, now 4)."""
     header = next((row for row in reader if any(c.strip() for c in row)), None)
     if header is None:
         raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
     names = _csv_header(header, where)
     col = {n: names.index(n) for n in names}
+    chunks: list[tuple[np.ndarray, np.ndarray, dict[str, list[str]]]] = []
     rows: list[list[str]] = []
     lines: list[int] = []
-    miscounted = None  # the first row whose fields the header does not count, and its line
     for row in reader:
         if not row or (not row[0].strip() and all(not c.strip() for c in row)):
             continue  # blank line
-        if len(row) != len(header):
-            miscounted = (row, reader.line_num)
-            break
         rows.append(row)
         lines.append(reader.line_num)
-    numbers = [name for name in ("x", "y", "t") if name in col]
-    values = [_plain_decimals([row[col[name]].strip() for row in rows]) for name in numbers]
-    idents = {name: [row[col[name]].strip() for row in rows]
-              for name in ("trajectory", "subject") if name in col}
-    if miscounted is not None or any(v is None for v in values) or \
-            not all(all(ids) and "".join(ids).isprintable() for ids in idents.values()):
-        for row, line in [*zip(rows, lines, strict=True), *filter(None, [miscounted])]:
-            _refuse_csv_row(row, line, col, len(header), where)  # the first at fault
-    if not rows:
+        if len(rows) == CSV_CHUNK_ROWS or len(row) != len(header):  # the latter is refused
+            chunks.append(_csv_chunk(rows, lines, col, len(header), where))
+            rows, lines = [], []
+    if rows:
+        chunks.append(_csv_chunk(rows, lines, col, len(header), where))
+    if not chunks:
         raise PipelineError(f"{where} has no rows")
+    idents = {name: [i for _, _, chunk in chunks for i in chunk[name]] for name in chunks[0][2]}
+    return (col, np.vstack([table for table, _, _ in chunks]),
+            np.concatenate([at for _, at, _ in chunks]), idents.get("trajectory", []),
+            idents.get("subject", []))
+
+
+CSV_CHUNK_ROWS = 65_536  # a chunk's fields are held as text until read: 20 MB, not 700
+
+
+def _csv_chunk(rows: list[list[str]], lines: list[int], col: dict[str, int], n_fields: int,
+               where: str) -> tuple[np.ndarray, np.ndarray, dict[str, list[str]]]:
+    """Rows of a CSV (at file `lines`) as a table (n, 3) of x, y, t (0 without a t column),
+    their lines, and their ids by column (trajectory, subject); refused at the first row at
+    fault (`_refuse_csv_row`)."""
+    numbers = [name for name in ("x", "y", "t") if name in col]
+    counted = all(len(row) == n_fields for row in rows)
+    values = [_plain_decimals([row[col[name]].strip() for row in rows]) if counted else None
+              for name in numbers]
+    idents = {name: [row[col[name]].strip() for row in rows] if counted else []
+              for name in ("trajectory", "subject") if name in col}
+    if not counted or any(v is None for v in values) or \
+            not all(all(ids) and "".join(ids).isprintable() for ids in idents.values()):
+        for row, line in zip(rows, lines, strict=True):  # the first at fault
+            _refuse_csv_row(row, line, col, n_fields, where)
     table = np.zeros((len(rows), 3))
     for name, column in zip(numbers, values, strict=True):
         table[:, ("x", "y", "t").index(name)] = column
-    return col, table, np.array(lines), idents.get("trajectory", []), idents.get("subject", [])
+    return table, np.array(lines, dtype=np.int64), idents
 
 
 def _refuse_csv_row(row: list[str], line: int, col: dict[str, int], n_fields: int,

@@ -540,15 +540,18 @@ def test_malformed_csv_is_one_line(tmp_path, text, match):
     (["a,1,1", ",1,inf"], r"line 3: y='inf' is not finite"),
     (["a,1,1", "a,1,1", ", 1 ,1.5e-3"], r"line 4: empty trajectory id"),
 ])
-def test_a_csv_is_refused_at_its_first_fault(tmp_path, rows, match):
-    """The fields are read a column at a time; the refusal still names the first line at
-    fault in the file and its first field at fault, as reading a row at a time would."""
+@pytest.mark.parametrize("chunk", [1, 2, recorded.CSV_CHUNK_ROWS])
+def test_a_csv_is_refused_at_its_first_fault(tmp_path, monkeypatch, rows, match, chunk):
+    """The fields are read a column at a time, in chunks of rows; the refusal still names
+    the first line at fault in the file and its first field at fault, as reading a row at a
+    time would, wherever the chunks end."""
+    monkeypatch.setattr(recorded, "CSV_CHUNK_ROWS", chunk)
     path = tmp_path / "bad.csv"
     path.write_text("trajectory,x,y\n" + "\n".join(rows) + "\n")
     refused(match, read_tracks, path)
 
 
-def test_a_csv_column_of_plain_decimals_reads_as_python_reads_them(tmp_path):
+def test_a_csv_column_of_plain_decimals_reads_as_python_reads_them(tmp_path, monkeypatch):
     """Every form of a plain decimal number is read to the bit as float() reads it."""
     texts = ["1.5", "-2", "+3.25", ".5", "7.", "1e3", "2.5E-2", " 4 ", "0.1", "-0.0",
              "123456789.123456789", "1e-320"]
@@ -557,6 +560,8 @@ def test_a_csv_column_of_plain_decimals_reads_as_python_reads_them(tmp_path):
     [track], _ = read_tracks(path)
     expected = [float(t) for t in texts]
     assert track[:, 0].tobytes() == np.array(expected).tobytes()
+    monkeypatch.setattr(recorded, "CSV_CHUNK_ROWS", 5)  # in chunks of rows: the same
+    assert read_tracks(path)[0][0].tobytes() == track.tobytes()
 
 
 def test_demonstration_far_from_every_start_is_refused(tmp_path):
