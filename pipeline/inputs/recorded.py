@@ -62,6 +62,7 @@ log = logging.getLogger(__name__)
 # s: reading a tracker's file of millions of rows says how far it is at least this often
 PROGRESS_SECONDS = 10.0
 LARGE_FILE_BYTES = 20_000_000  # a CSV file this large is said to be read, and when it is
+MANY_TRACKS = 5_000  # mending this many tracks is said before it starts
 
 
 class Progress:
@@ -2143,6 +2144,8 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
         labels = [str(i) for i in range(len(tracks))]
         warn_jumps(tracks, where, [b for b, _ in spans])
     elif select_walks:
+        if len(recording.tracks) >= MANY_TRACKS:  # a few seconds for every 10 000
+            log.info("  mending %d tracks and cutting their walks ...", len(recording.tracks))
         tracks, subjects, chains = mend_tracks(recording, where)
         tracks, subjects, labels, offsets = select_track_walks(
             tracks, subjects, starts, goal, start_radius, goal_tolerance, where, room,

@@ -668,8 +668,10 @@ def test_long_reading_says_how_far_it_is(tmp_path, monkeypatch, caplog):
     caplog.clear()
     monkeypatch.setattr(recorded, "PROGRESS_SECONDS", 0.0)
     monkeypatch.setattr(recorded, "LARGE_FILE_BYTES", 1)
+    monkeypatch.setattr(recorded, "MANY_TRACKS", 2)
     with caplog.at_level(logging.INFO):
-        load_demo_file(path, scene, FeatureModel.from_scene(scene), 1.0)
+        load_demo_file(path, scene, FeatureModel.from_scene(scene), 1.0, select_walks=True)
+    assert "  mending 2 tracks and cutting their walks ..." in caplog.messages
     size = path.stat().st_size / 1e6
     assert f"reading demonstration file {path} ({size:.0f} MB) ..." in caplog.messages
     assert f"  {len(rows)} rows read in 0 s" in caplog.messages
