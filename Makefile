@@ -154,5 +154,6 @@ bench: $(STAMP)
 	$(PY) -m pipeline.tools.bench mapscenes
 	$(PY) -m pipeline.tools.bench startup
 	$(PY) -m pipeline.tools.bench memory
+	$(PY) -m pipeline.tools.bench tracker
 	$(PY) -m pipeline.tools.bench_scaling
 	$(PY) -m pipeline.tools.bench_learning

@@ -11,6 +11,7 @@
     python -m pipeline.tools.bench bigroom --old /tmp/old   # ... and of another checkout
     python -m pipeline.tools.bench mapscenes --old /tmp/old # random scenes on the shipped maps
     python -m pipeline.tools.bench memory           # peak RSS: birl=mcmc against the MAP run
+    python -m pipeline.tools.bench tracker --old /tmp/old   # learning from tracker files
 
 Every measurement runs in a fresh subprocess so its peak memory (ru_maxrss) is its own.
 """
@@ -242,14 +243,14 @@ def obstacle_costs(repeats: int) -> pd.DataFrame:
 BIG_ROOM_SIDES = [10.0, 20.0, 40.0]
 
 
-def _scene_demos_once(code: Path, overrides: list[str]) -> dict:
-    """The scene and demos stages with `overrides`, run by the checkout `code` in a fresh
-    process: the stages' seconds (timings.json) and the process's peak RSS (wait4)."""
+def _run_once(code: Path, overrides: list[str]) -> tuple[float, dict, dict, float]:
+    """One run of the checkout `code` with `overrides` in a fresh process: its wall seconds,
+    timings.json, metrics.json (empty if no evaluate stage ran) and peak RSS in MB
+    (wait4's ru_maxrss, what `/usr/bin/time -f %M` reports)."""
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "pipeline", *overrides, "stages=[scene,demos]",
-               f"hydra.run.dir={tmp}"]
+        cmd = [sys.executable, "-m", "pipeline", *overrides, f"hydra.run.dir={tmp}"]
         env = {**os.environ, "PYTHONPATH": str(code)}
         t0 = time.perf_counter()
         child = subprocess.Popen(cmd, cwd=code, env=env, stdout=subprocess.DEVNULL,
@@ -260,10 +261,72 @@ def _scene_demos_once(code: Path, overrides: list[str]) -> dict:
         if child.returncode:
             raise RuntimeError(f"{' '.join(cmd)} in {code} failed ({child.returncode})")
         timings = json.loads((Path(tmp) / TIMINGS_FILE).read_text())
+        metrics = Path(tmp) / METRICS_FILE
+        found = json.loads(metrics.read_text()) if metrics.exists() else {}
+    return wall, timings, found, usage.ru_maxrss / 1024
+
+
+def _scene_demos_once(code: Path, overrides: list[str]) -> dict:
+    """The scene and demos stages with `overrides`, run by the checkout `code` in a fresh
+    process: the stages' seconds (timings.json) and the process's peak RSS (wait4)."""
+    wall, timings, _, rss = _run_once(code, [*overrides, "stages=[scene,demos]"])
     return {"wall_s": round(wall, 2),
             "scene_demos_s": round(timings["time_scene_s"] + timings["time_demos_s"], 3),
             "scene_s": timings["time_scene_s"], "demos_s": timings["time_demos_s"],
-            "peak_rss_mb": round(usage.ru_maxrss / 1024, 1)}
+            "peak_rss_mb": round(rss, 1)}
+
+
+# Synthetic tracker files (`tracker_files`): tracks at 10 Hz, about one new person a second,
+# every other one walking from the room's near edge to metropolis' goal, the others across;
+# most come from no start, some pass through the scene's people (select_walks drops those)
+TRACKER_TRACKS = [300, 3000, 30000]
+
+
+def synthetic_tracker_csv(path: Path, n_tracks: int, seed: int = 0) -> int:
+    """Write a tracker's CSV (trajectory, t, x, y; rows in time order) of `n_tracks` tracks
+    on metropolis; returns its number of rows."""
+    rng = np.random.default_rng(seed)
+    goal = np.array([5.5, 9.0])
+    parts = []
+    for k in range(n_tracks):
+        t0 = rng.uniform(0, n_tracks)
+        if k % 2 == 0:
+            a, b = np.array([rng.uniform(0.3, 9.7), rng.uniform(0.2, 1.0)]), \
+                goal + rng.normal(0, 0.05, 2)
+        else:
+            a, b = np.array([0.2, rng.uniform(1, 8)]), np.array([9.8, rng.uniform(1, 8)])
+        steps = int(np.linalg.norm(b - a) / 0.12) + 1
+        points = a + np.linspace(0, 1, steps)[:, None] * (b - a) + rng.normal(0, 0.02,
+                                                                           (steps, 2))
+        parts.append(pd.DataFrame({"trajectory": k, "t": np.round(t0 + 0.1 * np.arange(steps), 3),
+                                   "x": np.round(points[:, 0], 4),
+                                   "y": np.round(points[:, 1], 4)}))
+    table = pd.concat(parts).sort_values(["t", "trajectory"], kind="stable")
+    table.to_csv(path, index=False)
+    return len(table)
+
+
+def tracker_files(sizes: list[int], old: Path | None) -> pd.DataFrame:
+    """The default experiment learning from synthetic tracker files of `sizes` tracks
+    (expert=file, expert.select_walks=true), by this checkout and `old`: each stage's
+    seconds, the wall time and the peak RSS, one run each (the largest takes minutes)."""
+    import tempfile
+
+    codes = {"new": PROJECT_ROOT, **({"old": old} if old is not None else {})}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in sizes:
+            path = Path(tmp) / f"tracks{n}.csv"
+            n_rows = synthetic_tracker_csv(path, n)
+            for name, code in codes.items():
+                wall, timings, metrics, rss = _run_once(
+                    code, ["expert=file", f"expert.path={path}", "expert.select_walks=true"])
+                rows.append({"code": name, "tracks": n, "rows": n_rows,
+                             "walks_learned": int(metrics.get("demos_count", 0)),
+                             **{f"{stage}_s": timings[f"time_{stage}_s"] for stage in STAGES},
+                             "wall_s": round(wall, 2), "peak_rss_mb": round(rss, 1)})
+                print(f"  {rows[-1]}", flush=True)
+    return pd.DataFrame(rows)
 
 
 def _scene_demos_side_by_side(cases: list[tuple[dict, list[str]]], repeats: int,
@@ -331,20 +394,9 @@ MEMORY_RUNS = {"map": [], "mcmc": ["birl=mcmc"]}
 
 
 def _peak_rss_run(*overrides: str) -> dict:
-    """One full run of the pipeline in a fresh process: wall seconds and its peak RSS
-    (wait4's ru_maxrss, what `/usr/bin/time -f %M` reports)."""
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "pipeline", *overrides, f"hydra.run.dir={tmp}"]
-        t0 = time.perf_counter()
-        child = subprocess.Popen(cmd, cwd=PROJECT_ROOT, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.DEVNULL)
-        _, status, usage = os.wait4(child.pid, 0)
-        if os.waitstatus_to_exitcode(status):
-            raise RuntimeError(f"{' '.join(cmd)} failed")
-        return {"wall_s": round(time.perf_counter() - t0, 2),
-                "peak_rss_mb": round(usage.ru_maxrss / 1024, 1)}
+    """One full run of the pipeline in a fresh process: wall seconds and its peak RSS."""
+    wall, _, _, rss = _run_once(PROJECT_ROOT, list(overrides))
+    return {"wall_s": round(wall, 2), "peak_rss_mb": round(rss, 1)}
 
 
 def memory(repeats: int) -> pd.DataFrame:
@@ -739,6 +791,11 @@ def _parser() -> argparse.ArgumentParser:
     maps.add_argument("--repeats", type=positive_count, default=3)
     maps.add_argument("--old", type=checkout, default=None,
                       help="another checkout to measure side by side (code=old rows)")
+    trk = sub.add_parser("tracker", help="learning from synthetic tracker files -> "
+                         "results/bench/tracker_files.csv")
+    trk.add_argument("--tracks", type=positive_count, nargs="+", default=TRACKER_TRACKS)
+    trk.add_argument("--old", type=checkout, default=None,
+                     help="another checkout to measure side by side (code=old rows)")
     mem = sub.add_parser("memory", help="peak RSS of birl=mcmc against the default MAP run "
                          "-> results/bench/memory.csv")
     mem.add_argument("--repeats", type=positive_count, default=3)
@@ -803,6 +860,8 @@ SUITES: dict[str, tuple] = {
     "mapscenes": (lambda a: f"scene + demos of random scenes on maps {a.maps}, seeds {a.seeds}, "
                   f"best of {a.repeats}",
                   lambda a: map_scenes(a.maps, a.seeds, a.repeats, a.old), "map_scenes.csv"),
+    "tracker": (lambda a: f"learning from synthetic tracker files of {a.tracks} tracks",
+                lambda a: tracker_files(a.tracks, a.old), "tracker_files.csv"),
     "memory": (lambda a: f"peak RSS of the MAP and MCMC runs, median of {a.repeats}",
                lambda a: memory(a.repeats), "memory.csv"),
     "graph_io": (lambda a: f"graph.mcap write and read back on metropolis, sizes {a.sizes}",
