@@ -329,6 +329,10 @@ class AdaptiveGraph(StateGraph):
     def _add_demo(self, demo: Demonstration) -> None:
         """Demonstration waypoints become nodes (or merge into a node closer than min_separation);
         demo edges carry the features of the demo's own polyline segments."""
+        self._add_demo_edges(demo, self._demo_nodes(demo))
+
+    def _demo_nodes(self, demo: Demonstration) -> list[int]:
+        """The node of each waypoint of `demo`: the node it merges into, or one added for it."""
         nodes: list[int] = []
         points, last = demo.points, len(demo.points) - 1
 
@@ -346,13 +350,30 @@ class AdaptiveGraph(StateGraph):
         # robot can drive from each to its waypoint (a merge needs it), at once: a waypoint
         # at a time took 0.2 ms, a minute for a tracker's 4000 walks. The nodes it adds are
         # looked at as they come.
-        before = self.nearest_many(points, self.min_separation, k=2)
-        merges = np.array([target(near, k) for k, (near, _) in enumerate(before)], np.int64)
+        before: list[tuple[np.ndarray, np.ndarray]] = []
+        merges = np.full(len(points), -1, np.int64)
         drivable = np.zeros(len(points), bool)
-        some = merges >= 0
-        drivable[some] = segments_feasible(self.scene, self.positions[merges[some]], points[some])
+
+        def look_up(first: int) -> None:
+            """before, merges and drivable of waypoints first.. as the graph now stands."""
+            before[first:] = self.nearest_many(points[first:], self.min_separation, k=2)
+            merges[first:] = [target(near, first + j) for j, (near, _) in
+                              enumerate(before[first:])]
+            some = np.flatnonzero(merges[first:] >= 0) + first
+            drivable[some] = segments_feasible(self.scene, self.positions[merges[some]],
+                                               points[some])
+
+        look_up(0)
         added: list[int] = []
+        built = self.index_builds
         for k, pt in enumerate(points):
+            if self.index_builds != built:
+                # the k-d tree was rebuilt with this demonstration's nodes: the waypoints left
+                # ask the new one, as they did one at a time (of more than two nodes at one
+                # distance, the tree's two are those of its own order, not the lowest ids:
+                # waypoints on a grid of min_separation merged elsewhere)
+                look_up(k)
+                added, built = [], self.index_builds
             near, dist = before[k]
             if added:  # as `neighbours(pt, min_separation, k=2)` would find them with these
                 close, gaps = self.among_within(added, pt, self.min_separation)
@@ -366,6 +387,10 @@ class AdaptiveGraph(StateGraph):
             nxt = points[min(k + 1, last)] - points[max(k - 1, 0)]
             nodes.append(self.add_node([*pt, math.atan2(nxt[1], nxt[0])], DEMO))
             added.append(nodes[-1])
+        return nodes
+
+    def _add_demo_edges(self, demo: Demonstration, nodes: list[int]) -> None:
+        """The edges along `demo`, whose waypoints are at `nodes`."""
         # One edge per change of node. Its driven polyline runs from its node to the first
         # waypoint merged into it, along the demonstration to the first waypoint of the next
         # node and on to that node; its features and duration are the demonstration's own

@@ -313,6 +313,11 @@ class StateGraph:
         close = gaps <= radius + TIE
         return ids[close], gaps[close]
 
+    @property
+    def index_builds(self) -> int:
+        """Changes when the k-d tree of the nodes is rebuilt (the nodes it holds)."""
+        return self._index.n_tree
+
     def too_close(self, p: np.ndarray) -> bool:
         return len(self._index.nearest(np.asarray(p, float), 1, self.min_separation)) > 0
 

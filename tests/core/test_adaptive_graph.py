@@ -35,7 +35,7 @@ from pipeline.core.experts import Demonstration, optimal_demos
 from pipeline.core.features import FeatureModel
 from pipeline.core.roadmap import build_roadmap, segments_feasible
 from pipeline.core.social import relation_crossings
-from pipeline.core.state_graph import GOAL, MEDIAL, SAMPLED, START, StateGraph
+from pipeline.core.state_graph import DEMO, GOAL, MEDIAL, SAMPLED, START, StateGraph
 from pipeline.core.world import Person, Room, Scene
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.irl.prior import BoxConfig
@@ -690,3 +690,60 @@ def test_a_demonstration_passing_near_the_goal_does_not_go_through_its_node(metr
     assert g.goal_node not in g.src[on_demo].tolist()
     edges = set(zip(g.src.tolist(), g.dst.tolist(), strict=True))
     assert all((a, b) in edges for a, b in zip(nodes[:-1], nodes[1:], strict=True))
+
+
+class _WaypointAtATime(AdaptiveGraph):
+    """`_add_demo`'s merge rule asked a waypoint at a time, of the graph as it stands then."""
+
+    asked = 0
+
+    def _demo_nodes(self, demo: Demonstration) -> list[int]:
+        self.asked += 1
+        nodes: list[int] = []
+        last = len(demo.points) - 1
+        for k, pt in enumerate(demo.points):
+            near = self.neighbours(pt, self.min_separation, k=2)
+            if not (k == last and demo.reached):
+                near = near[near != self.goal_node]
+            if len(near) and segments_feasible(self.scene, self.positions[near[:1]], pt[None])[0]:
+                nodes.append(int(near[0]))
+                continue
+            nxt = demo.points[min(k + 1, last)] - demo.points[max(k - 1, 0)]
+            nodes.append(self.add_node([*pt, math.atan2(nxt[1], nxt[0])], DEMO))
+        return nodes
+
+
+def test_demo_waypoints_merge_as_asked_one_at_a_time_across_the_trees_rebuilds(metropolis):
+    """Waypoints on a grid of min_separation lie exactly min_separation from several nodes;
+    once a demonstration's own nodes rebuild the k-d tree, its two nearest of more at one
+    distance are those of the tree's order, not the lowest ids: the batched look-up asks the
+    new tree for the waypoints left, so the graph is the one a waypoint at a time built."""
+    fm = FeatureModel.from_scene(metropolis)
+    rng = np.random.default_rng(11)
+    starts, goal = metropolis.starts[:, :2], metropolis.goal[:2]
+    demos = []
+    for _ in range(25):
+        start = int(rng.integers(len(starts)))
+        t = np.linspace(0, 1, int(rng.integers(2, 60)))[:, None]
+        points = starts[start] * (1 - t) + goal * t + rng.normal(size=(len(t), 2)) * \
+            rng.uniform(0, 1.5)
+        points = np.round(points / 0.5) * 0.5
+        points[0] = starts[start]
+        reached = bool(rng.random() < 0.8)
+        if reached:
+            points[-1] = goal
+        points = points[np.r_[True, np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9]]
+        if len(points) >= 2:
+            demos.append(Demonstration.from_points(start, points, fm, 1.0, reached=reached))
+    graphs = [kind(metropolis, fm, LinearController(), PRIOR_MEAN,
+                   GraphParams(min_separation=0.5), np.random.default_rng(0))
+              for kind in (AdaptiveGraph, _WaypointAtATime)]
+    for g in graphs:
+        g.initialise(demos)
+    batched, alone = graphs
+    assert alone.asked == len(demos)
+    assert batched.node_kind == alone.node_kind
+    assert np.array_equal(batched.pose, alone.pose)
+    edges, expected = batched.edge_table(), alone.edge_table()
+    for name in ("src", "dst", "features", "duration"):
+        assert np.array_equal(getattr(edges, name), getattr(expected, name)), name
