@@ -529,14 +529,19 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarr
     chunks: list[tuple[np.ndarray, np.ndarray, dict[str, list[str]]]] = []
     rows: list[list[str]] = []
     lines: list[int] = []
-    for row in reader:
-        if not row or (not row[0].strip() and all(not c.strip() for c in row)):
-            continue  # blank line
-        rows.append(row)
-        lines.append(reader.line_num)
-        if len(rows) == CSV_CHUNK_ROWS or len(row) != len(header):  # the latter is refused
-            chunks.append(_csv_chunk(rows, lines, col, len(header), where))
-            rows, lines = [], []
+    try:
+        for row in reader:
+            if not row or (not row[0].strip() and all(not c.strip() for c in row)):
+                continue  # blank line
+            rows.append(row)
+            lines.append(reader.line_num)
+            if len(rows) == CSV_CHUNK_ROWS or len(row) != len(header):  # the latter: refused
+                chunks.append(_csv_chunk(rows, lines, col, len(header), where))
+                rows, lines = [], []
+    except (csv.Error, UnicodeDecodeError):  # a line after the rows held: theirs come first
+        if rows:
+            _csv_chunk(rows, lines, col, len(header), where)
+        raise
     if rows:
         chunks.append(_csv_chunk(rows, lines, col, len(header), where))
     if not chunks:

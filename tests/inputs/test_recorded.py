@@ -551,6 +551,18 @@ def test_a_csv_is_refused_at_its_first_fault(tmp_path, monkeypatch, rows, match,
     refused(match, read_tracks, path)
 
 
+@pytest.mark.parametrize("after", [
+    b'a,1,"' + b"9" * 140_000 + b'"\n',  # past the csv module's field limit
+    b"a,1,1\n" * 5000 + b"\xff,1,1\n",  # not UTF-8, beyond the decoder's first block
+])
+def test_a_row_at_fault_is_named_before_a_later_line_that_cannot_be_read(tmp_path, after):
+    """A row at fault is refused before a later line of the same chunk that is no valid CSV
+    or UTF-8, as reading a row at a time refused it."""
+    path = tmp_path / "bad.csv"
+    path.write_bytes(b"trajectory,x,y\na,1,1\na,x,2\n" + after)
+    refused(r"line 3: x='x' is not a number", read_tracks, path)
+
+
 def test_a_csv_column_of_plain_decimals_reads_as_python_reads_them(tmp_path, monkeypatch):
     """Every form of a plain decimal number is read to the bit as float() reads it."""
     texts = ["1.5", "-2", "+3.25", ".5", "7.", "1e3", "2.5E-2", " 4 ", "0.1", "-0.0",
