@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from pipeline.core import evaluation
 from pipeline.core.evaluation import (
     discrete_frechet,
     frechet,
@@ -144,3 +145,22 @@ def test_frechet_to_many_polylines_at_once_is_each_one_to_the_bit():
     expected = [frechet(paths[s], q) for s, q in zip(starts, qs, strict=True)]
     assert frechet_to_paths(paths, starts, qs).tobytes() == np.array(expected).tobytes()
     assert frechet_to_paths(paths, [], []).shape == (0,)
+
+
+def test_frechet_tables_of_long_walks_are_kept_small(monkeypatch):
+    """Long walks are taken fewer at a time (a table holds each cell's (dx, dy) and distance:
+    64 walks of 60 m took 1.2 GB); the distances stay each one's own, to the bit."""
+    p = np.column_stack([np.linspace(0, 60, 40), np.sin(np.linspace(0, 6, 40))])
+    rng = np.random.default_rng(4)
+    qs = [p + rng.normal(0, 0.05, p.shape) for _ in range(20)] + [p[:2], p]
+    tables: list[int] = []
+    each = evaluation.discrete_frechet_to_each
+
+    def measured(p, qs):
+        tables.append(len(qs) * len(p) * max(len(q) for q in qs))
+        return each(p, qs)
+    monkeypatch.setattr(evaluation, "discrete_frechet_to_each", measured)
+    monkeypatch.setattr(evaluation, "FRECHET_CELLS", 2_000_000)
+    expected = [frechet(p, q) for q in qs]
+    assert evaluation.frechet_to_each(p, qs).tobytes() == np.array(expected).tobytes()
+    assert len(tables) > 1 and max(tables) <= 2_000_000
