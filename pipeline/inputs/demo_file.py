@@ -82,8 +82,9 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
             blocked.append(f"{label} ({fault[0]})")
             if len(blocked) == len(tracks):  # none is left: refused as one file would be
                 raise PipelineError(first_refusal + (
-                    f"; so do all the other {len(blocked) - 1} walks read "
-                    "(expert.select_walks)" if len(blocked) > 1 else ""))
+                    f"; and no other walk read is one a robot could follow either (all "
+                    f"{len(blocked)} are dropped by expert.select_walks: "
+                    f"{listed(blocked, 3)})" if len(blocked) > 1 else ""))
             continue
         demo = checked_demonstration(start, points, subject, scene, feature_model, speed, what,
                                      source=label)

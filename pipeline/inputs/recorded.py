@@ -59,7 +59,8 @@ from pipeline.inputs.schemas import read_json
 log = logging.getLogger(__name__)
 
 
-# s: reading a tracker's file of millions of rows says how far it is at least this often
+# s: long work (reading a tracker's file of millions of rows, growing a large graph) says
+# how far it is about this often, never more often
 PROGRESS_SECONDS = 10.0
 LARGE_FILE_BYTES = 20_000_000  # a CSV file this large is said to be read, and when it is
 MANY_TRACKS = 5_000  # mending this many tracks is said before it starts
@@ -2089,8 +2090,9 @@ def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance:
         with np.errstate(invalid="ignore"):
             far = np.flatnonzero(~(np.abs(t) < FARTHEST_COORDINATE).all(axis=1))
         if len(far):
-            raise PipelineError(f"{name} has a point at {point(*t[far[0]])}: no map is that "
-                                f"large (over {FARTHEST_COORDINATE:g} m from the origin); a "
+            why = "no map is that large (over {:g} m from the origin)".format(
+                FARTHEST_COORDINATE) if np.isfinite(t[far[0]]).all() else "not a number"
+            raise PipelineError(f"{name} has a point at {point(*t[far[0]])}: {why}; a "
                                 "glitched pose?")
     if denoise:
         tracks, smoothed, noise = smooth_jitter(tracks, where)

@@ -30,8 +30,8 @@ def test_spatial_index_matches_brute_force_across_rebuilds():
 def test_batched_queries_equal_the_single_point_queries():
     """any_within_many, count_within_many and nearest_many (one query for a batch of
     candidates) answer exactly as nearest(p, k, r) and count_within(p, r) do point by
-    point, before and after
-    the k-d tree's first build and with points since its last build."""
+    point, before and after the k-d tree's first build and with points since its last
+    build."""
     rng = np.random.default_rng(5)
     index = SpatialIndex()
     points = rng.uniform(0, 10, (1500, 2))

@@ -22,6 +22,7 @@ from pipeline.inputs.recorded import (
     COORDINATE_DECIMALS,
     STOP_TOLERANCE,
     clean_track,
+    clean_tracks,
     cut_stream,
     cut_trajectory,
     drop_repeats,
@@ -774,3 +775,5 @@ def test_a_glitched_pose_far_off_is_refused_in_one_line_also_without_a_room(tmp_
             load_recorded, path, STARTS, GOAL, goal_tolerance=0.3)
     assert revisit(np.array([[0.0, 0.0], [0.0, np.inf]])) is None
     assert revisit(np.array([[0.0, 0.0], [0.0, 1e300], [0.0, -1e300]])) is None
+    refused(r"^t0 has a point at \(nan, 1\): not a number; a glitched pose\?$", clean_tracks,
+            [np.array([[0.0, 0.0], [np.nan, 1.0], [1.0, 1.0]])], GOAL, 0.3, None, "w", ["t0"])
