@@ -2072,6 +2072,20 @@ def warn_noisy_ends(tracks: Sequence[np.ndarray], cleaned: Sequence[np.ndarray],
                     GOAL_NOISE_SIGMAS, 100 * GOAL_NOISE_MARGIN)
 
 
+def refuse_far_points(tracks: Sequence[np.ndarray], names: Sequence[str]) -> None:
+    """Refuse the first track (named by `names`) with a point FARTHEST_COORDINATE or more
+    from the origin, or not a number: read without a room, a glitch at 1e300 m overflowed
+    the steps after this to a traceback."""
+    for name, t in zip(names, tracks, strict=True):
+        with np.errstate(invalid="ignore"):
+            far = np.flatnonzero(~(np.abs(t) < FARTHEST_COORDINATE).all(axis=1))
+        if len(far):
+            why = "no map is that large (over {:g} m from the origin)".format(
+                FARTHEST_COORDINATE) if np.isfinite(t[far[0]]).all() else "not a number"
+            raise PipelineError(f"{name} has a point at {point(*t[far[0]])}: {why}; a "
+                                "glitched pose?")
+
+
 def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance: float,
                  room: Room | None, where: str, names: Sequence[str], *, denoise: bool = True,
                  resample: bool = False, spacing: float = RESAMPLE_SPACING,
@@ -2086,14 +2100,8 @@ def clean_tracks(tracks: Sequence[np.ndarray], goal: np.ndarray, goal_tolerance:
     smoothed, noise = [False] * len(tracks), [0.0] * len(tracks)
     if room is not None:
         refuse_other_frames(tracks, room, names)
-    for name, t in zip(names, tracks, strict=True):  # without a room: a glitch at 1e300 m
-        with np.errstate(invalid="ignore"):
-            far = np.flatnonzero(~(np.abs(t) < FARTHEST_COORDINATE).all(axis=1))
-        if len(far):
-            why = "no map is that large (over {:g} m from the origin)".format(
-                FARTHEST_COORDINATE) if np.isfinite(t[far[0]]).all() else "not a number"
-            raise PipelineError(f"{name} has a point at {point(*t[far[0]])}: {why}; a "
-                                "glitched pose?")
+    else:  # with a room, a glitch at 1e300 m leaves it and is refused so
+        refuse_far_points(tracks, names)
     if denoise:
         tracks, smoothed, noise = smooth_jitter(tracks, where)
     if room is not None:

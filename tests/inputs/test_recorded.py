@@ -773,6 +773,9 @@ def test_a_glitched_pose_far_off_is_refused_in_one_line_also_without_a_room(tmp_
     refused(r"glitch\.csv: trajectory 0 \(id '1'\) has a point at \(1e\+300, 0\.5\): no map is "
             r"that large \(over 1e\+09 m from the origin\); a glitched pose\?$",
             load_recorded, path, STARTS, GOAL, goal_tolerance=0.3)
+    refused(r"glitch\.csv: trajectory 0 \(id '1'\) leaves the room \[0, 10\] x \[0, 10\] at "
+            r"\(1e\+300, 0\.5\)$", load_recorded, path, STARTS, GOAL, goal_tolerance=0.3,
+            room=Room(0, 0, 10, 10))  # with a room, as it was
     assert revisit(np.array([[0.0, 0.0], [0.0, np.inf]])) is None
     assert revisit(np.array([[0.0, 0.0], [0.0, 1e300], [0.0, -1e300]])) is None
     refused(r"^t0 has a point at \(nan, 1\): not a number; a glitched pose\?$", clean_tracks,
