@@ -6,6 +6,7 @@ import dataclasses
 import logging
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -76,18 +77,19 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                 pushed.append(label)
                 points = clear
         what = f"{describe(path)}: trajectory {label}"
-        fault = walk_fault(points, scene) if select_walks else None
+        fault = walk_fault(points, scene)
         if fault is not None:
-            first_refusal = first_refusal or f"{what} {fault[0]}{fault[1]}"
-            blocked.append(f"{label} ({fault[0]})")
+            if not select_walks:
+                raise PipelineError(fault.refusal(what))
+            first_refusal = first_refusal or fault.refusal(what)
+            blocked.append(f"{label} ({fault.does})")
             if len(blocked) == len(tracks):  # none is left: refused as one file would be
                 raise PipelineError(first_refusal + (
                     f"; and no other walk read is one a robot could follow either (all "
                     f"{len(blocked)} are dropped by expert.select_walks: "
                     f"{listed(blocked, 3)})" if len(blocked) > 1 else ""))
             continue
-        demo = checked_demonstration(start, points, subject, scene, feature_model, speed, what,
-                                     source=label)
+        demo = demonstration(start, points, subject, scene, feature_model, speed, source=label)
         if not demo.reached:
             end_gap = float(np.linalg.norm(points[-1] - scene.goal))
             unreached.append(f"{label} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
@@ -181,7 +183,14 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
     a body disk (`walk_fault`); it reaches the goal when it ends within goal_tolerance of it."""
     fault = walk_fault(points, scene)
     if fault is not None:
-        raise PipelineError(f"{what} {fault[0]}{fault[1]}")
+        raise PipelineError(fault.refusal(what))
+    return demonstration(start, points, subject, scene, feature_model, speed, source)
+
+
+def demonstration(start: int, points: np.ndarray, subject: str | None, scene: Scene,
+                  feature_model: FeatureModel, speed: float,
+                  source: str | None = None) -> Demonstration:
+    """A trajectory a robot could follow (`walk_fault` finds nothing) as a Demonstration."""
     # cut_at_goal ends a trajectory that entered the goal disk at its first point there
     reached = bool(scene.at_goal(points[-1])[0])
     feats = feature_model.segments(points[:-1], points[1:])
@@ -189,20 +198,30 @@ def checked_demonstration(start: int, points: np.ndarray, subject: str | None, s
     return Demonstration(start, points, feats, durations, reached, subject, source)
 
 
-def walk_fault(points: np.ndarray, scene: Scene) -> tuple[str, str] | None:
+class WalkFault(NamedTuple):
+    """What keeps a trajectory from being a robot's path, the end of a sentence about it."""
+    does: str  # what it does: "passes 0.21 m from person 4"
+    detail: str  # where, and what to do about it
+
+    def refusal(self, what: str) -> str:
+        """The refusal of the trajectory `what` for it."""
+        return f"{what} {self.does}{self.detail}"
+
+
+def walk_fault(points: np.ndarray, scene: Scene) -> WalkFault | None:
     """What keeps a trajectory from being a robot's path: coming closer than robot_radius to
     an obstacle, or entering a person's body disk (its segments would be graph edges no
-    planned path could take). The end of a sentence about it in two parts, what it does
-    ("passes 0.21 m from person 4") and where and what to do; None when nothing does."""
+    planned path could take); None when nothing does."""
     if scene.obstacles is not None:
         clearance = scene.obstacles.segments_min_clearance(points[:-1], points[1:])
         worst = int(np.argmin(clearance))
         if clearance[worst] < scene.robot_radius:
             x, y = points[worst]
-            return (f"comes {metres_beside(clearance[worst], scene.robot_radius)} m from "
-                    "an obstacle", f" after ({x:.2f}, {y:.2f}); the robot needs "
-                    f"robot_radius={scene.robot_radius:g} m (lower it in the scene file or "
-                    "with scene.robot_radius)")
+            return WalkFault(f"comes {metres_beside(clearance[worst], scene.robot_radius)} m "
+                             "from an obstacle",
+                             f" after ({x:.2f}, {y:.2f}); the robot needs robot_radius="
+                             f"{scene.robot_radius:g} m (lower it in the scene file or with "
+                             "scene.robot_radius)")
     if not len(scene.persons):
         return None
     clear = segments_clear_of_disks(points[:-1], points[1:], scene.person_xy, scene.body_radius)
@@ -213,7 +232,7 @@ def walk_fault(points: np.ndarray, scene: Scene) -> tuple[str, str] | None:
     who = int(np.argmin(gaps))
     person = scene.persons[who]
     x, y = points[seg]
-    return (f"passes {gaps[who]:.2f} m from person {person.id}",
-            f" at {point(person.x, person.y)} after ({x:.2f}, {y:.2f}), inside the body disk "
-            f"(body_radius={scene.body_radius:g} m) no robot path may enter (lower it with "
-            "scene.body_radius or correct the trajectory)")
+    return WalkFault(f"passes {gaps[who]:.2f} m from person {person.id}",
+                     f" at {point(person.x, person.y)} after ({x:.2f}, {y:.2f}), inside the "
+                     f"body disk (body_radius={scene.body_radius:g} m) no robot path may enter "
+                     "(lower it with scene.body_radius or correct the trajectory)")
