@@ -50,16 +50,44 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     (`recorded.subject_recordings`).
     """
     path = Path(path)
-    if is_recording_folder(path):
-        read = [(recording, dataclasses.replace(
+    options = dict(topic=topic, frame=frame, start_radius=start_radius, denoise=denoise,
+                   select_walks=select_walks)
+    if not is_recording_folder(path):
+        demos, none_left = _recording_demos(path, scene, feature_model, speed, **options)
+        if none_left:
+            raise PipelineError(none_left)
+        return demos
+    read: list[tuple[Path, Demonstration]] = []
+    emptied: list[tuple[Path, str]] = []  # recordings none of whose walks a robot could follow
+    for recording, subject in subject_recordings(path):
+        demos, none_left = _recording_demos(recording, scene, feature_model, speed, **options)
+        if none_left:
+            emptied.append((recording, none_left))
+        read += [(recording, dataclasses.replace(
                     d, subject=subject if d.subject is None else d.subject,
                     source=f"{recording.relative_to(path).as_posix()}: {d.source}"))
-                for recording, subject in subject_recordings(path)
-                for d in load_demo_file(recording, scene, feature_model, speed, topic=topic,
-                                        frame=frame, start_radius=start_radius, denoise=denoise,
-                                        select_walks=select_walks)]
-        warn_repeated_recordings(path, read)
-        return [d for _, d in read]
+                 for d in demos]
+    if emptied and not read:  # none is left in the whole folder: refused as one file would be
+        raise PipelineError(emptied[0][1] + (
+            "; and so is every walk of the folder's other recordings ("
+            + listed([r.relative_to(path).as_posix() for r, _ in emptied[1:]], 5) + ")"
+            if len(emptied) > 1 else ""))
+    if emptied:
+        # one subject who walked only where the scene's people stood: the others still teach
+        log.warning("%s: expert.select_walks: recordings %s hold no walk a robot could follow "
+                    "(every walk passes through a body disk or too close to an obstacle) and "
+                    "are dropped; the first: %s", describe(path),
+                    listed([r.relative_to(path).as_posix() for r, _ in emptied], 5),
+                    emptied[0][1])
+    warn_repeated_recordings(path, read)
+    return [d for _, d in read]
+
+
+def _recording_demos(path: Path, scene: Scene, feature_model: FeatureModel, speed: float, *,
+                     topic: str | None, frame: str | None, start_radius: float, denoise: bool,
+                     select_walks: bool) -> tuple[list[Demonstration], str | None]:
+    """The demonstrations of one recording (`load_demo_file`), and, when `select_walks`
+    dropped every walk it read, the refusal that says why (None otherwise)."""
     demos = []
     unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
@@ -83,11 +111,6 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                 raise PipelineError(fault.refusal(what))
             first_refusal = first_refusal or fault.refusal(what)
             blocked.append(f"{label} ({fault.does})")
-            if len(blocked) == len(tracks):  # none is left: refused as one file would be
-                raise PipelineError(first_refusal + (
-                    f"; and no other walk read is one a robot could follow either (all "
-                    f"{len(blocked)} are dropped by expert.select_walks: "
-                    f"{listed(blocked, 3)})" if len(blocked) > 1 else ""))
             continue
         demo = demonstration(start, points, subject, scene, feature_model, speed, source=label)
         if not demo.reached:
@@ -100,6 +123,11 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                     "away from it to robot_radius (closer is refused)", describe(path),
                     listed(pushed, 5),
                     scene.robot_radius, ROOM_EDGE_TOLERANCE)
+    if blocked and not demos:  # none is left: refused as one file would be
+        return [], first_refusal + (
+            f"; and no other walk read is one a robot could follow either (all "
+            f"{len(blocked)} are dropped by expert.select_walks: "
+            f"{listed(blocked, 3)})" if len(blocked) > 1 else "")
     if blocked:
         # A tracker's hundreds of walks and a scene of who stood where at one moment: a few
         # walks pass where someone stood at another time, or a ghost track crosses a wall.
@@ -118,7 +146,7 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
                     describe(path),
                     listed(unreached, 5),
                     scene.goal_tolerance)
-    return demos
+    return demos, None
 
 
 def warn_repeated_recordings(folder: Path, read: list[tuple[Path, Demonstration]]) -> None:

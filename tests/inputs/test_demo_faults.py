@@ -595,6 +595,37 @@ def test_select_walks_drops_the_walks_no_robot_path_could_follow(tmp_path, metro
             select_walks=True)
 
 
+def test_a_folder_drops_a_recording_whose_every_walk_select_walks_drops(tmp_path, metropolis,
+                                                                        caplog):
+    """In a folder of recordings (one per subject), a subject who walked only where the
+    scene's people stood is dropped with one warning naming the recording and why; the
+    others are learned from. With every recording emptied, the folder is refused naming the
+    first, as one file would be."""
+    fm = FeatureModel.from_scene(metropolis)  # person 1 stands at (2, 5), body radius 0.25
+    through = [[2.0, 3.0], [2.0, 5.0], [5.5, 9.0]]
+
+    def recording(name, *walks):
+        rows = ["trajectory,x,y"] + [f"{k},{x},{y}" for k, walk in enumerate(walks)
+                                     for x, y in walk]
+        (tmp_path / name).write_text("\n".join(rows) + "\n")
+
+    recording("ann.csv", CLEAR)
+    recording("bob.csv", through, through)
+    with caplog.at_level(logging.WARNING):
+        [demo] = load_demo_file(tmp_path, metropolis, fm, 1.0, select_walks=True)
+    assert demo.subject == "ann" and np.array_equal(demo.points, CLEAR)
+    assert re.search(r"expert\.select_walks: recordings bob\.csv hold no walk a robot could "
+                     r"follow .* and are dropped; the first: .*bob\.csv: trajectory 0 \(id '0'\) "
+                     r"passes 0\.00 m from person 1", caplog.text)
+    recording("ann.csv", through)
+    refused(r"ann\.csv: trajectory 0 \(id '0'\) passes 0\.00 m from person 1 .*; and so is "
+            r"every walk of the folder's other recordings \(bob\.csv\)$", load_demo_file,
+            tmp_path, metropolis, fm, 1.0, select_walks=True)
+    # read as curated demonstrations, the first such walk refuses the folder
+    refused(r"ann\.csv: trajectory 0 \(id '0'\) passes 0\.00 m from person 1", load_demo_file,
+            tmp_path, metropolis, fm, 1.0)
+
+
 def test_a_trajectory_starting_inside_a_person_is_refused(tmp_path, metropolis):
     fm = FeatureModel.from_scene(metropolis)  # person 2 stands at (5, 3.5), start 6 is (4, 3)
     path = demo_file(tmp_path, [[4.85, 3.45], [4.0, 5.5], [5.5, 9.0]])
