@@ -78,7 +78,8 @@ from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.world import Scene, scene_from_dict
 from pipeline.errors import PipelineError, existing_dir, first_line, one_line
 from pipeline.inputs.demo_file import checked_demonstration
-from pipeline.inputs.recorded import clean_tracks, cut_trajectory, drop_repeats, match_to_starts
+from pipeline.inputs.polylines import drop_repeats
+from pipeline.inputs.recorded import clean_tracks, cut_trajectory, match_to_starts
 from pipeline.irl import methods
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
 from pipeline.irl.environment import GraphEnvironment, GrowingGraphEnvironment, spatial_graph

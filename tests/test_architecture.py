@@ -1,6 +1,6 @@
 """The package layers (docs/architecture.md): imports only point down.
 
-    errors  <  core  <  irl | inputs | artefacts  <  app  <  stages  <  tools, __main__
+    errors, progress  <  core  <  irl | inputs | artefacts  <  app  <  stages  <  tools, __main__
 
 Modules of one layer-2 package do not import another layer-2 package, stage modules never
 import each other, and the algorithm packages (core, irl) import no Hydra, OmegaConf, MCAP,
@@ -16,7 +16,7 @@ import pytest
 
 from tests.conftest import ROOT
 
-LAYER = {"errors": 0, "core": 1, "irl": 2, "inputs": 2, "artefacts": 2, "app": 3,
+LAYER = {"errors": 0, "progress": 0, "core": 1, "irl": 2, "inputs": 2, "artefacts": 2, "app": 3,
          "stages": 4, "tools": 5, "api": 5, "__main__": 5}
 FRAMEWORKS = ("hydra", "omegaconf", "mcap", "rerun", "jsonschema")
 ALGORITHMS = ("core", "irl")

@@ -46,7 +46,7 @@ from pipeline.core.social_planner import spacing_over
 from pipeline.core.world import BodyParams, Room, Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import MapHeader, read_map_header
-from pipeline.inputs.recorded import check_readable
+from pipeline.inputs.recordings import check_readable
 from pipeline.irl.fixed import FixedConfig
 
 log = logging.getLogger("pipeline")

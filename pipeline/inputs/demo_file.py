@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from pathlib import Path
@@ -16,15 +17,9 @@ from pipeline.core.nearby import segments_clear_of_disks
 from pipeline.core.social import min_distance_to_person
 from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError, listed
-from pipeline.inputs.recorded import (
-    ROOM_EDGE_TOLERANCE,
-    START_RADIUS,
-    Progress,
-    describe,
-    is_recording_folder,
-    load_recorded,
-    subject_recordings,
-)
+from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, START_RADIUS, load_recorded
+from pipeline.inputs.recordings import describe, is_recording_folder, subject_recordings
+from pipeline.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -50,17 +45,19 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     (`recorded.subject_recordings`).
     """
     path = Path(path)
-    options = dict(topic=topic, frame=frame, start_radius=start_radius, denoise=denoise,
-                   select_walks=select_walks)
+    demos_of = functools.partial(_recording_demos, scene=scene, feature_model=feature_model,
+                                 speed=speed, topic=topic, frame=frame,
+                                 start_radius=start_radius, denoise=denoise,
+                                 select_walks=select_walks)
     if not is_recording_folder(path):
-        demos, none_left = _recording_demos(path, scene, feature_model, speed, **options)
+        demos, none_left = demos_of(path)
         if none_left:
             raise PipelineError(none_left)
         return demos
     read: list[tuple[Path, Demonstration]] = []
     emptied: list[tuple[Path, str]] = []  # recordings none of whose walks a robot could follow
     for recording, subject in subject_recordings(path):
-        demos, none_left = _recording_demos(recording, scene, feature_model, speed, **options)
+        demos, none_left = demos_of(recording)
         if none_left:
             emptied.append((recording, none_left))
         read += [(recording, dataclasses.replace(
@@ -88,7 +85,7 @@ def _recording_demos(path: Path, scene: Scene, feature_model: FeatureModel, spee
                      select_walks: bool) -> tuple[list[Demonstration], str | None]:
     """The demonstrations of one recording (`load_demo_file`), and, when `select_walks`
     dropped every walk it read, the refusal that says why (None otherwise)."""
-    demos = []
+    demos: list[Demonstration] = []
     unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room,

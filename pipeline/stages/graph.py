@@ -21,7 +21,7 @@ from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
 from pipeline.core.state_graph import DEMO
-from pipeline.inputs.recorded import PROGRESS_SECONDS, Progress
+from pipeline.progress import PROGRESS_SECONDS, Progress
 
 log = logging.getLogger(__name__)
 # from this many demonstrations on, the graph's initialisation is said before it starts

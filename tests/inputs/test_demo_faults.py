@@ -12,13 +12,8 @@ import pytest
 
 from pipeline.core.features import FeatureModel
 from pipeline.inputs.demo_file import load_demo_file
-from pipeline.inputs.recorded import (
-    load_recorded,
-    one_clock,
-    read_recording,
-    read_tracks,
-    stepped_forward,
-)
+from pipeline.inputs.recorded import load_recorded
+from pipeline.inputs.recordings import one_clock, read_recording, read_tracks, stepped_forward
 from tests.conftest import write_bag
 from tests.inputs.conftest import refused
 from tests.inputs.test_recorded import PATH_A, STARTS, line, load

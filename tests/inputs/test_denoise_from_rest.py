@@ -7,7 +7,7 @@ by learning as goal deviation (its weight went to the box's bound, 0)."""
 
 import numpy as np
 
-from pipeline.inputs.recorded import noise_sigma, smooth_jitter, smooth_to_noise, whittaker
+from pipeline.inputs.denoise import noise_sigma, smooth_jitter, smooth_to_noise, whittaker
 
 START, GOAL = np.array([0.5, 0.5]), np.array([5.5, 9.0])
 

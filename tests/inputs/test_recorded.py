@@ -13,27 +13,27 @@ from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 
+from pipeline import progress
 from pipeline.core.features import FeatureModel
 from pipeline.core.world import Room
 from pipeline.errors import PipelineError
-from pipeline.inputs import recorded
+from pipeline.inputs import recorded, recordings
 from pipeline.inputs.demo_file import load_demo_file
+from pipeline.inputs.denoise import straight_share
+from pipeline.inputs.polylines import clean_track, drop_repeats
 from pipeline.inputs.recorded import (
     COORDINATE_DECIMALS,
     STOP_TOLERANCE,
-    clean_track,
     clean_tracks,
     cut_stream,
     cut_trajectory,
-    drop_repeats,
     load_recorded,
     match_to_starts,
     motion_begin,
-    read_tracks,
-    revisit,
-    straight_share,
 )
+from pipeline.inputs.recordings import read_tracks
 from pipeline.inputs.scene_file import load_scene_file
+from pipeline.inputs.tracks import revisit
 from tests.conftest import METROPOLIS, ROOT, ROS1, ROS2, make_msg, write_bag
 from tests.inputs.conftest import refused
 
@@ -424,7 +424,7 @@ def test_a_ros1_frame_with_a_leading_slash_is_that_frame(tmp_path, caplog):
     [track], _ = read_tracks(bag, frame="map")
     np.testing.assert_allclose(track, PATH_A)
     refused(r"frame_id '/map', not expert\.frame='odom'", read_tracks, bag, frame="odom")
-    with caplog.at_level(logging.INFO, logger="pipeline.inputs.recorded"):
+    with caplog.at_level(logging.INFO, logger="pipeline.inputs.recordings"):
         read_tracks(bag)
     assert "topic /plan, 1 nav_msgs/Path messages in frame_id '/map', read as the " \
         "scene's frame" in caplog.text  # named as ROS 1 names it (ROS 2: nav_msgs/msg/Path)
@@ -541,12 +541,12 @@ def test_malformed_csv_is_one_line(tmp_path, text, match):
     (["a,1,1", ",1,inf"], r"line 3: y='inf' is not finite"),
     (["a,1,1", "a,1,1", ", 1 ,1.5e-3"], r"line 4: empty trajectory id"),
 ])
-@pytest.mark.parametrize("chunk", [1, 2, recorded.CSV_CHUNK_ROWS])
+@pytest.mark.parametrize("chunk", [1, 2, recordings.CSV_CHUNK_ROWS])
 def test_a_csv_is_refused_at_its_first_fault(tmp_path, monkeypatch, rows, match, chunk):
     """The fields are read a column at a time, in chunks of rows; the refusal still names
     the first line at fault in the file and its first field at fault, as reading a row at a
     time would, wherever the chunks end."""
-    monkeypatch.setattr(recorded, "CSV_CHUNK_ROWS", chunk)
+    monkeypatch.setattr(recordings, "CSV_CHUNK_ROWS", chunk)
     path = tmp_path / "bad.csv"
     path.write_text("trajectory,x,y\n" + "\n".join(rows) + "\n")
     refused(match, read_tracks, path)
@@ -573,7 +573,7 @@ def test_a_csv_column_of_plain_decimals_reads_as_python_reads_them(tmp_path, mon
     [track], _ = read_tracks(path)
     expected = [float(t) for t in texts]
     assert track[:, 0].tobytes() == np.array(expected).tobytes()
-    monkeypatch.setattr(recorded, "CSV_CHUNK_ROWS", 5)  # in chunks of rows: the same
+    monkeypatch.setattr(recordings, "CSV_CHUNK_ROWS", 5)  # in chunks of rows: the same
     assert read_tracks(path)[0][0].tobytes() == track.tobytes()
 
 
@@ -679,8 +679,8 @@ def test_long_reading_says_how_far_it_is(tmp_path, monkeypatch, caplog):
         load_demo_file(path, scene, FeatureModel.from_scene(scene), 1.0)
     assert not [m for m in caplog.messages if m.startswith("reading") or " of 2, " in m]
     caplog.clear()
-    monkeypatch.setattr(recorded, "PROGRESS_SECONDS", 0.0)
-    monkeypatch.setattr(recorded, "LARGE_FILE_BYTES", 1)
+    monkeypatch.setattr(progress, "PROGRESS_SECONDS", 0.0)
+    monkeypatch.setattr(recordings, "LARGE_FILE_BYTES", 1)
     monkeypatch.setattr(recorded, "MANY_TRACKS", 2)
     with caplog.at_level(logging.INFO):
         load_demo_file(path, scene, FeatureModel.from_scene(scene), 1.0, select_walks=True)

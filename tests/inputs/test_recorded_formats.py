@@ -24,10 +24,9 @@ from pipeline.inputs.recorded import (
     STOP_TOLERANCE,
     cut_at_goal,
     load_recorded,
-    read_recording,
-    read_tracks,
     stream_spans,
 )
+from pipeline.inputs.recordings import read_recording, read_tracks
 from tests.conftest import CLEAN_DRIVES as CLEAN
 from tests.conftest import (
     METROPOLIS_GOAL,

@@ -12,7 +12,7 @@ from jsonschema import Draft202012Validator
 from pipeline.core.scenegen import RandomSceneSpec, random_scene
 from pipeline.core.world import SceneError
 from pipeline.errors import PipelineError
-from pipeline.inputs.recorded import read_tracks
+from pipeline.inputs.recordings import read_tracks
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.inputs.schemas import load_schema, read_json, validate
 from tests.conftest import METROPOLIS, ROOT

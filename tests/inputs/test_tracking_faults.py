@@ -12,18 +12,18 @@ import pytest
 
 from pipeline.app.context import PACKAGE_ROOT
 from pipeline.errors import PipelineError
-from pipeline.inputs.recorded import (
+from pipeline.inputs.denoise import (
     DISCREPANCY,
     JITTER_INFLATION,
-    largest_jump,
-    load_recorded,
     noise_sigma,
-    read_tracks,
     smooth_jitter,
     smooth_to_noise,
     straight_share,
     whittaker,
 )
+from pipeline.inputs.polylines import largest_jump
+from pipeline.inputs.recorded import load_recorded
+from pipeline.inputs.recordings import read_tracks
 
 START, GOAL = np.array([0.5, 0.5]), np.array([6.0, 5.0])
 
@@ -321,7 +321,7 @@ def test_a_recording_in_millimetres_is_refused_before_it_is_smoothed(tmp_path, c
 
 
 def test_a_walk_that_comes_back_to_its_own_route_is_named(tmp_path, caplog):
-    from pipeline.inputs.recorded import revisit
+    from pipeline.inputs.tracks import revisit
     straight = walk(0.1)
     assert revisit(straight) is None  # the bend of 2 m radius never comes back
     ring = np.array([2.0, 0.5]) + 0.5 * np.column_stack(
@@ -516,7 +516,7 @@ def test_a_track_lost_and_found_again_under_a_new_id_is_one_walk(tmp_path, caplo
     assert "jump" not in caplog.text
     assert "read from 2 of 3 trajectories" in caplog.text
     # the nine lost poses are bridged on the chord between the two tracks' ends
-    from pipeline.inputs.recorded import join_chain
+    from pipeline.inputs.tracks import join_chain
     joined = join_chain([full[before], full[after]], [times[before], times[after]], [0, 1])
     assert len(joined) == len(full)
     chord = joined[39:50]
@@ -556,7 +556,7 @@ def test_only_an_unambiguous_continuation_is_joined():
     one where it was heading (joined), one heading back west, one 3 s later or 2 m off, one
     of another subject (none joined), two where it was heading (neither: which one is
     the walker is a guess), and two in a row (both: the walker lost twice)."""
-    from pipeline.inputs.recorded import broken_track_chains
+    from pipeline.inputs.tracks import broken_track_chains
     east = np.array([1.25, 0.0])
 
     def track(p0, velocity, t0, n=20):
@@ -590,7 +590,7 @@ def test_a_gap_of_whole_frames_at_the_limit_is_within_it_whatever_the_jitter():
     """A 2.5 Hz tracker loses a walker for 4 frames: the gap is 5 intervals, 2 s, the limit;
     its stamps' 2 ms of jitter made it 2.002 s, and the pieces stayed apart. Within a quarter
     frame of the limit a gap is within it; 5 frames lost (2.4 s) is not."""
-    from pipeline.inputs.recorded import broken_track_chains
+    from pipeline.inputs.tracks import broken_track_chains
     east = np.array([1.25, 0.0])
 
     def piece(first: int, last: int, jitter: float = 0.0):
@@ -630,7 +630,7 @@ def test_an_id_switch_is_undone_so_no_walk_is_made_of_two_people(tmp_path, caplo
     exit; at t = 2 s the tracker swaps their ids. Read as filed, ben's track would be a walk
     from the start to the goal made of both; with the switch undone, the one walk read is
     ana's own, whole, and one warning names the switch with its time."""
-    from pipeline.inputs.recorded import id_switches, undo_switches
+    from pipeline.inputs.tracks import id_switches, undo_switches
     ts = np.arange(0.0, 6.0, 0.08)
     ana = START + (GOAL - START) * (ts / ts[-1])[:, None]
     side = np.array([-(GOAL - START)[1], (GOAL - START)[0]]) / np.linalg.norm(GOAL - START)
@@ -671,7 +671,7 @@ def test_two_people_who_meet_head_on_stop_and_walk_on_are_no_id_switch():
     place alone an id switch, and undoing it turned both walks into U-turns (a walk lost).
     Each goes on the way it was going, not the way the other was: no switch. Swapped for
     real a frame earlier (0.5 m apart), each tail goes the other's way, and it is one."""
-    from pipeline.inputs.recorded import id_switches
+    from pipeline.inputs.tracks import id_switches
     ts = np.arange(0.0, 8.0, 0.4)
     stop = 10  # the frame both stand still at
     ana_x = np.where(np.arange(len(ts)) < stop, 1.2 * ts, 1.2 * (ts - 0.4))
@@ -693,7 +693,7 @@ def test_two_people_who_stand_face_to_face_and_walk_on_are_no_id_switch():
     prediction and stands where the other's predicted it; the second after it (standing)
     said nothing of where either went, so it was taken for a switch. Their headings along
     their last and first half metre of motion say they go on their own ways: no switch."""
-    from pipeline.inputs.recorded import id_switches
+    from pipeline.inputs.tracks import id_switches
     ts = np.arange(30) * 0.4
 
     def walker(x: float, speed: float, stop_at: float, y: float, aside: float) -> np.ndarray:
@@ -720,7 +720,7 @@ def test_rows_of_two_people_under_one_id_keep_the_tracks_own_person(tmp_path, ca
     track's first row on, or from its first row to its last; rows repeated at one time
     within a few millimetres (a log that rounds, two sensors fused) are one person, their
     mean kept, without a word; so are rows a few milliseconds apart within one frame."""
-    from pipeline.inputs.recorded import drop_shared_times
+    from pipeline.inputs.tracks import drop_shared_times
     ts = np.arange(0.0, 6.0, 0.08)
     ana = START + (GOAL - START) * (ts / ts[-1])[:, None]
     ben = ana + [0.0, 0.8]
@@ -796,7 +796,7 @@ def test_walking_speed_is_not_inflated_by_a_fast_trackers_noise():
     """A 100 Hz tracker with 4 cm of noise: a walk at 1.25 m/s is over 5 times as long as the
     route, and people standing by jitter without going anywhere; t in seconds must read as
     seconds (the mending was switched off for "7.05 m per unit of t")."""
-    from pipeline.inputs.recorded import walking_speed
+    from pipeline.inputs.tracks import walking_speed
     rng = np.random.default_rng(0)
     ts = np.arange(0.0, 8.0, 0.01)
     walker = START + np.outer(ts, [1.25, 0.0]) + rng.normal(0.0, 0.04, (len(ts), 2))
@@ -810,7 +810,7 @@ def test_noisy_tracks_side_by_side_are_not_taken_for_id_switches():
     say) and never switched: noise alone misses a prediction by 0.3 m often, and at one
     fixed 0.3 m threshold 27 false switches were found; the threshold grows with the
     tracks' noise, and none is."""
-    from pipeline.inputs.recorded import id_switches
+    from pipeline.inputs.tracks import id_switches
     rng = np.random.default_rng(1)
     ts = np.arange(0.0, 12.0, 0.08)
     tracks = [np.array([0.0, 3.0 * pair + side]) + np.outer(ts, [1.2, 0.0])

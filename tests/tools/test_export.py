@@ -30,7 +30,7 @@ from pipeline.core.features import FeatureParams
 from pipeline.core.graph_mdp import MDPParams
 from pipeline.core.world import Scene, scene_from_dict
 from pipeline.inputs.map_file import load_map
-from pipeline.inputs.recorded import read_tracks
+from pipeline.inputs.recordings import read_tracks
 from pipeline.inputs.scene_file import load_scene_file
 from pipeline.tools import export
 from tests.conftest import METROPOLIS, POLITE, ROOT, run_in_process

@@ -1,0 +1,180 @@
+"""Tracking noise (DESIGN §3): how much a trajectory zig-zags (`noise_sigma`), and the
+Whittaker smoother that takes it out to that noise (`smooth_jitter`)."""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import scipy.linalg
+
+from pipeline.inputs.polylines import FARTHEST_COORDINATE, drop_repeats, polyline_length
+from pipeline.progress import Progress
+
+log = logging.getLogger(__name__)
+
+
+# Tracking noise (`smooth_jitter`, per trajectory): a tracker's centimetres of noise at a
+# few centimetres between poses zig-zag a straight walk into one two or three times as long,
+# and learning then reads a long, winding walk (measured on hand-drawn paths with 2-3 cm of
+# noise: the learned weights fell to about zero). Trajectories whose length the noise
+# inflates by more than JITTER_INFLATION (3 %) are smoothed; the shipped hand-drawn paths
+# (1 cm tremor at 10 cm) are inflated by 1 % and kept as they are.
+JITTER_INFLATION = 1.03
+# The lengthening is not said of a track shorter than this once smoothed: a person standing
+# in a tracker's view, whose 5 cm of jitter made a stay of a centimetre "11191.92 times as
+# long as the path it follows"
+INFLATION_MIN_LENGTH = 1.0
+# `smooth_to_noise` departs from the points by this many times the estimated noise (Morozov's
+# discrepancy principle takes a factor above 1: an estimate a little low, as one trajectory's
+# few hundred points give, must not leave some of the noise in)
+DISCREPANCY = 1.25
+# `noise_sigma`: the ratio measured 1.0-1.06 on noisy tracks, 1.24 hand-drawn, 4-9 clean
+NOISE_SPAN_RATIO = 1.5
+# `noise_sigma` reads noise only in trajectories of at least this many points: in a sparse
+# polyline the few second differences are its corners, which the span test above cannot
+# tell from noise (8-point planner paths through a door read as 1.2-1.4 m of "noise" and
+# were smoothed through the wall; 1 Hz walks of 8-9 points as 0.2-0.4 m, smoothed to 0.23 m
+# of a person they passed at 0.86 m). Tracked walks have a hundred points and more.
+MIN_NOISE_POINTS = 20
+# Noise moves every point. A trajectory of which at least this share of the points lie
+# exactly on the line through their neighbours (to STRAIGHT_SINE of a turn) is a planned or
+# drawn polyline, straight runs between corners, whose corners `noise_sigma` cannot tell
+# from noise either: a run's own roadmap paths written to a file (0.25 m lattice paths, 25-70 %
+# of their points on straight runs) read as 15 cm of noise, were smoothed, and learned
+# relation -0.62, social -0.70, length -0.31 in place of the run's -1, -0.44, -0.07. Tracked
+# walks have none (70 social-force walks: 0 %; the hand-drawn set: 0-1 %).
+PLANNED_STRAIGHT_SHARE = 0.1
+STRAIGHT_SINE = 1e-6  # a file's nanometres in 0.1 m steps: 1e-8; noise of a millimetre: 1e-2
+
+
+def noise_sigma(tracks: Sequence[np.ndarray]) -> float:
+    """The standard deviation of the tracking noise on each coordinate of the points, estimated
+    from all the tracks' second differences p[i-1] - 2 p[i] + p[i+1] (of independent noise
+    their variance is 6 sigma^2; the median, scaled by 1.4826, ignores the few at sharp turns).
+    0 when they are not noise: second differences over twice the span, p[i-2] - 2 p[i] +
+    p[i+2], are as large as those of noise (the same variance) and NOISE_SPAN_RATIO times
+    larger or more where they measure the route's turns (4 times for a smooth curve), as in
+    a sparse polyline of a few corners; 0 without tracks of MIN_NOISE_POINTS points that are
+    no planned polyline (`straight_share`, PLANNED_STRAIGHT_SHARE)."""
+    dense = [t for t in tracks if len(t) >= MIN_NOISE_POINTS
+             and straight_share(t) < PLANNED_STRAIGHT_SHARE]
+    if not dense:
+        return 0.0
+    near = np.median(np.abs(np.concatenate([(t[2:] - 2 * t[1:-1] + t[:-2]).ravel()
+                                            for t in dense])))
+    wide = np.median(np.abs(np.concatenate([(t[4:] - 2 * t[2:-2] + t[:-4]).ravel()
+                                            for t in dense])))
+    if not near > 0 or wide > NOISE_SPAN_RATIO * near:
+        return 0.0
+    return float(1.4826 * near / math.sqrt(6.0))
+
+
+def straight_share(track: np.ndarray) -> float:
+    """The share of the interior points of `track` (n, 2) that lie on the straight line
+    through their neighbours: |sin| of the turn there below STRAIGHT_SINE."""
+    a, b = track[1:-1] - track[:-2], track[2:] - track[1:-1]
+    if not len(a):
+        return 0.0
+    cross = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    return float(np.mean(cross <= STRAIGHT_SINE * np.linalg.norm(a, axis=1)
+                         * np.linalg.norm(b, axis=1)))
+
+
+def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
+    """The Whittaker smoother (Eilers 2003) of a polyline (n, 2), n >= 4, its ends held: z
+    with z's first and last points the polyline's, the others minimising
+    |points - z|^2 + penalty |D z|^2 (D the second differences) given them, one banded
+    solve. (Not the free solution with its ends overwritten: at a large penalty that is a
+    straight line near each end, which a walk setting off from rest leaves behind its first
+    point, and the overwritten end then hooked back, away from the goal, by 13 cm.)"""
+    return whittaker_of(points)(penalty)
+
+
+def whittaker_of(points: np.ndarray) -> Callable[[float], np.ndarray]:
+    """`whittaker` of one polyline (n, 2) at any penalty: what does not depend on the
+    penalty is built once (`smooth_to_noise` tries 30 penalties; built each time, it was
+    half of a tracker file's reading)."""
+    p = np.asarray(points, dtype=float)
+    n = len(p)
+    diagonal = np.full(n, 6.0)
+    diagonal[[0, -1]], diagonal[[1, -2]] = 1.0, 5.0
+    first = np.full(n - 1, -4.0)
+    first[[0, -1]] = -2.0
+    banded = np.zeros((3, n))  # (I + penalty D'D), upper form for LAPACK's pbsv
+    pbsv, = scipy.linalg.get_lapack_funcs(("pbsv",), (banded,))
+
+    def smoothed(penalty: float) -> np.ndarray:
+        banded[0, 2:] = penalty
+        banded[1, 1:] = penalty * first
+        banded[2] = 1.0 + penalty * diagonal
+        rhs = p[1:-1].copy()  # the ends' terms of (I + penalty D'D) z move to the right side
+        rhs[0] -= banded[1, 1] * p[0]
+        rhs[1] -= banded[0, 2] * p[0]
+        rhs[-2] -= banded[0, n - 1] * p[-1]
+        rhs[-1] -= banded[1, n - 1] * p[-1]
+        # scipy.linalg.solveh_banded's own call, without its checks of our finite arrays
+        _, inner, info = pbsv(banded[:, 1:-1], rhs, lower=0)
+        if info != 0:  # never: the matrix is I plus a semi-definite one
+            raise np.linalg.LinAlgError(f"pbsv failed ({info})")
+        return np.vstack([p[:1], inner, p[-1:]])
+    return smoothed
+
+
+def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
+    """The Whittaker-smoothed polyline that departs from `points` by DISCREPANCY·`sigma`
+    (root mean square per coordinate), about the noise's own size (the discrepancy principle:
+    the penalty is found by bisection over 10^-4..10^12, the departure growing with it);
+    first and last point kept."""
+    p = np.asarray(points, dtype=float)
+    if len(p) < 4 or not sigma > 0:
+        return p.copy()
+    origin = p[0].copy()  # map coordinates (UTM: 10^6 m) lose no precision in the solve
+    p = p - origin
+    smoothed = whittaker_of(p)
+    low, high = -4.0, 12.0
+    for _ in range(30):
+        mid = (low + high) / 2
+        if np.mean((smoothed(10.0 ** mid) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
+            high = mid
+        else:
+            low = mid
+    return smoothed(10.0 ** low) + origin
+
+
+def smooth_jitter(tracks: Sequence[np.ndarray],
+                  where: str) -> tuple[list[np.ndarray], list[bool], list[float]]:
+    """The tracks, each smoothed of its tracking noise (`noise_sigma`, `smooth_to_noise`)
+    when that inflates its length by more than JITTER_INFLATION, with one warning; the
+    others as they are. Each track is judged on its own points, so a held-out one
+    (evaluate.holdout) changes nothing in those learned from. Tracks with non-finite or
+    far-off points are left for the checks that refuse them. Returns (tracks, smoothed,
+    each track's noise σ in m: 0 where none is found)."""
+    out, smoothed, noise, sigmas, inflation = [], [], [], [], []
+    progress = Progress(f"{where}: denoising trajectories", len(tracks))
+    for k, t in enumerate(tracks):
+        progress(k)
+        with np.errstate(over="ignore", invalid="ignore"):
+            usable = np.isfinite(t).all() and np.abs(t).max(initial=0.0) < FARTHEST_COORDINATE
+        p = drop_repeats(t) if usable else t
+        sigma = noise_sigma([p]) if usable else 0.0
+        smooth = smooth_to_noise(p, sigma) if sigma > 0 else p
+        ratio = polyline_length(p) / polyline_length(smooth) if sigma > 0 else 1.0
+        changed = bool(ratio > JITTER_INFLATION)
+        out.append(smooth if changed else t)
+        smoothed.append(changed)
+        noise.append(sigma)
+        if changed:
+            sigmas.append(sigma)
+            if polyline_length(smooth) >= INFLATION_MIN_LENGTH:
+                inflation.append(ratio)
+    if sigmas:
+        log.warning("%s: %d of %d trajectories zig-zag by about %.1f cm from point to point "
+                    "(tracking noise, the median)%s: smoothed to that noise and resampled "
+                    "(expert.denoise=false keeps them as recorded)", where, len(sigmas),
+                    len(tracks), 100 * float(np.median(sigmas)),
+                    f" and are up to {max(inflation):.2f} times as long as the paths they "
+                    "follow" if inflation else "")
+    return out, smoothed, noise
