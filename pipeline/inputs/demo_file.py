@@ -36,13 +36,13 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
     goal (one that ends outside the goal disk is a demonstration that does not reach it, with
     a warning); `topic` and `frame` select and check
     the bag topic (expert.topic, expert.frame); `denoise` smooths tracking noise
-    (expert.denoise, `recorded.smooth_jitter`); `select_walks` keeps only the walks from a
+    (expert.denoise, `denoise.smooth_jitter`); `select_walks` keeps only the walks from a
     start to the goal in each trajectory (expert.select_walks,
     `recorded.select_track_walks`). A file's `subjects` become the demonstrations'
     `subject`. A folder of recordings (no ROS 2 bag itself) is read one recording after
     another, by name; a recording that names no subjects (a bag cannot) is taken to be of
     one subject, named by its file or by the folder in it that holds it
-    (`recorded.subject_recordings`).
+    (`recordings.subject_recordings`).
     """
     path = Path(path)
     demos_of = functools.partial(_recording_demos, scene=scene, feature_model=feature_model,

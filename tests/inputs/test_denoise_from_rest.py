@@ -1,5 +1,5 @@
 """A tracked walk that sets off from rest, densely sampled, smoothed of its tracking noise
-(pipeline/inputs/recorded.py `smooth_to_noise`): its first point is kept and the smoothed
+(pipeline/inputs/denoise.py `smooth_to_noise`): its first point is kept and the smoothed
 walk goes on from there. The free smoother's solution is a straight line near each end,
 which an accelerating walk leaves behind its first point; with that first point written
 over it, a 100 Hz walk with 2 cm of noise began with a 13 cm hook away from the goal, read

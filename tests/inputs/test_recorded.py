@@ -1,6 +1,6 @@
-"""Recorded demonstrations (pipeline/inputs/recorded.py, DESIGN §3): CSV files and ROS bags
-written with rosbags' own writers, cut into trajectories from the scene's starts to its goal:
-pose streams where the motion begins, every format at the goal disk."""
+"""Recorded demonstrations (pipeline/inputs/recordings.py, recorded.py, DESIGN §3): CSV files and
+ROS bags written with rosbags' own writers, cut into trajectories from the scene's starts to its
+goal: pose streams where the motion begins, every format at the goal disk."""
 
 import json
 import logging

@@ -1,9 +1,9 @@
-"""Recorded demonstrations as they really occur (pipeline/inputs/recorded.py, DESIGN §3): dense
-recordings that run into the goal disk and beyond, in every format (JSON, CSV with and without
-the byte-order mark Excel writes, nav_msgs/Path and pose-stream bags), are cut at the goal disk
-and come out as the same polylines; pose streams begin where the motion begins and are assigned
-to the start the robot set off from; CSV headers are read strictly; files name who demonstrated
-(`subjects`).
+"""Recorded demonstrations as they really occur (pipeline/inputs/recordings.py, recorded.py, DESIGN
+§3): dense recordings that run into the goal disk and beyond, in every format (JSON, CSV with
+and without the byte-order mark Excel writes, nav_msgs/Path and pose-stream bags), are cut at
+the goal disk and come out as the same polylines; pose streams begin where the motion begins and
+are assigned to the start the robot set off from; CSV headers are read strictly; files name who
+demonstrated (`subjects`).
 
 The clean polylines here step exactly 0.1 m along straight pieces, so resampling a pose stream
 at 0.1 m (`clean_track`) gives them back: the stream and the polylines must come out equal."""

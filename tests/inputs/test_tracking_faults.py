@@ -1,4 +1,4 @@
-"""Trackers' faults in recorded demonstrations (pipeline/inputs/recorded.py). Noise that
+"""Trackers' faults in recorded demonstrations (pipeline/inputs/tracks.py, denoise.py). Noise that
 zig-zags a walk into a much longer one is estimated, smoothed to its own size and resampled
 (`smooth_jitter`); clean polylines (the shipped hand-drawn paths among them) are kept point
 for point. A jump where tracking was lost is named (`largest_jump`)."""
