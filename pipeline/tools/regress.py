@@ -92,6 +92,9 @@ def run_experiment(name: str, overrides: list[str], work: Path, reuse: bool) -> 
     return metrics
 
 
+COLUMNS = ["experiment", "metric", "baseline", "current", "diff", "tolerance", "ok"]
+
+
 def compare(name: str, baseline: dict, current: dict, tolerances) -> list[dict]:
     rows = []
     for metric in sorted(set(baseline) | set(current)):
@@ -99,6 +102,9 @@ def compare(name: str, baseline: dict, current: dict, tolerances) -> list[dict]:
         if tol == "ignore":
             continue
         old, new = baseline.get(metric), current.get(metric)
+        for value, where in ((old, "baseline"), (new, "current run")):
+            if isinstance(value, list):  # read_metrics allows them (aggregate's tables)
+                raise PipelineError(f"{name}: {metric} is a list in the {where}, not a number")
         if old is None or new is None:
             ok, diff, allowed = old is None, None, None  # a new metric is fine, a lost one not
         else:
@@ -173,8 +179,8 @@ def _regress(args: argparse.Namespace) -> int:
             written.append(path.name)
         print(f"baseline updated for {names}")
         return 0
-    table = pd.DataFrame(rows)
-    failed = table[~table.ok]
+    table = pd.DataFrame(rows, columns=COLUMNS)  # the columns also when every metric is ignored
+    failed = table[~table.ok.astype(bool)]
     shown = table if args.all_rows else failed
     if len(shown):
         print(shown.to_string(index=False, float_format=lambda v: f"{v:.6g}"))
