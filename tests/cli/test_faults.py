@@ -346,6 +346,25 @@ def test_a_signal_stops_a_sweep_and_its_workers(tmp_path, sig, code, says, whole
                 and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]
 
 
+def test_ctrl_c_stops_a_sweep_of_one_worker_in_one_line(tmp_path):
+    """hydra.launcher.n_jobs=1 runs the jobs one after another in the sweep's own process
+    (no fork): Ctrl-C there stops the sweep as with a pool, the running job records it, the
+    queued ones never start, and the last line counts the jobs completed."""
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline", *SLOW_SWEEP[:-1],
+                             "hydra.launcher.n_jobs=1", f"hydra.sweep.dir={tmp_path}"],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True)
+    wait_for_running_jobs(tmp_path, proc, n=1)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 130, err
+    assert lines(err) == ["interrupted by the user during the sweep (0 of 3 jobs completed; "
+                          "make aggregate lists them)"], err
+    assert job_states(tmp_path) == {"0": ("interrupted", "birl",
+                                          "interrupted by the user at stage birl")}
+    assert not (tmp_path / "1").exists() and not (tmp_path / "2").exists()
+
+
 def test_a_killed_worker_fails_its_job_alone(tmp_path):
     """SIGKILL of one worker (the OOM killer's way): its job is one failed job, a new worker
     takes its place, the others complete, and the sweep exits 1 naming it."""
