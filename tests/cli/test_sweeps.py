@@ -449,6 +449,45 @@ def test_pool_launcher_gives_the_joblib_launchers_jobs(tmp_path):
             sorted(p.name for p in joblib.glob("*.mcap"))
 
 
+REPEATED_SEED = ("-m", "experiment=quick", "seed=0,1,0", "reward=polite",
+                 "birl.n_iterations=3")
+
+
+def sweep_metrics(job):
+    return {k: v for k, v in json.loads((job / "metrics.json").read_text()).items()
+            if not k.startswith("time_")}
+
+
+def test_a_worker_that_ran_a_job_gives_the_next_a_fresh_workers_results(tmp_path):
+    """The pool's workers live on from job to job: job 2 (seed 0 again) runs in a worker
+    that has run job 0 or 1, and must give job 0's metrics, which a fresh worker gave."""
+    result = run_app(*REPEATED_SEED, "hydra.launcher.n_jobs=2", f"hydra.sweep.dir={tmp_path}")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "Pool of 2 worker(s) is launching 3 jobs" in result.stdout
+    assert sweep_metrics(tmp_path / "2") == sweep_metrics(tmp_path / "0") != \
+        sweep_metrics(tmp_path / "1")
+    assert "seed=0" in (tmp_path / "2" / ".hydra" / "overrides.yaml").read_text()
+
+
+@pytest.mark.slow  # 12 s: two sweeps
+def test_a_pool_sweep_gives_the_jobs_of_a_sequential_one(tmp_path):
+    """hydra.launcher.n_jobs=1 runs the jobs one after another in the sweep's process (no
+    fork): the pool's forked workers give every job the same config, overrides and
+    metrics."""
+    for workers in (1, 2):
+        result = run_app(*REPEATED_SEED, f"hydra.launcher.n_jobs={workers}",
+                         f"hydra.sweep.dir={tmp_path / str(workers)}")
+        assert result.returncode == 0, result.stderr[-2000:]
+        assert f"Pool of {workers} worker(s) is launching 3 jobs" in result.stdout
+    pool, one = tmp_path / "2", tmp_path / "1"
+    for job in ("0", "1", "2"):
+        for name in (".hydra/config.yaml", ".hydra/overrides.yaml"):
+            assert (pool / job / name).read_text() == (one / job / name).read_text(), (job, name)
+        assert sweep_metrics(pool / job) == sweep_metrics(one / job)
+        assert json.loads((pool / job / "status.json").read_text())["state"] == "complete"
+    assert sweep_metrics(one / "2") == sweep_metrics(one / "0")
+
+
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_batch_that_does_not_compose_runs_no_job(tmp_path, workers):
     """Every job's config is composed before any job runs (by the pool's workers, in
