@@ -371,6 +371,11 @@ class _Pool:
         for w in busy:
             os.kill(w.process.pid, signum)
         deadline = time.monotonic() + self.STOP_WAIT_S
+        # The first stop set every stop signal to be ignored (a worker's status must not be
+        # cut short); here a second Ctrl-C must not: it is the user giving up on a job that
+        # does not answer (stuck in a long C call) before STOP_WAIT_S is out.
+        in_main = threading.current_thread() is threading.main_thread()
+        before = signal.signal(signal.SIGINT, signal.default_int_handler) if in_main else None
         try:
             while busy and time.monotonic() < deadline:
                 wait([w.conn for w in busy] + [w.process.sentinel for w in busy],
@@ -384,6 +389,9 @@ class _Pool:
                         busy.remove(w)
         except KeyboardInterrupt:
             pass
+        finally:
+            if before is not None:
+                signal.signal(signal.SIGINT, before)
         for w in busy:
             w.process.kill()
 

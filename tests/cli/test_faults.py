@@ -5,6 +5,7 @@ given with quotes (refused by the early lock before anything is created)."""
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import errno
 import json
@@ -344,6 +345,36 @@ def test_a_signal_stops_a_sweep_and_its_workers(tmp_path, sig, code, says, whole
     assert not (tmp_path / "2").exists()  # the third job never started
     assert not [w for w in workers if Path(f"/proc/{w}").exists()
                 and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]
+
+
+def test_a_second_ctrl_c_kills_jobs_that_do_not_stop(tmp_path):
+    """Jobs that do not answer the first Ctrl-C (here frozen with SIGSTOP, as a job stuck in
+    a long C call is) would be waited for STOP_WAIT_S (60 s); a second Ctrl-C kills them at
+    once, and the sweep still ends in its one line."""
+    proc = start_sweep(tmp_path)
+    wait_for_running_jobs(tmp_path, proc)
+    workers = worker_pids(proc)
+    try:
+        for w in workers:
+            os.kill(w, signal.SIGSTOP)
+        proc.send_signal(signal.SIGINT)
+        time.sleep(1.0)
+        assert proc.poll() is None  # waiting for the frozen jobs to record the stop
+        proc.send_signal(signal.SIGINT)
+        err = proc.communicate(timeout=20)[1]
+    finally:
+        for w in workers:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(w, signal.SIGKILL)
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert lines(err) == ["interrupted by the user during the sweep (0 of 3 jobs completed; "
+                          "make aggregate lists them)"], err
+    assert not [w for w in workers if Path(f"/proc/{w}").exists()
+                and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]
+    # as the jobs' readers see them: killed where they were, no longer running
+    assert [(read_status(tmp_path / j).state, read_status(tmp_path / j).error)
+            for j in ("0", "1")] == [("interrupted", rundir.KILLED)] * 2
 
 
 def test_ctrl_c_stops_a_sweep_of_one_worker_in_one_line(tmp_path):
