@@ -152,21 +152,24 @@ def _regress(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     tolerances = load_tolerances(args.baseline)
+    baselines = {}  # read before any experiment runs: a missing or damaged one is said at once
+    for name in [] if args.update else names:
+        path = args.baseline / f"{name}.json"
+        if not path.exists():
+            print(f"error: no baseline {path}; create it with --update", file=sys.stderr)
+            return 2
+        baselines[name] = read_baseline(path)
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         rows, updated = [], {}
         for name in names:
             print(f"running {name}: {' '.join(experiments[name]) or '(defaults)'}", flush=True)
             current = run_experiment(name, experiments[name], work, args.reuse)
-            path = args.baseline / f"{name}.json"
             if args.update:
-                updated[path] = {k: v for k, v in current.items()
-                                 if tolerance_for(k, tolerances) != "ignore"}
+                updated[args.baseline / f"{name}.json"] = {
+                    k: v for k, v in current.items() if tolerance_for(k, tolerances) != "ignore"}
                 continue
-            if not path.exists():
-                print(f"error: no baseline {path}; create it with --update", file=sys.stderr)
-                return 2
-            rows += compare(name, read_baseline(path), current, tolerances)
+            rows += compare(name, baselines[name], current, tolerances)
     if args.update:  # only once every experiment ran: a stop leaves the baseline as it was
         written: list[str] = []
         for path, kept in updated.items():

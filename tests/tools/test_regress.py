@@ -185,9 +185,10 @@ def test_a_run_with_a_list_for_a_metric_is_one_line(tmp_path, capsys):
 def test_an_experiment_without_baseline_or_unknown_is_refused(tmp_path, capsys):
     baseline, work = make_baseline(tmp_path, BASE, BASE)
     (baseline / "b.json").unlink()
-    code, _, err = regress(capsys, baseline, work)
+    code, out, err = regress(capsys, baseline, work)
     assert code == 2 and err == f"error: no baseline {baseline / 'b.json'}; create it with " \
         "--update\n"
+    assert out == ""  # said before experiment a (~20 s on real ones) runs
     code, out, err = regress(capsys, baseline, work, "--only", "a", "c")
     assert code == 2 and out == ""  # refused before anything runs
     assert err == "error: unknown reference experiment(s) ['c']; known: ['a', 'b']\n"
