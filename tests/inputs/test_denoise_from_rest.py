@@ -7,7 +7,13 @@ by learning as goal deviation (its weight went to the box's bound, 0)."""
 
 import numpy as np
 
-from pipeline.inputs.denoise import noise_sigma, smooth_jitter, smooth_to_noise, whittaker
+from pipeline.inputs.denoise import (
+    noise_sigma,
+    smooth_all_to_noise,
+    smooth_jitter,
+    smooth_to_noise,
+    whittaker,
+)
 
 START, GOAL = np.array([0.5, 0.5]), np.array([5.5, 9.0])
 
@@ -56,3 +62,20 @@ def test_kept_ends_minimise_the_same_sum_given_them():
     raw = walk_from_rest() + np.random.default_rng(4).normal(0.0, 0.02, (1, 2))
     assert noise_sigma([raw]) < 1e-3  # no noise read: nothing to smooth
     np.testing.assert_array_equal(smooth_to_noise(raw, 0.0), raw)
+
+
+def test_smoothing_many_at_once_gives_each_one_s_bits():
+    """`smooth_all_to_noise` runs the tracks' bisections side by side in one banded solve a
+    step: each track comes out bit for bit as `smooth_to_noise` makes it on its own."""
+    rng = np.random.default_rng(5)
+    tracks, sigmas = [], []
+    for n in (4, 5, 6, 30, 2, 3, 250, 4, 1000, 17):
+        walk = np.cumsum(rng.normal(0.0, 0.05, (n, 2)), axis=0) + rng.uniform(-1e5, 1e5, 2)
+        tracks.append(walk + rng.normal(0.0, 0.02, walk.shape))
+        sigmas.append(float(rng.choice([0.0, 0.005, 0.02, 0.3])) if n != 250 else 0.02)
+    tracks.append(walk_from_rest() + rng.normal(0.0, 0.02, (1, 2)))
+    sigmas.append(0.02)
+    together = smooth_all_to_noise(tracks, sigmas)
+    for track, sigma, out in zip(tracks, sigmas, together, strict=True):
+        assert out.tobytes() == smooth_to_noise(track, sigma).tobytes()
+    assert smooth_all_to_noise([], []) == []
