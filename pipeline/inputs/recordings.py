@@ -466,6 +466,8 @@ def clock_order(where: str, what: str, points: np.ndarray, times: np.ndarray,
     one: two recordings appended
     with clocks that both start at 0, one walk's end followed by the other's start, each
     read alone would be many times shorter. `place(k)` names the k-th pose."""
+    if not (np.diff(times) < 0).any():  # in order as given (a tracker's every track): kept
+        return ClockOrder(np.arange(len(times)), None)
     order = np.argsort(times, kind="stable")
     as_filed, as_timed = polyline_length(points), polyline_length(points[order])
     if as_timed <= as_filed * (1 + T_ORDER_SLACK) + T_ORDER_SLACK_M:
@@ -536,7 +538,10 @@ def stepped_forward(times: np.ndarray, usual: float | None = None) -> np.ndarray
     `clock_order`) the rest moved on by its size and one usual interval (`usual` if given,
     else the times' own); a smaller step back (a stamp's jitter) held at the time before it,
     so that the times do not drift."""
-    set_back, usual = _set_back_steps(np.diff(times), usual)
+    steps = np.diff(times)
+    if not (steps < 0).any():  # nothing is set back, whatever the usual interval: no median
+        return np.maximum.accumulate(_moved_on(times, np.zeros(len(steps), dtype=bool), 0.0))
+    set_back, usual = _set_back_steps(steps, usual)
     return np.maximum.accumulate(_moved_on(times, set_back, usual))
 
 
