@@ -28,13 +28,17 @@ Path forms read by `read_recording`:
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import difflib
+import gc
+import itertools
 import logging
 import math
+import operator
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -319,8 +323,14 @@ def _read_csv(path: Path, where: str, single_rows: bool = False) -> Recording:
     started = time.perf_counter()
     try:
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
-        with path.open(newline="", encoding="utf-8-sig") as f:
-            col, table, lines, ids, subjects = _csv_table(csv.reader(f), where)
+        with _collector_paused():
+            try:
+                with path.open(newline="", encoding="utf-8-sig") as f:
+                    col, table, lines, ids, subjects = _csv_table(csv.reader(f), where)
+            except _ReadByRow:  # read again a row at a time, for its lines and its refusal
+                with path.open(newline="", encoding="utf-8-sig") as f:
+                    col, table, lines, ids, subjects = _csv_table(csv.reader(f), where,
+                                                                  by_row=True)
         if size >= LARGE_FILE_BYTES:
             log.info("  %d rows read in %.0f s", len(table), time.perf_counter() - started)
     except UnicodeDecodeError:
@@ -330,14 +340,59 @@ def _read_csv(path: Path, where: str, single_rows: bool = False) -> Recording:
     return _csv_recording(col, table, lines, ids, subjects, where, single_rows)
 
 
-def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarray, list[str],
-                                            list[str]]:
+@contextlib.contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Python's cyclic garbage collector paused: the reader makes a list of every row, and
+    the collector, run every few hundred new lists, scanned them and all else alive (a third
+    of reading a tracker's millions of rows); rows hold no cycles and are freed as they go."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+class _ReadByRow(Exception):
+    """A CSV that `_csv_blocks` cannot read a block at a time."""
+
+
+def _is_blank(row: list[str]) -> bool:
+    return not row or (not row[0].strip() and all(not c.strip() for c in row))
+
+
+def _csv_blocks(reader) -> Iterator[tuple[list[list[str]], np.ndarray]]:
+    """The rows after the header, CSV_CHUNK_ROWS lines at a time, blank lines left out, with
+    their file lines: counted, not asked of the reader at every row (a Python step a row, a
+    quarter of the reading), where each row is one line. Raises _ReadByRow where one is not
+    (a quoted line break) or the reader fails (an earlier row's refusal comes first)."""
+    while True:
+        before = reader.line_num
+        try:
+            rows = list(itertools.islice(reader, CSV_CHUNK_ROWS))
+        except (csv.Error, UnicodeDecodeError):
+            raise _ReadByRow from None
+        if not rows:
+            return
+        if reader.line_num - before != len(rows):
+            raise _ReadByRow
+        lines = np.arange(before + 1, before + 1 + len(rows))
+        if not (all(rows) and all(map(str.strip, map(operator.itemgetter(0), rows)))):
+            kept = [k for k, row in enumerate(rows) if not _is_blank(row)]
+            rows, lines = [rows[k] for k in kept], lines[kept]
+        if rows:
+            yield rows, lines
+
+
+def _csv_table(reader, where: str, by_row: bool = False
+               ) -> tuple[dict[str, int], np.ndarray, np.ndarray, list[str], list[str]]:
     """The CSV's columns (name -> index), its rows as (x, y, t) (t 0 without a t column), the
     file line of each row, and its trajectory ids and subjects (empty without those columns).
     A refusal names the first line at fault and, of its fields, the first in the order
     count, x, y, t, trajectory, subject. Rows are read CSV_CHUNK_ROWS at a time, each field
     a column at a time (`_csv_chunk`; a tracker's file has millions of rows: a row at a time
-    took 11 µs a row, now 4)."""
+    took 11 µs a row, now 4), a block of lines at a time (`_csv_blocks`) unless `by_row`."""
     header = next((row for row in reader if any(c.strip() for c in row)), None)
     if header is None:
         raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
@@ -346,10 +401,13 @@ def _csv_table(reader, where: str) -> tuple[dict[str, int], np.ndarray, np.ndarr
     chunks: list[tuple[np.ndarray, np.ndarray, dict[str, list[str]]]] = []
     rows: list[list[str]] = []
     lines: list[int] = []
+    if not by_row:
+        chunks = [_csv_chunk(block, at, col, len(header), where)
+                  for block, at in _csv_blocks(reader)]
     try:
-        for row in reader:
-            if not row or (not row[0].strip() and all(not c.strip() for c in row)):
-                continue  # blank line
+        for row in reader if by_row else ():
+            if _is_blank(row):
+                continue
             rows.append(row)
             lines.append(reader.line_num)
             if len(rows) == CSV_CHUNK_ROWS or len(row) != len(header):  # the latter: refused
@@ -378,10 +436,13 @@ def _csv_chunk(rows: list[list[str]], lines: list[int], col: dict[str, int], n_f
     their lines, and their ids by column (trajectory, subject); refused at the first row at
     fault (`_refuse_csv_row`)."""
     numbers = [name for name in ("x", "y", "t") if name in col]
-    counted = all(len(row) == n_fields for row in rows)
-    values = [_plain_decimals([row[col[name]].strip() for row in rows]) if counted else None
-              for name in numbers]
-    idents = {name: [row[col[name]].strip() for row in rows] if counted else []
+    counted = set(map(len, rows)) == {n_fields}
+
+    def field(name: str) -> list[str]:  # a column's fields, trimmed (map: no loop in Python)
+        return list(map(str.strip, map(operator.itemgetter(col[name]), rows)))
+
+    values = [_plain_decimals(field(name)) if counted else None for name in numbers]
+    idents = {name: field(name) if counted else []
               for name in ("trajectory", "subject") if name in col}
     if not counted or any(v is None for v in values) or \
             not all(all(ids) and "".join(ids).isprintable() for ids in idents.values()):
@@ -411,17 +472,21 @@ def _refuse_csv_row(row: list[str], line: int, col: dict[str, int], n_fields: in
             refuse_unprintable(ident, f"{where}: {what}")
 
 
-DECIMAL_CHARACTERS = frozenset("0123456789.+-eE")
+DECIMALS = b"0123456789.+-eE"
 
 
 def _plain_decimals(texts: list[str]) -> np.ndarray | None:
     """`texts` as finite numbers when each is a plain decimal number (CSV_NUMBER), else
     None. Of strings of these characters alone, float() reads just those (the words nan
     and inf, "_" and other digits need others), at a fraction of the cost of matching each."""
-    if not DECIMAL_CHARACTERS.issuperset("".join(texts)):
+    # the bytes of other characters are left once those are deleted (quicker than a set's test)
+    try:
+        if "".join(texts).encode("ascii").translate(None, DECIMALS):
+            return None
+    except UnicodeEncodeError:
         return None
     try:
-        numbers = np.array(list(map(float, texts)), dtype=float)
+        numbers = np.fromiter(map(float, texts), dtype=float, count=len(texts))
     except ValueError:  # "1e", "--1", "", ...
         return None
     return numbers if np.isfinite(numbers).all() else None  # 1e999 is plain but infinite

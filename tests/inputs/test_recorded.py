@@ -780,3 +780,35 @@ def test_a_glitched_pose_far_off_is_refused_in_one_line_also_without_a_room(tmp_
     assert revisit(np.array([[0.0, 0.0], [0.0, 1e300], [0.0, -1e300]])) is None
     refused(r"^t0 has a point at \(nan, 1\): not a number; a glitched pose\?$", clean_tracks,
             [np.array([[0.0, 0.0], [np.nan, 1.0], [1.0, 1.0]])], GOAL, 0.3, None, "w", ["t0"])
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, recordings.CSV_CHUNK_ROWS])
+@pytest.mark.parametrize("text", [
+    "\ntrajectory,x,y,t\na,1,1,0\n\n , ,\na,2,1.5,1\nb, 3 ,2,0\n  \nb,4,2,1\n,,,\n",
+    # a quoted line break (in a column not read): read a row at a time
+    'trajectory,x,y,t,note\na,1,1,0,\na,2,1.5,1,"two\nlines"\n\na,2,2,2,\n',
+])
+def test_a_csv_read_a_block_of_lines_at_a_time_reads_as_a_row_at_a_time(tmp_path, monkeypatch,
+                                                                           chunk, text):
+    """`_csv_blocks` counts the rows' lines where each row is one line (blank ones left
+    out); the table, lines and ids are those of reading a row at a time."""
+    import csv
+    monkeypatch.setattr(recordings, "CSV_CHUNK_ROWS", chunk)
+    path = tmp_path / "rows.csv"
+    path.write_text(text)
+    read = []
+    for by_row in (False, True):
+        with path.open(newline="") as f:
+            try:
+                read.append(recordings._csv_table(csv.reader(f), "x", by_row=by_row))
+            except recordings._ReadByRow:
+                read.append(None)
+    blocks, rows = read
+    assert rows is not None
+    if "note" in text:
+        assert blocks is None and rows[2].tolist() == [2, 4, 6]
+        return
+    col, table, lines, ids, subjects = blocks
+    assert col == rows[0] and ids == rows[3] and subjects == rows[4]
+    assert table.tobytes() == rows[1].tobytes() and lines.tolist() == rows[2].tolist()
+    assert lines.tolist() == [3, 6, 7, 9]
