@@ -668,9 +668,12 @@ def _csv_recording(col: dict[str, int], table: np.ndarray, lines: np.ndarray, id
         stream_subjects: list[str | None] | None = \
             [subjects[k] for k in order] if subjects else None
         return Recording([table[order, :2]], True, stream_subjects)
-    groups: dict[str, list[int]] = {}
-    for k, ident in enumerate(ids):
-        groups.setdefault(ident, []).append(k)
+    # each id's rows, ids in the order they first appear: numbered through a dict and sorted
+    # stably, not appended to a list a row at a time (millions of rows)
+    number = {ident: g for g, ident in enumerate(dict.fromkeys(ids))}
+    codes = np.fromiter(map(number.__getitem__, ids), dtype=np.intp, count=len(ids))
+    groups = dict(zip(number, np.split(np.argsort(codes, kind="stable"),
+                                       np.cumsum(np.bincount(codes))[:-1]), strict=True))
     rows_read: list[np.ndarray] = []
     track_subjects: list[str | None] = []
     for i, (ident, members) in enumerate(groups.items()):
