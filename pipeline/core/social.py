@@ -122,6 +122,20 @@ def min_distance_to_person(points: np.ndarray, persons: np.ndarray) -> float:
     return float(np.linalg.norm(closest - persons[None], axis=2).min())
 
 
+def distances_to_persons(points: np.ndarray, persons: np.ndarray) -> np.ndarray:
+    """(P,) each person's smallest distance from the polyline `points` (K+1, 2): the bits of
+    `min_distance_to_person` of each person alone, all at once."""
+    p = np.asarray(points, float).reshape(-1, 2)
+    persons = np.asarray(persons, float).reshape(-1, 2)
+    if len(p) == 1:
+        return np.linalg.norm(persons - p[0], axis=1)
+    a, seg = p[:-1, None, :], np.diff(p, axis=0)[:, None, :]
+    len2 = np.maximum((seg ** 2).sum(-1), 1e-18)
+    t = np.clip(((persons[None] - a) * seg).sum(-1) / len2, 0.0, 1.0)
+    closest = a + t[..., None] * seg
+    return np.linalg.norm(closest - persons[None], axis=2).min(axis=0)
+
+
 def path_metrics(points: ArrayLike, scene: Scene, duration: float,
                  reached: bool) -> dict[str, float]:
     """The social metrics of one path `points` (K+1, 2) (`duration` in seconds), flat and

@@ -14,7 +14,7 @@ import numpy as np
 from pipeline.core.experts import Demonstration
 from pipeline.core.features import FeatureModel
 from pipeline.core.nearby import segments_clear_of_disks
-from pipeline.core.social import min_distance_to_person
+from pipeline.core.social import distances_to_persons
 from pipeline.core.world import Scene, point
 from pipeline.errors import PipelineError, listed
 from pipeline.inputs.recorded import ROOM_EDGE_TOLERANCE, START_RADIUS, load_recorded
@@ -253,7 +253,7 @@ def walk_fault(points: np.ndarray, scene: Scene) -> WalkFault | None:
     if clear.all():
         return None
     seg = int(np.argmin(clear))
-    gaps = [min_distance_to_person(points[seg:seg + 2], xy[None]) for xy in scene.person_xy]
+    gaps = distances_to_persons(points[seg:seg + 2], scene.person_xy)
     who = int(np.argmin(gaps))
     person = scene.persons[who]
     x, y = points[seg]
