@@ -110,21 +110,14 @@ def _zone_intrusion(points: np.ndarray, persons: np.ndarray, radius: float,
 def min_distance_to_person(points: np.ndarray, persons: np.ndarray) -> float:
     """Smallest distance from any point of the polyline `points` (K+1, 2) (segments, not just
     vertices) to `persons` (P, 2)."""
-    p = np.asarray(points, float).reshape(-1, 2)
     if len(persons) == 0:
         return float("inf")
-    if len(p) == 1:
-        return float(np.linalg.norm(persons - p[0], axis=1).min())
-    a, seg = p[:-1, None, :], np.diff(p, axis=0)[:, None, :]
-    len2 = np.maximum((seg ** 2).sum(-1), 1e-18)
-    t = np.clip(((persons[None] - a) * seg).sum(-1) / len2, 0.0, 1.0)
-    closest = a + t[..., None] * seg
-    return float(np.linalg.norm(closest - persons[None], axis=2).min())
+    return float(distances_to_persons(points, persons).min())
 
 
 def distances_to_persons(points: np.ndarray, persons: np.ndarray) -> np.ndarray:
-    """(P,) each person's smallest distance from the polyline `points` (K+1, 2): the bits of
-    `min_distance_to_person` of each person alone, all at once."""
+    """(P,) each person's smallest distance from the polyline `points` (K+1, 2) (segments,
+    not just vertices)."""
     p = np.asarray(points, float).reshape(-1, 2)
     persons = np.asarray(persons, float).reshape(-1, 2)
     if len(p) == 1:

@@ -90,36 +90,58 @@ def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
     solve. (Not the free solution with its ends overwritten: at a large penalty that is a
     straight line near each end, which a walk setting off from rest leaves behind its first
     point, and the overwritten end then hooked back, away from the goal, by 13 cm.)"""
-    return whittaker_of(points)(penalty)
-
-
-def whittaker_of(points: np.ndarray) -> Callable[[float], np.ndarray]:
-    """`whittaker` of one polyline (n, 2) at any penalty: what does not depend on the
-    penalty is built once (`smooth_to_noise` tries 30 penalties; built each time, it was
-    half of a tracker file's reading)."""
     p = np.asarray(points, dtype=float)
-    n = len(p)
-    diagonal = np.full(n, 6.0)
-    diagonal[[0, -1]], diagonal[[1, -2]] = 1.0, 5.0
-    first = np.full(n - 1, -4.0)
-    first[[0, -1]] = -2.0
-    banded = np.zeros((3, n))  # (I + penalty D'D), upper form for LAPACK's pbsv
-    pbsv, = scipy.linalg.get_lapack_funcs(("pbsv",), (banded,))
+    return whittaker_of(p, np.array([len(p)]))([penalty])
 
-    def smoothed(penalty: float) -> np.ndarray:
-        banded[0, 2:] = penalty
-        banded[1, 1:] = penalty * first
-        banded[2] = 1.0 + penalty * diagonal
-        rhs = p[1:-1].copy()  # the ends' terms of (I + penalty D'D) z move to the right side
-        rhs[0] -= banded[1, 1] * p[0]
-        rhs[1] -= banded[0, 2] * p[0]
-        rhs[-2] -= banded[0, n - 1] * p[-1]
-        rhs[-1] -= banded[1, n - 1] * p[-1]
+
+def whittaker_of(q: np.ndarray, n: np.ndarray) -> Callable[[Sequence[float]], np.ndarray]:
+    """`whittaker` of polylines laid end to end in q (their lengths n, each >= 4), each at
+    its own penalty, all in one banded solve: the systems one after another in one banded
+    matrix (the entries that would couple two are zero, so each is factored and solved as
+    on its own, to the bit). What does not depend on the penalties is built once
+    (`smooth_all_to_noise` tries 30 of each); one solve per polyline and penalty was most of
+    a tracker file's denoising (30 for each of 10 000 walks)."""
+    begin = np.cumsum(n) - n  # each polyline's first row in q
+    ends = q[begin + n - 1]
+    # the inner rows (all but each polyline's ends), which the systems solve for
+    solved_for = np.ones(len(q), dtype=bool)
+    solved_for[begin] = solved_for[begin + n - 1] = False
+    inner = np.flatnonzero(solved_for)
+    first_inner = begin - 2 * np.arange(len(n))  # each polyline's first row in `inner`
+    # (I + penalty D'D) without the penalty, upper form for LAPACK's pbsv
+    diagonal = np.full(len(q), 6.0)
+    first = np.full(len(q), -4.0)  # at row j: the entry coupling j - 1 and j
+    for at in (begin, begin + n - 1):
+        diagonal[at] = 1.0
+    for at in (begin + 1, begin + n - 2):
+        diagonal[at] = 5.0
+    first[begin + 1], first[begin + n - 1] = -2.0, -2.0
+    pbsv, = scipy.linalg.get_lapack_funcs(("pbsv",), (q,))
+
+    def smoothed(penalties: Sequence[float]) -> np.ndarray:
+        pen = np.repeat(np.array(penalties, dtype=float), n)
+        pen_begin = pen[begin]
+        # in LAPACK's (Fortran) order, overwritten: no copies of a million rows
+        banded = np.empty((3, len(inner)), order="F")
+        banded[0] = pen[inner]
+        banded[1] = (pen * first)[inner]
+        banded[2] = (1.0 + pen * diagonal)[inner]
+        # the entries above each polyline's first inner rows lie outside its system
+        banded[0, first_inner] = banded[0, first_inner + 1] = banded[1, first_inner] = 0.0
+        # the ends' terms of (I + penalty D'D) z move to the right side
+        rhs = np.empty((len(inner), 2), order="F")
+        rhs[:] = q[inner]
+        rhs[first_inner] -= (pen_begin * -2.0)[:, None] * q[begin]
+        rhs[first_inner + 1] -= pen_begin[:, None] * q[begin]
+        rhs[first_inner + n - 4] -= pen_begin[:, None] * ends
+        rhs[first_inner + n - 3] -= (pen_begin * -2.0)[:, None] * ends
         # scipy.linalg.solveh_banded's own call, without its checks of our finite arrays
-        _, inner, info = pbsv(banded[:, 1:-1], rhs, lower=0)
+        _, solved, info = pbsv(banded, rhs, lower=0, overwrite_ab=1, overwrite_b=1)
         if info != 0:  # never: the matrix is I plus a semi-definite one
             raise np.linalg.LinAlgError(f"pbsv failed ({info})")
-        return np.vstack([p[:1], inner, p[-1:]])
+        z = q.copy()
+        z[inner] = solved
+        return z
     return smoothed
 
 
@@ -128,84 +150,30 @@ def smooth_to_noise(points: np.ndarray, sigma: float) -> np.ndarray:
     (root mean square per coordinate), about the noise's own size (the discrepancy principle:
     the penalty is found by bisection over 10^-4..10^12, the departure growing with it);
     first and last point kept."""
-    p = np.asarray(points, dtype=float)
-    if len(p) < 4 or not sigma > 0:
-        return p.copy()
-    origin = p[0].copy()  # map coordinates (UTM: 10^6 m) lose no precision in the solve
-    p = p - origin
-    smoothed = whittaker_of(p)
-    low, high = -4.0, 12.0
-    for _ in range(30):
-        mid = (low + high) / 2
-        if np.mean((smoothed(10.0 ** mid) - p) ** 2) > (DISCREPANCY * sigma) ** 2:
-            high = mid
-        else:
-            low = mid
-    return smoothed(10.0 ** low) + origin
+    return smooth_all_to_noise([points], [sigma])[0]
 
 
 def smooth_all_to_noise(tracks: Sequence[np.ndarray], sigmas: Sequence[float]
                         ) -> list[np.ndarray]:
-    """`smooth_to_noise` of each track at its sigma, the same bits, the bisections run side by
-    side: each step solves every track's system at once, as one banded matrix of the systems
-    one after another (the entries that would couple two are zero, so each is factored and
-    solved as on its own). One solve per track and step was most of a tracker file's
-    denoising (30 steps for each of 10 000 walks)."""
+    """`smooth_to_noise` of each track at its sigma, their bisections run side by side (each
+    step one solve of all: `whittaker_of`); each comes out as it would alone, to the bit."""
     out = [np.asarray(t, dtype=float).copy() for t in tracks]
     todo = [i for i, (p, s) in enumerate(zip(out, sigmas, strict=True))
             if len(p) >= 4 and s > 0]
     if not todo:
         return out
+    # map coordinates (UTM: 10^6 m) lose no precision in the solve
     origins = [out[i][0].copy() for i in todo]
     q = np.concatenate([out[i] - o for i, o in zip(todo, origins, strict=True)])
     n = np.array([len(out[i]) for i in todo])
-    begin = np.cumsum(n) - n  # each track's first row in q
-    # the inner rows (all but each track's ends), which the systems solve for
-    solved_for = np.ones(len(q), dtype=bool)
-    solved_for[begin] = solved_for[begin + n - 1] = False
-    inner = np.flatnonzero(solved_for)
-    first_inner = begin - 2 * np.arange(len(todo))  # each track's first row in `inner`
-    # `whittaker_of`'s penalty-free parts, each track's laid end to end
-    diagonal = np.full(len(q), 6.0)
-    first = np.full(len(q), -4.0)  # at row j: the entry coupling j - 1 and j
-    for at in (begin, begin + n - 1):
-        diagonal[at] = 1.0
-    for at in (begin + 1, begin + n - 2):
-        diagonal[at] = 5.0
-    first[begin + 1], first[begin + n - 1] = -2.0, -2.0
+    begin = np.cumsum(n) - n
+    smoothed = whittaker_of(q, n)
     thresholds = [(DISCREPANCY * sigmas[i]) ** 2 for i in todo]
-    pbsv, = scipy.linalg.get_lapack_funcs(("pbsv",), (q,))
-
-    def smoothed(penalties: list[float]) -> np.ndarray:
-        """Every track's `whittaker_of(q)(penalty)`, laid end to end as in q."""
-        pen = np.repeat(np.array(penalties), n)
-        pen_begin = pen[begin]
-        # in LAPACK's (Fortran) order, overwritten: no copies of a million rows
-        banded = np.empty((3, len(inner)), order="F")
-        banded[0] = pen[inner]
-        banded[1] = (pen * first)[inner]
-        banded[2] = (1.0 + pen * diagonal)[inner]
-        # the entries above each track's first inner rows lie outside its system
-        banded[0, first_inner] = banded[0, first_inner + 1] = banded[1, first_inner] = 0.0
-        rhs = np.empty((len(inner), 2), order="F")
-        rhs[:] = q[inner]
-        ends = q[begin + n - 1]
-        rhs[first_inner] -= (pen_begin * -2.0)[:, None] * q[begin]
-        rhs[first_inner + 1] -= pen_begin[:, None] * q[begin]
-        rhs[first_inner + n - 4] -= pen_begin[:, None] * ends
-        rhs[first_inner + n - 3] -= (pen_begin * -2.0)[:, None] * ends
-        _, solved, info = pbsv(banded, rhs, lower=0, overwrite_ab=1, overwrite_b=1)
-        if info != 0:  # never: the matrix is I plus a semi-definite one
-            raise np.linalg.LinAlgError(f"pbsv failed ({info})")
-        z = q.copy()
-        z[inner] = solved
-        return z
-
     low, high = np.full(len(todo), -4.0), np.full(len(todo), 12.0)
     for _ in range(30):
         mid = (low + high) / 2
         square = (smoothed([10.0 ** m for m in mid.tolist()]) - q) ** 2
-        # np.mean of each track's own rows: the sums of `smooth_to_noise`
+        # np.mean of each track's own rows, as one track's alone sums them
         over = np.array([np.mean(square[b:b + k]) > limit
                          for b, k, limit in zip(begin.tolist(), n.tolist(), thresholds,
                                                 strict=True)])
@@ -219,7 +187,7 @@ def smooth_all_to_noise(tracks: Sequence[np.ndarray], sigmas: Sequence[float]
 
 def smooth_jitter(tracks: Sequence[np.ndarray],
                   where: str) -> tuple[list[np.ndarray], list[bool], list[float]]:
-    """The tracks, each smoothed of its tracking noise (`noise_sigma`, `smooth_to_noise`)
+    """The tracks, each smoothed of its tracking noise (`noise_sigma`, `smooth_all_to_noise`)
     when that inflates its length by more than JITTER_INFLATION, with one warning; the
     others as they are. Each track is judged on its own points, so a held-out one
     (evaluate.holdout) changes nothing in those learned from. Tracks with non-finite or

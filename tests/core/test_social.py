@@ -10,6 +10,8 @@ from pipeline.core.social import (
     INTIMATE_ZONE,
     PERSONAL_ZONE,
     combine_path_metrics,
+    distances_to_persons,
+    min_distance_to_person,
     path_metrics,
 )
 from pipeline.core.world import scene_from_dict
@@ -73,3 +75,16 @@ def test_a_runs_summed_metrics_are_exactly_rounded():
     sum() of floats changed in 3.12, and ten paths of 0.1 m gave 0.9999999999999999 m."""
     paths = [{"personal_intrusion_m": 0.1}] * 10
     assert combine_path_metrics(paths)["personal_intrusion_m"] == 1.0
+
+
+def test_distances_to_persons_are_to_the_segments_by_hand():
+    """Each person's distance from an L-shaped polyline, by hand: to a segment's inside, to
+    the corner's far side, to an end beyond the segment, on the path; one point alone."""
+    path = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0]])
+    persons = np.array([[2.0, 1.0], [5.5, 1.5], [-3.0, -4.0], [4.0, 2.0], [6.0, -2.0]])
+    np.testing.assert_allclose(distances_to_persons(path, persons),
+                               [1.0, 1.5, 5.0, 0.0, np.hypot(2.0, 2.0)], atol=1e-15)
+    assert min_distance_to_person(path, persons[:3]) == pytest.approx(1.0, abs=1e-15)
+    assert min_distance_to_person(path, persons[:0]) == float("inf")
+    np.testing.assert_allclose(distances_to_persons(path[:1], persons[:2]),
+                               [np.hypot(2.0, 1.0), np.hypot(5.5, 1.5)], atol=1e-15)

@@ -807,17 +807,3 @@ def test_a_trajectory_a_little_too_close_to_a_wall_is_moved_off_it(tmp_path, cap
     along[3:5] = [[3.0, face - 0.05], [4.0, face - 0.05]]
     refused(r"trajectory 0 comes 0\.0\d m from an obstacle", load_demo_file,
             demo_file(tmp_path, along), scene, fm, 1.0)
-
-
-def test_distances_to_all_persons_at_once_are_each_one_s_bits():
-    """`walk_fault` names the person a walk passes nearest by `distances_to_persons`, the
-    bits of `min_distance_to_person` of each person alone."""
-    from pipeline.core.social import distances_to_persons, min_distance_to_person
-    rng = np.random.default_rng(7)
-    persons = rng.uniform(0.0, 10.0, (12, 2))
-    for k in (1, 2, 3, 40):
-        points = rng.uniform(0.0, 10.0, (k, 2))
-        if k == 3:
-            points[1] = points[0]  # a repeated point: a segment of no length
-        each = [min_distance_to_person(points, xy[None]) for xy in persons]
-        assert distances_to_persons(points, persons).tobytes() == np.array(each).tobytes()
