@@ -148,9 +148,10 @@ def read_map_header(path: str | Path) -> MapHeader:
         raise fail(f"key 'image'={image!r} must be an image file name")
     resolution = number("resolution", lambda v: v > 0, "a finite number > 0")
     given_origin = get("origin")
-    origin = [_as_number(v) for v in given_origin] \
+    given = [_as_number(v) for v in given_origin] \
         if isinstance(given_origin, list | tuple) else []
-    if not (len(origin) == 3 and all(v is not None for v in origin)):
+    origin = [v for v in given if v is not None]
+    if not (len(given) == 3 and len(origin) == 3):
         raise fail(f"key 'origin'={given_origin!r} must be 3 finite numbers [x, y, yaw]")
     # map_saver writes the yaw it computes, e.g. -3.14e-16 for none: over 1 km, a yaw of
     # 1e-6 rad moves a cell by a millimetre
@@ -273,13 +274,17 @@ def _read_image(path: Path, fail: Callable[[str], PipelineError],
         with _no_bomb_check(), Image.open(path) as img:
             # a 16-bit PGM's maxval: 65535 read raw, else only in its decoder's arguments
             # (before loading)
-            pgm_maxval = None
+            pgm_maxval: int | None = None
             if img.format == "PPM" and img.tile:
                 tile = img.tile[0]
-                pgm_maxval = tile.args[1] if tile.codec_name in ("ppm", "ppm_plain") else 65535
+                if tile.codec_name not in ("ppm", "ppm_plain"):
+                    pgm_maxval = 65535
+                elif isinstance(tile.args, tuple):  # (rawmode, maxval); a plain bitmap's
+                    pgm_maxval = tile.args[1]       # (P1, mode "1") is "1;I", no maxval
             img.load()
             has_alpha = "A" in img.getbands() or "transparency" in img.info
             top = 255  # the largest channel value
+            total: np.ndarray
             if img.mode.startswith("I;16"):  # 16-bit grey (PNG)
                 total, top = 3 * np.asarray(img, dtype=np.uint32), 65535
             elif img.mode == "I" and pgm_maxval is not None:

@@ -66,7 +66,10 @@ def _object_without_repeats(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     out = dict(pairs)
     if len(out) < len(pairs):
         seen: set[str] = set()
-        raise RepeatedKey(next(k for k, _ in pairs if k in seen or seen.add(k)))
+        for k, _ in pairs:  # the first key named a second time
+            if k in seen:
+                raise RepeatedKey(k)
+            seen.add(k)
     return out
 
 
