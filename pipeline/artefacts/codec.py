@@ -32,7 +32,7 @@ def grid_record(grid: OccupancyGrid) -> dict:
     height, width = grid.shape
     return {"origin": list(grid.origin), "resolution": grid.resolution, "width": width,
             "height": height,
-            "occupied": base64.b64encode(np.packbits(grid.occupied)).decode("ascii")}
+            "occupied": base64.b64encode(np.packbits(grid.occupied).tobytes()).decode("ascii")}
 
 
 def decode_grid(msg: dict) -> OccupancyGrid:
@@ -115,7 +115,7 @@ def nodes_message(nodes: NodeTable, first_id: int, with_terminal: bool = False) 
     values = {"x": nodes.pose[:, 0], "y": nodes.pose[:, 1], "theta": nodes.pose[:, 2],
               "parent": nodes.parent, "iteration": nodes.added_at, "gp_mean": nodes.gp_mean,
               "gp_std": nodes.gp_std, "score": nodes.score}
-    msg = {k: column(values[k], dtype) for k, dtype in NODE_COLUMNS.items()}
+    msg: dict[str, object] = {k: column(values[k], dtype) for k, dtype in NODE_COLUMNS.items()}
     msg.update(first_id=first_id, count=len(nodes), kind=[str(k) for k in nodes.kind])
     if with_terminal:
         if nodes.terminal is None:
@@ -135,7 +135,7 @@ def edges_message(edges: EdgeTable, first_id: int, feature_names: Sequence[str])
     values = {"src": edges.src, "dst": edges.dst, "duration": edges.duration,
               "demo": edges.demo, "iteration": edges.added_at,
               "n_waypoints": edges.waypoints.counts}
-    msg = {k: column(values[k], dtype) for k, dtype in EDGE_COLUMNS.items()}
+    msg: dict[str, object] = {k: column(values[k], dtype) for k, dtype in EDGE_COLUMNS.items()}
     msg.update(first_id=first_id, count=len(edges), n_features=int(edges.features.shape[1]),
                feature_names=list(feature_names),
                features=column(edges.features, F64), waypoints=column(edges.waypoints.points, F64))
@@ -320,6 +320,7 @@ def decode_graph(art: Artefact, mdp: MDPParams, grown: Artefact | None = None) -
     """The adaptive graph of graph.mcap (and the part grown during learning)."""
     sol = art.one(topics.GRAPH_SOLUTION)
     nodes, edges = graph_tables(art, grown)
+    assert nodes.terminal is not None  # graph_tables sets it, or raises
     graph_mdp = GraphMDP(edges.src, edges.dst, edges.duration, edges.features, nodes.terminal,
                          mdp)
     return SpatialGraph(nodes.positions, graph_mdp, np.asarray(sol["start_nodes"]),

@@ -20,12 +20,23 @@ import uuid
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Mapping
+from types import TracebackType
+from typing import IO, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 from mcap.exceptions import EndOfFile
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Chunk, Message, MessageIndex, Metadata, Schema
+from mcap.records import (
+    Attachment,
+    Channel,
+    Chunk,
+    Footer,
+    McapRecord,
+    Message,
+    MessageIndex,
+    Metadata,
+    Schema,
+)
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
@@ -46,7 +57,7 @@ def unique_tmp(path: Path) -> Path:
     return path.with_name(f"{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
 
 
-def write_json_atomic(path: Path, obj) -> None:
+def write_json_atomic(path: Path, obj: object) -> None:
     """`write_text_atomic` of `obj` as JSON."""
     write_text_atomic(path, json.dumps(to_jsonable(obj), indent=1, sort_keys=True))
 
@@ -110,7 +121,7 @@ class ArtefactError(PipelineError):
     """A missing, corrupt or incomplete artefact file (message is one line naming the file)."""
 
 
-def to_jsonable(obj):
+def to_jsonable(obj: object) -> object:
     """Recursively turn numpy arrays/scalars and tuples into plain JSON-able Python values."""
     if isinstance(obj, np.ndarray):
         return obj.tolist() if obj.dtype != object else to_jsonable(obj.tolist())
@@ -123,7 +134,7 @@ def to_jsonable(obj):
     return obj
 
 
-def _numpy_default(obj):
+def _numpy_default(obj: object) -> object:
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
@@ -137,7 +148,7 @@ _ENCODER = json.JSONEncoder(sort_keys=True, separators=(",", ":"), allow_nan=Fal
                             default=_numpy_default)
 
 
-def _canonical(obj) -> bytes:
+def _canonical(obj: object) -> bytes:
     try:
         return _ENCODER.encode(obj).encode()
     except TypeError:  # e.g. numpy integer dict keys: convert the whole payload first
@@ -176,8 +187,8 @@ class Artefact:
 class ArtefactWriter:
     """Context manager: with ArtefactWriter(path, config_yaml=..., metadata=...) as w: w.add(...)"""
 
-    def __init__(self, path: str | os.PathLike, *, config_yaml: str, metadata: dict[str, str],
-                 before_replace: Callable[[str], None] | None = None):
+    def __init__(self, path: str | os.PathLike[str], *, config_yaml: str,
+                 metadata: dict[str, str], before_replace: Callable[[str], None] | None = None):
         self.path = Path(path)
         # Called with the content digest just before the new file replaces the old one.
         self._before_replace = before_replace
@@ -187,23 +198,24 @@ class ArtefactWriter:
         self._config_yaml, self._metadata = config_yaml, dict(sorted(metadata.items()))
         self._schemas: dict[str, int] = {}  # type_name -> schema id
         self._channels: dict[str, tuple[int, str]] = {}  # topic -> (channel id, type_name)
-        self._file = self._writer = None
+        self._file: IO[bytes] | None = None
+        self._writer: Writer | None = None
         self._content = hashlib.sha256()  # of the messages only: see content_digest()
 
     def __enter__(self) -> ArtefactWriter:
         try:
-            self._file = open(self.tmp_path, "wb")
+            self._file = file = open(self.tmp_path, "wb")
         except OSError as e:
             raise self._os_error(e) from None
         try:
             # Data CRCs on too, so readers can check the whole data section, not only chunks.
-            self._writer = Writer(self._file, compression=CompressionType.ZSTD,
-                                  enable_crcs=True, enable_data_crcs=True)
-            self._writer.start()
+            self._writer = writer = Writer(file, compression=CompressionType.ZSTD,
+                                           enable_crcs=True, enable_data_crcs=True)
+            writer.start()
             # Times fixed at 0: wall-clock would make files differ between identical runs.
-            self._writer.add_attachment(0, 0, "config.yaml", "application/yaml",
-                                        self._config_yaml.encode())
-            self._writer.add_metadata("run", self._metadata)
+            writer.add_attachment(0, 0, "config.yaml", "application/yaml",
+                                  self._config_yaml.encode())
+            writer.add_metadata("run", self._metadata)
         except BaseException:
             self.__exit__(*sys.exc_info())
             raise
@@ -255,17 +267,22 @@ class ArtefactWriter:
         e.filename = None  # the temp file's name would only confuse
         return ArtefactError(f"cannot write artefact {self.path}: {os_error_reason(e)}")
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        # Called after __enter__ opened the file (by `with`, or by __enter__ itself on a
+        # failure after open); the writer exists too unless __enter__ failed (exc_type set).
+        writer, file = self._writer, self._file
+        assert file is not None
         done = False
         try:
             if exc_type is None:
+                assert writer is not None
                 try:
-                    self._writer.add_metadata(CONTENT_METADATA,
-                                              {"sha256": self._content.hexdigest()})
-                    self._writer.finish()
-                    self._file.flush()
-                    os.fsync(self._file.fileno())  # durable before it gets the final name
-                    self._file.close()
+                    writer.add_metadata(CONTENT_METADATA, {"sha256": self._content.hexdigest()})
+                    writer.finish()
+                    file.flush()
+                    os.fsync(file.fileno())  # durable before it gets the final name
+                    file.close()
                     if self._before_replace is not None:
                         self._before_replace(self._content.hexdigest())
                     os.replace(self.tmp_path, self.path)
@@ -275,7 +292,7 @@ class ArtefactWriter:
         finally:  # on any failure (in the block or while finishing) drop the partial temp file
             self._writer = None
             try:
-                self._file.close()  # flushes what is buffered: on a full disk it fails again
+                file.close()  # flushes what is buffered: on a full disk it fails again
             except OSError as e:
                 if done:
                     raise self._os_error(e) from None
@@ -284,20 +301,21 @@ class ArtefactWriter:
                     self.tmp_path.unlink(missing_ok=True)
 
 
-def write_artefact(path, records: Iterable[tuple[str, str, dict, int]], *, config_yaml: str,
-                   metadata: dict[str, str]) -> Path:
+def write_artefact(path: str | os.PathLike[str], records: Iterable[tuple[str, str, dict, int]],
+                   *, config_yaml: str, metadata: dict[str, str]) -> Path:
     with ArtefactWriter(path, config_yaml=config_yaml, metadata=metadata) as w:
         for topic, type_name, payload, log_time in records:
             w.add(topic, type_name, payload, log_time)
     return w.path
 
 
-def read_records(f) -> list:
+def read_records(f: IO[bytes]) -> list[McapRecord]:
     """The top-level records of a complete MCAP, chunks still compressed; raises on
     truncation, a bad data-section or summary CRC, or trailing bytes. The data-section CRC
     covers every byte of every chunk, so a chunk that is never decompressed is checked too."""
     records = list(StreamReader(f, validate_crcs=True, emit_chunks=True).records)
     footer, end = records[-1], f.tell()
+    assert isinstance(footer, Footer)  # the stream reader stops only after the footer
     if end != f.seek(0, os.SEEK_END):  # the file's size (a file in memory has no fstat)
         raise ValueError("trailing bytes after the MCAP end magic")
     if footer.summary_crc:  # the stream reader does not check the summary/footer CRC
@@ -411,7 +429,7 @@ class _Messages(Mapping[str, list[dict]]):
         return f"<messages of {self._path}: {sorted(self._topics)}>"
 
 
-def read_artefact(path, *, required_topics: Iterable[str] = (),
+def read_artefact(path: str | os.PathLike[str], *, required_topics: Iterable[str] = (),
                   producer_stage: str | None = None, lazy: bool = False) -> Artefact:
     """The artefact at `path`, after checking the whole file (magic, the data-section and
     summary CRCs, the footer). Every message is decompressed (chunk CRCs checked) and
