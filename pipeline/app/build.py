@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
 from pipeline.app import limits
 from pipeline.app.config import LEARNER_EXTRA_FEATURES, Config, RandomSceneConfig
@@ -33,6 +33,7 @@ from pipeline.inputs.map_file import MapHeader, load_map
 from pipeline.inputs.scene_file import SceneExtent, load_scene_file, read_scene_extent
 from pipeline.irl import methods
 from pipeline.irl.base import Method
+from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.fixed import FixedConfig
 from pipeline.irl.prior import Prior, broadcast
 
@@ -43,11 +44,12 @@ def preset_weights(name: str, feature_names: list[str]) -> np.ndarray:
     """The weights of a behaviour preset of conf/reward (`polite`, `rude`: the one source of
     those numbers) on the given features (a feature the preset does not weigh gets 0)."""
     preset = OmegaConf.load(PACKAGE_ROOT / "conf" / "reward" / f"{name}.yaml")
+    assert isinstance(preset, DictConfig)  # a reward preset is a mapping (features, weights)
     by_name = dict(zip(preset.get("features", FEATURE_NAMES), preset.weights, strict=True))
     return np.array([float(by_name.get(n, 0.0)) for n in feature_names])
 
 
-def scene(cfg: Config, rng_for_seed) -> Scene:
+def scene(cfg: Config, rng_for_seed: Callable[[int], np.random.Generator]) -> Scene:
     """The configured scene: generated (`scene=random`) or read from a scene file."""
     sc = cfg.scene
     if isinstance(sc, RandomSceneConfig):
@@ -183,18 +185,18 @@ def with_named_features(cfg: Config, scene: Scene, graph: SpatialGraph, have: li
         return graph
     missing = [n for n in want if n not in have]
     m = graph.mdp
-    computed = None
+    computed: dict[str, np.ndarray] = {}  # the column of each missing feature
     if missing:
         model, ways = learner_feature_model(cfg, scene, missing), graph.waypoints
         straight = (ways.counts == 2).all() if isinstance(ways, Polylines) \
             else all(len(w) == 2 for w in ways)
         if straight:  # the roadmap: one batch
-            computed = model.edge_features(graph.positions, m.src, m.dst)
+            values = model.edge_features(graph.positions, m.src, m.dst)
         else:
-            computed = model.polylines(graph.internal_waypoints())
+            values = model.polylines(graph.internal_waypoints())
+        computed = {n: values[:, i] for i, n in enumerate(missing)}
     features = m.features
-    columns = [features[:, have.index(n)] if n in have else computed[:, missing.index(n)]
-               for n in want]
+    columns = [features[:, have.index(n)] if n in have else computed[n] for n in want]
     return graph.with_features(np.column_stack(columns).reshape(len(features), len(want)))
 
 
@@ -202,11 +204,13 @@ def learning_growth(cfg: Config, scene: Scene) -> int:
     """birl.grow_nodes, derived from the scene where it is null (start-up derives it for a
     run; this is for callers that skip start-up, as pipeline.api does); 0 for methods that
     do not learn on the graph."""
-    grow_nodes = getattr(cfg.birl, "grow_nodes", 0)
-    if grow_nodes is None:
+    b = cfg.birl
+    if not isinstance(b, BirlMapConfig):  # the only methods with grow_nodes
+        return 0
+    if b.grow_nodes is None:
         return limits.learning_growth(scene.obstacles is not None, scene.name,
-                                      cfg.birl.learns_on_the_graph)[0]
-    return int(grow_nodes)
+                                      b.learns_on_the_graph)[0]
+    return int(b.grow_nodes)
 
 
 def unreachable_message(scene: Scene, cut_off: list[int], spacing: float) -> str:
@@ -374,6 +378,7 @@ def _fixed(cfg: Config) -> tuple[np.ndarray, str | None] | None:
         w = np.asarray(b.weights, float)
         source = "birl.weights"
     else:
+        assert b.from_run is not None  # FixedConfig: exactly one of weights and from_run
         run = resolve_path(b.from_run)
         art = read_artefact(run / ARTEFACT_FILE["birl"],
                             required_topics=[topics.BIRL_EXPERT, topics.BIRL_ITERATION])

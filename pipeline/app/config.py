@@ -44,7 +44,6 @@ from pipeline.core.params import (
 from pipeline.core.roadmap import RoadmapParams
 from pipeline.core.scenegen import RandomSceneSpec
 from pipeline.core.social_planner import SocialPlannerParams
-from pipeline.core.world import BodyParams
 from pipeline.errors import PipelineError
 from pipeline.inputs.recorded import START_RADIUS
 from pipeline.irl import methods
@@ -56,13 +55,14 @@ from pipeline.irl.prior import broadcast
 
 
 @dataclass
-class FileSceneConfig(BodyParams):
-    kind: str = "file"
-    path: str = MISSING  # scene JSON; relative paths: cwd, then the package data
-    # null: the scene file's value (or the world model's default)
+class FileSceneConfig:
+    # BodyParams' sizes, in its order, but optional (so no subclass of it, whose sizes are
+    # floats): null, the scene file's value (or the world model's default)
     body_radius: Optional[float] = None
     goal_tolerance: Optional[float] = None
     robot_radius: Optional[float] = None
+    kind: str = "file"
+    path: str = MISSING  # scene JSON; relative paths: cwd, then the package data
 
     def __post_init__(self) -> None:
         require(bool(self.path.strip()), "path", self.path, "the path of a scene file")
@@ -234,7 +234,7 @@ class GraphConfig(GraphParams):
             self.max_nodes = GraphParams.max_nodes
         super().__post_init__()
         if derived:
-            self.max_nodes = None  # type: ignore[assignment]
+            self.max_nodes = None
 
 
 @dataclass
@@ -489,14 +489,14 @@ def _instantiate(node: DictConfig, key: str) -> Any:
     schema = OmegaConf.get_type(node)
     if dataclasses.is_dataclass(schema):  # `+section.key=...` adds keys Hydra would ignore
         known = {f.name for f in dataclasses.fields(schema)}
-        unknown = [k for k in node if k not in known]
+        unknown = [str(k) for k in node if k not in known]
         if unknown:
             raise PipelineError(f"config error: {key}.{unknown[0]} is not a setting of {key} "
                                 f"(known: {', '.join(sorted(known))})")
     for child in node:
         sub = node._get_node(child)
         if isinstance(sub, DictConfig) and OmegaConf.get_type(sub) not in (dict, None):
-            _instantiate(sub, f"{key}.{child}")
+            _instantiate(sub, f"{key}.{str(child)}")
     try:
         return OmegaConf.to_object(node)
     except ParameterError as e:
@@ -518,7 +518,7 @@ def _require_matching_kind(section: str, obj: Any, registry: dict[str, type]) ->
 def load_settings(cfg: DictConfig) -> Config:
     """The composed config as checked, typed objects (a Config instance)."""
     known = {f.name for f in dataclasses.fields(Config)}
-    unknown = [k for k in cfg if k not in known]
+    unknown = [str(k) for k in cfg if k not in known]
     if unknown:
         raise PipelineError(f"config error: {unknown[0]} is not a setting (known: "
                             f"{', '.join(sorted(known))})")

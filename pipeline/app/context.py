@@ -129,13 +129,14 @@ class RunContext:
         when it was made with other config values or does not belong with the other inputs
         of the current stage."""
         path = self.run_dir / ARTEFACT_FILE[stage]
-        linked = self.from_run is not None and stage not in self.cfg.stages
-        source = self.from_run / path.name if self.from_run is not None and linked else path
+        # the run dir it is linked from (None: not linked)
+        link_from = self.from_run if stage not in self.cfg.stages else None
+        source = link_from / path.name if link_from is not None else path
         artefact = self._read_cached(source, required_topics, stage)
         check_config(stage, artefact, self.config, self.cfg)
         self.inputs[stage] = artefact
         check_inputs(self.inputs)
-        if linked:  # checked first: a refused input never lands in this run dir
+        if link_from is not None:  # checked first: a refused input never lands in this run dir
             if self.before_replace is not None:  # what was derived from the old one goes
                 self.before_replace(stage, artefact.digest)
             link_or_copy(source, path)
@@ -145,7 +146,7 @@ class RunContext:
             for other in self.inputs:
                 again = self.run_dir / ARTEFACT_FILE[other]
                 if other not in self.cfg.stages and not again.exists():
-                    link_or_copy(self.from_run / again.name, again)
+                    link_or_copy(link_from / again.name, again)
         return artefact
 
     def _read_cached(self, path: Path, required_topics: Iterable[str], stage: str) -> Artefact:

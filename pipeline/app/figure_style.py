@@ -19,7 +19,10 @@ import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from matplotlib.typing import RcKeyType
 
 COLUMN_IN = 3.5  # one column of a two-column paper
 PAGE_IN = 7.0  # both columns
@@ -35,7 +38,7 @@ REFERENCE = "0.35"  # grey of reference lines (a threshold, the initial weights'
 SOURCE_KEY = "Source-SHA256"  # PNG text chunk: "<table> <digest>" per line
 
 
-def _rc() -> dict[str, Any]:
+def _rc() -> dict[RcKeyType, Any]:
     from cycler import cycler  # ships with matplotlib
 
     return {

@@ -40,7 +40,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from contextlib import suppress
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -303,8 +303,10 @@ class _Pool:
         self.workers = [_Worker() for _ in range(n)]
         self.executed = 0  # jobs run to their end (or their worker's)
 
-    def run(self, kind: str, requests: list[tuple[int, Any]], on_death) -> dict[int, Any]:
-        todo, replies = list(requests), {}
+    def run(self, kind: str, requests: list[tuple[int, Any]],
+            on_death: Callable[[int, Any, int | None], Any]) -> dict[int, Any]:
+        todo = list(requests)
+        replies: dict[int, Any] = {}
         try:
             while todo or any(w.job for w in self.workers):
                 # A signal waits while messages go out or come in: one cut short would leave
@@ -335,19 +337,20 @@ class _Pool:
                     self._replace(self.workers[k])
 
     def _take_replies(self, kind: str, busy: list[_Worker], replies: dict[int, Any],
-                      on_death) -> None:
+                      on_death: Callable[[int, Any, int | None], Any]) -> None:
         """The replies that came in, and the jobs of the workers that died."""
         for w in busy:
+            assert w.job is not None  # busy: the workers with a job
             reply = _receive(w.conn)
             if reply is not _NOTHING:
-                idx = w.job[0]  # type: ignore[index]
+                idx = w.job[0]
                 w.job = None
                 if isinstance(reply, Interrupted):  # a signal to this worker alone
                     reply = _failed_return(idx, reply.describe())
                 replies[idx] = reply
                 self.executed += kind == "execute"
             elif not w.process.is_alive():
-                idx, payload = w.job  # type: ignore[misc]
+                idx, payload = w.job
                 w.job = None
                 w.process.join()
                 replies[idx] = on_death(idx, payload, w.process.exitcode)
@@ -369,6 +372,7 @@ class _Pool:
         complete)."""
         busy = [w for w in self.workers if w.job and w.process.is_alive()]
         for w in busy:
+            assert w.process.pid is not None  # started by _Worker()
             os.kill(w.process.pid, signum)
         deadline = time.monotonic() + self.STOP_WAIT_S
         # The first stop set every stop signal to be ignored (a worker's status must not be
@@ -489,4 +493,6 @@ def defer_batch_check(hydra_context: HydraContext) -> None:
                                 sweep_overrides: list[str]) -> None:
         return None
 
-    loader.load_sweep_config = checked_by_the_launcher  # type: ignore[method-assign]
+    # a method replaced on the instance, by one that returns nothing: the sweeper's check
+    # ignores the composed config (its errors were all it wanted)
+    loader.load_sweep_config = checked_by_the_launcher  # type: ignore[method-assign,assignment]

@@ -7,6 +7,7 @@ import os
 import signal
 from contextlib import suppress
 from pathlib import Path
+from typing import Any
 
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.experimental.callback import Callback
@@ -73,7 +74,7 @@ class SweepOutcome(Callback):
     # (Hydra's basic launcher only: `restore_hydra_files`)
     _read_only: dict[Path, dict[str, bytes]] = {}
 
-    def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         try:  # before any job: a misspelt objective would fail every one of them
             check_objective_name(str(config.objective))
             if not _sweeps(config, "evaluate.holdout"):  # nor one no job writes
@@ -86,8 +87,9 @@ class SweepOutcome(Callback):
         try:
             check_not_a_run_dir(sweep_dir)
             if "PoolLauncher" not in launcher:  # it checks every job's resolved run dir
-                check_subdir_template(
-                    str(OmegaConf.to_container(config.hydra.sweep, resolve=False)["subdir"]))
+                sweep = OmegaConf.to_container(config.hydra.sweep, resolve=False)
+                assert isinstance(sweep, dict)  # hydra.sweep is a section: a mapping
+                check_subdir_template(str(sweep["subdir"]))
         except PipelineError as e:
             raise SweepRefused(e) from None
         SweepOutcome.sweep_dir, SweepOutcome.unrecorded = sweep_dir, {}
@@ -127,7 +129,7 @@ class SweepOutcome(Callback):
             with suppress(OSError):
                 (job_dir / name).write_bytes(content)
 
-    def on_multirun_end(self, config: DictConfig, **kwargs) -> None:
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         SweepOutcome.failed[:] = failed_jobs(Path(config.hydra.sweep.dir))
         SweepOutcome.ended = True
         SweepOutcome.release()

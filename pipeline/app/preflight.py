@@ -47,6 +47,7 @@ from pipeline.core.world import BodyParams, Room, Scene
 from pipeline.errors import PipelineError
 from pipeline.inputs.map_file import MapHeader, read_map_header
 from pipeline.inputs.recordings import check_readable
+from pipeline.irl.birl import BirlMapConfig
 from pipeline.irl.fixed import FixedConfig
 
 log = logging.getLogger("pipeline")
@@ -114,13 +115,14 @@ def preflight(cfg: Config, run_dir: Path, from_run: Path | None) -> Checked:
     # evaluate too: its inputs were made with the derived value, which it must match
     derive_graph = cfg.graph.max_nodes is None and bool(stages & {"graph", "birl", "evaluate"})
     # evaluate checks birl.mcap against the birl section, derived value included
-    derive_growth = getattr(cfg.birl, "grow_nodes", 0) is None and \
+    growing = cfg.birl if isinstance(cfg.birl, BirlMapConfig) else None  # has grow_nodes
+    derive_growth = growing is not None and growing.grow_nodes is None and \
         bool(stages & {"birl", "evaluate"})
     facts = scene_facts(cfg, run_dir, from_run) \
         if stages - {"birl"} or derive_graph or derive_growth else None
-    if derive_growth and facts is not None:
+    if growing is not None and derive_growth and facts is not None:
         grow_nodes, why = limits.learning_growth(facts.obstacles, facts.name,
-                                                 cfg.birl.learns_on_the_graph)
+                                                 growing.learns_on_the_graph)
         # said where it changes what runs (growth on a map); an open room runs as always
         log.log(logging.INFO if grow_nodes else logging.DEBUG, "birl.grow_nodes=%d: %s",
                 grow_nodes, why)
@@ -234,14 +236,15 @@ def scene_facts(cfg: Config, run_dir: Path, from_run: Path | None) -> SceneFacts
         area = sc.width * sc.height
         return SceneFacts(f"random-{cfg.seed if sc.seed is None else sc.seed}", area,
                           n_persons, False, lambda: area)
-    header = read_map_header(resolve_path(sc.map))
+    map_path = sc.map  # a str (checked above), also in free_area
+    header = read_map_header(resolve_path(map_path))
     build.check_map_size(header, limits.BYTES_PER_RANDOM_MAP_CELL,
                          " with a random scene's draws on it")
     x0, y0, x1, y1 = header.extent()
     scenegen.check_fits(sc, Room(x0, y0, x1, y1), on_map=True)
 
     def free_area() -> float:  # the scene's goal will lie in the largest region (scenegen)
-        obstacles = ObstacleMap(build.map_grid_of(sc.map))
+        obstacles = ObstacleMap(build.map_grid_of(map_path))
         return obstacles.free_area(sc.robot_radius,
                                    blocked=~obstacles.largest_free_region(sc.robot_radius))
 

@@ -69,22 +69,22 @@ def check_source(artefact: Artefact, name: str, digest: str) -> None:
                             f"'{stage}' to stages to read it again")
 
 
-def _lookup(config: Mapping, key: str):
+def _lookup(config: Mapping, key: str) -> object:
     """config[key] for a section name, config[a][b] for a dotted key (None if absent)."""
-    value = config
+    value: object = config
     for part in key.split("."):
         value = value.get(part) if isinstance(value, Mapping) else None
     return value
 
 
-def _lookup_typed(settings, key: str):
+def _lookup_typed(settings: object, key: str) -> object:
     """settings.<key> for a dotted key (None if absent or without `settings`)."""
     for part in key.split("."):
         settings = getattr(settings, part, None)
     return settings
 
 
-def _digest(value) -> str:
+def _digest(value: object) -> str:
     return hashlib.sha256(json.dumps(value, sort_keys=True, separators=(",", ":"))
                           .encode()).hexdigest()[:16]
 
@@ -100,7 +100,7 @@ def provenance_metadata(stage: str, config: Mapping, inputs: Mapping[str, Artefa
     return meta
 
 
-def _flatten(value, prefix: str) -> dict[str, object]:
+def _flatten(value: object, prefix: str) -> dict[str, object]:
     if isinstance(value, Mapping):
         out: dict[str, object] = {}
         for k, v in value.items():
@@ -109,7 +109,7 @@ def _flatten(value, prefix: str) -> dict[str, object]:
     return {prefix: value}
 
 
-def _first_difference(key: str, made_with, now) -> tuple[str, object, object]:
+def _first_difference(key: str, made_with: object, now: object) -> tuple[str, object, object]:
     """The first key (dotted) whose value differs, and its two values (UNSET where a side
     has no such key); for a config group whose `kind` differs (another method or expert
     kind, whose other keys differ as a consequence), the group itself and the two kinds."""
@@ -126,7 +126,7 @@ def _first_difference(key: str, made_with, now) -> tuple[str, object, object]:
 UNSET = "<unset>"  # _first_difference: a key one of the two configs does not have
 
 
-def without_added_defaults(now, made_with, settings) -> object:
+def without_added_defaults(now: object, made_with: object, settings: object) -> object:
     """`now` (a config section as plain data) without the keys that `made_with` (the same
     section of an older artefact's config) lacks and that hold their field's default in
     `settings` (the typed section): a key added to the pipeline since, at the value that
@@ -141,7 +141,8 @@ def without_added_defaults(now, made_with, settings) -> object:
             if k in made_with or k not in defaults or defaults[k] != v}
 
 
-def check_config(stage: str, artefact: Artefact, config: Mapping, settings=None) -> None:
+def check_config(stage: str, artefact: Artefact, config: Mapping,
+                 settings: object = None) -> None:
     """Refuse `artefact` (of `stage`) when it was made with other config values than this
     run has for the keys it depends on (`config`, plain data; `settings`, the same typed,
     knows which keys were added since at their default: `without_added_defaults`).
@@ -182,5 +183,5 @@ def check_inputs(read: Mapping[str, Artefact]) -> None:
                     f"'{stage}' (add it to stages) so they belong together")
 
 
-def _show(value) -> str:
+def _show(value: object) -> str:
     return json.dumps(value) if not isinstance(value, str) else value

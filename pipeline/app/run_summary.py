@@ -90,10 +90,10 @@ def graph_less_polite(m: dict, roadmap_ruder_than_demos: bool = False) -> list[s
     if closest[0] is not None and np.isfinite(closest[1]) and \
             closest[0] < closest[1] - CLOSER_MARGIN_M:
         worse.append(f"min distance {closest[0]:.2f} m against {closest[1]:.2f} m")
-    personal = m.get("personal_intrusion_m"), m.get("ref_personal_intrusion_m")
-    if None not in personal and personal[0] > max(personal[1] + PERSONAL_MARGIN_M,
-                                                  PERSONAL_RATIO * personal[1]):
-        worse.append(f"personal {personal[0]:.2f} m against {personal[1]:.2f} m")
+    personal, ref_personal = m.get("personal_intrusion_m"), m.get("ref_personal_intrusion_m")
+    if personal is not None and ref_personal is not None and \
+            personal > max(ref_personal + PERSONAL_MARGIN_M, PERSONAL_RATIO * ref_personal):
+        worse.append(f"personal {personal:.2f} m against {ref_personal:.2f} m")
     if not worse:
         return []
     roadmap = f"the roadmap's paths (birlg-export: {export_topics.LEARNED_REF})"
@@ -113,9 +113,9 @@ def heldout_no_better(m: dict) -> list[str]:
     starts): a Nav2-like planner that keeps off walls, learned without a wall feature, was
     told nothing, and its held-out log likelihood above the shortest path's suggested the
     opposite."""
-    pairs = [(m.get(k), m.get(k + "_shortest"))
+    given = [(m.get(k), m.get(k + "_shortest"))
              for k in ("heldout_frechet_m", "heldout_min_distance_error_m")]
-    pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
+    pairs = [(a, b) for a, b in given if a is not None and b is not None]
     if not pairs or any(heldout_verdict(a, b) for a, b in pairs):
         return []
     return ["  warning          the learned paths are as far from the held-out demonstrations "
@@ -130,8 +130,9 @@ def heldout_worse(m: dict) -> list[str]:
     which the learned paths predict the held-out demonstrations worse than the shortest
     paths, by more than HELDOUT_TIE_M."""
     def worse(key: str) -> bool:
-        pair = m.get(key), m.get(key + "_shortest")
-        return None not in pair and heldout_verdict(*pair) > 0
+        learned, shortest = m.get(key), m.get(key + "_shortest")
+        return learned is not None and shortest is not None and \
+            heldout_verdict(learned, shortest) > 0
     lines = []
     if worse("heldout_frechet_m"):
         lines.append("  warning          the learned paths are farther from the held-out "
@@ -156,7 +157,7 @@ def heldout_by_lattice(m: dict) -> list[str]:
     the difference, not the learned reward. A lead or a lag on the lattice is one beyond
     HELDOUT_TIE_M (`heldout_verdict`): a hall's 7 mm lag, a tie, was said to be the
     lattice's doing on the line after the one that called it none."""
-    turned = {"no better": [], "no worse": []}
+    turned: dict[str, list[str]] = {"no better": [], "no worse": []}
     for what, key in (("Fréchet", "heldout_frechet_m"),
                       ("min-distance error", "heldout_min_distance_error_m")):
         if key + "_taut" not in m or key + "_shortest_taut" not in m:

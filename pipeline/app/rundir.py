@@ -30,7 +30,8 @@ from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
+from types import TracebackType
+from typing import Any, overload
 
 from pipeline.artefacts.store import content_digest, write_json_atomic, write_text_atomic
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
@@ -167,6 +168,11 @@ class FailedJob:
         return f"the job failed: {self.error}"
 
 
+# a stop's own exception is always one; any other, one while a stop is pending
+@overload
+def as_interrupted(exc: Interrupted | KeyboardInterrupt, stage: str | None) -> Interrupted: ...
+@overload
+def as_interrupted(exc: BaseException | None, stage: str | None) -> Interrupted | None: ...
 def as_interrupted(exc: BaseException | None, stage: str | None) -> Interrupted | None:
     """`exc` as an Interrupted (a KeyboardInterrupt is SIGINT), with the stage it hit; None
     when it is no interruption. Any exception while a stop is pending is the stop: a library
@@ -292,7 +298,7 @@ def acquire_lock(run_dir: Path, in_use: str | None = None, kind: str = "run dir"
 
 
 @contextmanager
-def locked(run_dir: Path):
+def locked(run_dir: Path) -> Iterator[None]:
     """Hold the run dir's lock for the block and hand it to the RunDir of the run inside
     (the CLI wraps Hydra in it, so a second run is refused before Hydra writes its files).
     A signal in the block marks the dir interrupted if Hydra had started the run in it
@@ -436,7 +442,8 @@ class RunDir:
         self._write(RUNNING)
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
         try:
             interrupted = as_interrupted(exc, self.stage)
             if exc_type is None:
@@ -450,6 +457,7 @@ class RunDir:
                     # stage (stopped_by_signals' own would say "before the first stage")
                     raise interrupted from exc
             elif not self._restore_earlier_run():
+                assert exc is not None  # exc_type is set: `with` passes its exception too
                 self._write(FAILED, error=error_text(exc))
         except OSError as e:  # e.g. disk full: the stage's own error matters more
             log.error("cannot write %s: %s", self.path / STATUS_FILE, os_error_reason(e))
@@ -556,7 +564,8 @@ def write_status(run_dir: Path, state: str, stage: str | None, error: str | None
         error = " ".join(error.split())
         if len(error) > STATUS_ERROR_CHARS:
             error = error[:STATUS_ERROR_CHARS - 3] + "..."
-    status = {"state": state, "stage": stage, "error": error, "stages": stages, "done": done}
+    status: dict[str, object] = {"state": state, "stage": stage, "error": error,
+                                 "stages": stages, "done": done}
     if sweep is not None:
         status["sweep"] = sweep
     path = Path(run_dir) / STATUS_FILE
@@ -619,7 +628,8 @@ def mark_died(run_dir: Path, error: str, sweep: int | None = None) -> None:
 
 def job_dirs(sweep_dir: Path) -> list[Path]:
     """Every job of a Hydra sweep: the dirs holding Hydra's .hydra/overrides.yaml."""
-    def natural(p: Path):  # job 2 before job 10, numbered jobs before others
+    def natural(p: Path) -> tuple[int, list[tuple[int, int, str]]]:  # job 2 before job 10,
+        # numbered jobs before others
         return len(p.parts), [(0, int(x), "") if x.isdigit() else (1, 0, x) for x in p.parts]
 
     return sorted((p.parent.parent for p in Path(sweep_dir).glob(f"**/{HYDRA_FILES[-1]}")),

@@ -11,6 +11,7 @@ holds ArviZ's values for reference draws.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from scipy import fft, special
 
 MIN_DRAWS = 4  # per chain; fewer give no diagnostics (NaN), as in ArviZ
@@ -21,12 +22,12 @@ AGREED_RHAT = 1.05
 AGREED_ESS = 100
 
 
-def chains_agree(rhat: np.ndarray, ess: np.ndarray) -> bool:
+def chains_agree(rhat: npt.ArrayLike, ess: npt.ArrayLike) -> bool:
     """Every R-hat at most AGREED_RHAT and every ESS at least AGREED_ESS, NaN (a constant
     parameter, one chain) not counted."""
-    rhat, ess = np.asarray(rhat, float), np.asarray(ess, float)
-    return bool((rhat[np.isfinite(rhat)] <= AGREED_RHAT).all()
-                and (ess[np.isfinite(ess)] >= AGREED_ESS).all())
+    r, e = np.asarray(rhat, float), np.asarray(ess, float)
+    return bool((r[np.isfinite(r)] <= AGREED_RHAT).all()
+                and (e[np.isfinite(e)] >= AGREED_ESS).all())
 
 
 def convergence(draws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
