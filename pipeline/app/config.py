@@ -56,11 +56,12 @@ from pipeline.irl.prior import broadcast
 
 @dataclass
 class FileSceneConfig:
-    # BodyParams' sizes, in its order, but optional (so no subclass of it, whose sizes are
-    # floats): null, the scene file's value (or the world model's default)
+    # BodyParams' sizes, in its order, but optional: no subclass of it (its sizes are floats)
+
+    # null: the scene file's value (or the world model's default)
     body_radius: Optional[float] = None
-    goal_tolerance: Optional[float] = None
-    robot_radius: Optional[float] = None
+    goal_tolerance: Optional[float] = None  # m, states this close to the goal are terminal
+    robot_radius: Optional[float] = None  # m, closer than this to an obstacle is a collision
     kind: str = "file"
     path: str = MISSING  # scene JSON; relative paths: cwd, then the package data
 
