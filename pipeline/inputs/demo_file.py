@@ -55,27 +55,27 @@ def load_demo_file(path: Path, scene: Scene, feature_model: FeatureModel, speed:
             raise PipelineError(none_left)
         return demos
     read: list[tuple[Path, Demonstration]] = []
-    emptied: list[tuple[Path, str]] = []  # recordings none of whose walks a robot could follow
+    # recordings none of whose walks a robot could follow, by name in the folder: refusal
+    emptied: dict[str, str] = {}
     for recording, subject in subject_recordings(path):
         demos, none_left = demos_of(recording)
         if none_left:
-            emptied.append((recording, none_left))
+            emptied[recording.relative_to(path).as_posix()] = none_left
         read += [(recording, dataclasses.replace(
                     d, subject=subject if d.subject is None else d.subject,
                     source=f"{recording.relative_to(path).as_posix()}: {d.source}"))
                  for d in demos]
+    names, refusals = list(emptied), list(emptied.values())
     if emptied and not read:  # none is left in the whole folder: refused as one file would be
-        raise PipelineError(emptied[0][1] + (
-            "; and so is every walk of the folder's other recordings ("
-            + listed([r.relative_to(path).as_posix() for r, _ in emptied[1:]], 5) + ")"
-            if len(emptied) > 1 else ""))
+        raise PipelineError(refusals[0] + (
+            f"; and so is every walk of the folder's other recordings ({listed(names[1:], 5)})"
+            if len(names) > 1 else ""))
     if emptied:
         # one subject who walked only where the scene's people stood: the others still teach
         log.warning("%s: expert.select_walks: recordings %s hold no walk a robot could follow "
                     "(every walk passes through a body disk or too close to an obstacle) and "
-                    "are dropped; the first: %s", describe(path),
-                    listed([r.relative_to(path).as_posix() for r, _ in emptied], 5),
-                    emptied[0][1])
+                    "are dropped; the first: %s", describe(path), listed(names, 5),
+                    refusals[0])
     warn_repeated_recordings(path, read)
     return [d for _, d in read]
 

@@ -398,27 +398,8 @@ def _csv_table(reader, where: str, by_row: bool = False
         raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
     names = _csv_header(header, where)
     col = {n: names.index(n) for n in names}
-    chunks: list[tuple[np.ndarray, np.ndarray, dict[str, list[str]]]] = []
-    rows: list[list[str]] = []
-    lines: list[int] = []
-    if not by_row:
-        chunks = [_csv_chunk(block, at, col, len(header), where)
-                  for block, at in _csv_blocks(reader)]
-    try:
-        for row in reader if by_row else ():
-            if _is_blank(row):
-                continue
-            rows.append(row)
-            lines.append(reader.line_num)
-            if len(rows) == CSV_CHUNK_ROWS or len(row) != len(header):  # the latter: refused
-                chunks.append(_csv_chunk(rows, lines, col, len(header), where))
-                rows, lines = [], []
-    except (csv.Error, UnicodeDecodeError):  # a line after the rows held: theirs come first
-        if rows:
-            _csv_chunk(rows, lines, col, len(header), where)
-        raise
-    if rows:
-        chunks.append(_csv_chunk(rows, lines, col, len(header), where))
+    chunks = _csv_row_chunks(reader, col, len(header), where) if by_row else \
+        [_csv_chunk(block, at, col, len(header), where) for block, at in _csv_blocks(reader)]
     if not chunks:
         raise PipelineError(f"{where} has no rows")
     idents = {name: [i for _, _, chunk in chunks for i in chunk[name]] for name in chunks[0][2]}
@@ -428,6 +409,31 @@ def _csv_table(reader, where: str, by_row: bool = False
 
 
 CSV_CHUNK_ROWS = 65_536  # a chunk's fields are held as text until read: 20 MB, not 700
+
+
+def _csv_row_chunks(reader, col: dict[str, int], n_fields: int, where: str
+                    ) -> list[tuple[np.ndarray, np.ndarray, dict[str, list[str]]]]:
+    """The rows after the header read a row at a time, with the line the reader says each
+    ends on (`_csv_blocks` cannot count them), as `_csv_chunk`s of CSV_CHUNK_ROWS rows."""
+    chunks = []
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    try:
+        for row in reader:
+            if _is_blank(row):
+                continue
+            rows.append(row)
+            lines.append(reader.line_num)
+            if len(rows) == CSV_CHUNK_ROWS or len(row) != n_fields:  # the latter: refused
+                chunks.append(_csv_chunk(rows, lines, col, n_fields, where))
+                rows, lines = [], []
+    except (csv.Error, UnicodeDecodeError):  # a line after the rows held: theirs come first
+        if rows:
+            _csv_chunk(rows, lines, col, n_fields, where)
+        raise
+    if rows:
+        chunks.append(_csv_chunk(rows, lines, col, n_fields, where))
+    return chunks
 
 
 def _csv_chunk(rows: list[list[str]], lines: list[int], col: dict[str, int], n_fields: int,
