@@ -59,14 +59,44 @@ def noise_sigma(tracks: Sequence[np.ndarray]) -> float:
     larger or more where they measure the route's turns (4 times for a smooth curve), as in
     a sparse polyline of a few corners; 0 without tracks of MIN_NOISE_POINTS points that are
     no planned polyline (`straight_share`, PLANNED_STRAIGHT_SHARE)."""
-    dense = [t for t in tracks if len(t) >= MIN_NOISE_POINTS
-             and straight_share(t) < PLANNED_STRAIGHT_SHARE]
-    if not dense:
+    dense, near, wide = _second_differences(tracks)
+    if not len(dense):
         return 0.0
-    near = np.median(np.abs(np.concatenate([(t[2:] - 2 * t[1:-1] + t[:-2]).ravel()
-                                            for t in dense])))
-    wide = np.median(np.abs(np.concatenate([(t[4:] - 2 * t[2:-2] + t[:-4]).ravel()
-                                            for t in dense])))
+    return _noise_of(float(np.median(near)), float(np.median(wide)))
+
+
+def noise_sigmas(tracks: Sequence[np.ndarray]) -> list[float]:
+    """`noise_sigma` of each track alone, the tracks' differences taken in one pass."""
+    dense, near, wide = _second_differences(tracks)
+    sigmas = [0.0] * len(tracks)
+    near_at = np.cumsum([0] + [2 * (len(tracks[k]) - 2) for k in dense])
+    wide_at = np.cumsum([0] + [2 * (len(tracks[k]) - 4) for k in dense])
+    for i, k in enumerate(dense.tolist()):
+        sigmas[k] = _noise_of(float(np.median(near[near_at[i]:near_at[i + 1]])),
+                              float(np.median(wide[wide_at[i]:wide_at[i + 1]])))
+    return sigmas
+
+
+def _second_differences(tracks: Sequence[np.ndarray]
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tracks `noise_sigma` reads (their numbers: of MIN_NOISE_POINTS points and more,
+    no planned polyline) and the absolute values of their second differences over one and
+    over two points, coordinates in a row (x, y of one point, then the next), all of them
+    laid end to end: the same values in the same order as track by track."""
+    sizes = np.array([len(t) for t in tracks], dtype=np.int64)
+    dense = np.flatnonzero(sizes >= MIN_NOISE_POINTS)
+    dense = dense[straight_shares([tracks[k] for k in dense]) < PLANNED_STRAIGHT_SHARE]
+    if not len(dense):
+        return dense, np.zeros(0), np.zeros(0)
+    points = np.concatenate([tracks[k] for k in dense])
+    near = _within(points[2:] - 2 * points[1:-1] + points[:-2], sizes[dense], 2)
+    wide = _within(points[4:] - 2 * points[2:-2] + points[:-4], sizes[dense], 4)
+    return dense, np.abs(near.ravel()), np.abs(wide.ravel())
+
+
+def _noise_of(near: float, wide: float) -> float:
+    """`noise_sigma` from the medians of the absolute second differences over one and two
+    points."""
     if not near > 0 or wide > NOISE_SPAN_RATIO * near:
         return 0.0
     return float(1.4826 * near / math.sqrt(6.0))
@@ -75,12 +105,31 @@ def noise_sigma(tracks: Sequence[np.ndarray]) -> float:
 def straight_share(track: np.ndarray) -> float:
     """The share of the interior points of `track` (n, 2) that lie on the straight line
     through their neighbours: |sin| of the turn there below STRAIGHT_SINE."""
-    a, b = track[1:-1] - track[:-2], track[2:] - track[1:-1]
-    if not len(a):
-        return 0.0
+    return float(straight_shares([track])[0])
+
+
+def straight_shares(tracks: Sequence[np.ndarray]) -> np.ndarray:
+    """`straight_share` of each track, all in one pass over the tracks laid end to end (the
+    same turns, counted per track: a share of whole counts, so the same bits)."""
+    sizes = np.array([len(t) for t in tracks], dtype=np.int64)
+    if not len(sizes):
+        return np.zeros(0)
+    points = np.concatenate(tracks).reshape(-1, 2)
+    a = _within(points[1:-1] - points[:-2], sizes, 2)
+    b = _within(points[2:] - points[1:-1], sizes, 2)
     cross = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
-    return float(np.mean(cross <= STRAIGHT_SINE * np.linalg.norm(a, axis=1)
-                         * np.linalg.norm(b, axis=1)))
+    straight = cross <= STRAIGHT_SINE * np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1)
+    interior = np.maximum(sizes - 2, 0)
+    counts = np.bincount(np.repeat(np.arange(len(sizes)), interior), straight,
+                         minlength=len(sizes))
+    return np.where(interior > 0, counts / np.maximum(interior, 1), 0.0)
+
+
+def _within(rows: np.ndarray, sizes: np.ndarray, span: int) -> np.ndarray:
+    """The rows of a difference over `span` points of tracks laid end to end (row i from
+    point i to i + span; tracks of `sizes` points) that lie within one track, in order."""
+    local = np.arange(sizes.sum()) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    return rows[(local < np.repeat(sizes - span, sizes))[:len(rows)]]
 
 
 def whittaker(points: np.ndarray, penalty: float) -> np.ndarray:
@@ -195,13 +244,17 @@ def smooth_jitter(tracks: Sequence[np.ndarray],
     each track's noise σ in m: 0 where none is found)."""
     out, smoothed, noise, sigmas, inflation = [], [], [], [], []
     progress = Progress(f"{where}: denoising trajectories", len(tracks))
-    points, track_sigmas = [], []
+    points, usables = [], []
     for k, t in enumerate(tracks):
         progress(k)
         with np.errstate(over="ignore", invalid="ignore"):
             usable = np.isfinite(t).all() and np.abs(t).max(initial=0.0) < FARTHEST_COORDINATE
         points.append(drop_repeats(t) if usable else t)
-        track_sigmas.append(noise_sigma([points[-1]]) if usable else 0.0)
+        usables.append(usable)
+    # each track's own noise, the unusable ones none
+    track_sigmas = [s if u else 0.0 for s, u in zip(
+        noise_sigmas([p if u else p[:0] for p, u in zip(points, usables, strict=True)]),
+        usables, strict=True)]
     smooths = smooth_all_to_noise(points, track_sigmas)
     for t, p, sigma, smooth in zip(tracks, points, track_sigmas, smooths, strict=True):
         smooth = smooth if sigma > 0 else p

@@ -119,15 +119,31 @@ def revisit(track: np.ndarray) -> tuple[np.ndarray, float] | None:
     return p[later[k]], float(walked[far][k])
 
 
-def _motion(points: np.ndarray, times: np.ndarray, at_end: bool) -> np.ndarray:
-    """A track's velocity over its last (`at_end`) or first MOTION_WINDOW seconds; zero
-    where those hold a single time."""
-    if at_end:
-        a, b = int(np.argmax(times >= times[-1] - MOTION_WINDOW)), len(times) - 1
-    else:
-        a, b = 0, int(np.flatnonzero(times <= times[0] + MOTION_WINDOW)[-1])
-    dt = times[b] - times[a]
-    return (points[b] - points[a]) / dt if dt > 0 else np.zeros(2)
+def _motions(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
+             at_end: bool) -> np.ndarray:
+    """Each track's velocity (n, 2) over its last (`at_end`) or first MOTION_WINDOW seconds
+    (from its first pose within them to its last); zero where those hold a single time. All
+    tracks in one pass, laid end to end."""
+    sizes = np.array([len(t) for t in times], dtype=np.int64)
+    if not len(sizes):
+        return np.zeros((0, 2))
+    begin = np.cumsum(sizes) - sizes
+    owner = np.repeat(np.arange(len(sizes)), sizes)
+    ts = np.concatenate(times)
+    points = np.concatenate(tracks).reshape(-1, 2)
+    rows = np.arange(len(ts))
+    if at_end:  # the first pose within the window; the last pose
+        inside = ts >= ts[begin + sizes - 1][owner] - MOTION_WINDOW
+        a = np.minimum.reduceat(np.where(inside, rows, len(ts)), begin)
+        a = np.where(a < len(ts), a, begin)  # none (not a number): the first, as argmax
+        b = begin + sizes - 1
+    else:  # the first pose; the last pose within the window
+        a = begin
+        b = np.maximum.reduceat(np.where(ts <= ts[begin][owner] + MOTION_WINDOW, rows, -1),
+                                begin)
+    dt = ts[b] - ts[a]
+    return np.divide(points[b] - points[a], dt[:, None], out=np.zeros((len(sizes), 2)),
+                     where=(dt > 0)[:, None])
 
 
 def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
@@ -150,31 +166,38 @@ def broken_track_chains(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray
     begin_at = np.array([p[0] for p in tracks], dtype=float).reshape(-1, 2)
     by_begin = np.argsort(begins, kind="stable")
     sorted_begins = begins[by_begin]
-    velocity_out = np.array([_motion(p, t, at_end=True) for p, t in zip(tracks, times,
-                                                                         strict=True)])
-    velocity_in = np.array([_motion(p, t, at_end=False) for p, t in zip(tracks, times,
-                                                                         strict=True)])
+    velocity_out = _motions(tracks, times, at_end=True)
+    velocity_in = _motions(tracks, times, at_end=False)
     moving_in = np.linalg.norm(velocity_in.reshape(-1, 2), axis=1) >= MOVING
     who = np.array(subjects, dtype=object) if subjects is not None else None
     # a gap of whole frames at the limit is within it, whatever its stamps' jitter (4 frames
     # lost at 2.5 Hz: 2.002 s)
     gap_limit = REJOIN_GAP + SAME_TIME * _tracks_frame_interval(times)
-    pairs, within_limits = [], []  # pairs within AMBIGUITY times the limits; within them
-    for i in range(n):
-        lo, hi = np.searchsorted(sorted_begins, [ends[i], ends[i] + AMBIGUITY * gap_limit],
-                                 side="right")  # begins after i's end
-        js = by_begin[lo:hi]
-        gap = begins[js] - ends[i]
-        heading_for = end_at[i] + velocity_out[i] * gap[:, None]
-        miss = np.linalg.norm(begin_at[js] - heading_for, axis=1) / (REJOIN_REACH
-                                                                     + REJOIN_SPREAD * gap)
-        turned = (np.linalg.norm(velocity_out[i]) >= MOVING) & moving_in[js] & \
-            (velocity_in[js] @ velocity_out[i] < 0)
-        kept = (miss <= AMBIGUITY) & ~turned
-        if who is not None:
-            kept &= who[js] == who[i]
-        pairs += [(i, int(j)) for j in js[kept]]
-        within_limits += list((miss[kept] <= 1.0) & (gap[kept] <= gap_limit))
+    # every track j that begins after track i ends, within AMBIGUITY times the gap limit:
+    # all pairs at once, in the order of i, then of j's beginning
+    lo = np.searchsorted(sorted_begins, ends, side="right")
+    hi = np.searchsorted(sorted_begins, ends + AMBIGUITY * gap_limit, side="right")
+    count = np.maximum(hi - lo, 0)
+    i_of = np.repeat(np.arange(n), count)
+    js = by_begin[np.repeat(lo, count) + np.arange(count.sum())
+                  - np.repeat(np.cumsum(count) - count, count)]
+    gap = begins[js] - ends[i_of]
+    heading_for = end_at[i_of] + velocity_out[i_of] * gap[:, None]
+    miss = np.linalg.norm(begin_at[js] - heading_for, axis=1) / (REJOIN_REACH
+                                                                 + REJOIN_SPREAD * gap)
+    kept = miss <= AMBIGUITY
+    if who is not None:
+        kept &= who[js] == who[i_of]
+    # heading apart: the product of velocities as a track's rivals' all at once (the same
+    # bits as before), asked only of the tracks with a pair left
+    first = np.cumsum(count) - count
+    for i in np.unique(i_of[kept]).tolist():
+        mine = slice(first[i], first[i] + count[i])
+        turned = (np.linalg.norm(velocity_out[i]) >= MOVING) & moving_in[js[mine]] & \
+            (velocity_in[js[mine]] @ velocity_out[i] < 0)
+        kept[mine] &= ~turned
+    pairs = [(int(i), int(j)) for i, j in zip(i_of[kept], js[kept], strict=True)]
+    within_limits = list((miss[kept] <= 1.0) & (gap[kept] <= gap_limit))
     # a rival of pair (i, j): another track that could continue i, or be continued by j,
     # except the piece that follows j or precedes i (one person lost twice in a row)
     candidates = set(pairs)
@@ -227,17 +250,28 @@ def _headings(points: np.ndarray, i: int) -> tuple[np.ndarray | None, np.ndarray
     return (None if into is None else -into), along(points[i:], points[i])
 
 
-def _predicted(points: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Where each pose of a track would be, moved on from the pose before at the velocity of
-    the MOTION_WINDOW seconds before that; where it is, where those hold one time (the first
-    two poses): no motion is known to predict from, so no jump is seen."""
-    prev = np.arange(len(points) - 1)
-    first = np.searchsorted(times, times[prev] - MOTION_WINDOW, side="left")
-    dt = (times[prev] - times[first])[:, None]
+def _predicted(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]) -> np.ndarray:
+    """Where each pose of the tracks (laid end to end) would be, moved on from the pose
+    before at the velocity of the MOTION_WINDOW seconds before that; where it is, where those
+    hold one time (each track's first two poses): no motion is known to predict from, so no
+    jump is seen."""
+    sizes = np.array([len(t) for t in times], dtype=np.int64)
+    begin = np.cumsum(sizes) - sizes
+    points = np.concatenate(tracks).reshape(-1, 2)
+    ts = np.concatenate(times)
+    # every pose but each track's first, and the pose before it
+    later = np.ones(len(ts), dtype=bool)
+    later[begin] = False
+    prev = np.flatnonzero(later) - 1
+    first = np.concatenate([np.searchsorted(t, t[:-1] - MOTION_WINDOW, side="left") + b
+                            for t, b in zip(times, begin.tolist(), strict=True)])
+    dt = (ts[prev] - ts[first])[:, None]
     velocity = np.divide(points[prev] - points[first], dt, out=np.zeros((len(prev), 2)),
                          where=dt > 0)
-    moved_on = points[prev] + velocity * (times[1:] - times[prev])[:, None]
-    return np.vstack([points[:1], np.where(dt > 0, moved_on, points[1:])])
+    moved_on = points[prev] + velocity * (ts[prev + 1] - ts[prev])[:, None]
+    predicted = points.copy()
+    predicted[prev + 1] = np.where(dt > 0, moved_on, points[prev + 1])
+    return predicted
 
 
 def _each_walks_on_its_own_way(a: tuple[np.ndarray | None, np.ndarray | None],
@@ -269,10 +303,17 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     # noise misses a prediction by sqrt(2) sigma on each coordinate: a jump is well above it
     miss_limit = max(SWITCH_MISS, SWITCH_NOISES * math.sqrt(2.0) * noise_sigma(tracks))
     jumps = []  # (time, track, pose, predicted, (heading into it, heading out))
-    for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
-        predicted = _predicted(points, ts)
-        for i in np.flatnonzero(np.linalg.norm(points - predicted, axis=1) > miss_limit):
-            jumps.append((float(ts[i]), k, int(i), predicted[i], _headings(points, int(i))))
+    if tracks:
+        predicted = _predicted(tracks, times)
+        sizes = np.array([len(t) for t in times], dtype=np.int64)
+        begin = np.cumsum(sizes) - sizes
+        jumped = np.flatnonzero(np.linalg.norm(np.concatenate(tracks).reshape(-1, 2)
+                                               - predicted, axis=1) > miss_limit)
+        owner = np.searchsorted(begin, jumped, side="right") - 1
+        for at, k in zip(jumped.tolist(), owner.tolist(), strict=True):
+            i = at - int(begin[k])
+            jumps.append((float(times[k][i]), k, i, predicted[at],
+                          _headings(tracks[k], i)))
     frame = _tracks_frame_interval(times)
     jumps.sort(key=lambda jump: (jump[0], jump[1]))
     at = np.array([jump[0] for jump in jumps])
@@ -307,8 +348,20 @@ def undo_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
 
 
 def _tracks_frame_interval(times: Sequence[np.ndarray]) -> float:
-    """The tracker's frame interval (`_frame_interval`) from the time steps of all its tracks."""
-    return _frame_interval(np.concatenate([np.diff(t) for t in times] + [np.zeros(0)]))
+    """The tracker's frame interval (`_frame_interval`) from the time steps of all its tracks
+    (laid end to end, the steps across two tracks left out: the same steps in the same
+    order as track by track)."""
+    return _frame_interval(_steps(times))
+
+
+def _steps(times: Sequence[np.ndarray]) -> np.ndarray:
+    """The time steps of all tracks, laid end to end (those across two tracks left out)."""
+    if not times:
+        return np.zeros(0)
+    ends = np.cumsum([len(t) for t in times]) - 1
+    within = np.ones(max(ends[-1], 0), dtype=bool)
+    within[ends[:-1]] = False
+    return np.diff(np.concatenate(times))[within]
 
 
 def _frame_interval(steps: np.ndarray) -> float:
@@ -322,12 +375,24 @@ def _same_time(ts: np.ndarray) -> np.ndarray:
     SAME_TIME of the track's frame interval (`_frame_interval`) are one (a tracker that
     stamps each person's row a few milliseconds apart within one frame)."""
     steps = np.diff(ts)
-    # the interval lies between the smallest and the largest step: where every step is above
-    # SAME_TIME of the largest, every one is above SAME_TIME of the interval too, and its
-    # percentile (most of the mending of 30 000 tracks) need not be taken
-    if len(steps) and steps.min() > SAME_TIME * steps.max():
-        return np.r_[0, np.cumsum(np.ones(len(steps), dtype=bool))]
     return np.r_[0, np.cumsum(steps > SAME_TIME * _frame_interval(steps))]
+
+
+def _one_row_a_time(times: Sequence[np.ndarray]) -> np.ndarray:
+    """Whether each track (of `times`) is seen, without its `_same_time` groups, to hold one
+    row at each time: of fewer than two rows, or every time step above SAME_TIME of its
+    largest. The frame interval lies between the smallest and the largest step, so every
+    step is then above SAME_TIME of it too, and its percentile (most of the mending of
+    30 000 tracks) need not be taken. All tracks in one pass, laid end to end."""
+    sizes = np.array([len(t) for t in times], dtype=np.int64)
+    plain = sizes < 2
+    stepped = np.flatnonzero(~plain)
+    if not len(stepped):
+        return plain
+    steps = _steps(times)
+    at = np.cumsum(sizes[stepped] - 1) - (sizes[stepped] - 1)  # each one's first step
+    plain[stepped] = np.minimum.reduceat(steps, at) > SAME_TIME * np.maximum.reduceat(steps, at)
+    return plain
 
 
 def _nearest(rows: np.ndarray, to: np.ndarray) -> np.ndarray:
@@ -346,7 +411,10 @@ def drop_shared_times(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]
     that is no clock) is kept whole."""
     tracks, times = list(tracks), list(times)
     two_people = {}
+    plain = _one_row_a_time(times)
     for k, (points, ts) in enumerate(zip(tracks, times, strict=True)):
+        if plain[k]:
+            continue
         group = _same_time(ts)
         if group[-1] + 1 == len(ts) or group[-1] == 0:
             continue
