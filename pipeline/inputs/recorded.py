@@ -111,9 +111,9 @@ def warn_repeated_walks(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: 
     (`stream_spans`): one id given to several walks (two sessions' ids 0, 1, ... in one
     file), of which every trajectory's cut at the goal keeps only the first."""
     found = []
-    for k, track in enumerate(tracks):
-        with np.errstate(over="ignore", invalid="ignore"):
-            walks = len(stream_spans(track, starts, goal, start_radius, goal_tolerance))
+    with np.errstate(over="ignore", invalid="ignore"):
+        spans = tracks_spans(tracks, starts, goal, start_radius, goal_tolerance)
+    for k, walks in enumerate(map(len, spans)):
         if walks > 1:
             found.append(f"{k} ({walks} walks)")
     if found:
@@ -150,9 +150,10 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
     from_afar: list[tuple[str, float]] = []  # (track, its closest approach to a start)
     chains = chains if chains is not None else [[k] for k in range(len(tracks))]
     in_file, with_walks = sum(map(len, chains)), 0  # trajectories in the file
-    for k, track in enumerate(tracks):
-        with np.errstate(over="ignore", invalid="ignore"):
-            spans = stream_spans(track, starts, goal, start_radius, goal_tolerance)
+    with np.errstate(over="ignore", invalid="ignore"):
+        reach = _reach(tracks, starts, goal, goal_tolerance)
+        all_spans = tracks_spans(tracks, starts, goal, start_radius, goal_tolerance, reach)
+    for k, (track, spans) in enumerate(zip(tracks, all_spans, strict=True)):
         walks += [track[b:g + 1] for b, g in spans]
         walk_subjects += [subjects[k] if subjects else None] * len(spans)
         labels += [track_name(chains[k], ids)] if len(spans) == 1 else \
@@ -161,13 +162,12 @@ def select_track_walks(tracks: Sequence[np.ndarray], subjects: Sequence[str | No
         with_walks += len(chains[k]) if spans else 0
         if not spans:
             without.append(track_name(chains[k], ids))
-            with np.errstate(over="ignore", invalid="ignore"):
-                to_start = np.linalg.norm(track[:, None, :] - np.reshape(starts, (1, -1, 2)),
-                                          axis=2).min(axis=1, initial=math.inf)
-            closest = _closest_after_a_start(track, to_start, goal, start_radius)
+            poses = slice(reach.bounds[k], reach.bounds[k + 1])
+            to_start = reach.gaps[poses].min(axis=1, initial=math.inf)
+            closest = _closest_after_a_start(to_start, reach.to_goal[poses], start_radius)
             if closest <= NEAR_MISS * goal_tolerance:
                 near_misses.append((track_name(chains[k], ids), closest))
-            arrival = np.flatnonzero(in_goal_disk(track, goal, goal_tolerance))
+            arrival = np.flatnonzero(reach.at_goal[poses])
             if len(arrival) and arrival[0] > 0:  # came to the goal from no start
                 from_afar.append((track_name(chains[k], ids),
                                   float(to_start[:arrival[0] + 1].min())))
@@ -208,16 +208,15 @@ def _metres_range(values: Sequence[float]) -> str:
     return lo if lo == hi else f"{lo}-{hi}"
 
 
-def _closest_after_a_start(track: np.ndarray, to_start: np.ndarray, goal: np.ndarray,
+def _closest_after_a_start(to_start: np.ndarray, to_goal: np.ndarray,
                            start_radius: float) -> float:
     """How close a track comes to the goal after it is first near a start (inf if never);
-    `to_start`: each pose's distance to its nearest start."""
+    `to_start`, `to_goal`: each pose's distance to its nearest start and to the goal."""
     with np.errstate(over="ignore", invalid="ignore"):
         near = to_start <= start_radius
         if not near.any():
             return math.inf
-        return float(np.nanmin(np.linalg.norm(track[int(np.argmax(near)):] - goal, axis=1),
-                               initial=math.inf))
+        return float(np.nanmin(to_goal[int(np.argmax(near)):], initial=math.inf))
 
 
 def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
@@ -252,8 +251,8 @@ def without_walks_hint(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: n
     planner's paths (`planned`: its replans, which that option would keep several of per
     walk) the robot's pose to record instead."""
     with np.errstate(over="ignore", invalid="ignore"):
-        without = sum(not stream_spans(t, starts, goal, start_radius, goal_tolerance)
-                      for t in tracks)
+        without = sum(not spans for spans in tracks_spans(tracks, starts, goal, start_radius,
+                                                          goal_tolerance))
     if without < 2 or without == len(tracks):  # none holds a walk: selecting cannot help
         return ""
     if planned:
@@ -337,19 +336,22 @@ def motion_begin(gaps: np.ndarray, start_radius: float) -> int:
     stop, does not begin a demonstration. It begins at the winner's last stop pose, where the
     robot moves away towards the goal.
     """
-    candidates = []  # (stop length, -closest approach, last stop pose)
-    for s in range(gaps.shape[1]):
-        visits = [(r0, r1) for r0, r1 in _visits(gaps[:, s] <= start_radius + VISIT_SLACK)
-                  if gaps[r0:r1, s].min() <= start_radius]
-        if not visits:
-            continue
-        r0, r1 = visits[-1]
-        d = gaps[r0:r1, s]
-        closest = float(d.min())
-        # within the radius too: a stop at 0.99 m jittering to 1.004 m began a demonstration
-        # that matching then refused for starting too far off, and with it the whole file
-        stop = np.flatnonzero(d <= min(closest + STOP_TOLERANCE, start_radius))
-        candidates.append((len(stop), -closest, r0 + int(stop[-1])))
+    near = gaps <= start_radius + VISIT_SLACK
+    rows = np.arange(len(gaps))[:, None]
+    # each start's last visit (all starts at once): the run of `near` poses around its last
+    # pose within the radius, the last run that comes within it
+    last_in = np.where(gaps <= start_radius, rows, -1).max(axis=0, initial=-1)
+    r0 = np.where(~near & (rows < last_in), rows, -1).max(axis=0, initial=-1) + 1
+    r1 = np.where(~near & (rows > last_in), rows, len(gaps)).min(axis=0, initial=len(gaps))
+    visit = (rows >= r0) & (rows < r1) & (last_in >= 0)
+    closest = np.where(visit, gaps, np.inf).min(axis=0, initial=np.inf)
+    # within the radius too: a stop at 0.99 m jittering to 1.004 m began a demonstration
+    # that matching then refused for starting too far off, and with it the whole file
+    stop = visit & (gaps <= np.minimum(closest + STOP_TOLERANCE, start_radius))
+    last_stop = np.where(stop, rows, -1).max(axis=0, initial=-1)
+    # (stop length, -closest approach, last stop pose) of each start visited
+    candidates = [(int(n), -float(c), int(at)) for n, c, at, v in
+                  zip(stop.sum(axis=0), closest, last_stop, last_in >= 0, strict=True) if v]
     best = max(c[1] for c in candidates)
     return max(c for c in candidates if c[1] >= best - VISIT_SLACK)[2]
 
@@ -373,27 +375,59 @@ def stream_spans(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_
     the stop, neither cuts it nor shortens it. Stretches before the robot first comes near a
     start, or after the last goal arrival that never reach the goal again, are dropped.
     """
-    track = np.asarray(track, dtype=float).reshape(-1, 2)
+    return tracks_spans([track], starts, goal, start_radius, goal_tolerance)[0]
+
+
+class _Reach(NamedTuple):
+    """The poses of tracks laid end to end: their distances to every start (N, n) and to the
+    goal (N,), whether each is at the goal (N,), and where each track begins and ends in them
+    (T + 1,)."""
+    gaps: np.ndarray
+    to_goal: np.ndarray
+    at_goal: np.ndarray
+    bounds: np.ndarray
+
+
+def _reach(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
+           goal_tolerance: float) -> _Reach:
+    """The `_Reach` of the tracks, in one pass over all their poses."""
+    tracks = [np.asarray(t, dtype=float).reshape(-1, 2) for t in tracks]
     starts = np.asarray(starts, dtype=float).reshape(-1, 2)
-    if len(track) == 0 or len(starts) == 0:
-        return []
-    gaps = np.linalg.norm(track[:, None, :] - starts[None, :, :], axis=2)  # (K, n)
-    near_any = np.flatnonzero((gaps <= start_radius).any(axis=1))
-    at_goal = np.flatnonzero(in_goal_disk(track, goal, goal_tolerance))
-    spans = []
-    pos = 0
-    while True:
-        i = int(np.searchsorted(near_any, pos))
-        if i == len(near_any):
-            break
-        a = int(near_any[i])
-        j = int(np.searchsorted(at_goal, a, side="right"))
-        if j == len(at_goal):
-            break
-        g = int(at_goal[j])
-        spans.append((a + motion_begin(gaps[a:g], start_radius), g))
-        pos = g + 1
-    return spans
+    points = np.concatenate(tracks) if tracks else np.zeros((0, 2))
+    gaps = np.empty((len(points), len(starts)))
+    for s, start in enumerate(starts):  # a column at a time: a day of tracking has millions
+        gaps[:, s] = np.linalg.norm(points - start, axis=1)
+    goal = np.asarray(goal, dtype=float)
+    return _Reach(gaps, np.linalg.norm(points - goal, axis=1),
+                  in_goal_disk(points, goal, goal_tolerance),
+                  np.cumsum([0] + [len(t) for t in tracks]))
+
+
+def tracks_spans(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
+                 start_radius: float, goal_tolerance: float,
+                 reach: _Reach | None = None) -> list[list[tuple[int, int]]]:
+    """`stream_spans` of each track (the distances of all tracks' poses measured at once,
+    `_reach`, unless given)."""
+    reach = reach if reach is not None else _reach(tracks, starts, goal, goal_tolerance)
+    near = np.flatnonzero((reach.gaps <= start_radius).any(axis=1))
+    at_goal = np.flatnonzero(reach.at_goal)
+    out = []
+    for b, e in zip(reach.bounds[:-1].tolist(), reach.bounds[1:].tolist(), strict=True):
+        spans = []
+        pos = b
+        while True:  # indices in all poses; the spans' in the track's own
+            i = int(np.searchsorted(near, pos))
+            if i == len(near) or near[i] >= e:
+                break
+            a = int(near[i])
+            j = int(np.searchsorted(at_goal, a, side="right"))
+            if j == len(at_goal) or at_goal[j] >= e:
+                break
+            g = int(at_goal[j])
+            spans.append((a - b + motion_begin(reach.gaps[a:g], start_radius), g - b))
+            pos = g + 1
+        out.append(spans)
+    return out
 
 
 def cut_stream(track: np.ndarray, starts: np.ndarray, goal: np.ndarray, start_radius: float,
