@@ -47,8 +47,9 @@ are computed.
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from functools import cached_property
 from typing import NamedTuple
@@ -481,8 +482,12 @@ class FeatureModel:
         return out
 
     # -- features of straight segments ---------------------------------------------------
-    def segments(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Features (n, d) of the straight segments a[i] → b[i], each (n, 2)."""
+    def segments(self, a: np.ndarray, b: np.ndarray,
+                 runs: Sequence[int] | None = None) -> np.ndarray:
+        """Features (n, d) of the straight segments a[i] → b[i], each (n, 2). `runs`: the
+        segments are polylines of these many segments laid end to end, each of which gets
+        the bits it would alone (its sub-steps integrated in chunks of their own, as
+        `_chunks`)."""
         a = np.asarray(a, float).reshape(-1, 2)
         b = np.asarray(b, float).reshape(-1, 2)
         n = len(a)
@@ -520,8 +525,7 @@ class FeatureModel:
         k = np.arange(len(owner)) - np.repeat(first, n_sub)
         frac = (k + 0.5) / n_sub[owner]
         ds = (length / n_sub)[owner]
-        for lo in range(0, len(owner), _CHUNK_POINTS):
-            sl = slice(lo, lo + _CHUNK_POINTS)
+        for sl in _chunks(n_sub, runs):
             p = a[owner[sl]] + frac[sl, None] * seg[owner[sl]]
             dens = self._tiled(p, features)
             for j, col in enumerate(tiled):
@@ -694,6 +698,25 @@ class FeatureModel:
         out = np.zeros((len(pts), self.dim))
         np.add.at(out, owner, per_segment)
         return out
+
+
+def _chunks(n_sub: np.ndarray, runs: Sequence[int] | None) -> list[slice]:
+    """The chunks of at most _CHUNK_POINTS sub-steps (of segments of `n_sub` sub-steps each)
+    that `segments` integrates one at a time: a segment cut by a chunk's end sums its parts
+    chunk by chunk, other bits than in one. Without `runs` every _CHUNK_POINTS; with them
+    (segments of polylines laid end to end) whole polylines, and a longer polyline at every
+    _CHUNK_POINTS of its own: its segments are cut where they would be alone."""
+    total = int(n_sub.sum())
+    if runs is None:
+        return [slice(lo, lo + _CHUNK_POINTS) for lo in range(0, total, _CHUNK_POINTS)]
+    ends = np.concatenate([[0], np.cumsum(n_sub)])[np.cumsum(runs, dtype=np.int64)]
+    cuts = [0]  # each polyline's own cuts, then as many whole ones as fit in a chunk
+    for begin, end in zip([0, *ends[:-1].tolist()], ends.tolist(), strict=True):
+        inner = list(range(begin + _CHUNK_POINTS, end, _CHUNK_POINTS))
+        if inner or end - cuts[-1] > _CHUNK_POINTS:
+            cuts += ([begin] if begin > cuts[-1] else []) + inner
+    cuts.append(total)
+    return [slice(lo, hi) for lo, hi in itertools.pairwise(cuts) if hi > lo]
 
 
 def _hinge_antiderivative(y: np.ndarray, rho: float) -> np.ndarray:

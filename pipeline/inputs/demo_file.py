@@ -6,6 +6,7 @@ import dataclasses
 import functools
 import logging
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
 
@@ -85,7 +86,7 @@ def _recording_demos(path: Path, scene: Scene, feature_model: FeatureModel, spee
                      select_walks: bool) -> tuple[list[Demonstration], str | None]:
     """The demonstrations of one recording (`load_demo_file`), and, when `select_walks`
     dropped every walk it read, the refusal that says why (None otherwise)."""
-    demos: list[Demonstration] = []
+    walks: list[tuple[int, np.ndarray, str | None, str]] = []  # those a robot could follow
     unreached: list[str] = []
     tracks = load_recorded(path, scene.starts, scene.goal, goal_tolerance=scene.goal_tolerance,
                            topic=topic, frame=frame, start_radius=start_radius, room=scene.room,
@@ -95,7 +96,7 @@ def _recording_demos(path: Path, scene: Scene, feature_model: FeatureModel, spee
     first_refusal = ""
     progress = Progress(f"{describe(path)}: checking walks against the scene", len(tracks))
     for start, points, subject, label in tracks:
-        progress(len(demos) + len(blocked))
+        progress(len(walks) + len(blocked))
         if scene.obstacles is not None:  # tracking noise along a wall, as at the room's edge
             clear = clear_of_walls(points, scene)
             if clear is not points:
@@ -109,11 +110,12 @@ def _recording_demos(path: Path, scene: Scene, feature_model: FeatureModel, spee
             first_refusal = first_refusal or fault.refusal(what)
             blocked.append(f"{label} ({fault.does})")
             continue
-        demo = demonstration(start, points, subject, scene, feature_model, speed, source=label)
+        walks.append((start, points, subject, label))
+    demos = demonstrations(walks, scene, feature_model, speed)
+    for demo in demos:
         if not demo.reached:
-            end_gap = float(np.linalg.norm(points[-1] - scene.goal))
-            unreached.append(f"{label} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
-        demos.append(demo)
+            end_gap = float(np.linalg.norm(demo.points[-1] - scene.goal))
+            unreached.append(f"{demo.source} ({metres_beside(end_gap, scene.goal_tolerance)} m)")
     if pushed:
         log.warning("%s: trajectories %s come closer to an obstacle than robot_radius=%g m by "
                     "at most %g m, as tracking noise along a wall does: there they are moved "
@@ -216,11 +218,28 @@ def demonstration(start: int, points: np.ndarray, subject: str | None, scene: Sc
                   feature_model: FeatureModel, speed: float,
                   source: str | None = None) -> Demonstration:
     """A trajectory a robot could follow (`walk_fault` finds nothing) as a Demonstration."""
+    return demonstrations([(start, points, subject, source)], scene, feature_model, speed)[0]
+
+
+def demonstrations(walks: Sequence[tuple[int, np.ndarray, str | None, str | None]],
+                   scene: Scene, feature_model: FeatureModel,
+                   speed: float) -> list[Demonstration]:
+    """`demonstration` of each walk (start, points, subject, source), the features of all
+    their segments in one call (`FeatureModel.segments` by runs: each walk's own bits)."""
+    if not walks:
+        return []
+    a = np.concatenate([points[:-1] for _, points, _, _ in walks])
+    b = np.concatenate([points[1:] for _, points, _, _ in walks])
+    runs = [len(points) - 1 for _, points, _, _ in walks]
+    at = np.cumsum(runs)[:-1]
+    # each walk's own arrays, as one call would make them (no views into all of them)
+    feats = [f.copy() for f in np.split(feature_model.segments(a, b, runs), at)]
+    durations = [d.copy() for d in np.split(np.linalg.norm(b - a, axis=1) / speed, at)]
     # cut_at_goal ends a trajectory that entered the goal disk at its first point there
-    reached = bool(scene.at_goal(points[-1])[0])
-    feats = feature_model.segments(points[:-1], points[1:])
-    durations = np.linalg.norm(np.diff(points, axis=0), axis=1) / speed
-    return Demonstration(start, points, feats, durations, reached, subject, source)
+    return [Demonstration(start, points, f, d, bool(scene.at_goal(points[-1])[0]), subject,
+                          source)
+            for (start, points, subject, source), f, d in zip(walks, feats, durations,
+                                                               strict=True)]
 
 
 class WalkFault(NamedTuple):

@@ -79,6 +79,24 @@ def test_features_add_over_concatenation(metropolis):
     np.testing.assert_allclose(fm.polylines([path[:2], path[1:]]).sum(0), whole, rtol=1e-12)
 
 
+def test_segments_by_runs_give_each_polyline_its_own_bits(metropolis, monkeypatch):
+    # Polylines laid end to end in one call (`runs`) are integrated in chunks of their own:
+    # a segment cut by a chunk's end sums its parts chunk by chunk, so each polyline's bits
+    # are those of a call of its own, however the chunks fall (a few sub-steps each here).
+    import pipeline.core.features as features
+
+    monkeypatch.setattr(features, "_CHUNK_POINTS", 7)
+    fm = FeatureModel.from_scene(metropolis)
+    rng = np.random.default_rng(3)
+    polylines = [np.cumsum(rng.normal(0, 0.4, (n, 2)), axis=0) + [5.0, 5.0]
+                 for n in (2, 9, 1, 30, 4, 3, 17)]
+    a = np.concatenate([p[:-1] for p in polylines])
+    b = np.concatenate([p[1:] for p in polylines])
+    alone = np.concatenate([fm.segments(p[:-1], p[1:]) for p in polylines])
+    together = fm.segments(a, b, [len(p) - 1 for p in polylines])
+    np.testing.assert_array_equal(together, alone)
+
+
 def test_invalid_parameters():
     with pytest.raises(ValueError, match="resolution"):
         model([(0, 0)], resolution=0.0)
