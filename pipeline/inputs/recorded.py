@@ -30,6 +30,7 @@ from pipeline.inputs.polylines import (
     drop_repeats,
     label,
     polyline_length,
+    track_blocks,
     track_name,
 )
 from pipeline.inputs.recordings import describe, read_recording
@@ -390,17 +391,21 @@ class _Reach(NamedTuple):
 
 def _reach(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,
            goal_tolerance: float) -> _Reach:
-    """The `_Reach` of the tracks, in one pass over all their poses."""
+    """The `_Reach` of the tracks, measured over all their poses (a block at a time)."""
     tracks = [np.asarray(t, dtype=float).reshape(-1, 2) for t in tracks]
     starts = np.asarray(starts, dtype=float).reshape(-1, 2)
-    points = np.concatenate(tracks) if tracks else np.zeros((0, 2))
-    gaps = np.empty((len(points), len(starts)))
-    for s, start in enumerate(starts):  # a column at a time: a day of tracking has millions
-        gaps[:, s] = np.linalg.norm(points - start, axis=1)
     goal = np.asarray(goal, dtype=float)
-    return _Reach(gaps, np.linalg.norm(points - goal, axis=1),
-                  in_goal_disk(points, goal, goal_tolerance),
-                  np.cumsum([0] + [len(t) for t in tracks]))
+    bounds = np.cumsum([0] + [len(t) for t in tracks])
+    gaps = np.empty((bounds[-1], len(starts)))
+    to_goal, at_goal = np.empty(bounds[-1]), np.empty(bounds[-1], dtype=bool)
+    for block in track_blocks(tracks):  # a block at a time: fresh memory is slow
+        points = np.concatenate(tracks[block])
+        rows = slice(bounds[block.start], bounds[block.stop])
+        for s, start in enumerate(starts):
+            gaps[rows, s] = np.linalg.norm(points - start, axis=1)
+        to_goal[rows] = np.linalg.norm(points - goal, axis=1)
+        at_goal[rows] = in_goal_disk(points, goal, goal_tolerance)
+    return _Reach(gaps, to_goal, at_goal, bounds)
 
 
 def tracks_spans(tracks: Sequence[np.ndarray], starts: np.ndarray, goal: np.ndarray,

@@ -79,3 +79,18 @@ def test_smoothing_many_at_once_gives_each_one_s_bits():
     for track, sigma, out in zip(tracks, sigmas, together, strict=True):
         assert out.tobytes() == smooth_to_noise(track, sigma).tobytes()
     assert smooth_all_to_noise([], []) == []
+
+
+def test_means_over_decide_as_np_mean_of_each_track():
+    # the means of all tracks at once decide as np.mean of each alone, also at a limit that
+    # is np.mean's own value (where another order of sums may fall either side of it)
+    from pipeline.inputs.denoise import _means_over
+
+    rng = np.random.default_rng(7)
+    n = rng.integers(4, 400, 300)
+    begin = np.cumsum(n) - n
+    square = rng.random((n.sum(), 2)) ** 4
+    exact = np.array([np.mean(square[b:b + k]) for b, k in zip(begin, n, strict=True)])
+    limits = exact * np.where(np.arange(len(n)) % 3 == 0, 1.0, rng.uniform(0.9, 1.1, len(n)))
+    limits[1::3] = np.nextafter(exact[1::3], 0)
+    assert (_means_over(square, begin, n, limits) == (exact > limits)).all()
