@@ -95,16 +95,20 @@ def _recording_demos(path: Path, scene: Scene, feature_model: FeatureModel, spee
     blocked: list[str] = []  # walks cut from tracks that no robot path could follow
     first_refusal = ""
     progress = Progress(f"{describe(path)}: checking walks against the scene", len(tracks))
-    for start, points, subject, label in tracks:
-        progress(len(walks) + len(blocked))
+    cleared = []  # each walk's points, moved off a wall where noise took them onto it
+    for k, (_, points, _, label) in enumerate(tracks):
+        progress(k)
         if scene.obstacles is not None:  # tracking noise along a wall, as at the room's edge
             clear = clear_of_walls(points, scene)
             if clear is not points:
                 pushed.append(label)
                 points = clear
-        what = f"{describe(path)}: trajectory {label}"
-        fault = walk_fault(points, scene)
+        cleared.append(points)
+    for (start, _, subject, label), points, fault in zip(tracks, cleared,
+                                                         walk_faults(cleared, scene),
+                                                         strict=True):
         if fault is not None:
+            what = f"{describe(path)}: trajectory {label}"
             if not select_walks:
                 raise PipelineError(fault.refusal(what))
             first_refusal = first_refusal or fault.refusal(what)
@@ -256,8 +260,30 @@ def walk_fault(points: np.ndarray, scene: Scene) -> WalkFault | None:
     """What keeps a trajectory from being a robot's path: coming closer than robot_radius to
     an obstacle, or entering a person's body disk (its segments would be graph edges no
     planned path could take); None when nothing does."""
-    if scene.obstacles is not None:
-        clearance = scene.obstacles.segments_min_clearance(points[:-1], points[1:])
+    return walk_faults([points], scene)[0]
+
+
+def walk_faults(walks: Sequence[np.ndarray], scene: Scene) -> list[WalkFault | None]:
+    """`walk_fault` of each walk, the clearances and body disks of all their segments tested
+    in one call each (each segment's test is its own: the same answers)."""
+    if not walks:
+        return []
+    a = np.concatenate([points[:-1] for points in walks])
+    b = np.concatenate([points[1:] for points in walks])
+    at = np.cumsum([len(points) - 1 for points in walks])[:-1]
+    clearances = np.split(scene.obstacles.segments_min_clearance(a, b), at) \
+        if scene.obstacles is not None else [None] * len(walks)
+    clears = np.split(segments_clear_of_disks(a, b, scene.person_xy, scene.body_radius), at) \
+        if len(scene.persons) else [None] * len(walks)
+    return [_fault(points, clearance, clear, scene)
+            for points, clearance, clear in zip(walks, clearances, clears, strict=True)]
+
+
+def _fault(points: np.ndarray, clearance: np.ndarray | None, clear: np.ndarray | None,
+           scene: Scene) -> WalkFault | None:
+    """`walk_fault` of a walk from its segments' clearances and whether each keeps out of
+    every body disk (None: the scene has no obstacles, no persons)."""
+    if clearance is not None:
         worst = int(np.argmin(clearance))
         if clearance[worst] < scene.robot_radius:
             x, y = points[worst]
@@ -266,10 +292,7 @@ def walk_fault(points: np.ndarray, scene: Scene) -> WalkFault | None:
                              f" after ({x:.2f}, {y:.2f}); the robot needs robot_radius="
                              f"{scene.robot_radius:g} m (lower it in the scene file or with "
                              "scene.robot_radius)")
-    if not len(scene.persons):
-        return None
-    clear = segments_clear_of_disks(points[:-1], points[1:], scene.person_xy, scene.body_radius)
-    if clear.all():
+    if clear is None or clear.all():
         return None
     seg = int(np.argmin(clear))
     gaps = distances_to_persons(points[seg:seg + 2], scene.person_xy)
