@@ -113,7 +113,7 @@ test: $(VENV)/.installed-dev
 test-all: $(VENV)/.installed-dev
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist worksteal -m "not bench"
 
-## Style and types: ruff on the package and tests, mypy on the algorithm packages.
+## Style and types: ruff on the package and tests, mypy on all but the stages, API and tools.
 lint: $(VENV)/.installed-dev
 	$(VENV)/bin/ruff check pipeline tests
 	$(VENV)/bin/mypy

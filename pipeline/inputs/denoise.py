@@ -92,10 +92,11 @@ def _second_differences(tracks: Sequence[np.ndarray]
     for block in track_blocks(tracks):  # a block at a time: fresh memory is slow
         sizes = np.array([len(t) for t in tracks[block]], dtype=np.int64)
         mine = np.flatnonzero(sizes >= MIN_NOISE_POINTS)
-        mine = mine[straight_shares([tracks[block][k] for k in mine]) < PLANNED_STRAIGHT_SHARE]
+        mine = mine[straight_shares([tracks[block.start + k] for k in mine.tolist()])
+                    < PLANNED_STRAIGHT_SHARE]
         if not len(mine):
             continue
-        points = np.concatenate([tracks[block][k] for k in mine])
+        points = np.concatenate([tracks[block.start + k] for k in mine.tolist()])
         dense.append(mine + block.start)
         near.append(np.abs(_within(points[2:] - 2 * points[1:-1] + points[:-2], sizes[mine],
                                    2).ravel()))

@@ -230,14 +230,15 @@ def no_walk_found(where: str, tracks: Sequence[np.ndarray], room: Room | None,
         lo, hi = np.nanmin(poses, axis=0), np.nanmax(poses, axis=0)
     span = f"x {metres(lo[0])}..{metres(hi[0])}, y {metres(lo[1])}..{metres(hi[1])}"
     outside = ""
-    inside = room.contains(poses) if room is not None else None
-    if room is not None and not inside.any():
-        outside = f", all outside the room {room.describe()}: recorded in another frame, " \
-            "with another origin or in other units than the scene's (metres)?"
-    elif room is not None and inside.mean() < SWAPPED_INSIDE[0] and \
-            room.contains(poses[:, ::-1]).mean() >= SWAPPED_INSIDE[1]:
-        outside = f", some outside the room {room.describe()}, which would hold them " \
-            "with x and y exchanged: are the columns swapped?"
+    if room is not None:
+        inside = room.contains(poses)
+        if not inside.any():
+            outside = f", all outside the room {room.describe()}: recorded in another frame, " \
+                "with another origin or in other units than the scene's (metres)?"
+        elif inside.mean() < SWAPPED_INSIDE[0] and \
+                room.contains(poses[:, ::-1]).mean() >= SWAPPED_INSIDE[1]:
+            outside = f", some outside the room {room.describe()}, which would hold them " \
+                "with x and y exchanged: are the columns swapped?"
     of = "" if len(tracks) == 1 else f" of {len(tracks)} trajectories"
     return PipelineError(
         f"{where}: found no trajectory from a start (within {start_radius:g} m, "
@@ -721,9 +722,9 @@ def load_recorded(path: Path, starts: np.ndarray, goal: np.ndarray, *, goal_tole
     elif select_walks:
         if len(recording.tracks) >= MANY_TRACKS:  # a few seconds for every 10 000
             log.info("  mending %d tracks and cutting their walks ...", len(recording.tracks))
-        tracks, subjects, chains = mend_tracks(recording, where)
+        tracks, mended_subjects, chains = mend_tracks(recording, where)
         tracks, subjects, labels, offsets = select_track_walks(
-            tracks, subjects, starts, goal, start_radius, goal_tolerance, where, room,
+            tracks, mended_subjects, starts, goal, start_radius, goal_tolerance, where, room,
             recording.ids, chains)
         warn_jumps(tracks, where, offsets, labels)
     else:

@@ -41,13 +41,16 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 from pipeline.errors import PipelineError, file_kind, listed
 from pipeline.inputs.polylines import REPEAT_TOLERANCE, is_jump, polyline_length, steps_and_usual
 from pipeline.inputs.schemas import read_json
+
+if TYPE_CHECKING:
+    from _csv import Reader as CsvReader  # csv.reader's type: _csv names it, csv does not
 
 log = logging.getLogger(__name__)
 
@@ -362,7 +365,7 @@ def _is_blank(row: list[str]) -> bool:
     return not row or (not row[0].strip() and all(not c.strip() for c in row))
 
 
-def _csv_blocks(reader) -> Iterator[tuple[list[list[str]], np.ndarray]]:
+def _csv_blocks(reader: CsvReader) -> Iterator[tuple[list[list[str]], np.ndarray]]:
     """The rows after the header, CSV_CHUNK_ROWS lines at a time, blank lines left out, with
     their file lines: counted, not asked of the reader at every row (a Python step a row, a
     quarter of the reading), where each row is one line. Raises _ReadByRow where one is not
@@ -385,7 +388,7 @@ def _csv_blocks(reader) -> Iterator[tuple[list[list[str]], np.ndarray]]:
             yield rows, lines
 
 
-def _csv_table(reader, where: str, by_row: bool = False
+def _csv_table(reader: CsvReader, where: str, by_row: bool = False
                ) -> tuple[dict[str, int], np.ndarray, np.ndarray, list[str], list[str]]:
     """The CSV's columns (name -> index), its rows as (x, y, t) (t 0 without a t column), the
     file line of each row, and its trajectory ids and subjects (empty without those columns).
@@ -411,7 +414,7 @@ def _csv_table(reader, where: str, by_row: bool = False
 CSV_CHUNK_ROWS = 65_536  # a chunk's fields are held as text until read: 20 MB, not 700
 
 
-def _csv_row_chunks(reader, col: dict[str, int], n_fields: int, where: str
+def _csv_row_chunks(reader: CsvReader, col: dict[str, int], n_fields: int, where: str
                     ) -> list[tuple[np.ndarray, np.ndarray, dict[str, list[str]]]]:
     """The rows after the header read a row at a time, with the line the reader says each
     ends on (`_csv_blocks` cannot count them), as `_csv_chunk`s of CSV_CHUNK_ROWS rows."""
@@ -436,8 +439,8 @@ def _csv_row_chunks(reader, col: dict[str, int], n_fields: int, where: str
     return chunks
 
 
-def _csv_chunk(rows: list[list[str]], lines: list[int], col: dict[str, int], n_fields: int,
-               where: str) -> tuple[np.ndarray, np.ndarray, dict[str, list[str]]]:
+def _csv_chunk(rows: list[list[str]], lines: list[int] | np.ndarray, col: dict[str, int],
+               n_fields: int, where: str) -> tuple[np.ndarray, np.ndarray, dict[str, list[str]]]:
     """Rows of a CSV (at file `lines`) as a table (n, 3) of x, y, t (0 without a t column),
     their lines, and their ids by column (trajectory, subject); refused at the first row at
     fault (`_refuse_csv_row`)."""
@@ -448,8 +451,8 @@ def _csv_chunk(rows: list[list[str]], lines: list[int], col: dict[str, int], n_f
         return list(map(str.strip, map(operator.itemgetter(col[name]), rows)))
 
     values = [_plain_decimals(field(name)) if counted else None for name in numbers]
-    idents = {name: field(name) if counted else []
-              for name in ("trajectory", "subject") if name in col}
+    idents: dict[str, list[str]] = {name: field(name) if counted else []
+                                    for name in ("trajectory", "subject") if name in col}
     if not counted or any(v is None for v in values) or \
             not all(all(ids) and "".join(ids).isprintable() for ids in idents.values()):
         for row, line in zip(rows, lines, strict=True):  # the first at fault

@@ -322,9 +322,9 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
         jumped = np.flatnonzero(np.linalg.norm(np.concatenate(tracks[block]).reshape(-1, 2)
                                                - predicted, axis=1) > miss_limit)
         owner = np.searchsorted(begin, jumped, side="right") - 1
-        for at, k in zip(jumped.tolist(), owner.tolist(), strict=True):
-            i = at - int(begin[k])
-            jumps.append((float(times[block.start + k][i]), block.start + k, i, predicted[at],
+        for row, k in zip(jumped.tolist(), owner.tolist(), strict=True):
+            i = row - int(begin[k])
+            jumps.append((float(times[block.start + k][i]), block.start + k, i, predicted[row],
                           _headings(tracks[block.start + k], i)))
     frame = _tracks_frame_interval(times)
     jumps.sort(key=lambda jump: (jump[0], jump[1]))
@@ -332,9 +332,9 @@ def id_switches(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray],
     cuts = [0, *(np.flatnonzero(np.diff(at) > SAME_TIME * frame) + 1), len(jumps)]
     moments = [jumps[a:b] for a, b in itertools.pairwise(cuts)]
     switches = []
-    for jumped in moments:
+    for moment in moments:
         pairs = [(min(ta, tb), min(a, b), max(a, b))
-                 for (ta, a, i, pa, ha), (tb, b, j, pb, hb) in itertools.combinations(jumped, 2)
+                 for (ta, a, i, pa, ha), (tb, b, j, pb, hb) in itertools.combinations(moment, 2)
                  if a != b and max(np.linalg.norm(tracks[a][i] - pb),
                                    np.linalg.norm(tracks[b][j] - pa)) <= miss_limit
                  and (subjects is None or subjects[a] == subjects[b])
@@ -433,15 +433,14 @@ def drop_shared_times(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]
         bounds = np.flatnonzero(np.r_[True, np.diff(group) > 0, True])
         rows = [points[a:b] for a, b in itertools.pairwise(bounds)]
         one = [np.linalg.norm(r - r[0], axis=1).max() < BODIES_APART for r in rows]
-        kept: list[np.ndarray | None] = [r.mean(axis=0) if o else None
-                                         for r, o in zip(rows, one, strict=True)]
         first = next((g for g, o in enumerate(one) if o), 0)
-        kept[first] = kept[first] if one[first] else rows[first][0]
+        kept = {first: rows[first].mean(axis=0) if one[first] else rows[first][0]}
         for g in range(first + 1, len(rows)):
-            kept[g] = kept[g] if one[g] else _nearest(rows[g], kept[g - 1])
+            kept[g] = rows[g].mean(axis=0) if one[g] else _nearest(rows[g], kept[g - 1])
         for g in range(first - 1, -1, -1):
             kept[g] = _nearest(rows[g], kept[g + 1])
-        tracks[k], times[k] = np.array(kept, dtype=float), ts[bounds[:-1]]
+        tracks[k] = np.array([kept[g] for g in range(len(rows))], dtype=float)
+        times[k] = ts[bounds[:-1]]
         if not all(one):
             two_people[k] = ts[bounds[:-1]][~np.array(one)]
     return tracks, times, two_people
