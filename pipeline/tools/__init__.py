@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import signal
 import sys
 import tempfile
@@ -74,3 +75,12 @@ def check_out_places(root: Path, files: list[Path], writer: str) -> None:
     for f in files:
         if (root / f).is_dir():
             raise PipelineError(f"{root / f} is a directory; {writer} writes a file there")
+
+
+def dir_override(key: str, path: Path | str) -> str:
+    """`key=path` (hydra.run.dir, hydra.sweep.dir) as a Hydra override, whatever the path
+    holds: quoted, its quotes escaped and the backslashes before them or at its end doubled
+    (unquoted, a path with `=`, quotes, spaces or non-ASCII letters is refused)."""
+    text = re.sub(r"(\\*)('|$)", lambda m: m.group(1) * 2 + ("\\'" if m.group(2) else ""),
+                  str(path))
+    return f"{key}='{text}'"

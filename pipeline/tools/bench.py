@@ -36,7 +36,7 @@ from pipeline.app.context import PROJECT_ROOT
 from pipeline.app.rundir import METRICS_FILE, TIMINGS_FILE
 from pipeline.artefacts.topics import ARTEFACT_FILE, STAGES
 from pipeline.irl.birl import LIKELIHOODS
-from pipeline.tools import run_tool
+from pipeline.tools import dir_override, run_tool
 
 RESULTS = PROJECT_ROOT / "results" / "bench"
 HANDDRAWN = "data/demos/metropolis_handdrawn.json"  # the shipped hand-drawn demonstrations
@@ -197,8 +197,8 @@ def experiment_timings(repeats: int, *overrides: str) -> pd.DataFrame:
     for k in range(repeats):
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={tmp}", *overrides],
-                           check=True, capture_output=True, cwd=PROJECT_ROOT)
+            subprocess.run([sys.executable, "-m", "pipeline", dir_override("hydra.run.dir", tmp),
+                            *overrides], check=True, capture_output=True, cwd=PROJECT_ROOT)
             wall = time.perf_counter() - t0
             m = json.loads((Path(tmp) / METRICS_FILE).read_text())
         row = {"run": k, "wall_s": round(wall, 2)}
@@ -250,7 +250,7 @@ def _run_once(code: Path, overrides: list[str]) -> tuple[float, dict, dict, floa
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryFile() as stderr:
-        cmd = [sys.executable, "-m", "pipeline", *overrides, f"hydra.run.dir={tmp}"]
+        cmd = [sys.executable, "-m", "pipeline", *overrides, dir_override("hydra.run.dir", tmp)]
         env = {**os.environ, "PYTHONPATH": str(code)}
         t0 = time.perf_counter()
         child = subprocess.Popen(cmd, cwd=code, env=env, stdout=subprocess.DEVNULL,
@@ -429,8 +429,8 @@ IRL_SCENES = {"metropolis": ["scene=metropolis"], "random1": ["scene=random", "s
 
 
 def _app(run_dir: Path, *overrides: str) -> dict:
-    subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}", *overrides],
-                   check=True, capture_output=True, cwd=PROJECT_ROOT)
+    subprocess.run([sys.executable, "-m", "pipeline", dir_override("hydra.run.dir", run_dir),
+                    *overrides], check=True, capture_output=True, cwd=PROJECT_ROOT)
     return json.loads((run_dir / METRICS_FILE).read_text()) \
         if (run_dir / METRICS_FILE).exists() else {}
 

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from pipeline.tools import dir_override
+
 SWEEP = ["-m", "experiment=quick", "seed=range(8)", "reward=polite,rude"]
 N_SWEEP_JOBS = 16
 FLOOR = [sys.executable, "-c", "import numpy, scipy.sparse"]
@@ -88,15 +90,16 @@ def variants(root: Path, old: Path | None, jobs: int) -> dict[str, tuple[Path, l
 
 
 def measure_once(name: str, checkout: Path, args: list, work: Path, rep: int) -> float:
-    out = work / f"{re.sub(r'[^a-z-]+', '_', name)}-{rep}"  # a value Hydra takes unquoted
+    out = work / f"{re.sub(r'[^a-z-]+', '_', name)}-{rep}"
     if name.startswith("run"):
-        return timed([sys.executable, "-m", *args, f"hydra.run.dir={out}"], checkout,
+        return timed([sys.executable, "-m", *args, dir_override("hydra.run.dir", out)], checkout,
                      REFUSAL if name == REFUSED_ROW else None)
     if name.startswith("sweep"):
-        return timed([sys.executable, "-m", *args, f"hydra.sweep.dir={out}"], checkout)
+        return timed([sys.executable, "-m", *args, dir_override("hydra.sweep.dir", out)], checkout)
     sweep = work / "sweep-for-aggregation"  # one sweep (made once), aggregated each time
     if not sweep.exists():
-        timed([sys.executable, "-m", "pipeline", *SWEEP, f"hydra.sweep.dir={sweep}"], checkout)
+        timed([sys.executable, "-m", "pipeline", *SWEEP, dir_override("hydra.sweep.dir", sweep)],
+              checkout)
     return timed([sys.executable, "-m", *args, str(sweep)], checkout)
 
 

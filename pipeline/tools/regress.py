@@ -27,7 +27,7 @@ from pipeline.app.rundir import METRICS_FILE
 from pipeline.app.summary import Unreadable, read_metrics
 from pipeline.artefacts.store import write_text_atomic
 from pipeline.errors import PipelineError, first_line, os_error_reason
-from pipeline.tools import run_tool
+from pipeline.tools import dir_override, run_tool
 
 BASELINE = PROJECT_ROOT / "results" / "baseline"
 
@@ -78,8 +78,9 @@ def read_baseline(path: Path) -> dict:
 def run_experiment(name: str, overrides: list[str], work: Path, reuse: bool) -> dict:
     run_dir = work / name
     if not (reuse and (run_dir / METRICS_FILE).exists()):
-        result = subprocess.run([sys.executable, "-m", "pipeline", f"hydra.run.dir={run_dir}",
-                                 *overrides], cwd=PROJECT_ROOT, capture_output=True, text=True)
+        result = subprocess.run([sys.executable, "-m", "pipeline",
+                                 dir_override("hydra.run.dir", run_dir), *overrides],
+                                cwd=PROJECT_ROOT, capture_output=True, text=True)
         if result.returncode != 0:
             last = (result.stderr.strip().splitlines() or ["no message"])[-1]
             raise PipelineError(f"reference experiment {name} failed: {last}")

@@ -203,3 +203,27 @@ def test_a_tolerance_that_is_no_bound_is_refused(tmp_path, tol):
     """A negative, boolean, NaN or unnamed bound would pass or fail everything silently."""
     with pytest.raises(PipelineError, match=r"patterns\['x\*'\] must be 'ignore' or a mapping"):
         tolerances(tmp_path, f"default: {{abs: 0}}\npatterns:\n  'x*': {tol}\n")
+
+
+@pytest.mark.parametrize("path", ["/tmp/a=b", "/tmp/it's", "/tmp/a b,c [d]", "/tmp/ü~#",
+                                  "/tmp/x\\'y", "/tmp/end\\", "/tmp/\"q\""])
+def test_a_run_dir_override_reads_back_as_its_path(path):
+    """Hydra's override grammar refuses such paths unquoted; quoted, each reads back as it is."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    from pipeline.tools import dir_override
+
+    parsed = OverridesParser.create().parse_overrides([dir_override("hydra.run.dir", path)])
+    assert parsed[0].value() == path
+
+
+def test_an_experiment_runs_in_a_work_dir_whose_path_hydra_would_refuse_unquoted(tmp_path,
+                                                                                   capsys):
+    """--work with `=`, a quote and a space in its path: the experiment runs there (compared
+    on a metric it cannot have, so each of its own is new and one is lost)."""
+    baseline, _ = make_baseline(tmp_path, {"a": {"no_such_metric": 1.0}}, {})
+    work = tmp_path / "w=1 it's"
+    code = main(["--baseline", str(baseline), "--work", str(work)])
+    out, err = capsys.readouterr()
+    assert code == 1 and "no_such_metric" in out, err
+    assert json.loads((work / "a" / "metrics.json").read_text())["policy_loss"] >= 0
