@@ -230,20 +230,11 @@ def demonstrations(walks: Sequence[tuple[int, np.ndarray, str | None, str | None
                    speed: float) -> list[Demonstration]:
     """`demonstration` of each walk (start, points, subject, source), the features of all
     their segments in one call (`FeatureModel.segments` by runs: each walk's own bits)."""
-    if not walks:
-        return []
-    a = np.concatenate([points[:-1] for _, points, _, _ in walks])
-    b = np.concatenate([points[1:] for _, points, _, _ in walks])
-    runs = [len(points) - 1 for _, points, _, _ in walks]
-    at = np.cumsum(runs)[:-1]
-    # each walk's own arrays, as one call would make them (no views into all of them)
-    feats = [f.copy() for f in np.split(feature_model.segments(a, b, runs), at)]
-    durations = [d.copy() for d in np.split(np.linalg.norm(b - a, axis=1) / speed, at)]
     # cut_at_goal ends a trajectory that entered the goal disk at its first point there
-    return [Demonstration(start, points, f, d, bool(scene.at_goal(points[-1])[0]), subject,
-                          source)
-            for (start, points, subject, source), f, d in zip(walks, feats, durations,
-                                                               strict=True)]
+    return Demonstration.from_polylines(
+        [start for start, _, _, _ in walks], [points for _, points, _, _ in walks],
+        feature_model, speed, [bool(scene.at_goal(points[-1])[0]) for _, points, _, _ in walks],
+        [subject for _, _, subject, _ in walks], [source for _, _, _, source in walks])
 
 
 class WalkFault(NamedTuple):

@@ -52,8 +52,9 @@ def expert_stats(ctx: RunContext, demos: list[dict], scene: Scene) -> list[Traje
     if cfg.learner_features == list(cfg.reward.features):
         return codec.decode_expert_stats(demos)
     features = build.learner_feature_model(cfg, scene)
-    return [Demonstration.from_points(m["start_index"], m["points"], features, cfg.mdp.speed,
-                                      m["reached"]).stats(cfg.mdp) for m in demos]
+    return [d.stats(cfg.mdp) for d in Demonstration.from_polylines(
+        [m["start_index"] for m in demos], [m["points"] for m in demos], features,
+        cfg.mdp.speed, [m["reached"] for m in demos])]
 
 
 class IterationLog:

@@ -185,9 +185,9 @@ def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
     features = build.learner_feature_model(cfg, scene)
 
     def sums(demos: list[dict]) -> Demonstrations:
-        stats = [Demonstration.from_points(d["start_index"], d["points"], features,
-                                           cfg.mdp.speed, d["reached"]).stats(cfg.mdp)
-                 for d in demos]
+        stats = [d.stats(cfg.mdp) for d in Demonstration.from_polylines(
+            [d["start_index"] for d in demos], [d["points"] for d in demos], features,
+            cfg.mdp.speed, [d["reached"] for d in demos])]
         return (lattice.start_nodes[[d["start_index"] for d in demos]], stats,
                 stop_nodes(lattice, stats, [np.asarray(d["points"], float) for d in demos]))
 

@@ -36,9 +36,9 @@ def seconds(t: float) -> str:
 def demos_for_graph(demo_msgs: list[dict], features: FeatureModel,
                     speed: float) -> list[Demonstration]:
     """demos.mcap's demonstrations with the features of the learner's feature set."""
-    return [Demonstration.from_points(m["start_index"], np.asarray(m["points"], float),
-                                      features, speed, m["reached"], m.get("subject"))
-            for m in demo_msgs]
+    return Demonstration.from_polylines(
+        [m["start_index"] for m in demo_msgs], [m["points"] for m in demo_msgs], features,
+        speed, [m["reached"] for m in demo_msgs], [m.get("subject") for m in demo_msgs])
 
 
 def run(ctx: RunContext) -> None:
