@@ -350,15 +350,22 @@ class AdaptiveGraph(StateGraph):
         # robot can drive from each to its waypoint (a merge needs it), at once: a waypoint
         # at a time took 0.2 ms, a minute for a tracker's 4000 walks. The nodes it adds are
         # looked at as they come.
-        before: list[tuple[np.ndarray, np.ndarray]] = []
+        near_before = np.full((len(points), 2), -1, np.int64)  # the two nearest, -1: none
+        dist_before = np.full((len(points), 2), np.inf)
         merges = np.full(len(points), -1, np.int64)
         drivable = np.zeros(len(points), bool)
 
         def look_up(first: int) -> None:
-            """before, merges and drivable of waypoints first.. as the graph now stands."""
-            before[first:] = self.nearest_many(points[first:], self.min_separation, k=2)
-            merges[first:] = [target(near, first + j) for j, (near, _) in
-                              enumerate(before[first:])]
+            """The nodes before, merges and drivable of waypoints first.. as the graph now
+            stands (`target` of each, at once)."""
+            near_before[first:], dist_before[first:] = self.nearest_many(
+                points[first:], self.min_separation, k=2)
+            near = near_before[first:]
+            usable = (near >= 0) & (near != self.goal_node)
+            if demo.reached and first <= last:  # the last waypoint may merge into the goal
+                usable[last - first] = near[last - first] >= 0
+            merges[first:] = np.where(usable[:, 0], near[:, 0],
+                                      np.where(usable[:, 1], near[:, 1], -1))
             some = np.flatnonzero(merges[first:] >= 0) + first
             drivable[some] = segments_feasible(self.scene, self.positions[merges[some]],
                                                points[some])
@@ -374,12 +381,13 @@ class AdaptiveGraph(StateGraph):
                 # waypoints on a grid of min_separation merged elsewhere)
                 look_up(k)
                 added, built = [], self.index_builds
-            near, dist = before[k]
+            merge = int(merges[k])
             if added:  # as `neighbours(pt, min_separation, k=2)` would find them with these
+                found = near_before[k] >= 0
                 close, gaps = self.among_within(added, pt, self.min_separation)
-                near = np.concatenate([near, close])
-                near = near[np.lexsort((near, np.concatenate([dist, gaps])))[:2]]
-            merge = target(near, k)
+                near = np.concatenate([near_before[k][found], close])
+                near = near[np.lexsort((near, np.concatenate([dist_before[k][found], gaps])))[:2]]
+                merge = target(near, k)
             if merge >= 0 and (drivable[k] if merge == merges[k] else segments_feasible(
                     self.scene, self.positions[merge:merge + 1], pt[None])[0]):
                 nodes.append(merge)
@@ -397,21 +405,38 @@ class AdaptiveGraph(StateGraph):
         # segments along that stretch (the likelihood compares against them), so a densely
         # sampled demonstration, whose waypoints merge several into one node, keeps every
         # segment. The segments after the last change go to the last edge.
-        changes = [k for k in range(len(nodes) - 1) if nodes[k + 1] != nodes[k]]
-        ends = [*changes[:-1], len(nodes) - 2] if changes else []
-        starts = [0, *[k + 1 for k in changes[:-1]]]
-        waypoints = []
-        for first, change, last in zip(starts, changes, ends, strict=True):
-            ways = np.vstack([self.positions[nodes[change]], demo.points[first:last + 2],
-                              self.positions[nodes[change + 1]]])
-            keep = np.concatenate([[True], np.any(np.diff(ways, axis=0) != 0, axis=1)])
-            waypoints.append(ways[keep])
-        self.add_edges([nodes[k] for k in changes], [nodes[k + 1] for k in changes],
+        at = np.asarray(nodes, dtype=np.int64)
+        changes = np.flatnonzero(at[1:] != at[:-1])
+        if not len(changes):
+            return
+        starts = np.r_[0, changes[:-1] + 1]
+        ends = np.r_[changes[:-1], len(nodes) - 2]
+        src, dst = at[changes], at[changes + 1]
+        self.add_edges(src.tolist(), dst.tolist(),
                        [demo.durations[a:b + 1].sum() for a, b in zip(starts, ends, strict=True)],
                        np.array([demo.edge_features[a:b + 1].sum(axis=0)
                                  for a, b in zip(starts, ends, strict=True)]).reshape(
                            len(changes), demo.edge_features.shape[1]),
-                       waypoints, is_demo=True)
+                       self._demo_edge_waypoints(demo.points, src, dst, starts, ends),
+                       is_demo=True)
+
+    def _demo_edge_waypoints(self, points: np.ndarray, src: np.ndarray, dst: np.ndarray,
+                             starts: np.ndarray, ends: np.ndarray) -> list[np.ndarray]:
+        """Each demonstration edge's polyline: from its node `src` along `points` from
+        `starts` to `ends` + 1 and on to its node `dst`, repeated points dropped. All edges'
+        rows in one table (a stack a edge was most of adding a tracker's 4500 walks)."""
+        n, m = len(points), len(src)
+        size = ends - starts + 4  # the two nodes and the points between
+        first = np.cumsum(size) - size
+        table = np.vstack([points, self.positions[src], self.positions[dst]])
+        row = np.repeat(starts - first - 1, size) + np.arange(size.sum())
+        row[first] = n + np.arange(m)
+        row[first + size - 1] = n + m + np.arange(m)
+        ways = table[row]
+        keep = np.ones(len(ways), dtype=bool)
+        keep[1:] = np.any(ways[1:] != ways[:-1], axis=1)
+        keep[first] = True
+        return np.split(ways[keep], np.cumsum(keep)[first[1:] - 1])
 
     def restore(self, nodes: NodeTable, edges: EdgeTable,
                 start_nodes: ArrayLike | None = None) -> None:

@@ -144,10 +144,10 @@ class SpatialIndex:
         order = np.lexsort((idx, dist))[:k]
         return idx[order]
 
-    def nearest_many(self, ps: np.ndarray, k: int,
-                     r: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    def nearest_many(self, ps: np.ndarray, k: int, r: float) -> tuple[np.ndarray, np.ndarray]:
         """`nearest(p, k, r)` of each row p of ps (m, 2 or 3) and their distances, nearest
-        first, in one batched query (the same nodes: a test compares them)."""
+        first, in one batched query (the same nodes: a test compares them): tables (m, k) of
+        indices and distances, a row's columns past those it found -1 and inf."""
         r += TIE
         ps = ps[:, :2]
         m = len(ps)
@@ -159,9 +159,12 @@ class SpatialIndex:
             d_old, i_old = d_old.reshape(m, -1), i_old.reshape(m, -1).astype(np.int64)
             dist, idx = np.hstack([d_old, dist]), np.hstack([i_old, idx])
         order = np.lexsort((idx, dist), axis=-1)[:, :k]  # ties broken by index
+        found = np.full((m, k), -1, dtype=np.int64), np.full((m, k), np.inf)
         dist, idx = np.take_along_axis(dist, order, 1), np.take_along_axis(idx, order, 1)
         within = np.isfinite(dist)
-        return [(i[w], d[w]) for i, d, w in zip(idx, dist, within, strict=True)]
+        found[0][:, :order.shape[1]] = np.where(within, idx, -1)
+        found[1][:, :order.shape[1]] = dist
+        return found
 
     def count_within(self, p: np.ndarray, r: float) -> int:
         r += TIE
@@ -299,9 +302,9 @@ class StateGraph:
         return self._index.nearest(p, k, radius)
 
     def nearest_many(self, ps: np.ndarray, radius: float,
-                     k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+                     k: int) -> tuple[np.ndarray, np.ndarray]:
         """`neighbours(p, radius, k)` of each row p of ps (m, 2 or 3), with their distances,
-        in one batched query."""
+        in one batched query: tables (m, k), -1 and inf past the nodes found."""
         return self._index.nearest_many(np.asarray(ps, float), k, radius)
 
     def among_within(self, nodes: Sequence[int], p: np.ndarray,

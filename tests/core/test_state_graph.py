@@ -46,10 +46,14 @@ def test_batched_queries_equal_the_single_point_queries():
                 assert index.count_within_many(poses, r).tolist() == \
                     [index.count_within(q, r) for q in queries]
                 for k in (1, 2, 5):  # nearest_many: the same nodes, with their distances
-                    found = index.nearest_many(poses, k, r)
-                    for q, (near, dist) in zip(queries, found, strict=True):
+                    nodes, dists = index.nearest_many(poses, k, r)
+                    assert nodes.shape == dists.shape == (len(queries), k)
+                    for q, row, dist in zip(queries, nodes, dists, strict=True):
+                        near = row[row >= 0]
                         assert near.tolist() == index.nearest(q, k, r).tolist()
-                        assert dist.tolist() == np.linalg.norm(points[near] - q, axis=1).tolist()
+                        assert dist[:len(near)].tolist() == \
+                            np.linalg.norm(points[near] - q, axis=1).tolist()
+                        assert (row[len(near):] == -1).all() and np.isinf(dist[len(near):]).all()
 
 
 def test_a_point_exactly_a_radius_away_is_within_it_wherever_the_points_lie():
