@@ -12,6 +12,8 @@ def test_points_on_a_line_merge_into_every_kept_point_within_the_separation():
     assert merged_count(xs, 0.15) == 6  # keeps 0, 0.2, 0.4, ...: 0.1 merges into 0
     assert merged_count(xs, 0.35) == 3  # keeps 0, 0.4, 0.8
     assert merged_count(xs, 2.0) == 1
+    # counted only until above a limit: the same comparisons with it
+    assert [merged_count(xs, 0.15, above) for above in (0, 3, 5, 6, 99)] == [1, 4, 6, 6, 6]
 
 
 def test_merging_is_in_order_and_across_cells():
@@ -28,3 +30,19 @@ def test_the_advised_separation_meets_the_count_and_is_not_much_larger():
     assert merged_count(pts, sep) <= 100
     assert merged_count(pts, sep / 1.06) > 100
     assert separation_for(pts, 5000, 0.05) == 0.05  # already few enough
+
+
+def test_the_count_is_the_greedy_merge_of_every_point_against_every_kept_one():
+    """Against the rule done the slow way (each point against every kept point before it):
+    walks that cross and double back, where the kept point that merged the point before is
+    not the one that merges the next."""
+    rng = np.random.default_rng(4)
+    walks = [np.cumsum(rng.normal(0.0, 0.15, (60, 2)), axis=0) + rng.uniform(0, 2, 2)
+             for _ in range(12)]
+    points = np.concatenate(walks)
+    for separation in (0.05, 0.2, 0.45, 1.0):
+        kept: list[np.ndarray] = []
+        for p in points:
+            if all(np.hypot(*(q - p)) >= separation for q in kept):
+                kept.append(p)
+        assert merged_count(points, separation) == len(kept)
