@@ -134,25 +134,35 @@ def frechet_to_each(p: np.ndarray, qs: Sequence[np.ndarray], spacing: float = 0.
 def discrete_frechet_to_each(p: np.ndarray, qs: Sequence[np.ndarray]) -> np.ndarray:
     """`discrete_frechet(p, q)` for each q of `qs` (each (m_k, 2)), in one table: the
     shorter ones padded at their ends, which no cell of theirs depends on, so each is read
-    at its own corner."""
+    at its own corner. The table is kept by anti-diagonals (`table[k + 2, a + 1]`: cell a
+    along the shorter side on anti-diagonal k = i + j), so that a step reads and writes
+    slices: twice as fast as picking each anti-diagonal's cells out of a square table."""
     p = np.asarray(p, float).reshape(-1, 2)
     lengths = np.array([len(q) for q in qs])
     n, m = len(p), int(lengths.max())
     padded = np.zeros((len(qs), m, 2))
     for k, q in enumerate(qs):
         padded[k, :len(q)] = q
-    d = np.linalg.norm(p[None, :, None] - padded[:, None], axis=3)  # (K, n, m)
-    table = np.full((len(qs), n + 1, m + 1), np.inf)
-    table[:, 0, 0] = -np.inf
-    flat, width = table.reshape(len(qs), -1), m + 1
-    for k in range(n + m - 1):
-        i = np.arange(max(0, k - m + 1), min(n - 1, k) + 1)
-        j = k - i
-        at = (i + 1) * width + (j + 1)
-        before = np.minimum(np.minimum(flat[:, at - width - 1], flat[:, at - width]),
-                            flat[:, at - 1])
-        flat[:, at] = np.maximum(before, d[:, i, j])
-    return table[np.arange(len(qs)), n, lengths]
+    # (K, n, m): np.linalg.norm's arithmetic (x² + y², then the root), without a (K, n, m, 2)
+    # table and its reduction over pairs: 3 of the 5 s to 4500 recorded walks
+    dx = p[None, :, None, 0] - padded[:, None, :, 0]
+    dy = p[None, :, None, 1] - padded[:, None, :, 1]
+    d = np.sqrt(dx * dx + dy * dy)
+    # The recursion is the same with p and q exchanged: a runs along the shorter of them
+    along_p = n <= m
+    short, long = (n, m) if along_p else (m, n)
+    table = np.full((len(qs), short + long + 1, short + 1), np.inf)
+    table[:, 0, 0] = -np.inf  # before (0, 0); unwritten cells (off the table) stay inf
+    for k in range(short + long - 1):
+        lo, hi = max(0, k - long + 1), min(short - 1, k)
+        a = np.arange(lo, hi + 1)
+        here = d[:, a, k - a] if along_p else d[:, k - a, a]
+        # (a - 1, b - 1) two anti-diagonals back; (a - 1, b) and (a, b - 1) one back
+        before = np.minimum(np.minimum(table[:, k, lo:hi + 1], table[:, k + 1, lo:hi + 1]),
+                            table[:, k + 1, lo + 1:hi + 2])
+        table[:, k + 2, lo + 1:hi + 2] = np.maximum(before, here)
+    # the corner (n - 1, m_k - 1): anti-diagonal n + m_k - 2, cell n - 1 or m_k - 1 along
+    return table[np.arange(len(qs)), n + lengths, n if along_p else lengths]
 
 
 def discrete_frechet(p: np.ndarray, q: np.ndarray) -> float:
