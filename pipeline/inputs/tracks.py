@@ -272,7 +272,7 @@ def _predicted(tracks: Sequence[np.ndarray], times: Sequence[np.ndarray]) -> np.
     ts = np.concatenate(times)
     # every pose but each track's first, and the pose before it
     later = np.ones(len(ts), dtype=bool)
-    later[begin] = False
+    later[begin[sizes > 0]] = False  # (a track without poses begins at the next one's)
     prev = np.flatnonzero(later) - 1
     first = np.concatenate([np.searchsorted(t, t[:-1] - MOTION_WINDOW, side="left") + b
                             for t, b in zip(times, begin.tolist(), strict=True)])
@@ -370,9 +370,10 @@ def _steps(times: Sequence[np.ndarray]) -> np.ndarray:
     """The time steps of all tracks, laid end to end (those across two tracks left out)."""
     if not times:
         return np.zeros(0)
-    ends = np.cumsum([len(t) for t in times]) - 1
-    within = np.ones(max(ends[-1], 0), dtype=bool)
-    within[ends[:-1]] = False
+    sizes = np.array([len(t) for t in times], dtype=np.int64)
+    firsts = (np.cumsum(sizes) - sizes)[sizes > 0]  # each track's first time (none of one
+    within = np.ones(max(int(sizes.sum()) - 1, 0), dtype=bool)  # without times)
+    within[firsts[1:] - 1] = False  # the steps into a track from the one before
     return np.diff(np.concatenate(times))[within]
 
 

@@ -769,6 +769,31 @@ def test_rows_of_two_people_under_one_id_keep_the_tracks_own_person(tmp_path, ca
     assert length(demo.points) < 1.01 * np.linalg.norm(GOAL - START)
 
 
+def test_tracks_without_poses_are_passed_over_as_track_by_track(monkeypatch):
+    """The passes over all tracks laid end to end (a block at a time) give a track without
+    poses no steps, and the tracks around it theirs: the same frame interval, rows kept and
+    switches as with that track left out (a first track without poses hid the last track's
+    last step, its row at one time kept twice; a last one indexed past the end)."""
+    import pipeline.inputs.polylines as polylines
+    from pipeline.inputs.tracks import _tracks_frame_interval, drop_shared_times, id_switches
+    ts = np.arange(0.0, 2.0, 0.1)
+    ana = START + (GOAL - START) * (ts / ts[-1])[:, None]
+    twice = np.vstack([ana, ana[-1:] + 0.01]), np.r_[ts, ts[-1] + 0.001]  # last row twice
+    alone, alone_t, _ = drop_shared_times([ana, twice[0]], [ts, twice[1]])
+    for block in (7, polylines.BLOCK_ROWS):
+        monkeypatch.setattr(polylines, "BLOCK_ROWS", block)
+        for at in (0, 1, 2):
+            tracks, times = [ana, twice[0]], [ts, twice[1]]
+            tracks.insert(at, np.zeros((0, 2)))
+            times.insert(at, np.zeros(0))
+            assert _tracks_frame_interval(times) == _tracks_frame_interval([ts, twice[1]])
+            kept, kept_t, _ = drop_shared_times(tracks, times)
+            del kept[at], kept_t[at]
+            for got, want in zip(kept + kept_t, alone + alone_t, strict=True):
+                np.testing.assert_array_equal(got, want)
+            assert id_switches(tracks, times, None) == []
+
+
 def test_x_and_y_swapped_is_suggested_when_only_that_puts_every_pose_in_the_room(tmp_path):
     """A 20 x 14 m room; the tracker's x and y columns exchanged: some poses lie outside
     the room (y up to 19), and with x and y swapped back all but one would (tracking noise
