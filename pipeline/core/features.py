@@ -507,7 +507,7 @@ class FeatureModel:
             elif f.kind == "wall" and self.obstacles is not None:
                 out[:, col] = self._raster_segments(a, b, f.value, self.wall_density)
             elif f.kind == "relation":
-                out[:, col] = self._relation_segments(a, b, f.value)
+                out[:, col] = self._relation_segments(a, b, f.value, runs)
             elif f.kind == "crossing":
                 out[:, col] = self._crossing_segments(a, b)
             else:
@@ -562,12 +562,15 @@ class FeatureModel:
                                                     self.goal)
         return out
 
-    def _relation_segments(self, a: np.ndarray, b: np.ndarray, rho: float) -> np.ndarray:
+    def _relation_segments(self, a: np.ndarray, b: np.ndarray, rho: float,
+                           runs: Sequence[int] | None = None) -> np.ndarray:
         """∫ Σ_links max(0, ρ − d(p, link)) · [p projects inside the link] ds (n,) along
         a[i] → b[i], exact: along a straight segment the projection onto a link moves
         linearly, so it lies inside the link on one interval of the segment, where the
         distance to the link's line is |y0 + s·dy| and the hinge has the antiderivative
-        H(y) = ρ y_c − y_c |y_c| / 2 (y_c = y clipped to ±ρ)."""
+        H(y) = ρ y_c − y_c |y_c| / 2 (y_c = y clipped to ±ρ). `runs` as `segments`: the
+        link coordinates of each polyline's segments are the products of its own chunks
+        (`_link_batches`), whose bits BLAS's kernels give by the number of rows."""
         n, n_links = len(a), len(self.link_a)
         out = np.zeros(n)
         if n == 0 or n_links == 0:
@@ -575,12 +578,12 @@ class FeatureModel:
         _, span, along, normal, along0, normal0 = self._link_frames
         seg = b - a
         length = np.linalg.norm(seg, axis=1)
-        chunk = max(1, _CHUNK_POINTS // n_links)
-        for lo in range(0, n, chunk):
-            sl = slice(lo, lo + chunk)
+        for sl, pieces in _link_batches(n, max(1, _CHUNK_POINTS // n_links), runs):
             # (m, L) link coordinates of the segments: tau along the link, y across it
-            tau0, dtau = a[sl] @ along.T - along0, seg[sl] @ along.T
-            y0, dy = a[sl] @ normal.T - normal0, seg[sl] @ normal.T
+            tau0 = _products(a, along.T, sl, pieces) - along0
+            dtau = _products(seg, along.T, sl, pieces)
+            y0 = _products(a, normal.T, sl, pieces) - normal0
+            dy = _products(seg, normal.T, sl, pieces)
             tau1, y1 = tau0 + dtau, y0 + dy
             # a segment along the perpendicular through a link's end (tau = 0 all along, a
             # lattice's tie) counts as inside wherever the room lies: ends within TIE of the
@@ -717,6 +720,39 @@ def _chunks(n_sub: np.ndarray, runs: Sequence[int] | None) -> list[slice]:
             cuts += ([begin] if begin > cuts[-1] else []) + inner
     cuts.append(total)
     return [slice(lo, hi) for lo, hi in itertools.pairwise(cuts) if hi > lo]
+
+
+def _link_batches(n: int, chunk: int, runs: Sequence[int] | None
+                  ) -> list[tuple[slice, list[slice] | None]]:
+    """The batches of at most `chunk` of n segments whose link coordinates
+    `_relation_segments` takes at once, each with its polylines' chunks (`_products`; None:
+    the batch is one). Without `runs` every `chunk` segments; with them (segments of
+    polylines laid end to end) each polyline's own chunks (of `chunk` segments from its
+    first, as a call of its own makes them), as many whole ones as fit in a batch. A matrix
+    product's bits depend on its number of rows (OpenBLAS's kernels: a row's products can
+    differ in the last bit with the rows around it), so each chunk is a product of its own."""
+    if runs is None:
+        return [(slice(lo, lo + chunk), None) for lo in range(0, n, chunk)]
+    pieces = [slice(begin + lo, begin + min(lo + chunk, count))
+              for begin, count in zip((np.cumsum(runs) - runs).tolist(), list(runs),
+                                      strict=True)
+              for lo in range(0, count, chunk)]
+    batches: list[list[slice]] = []
+    for piece in pieces:
+        if batches and piece.stop - batches[-1][0].start <= chunk:
+            batches[-1].append(piece)
+        else:
+            batches.append([piece])
+    return [(slice(group[0].start, group[-1].stop), group if len(group) > 1 else None)
+            for group in batches]
+
+
+def _products(x: np.ndarray, axes: np.ndarray, sl: slice,
+              pieces: list[slice] | None) -> np.ndarray:
+    """x[sl] @ axes; with `pieces` (of `_link_batches`) a product of each."""
+    if pieces is None:
+        return x[sl] @ axes
+    return np.concatenate([x[piece] @ axes for piece in pieces])
 
 
 def _hinge_antiderivative(y: np.ndarray, rho: float) -> np.ndarray:

@@ -97,6 +97,23 @@ def test_segments_by_runs_give_each_polyline_its_own_bits(metropolis, monkeypatc
     np.testing.assert_array_equal(together, alone)
 
 
+def test_segments_by_runs_give_each_polyline_its_own_relation_bits(metropolis):
+    # `relation` takes each segment's link coordinates by a matrix product, whose bits
+    # depend on its number of rows: polylines laid end to end get the products of their
+    # own (a product of all the segments at once differed in the last bits)
+    fm = FeatureModel.from_scene(metropolis)
+    ends = np.concatenate(metropolis.links)
+    for seed in (0, 6, 9):  # (3, 1 and 2 values of 80 walks' differed with OpenBLAS 0.3.31)
+        rng = np.random.default_rng(seed)
+        polylines = [ends[rng.integers(len(ends))] + np.cumsum(rng.normal(0, 0.3, (n, 2)), 0)
+                     for n in rng.integers(2, 60, 80)]
+        a = np.concatenate([p[:-1] for p in polylines])
+        b = np.concatenate([p[1:] for p in polylines])
+        alone = np.concatenate([fm.segments(p[:-1], p[1:]) for p in polylines])
+        together = fm.segments(a, b, [len(p) - 1 for p in polylines])
+        assert together.tobytes() == alone.tobytes()
+
+
 def test_invalid_parameters():
     with pytest.raises(ValueError, match="resolution"):
         model([(0, 0)], resolution=0.0)
