@@ -812,3 +812,82 @@ def test_a_csv_read_a_block_of_lines_at_a_time_reads_as_a_row_at_a_time(tmp_path
     assert col == rows[0] and ids == rows[3] and subjects == rows[4]
     assert table.tobytes() == rows[1].tobytes() and lines.tolist() == rows[2].tolist()
     assert lines.tolist() == [3, 6, 7, 9]
+
+
+def _read_both_ways(path, monkeypatch, **kwargs):
+    """What read_recording makes of `path` by `_plain_csv_table` (tried on any size) and by
+    the csv module alone (never tried): a Recording's every field, or the refusal."""
+    outcomes = []
+    for least in (0, 1 << 62):
+        monkeypatch.setattr(recordings, "CSV_PLAIN_MIN_BYTES", least)
+        try:
+            r = recordings.read_recording(path, **kwargs)
+        except PipelineError as e:
+            outcomes.append(str(e))
+            continue
+        outcomes.append((r.is_stream, r.subjects, r.ids, [t.tobytes() for t in r.tracks],
+                         [t.shape for t in r.tracks],
+                         None if r.times is None else [t.tobytes() for t in r.times]))
+    return outcomes
+
+
+AWKWARD_NUMBERS = [
+    "1.5", "-2", "+3.25", ".5", "7.", "-.5", "+.5", "1e3", "2.5E-2", "1E+05", "-0", "-0.0",
+    "+0", "0.1", "00001.5", "1.5e0005", "123456789.123456789", "1e-320", "4.9e-324",
+    "2.2250738585072011e-308", "9007199254740993", "12345678901234567890", "1e22", "1e23",
+    "8.98846567431158e307", "+7.0991917945441956068", "+2898031773851424641e+16",
+    "6.1491615343017834e+60", "0.30000000000000004", "+913802.40253332311094E13"]
+
+
+@pytest.mark.parametrize("spaced", [False, True])
+@pytest.mark.parametrize("crlf, bom", [(False, False), (True, True)])
+def test_a_plain_csv_reads_to_the_bit_as_the_csv_module_reads_it(tmp_path, monkeypatch,
+                                                                   spaced, crlf, bom):
+    """pandas' C reader, which `_plain_csv_table` reads plain files with, reads each plain
+    number as float() does; spaces around a number with a plus sign it reads otherwise
+    (" +7.0991917945441956068 " as 7.099191794544195): such a file is read by the csv
+    module. Ids are trimmed alike, blank lines skipped, lines counted alike."""
+    rng = np.random.default_rng(3)
+    numbers = AWKWARD_NUMBERS * 3 + [f"{v:.{rng.integers(0, 20)}g}"
+                                     for v in rng.normal(0, 10, 300)]
+    rows = [f"{' p 1 ' if k % 7 else 'q'},{k * 0.1:.3f},{x},"
+            f"{' ' + y + ' ' if spaced else y},ann"
+            for k, (x, y) in enumerate(zip(numbers, reversed(numbers), strict=True))]
+    text = "trajectory,t,x,y,subject\n" + "\n".join(rows[:50]) + "\n\n" + "\n".join(rows[50:])
+    path = tmp_path / "plain.csv"
+    path.write_bytes((b"\xef\xbb\xbf" if bom else b"")
+                     + text.replace("\n", "\r\n" if crlf else "\n").encode())
+    if not spaced:  # read by pandas, not given up
+        assert isinstance(recordings._plain_csv_table(path, "x"), tuple)
+    plain, by_csv = _read_both_ways(path, monkeypatch)
+    assert plain == by_csv
+    [track, _] = recordings.read_recording(path).tracks
+    assert track[:, 0].tobytes() == np.array([float(x) for x in numbers[::7]]).tobytes()
+
+
+@pytest.mark.parametrize("last, match", [
+    ("a,x,2", r"line 2003: x='x' is not a number"),
+    ("a,1,1e999", r"line 2003: y='1e999' is not finite"),
+    ("a,1,inf", r"line 2003: y='inf' is not finite"),
+    ("a,0_5,1", r"line 2003: x='0_5' is not a number"),
+    ("a,1", r"line 2003: 2 fields, the header has 3"),
+    ("a,1,1,1", r"line 2003: 4 fields, the header has 3"),
+    (" ,1,1", r"line 2003: empty trajectory id"),
+    ("a\tb,1,1", r"line 2003: trajectory id 'a\\tb' holds a control character"),
+    ("a,1.5.1,1", r"line 2003: x='1.5.1' is not a number"),
+    ("a,--1,1", r"line 2003: x='--1' is not a number"),
+    ("a,,1", r"line 2003: x='' is not a number"),
+    ('"a",1,"x"', r"line 2003: y='x' is not a number"),
+    ("é,1,x", r"line 2003: y='x' is not a number"),
+    ("a,1\r5,1", r"line 2003: 2 fields, the header has 3"),
+])
+def test_a_fault_late_in_a_large_csv_is_refused_as_the_csv_module_refuses_it(
+        tmp_path, monkeypatch, last, match):
+    """A fault that `_plain_csv_table` meets after thousands of plain rows gives the
+    refusal reading with the csv module gives: the first line at fault, its field."""
+    path = tmp_path / "late.csv"
+    path.write_bytes(("trajectory,x,y\n" + "a,1.5,2\n" * 1000 + "\n" + "b,2,3.25\n" * 1000
+                      + last + "\nc,1,1\n").encode())
+    plain, by_csv = _read_both_ways(path, monkeypatch)
+    assert plain == by_csv
+    assert re.search(match, plain)
