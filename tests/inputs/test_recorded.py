@@ -891,3 +891,23 @@ def test_a_fault_late_in_a_large_csv_is_refused_as_the_csv_module_refuses_it(
     plain, by_csv = _read_both_ways(path, monkeypatch)
     assert plain == by_csv
     assert re.search(match, plain)
+
+
+def test_tracks_whose_times_never_go_back_keep_them_as_stepped_forward_gives(tmp_path):
+    """`_csv_recording` finds the tracks whose times never go back for all tracks at once
+    and keeps their times as filed: bit for bit what `clock_order` and `stepped_forward`
+    give a track at a time, a time of -0 or 0 included."""
+    times = {"a": ["-0.0", "0", "0", "0.1"], "b": ["0", "-0", "0.1", "0.2"],
+             "c": ["-0.0", "-0.0", "0.5"], "d": ["1.5", "1.5", "2", "2.25"],
+             "e": ["3", "3.1", "3.05", "3.2"], "f": ["-2", "-1", "-0.0", "0"]}
+    rows = [(ident, ts[k], f"{k * 0.1 + 1:.3f}", "2") for k in range(4)
+            for ident, ts in times.items() if k < len(ts)]  # the tracks' rows interleaved
+    path = tmp_path / "times.csv"
+    path.write_text("trajectory,t,x,y\n" + "".join(",".join(r) + "\n" for r in rows))
+    r = recordings.read_recording(path)
+    assert r.ids == list(times) and r.times is not None
+    for ident, got in zip(r.ids, r.times, strict=True):
+        filed = np.array([float(t) for t in times[ident]])
+        order = recordings.clock_order("w", "t", np.zeros((len(filed), 2)), filed, "t", "",
+                                       str, "").order
+        assert got.tobytes() == recordings.stepped_forward(filed[order]).tobytes(), ident
