@@ -405,7 +405,8 @@ def _csv_table(reader: CsvReader, where: str, by_row: bool = False,
     A refusal names the first line at fault and, of its fields, the first in the order
     count, x, y, t, trajectory, subject. Rows are read CSV_CHUNK_ROWS at a time, each field
     a column at a time (`_csv_chunk`; a tracker's file has millions of rows: a row at a time
-    took 11 µs a row, now 4), a block of lines at a time (`_csv_blocks`) unless `by_row`."""
+    took 11 µs a row, now 4), a block of lines at a time (`_csv_blocks`) unless `by_row`.
+    `names`: the header's, when `_plain_csv_table` read them already (its warnings said once)."""
     header = next((row for row in reader if any(c.strip() for c in row)), None)
     if header is None:
         raise PipelineError(f"{where} is empty; expected a header line with columns x,y")
