@@ -442,7 +442,7 @@ class AdaptiveGraph(StateGraph):
                              starts: np.ndarray, ends: np.ndarray) -> list[np.ndarray]:
         """Each demonstration edge's polyline: from its node `src` along `points` from
         `starts` to `ends` + 1 and on to its node `dst`, repeated points dropped. All edges'
-        rows in one table (a stack a edge was most of adding a tracker's 4500 walks)."""
+        rows in one table (a stack per edge was most of adding a tracker's 4500 walks)."""
         n, m = len(points), len(src)
         size = ends - starts + 4  # the two nodes and the points between
         first = np.cumsum(size) - size
