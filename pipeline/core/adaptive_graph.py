@@ -251,6 +251,7 @@ def merged_count(points: np.ndarray | list[list[float]], separation: float,
 def separation_for(points: np.ndarray, count: int, separation: float) -> float:
     """The smallest separation (to 5 %) ≥ `separation` at which `points` merge into at most
     `count` nodes (`merged_count`); bisection, as the count falls (nearly) monotonically."""
+    count = max(count, 1)  # points merge into one node at the least, never into none
     low, high = separation, separation
     xy = np.asarray(points, float).tolist()  # once, not at every count
     while merged_count(xy, high, count) > count:

@@ -261,6 +261,21 @@ def test_every_demonstration_is_a_path_of_the_graph(graph, demos):
         assert all((a, b) in edges for a, b in zip(nodes[:-1], nodes[1:], strict=True))
 
 
+def test_a_demonstration_whose_waypoints_all_merge_into_one_node_adds_no_edge(metropolis):
+    """A demonstration of one waypoint, or of waypoints within min_separation of a start
+    (a recording cut to a few poses), is one node: it adds no edge, and the graph is built
+    (the edges' loop raised a ValueError on it)."""
+    fm = FeatureModel.from_scene(metropolis)
+    start = np.asarray(metropolis.starts[0], float)
+    short = [Demonstration.from_points(0, start[None], fm, speed=1.0, reached=False),
+             Demonstration.from_points(0, start + [[0.0, 0.0], [0.01, 0.0], [0.02, 0.01]], fm,
+                                       speed=1.0, reached=False)]
+    g = AdaptiveGraph(metropolis, fm, LinearController(), PRIOR_MEAN, GraphParams(),
+                      np.random.default_rng(0))
+    g.initialise(short)
+    assert g.node_kind.count(DEMO) == 0 and not any(g.edge_is_demo)
+
+
 def test_a_densely_sampled_demonstration_keeps_all_its_features_on_the_graph(metropolis, demos):
     """Waypoints 0.04 m apart merge several into one node (nodes are ≥ 0.16 m apart): the
     demonstration's edges on the graph still add up to its own features and duration, each

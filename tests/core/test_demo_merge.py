@@ -30,6 +30,8 @@ def test_the_advised_separation_meets_the_count_and_is_not_much_larger():
     assert merged_count(pts, sep) <= 100
     assert merged_count(pts, sep / 1.06) > 100
     assert separation_for(pts, 5000, 0.05) == 0.05  # already few enough
+    # no count below one node can be met: that of one node is advised (it doubled for ever)
+    assert separation_for(pts, 0, 0.05) == separation_for(pts, 1, 0.05)
 
 
 def test_the_count_is_the_greedy_merge_of_every_point_against_every_kept_one():
