@@ -328,12 +328,12 @@ def _read_csv(path: Path, where: str, single_rows: bool = False) -> Recording:
         log.info("reading %s (%.0f MB) ...", where, size / 1e6)
     started = time.perf_counter()
     try:
-        plain = _plain_csv_table(path, where) if size >= CSV_PLAIN_MIN_BYTES else None
+        plain = _plain_csv_table(path, where) if size >= CSV_PLAIN_MIN_BYTES else _PlainRead()
+        header = plain.names  # read already: not twice
         # utf-8-sig: Excel's "CSV UTF-8" starts with a byte-order mark, which is not a column
         with _collector_paused():
-            header = plain if isinstance(plain, list) else None  # read already: not twice
-            if plain is not None and not isinstance(plain, list):
-                col, table, lines, ids, subjects = plain
+            if plain.table is not None:
+                col, table, lines, ids, subjects = plain.table
             else:
                 try:
                     with path.open(newline="", encoding="utf-8-sig") as f:
@@ -545,15 +545,22 @@ CSV_PLAIN_MIN_BYTES = 1_000_000
 PLAIN_CSV_BYTES = bytes(range(0x20, 0x7F)).replace(b'"', b"") + b"\r\n"
 
 
-def _plain_csv_table(path: Path, where: str) -> tuple[
-        dict[str, int], np.ndarray, np.ndarray, Labels | list[str], Labels | list[str]] \
-        | list[str] | None:
+class _PlainRead(NamedTuple):
+    """What `_plain_csv_table` made of a file: the table as `_csv_table` gives it (ids as
+    `Labels`) when the file is plain, else None; and its header's names once read (None
+    before), which `_csv_table` then need not read, nor warn about, again."""
+    table: tuple[dict[str, int], np.ndarray, np.ndarray, Labels | list[str],
+                 Labels | list[str]] | None = None
+    names: list[str] | None = None
+
+
+def _plain_csv_table(path: Path, where: str) -> _PlainRead:
     """A CSV file read as `_csv_table` reads it, to the bit, when it is plain: ASCII text
     without quotes or control characters (line ends LF or CRLF, a byte-order mark first),
     its first line the header, each other line empty or of the header's number of fields,
     every x, y and t field a finite plain decimal number (no spaces around it) and every
-    id a printable one. Ids come as `Labels`. Else the header's names (`_csv_header`) if it
-    was read, or None: `_csv_table` reads the file, and refuses it if it is at fault.
+    id a printable one. Else no table: `_csv_table` reads the file, and refuses it if it is
+    at fault.
 
     Such a file is what the csv module splits at commas and line ends alone, and its
     numbers are what pandas' C reader reads as float() does (correctly rounded, fields
@@ -563,10 +570,10 @@ def _plain_csv_table(path: Path, where: str) -> tuple[
     bom = data.startswith(codecs.BOM_UTF8)
     # all but the bytes of a plain file deleted: the byte-order mark alone is left, if any
     if data.translate(None, PLAIN_CSV_BYTES) != (codecs.BOM_UTF8 if bom else b""):
-        return None
+        return _PlainRead()
     if b"\r" in data:  # CRLF line ends, as LF (a lone CR ends a line too: left to csv)
         if data.count(b"\r") != data.count(b"\r\n"):
-            return None
+            return _PlainRead()
         data = data.replace(b"\r\n", b"\n")
     text = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(text == ord("\n"))
@@ -574,10 +581,10 @@ def _plain_csv_table(path: Path, where: str) -> tuple[
         ends = np.append(ends, len(data))
     starts = np.concatenate(([3 if bom else 0], ends[:-1] + 1))
     if len(ends) < 2 or int((ends - starts).max()) >= csv.field_size_limit():
-        return None  # no rows, or a line the csv module refuses
+        return _PlainRead()  # no rows, or a line the csv module refuses
     header = data[starts[0]:ends[0]].decode("ascii").split(",")
     if not any(h.strip() for h in header):  # blank lines before the header: left to csv
-        return None
+        return _PlainRead()
     names = _csv_header(header, where)
     col = {n: names.index(n) for n in names}
     full = ends[1:] > starts[1:]  # an empty line is no row
@@ -585,7 +592,7 @@ def _plain_csv_table(path: Path, where: str) -> tuple[
     per_line = np.diff(np.searchsorted(commas, ends))
     del commas
     if not (per_line[full] == len(header) - 1).all():
-        return names
+        return _PlainRead(names=names)
     numbers = [name for name in ("x", "y", "t") if name in col]
     # the bytes of the rows' fields that no plain number holds: none, else those of the ids
     # (and of columns not read) alone. Spaces too: pandas reads " +7.0991917945441956068 " (a
@@ -606,33 +613,34 @@ def _plain_csv_table(path: Path, where: str) -> tuple[
                        for i in range(len(header))},
                 engine="c", na_filter=False, quoting=csv.QUOTE_NONE, skip_blank_lines=True)
     except ValueError:  # a number pandas does not read (nor does float())
-        return names
+        return _PlainRead(names=names)
     del text, data
     if warned or len(frame) != int(full.sum()):
-        return names
+        return _PlainRead(names=names)
     if not_plain:
         in_texts = sum(len("".join(frame[i]).encode("ascii").translate(None, DECIMALS))
                        for i in texts)
         if in_texts != not_plain:  # a number's field holds other characters
-            return names
+            return _PlainRead(names=names)
     table = np.zeros((len(frame), 3))
     for name in numbers:
         table[:, ("x", "y", "t").index(name)] = frame[col[name]].to_numpy(dtype=np.float64)
     if not np.isfinite(table).all():
-        return names
+        return _PlainRead(names=names)
     idents: dict[str, Labels] = {}
     for ident in ("trajectory", "subject"):
         if ident in col:
             codes, found = pd.factorize(frame[col[ident]].to_numpy(dtype=object))
             trimmed = [str(i).strip() for i in found]  # printable ASCII: spaces trimmed
             if not all(trimmed):
-                return names
+                return _PlainRead(names=names)
             if trimmed != list(found):  # " a" and "a" are one id
                 codes = pd.factorize(np.array(trimmed, dtype=object))[0][codes]
                 trimmed = list(dict.fromkeys(trimmed))
             idents[ident] = Labels(codes.astype(np.intp, copy=False), trimmed)
     lines = np.flatnonzero(full) + 2  # the header is line 1
-    return (col, table, lines, idents.get("trajectory", []), idents.get("subject", []))
+    return _PlainRead((col, table, lines, idents.get("trajectory", []),
+                      idents.get("subject", [])), names)
 
 
 class ClockOrder(NamedTuple):
