@@ -20,6 +20,7 @@ from pipeline.artefacts import Artefact, read_artefact, topics
 from pipeline.artefacts.topics import ARTEFACT_FILE
 from pipeline.core.adaptive_graph import AdaptiveGraph
 from pipeline.core.controllers import Controller, PosqController, make_controller
+from pipeline.core.experts import Demonstration
 from pipeline.core.features import FEATURE_NAMES, PARAMETER_FIELD, FeatureModel, FeatureParams
 from pipeline.core.graph_mdp import Polylines, SpatialGraph
 from pipeline.core.obstacles import OccupancyGrid
@@ -167,6 +168,15 @@ def learner_feature_model(cfg: Config, scene: Scene,
     reward's constants (ρ_r, ρ_p, σ, ...)."""
     chosen = cfg.learner_features if names is None else names
     return FeatureModel.from_scene(scene, feature_params(cfg, chosen))
+
+
+def demonstrations(demo_msgs: list[dict], features: FeatureModel,
+                   speed: float) -> list[Demonstration]:
+    """demos.mcap's demonstrations (their messages) with the features of `features`, all
+    integrated in one call (`Demonstration.from_polylines`)."""
+    return Demonstration.from_polylines(
+        [m["start_index"] for m in demo_msgs], [m["points"] for m in demo_msgs], features,
+        speed, [m["reached"] for m in demo_msgs], [m.get("subject") for m in demo_msgs])
 
 
 def feature_params(cfg: Config, names: list[str]) -> FeatureParams:

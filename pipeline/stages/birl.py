@@ -24,7 +24,6 @@ from pipeline.app.context import RunContext
 from pipeline.artefacts import codec, topics
 from pipeline.artefacts.store import ArtefactWriter
 from pipeline.core.adaptive_graph import AdaptiveGraph
-from pipeline.core.experts import Demonstration
 from pipeline.core.graph_mdp import SpatialGraph, TrajectoryStats
 from pipeline.core.world import Scene
 from pipeline.irl.base import IRLProblem, IRLResult, Iteration
@@ -52,9 +51,7 @@ def expert_stats(ctx: RunContext, demos: list[dict], scene: Scene) -> list[Traje
     if cfg.learner_features == list(cfg.reward.features):
         return codec.decode_expert_stats(demos)
     features = build.learner_feature_model(cfg, scene)
-    return [d.stats(cfg.mdp) for d in Demonstration.from_polylines(
-        [m["start_index"] for m in demos], [m["points"] for m in demos], features,
-        cfg.mdp.speed, [m["reached"] for m in demos])]
+    return [d.stats(cfg.mdp) for d in build.demonstrations(demos, features, cfg.mdp.speed)]
 
 
 class IterationLog:

@@ -30,7 +30,6 @@ from pipeline.core.evaluation import (
     loss_curve,
     policy_loss,
 )
-from pipeline.core.experts import Demonstration
 from pipeline.core.graph_mdp import SpatialGraph
 from pipeline.core.roadmap import SegmentCost, pulled_taut, segment_cost
 from pipeline.core.social import (
@@ -185,9 +184,7 @@ def heldout_likelihood_metrics(ctx: RunContext, scene: Scene, w: np.ndarray,
     features = build.learner_feature_model(cfg, scene)
 
     def sums(demos: list[dict]) -> Demonstrations:
-        stats = [d.stats(cfg.mdp) for d in Demonstration.from_polylines(
-            [d["start_index"] for d in demos], [d["points"] for d in demos], features,
-            cfg.mdp.speed, [d["reached"] for d in demos])]
+        stats = [d.stats(cfg.mdp) for d in build.demonstrations(demos, features, cfg.mdp.speed)]
         return (lattice.start_nodes[[d["start_index"] for d in demos]], stats,
                 stop_nodes(lattice, stats, [np.asarray(d["points"], float) for d in demos]))
 

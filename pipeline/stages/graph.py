@@ -18,7 +18,6 @@ from pipeline.artefacts import codec, foxglove, topics
 from pipeline.artefacts.store import ArtefactWriter
 from pipeline.core.adaptive_graph import AdaptiveGraph, separation_for
 from pipeline.core.experts import Demonstration
-from pipeline.core.features import FeatureModel
 from pipeline.core.graph_mdp import NO_EDGE
 from pipeline.core.state_graph import DEMO
 from pipeline.progress import PROGRESS_SECONDS, Progress
@@ -33,14 +32,6 @@ def seconds(t: float) -> str:
     return f"{t:.1f}" if t < 10 else f"{t:.0f}"
 
 
-def demos_for_graph(demo_msgs: list[dict], features: FeatureModel,
-                    speed: float) -> list[Demonstration]:
-    """demos.mcap's demonstrations with the features of the learner's feature set."""
-    return Demonstration.from_polylines(
-        [m["start_index"] for m in demo_msgs], [m["points"] for m in demo_msgs], features,
-        speed, [m["reached"] for m in demo_msgs], [m.get("subject") for m in demo_msgs])
-
-
 def run(ctx: RunContext) -> None:
     cfg = ctx.cfg
     scene = codec.decode_scene(ctx.read("scene", required_topics=[topics.SCENE]))
@@ -51,7 +42,7 @@ def run(ctx: RunContext) -> None:
     graph = AdaptiveGraph(scene, features, build.controller(cfg), weights, cfg.graph,
                           ctx.rng("graph"), cfg.mdp)
     t0 = time.perf_counter()
-    training = demos_for_graph(codec.training_demos(demos_art), features, cfg.mdp.speed)
+    training = build.demonstrations(codec.training_demos(demos_art), features, cfg.mdp.speed)
     adding = None
     if len(training) >= MANY_DEMONSTRATIONS:  # their waypoints take a while to connect
         log.info("graph: initialising from the waypoints of %d demonstrations ...",
