@@ -28,6 +28,10 @@ from pipeline.errors import (
 # its own).
 _HANDLERS_BEFORE_IMPORTS = stop_quietly_while_starting()
 
+from pipeline.app.scipy_docs import keep_scipy_docstrings
+
+keep_scipy_docstrings()  # before the imports below import scipy: a sixth of their time
+
 import json
 import logging
 import re
