@@ -762,3 +762,33 @@ def test_demo_waypoints_merge_as_asked_one_at_a_time_across_the_trees_rebuilds(m
     edges, expected = batched.edge_table(), alone.edge_table()
     for name in ("src", "dst", "features", "duration"):
         assert np.array_equal(getattr(edges, name), getattr(expected, name)), name
+
+
+def test_demonstration_edges_polylines_are_each_edges_own_stack():
+    """`_demo_edge_waypoints` (all edges' rows in one table) gives each demonstration edge
+    the polyline built edge by edge: its node `src`, the waypoints from `starts` to `ends`
+    + 1, its node `dst`, repeated points dropped (a waypoint on its node, repeated
+    waypoints, a node on the next one's first waypoint)."""
+    import types
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        m = int(rng.integers(2, 14))
+        points = np.round(rng.uniform(0, 3, (m, 2)) * 2) / 2  # repeats on a 0.5 m grid
+        points[rng.random(m) < 0.3] = points[0]
+        nodes = np.cumsum(rng.random(m) < 0.5)  # waypoint k's node: runs of one node
+        positions = np.round(rng.uniform(0, 3, (nodes[-1] + 1, 2)) * 2) / 2
+        for _ in range(3):  # some nodes on waypoints
+            positions[rng.integers(len(positions))] = points[rng.integers(m)]
+        changes = np.flatnonzero(nodes[1:] != nodes[:-1])
+        if not len(changes):
+            continue
+        starts = np.r_[0, changes[:-1] + 1]
+        ends = np.r_[changes[:-1], m - 2]
+        src, dst = nodes[changes], nodes[changes + 1]
+        got = AdaptiveGraph._demo_edge_waypoints(types.SimpleNamespace(positions=positions),
+                                                 points, src, dst, starts, ends)
+        assert len(got) == len(changes)
+        for ways, a, b, first, last in zip(got, src, dst, starts, ends, strict=True):
+            want = [positions[a], *points[first:last + 2], positions[b]]
+            want = [p for k, p in enumerate(want) if k == 0 or (p != want[k - 1]).any()]
+            np.testing.assert_array_equal(ways, np.array(want))

@@ -48,3 +48,25 @@ def test_the_count_is_the_greedy_merge_of_every_point_against_every_kept_one():
             if all(np.hypot(*(q - p)) >= separation for q in kept):
                 kept.append(p)
         assert merged_count(points, separation) == len(kept)
+
+
+def test_a_point_exactly_the_separation_away_is_not_merged():
+    """Each merges into a kept point *closer* than the separation: one exactly that far is
+    kept, whether it follows the point it is measured from or another (the first check is
+    against the kept point that merged the point before)."""
+    assert merged_count(np.array([[0.0, 0.0], [0.5, 0.0]]), 0.5) == 2
+    assert merged_count(np.array([[0.0, 0.0], [0.25, 0.0], [0.5, 0.0]]), 0.5) == 2
+    assert merged_count(np.array([[0.0, 0.0], [0.25, 0.0], [0.5, 0.0], [0.75, 0.0]]), 0.5) == 2
+
+
+def test_the_advised_separation_of_points_on_a_line_by_hand():
+    """Points every 1/8 m along a line, 17 of them: at any separation in (1/8, 1/4] every
+    other one is kept (9), in (1/4, 3/8] every third (6). For at most 9 nodes the advice is
+    just above 1/8 (within the bisection's 5 %), for at most 6 just above 1/4: at most the
+    count, not fewer."""
+    xs = np.column_stack([np.arange(17) / 8, np.zeros(17)])
+    assert [merged_count(xs, s) for s in (0.125, 0.13, 0.25, 0.26, 0.375)] == [17, 9, 9, 6, 6]
+    for count, edge in ((9, 0.125), (6, 0.25)):
+        advised = separation_for(xs, count, 0.05)
+        assert edge < advised <= 1.05 * edge * 1.05
+        assert merged_count(xs, advised) == count

@@ -94,3 +94,32 @@ def test_several_boltzmann_demos_per_start():
     direct = int(np.flatnonzero(mdp.dst[mdp.indptr[0]:mdp.indptr[1]] == 3)[0])
     p_direct = expit(q[direct] - q[1 - direct])
     assert abs(share_a - p_direct) < 4 * math.sqrt(p_direct * (1 - p_direct) / 200)
+
+
+def test_demonstrations_from_polylines_are_each_polylines_own(metropolis, monkeypatch):
+    """`Demonstration.from_polylines` (all polylines' segments in one feature call) gives
+    each demonstration what its own polyline gives alone, to the bit: the features of its
+    segments, their durations at `speed`, its start, reached, subject and source, in arrays
+    of its own (no views into the others'). Chunks of 7 sub-steps: the segments' features
+    depend on where chunks fall."""
+    import pipeline.core.features as features
+    from pipeline.core.experts import Demonstration
+
+    monkeypatch.setattr(features, "_CHUNK_POINTS", 7)
+    fm = FeatureModel.from_scene(metropolis)
+    rng = np.random.default_rng(5)
+    polylines = [np.cumsum(rng.normal(0, 0.4, (n, 2)), axis=0) + [5.0, 5.0]
+                 for n in (2, 9, 3, 30, 4, 17)]
+    demos = Demonstration.from_polylines(list(range(6)), polylines, fm, 1.25,
+                                         [k % 2 == 0 for k in range(6)],
+                                         [f"s{k}" for k in range(6)], [f"w{k}" for k in range(6)])
+    assert len(demos) == len(polylines)
+    for k, (demo, p) in enumerate(zip(demos, polylines, strict=True)):
+        assert (demo.start_index, demo.reached, demo.subject, demo.source) == \
+            (k, k % 2 == 0, f"s{k}", f"w{k}")
+        assert demo.points.tobytes() == p.tobytes()
+        assert demo.edge_features.tobytes() == fm.segments(p[:-1], p[1:]).tobytes()
+        assert demo.durations.tobytes() == \
+            (np.linalg.norm(p[1:] - p[:-1], axis=1) / 1.25).tobytes()
+        assert demo.edge_features.flags.owndata and demo.durations.flags.owndata
+    assert Demonstration.from_polylines([], [], fm, 1.0, []) == []

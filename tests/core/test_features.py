@@ -149,3 +149,33 @@ def test_no_polylines_and_no_edges_give_empty_feature_tables(metropolis):
     assert both[0, FEATURE_NAMES.index("goal_deviation")] == 0.0  # straight at the goal
     assert both[1, FEATURE_NAMES.index("goal_deviation")] == pytest.approx(
         float(np.linalg.norm(positions[1] - positions[0])))  # straight away from it
+
+
+def test_link_batches_are_each_polylines_own_chunks_as_many_whole_as_fit():
+    """`_link_batches` by hand: each polyline cut in chunks of `chunk` segments from its
+    own first; consecutive chunks share a batch while the batch spans at most `chunk`
+    segments (exactly `chunk` fits); a batch of one chunk is a product of its own (None)."""
+    from pipeline.core.features import _link_batches
+    assert _link_batches(10, 4, None) == [(slice(0, 4), None), (slice(4, 8), None),
+                                          (slice(8, 12), None)]
+    assert _link_batches(4, 4, [2, 2]) == [(slice(0, 4), [slice(0, 2), slice(2, 4)])]
+    assert _link_batches(5, 4, [2, 3]) == [(slice(0, 2), None), (slice(2, 5), None)]
+    # 6 = 4 + 2: its second chunk and the next polyline's 1 and 1 fit in one batch
+    assert _link_batches(11, 4, [6, 1, 1, 3]) == [
+        (slice(0, 4), None), (slice(4, 8), [slice(4, 6), slice(6, 7), slice(7, 8)]),
+        (slice(8, 11), None)]
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        runs = rng.integers(0, 9, rng.integers(1, 8)).tolist()
+        chunk = int(rng.integers(1, 6))
+        batches = _link_batches(sum(runs), chunk, runs)
+        pieces = [p for sl, group in batches for p in (group or [sl])]
+        begins = np.cumsum(runs) - runs
+        assert pieces == [slice(b + lo, b + min(lo + chunk, n))
+                          for b, n in zip(begins.tolist(), runs, strict=True)
+                          for lo in range(0, n, chunk)]
+        for k, (sl, _) in enumerate(batches):
+            assert sl.stop - sl.start <= chunk
+            if k + 1 < len(batches):  # the next batch's first chunk would not fit
+                nxt = batches[k + 1][1][0] if batches[k + 1][1] else batches[k + 1][0]
+                assert nxt.stop - sl.start > chunk

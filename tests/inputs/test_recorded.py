@@ -960,3 +960,98 @@ def test_pandas_reads_strings_of_plain_number_characters_as_float_does():
     for k in range(0, len(refused_), 2000):
         assert not [c.name for c in pandas_reads(refused_[k:k + 2000], None)
                     if c.dtype.kind in "fiu" and math.isfinite(float(c.iloc[0]))]
+
+
+def _motion_begin_start_by_start(gaps, start_radius):
+    """`motion_begin` by its rule, a start and a visit at a time: each start's last run of
+    poses within start_radius + VISIT_SLACK that comes within start_radius; its stop the
+    poses within STOP_TOLERANCE of its closest approach and within start_radius; of the
+    visits within VISIT_SLACK of the closest of all, the longest stop (then the closer
+    approach, then the later pose) wins, at its last stop pose."""
+    candidates = []
+    for s in range(gaps.shape[1]):
+        runs, r0 = [], None
+        for r, near in enumerate([*(gaps[:, s] <= start_radius + recorded.VISIT_SLACK), False]):
+            if near and r0 is None:
+                r0 = r
+            elif not near and r0 is not None:
+                runs.append((r0, r))
+                r0 = None
+        runs = [(a, b) for a, b in runs if min(gaps[a:b, s]) <= start_radius]
+        if runs:
+            a, b = runs[-1]
+            closest = min(gaps[a:b, s])
+            stop = [r for r in range(a, b)
+                    if gaps[r, s] <= min(closest + STOP_TOLERANCE, start_radius)]
+            candidates.append((len(stop), -closest, stop[-1]))
+    best = max(c[1] for c in candidates)
+    return max(c for c in candidates if c[1] >= best - recorded.VISIT_SLACK)[2]
+
+
+def test_motion_begin_is_its_rule_done_start_by_start():
+    """All starts' last visits found at once give the pose the rule finds a start and a
+    visit at a time: random stretches of distances on a grid of 5 cm (at the radius, the
+    slack and the stop's tolerance exactly), a visit running to the stretch's last pose by
+    hand (its closest approach there: the walk sets off from it)."""
+    assert motion_begin(np.array([[0.9], [0.5]]), 1.0) == 1
+    assert motion_begin(np.array([[0.9, 3.0], [1.3, 3.0], [0.95, 2.0], [0.6, 1.0]]), 1.0) == 3
+    rng = np.random.default_rng(4)
+    for _ in range(400):
+        n, starts = int(rng.integers(1, 25)), int(rng.integers(1, 4))
+        gaps = np.round(np.abs(np.cumsum(rng.normal(0, 0.3, (n, starts)), axis=0)
+                               + rng.uniform(0, 1.5, starts)) / 0.05) * 0.05
+        gaps[0, rng.integers(starts)] = min(gaps[0].min(), 1.0)  # the first near a start
+        assert motion_begin(gaps, 1.0) == _motion_begin_start_by_start(gaps, 1.0), gaps
+
+
+def test_tracks_without_walks_are_told_by_their_own_poses(caplog):
+    """Of tracks without a walk, the warnings give each one's own closest approaches: to
+    the goal after it first came near a start (here at its last pose, 0.3 m off), and to a
+    start before it came to the goal from afar (its first pose, sqrt(34) m off, not the
+    start it walks to after)."""
+    starts, goal = np.array([[0.0, 0.0]]), np.array([10.0, 0.0])
+    walk = np.linspace([0.0, 0.0], goal, 21)
+    near_miss = np.linspace([0.0, 0.5], [9.7, 0.0], 11)
+    from_afar = np.vstack([np.linspace([5.0, 3.0], goal, 6),
+                           np.linspace(goal, [0.0, 0.8], 11)[1:], [[0.0, 0.8]] * 3])
+    with caplog.at_level(logging.WARNING):
+        walks, _, labels, _ = recorded.select_track_walks(
+            [walk, near_miss, from_afar], None, starts, goal, 1.0, 0.2, "w")
+    assert len(walks) == 1 and labels == ["0"]
+    assert re.search(r"set off from a start and pass 0\.30 m from the goal, never into its "
+                     r"disk of 0\.2 m .*\(1; walks read: 1; .*\): 1$", caplog.text, re.M)
+    assert re.search(r"reach the goal but come no nearer a start than 5\.83 m "
+                     r"\(expert\.start_radius=1\), so hold no walk \(1\): 2;", caplog.text)
+
+
+def test_a_plain_csv_table_is_the_csv_modules_lines_and_ids_too(tmp_path):
+    """`_plain_csv_table` gives the table `_csv_table` gives: the same file lines of the
+    rows (blank lines counted, the header line 1) and the same ids, " a" and "a" one id."""
+    import csv
+    path = tmp_path / "plain.csv"
+    path.write_text("trajectory,x,y,subject\n a,1,2,ann\n\nb,2,3, ann\na,3,4,bo\n\n\nb ,4,5,bo\n")
+    plain = recordings._plain_csv_table(path, "w").table
+    assert plain is not None
+    with path.open(newline="") as f:
+        col, table, lines, ids, subjects = recordings._csv_table(csv.reader(f), "w")
+    assert plain[0] == col and plain[1].tobytes() == table.tobytes()
+    assert lines.tolist() == [2, 4, 5, 8] and plain[2].tolist() == lines.tolist()
+    for got, want in ((plain[3], ids), (plain[4], subjects)):
+        assert got.names == recordings._labels(want).names
+        assert got.codes.tolist() == recordings._labels(want).codes.tolist()
+    assert plain[3].names == ["a", "b"] and plain[3].codes.tolist() == [0, 1, 0, 1]
+
+
+def test_a_header_the_plain_reader_read_is_warned_about_once(tmp_path, monkeypatch, caplog):
+    """A file `_plain_csv_table` gives up on after its header (a space in a number's field)
+    is read by the csv module without reading the header again: its unread column is
+    warned about once."""
+    monkeypatch.setattr(recordings, "CSV_PLAIN_MIN_BYTES", 0)
+    path = tmp_path / "spaced.csv"
+    path.write_text("x,y,theta\n 1,2,0\n2,3,0\n")
+    assert recordings._plain_csv_table(path, "w") == recordings._PlainRead(names=["x", "y",
+                                                                                  "theta"])
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        recordings.read_recording(path)
+    assert caplog.text.count("column 'theta' not read") == 1

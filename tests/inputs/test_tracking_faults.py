@@ -841,3 +841,180 @@ def test_noisy_tracks_side_by_side_are_not_taken_for_id_switches():
     tracks = [np.array([0.0, 3.0 * pair + side]) + np.outer(ts, [1.2, 0.0])
               + rng.normal(0.0, 0.15, (len(ts), 2)) for pair in range(20) for side in (0.0, 0.3)]
     assert id_switches(tracks, [ts] * len(tracks), None) == []
+
+
+def test_track_blocks_close_each_block_at_the_track_that_brings_it_to_block_rows(monkeypatch):
+    """`track_blocks`: consecutive runs covering every track once, in order; a block closes
+    at the first track that brings its poses to BLOCK_ROWS or more (exactly BLOCK_ROWS
+    closes it too), the next starts afresh, and the rest make a last, smaller block."""
+    import pipeline.inputs.polylines as polylines
+    monkeypatch.setattr(polylines, "BLOCK_ROWS", 10)
+    assert polylines.track_blocks([]) == []
+    # by hand: 4 + 6 is exactly 10; 3 + 0 + 12 is past it; 10 alone; 2 + 5 is left over
+    sizes = [4, 6, 3, 0, 12, 10, 2, 5]
+    tracks = [np.zeros((n, 2)) for n in sizes]
+    assert polylines.track_blocks(tracks) == [slice(0, 2), slice(2, 5), slice(5, 6),
+                                              slice(6, 8)]
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        sizes = rng.integers(0, 14, rng.integers(1, 30)).tolist()
+        blocks = polylines.track_blocks([np.zeros((n, 2)) for n in sizes])
+        assert [b.start for b in blocks] == [0, *[b.stop for b in blocks[:-1]]]
+        assert blocks[-1].stop == len(sizes)
+        for k, b in enumerate(blocks):
+            rows = sizes[b]
+            assert b.stop > b.start and sum(rows[:-1]) < 10
+            assert sum(rows) >= 10 or k == len(blocks) - 1
+
+
+def _motion_one_track(points, times, at_end):
+    """A track's velocity over its last (at_end) or first second, as mending took it a track
+    at a time: from the first pose within the second to the last."""
+    if at_end:
+        a, b = int(np.argmax(times >= times[-1] - 1.0)), len(times) - 1
+    else:
+        a, b = 0, int(np.flatnonzero(times <= times[0] + 1.0)[-1])
+    dt = times[b] - times[a]
+    return (points[b] - points[a]) / dt if dt > 0 else np.zeros(2)
+
+
+def _predicted_one_track(points, times):
+    """`_predicted` of one track, a pose at a time: from the pose before, at the velocity of
+    the second before that (from its first pose within it); where it is without one."""
+    out = points.copy()
+    for i in range(1, len(points)):
+        first = next(j for j in range(i) if times[j] >= times[i - 1] - 1.0)
+        dt = times[i - 1] - times[first]
+        if dt > 0:
+            velocity = (points[i - 1] - points[first]) / dt
+            out[i] = points[i - 1] + velocity * (times[i] - times[i - 1])
+    return out
+
+
+def _random_timed_tracks(rng, count=40):
+    """Tracks of 0 to 12 poses stamped on a grid of 0.25 s (a window of 1 s begins or ends
+    exactly on a stamp), some stamps repeated, wandering."""
+    tracks, times = [], []
+    for _ in range(count):
+        n = int(rng.integers(0, 13))
+        times.append(np.cumsum(rng.choice([0.0, 0.25, 0.5], n)) + 0.25 * rng.integers(0, 40))
+        tracks.append(np.cumsum(rng.normal(0.0, 0.3, (n, 2)), axis=0) + rng.uniform(0, 9, 2))
+    return tracks, times
+
+
+def test_motions_and_predictions_of_tracks_in_blocks_are_each_tracks_own(monkeypatch):
+    """`_motions` and `_predicted` over tracks laid end to end (a block at a time, blocks of
+    7 rows or one) give each track what it gives alone, by the rule done a track and a
+    pose at a time; times 1 s apart exactly, a last time not a number (no motion)."""
+    import pipeline.inputs.polylines as polylines
+    from pipeline.inputs.tracks import MOTION_WINDOW, _motions, _predicted
+    assert MOTION_WINDOW == 1.0  # the references' window
+    rng = np.random.default_rng(8)
+    tracks, times = _random_timed_tracks(rng)
+    with_poses = [k for k, t in enumerate(times) if len(t)]
+    for block in (7, polylines.BLOCK_ROWS):
+        monkeypatch.setattr(polylines, "BLOCK_ROWS", block)
+        for at_end in (True, False):
+            got = _motions([tracks[k] for k in with_poses], [times[k] for k in with_poses],
+                           at_end)
+            want = [_motion_one_track(tracks[k], times[k], at_end) for k in with_poses]
+            np.testing.assert_array_equal(got, np.array(want))
+        # a last time that is not a number: no motion at the end, the others' unchanged
+        nan_times = [t.copy() for t in times]
+        nan_times[with_poses[3]][-1] = np.nan
+        got = _motions([tracks[k] for k in with_poses], [nan_times[k] for k in with_poses],
+                       at_end=True)
+        assert (got[3] == 0).all()
+        want = [_motion_one_track(tracks[k], times[k], True) for k in with_poses]
+        np.testing.assert_array_equal(np.delete(got, 3, axis=0), np.delete(want, 3, axis=0))
+    predicted = _predicted(tracks, times)
+    want = np.concatenate([_predicted_one_track(p, t) for p, t in zip(tracks, times,
+                                                                       strict=True)])
+    np.testing.assert_allclose(predicted, want, rtol=1e-12, atol=1e-12)
+
+
+def test_the_steps_of_tracks_laid_end_to_end_are_each_tracks_own():
+    """`_steps`: every track's time steps in order, none across two tracks (tracks of no or
+    one pose among them)."""
+    from pipeline.inputs.tracks import _steps
+    rng = np.random.default_rng(5)
+    _, times = _random_timed_tracks(rng)
+    times = [np.zeros(0), np.array([3.0]), *times, np.array([7.0]), np.zeros(0)]
+    want = np.concatenate([np.diff(t) for t in times])
+    assert _steps(times).tobytes() == want.tobytes()
+    assert _steps([]).shape == (0,)
+
+
+def test_a_track_is_one_row_a_time_only_where_every_step_is_above_same_time_of_the_largest():
+    """`_one_row_a_time` of many tracks at once is the rule of each alone (fewer than two
+    rows, or every step above SAME_TIME of its largest); at the rule's edge (steps 1, 1, 1
+    and 0.25: 0.25 is not above a quarter of 1) the last two rows are one time, whose
+    rows drop_shared_times makes one (their mean: a person measured twice)."""
+    from pipeline.inputs.tracks import SAME_TIME, _one_row_a_time, drop_shared_times
+    assert SAME_TIME == 0.25
+    rng = np.random.default_rng(6)
+    times = [np.cumsum(rng.choice([0.0, 0.25, 1.0], int(rng.integers(0, 7))))
+             for _ in range(60)]
+    times += [np.array([0.0, 1.0, 2.0, 3.0, 3.25]), np.array([0.0, 1.0, 1.5]), np.array([5.0])]
+    want = [len(t) < 2 or np.diff(t).min() > 0.25 * np.diff(t).max() for t in times]
+    assert _one_row_a_time(times).tolist() == want
+    edge_t = np.array([0.0, 1.0, 2.0, 3.0, 3.25])
+    edge = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [3.0, 0.02]])
+    kept, kept_t, two = drop_shared_times([edge], [edge_t])
+    assert kept_t[0].tolist() == [0.0, 1.0, 2.0, 3.0] and two == {}
+    np.testing.assert_array_equal(kept[0], [[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.01]])
+
+
+def test_noise_of_each_track_in_blocks_is_each_tracks_own(monkeypatch):
+    """`noise_sigmas` (each track's noise, all tracks' differences in one pass, a block at a
+    time) is `noise_sigma` of each track alone, and `noise_sigma` of all of them does not
+    depend on the blocks: noisy walks of several noise levels, planned polylines (straight
+    between corners), tracks too short to measure and an empty one, mixed."""
+    import pipeline.inputs.polylines as polylines
+    from pipeline.inputs.denoise import noise_sigmas
+    rng = np.random.default_rng(12)
+    tracks = []
+    for _ in range(30):
+        kind = rng.integers(4)
+        n = int(rng.integers(20, 60))
+        line = np.linspace([0.0, 0.0], rng.uniform(3, 9, 2), n)
+        if kind == 0:  # tracked with noise
+            tracks.append(line + rng.normal(0.0, rng.uniform(0.005, 0.06), (n, 2)))
+        elif kind == 1:  # a planned polyline: straight legs
+            corner = line[n // 2] + [1.0, -1.0]
+            tracks.append(np.vstack([np.linspace(line[0], corner, n // 2),
+                                     np.linspace(corner, line[-1], n - n // 2 + 1)[1:]]))
+        elif kind == 2:  # too short
+            tracks.append(line[:int(rng.integers(1, 20))] + rng.normal(0.0, 0.05, (1, 2)))
+        else:  # a smooth curve with noise
+            s = np.linspace(0, np.pi, n)
+            tracks.append(np.column_stack([3 * np.cos(s), 3 * np.sin(s)])
+                          + rng.normal(0.0, 0.03, (n, 2)))
+    tracks.insert(7, np.zeros((0, 2)))
+    alone = [noise_sigma([t]) for t in tracks]
+    assert sum(s > 0 for s in alone) >= 10 and sum(s == 0 for s in alone) >= 8
+    pooled = noise_sigma(tracks)
+    for block in (7, 45, 130, polylines.BLOCK_ROWS):
+        monkeypatch.setattr(polylines, "BLOCK_ROWS", block)
+        assert noise_sigmas(tracks) == alone
+        assert noise_sigma(tracks) == pooled
+
+
+def test_an_id_switch_in_a_later_block_names_its_own_tracks(monkeypatch):
+    """id_switches looks for jumps a block of tracks at a time: a switch between tracks 1
+    and 2 (after a person standing still, track 0) is named so with blocks of one track
+    each as with one block."""
+    import pipeline.inputs.polylines as polylines
+    from pipeline.inputs.tracks import id_switches
+    ts = np.arange(0.0, 6.0, 0.08)
+    ana = START + (GOAL - START) * (ts / ts[-1])[:, None]
+    side = np.array([-(GOAL - START)[1], (GOAL - START)[0]]) / np.linalg.norm(GOAL - START)
+    ben = ana + 0.6 * side
+    swap = ts >= 2.0
+    filed_a, filed_b = ana.copy(), ben.copy()
+    filed_a[swap], filed_b[swap] = ben[swap], ana[swap]
+    standing = np.tile([9.0, 1.0], (len(ts), 1))
+    for block in (7, polylines.BLOCK_ROWS):
+        monkeypatch.setattr(polylines, "BLOCK_ROWS", block)
+        assert id_switches([standing, filed_a, filed_b], [ts] * 3, None) == \
+            [(float(ts[swap][0]), 1, 2)]
