@@ -588,6 +588,8 @@ def _plain_csv_table(path: Path, where: str) -> _PlainRead:
     names = _csv_header(header, where)
     col = {n: names.index(n) for n in names}
     full = ends[1:] > starts[1:]  # an empty line is no row
+    if not full.any():  # a header and empty lines: no rows, which csv refuses
+        return _PlainRead(names=names)
     commas = np.flatnonzero(text == ord(","))  # how many each line holds: counted between ends
     per_line = np.diff(np.searchsorted(commas, ends))
     del commas

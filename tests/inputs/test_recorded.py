@@ -1055,3 +1055,16 @@ def test_a_header_the_plain_reader_read_is_warned_about_once(tmp_path, monkeypat
     with caplog.at_level(logging.WARNING):
         recordings.read_recording(path)
     assert caplog.text.count("column 'theta' not read") == 1
+
+
+@pytest.mark.parametrize("text", ["x,y\n\n", "trajectory,x,y\n\n\n", "x,y\r\n\r\n",
+                                  "trajectory,x,y" + "\n" * 1_000_001])
+def test_a_csv_of_a_header_and_empty_lines_has_no_rows_either_way(tmp_path, monkeypatch, text):
+    """A header and empty lines alone (of a megabyte: the plain reader's size) has no rows,
+    read either way: the plain reader made a table of none of them, said to hold 1 row
+    or, with a trajectory column, failed with a ValueError."""
+    path = tmp_path / "empty.csv"
+    path.write_text(text)
+    plain, by_csv = _read_both_ways(path, monkeypatch)
+    assert plain == by_csv
+    assert re.search(r"empty\.csv has no rows$", plain)
