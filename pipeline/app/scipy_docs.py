@@ -3,7 +3,7 @@
 scipy (1.16 and later) appends a table of array-API backend support to the docstring of each
 function it marks with `xp_capabilities`, parsing and re-rendering that docstring with its
 numpydoc copy as the module is imported: 416 docstrings for the modules a run imports, a
-sixth of the run's import time (0.25 of 1.5 s here). A run never reads a docstring, so the
+sixth of the time the libraries a run uses take to import. A run never reads a docstring, so the
 command (`python -m pipeline`, `birlg`) lets scipy keep them as written, without the table;
 every function and scipy's own capability records are unchanged. The Python API
 (`pipeline.api`) does not: a notebook that imports it shows scipy's help as usual.
@@ -44,4 +44,3 @@ def keep_scipy_docstrings() -> bool:
         return False
     _array_api.FunctionDoc = DocstringAsWritten
     return True
-
