@@ -101,3 +101,21 @@ def test_the_posterior_line_gives_the_verdict_of_its_rule(metrics, verdict):
     assert line.endswith(f"({verdict})"), line
     rhat = metrics.get("mcmc_rhat_max")
     assert f"R-hat max {'n/a' if rhat is None else format(rhat, '.3f')}, " in line
+
+
+def test_a_lead_on_the_lattice_that_pulled_taut_is_gone_is_the_lattice_s_doing():
+    """The docstring's lobby: learned paths 0.6 m nearer the held-out walks than the shortest
+    on the lattice (a lead beyond the tie), 1.07 m against 1.07 m pulled taut (no lead left:
+    exactly level counts as gone) are said to be "no better" than the shortest paths; a
+    lead that pulled taut is still one (1.06 m against 1.07 m) is not."""
+    m = {"heldout_count": 9.0, "heldout_frechet_m": 0.9, "heldout_frechet_m_shortest": 1.5,
+         "heldout_frechet_m_taut": 1.07, "heldout_frechet_m_shortest_taut": 1.07,
+         "heldout_min_distance_error_m": 0.20, "heldout_min_distance_error_m_shortest": 0.20,
+         "heldout_min_distance_error_m_taut": 0.20,
+         "heldout_min_distance_error_m_shortest_taut": 0.20}
+    out = summary_text(m, "RUN", ["relation"])
+    assert "held-out demonstrations no better (Fréchet 1.07 m against 1.07 m) than the " \
+        "shortest paths: the difference above is the lattice's doing" in out
+    assert "no worse" not in out and AS_FAR not in out
+    m["heldout_frechet_m_taut"] = 1.06
+    assert "lattice's doing" not in summary_text(m, "RUN", ["relation"])

@@ -675,6 +675,41 @@ def test_a_job_that_ends_while_the_sweep_stops_counts_as_completed():
         launcher._Current.launcher, launcher._Current.jobs = None, {}
 
 
+def test_a_second_ctrl_c_while_the_sweep_stops_kills_the_job_and_restores_the_handler():
+    """While the pool waits for its jobs to record a stop, Ctrl-C is Python's again (a
+    second one raises KeyboardInterrupt there): that second Ctrl-C ends the wait, the job
+    that did not answer is killed at once (not waited for STOP_WAIT_S), and the stop
+    returns, leaving SIGINT as it found it (here ignored, as the first stop leaves it)."""
+    class StuckComposer:
+        def compose(self, overrides):
+            time.sleep(30)  # a compose request is finished whatever SIGINT says
+            return overrides
+
+    launcher._Current.launcher, launcher._Current.jobs = StuckComposer(), {0: ["a"]}
+    with rundir.signals_deferred():
+        pool = launcher._Pool(1)
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    second = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))
+    try:
+        worker = pool.workers[0].process
+        pool.workers[0].send("compose", 0, None)
+        started = time.monotonic()
+        second.start()
+        try:
+            pool._stop(signal.SIGINT, "execute")
+        except KeyboardInterrupt:
+            pytest.fail("the second Ctrl-C left the stop")
+        assert time.monotonic() - started < 10
+        worker.join(5)
+        assert not worker.is_alive()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        second.cancel()
+        signal.signal(signal.SIGINT, before)
+        pool.close()
+        launcher._Current.launcher, launcher._Current.jobs = None, {}
+
+
 def test_a_signal_while_a_reply_comes_in_leaves_the_pipe_whole():
     """Ctrl-C while the sweep's process reads a worker's reply: the reply is read to its end
     before the signal stops the sweep. Cut short, the rest of it stayed in the pipe and the

@@ -88,3 +88,11 @@ def test_distances_to_persons_are_to_the_segments_by_hand():
     assert min_distance_to_person(path, persons[:0]) == float("inf")
     np.testing.assert_allclose(distances_to_persons(path[:1], persons[:2]),
                                [np.hypot(2.0, 1.0), np.hypot(5.5, 1.5)], atol=1e-15)
+
+
+def test_a_person_beyond_a_polylines_last_point_is_as_far_as_that_point():
+    """Past the end of the last segment (no segment follows to cover it) the nearest point
+    of the polyline is its last point: by hand, 2 m beyond it and 3-4-5 beside it."""
+    path = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0]])
+    np.testing.assert_allclose(distances_to_persons(path, [[4.0, 5.0], [7.0, 7.0]]),
+                               [2.0, 5.0], rtol=0, atol=1e-15)

@@ -621,6 +621,25 @@ def test_a_folder_drops_a_recording_whose_every_walk_select_walks_drops(tmp_path
             tmp_path, metropolis, fm, 1.0)
 
 
+def test_a_lone_walk_or_recording_select_walks_empties_is_refused_as_curated(tmp_path,
+                                                                          metropolis):
+    """With one walk, dropped by select_walks, a file is refused with the curated refusal
+    alone (no "and no other walk" of none); a folder of one recording whose every walk is
+    dropped is refused as that recording alone is (no "other recordings" of none)."""
+    fm = FeatureModel.from_scene(metropolis)  # person 1 stands at (2, 5), body radius 0.25
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    path = folder / "ann.csv"
+    path.write_text("trajectory,x,y\n" + "".join(f"w,{x},{y}\n" for x, y in
+                                                  [[2.0, 3.0], [2.0, 5.0], [5.5, 9.0]]))
+    curated = refused(r"ann\.csv: trajectory 0 \(id 'w'\) passes 0\.00 m from person 1",
+                      load_demo_file, path, metropolis, fm, 1.0)
+    assert refused("trajectory 0", load_demo_file, path, metropolis, fm, 1.0,
+                   select_walks=True) == curated
+    assert refused("trajectory 0", load_demo_file, folder, metropolis, fm, 1.0,
+                   select_walks=True) == curated
+
+
 def test_a_trajectory_starting_inside_a_person_is_refused(tmp_path, metropolis):
     fm = FeatureModel.from_scene(metropolis)  # person 2 stands at (5, 3.5), start 6 is (4, 3)
     path = demo_file(tmp_path, [[4.85, 3.45], [4.0, 5.5], [5.5, 9.0]])

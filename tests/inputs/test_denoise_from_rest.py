@@ -94,3 +94,30 @@ def test_means_over_decide_as_np_mean_of_each_track():
     limits = exact * np.where(np.arange(len(n)) % 3 == 0, 1.0, rng.uniform(0.9, 1.1, len(n)))
     limits[1::3] = np.nextafter(exact[1::3], 0)
     assert (_means_over(square, begin, n, limits) == (exact > limits)).all()
+
+
+def test_smooth_to_noise_bisects_the_log_penalty_30_times_over_minus_4_to_12():
+    """`smooth_to_noise` is the Whittaker smoother (`whittaker`, checked against a dense
+    solve above) at the penalty a plain bisection finds: 30 halvings of 10^-4..10^12, a
+    departure (np.mean of the squares, about the first point) over (DISCREPANCY sigma)^2
+    lowering the upper bound, the lower bound's smoothing given; a polyline of 4 points is
+    smoothed too. Written here a track and a step at a time: the same bits."""
+    from pipeline.inputs.denoise import DISCREPANCY
+
+    rng = np.random.default_rng(11)
+    for n, sigma, offset in ((4, 0.3, 0.0), (7, 0.05, 3.0e5), (60, 0.02, -1.0e3)):
+        points = np.cumsum(rng.normal(0.0, 0.05, (n, 2)), axis=0) + offset
+        points += rng.normal(0.0, sigma, points.shape)
+        q = points - points[0]
+        low, high = -4.0, 12.0
+        for _ in range(30):
+            mid = (low + high) / 2
+            if np.mean((whittaker(q, 10.0 ** mid) - q) ** 2) > (DISCREPANCY * sigma) ** 2:
+                high = mid
+            else:
+                low = mid
+        expected = whittaker(q, 10.0 ** low) + points[0]
+        assert not np.array_equal(expected, points)  # smoothed: the test tells
+        assert smooth_to_noise(points, sigma).tobytes() == expected.tobytes()
+        [together] = smooth_all_to_noise([points], [sigma])
+        assert together.tobytes() == expected.tobytes()

@@ -7,6 +7,7 @@ import logging
 import math
 import re
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -1068,3 +1069,54 @@ def test_a_csv_of_a_header_and_empty_lines_has_no_rows_either_way(tmp_path, monk
     plain, by_csv = _read_both_ways(path, monkeypatch)
     assert plain == by_csv
     assert re.search(r"empty\.csv has no rows$", plain)
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_reading_a_csv_leaves_the_garbage_collector_as_it_found_it(tmp_path, enabled):
+    """The CSV is read with Python's cyclic garbage collector paused; after the reading, and
+    after a refusal, it is on again if it was on before, and off if it was off."""
+    import gc
+
+    good, bad = tmp_path / "good.csv", tmp_path / "bad.csv"
+    good.write_text("x,y\n0,0\n1,1\n")
+    bad.write_text("x,y\n0,0\n1,z\n")
+    was = gc.isenabled()
+    try:
+        (gc.enable if enabled else gc.disable)()
+        read_tracks(good)
+        assert gc.isenabled() == enabled
+        refused(r"line 3: y='z' is not a number", read_tracks, bad)
+        assert gc.isenabled() == enabled
+    finally:
+        (gc.enable if was else gc.disable)()
+
+
+def test_progress_says_how_far_at_most_every_progress_seconds(monkeypatch, caplog):
+    """Progress on a clock that reads 0 when the work starts: called at 4, 9.99, 10, 15,
+    19.99, 20 and 31 s, it says how far the work is at 10 s (PROGRESS_SECONDS since it
+    began), 20 s (since it last said) and 31 s; each line counts the seconds from the
+    start."""
+    clock = iter([0.0, 4.0, 9.99, 10.0, 15.0, 19.99, 20.0, 31.0])
+    # the module's clock alone (not the time module's, which others read)
+    monkeypatch.setattr(progress, "time", SimpleNamespace(perf_counter=lambda: next(clock)))
+    monkeypatch.setattr(progress, "PROGRESS_SECONDS", 10.0)
+    said = progress.Progress("reading", 70, logging.getLogger("test_progress"))
+    with caplog.at_level(logging.INFO, logger="test_progress"):
+        for done in range(1, 8):
+            said(done)
+    assert caplog.messages == ["  reading: 3 of 70, 10 s", "  reading: 6 of 70, 20 s",
+                               "  reading: 7 of 70, 31 s"]
+
+
+def test_a_file_of_large_file_bytes_or_more_is_said_to_be_read(tmp_path, monkeypatch, caplog):
+    """The reading of a CSV is said from LARGE_FILE_BYTES on: at its size, not a byte below."""
+    path = tmp_path / "tracks.csv"
+    path.write_text("x,y\n0,0\n1,1\n")
+    size = path.stat().st_size
+    for least, says in ((size, True), (size + 1, False)):
+        monkeypatch.setattr(recordings, "LARGE_FILE_BYTES", least)
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger=recordings.__name__):
+            read_tracks(path)
+        assert any(m.startswith("reading ") for m in caplog.messages) == says
+        assert ("  2 rows read in 0 s" in caplog.messages) == says
