@@ -355,15 +355,16 @@ class AdaptiveGraph(StateGraph):
         nodes: list[int] = []
         points, last = demo.points, len(demo.points) - 1
 
-        def target(near: np.ndarray, k: int) -> int:
-            """The node waypoint k would merge into (-1: none): the nearer of the two nearest
-            within min_separation, where the goal node is terminal: only a demonstration's
-            end at the goal merges into it (one that passes within min_separation but
-            outside goal_tolerance and goes on, or ends there without reaching it, would
-            leave the goal by no edge)."""
-            if not (k == last and demo.reached):
-                near = near[near != self.goal_node]
-            return int(near[0]) if len(near) else -1
+        def targets(near: np.ndarray, ks: np.ndarray) -> np.ndarray:
+            """The node each waypoint of `ks` would merge into (-1: none), of its two nearest
+            nodes within min_separation `near` (len(ks), 2; nearest first, -1: none): the
+            nearer, where the goal node is terminal: only a demonstration's end at the goal
+            merges into it (one that passes within min_separation but outside
+            goal_tolerance and goes on, or ends there without reaching it, would leave the
+            goal by no edge)."""
+            at_goal_end = (ks == last) & demo.reached
+            usable = (near >= 0) & ((near != self.goal_node) | at_goal_end[:, None])
+            return np.where(usable[:, 0], near[:, 0], np.where(usable[:, 1], near[:, 1], -1))
 
         # The nodes there before it that its waypoints would merge into, and whether the
         # robot can drive from each to its waypoint (a merge needs it), at once: a waypoint
@@ -376,15 +377,10 @@ class AdaptiveGraph(StateGraph):
 
         def look_up(first: int) -> None:
             """The nodes before, merges and drivable of waypoints first.. as the graph now
-            stands (`target` of each, at once)."""
+            stands (`targets` of them all at once)."""
             near_before[first:], dist_before[first:] = self.nearest_many(
                 points[first:], self.min_separation, k=2)
-            near = near_before[first:]
-            usable = (near >= 0) & (near != self.goal_node)
-            if demo.reached and first <= last:  # the last waypoint may merge into the goal
-                usable[last - first] = near[last - first] >= 0
-            merges[first:] = np.where(usable[:, 0], near[:, 0],
-                                      np.where(usable[:, 1], near[:, 1], -1))
+            merges[first:] = targets(near_before[first:], np.arange(first, len(points)))
             some = np.flatnonzero(merges[first:] >= 0) + first
             drivable[some] = segments_feasible(self.scene, self.positions[merges[some]],
                                                points[some])
@@ -406,7 +402,8 @@ class AdaptiveGraph(StateGraph):
                 close, gaps = self.among_within(added, pt, self.min_separation)
                 near = np.concatenate([near_before[k][found], close])
                 near = near[np.lexsort((near, np.concatenate([dist_before[k][found], gaps])))[:2]]
-                merge = target(near, k)
+                merge = int(targets(np.pad(near, (0, 2 - len(near)), constant_values=-1)[None],
+                                    np.array([k]))[0])
             if merge >= 0 and (drivable[k] if merge == merges[k] else segments_feasible(
                     self.scene, self.positions[merge:merge + 1], pt[None])[0]):
                 nodes.append(merge)
