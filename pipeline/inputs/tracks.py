@@ -371,8 +371,9 @@ def _steps(times: Sequence[np.ndarray]) -> np.ndarray:
     if not times:
         return np.zeros(0)
     sizes = np.array([len(t) for t in times], dtype=np.int64)
-    firsts = (np.cumsum(sizes) - sizes)[sizes > 0]  # each track's first time (none of one
-    within = np.ones(max(int(sizes.sum()) - 1, 0), dtype=bool)  # without times)
+    # each track's first time (a track without times has none)
+    firsts = (np.cumsum(sizes) - sizes)[sizes > 0]
+    within = np.ones(max(int(sizes.sum()) - 1, 0), dtype=bool)
     within[firsts[1:] - 1] = False  # the steps into a track from the one before
     return np.diff(np.concatenate(times))[within]
 
